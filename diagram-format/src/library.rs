@@ -1,0 +1,512 @@
+//! What a component library offers, as plain data: component descriptors, port types, property kinds.
+//!
+//! The runtime builds this from its packs; the validator, the CLI and (later) the studio read it without
+//! running anything.
+
+use std::collections::BTreeMap;
+use std::fmt;
+
+use serde::{Deserialize, Serialize};
+
+/// The type of the samples an output produces.
+#[derive(Debug, Clone, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum DataType {
+    /// One `f64`.
+    F64,
+    /// One `i64`.
+    I64,
+    /// One `bool`.
+    Bool,
+    /// A vector of `f64`.
+    Vector,
+    /// A row-major matrix of `f64`.
+    Matrix,
+    /// UTF-8 text.
+    Text,
+    /// Raw bytes.
+    Bytes,
+    /// An image with its pixel format.
+    Image,
+    /// 3D points with optional intensity.
+    PointCloud,
+    /// An inertial measurement: angular velocity and linear acceleration.
+    Imu,
+    /// A satellite navigation fix.
+    GnssFix,
+    /// A CAN bus frame.
+    CanFrame,
+    /// A position and orientation.
+    Pose,
+    /// A type defined by a pack, registered under this name.
+    Custom(String),
+}
+
+impl DataType {
+    /// Every built-in type, in a stable order.
+    pub const BUILT_IN: [DataType; 13] = [
+        DataType::F64,
+        DataType::I64,
+        DataType::Bool,
+        DataType::Vector,
+        DataType::Matrix,
+        DataType::Text,
+        DataType::Bytes,
+        DataType::Image,
+        DataType::PointCloud,
+        DataType::Imu,
+        DataType::GnssFix,
+        DataType::CanFrame,
+        DataType::Pose,
+    ];
+
+    /// The name used in diagrams and listings (`f64`, `image`, or a custom type's own name).
+    pub fn name(&self) -> &str {
+        match self {
+            DataType::F64 => "f64",
+            DataType::I64 => "i64",
+            DataType::Bool => "bool",
+            DataType::Vector => "vector",
+            DataType::Matrix => "matrix",
+            DataType::Text => "text",
+            DataType::Bytes => "bytes",
+            DataType::Image => "image",
+            DataType::PointCloud => "point_cloud",
+            DataType::Imu => "imu",
+            DataType::GnssFix => "gnss_fix",
+            DataType::CanFrame => "can_frame",
+            DataType::Pose => "pose",
+            DataType::Custom(name) => name,
+        }
+    }
+
+    /// Parses a name as printed by [`DataType::name`]; anything else is a custom type.
+    pub fn from_name(name: &str) -> DataType {
+        DataType::BUILT_IN
+            .iter()
+            .find(|t| t.name() == name)
+            .cloned()
+            .unwrap_or_else(|| DataType::Custom(name.to_owned()))
+    }
+}
+
+impl fmt::Display for DataType {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+/// Which output types an input accepts.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum TypeFilter {
+    /// Any type at all.
+    Any,
+    /// Exactly one of these types.
+    OneOf(Vec<DataType>),
+}
+
+impl TypeFilter {
+    /// A filter accepting exactly one type.
+    pub fn only(data_type: DataType) -> TypeFilter {
+        TypeFilter::OneOf(vec![data_type])
+    }
+
+    /// Whether an output of `data_type` may feed an input with this filter.
+    pub fn accepts(&self, data_type: &DataType) -> bool {
+        match self {
+            TypeFilter::Any => true,
+            TypeFilter::OneOf(types) => types.contains(data_type),
+        }
+    }
+}
+
+impl fmt::Display for TypeFilter {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            TypeFilter::Any => f.write_str("any"),
+            TypeFilter::OneOf(types) => {
+                let names: Vec<&str> = types.iter().map(DataType::name).collect();
+                f.write_str(&names.join(" | "))
+            }
+        }
+    }
+}
+
+/// How an input reads its producer's circular buffer (paper, section 2.2.2).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default, Serialize, Deserialize)]
+pub enum ReaderPolicy {
+    /// Oldest unread first; blocks when nothing is new; overwritten samples are counted.
+    #[default]
+    Fifo,
+    /// Newest unread; skips (and counts) older pending ones; blocks when nothing is new.
+    LastOrNext,
+    /// Ignores everything pending and waits for the next sample.
+    WaitForNext,
+    /// Returns the newest sample at once, possibly the same one again.
+    Sampling,
+    /// Like FIFO, but a full buffer blocks the writer instead of overwriting.
+    NeverSkipping,
+}
+
+impl ReaderPolicy {
+    /// Every policy, in the paper's order.
+    pub const ALL: [ReaderPolicy; 5] = [
+        ReaderPolicy::Fifo,
+        ReaderPolicy::LastOrNext,
+        ReaderPolicy::WaitForNext,
+        ReaderPolicy::Sampling,
+        ReaderPolicy::NeverSkipping,
+    ];
+
+    /// The name used in diagram files.
+    pub fn name(self) -> &'static str {
+        match self {
+            ReaderPolicy::Fifo => "Fifo",
+            ReaderPolicy::LastOrNext => "LastOrNext",
+            ReaderPolicy::WaitForNext => "WaitForNext",
+            ReaderPolicy::Sampling => "Sampling",
+            ReaderPolicy::NeverSkipping => "NeverSkipping",
+        }
+    }
+}
+
+impl fmt::Display for ReaderPolicy {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+/// A property value.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(untagged)]
+pub enum Value {
+    /// A boolean.
+    Bool(bool),
+    /// An integer.
+    I64(i64),
+    /// A floating-point number.
+    F64(f64),
+    /// Text: free text, a choice, or a file path.
+    Text(String),
+}
+
+impl Value {
+    /// The value as a float, converting integers.
+    pub fn as_f64(&self) -> Option<f64> {
+        match self {
+            Value::F64(v) => Some(*v),
+            Value::I64(v) => Some(*v as f64),
+            _ => None,
+        }
+    }
+
+    /// The value as an integer (floats are not converted).
+    pub fn as_i64(&self) -> Option<i64> {
+        match self {
+            Value::I64(v) => Some(*v),
+            _ => None,
+        }
+    }
+
+    /// The value as a boolean.
+    pub fn as_bool(&self) -> Option<bool> {
+        match self {
+            Value::Bool(v) => Some(*v),
+            _ => None,
+        }
+    }
+
+    /// The value as text.
+    pub fn as_text(&self) -> Option<&str> {
+        match self {
+            Value::Text(v) => Some(v),
+            _ => None,
+        }
+    }
+
+    /// A short name of the value's kind, for messages.
+    pub fn kind_name(&self) -> &'static str {
+        match self {
+            Value::Bool(_) => "a boolean",
+            Value::I64(_) => "an integer",
+            Value::F64(_) => "a number",
+            Value::Text(_) => "text",
+        }
+    }
+}
+
+impl fmt::Display for Value {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Value::Bool(v) => write!(f, "{v}"),
+            Value::I64(v) => write!(f, "{v}"),
+            Value::F64(v) => write!(f, "{v:?}"),
+            Value::Text(v) => write!(f, "{v:?}"),
+        }
+    }
+}
+
+/// The kind of a property, with its constraints.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum PropertyKind {
+    /// A float within an inclusive range (either bound optional).
+    F64 {
+        /// The smallest accepted value.
+        min: Option<f64>,
+        /// The largest accepted value.
+        max: Option<f64>,
+    },
+    /// An integer within an inclusive range (either bound optional).
+    I64 {
+        /// The smallest accepted value.
+        min: Option<i64>,
+        /// The largest accepted value.
+        max: Option<i64>,
+    },
+    /// A boolean.
+    Bool,
+    /// Free text.
+    Text,
+    /// One of a fixed list of texts.
+    Choice(Vec<String>),
+    /// A file system path.
+    Path,
+}
+
+/// Why a value does not fit a property.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum ValueError {
+    /// The value has the wrong kind.
+    #[error("expected {expected}, found {found}")]
+    WrongKind {
+        /// What the property takes.
+        expected: String,
+        /// What was given.
+        found: String,
+    },
+    /// The value lies outside the property's range.
+    #[error("{value} is out of range {range}")]
+    OutOfRange {
+        /// The value given.
+        value: String,
+        /// The accepted range, as text.
+        range: String,
+    },
+    /// The text is not one of the choices.
+    #[error("{value:?} is not one of {choices}")]
+    NotAChoice {
+        /// The value given.
+        value: String,
+        /// The accepted choices, as text.
+        choices: String,
+    },
+}
+
+impl PropertyKind {
+    /// A short description for messages and listings (`f64 in [0, 100]`).
+    pub fn describe(&self) -> String {
+        fn range<T: fmt::Display>(min: Option<&T>, max: Option<&T>) -> String {
+            match (min, max) {
+                (None, None) => String::new(),
+                (Some(lo), None) => format!(" >= {lo}"),
+                (None, Some(hi)) => format!(" <= {hi}"),
+                (Some(lo), Some(hi)) => format!(" in [{lo}, {hi}]"),
+            }
+        }
+        match self {
+            PropertyKind::F64 { min, max } => format!("f64{}", range(min.as_ref(), max.as_ref())),
+            PropertyKind::I64 { min, max } => format!("i64{}", range(min.as_ref(), max.as_ref())),
+            PropertyKind::Bool => "bool".to_owned(),
+            PropertyKind::Text => "text".to_owned(),
+            PropertyKind::Choice(choices) => format!("one of {}", choices.join(" | ")),
+            PropertyKind::Path => "path".to_owned(),
+        }
+    }
+
+    /// Checks a value against this kind and returns it normalised (an integer given for a float
+    /// property becomes a float).
+    pub fn check(&self, value: &Value) -> Result<Value, ValueError> {
+        let wrong_kind = || ValueError::WrongKind {
+            expected: self.describe(),
+            found: value.kind_name().to_owned(),
+        };
+        match self {
+            PropertyKind::F64 { min, max } => {
+                let v = value.as_f64().ok_or_else(wrong_kind)?;
+                let below = min.is_some_and(|lo| v < lo);
+                let above = max.is_some_and(|hi| v > hi);
+                if below || above || v.is_nan() {
+                    return Err(ValueError::OutOfRange {
+                        value: v.to_string(),
+                        range: self.describe(),
+                    });
+                }
+                Ok(Value::F64(v))
+            }
+            PropertyKind::I64 { min, max } => {
+                let v = value.as_i64().ok_or_else(wrong_kind)?;
+                if min.is_some_and(|lo| v < lo) || max.is_some_and(|hi| v > hi) {
+                    return Err(ValueError::OutOfRange {
+                        value: v.to_string(),
+                        range: self.describe(),
+                    });
+                }
+                Ok(Value::I64(v))
+            }
+            PropertyKind::Bool => value.as_bool().map(Value::Bool).ok_or_else(wrong_kind),
+            PropertyKind::Text | PropertyKind::Path => {
+                value.as_text().map(|t| Value::Text(t.to_owned())).ok_or_else(wrong_kind)
+            }
+            PropertyKind::Choice(choices) => {
+                let text = value.as_text().ok_or_else(wrong_kind)?;
+                if choices.iter().any(|c| c == text) {
+                    Ok(Value::Text(text.to_owned()))
+                } else {
+                    Err(ValueError::NotAChoice {
+                        value: text.to_owned(),
+                        choices: choices.join(" | "),
+                    })
+                }
+            }
+        }
+    }
+}
+
+/// How the runtime drives a component.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ExecutionMode {
+    /// In a named thread of its own; `core` is called in a loop and blocks on its inputs.
+    Threaded,
+    /// Without a thread of its own: `core` runs in the producer's thread when a sample arrives
+    /// (the paper's "sequential behaviour").
+    Reactive,
+    /// In a thread of its own, `core` called once per period on the runtime clock.
+    Periodic,
+}
+
+/// One input port.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct InputInfo {
+    /// The port's name, unique among the component's inputs.
+    pub name: String,
+    /// The output types it accepts.
+    pub filter: TypeFilter,
+    /// The policy used when a connection names none.
+    pub default_policy: ReaderPolicy,
+    /// One line of documentation.
+    pub doc: String,
+}
+
+/// One output port.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct OutputInfo {
+    /// The port's name, unique among the component's outputs.
+    pub name: String,
+    /// The type of the samples it produces.
+    pub data_type: DataType,
+    /// The circular buffer's size when no connection overrides it.
+    pub default_buffer_size: usize,
+    /// One line of documentation.
+    pub doc: String,
+}
+
+/// One property.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct PropertyInfo {
+    /// The property's name.
+    pub name: String,
+    /// Its kind and constraints.
+    pub kind: PropertyKind,
+    /// The value used when the diagram gives none.
+    pub default: Value,
+    /// Whether it may change while the diagram runs.
+    pub live: bool,
+    /// One line of documentation.
+    pub doc: String,
+}
+
+/// One action: a button a user may press at any time.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ActionInfo {
+    /// The action's name.
+    pub name: String,
+    /// One line of documentation.
+    pub doc: String,
+}
+
+/// Everything known about a component type without running it.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ComponentInfo {
+    /// The type name used in diagrams, `pack.name` by convention (`core.sine`).
+    pub type_name: String,
+    /// The pack that provides it.
+    pub pack: String,
+    /// A category for grouping (`generators`, `math`, `sensors`, ...).
+    pub category: String,
+    /// One line of documentation.
+    pub doc: String,
+    /// How the runtime drives it.
+    pub mode: ExecutionMode,
+    /// Its inputs.
+    pub inputs: Vec<InputInfo>,
+    /// Its outputs.
+    pub outputs: Vec<OutputInfo>,
+    /// Its properties.
+    pub properties: Vec<PropertyInfo>,
+    /// Its actions.
+    pub actions: Vec<ActionInfo>,
+}
+
+impl ComponentInfo {
+    /// The input with this name.
+    pub fn input(&self, name: &str) -> Option<&InputInfo> {
+        self.inputs.iter().find(|p| p.name == name)
+    }
+
+    /// The output with this name.
+    pub fn output(&self, name: &str) -> Option<&OutputInfo> {
+        self.outputs.iter().find(|p| p.name == name)
+    }
+
+    /// The property with this name.
+    pub fn property(&self, name: &str) -> Option<&PropertyInfo> {
+        self.properties.iter().find(|p| p.name == name)
+    }
+
+    /// The action with this name.
+    pub fn action(&self, name: &str) -> Option<&ActionInfo> {
+        self.actions.iter().find(|a| a.name == name)
+    }
+}
+
+/// A pack as the library knows it.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct PackInfo {
+    /// The pack's name (`core`).
+    pub name: String,
+    /// Its semantic version (`0.1.0`).
+    pub version: String,
+    /// Where it came from: `built-in` or a library path.
+    pub origin: String,
+}
+
+/// A whole component library: packs, components and pack-defined types.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct LibraryInfo {
+    /// The packs, by name.
+    pub packs: BTreeMap<String, PackInfo>,
+    /// The components, by type name.
+    pub components: BTreeMap<String, ComponentInfo>,
+    /// Names of pack-defined data types.
+    pub custom_types: Vec<String>,
+}
+
+impl LibraryInfo {
+    /// The component type with this name.
+    pub fn component(&self, type_name: &str) -> Option<&ComponentInfo> {
+        self.components.get(type_name)
+    }
+}

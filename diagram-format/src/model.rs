@@ -1,0 +1,183 @@
+//! The diagram model: what a diagram file holds, with no knowledge of how it is shown or run.
+
+use std::collections::BTreeMap;
+use std::fmt;
+
+use serde::{Deserialize, Serialize};
+
+use crate::library::{ReaderPolicy, Value};
+
+/// The diagram format version this crate reads and writes.
+pub const FORMAT_VERSION: u32 = 1;
+
+/// A whole diagram: the packs it needs, its component instances and their connections.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Diagram {
+    /// The format version the file was written in.
+    pub format: u32,
+    /// The packs the diagram needs, with version requirements.
+    pub packs: Vec<PackRequirement>,
+    /// The component instances.
+    pub components: Vec<ComponentInstance>,
+    /// The connections, each from an output to an input.
+    pub connections: Vec<Connection>,
+}
+
+impl Default for Diagram {
+    fn default() -> Self {
+        Diagram {
+            format: FORMAT_VERSION,
+            packs: Vec::new(),
+            components: Vec::new(),
+            connections: Vec::new(),
+        }
+    }
+}
+
+impl Diagram {
+    /// The component instance with this id.
+    pub fn component(&self, id: &str) -> Option<&ComponentInstance> {
+        self.components.iter().find(|c| c.id == id)
+    }
+
+    /// The component instance with this id, mutably.
+    pub fn component_mut(&mut self, id: &str) -> Option<&mut ComponentInstance> {
+        self.components.iter_mut().find(|c| c.id == id)
+    }
+}
+
+/// A pack a diagram needs: its name and a semantic version requirement (`^0.1`, `>=1.2, <2`).
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct PackRequirement {
+    /// The pack's name.
+    pub name: String,
+    /// A semantic version requirement.
+    pub version: String,
+}
+
+/// A position on the studio's canvas, in canvas units.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
+pub struct Position {
+    /// Horizontal, growing to the right.
+    pub x: f32,
+    /// Vertical, growing downwards.
+    pub y: f32,
+}
+
+/// Scheduling settings for a component's thread.
+#[derive(Debug, Clone, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct ThreadSettings {
+    /// Real-time priority, 1 (lowest) to 99 (highest); `None` keeps the normal scheduler.
+    pub priority: Option<u8>,
+    /// The CPU cores the thread may run on; empty means any.
+    pub affinity: Vec<usize>,
+}
+
+impl ThreadSettings {
+    /// Whether nothing is set.
+    pub fn is_default(&self) -> bool {
+        self.priority.is_none() && self.affinity.is_empty()
+    }
+}
+
+/// Settings of one output of a component instance.
+#[derive(Debug, Clone, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct OutputSettings {
+    /// The circular buffer's size; `None` keeps the component's default.
+    pub buffer_size: Option<usize>,
+    /// Keep one written sample in this many; `None` or 1 keeps all.
+    pub subsampling: Option<u32>,
+}
+
+/// One component instance in a diagram.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ComponentInstance {
+    /// Unique within the diagram: letters, digits, `_` and `-`.
+    pub id: String,
+    /// The component type (`core.sine`).
+    pub type_name: String,
+    /// Property values that differ from, or restate, the defaults.
+    pub properties: BTreeMap<String, Value>,
+    /// Per-output settings, by output name.
+    pub outputs: BTreeMap<String, OutputSettings>,
+    /// Thread priority and CPU affinity.
+    pub thread: ThreadSettings,
+    /// Where the studio draws it.
+    pub position: Position,
+}
+
+impl ComponentInstance {
+    /// A new instance with no property values set.
+    pub fn new(id: impl Into<String>, type_name: impl Into<String>) -> Self {
+        ComponentInstance {
+            id: id.into(),
+            type_name: type_name.into(),
+            properties: BTreeMap::new(),
+            outputs: BTreeMap::new(),
+            thread: ThreadSettings::default(),
+            position: Position::default(),
+        }
+    }
+}
+
+/// A port of a component instance, written `component.port` in files.
+#[derive(Debug, Clone, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
+pub struct PortRef {
+    /// The component instance's id.
+    pub component: String,
+    /// The port's name.
+    pub port: String,
+}
+
+impl PortRef {
+    /// A reference to `component.port`.
+    pub fn new(component: impl Into<String>, port: impl Into<String>) -> Self {
+        PortRef {
+            component: component.into(),
+            port: port.into(),
+        }
+    }
+
+    /// Parses `component.port`; the port is what follows the last dot.
+    pub fn parse(text: &str) -> Option<PortRef> {
+        let (component, port) = text.rsplit_once('.')?;
+        if component.is_empty() || port.is_empty() {
+            return None;
+        }
+        Some(PortRef::new(component, port))
+    }
+}
+
+impl fmt::Display for PortRef {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{}.{}", self.component, self.port)
+    }
+}
+
+/// A connection from an output to an input.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Connection {
+    /// The producing output.
+    pub from: PortRef,
+    /// The consuming input.
+    pub to: PortRef,
+    /// The reader policy; `None` uses the input's default.
+    pub policy: Option<ReaderPolicy>,
+    /// This reader's share of the output's circular buffer; `None` uses the output's size.
+    pub buffer_size: Option<usize>,
+    /// Keep one sample in this many on the input; `None` or 1 keeps all.
+    pub subsampling: Option<u32>,
+}
+
+impl Connection {
+    /// A connection with default policy, buffer size and subsampling.
+    pub fn new(from: PortRef, to: PortRef) -> Self {
+        Connection {
+            from,
+            to,
+            policy: None,
+            buffer_size: None,
+            subsampling: None,
+        }
+    }
+}
