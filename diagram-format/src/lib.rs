@@ -3,12 +3,29 @@
 //!
 //! This crate is pure data: no engine, no GUI. The runtime, the CLI and the studio all read and write
 //! diagrams through it.
+//!
+//! ```
+//! use kairos_diagram::{LibraryInfo, parse};
+//!
+//! let text = "Diagram(format: 1, components: [Component(id: \"a\", type: \"core.nothing\")])";
+//! let parsed = parse(text).expect("valid RON");
+//! assert_eq!(parse(&parsed.diagram.to_ron()).expect("canonical text").diagram, parsed.diagram);
+//!
+//! let problems = parsed.validate(&LibraryInfo::default());
+//! assert_eq!(problems[0].to_string(), "1:58: error: unknown component type 'core.nothing' for 'a'");
+//! ```
 
 #![warn(missing_docs)]
 
+pub mod diagnostic;
 pub mod library;
 pub mod model;
+pub mod read;
+mod ron_syntax;
+pub mod validate;
+pub mod write;
 
+pub use diagnostic::{Diagnostic, DiagnosticCode, Location, Note, Severity, render_all};
 pub use library::{
     ActionInfo, ComponentInfo, DataType, ExecutionMode, InputInfo, LibraryInfo, OutputInfo, PackInfo,
     PropertyInfo, PropertyKind, ReaderPolicy, TypeFilter, Value, ValueError,
@@ -17,3 +34,10 @@ pub use model::{
     ComponentInstance, Connection, Diagram, FORMAT_VERSION, OutputSettings, PackRequirement, PortRef,
     Position, ThreadSettings,
 };
+pub use read::{
+    ComponentLocations, ConnectionLocations, EntryLocations, LoadError, OutputLocations, PackLocations,
+    ParsedDiagram, SourceMap, load, parse,
+};
+pub use ron_syntax::MAX_DEPTH;
+pub use validate::{is_valid_id, resolved_properties, validate};
+pub use write::save;

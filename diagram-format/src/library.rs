@@ -356,9 +356,10 @@ impl PropertyKind {
                 Ok(Value::I64(v))
             }
             PropertyKind::Bool => value.as_bool().map(Value::Bool).ok_or_else(wrong_kind),
-            PropertyKind::Text | PropertyKind::Path => {
-                value.as_text().map(|t| Value::Text(t.to_owned())).ok_or_else(wrong_kind)
-            }
+            PropertyKind::Text | PropertyKind::Path => value
+                .as_text()
+                .map(|t| Value::Text(t.to_owned()))
+                .ok_or_else(wrong_kind),
             PropertyKind::Choice(choices) => {
                 let text = value.as_text().ok_or_else(wrong_kind)?;
                 if choices.iter().any(|c| c == text) {
@@ -405,8 +406,13 @@ pub struct InputInfo {
 pub struct OutputInfo {
     /// The port's name, unique among the component's outputs.
     pub name: String,
-    /// The type of the samples it produces.
+    /// The type of the samples it produces (for an output that follows an input, the type it shows when
+    /// that input is not connected).
     pub data_type: DataType,
+    /// When set, the output carries samples of whatever type feeds this input (a subsampler, a
+    /// pass-through probe): its effective type is resolved through the diagram's connections.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub follows_input: Option<String>,
     /// The circular buffer's size when no connection overrides it.
     pub default_buffer_size: usize,
     /// One line of documentation.

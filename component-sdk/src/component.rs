@@ -1,0 +1,615 @@
+//! The component API: the [`Component`] trait and the [`Context`] a component reads, writes and
+//! configures itself through.
+
+use std::collections::BTreeMap;
+use std::fmt;
+use std::sync::Arc;
+use std::time::Duration;
+
+use kairos_diagram::{DataType, Value};
+
+use crate::buffer::{OutputBuffer, ReadError, Reader, WriteError};
+use crate::payload::Payload;
+use crate::sample::Sample;
+use crate::signal::RunSignal;
+use crate::time::{Clock, Timestamp};
+
+/// Why a component call ended without doing its work.
+///
+/// The first four are flow control, not failures: return them with `?` and the runtime does the right
+/// thing (stop, apply a control request, finish, wait for data). [`ComponentError::Failed`] marks the
+/// component failed; the rest of the diagram keeps running.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum ComponentError {
+    /// The runtime is stopping the component.
+    #[error("stopped")]
+    Stopped,
+    /// A pause, property change or action waits; the runtime calls `core` again afterwards.
+    #[error("interrupted to apply a control request")]
+    Interrupted,
+    /// An input's stream ended (in the offline harness, or a finished replay).
+    #[error("end of stream")]
+    EndOfStream,
+    /// Nothing to read now (a reactive component woken for another input).
+    #[error("no data")]
+    NoData,
+    /// The component cannot go on.
+    #[error("{0}")]
+    Failed(String),
+}
+
+impl ComponentError {
+    /// A failure with this message.
+    pub fn failed(message: impl fmt::Display) -> Self {
+        ComponentError::Failed(message.to_string())
+    }
+
+    /// Whether this is a failure rather than flow control.
+    pub fn is_failure(&self) -> bool {
+        matches!(self, ComponentError::Failed(_))
+    }
+}
+
+impl From<ReadError> for ComponentError {
+    fn from(error: ReadError) -> Self {
+        match error {
+            ReadError::Stopped => ComponentError::Stopped,
+            ReadError::Interrupted => ComponentError::Interrupted,
+            ReadError::EndOfStream => ComponentError::EndOfStream,
+            ReadError::NoData => ComponentError::NoData,
+        }
+    }
+}
+
+impl From<WriteError> for ComponentError {
+    fn from(error: WriteError) -> Self {
+        match error {
+            WriteError::Stopped => ComponentError::Stopped,
+        }
+    }
+}
+
+/// What a component returns.
+pub type ComponentResult = Result<(), ComponentError>;
+
+/// A building block of a diagram.
+///
+/// The runtime calls `birth` once, then `core` repeatedly (threaded: in a loop on the component's own
+/// thread, blocking on reads; reactive: once per arriving sample, in the producer's thread; periodic: once
+/// per period), then `death` once. Property changes and actions arrive between `core` calls, on the same
+/// thread, so a component never needs a lock of its own.
+pub trait Component: Send + 'static {
+    /// Called once before the first `core`: open devices, read properties, set a period.
+    fn birth(&mut self, ctx: &mut Context) -> ComponentResult {
+        let _ = ctx;
+        Ok(())
+    }
+
+    /// One cycle of work: read inputs, process, write outputs.
+    fn core(&mut self, ctx: &mut Context) -> ComponentResult;
+
+    /// Called once after the last `core`, also after a failure: release what `birth` took.
+    fn death(&mut self, ctx: &mut Context) -> ComponentResult {
+        let _ = ctx;
+        Ok(())
+    }
+
+    /// A live property changed; `ctx` already holds the new value. Refuse it by returning an error.
+    fn property_changed(&mut self, name: &str, value: &Value, ctx: &mut Context) -> ComponentResult {
+        let _ = (name, value, ctx);
+        Ok(())
+    }
+
+    /// The user triggered the action `name`.
+    fn action(&mut self, name: &str, ctx: &mut Context) -> ComponentResult {
+        let _ = ctx;
+        Err(ComponentError::failed(format_args!("no action named '{name}'")))
+    }
+}
+
+/// Names a port either by its index in the descriptor or by its name.
+pub trait PortKey: Copy + fmt::Display {
+    /// The index among `names`, if any.
+    fn index_in<'a>(self, names: impl Iterator<Item = &'a str>) -> Option<usize>;
+}
+
+impl PortKey for usize {
+    fn index_in<'a>(self, names: impl Iterator<Item = &'a str>) -> Option<usize> {
+        (self < names.count()).then_some(self)
+    }
+}
+
+impl PortKey for &str {
+    fn index_in<'a>(self, mut names: impl Iterator<Item = &'a str>) -> Option<usize> {
+        names.position(|name| name == self)
+    }
+}
+
+/// An input port as a component sees it.
+#[derive(Debug)]
+pub struct InputPort {
+    name: String,
+    reader: Option<Reader>,
+}
+
+impl InputPort {
+    /// An input, connected when `reader` is given.
+    pub fn new(name: impl Into<String>, reader: Option<Reader>) -> Self {
+        InputPort {
+            name: name.into(),
+            reader,
+        }
+    }
+
+    /// The port's name.
+    pub fn name(&self) -> &str {
+        &self.name
+    }
+
+    /// Whether a connection feeds it.
+    pub fn is_connected(&self) -> bool {
+        self.reader.is_some()
+    }
+
+    /// The reader behind it, if connected.
+    pub fn reader(&self) -> Option<&Reader> {
+        self.reader.as_ref()
+    }
+}
+
+/// An output port as a component sees it.
+#[derive(Debug)]
+pub struct OutputPort {
+    name: String,
+    data_type: Option<DataType>,
+    buffer: OutputBuffer,
+    subsampling: u64,
+    offered: u64,
+    sequence: u64,
+}
+
+impl OutputPort {
+    /// An output writing into `buffer`, keeping one sample in `subsampling`. Writes are checked against
+    /// `data_type`; `None` accepts any type (an output that follows an input).
+    pub fn new(name: impl Into<String>, data_type: Option<DataType>, buffer: OutputBuffer, subsampling: u32) -> Self {
+        OutputPort {
+            name: name.into(),
+            data_type,
+            buffer,
+            subsampling: u64::from(subsampling.max(1)),
+            offered: 0,
+            sequence: 0,
+        }
+    }
+
+    /// The port's name.
+    pub fn name(&self) -> &str {
+        &self.name
+    }
+
+    /// The output's buffer.
+    pub fn buffer(&self) -> &OutputBuffer {
+        &self.buffer
+    }
+}
+
+/// Everything the runtime hands a [`Context`] when it builds one.
+#[derive(Debug)]
+pub struct ContextParts {
+    /// The component instance's id.
+    pub id: String,
+    /// Inputs in descriptor order.
+    pub inputs: Vec<InputPort>,
+    /// Outputs in descriptor order.
+    pub outputs: Vec<OutputPort>,
+    /// Every property's current value (defaults filled in).
+    pub properties: BTreeMap<String, Value>,
+    /// The runtime clock.
+    pub clock: Arc<dyn Clock>,
+    /// The component's signal.
+    pub signal: Arc<RunSignal>,
+}
+
+/// A component's view of the runtime: its ports, properties, clock and period.
+#[derive(Debug)]
+pub struct Context {
+    id: String,
+    inputs: Vec<InputPort>,
+    outputs: Vec<OutputPort>,
+    properties: BTreeMap<String, Value>,
+    clock: Arc<dyn Clock>,
+    signal: Arc<RunSignal>,
+    period: Option<Duration>,
+    samples_read_this_cycle: u32,
+    any_rotation: usize,
+}
+
+impl Context {
+    /// Builds a context (the runtime and the harness do this).
+    pub fn new(parts: ContextParts) -> Self {
+        Context {
+            id: parts.id,
+            inputs: parts.inputs,
+            outputs: parts.outputs,
+            properties: parts.properties,
+            clock: parts.clock,
+            signal: parts.signal,
+            period: None,
+            samples_read_this_cycle: 0,
+            any_rotation: 0,
+        }
+    }
+
+    /// The component instance's id in the diagram.
+    pub fn id(&self) -> &str {
+        &self.id
+    }
+
+    /// The current time on the runtime clock.
+    pub fn now(&self) -> Timestamp {
+        self.clock.now()
+    }
+
+    /// The runtime clock.
+    pub fn clock(&self) -> &Arc<dyn Clock> {
+        &self.clock
+    }
+
+    /// The component's signal (stop, pause, control, wake-ups).
+    pub fn signal(&self) -> &Arc<RunSignal> {
+        &self.signal
+    }
+
+    /// Whether the runtime asked the component to stop; long loops inside `core` should check it.
+    pub fn stop_requested(&self) -> bool {
+        self.signal.stop_requested()
+    }
+
+    // ----- properties -----
+
+    /// A property's current value.
+    pub fn property(&self, name: &str) -> Option<&Value> {
+        self.properties.get(name)
+    }
+
+    /// Every property's current value.
+    pub fn properties(&self) -> &BTreeMap<String, Value> {
+        &self.properties
+    }
+
+    /// Replaces a property's value (the runtime does this before calling `property_changed`).
+    pub fn set_property(&mut self, name: &str, value: Value) -> Option<Value> {
+        self.properties.insert(name.to_owned(), value)
+    }
+
+    fn typed<T>(&self, name: &str, get: impl Fn(&Value) -> Option<T>, kind: &str) -> Result<T, ComponentError> {
+        let value = self
+            .properties
+            .get(name)
+            .ok_or_else(|| ComponentError::failed(format_args!("no property '{name}'")))?;
+        get(value).ok_or_else(|| ComponentError::failed(format_args!("property '{name}' is not {kind}: {value}")))
+    }
+
+    /// A float property (integers are converted).
+    pub fn f64_property(&self, name: &str) -> Result<f64, ComponentError> {
+        self.typed(name, Value::as_f64, "a number")
+    }
+
+    /// An integer property.
+    pub fn i64_property(&self, name: &str) -> Result<i64, ComponentError> {
+        self.typed(name, Value::as_i64, "an integer")
+    }
+
+    /// A boolean property.
+    pub fn bool_property(&self, name: &str) -> Result<bool, ComponentError> {
+        self.typed(name, Value::as_bool, "a boolean")
+    }
+
+    /// A text, choice or path property.
+    pub fn text_property(&self, name: &str) -> Result<String, ComponentError> {
+        self.typed(name, |v| v.as_text().map(str::to_owned), "text")
+    }
+
+    // ----- timing -----
+
+    /// Sets the period of a periodic component (the runtime calls `core` once per period).
+    pub fn set_period(&mut self, period: Duration) {
+        self.period = Some(period.max(Duration::from_micros(1)));
+    }
+
+    /// Sets the period from a frequency in hertz (ignored unless finite and positive).
+    pub fn set_frequency(&mut self, hertz: f64) {
+        if hertz.is_finite() && hertz > 0.0 {
+            self.set_period(Duration::from_secs_f64(1.0 / hertz));
+        }
+    }
+
+    /// The period set by the component, if any.
+    pub fn period(&self) -> Option<Duration> {
+        self.period
+    }
+
+    /// How many samples `core` has read since the cycle began.
+    pub fn samples_read_this_cycle(&self) -> u32 {
+        self.samples_read_this_cycle
+    }
+
+    /// Marks the start of a `core` call (the runtime does this).
+    pub fn begin_cycle(&mut self) {
+        self.samples_read_this_cycle = 0;
+    }
+
+    // ----- inputs -----
+
+    fn input_index(&self, key: impl PortKey) -> Result<usize, ComponentError> {
+        key.index_in(self.inputs.iter().map(InputPort::name))
+            .ok_or_else(|| ComponentError::failed(format_args!("component has no input '{key}'")))
+    }
+
+    /// The input ports.
+    pub fn inputs(&self) -> &[InputPort] {
+        &self.inputs
+    }
+
+    /// Whether the input is connected.
+    pub fn is_connected(&self, input: impl PortKey) -> bool {
+        self.input_index(input).ok().and_then(|i| self.inputs.get(i)).is_some_and(InputPort::is_connected)
+    }
+
+    /// Reads one sample from `input` under its reader policy, sleeping until one is there.
+    ///
+    /// In a reactive component this never blocks: with nothing to read it returns
+    /// [`ComponentError::NoData`]. An unconnected input waits until the component is stopped.
+    pub fn read(&mut self, input: impl PortKey) -> Result<Sample, ComponentError> {
+        let index = self.input_index(input)?;
+        if self.signal.is_reactive() {
+            return self.try_read(index)?.ok_or(ComponentError::NoData);
+        }
+        let interruptible = self.samples_read_this_cycle == 0;
+        let Some(reader) = self.inputs.get_mut(index).and_then(|p| p.reader.as_mut()) else {
+            self.wait_for_attention(interruptible)?;
+            return Err(ComponentError::Stopped);
+        };
+        let sample = reader.read(interruptible)?;
+        self.samples_read_this_cycle += 1;
+        Ok(sample)
+    }
+
+    /// Reads one sample from `input` if one is there under its policy, without blocking.
+    pub fn try_read(&mut self, input: impl PortKey) -> Result<Option<Sample>, ComponentError> {
+        let index = self.input_index(input)?;
+        let sample = self.inputs.get_mut(index).and_then(|p| p.reader.as_mut()).and_then(Reader::try_read);
+        if sample.is_some() {
+            self.samples_read_this_cycle += 1;
+        }
+        Ok(sample)
+    }
+
+    /// Reads from whichever of `inputs` has data first ("any-of"); returns the position in `inputs` and
+    /// the sample. Inputs are polled in turn starting after the last one served, so none starves.
+    pub fn read_any<K: PortKey>(&mut self, inputs: &[K]) -> Result<(usize, Sample), ComponentError> {
+        let indices: Vec<usize> = inputs.iter().map(|k| self.input_index(*k)).collect::<Result<_, _>>()?;
+        let count = indices.len();
+        loop {
+            // Start after the input served last time, so a busy input cannot starve the others.
+            for step in 0..count {
+                let position = (self.any_rotation + step) % count;
+                let Some(index) = indices.get(position) else { continue };
+                if let Some(sample) = self.inputs.get_mut(*index).and_then(|p| p.reader.as_mut()).and_then(Reader::try_read)
+                {
+                    self.samples_read_this_cycle += 1;
+                    self.any_rotation = position + 1;
+                    return Ok((position, sample));
+                }
+            }
+            let all_ended = indices
+                .iter()
+                .all(|i| self.inputs.get(*i).and_then(InputPort::reader).is_none_or(Reader::is_exhausted));
+            if all_ended && indices.iter().any(|i| self.inputs.get(*i).is_some_and(InputPort::is_connected)) {
+                return Err(ComponentError::EndOfStream);
+            }
+            if self.signal.is_reactive() {
+                return Err(ComponentError::NoData);
+            }
+            self.wait_for_attention(self.samples_read_this_cycle == 0)?;
+        }
+    }
+
+    /// Triggered reading: a blocking read of `trigger` (usually FIFO), then the newest sample of each of
+    /// `sampled` (usually Sampling inputs), `None` where one has no data yet.
+    pub fn read_triggered<K: PortKey>(
+        &mut self,
+        trigger: K,
+        sampled: &[K],
+    ) -> Result<(Sample, Vec<Option<Sample>>), ComponentError> {
+        let sample = self.read(trigger)?;
+        let mut others = Vec::with_capacity(sampled.len());
+        for key in sampled {
+            others.push(self.try_read(*key)?);
+        }
+        Ok((sample, others))
+    }
+
+    /// Sleeps until woken; returns an error when the component must leave `core`.
+    fn wait_for_attention(&self, interruptible: bool) -> Result<(), ComponentError> {
+        if self.signal.stop_requested() {
+            return Err(ComponentError::Stopped);
+        }
+        if interruptible && self.signal.wants_attention() {
+            return Err(ComponentError::Interrupted);
+        }
+        self.signal.park();
+        if self.signal.stop_requested() {
+            return Err(ComponentError::Stopped);
+        }
+        Ok(())
+    }
+
+    pub(crate) fn wait_for_data(&self) -> Result<(), ComponentError> {
+        if self.signal.is_reactive() {
+            return Err(ComponentError::NoData);
+        }
+        self.wait_for_attention(self.samples_read_this_cycle == 0)
+    }
+
+    pub(crate) fn reader_mut(&mut self, index: usize) -> Option<&mut Reader> {
+        self.inputs.get_mut(index).and_then(|p| p.reader.as_mut())
+    }
+
+    pub(crate) fn note_read(&mut self) {
+        self.samples_read_this_cycle += 1;
+    }
+
+    pub(crate) fn resolve_input(&self, key: impl PortKey) -> Result<usize, ComponentError> {
+        self.input_index(key)
+    }
+
+    // ----- outputs -----
+
+    fn output_index(&self, key: impl PortKey) -> Result<usize, ComponentError> {
+        key.index_in(self.outputs.iter().map(OutputPort::name))
+            .ok_or_else(|| ComponentError::failed(format_args!("component has no output '{key}'")))
+    }
+
+    /// The output ports.
+    pub fn outputs(&self) -> &[OutputPort] {
+        &self.outputs
+    }
+
+    /// Writes a new sample stamped now: timestamp and time of issue come from one clock read.
+    pub fn write(&mut self, output: impl PortKey, payload: Payload) -> Result<(), ComponentError> {
+        let now = self.clock.now();
+        self.emit(output, payload, now, now)
+    }
+
+    /// Writes a new sample whose data originated at `timestamp` (a sensor's own acquisition time).
+    pub fn write_at(&mut self, output: impl PortKey, payload: Payload, timestamp: Timestamp) -> Result<(), ComponentError> {
+        let now = self.clock.now();
+        self.emit(output, payload, timestamp, now)
+    }
+
+    /// Writes the result of processing `input`: it keeps the input's timestamp.
+    pub fn write_processed(&mut self, output: impl PortKey, input: &Sample, payload: Payload) -> Result<(), ComponentError> {
+        let now = self.clock.now();
+        self.emit(output, payload, input.timestamp, now)
+    }
+
+    /// Passes `sample` on unchanged but for its time of issue; the payload is shared, not copied.
+    pub fn forward(&mut self, output: impl PortKey, sample: &Sample) -> Result<(), ComponentError> {
+        self.write_processed(output, sample, sample.payload.clone())
+    }
+
+    fn emit(&mut self, output: impl PortKey, payload: Payload, timestamp: Timestamp, time_of_issue: Timestamp) -> Result<(), ComponentError> {
+        let index = self.output_index(output)?;
+        let Some(port) = self.outputs.get_mut(index) else {
+            return Err(ComponentError::failed(format_args!("component has no output '{output}'")));
+        };
+        if let Some(data_type) = &port.data_type
+            && !payload.is_of(data_type)
+        {
+            return Err(ComponentError::failed(format_args!(
+                "wrote {} on output '{}' of type {data_type}",
+                payload.data_type(),
+                port.name,
+            )));
+        }
+        let keep = port.offered % port.subsampling == 0;
+        port.offered += 1;
+        if !keep {
+            return Ok(());
+        }
+        let sample = Sample {
+            payload,
+            timestamp,
+            time_of_issue,
+            sequence: port.sequence,
+        };
+        port.sequence += 1;
+        port.buffer.write(sample, &self.signal)?;
+        Ok(())
+    }
+}
+
+/// Matches samples from several inputs by timestamp, for data fusion.
+///
+/// Each call returns one sample per input, all with timestamps within `tolerance` of each other. A
+/// sample that can no longer be matched (another input is already past it by more than the tolerance)
+/// is dropped; `dropped` counts them. Use FIFO or NeverSkipping inputs so no sample is skipped before
+/// it can be matched.
+#[derive(Debug)]
+pub struct Synchronizer {
+    inputs: Vec<usize>,
+    tolerance_nanos: i64,
+    pending: Vec<Option<Sample>>,
+    dropped: u64,
+}
+
+impl Synchronizer {
+    /// A synchroniser over the inputs at these indices.
+    pub fn new(inputs: Vec<usize>, tolerance: Duration) -> Self {
+        let pending = inputs.iter().map(|_| None).collect();
+        Synchronizer {
+            inputs,
+            tolerance_nanos: i64::try_from(tolerance.as_nanos()).unwrap_or(i64::MAX),
+            pending,
+            dropped: 0,
+        }
+    }
+
+    /// Changes the tolerance.
+    pub fn set_tolerance(&mut self, tolerance: Duration) {
+        self.tolerance_nanos = i64::try_from(tolerance.as_nanos()).unwrap_or(i64::MAX);
+    }
+
+    /// How many samples could not be matched and were dropped.
+    pub fn dropped(&self) -> u64 {
+        self.dropped
+    }
+
+    /// The next matched set, one sample per input in the order given at construction.
+    pub fn read(&mut self, ctx: &mut Context) -> Result<Vec<Sample>, ComponentError> {
+        loop {
+            let mut missing = false;
+            for (slot, index) in self.pending.iter_mut().zip(&self.inputs) {
+                if slot.is_none() {
+                    *slot = ctx.reader_mut(*index).and_then(Reader::try_read);
+                    if slot.is_some() {
+                        ctx.note_read();
+                    } else {
+                        missing = true;
+                    }
+                }
+            }
+            if missing {
+                let ended = self.inputs.iter().zip(&self.pending).any(|(index, slot)| {
+                    slot.is_none() && ctx.inputs().get(*index).and_then(InputPort::reader).is_some_and(Reader::is_exhausted)
+                });
+                if ended {
+                    return Err(ComponentError::EndOfStream);
+                }
+                ctx.wait_for_data()?;
+                continue;
+            }
+            let stamps: Vec<i64> = self.pending.iter().flatten().map(|s| s.timestamp.as_nanos()).collect();
+            let (Some(newest), Some(oldest)) = (stamps.iter().max().copied(), stamps.iter().min().copied()) else {
+                continue;
+            };
+            if newest - oldest <= self.tolerance_nanos {
+                return Ok(self.pending.iter_mut().filter_map(Option::take).collect());
+            }
+            // Timestamps only grow per input: a sample older than the newest minus the tolerance can
+            // never be matched, so drop it and read on.
+            for slot in &mut self.pending {
+                if slot.as_ref().is_some_and(|s| newest - s.timestamp.as_nanos() > self.tolerance_nanos) {
+                    *slot = None;
+                    self.dropped += 1;
+                }
+            }
+        }
+    }
+
+    /// Resolves input names to indices for [`Synchronizer::new`].
+    pub fn inputs_of<K: PortKey>(ctx: &Context, keys: &[K]) -> Result<Vec<usize>, ComponentError> {
+        keys.iter().map(|k| ctx.resolve_input(*k)).collect()
+    }
+}

@@ -1,0 +1,144 @@
+//! The registry packs add their components to, the way a plugin builds an application.
+
+use std::collections::{BTreeMap, BTreeSet};
+use std::fmt;
+use std::sync::Arc;
+
+use kairos_diagram::{ComponentInfo, LibraryInfo, PackInfo};
+
+use crate::component::Component;
+
+/// Makes a new instance of a component.
+pub type Factory = Arc<dyn Fn() -> Box<dyn Component> + Send + Sync>;
+
+/// A component type: its descriptor and how to make one.
+#[derive(Clone)]
+pub struct RegisteredComponent {
+    /// The descriptor.
+    pub info: ComponentInfo,
+    /// The factory.
+    pub factory: Factory,
+}
+
+impl fmt::Debug for RegisteredComponent {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.debug_struct("RegisteredComponent").field("type_name", &self.info.type_name).finish_non_exhaustive()
+    }
+}
+
+/// A component type offered by two packs: the first one registered is kept.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct DuplicateComponent {
+    /// The type name.
+    pub type_name: String,
+    /// The pack whose component is kept.
+    pub kept_from: String,
+    /// The pack whose component was refused.
+    pub refused_from: String,
+}
+
+/// Every pack and component the runtime knows.
+#[derive(Debug, Default)]
+pub struct Registry {
+    packs: BTreeMap<String, PackInfo>,
+    components: BTreeMap<String, RegisteredComponent>,
+    custom_types: BTreeSet<String>,
+    duplicates: Vec<DuplicateComponent>,
+}
+
+impl Registry {
+    /// An empty registry.
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// Starts registering the pack `name` at `version` (semantic version), loaded from `origin`.
+    pub fn pack(&mut self, name: &str, version: &str, origin: &str) -> PackRegistrar<'_> {
+        self.packs.insert(
+            name.to_owned(),
+            PackInfo {
+                name: name.to_owned(),
+                version: version.to_owned(),
+                origin: origin.to_owned(),
+            },
+        );
+        PackRegistrar {
+            registry: self,
+            pack: name.to_owned(),
+        }
+    }
+
+    /// The component type with this name.
+    pub fn component(&self, type_name: &str) -> Option<&RegisteredComponent> {
+        self.components.get(type_name)
+    }
+
+    /// Every component type, by name.
+    pub fn components(&self) -> impl Iterator<Item = &RegisteredComponent> {
+        self.components.values()
+    }
+
+    /// Every pack, by name.
+    pub fn packs(&self) -> impl Iterator<Item = &PackInfo> {
+        self.packs.values()
+    }
+
+    /// Component types offered twice, and which pack won.
+    pub fn duplicates(&self) -> &[DuplicateComponent] {
+        &self.duplicates
+    }
+
+    /// The library as plain data, for validation and listings.
+    pub fn library_info(&self) -> LibraryInfo {
+        LibraryInfo {
+            packs: self.packs.clone(),
+            components: self.components.iter().map(|(name, c)| (name.clone(), c.info.clone())).collect(),
+            custom_types: self.custom_types.iter().cloned().collect(),
+        }
+    }
+}
+
+/// Adds one pack's components to a [`Registry`].
+#[derive(Debug)]
+pub struct PackRegistrar<'a> {
+    registry: &'a mut Registry,
+    pack: String,
+}
+
+impl PackRegistrar<'_> {
+    /// Registers a component type made by `Default`.
+    pub fn component<C: Component + Default>(&mut self, info: ComponentInfo) -> &mut Self {
+        self.component_with(info, || Box::new(C::default()))
+    }
+
+    /// Registers a component type with its own factory.
+    pub fn component_with(
+        &mut self,
+        mut info: ComponentInfo,
+        factory: impl Fn() -> Box<dyn Component> + Send + Sync + 'static,
+    ) -> &mut Self {
+        info.pack.clone_from(&self.pack);
+        if let Some(existing) = self.registry.components.get(&info.type_name) {
+            self.registry.duplicates.push(DuplicateComponent {
+                type_name: info.type_name.clone(),
+                kept_from: existing.info.pack.clone(),
+                refused_from: self.pack.clone(),
+            });
+            return self;
+        }
+        self.registry.components.insert(
+            info.type_name.clone(),
+            RegisteredComponent {
+                info,
+                factory: Arc::new(factory),
+            },
+        );
+        self
+    }
+
+    /// Registers a pack-defined data type name.
+    pub fn custom_type(&mut self, name: &str) -> &mut Self {
+        self.registry.custom_types.insert(name.to_owned());
+        self
+    }
+}

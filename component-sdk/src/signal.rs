@@ -1,0 +1,135 @@
+//! The signal a running component is woken through: new data, stop, pause, or a control request.
+
+use std::fmt;
+use std::sync::OnceLock;
+use std::time::Duration;
+
+use crate::sync::{AtomicBool, Ordering, Thread, current_thread, park, park_timeout};
+
+/// One per component: the thread that runs it and the flags the runtime raises to get its attention.
+///
+/// Writers wake readers through it; the runtime wakes it to stop, pause, or deliver property changes and
+/// actions. Waking is a futex at most, and nothing at all when the thread is not asleep.
+pub struct RunSignal {
+    thread: OnceLock<Thread>,
+    stop: AtomicBool,
+    paused: AtomicBool,
+    control_pending: AtomicBool,
+    reactive: Option<Box<dyn Fn() + Send + Sync>>,
+}
+
+impl fmt::Debug for RunSignal {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.debug_struct("RunSignal")
+            .field("stop", &self.stop.load(Ordering::Relaxed))
+            .field("paused", &self.paused.load(Ordering::Relaxed))
+            .field("control_pending", &self.control_pending.load(Ordering::Relaxed))
+            .field("reactive", &self.reactive.is_some())
+            .finish_non_exhaustive()
+    }
+}
+
+impl Default for RunSignal {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl RunSignal {
+    /// A signal for a component that runs in a thread of its own (bound later with [`Self::bind_current_thread`]).
+    pub fn new() -> Self {
+        RunSignal {
+            thread: OnceLock::new(),
+            stop: AtomicBool::new(false),
+            paused: AtomicBool::new(false),
+            control_pending: AtomicBool::new(false),
+            reactive: None,
+        }
+    }
+
+    /// A signal for a reactive component: waking it runs `on_data` in the waker's thread.
+    pub fn reactive(on_data: impl Fn() + Send + Sync + 'static) -> Self {
+        RunSignal {
+            reactive: Some(Box::new(on_data)),
+            ..Self::new()
+        }
+    }
+
+    /// Records the calling thread as the one to wake. Call it first thing in the component's thread.
+    pub fn bind_current_thread(&self) {
+        let _ = self.thread.set(current_thread());
+    }
+
+    /// Whether the component runs without a thread of its own.
+    pub fn is_reactive(&self) -> bool {
+        self.reactive.is_some()
+    }
+
+    /// New data arrived for the component: unpark its thread, or run it now if it is reactive.
+    pub fn notify_data(&self) {
+        if let Some(on_data) = &self.reactive {
+            if !self.stop.load(Ordering::Acquire) && !self.paused.load(Ordering::Acquire) {
+                on_data();
+            }
+        } else {
+            self.wake();
+        }
+    }
+
+    /// Unparks the component's thread, if it has one.
+    pub fn wake(&self) {
+        if let Some(thread) = self.thread.get() {
+            thread.unpark();
+        }
+    }
+
+    /// Asks the component to stop; blocked reads and writes return [`crate::ComponentError::Stopped`].
+    pub fn request_stop(&self) {
+        self.stop.store(true, Ordering::Release);
+        self.wake();
+    }
+
+    /// Whether a stop was requested.
+    pub fn stop_requested(&self) -> bool {
+        self.stop.load(Ordering::Acquire)
+    }
+
+    /// Pauses or resumes the component.
+    pub fn set_paused(&self, paused: bool) {
+        self.paused.store(paused, Ordering::Release);
+        self.wake();
+    }
+
+    /// Whether the component is paused.
+    pub fn is_paused(&self) -> bool {
+        self.paused.load(Ordering::Acquire)
+    }
+
+    /// Marks that property changes or actions wait to be applied, and wakes the component.
+    pub fn raise_control(&self) {
+        self.control_pending.store(true, Ordering::Release);
+        self.wake();
+    }
+
+    /// Clears the control mark; returns whether it was set.
+    pub fn take_control(&self) -> bool {
+        self.control_pending.swap(false, Ordering::AcqRel)
+    }
+
+    /// Whether a blocked call should return to the component's loop: stop, pause or control requested.
+    pub fn wants_attention(&self) -> bool {
+        self.stop.load(Ordering::Acquire)
+            || self.paused.load(Ordering::Acquire)
+            || self.control_pending.load(Ordering::Acquire)
+    }
+
+    /// Parks the calling thread until woken.
+    pub fn park(&self) {
+        park();
+    }
+
+    /// Parks the calling thread until woken or `timeout` passes.
+    pub fn park_timeout(&self, timeout: Duration) {
+        park_timeout(timeout);
+    }
+}

@@ -1,0 +1,189 @@
+//! Time on the runtime clock.
+//!
+//! A [`Timestamp`] counts nanoseconds since the UNIX epoch on the runtime's clock. The real-time clock
+//! reads the wall clock once at start and advances with the monotonic clock from then on, so timestamps
+//! never go backwards within a run and still mean something across machines and recordings.
+
+use std::fmt;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicI64, Ordering};
+use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
+
+use crate::signal::RunSignal;
+
+/// A point in time on the runtime clock, in nanoseconds since the UNIX epoch.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, PartialOrd, Ord, Hash, serde::Serialize, serde::Deserialize)]
+pub struct Timestamp(pub i64);
+
+impl Timestamp {
+    /// The earliest representable time; used as "never".
+    pub const ZERO: Timestamp = Timestamp(0);
+
+    /// From nanoseconds since the epoch.
+    pub const fn from_nanos(nanos: i64) -> Self {
+        Timestamp(nanos)
+    }
+
+    /// From microseconds since the epoch.
+    pub const fn from_micros(micros: i64) -> Self {
+        Timestamp(micros.saturating_mul(1_000))
+    }
+
+    /// From milliseconds since the epoch.
+    pub const fn from_millis(millis: i64) -> Self {
+        Timestamp(millis.saturating_mul(1_000_000))
+    }
+
+    /// From seconds since the epoch.
+    pub fn from_secs_f64(secs: f64) -> Self {
+        Timestamp((secs * 1e9) as i64)
+    }
+
+    /// Nanoseconds since the epoch.
+    pub const fn as_nanos(self) -> i64 {
+        self.0
+    }
+
+    /// Seconds since the epoch, as a float.
+    pub fn as_secs_f64(self) -> f64 {
+        self.0 as f64 * 1e-9
+    }
+
+    /// `self - earlier` in nanoseconds (negative when `earlier` is later).
+    pub const fn nanos_since(self, earlier: Timestamp) -> i64 {
+        self.0.saturating_sub(earlier.0)
+    }
+
+    /// This time moved forward by `duration`.
+    pub fn after(self, duration: Duration) -> Timestamp {
+        Timestamp(self.0.saturating_add(i64::try_from(duration.as_nanos()).unwrap_or(i64::MAX)))
+    }
+
+    /// The duration from `earlier` to `self`, zero if `earlier` is later.
+    pub fn duration_since(self, earlier: Timestamp) -> Duration {
+        Duration::from_nanos(u64::try_from(self.nanos_since(earlier)).unwrap_or(0))
+    }
+}
+
+impl fmt::Display for Timestamp {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let secs = self.0.div_euclid(1_000_000_000);
+        let nanos = self.0.rem_euclid(1_000_000_000);
+        write!(f, "{secs}.{nanos:09}")
+    }
+}
+
+/// The runtime's time base.
+///
+/// Real time today; replay-driven, external (e.g. GNSS) and network-synchronised clocks implement the same
+/// trait, so components never know which one drives them.
+pub trait Clock: Send + Sync + fmt::Debug {
+    /// The current time.
+    fn now(&self) -> Timestamp;
+
+    /// Sleeps until `deadline` or until `signal` asks the caller to wake (stop, pause, a property change).
+    /// Returns `true` if the deadline was reached.
+    fn wait_until(&self, deadline: Timestamp, signal: &RunSignal) -> bool;
+
+    /// A one-line description for logs and recordings (`real time, epoch 2026-…`).
+    fn describe(&self) -> String;
+}
+
+/// Real time: the wall clock read once at creation, advanced by the monotonic clock.
+#[derive(Debug)]
+pub struct RealTimeClock {
+    start_instant: Instant,
+    start_nanos: i64,
+}
+
+impl RealTimeClock {
+    /// A clock starting now.
+    pub fn new() -> Self {
+        let since_epoch = SystemTime::now().duration_since(UNIX_EPOCH).unwrap_or(Duration::ZERO);
+        RealTimeClock {
+            start_instant: Instant::now(),
+            start_nanos: i64::try_from(since_epoch.as_nanos()).unwrap_or(i64::MAX),
+        }
+    }
+
+    /// A shared clock starting now.
+    pub fn shared() -> Arc<dyn Clock> {
+        Arc::new(Self::new())
+    }
+}
+
+impl Default for RealTimeClock {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl Clock for RealTimeClock {
+    fn now(&self) -> Timestamp {
+        let elapsed = self.start_instant.elapsed().as_nanos();
+        Timestamp(self.start_nanos.saturating_add(i64::try_from(elapsed).unwrap_or(i64::MAX)))
+    }
+
+    fn wait_until(&self, deadline: Timestamp, signal: &RunSignal) -> bool {
+        loop {
+            if signal.wants_attention() {
+                return false;
+            }
+            let now = self.now();
+            if now >= deadline {
+                return true;
+            }
+            signal.park_timeout(deadline.duration_since(now));
+        }
+    }
+
+    fn describe(&self) -> String {
+        format!("real time (monotonic, epoch read at start: {})", Timestamp(self.start_nanos))
+    }
+}
+
+/// A clock that moves only when told to; waiting on it jumps straight to the deadline.
+///
+/// Used by the offline harness so periodic components run as fast as possible with exact timestamps.
+#[derive(Debug, Default)]
+pub struct ManualClock {
+    now_nanos: AtomicI64,
+}
+
+impl ManualClock {
+    /// A clock standing at `start`.
+    pub fn new(start: Timestamp) -> Self {
+        ManualClock {
+            now_nanos: AtomicI64::new(start.0),
+        }
+    }
+
+    /// Moves the clock to `time` (never backwards).
+    pub fn set(&self, time: Timestamp) {
+        self.now_nanos.fetch_max(time.0, Ordering::AcqRel);
+    }
+
+    /// Moves the clock forward by `duration`.
+    pub fn advance(&self, duration: Duration) {
+        let nanos = i64::try_from(duration.as_nanos()).unwrap_or(i64::MAX);
+        self.now_nanos.fetch_add(nanos, Ordering::AcqRel);
+    }
+}
+
+impl Clock for ManualClock {
+    fn now(&self) -> Timestamp {
+        Timestamp(self.now_nanos.load(Ordering::Acquire))
+    }
+
+    fn wait_until(&self, deadline: Timestamp, signal: &RunSignal) -> bool {
+        if signal.wants_attention() {
+            return false;
+        }
+        self.set(deadline);
+        true
+    }
+
+    fn describe(&self) -> String {
+        "manual (moved by its owner)".to_owned()
+    }
+}

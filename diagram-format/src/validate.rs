@@ -1,0 +1,712 @@
+//! Checking a diagram against a component library: every problem at once, each located when the
+//! diagram came from text, with a suggestion where one exists.
+
+use std::collections::{BTreeMap, BTreeSet, HashMap};
+
+use crate::diagnostic::{Diagnostic, DiagnosticCode, Location, closest, did_you_mean};
+use crate::library::{ComponentInfo, ExecutionMode, LibraryInfo, Value};
+use crate::model::{ComponentInstance, Connection, Diagram, FORMAT_VERSION, PortRef};
+use crate::read::{ComponentLocations, ConnectionLocations, PackLocations, SourceMap};
+
+/// Checks `diagram` against `library` and returns every problem found, in source order.
+///
+/// With `source_map` (from [`crate::parse()`], for the diagram as parsed) each diagnostic points at the
+/// offending token; without it, diagnostics carry no location. An empty result means the diagram can be
+/// built; warnings alone do not prevent that.
+pub fn validate(diagram: &Diagram, source_map: Option<&SourceMap>, library: &LibraryInfo) -> Vec<Diagnostic> {
+    let mut first_with_id = HashMap::new();
+    for (index, component) in diagram.components.iter().enumerate() {
+        first_with_id.entry(component.id.as_str()).or_insert(index);
+    }
+    let mut validator = Validator {
+        diagram,
+        source_map,
+        library,
+        first_with_id,
+        found: Vec::new(),
+    };
+    validator.check_format();
+    validator.check_packs();
+    validator.check_components();
+    validator.check_connections();
+    validator.check_reactive_cycles();
+    let mut found = validator.found;
+    // Stable, so problems at the same place keep the order the checks found them in.
+    found.sort_by_key(|d| d.location.map_or(usize::MAX, |l| l.offset));
+    found
+}
+
+/// Every property of the component type, with the instance's value where it sets a valid one and the
+/// default otherwise, normalised by [`crate::PropertyKind::check`] (an integer for a float property
+/// becomes a float). Properties the type does not have are left out; run [`validate`] to hear about them.
+pub fn resolved_properties(instance: &ComponentInstance, info: &ComponentInfo) -> BTreeMap<String, Value> {
+    info.properties
+        .iter()
+        .map(|property| {
+            let given = instance
+                .properties
+                .get(&property.name)
+                .and_then(|v| property.kind.check(v).ok());
+            let value = given.unwrap_or_else(|| {
+                property
+                    .kind
+                    .check(&property.default)
+                    .unwrap_or_else(|_| property.default.clone())
+            });
+            (property.name.clone(), value)
+        })
+        .collect()
+}
+
+/// Whether `id` is a valid component id: non-empty, ASCII letters, digits, `_` and `-` only (ids end up
+/// in thread names, file names and command lines).
+pub fn is_valid_id(id: &str) -> bool {
+    !id.is_empty()
+        && id
+            .chars()
+            .all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '-')
+}
+
+struct Validator<'a> {
+    diagram: &'a Diagram,
+    source_map: Option<&'a SourceMap>,
+    library: &'a LibraryInfo,
+    /// Component ids to the index of the first component with that id.
+    first_with_id: HashMap<&'a str, usize>,
+    found: Vec<Diagnostic>,
+}
+
+/// Which end of a connection a port is.
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum End {
+    From,
+    To,
+}
+
+impl<'a> Validator<'a> {
+    fn pack_at(&self, index: usize) -> Option<&'a PackLocations> {
+        self.source_map.and_then(|m| m.packs.get(index))
+    }
+
+    fn component_at(&self, index: usize) -> Option<&'a ComponentLocations> {
+        self.source_map.and_then(|m| m.components.get(index))
+    }
+
+    fn connection_at(&self, index: usize) -> Option<&'a ConnectionLocations> {
+        self.source_map.and_then(|m| m.connections.get(index))
+    }
+
+    fn check_format(&mut self) {
+        if self.diagram.format != FORMAT_VERSION {
+            let message = format!(
+                "unsupported format version {}; this version of Kairos reads format {FORMAT_VERSION}",
+                self.diagram.format
+            );
+            let location = self.source_map.map(|m| m.format);
+            self.found
+                .push(Diagnostic::error(DiagnosticCode::UnsupportedFormat, message).at(location));
+        }
+    }
+
+    fn check_packs(&mut self) {
+        let mut first_listed: HashMap<&str, usize> = HashMap::new();
+        for (index, requirement) in self.diagram.packs.iter().enumerate() {
+            let at = self.pack_at(index);
+            if let Some(&first) = first_listed.get(requirement.name.as_str()) {
+                let diagnostic = Diagnostic::error(
+                    DiagnosticCode::DuplicatePack,
+                    format!("pack '{}' is listed twice", requirement.name),
+                )
+                .at(at.map(|l| l.name))
+                .with_note("first listed here", self.pack_at(first).map(|l| l.name));
+                self.found.push(diagnostic);
+                continue;
+            }
+            first_listed.insert(&requirement.name, index);
+
+            let wanted = match semver::VersionReq::parse(&requirement.version) {
+                Ok(wanted) => wanted,
+                Err(error) => {
+                    let message = format!(
+                        "invalid version requirement '{}' for pack '{}': {error}",
+                        requirement.version, requirement.name
+                    );
+                    let diagnostic = Diagnostic::error(DiagnosticCode::InvalidVersionRequirement, message)
+                        .at(at.map(|l| l.version))
+                        .with_suggestion(Some("write a semver requirement such as \"^0.1\"".to_owned()));
+                    self.found.push(diagnostic);
+                    continue;
+                }
+            };
+            let Some(pack) = self.library.packs.get(&requirement.name) else {
+                let suggestion =
+                    did_you_mean(&requirement.name, self.library.packs.keys().map(String::as_str));
+                let diagnostic = Diagnostic::error(
+                    DiagnosticCode::MissingPack,
+                    format!("pack '{}' is not in the component library", requirement.name),
+                )
+                .at(at.map(|l| l.name))
+                .with_suggestion(suggestion);
+                self.found.push(diagnostic);
+                continue;
+            };
+            let found = semver::Version::parse(&pack.version);
+            if !found.as_ref().is_ok_and(|found| wanted.matches(found)) {
+                let message = format!(
+                    "pack '{}' is required at version {}, but the library has version {}",
+                    requirement.name, requirement.version, pack.version
+                );
+                let suggestion = found.ok().map(|found| {
+                    format!(
+                        "require \"{}\" to use the library's {} ({}), or install a matching pack",
+                        caret_requirement(&found),
+                        pack.name,
+                        pack.origin
+                    )
+                });
+                let diagnostic = Diagnostic::error(DiagnosticCode::PackVersionMismatch, message)
+                    .at(at.map(|l| l.version))
+                    .with_suggestion(suggestion);
+                self.found.push(diagnostic);
+            }
+        }
+    }
+
+    fn check_components(&mut self) {
+        let mut unlisted_packs_reported: BTreeSet<&str> = BTreeSet::new();
+        for (index, component) in self.diagram.components.iter().enumerate() {
+            let at = self.component_at(index);
+            if !is_valid_id(&component.id) {
+                let message = format!(
+                    "invalid component id {:?}: use ASCII letters, digits, '_' and '-' only",
+                    component.id
+                );
+                self.found
+                    .push(Diagnostic::error(DiagnosticCode::InvalidId, message).at(at.map(|l| l.id)));
+            }
+            let first = self
+                .first_with_id
+                .get(component.id.as_str())
+                .copied()
+                .unwrap_or(index);
+            if first != index {
+                let diagnostic = Diagnostic::error(
+                    DiagnosticCode::DuplicateId,
+                    format!("two components have the id '{}'", component.id),
+                )
+                .at(at.map(|l| l.id))
+                .with_note("the first one is here", self.component_at(first).map(|l| l.id));
+                self.found.push(diagnostic);
+            }
+            self.check_settings(component, at);
+
+            let Some(info) = self.library.component(&component.type_name) else {
+                let suggestion = did_you_mean(
+                    &component.type_name,
+                    self.library.components.keys().map(String::as_str),
+                );
+                let message = format!(
+                    "unknown component type '{}' for '{}'",
+                    component.type_name, component.id
+                );
+                let diagnostic = Diagnostic::error(DiagnosticCode::UnknownComponentType, message)
+                    .at(at.map(|l| l.type_name))
+                    .with_suggestion(suggestion);
+                self.found.push(diagnostic);
+                continue;
+            };
+            let pack_listed = self.diagram.packs.iter().any(|p| p.name == info.pack);
+            if !pack_listed && unlisted_packs_reported.insert(&info.pack) {
+                self.report_unlisted_pack(component, info, at);
+            }
+            self.check_properties(component, info, at);
+            self.check_output_names(component, info, at);
+        }
+    }
+
+    fn report_unlisted_pack(
+        &mut self,
+        component: &ComponentInstance,
+        info: &ComponentInfo,
+        at: Option<&ComponentLocations>,
+    ) {
+        let message = format!(
+            "'{}' uses pack '{}', which the diagram's packs do not list",
+            component.id, info.pack
+        );
+        let requirement = self
+            .library
+            .packs
+            .get(&info.pack)
+            .and_then(|p| semver::Version::parse(&p.version).ok())
+            .map_or_else(|| "*".to_owned(), |v| caret_requirement(&v));
+        let suggestion = format!(
+            "add Pack(name: \"{}\", version: \"{requirement}\") to packs",
+            info.pack
+        );
+        let diagnostic = Diagnostic::warning(DiagnosticCode::UnlistedPack, message)
+            .at(at.map(|l| l.type_name))
+            .with_suggestion(Some(suggestion));
+        self.found.push(diagnostic);
+    }
+
+    /// Buffer sizes, subsampling and thread priority: checks that need no library.
+    fn check_settings(&mut self, component: &ComponentInstance, at: Option<&ComponentLocations>) {
+        for (output, settings) in &component.outputs {
+            let output_at = at.and_then(|l| l.outputs.get(output));
+            let what = format!("output '{output}' of '{}'", component.id);
+            if settings.buffer_size == Some(0) {
+                self.report_zero("buffer_size", &what, output_at.and_then(|l| l.buffer_size));
+            }
+            if settings.subsampling == Some(0) {
+                self.report_zero("subsampling", &what, output_at.and_then(|l| l.subsampling));
+            }
+        }
+        if let Some(priority) = component.thread.priority.filter(|p| !(1..=99).contains(p)) {
+            let message = format!(
+                "thread priority {priority} of '{}' is out of range 1..=99",
+                component.id
+            );
+            let diagnostic = Diagnostic::error(DiagnosticCode::InvalidSetting, message)
+                .at(at.and_then(|l| l.priority))
+                .with_suggestion(Some("leave priority out to keep the normal scheduler".to_owned()));
+            self.found.push(diagnostic);
+        }
+    }
+
+    fn report_zero(&mut self, setting: &str, what: &str, location: Option<Location>) {
+        let message = format!("{setting} of {what} must be at least 1");
+        self.found
+            .push(Diagnostic::error(DiagnosticCode::InvalidSetting, message).at(location));
+    }
+
+    fn check_properties(
+        &mut self,
+        component: &ComponentInstance,
+        info: &ComponentInfo,
+        at: Option<&ComponentLocations>,
+    ) {
+        for (name, value) in &component.properties {
+            let property_at = at.and_then(|l| l.properties.get(name));
+            let Some(property) = info.property(name) else {
+                let names = info.properties.iter().map(|p| p.name.as_str());
+                let suggestion = did_you_mean(name, names)
+                    .unwrap_or_else(|| list_of("properties", &info.properties, |p| &p.name));
+                let message = format!("unknown property '{name}' on '{}'", component.id);
+                let diagnostic = Diagnostic::error(DiagnosticCode::UnknownProperty, message)
+                    .at(property_at.map(|l| l.key))
+                    .with_suggestion(Some(suggestion));
+                self.found.push(diagnostic);
+                continue;
+            };
+            if let Err(error) = property.kind.check(value) {
+                let message = format!(
+                    "invalid value for property '{name}' of '{}': {error}",
+                    component.id
+                );
+                let diagnostic = Diagnostic::error(DiagnosticCode::InvalidPropertyValue, message)
+                    .at(property_at.map(|l| l.value));
+                self.found.push(diagnostic);
+            }
+        }
+    }
+
+    fn check_output_names(
+        &mut self,
+        component: &ComponentInstance,
+        info: &ComponentInfo,
+        at: Option<&ComponentLocations>,
+    ) {
+        for name in component.outputs.keys() {
+            if info.output(name).is_some() {
+                continue;
+            }
+            let names = info.outputs.iter().map(|o| o.name.as_str());
+            let suggestion =
+                did_you_mean(name, names).unwrap_or_else(|| list_of("outputs", &info.outputs, |o| &o.name));
+            let message = format!(
+                "unknown output '{name}' on '{}' ({})",
+                component.id, info.type_name
+            );
+            let diagnostic = Diagnostic::error(DiagnosticCode::UnknownOutput, message)
+                .at(at.and_then(|l| l.outputs.get(name)).map(|l| l.key))
+                .with_suggestion(Some(suggestion));
+            self.found.push(diagnostic);
+        }
+    }
+
+    /// The component with this id (the first, when ids repeat).
+    fn instance(&self, id: &str) -> Option<&'a ComponentInstance> {
+        self.first_with_id
+            .get(id)
+            .and_then(|&i| self.diagram.components.get(i))
+    }
+
+    fn check_connections(&mut self) {
+        let mut feeding: HashMap<&PortRef, usize> = HashMap::new();
+        for (index, connection) in self.diagram.connections.iter().enumerate() {
+            let at = self.connection_at(index);
+            let output = self.resolve(connection, End::From, at.map(|l| l.from));
+            let input = self.resolve(connection, End::To, at.map(|l| l.to));
+            let produced = match output {
+                Some(Resolved::Output(_)) => self.effective_type(&connection.from, 0),
+                _ => None,
+            };
+            if let (Some(produced), Some(Resolved::Input(input))) = (produced, input)
+                && !input.filter.accepts(&produced)
+            {
+                let message = format!(
+                    "input '{}' accepts {}, but '{}' produces {produced}",
+                    connection.to, input.filter, connection.from
+                );
+                let diagnostic = Diagnostic::error(DiagnosticCode::TypeMismatch, message)
+                    .at(at.map(|l| l.to))
+                    .with_note(
+                        format!("'{}' is connected here", connection.from),
+                        at.map(|l| l.from),
+                    );
+                self.found.push(diagnostic);
+            }
+            let what = format!("the connection from '{}' to '{}'", connection.from, connection.to);
+            if connection.buffer_size == Some(0) {
+                self.report_zero("buffer_size", &what, at.and_then(|l| l.buffer_size));
+            }
+            if connection.subsampling == Some(0) {
+                self.report_zero("subsampling", &what, at.and_then(|l| l.subsampling));
+            }
+            if let Some(&first) = feeding.get(&connection.to) {
+                self.report_fed_twice(first, index, connection);
+            } else {
+                feeding.insert(&connection.to, index);
+            }
+        }
+    }
+
+    fn report_fed_twice(&mut self, first: usize, second: usize, connection: &Connection) {
+        let first_from = self
+            .diagram
+            .connections
+            .get(first)
+            .map(|c| c.from.to_string())
+            .unwrap_or_default();
+        let message = format!(
+            "input '{}' is fed twice: from '{first_from}' and from '{}'",
+            connection.to, connection.from
+        );
+        let diagnostic = Diagnostic::error(DiagnosticCode::InputFedTwice, message)
+            .at(self.connection_at(second).map(|l| l.to))
+            .with_note(
+                format!("the connection from '{first_from}' is here"),
+                self.connection_at(first).map(|l| l.to),
+            )
+            .with_suggestion(Some(
+                "an input takes one connection; remove one of them".to_owned(),
+            ));
+        self.found.push(diagnostic);
+    }
+
+    /// Finds the port a connection end names, reporting what is missing. `None` when it does not resolve
+    /// (or its component's type is unknown, which was reported already).
+    /// The type an output really carries: its declared type, or for an output that follows an input, the
+    /// type of whatever feeds that input. `None` when unknown (unconnected, unknown port, a cycle), in
+    /// which case no type error is reported.
+    fn effective_type(&self, port: &PortRef, depth: usize) -> Option<crate::library::DataType> {
+        if depth > crate::MAX_DEPTH {
+            return None;
+        }
+        let instance = self.instance(&port.component)?;
+        let info = self.library.component(&instance.type_name)?;
+        let output = info.output(&port.port)?;
+        let Some(input) = &output.follows_input else {
+            return Some(output.data_type.clone());
+        };
+        let feeding = self
+            .diagram
+            .connections
+            .iter()
+            .find(|c| c.to.component == port.component && &c.to.port == input)?;
+        self.effective_type(&feeding.from, depth + 1)
+    }
+
+    fn resolve(
+        &mut self,
+        connection: &Connection,
+        end: End,
+        location: Option<Location>,
+    ) -> Option<Resolved<'a>> {
+        let port = if end == End::From {
+            &connection.from
+        } else {
+            &connection.to
+        };
+        let Some(instance) = self.instance(&port.component) else {
+            let ids = self.diagram.components.iter().map(|c| c.id.as_str());
+            let message = format!("unknown component '{}' in '{port}'", port.component);
+            let diagnostic = Diagnostic::error(DiagnosticCode::UnknownComponent, message)
+                .at(location)
+                .with_suggestion(did_you_mean(&port.component, ids));
+            self.found.push(diagnostic);
+            return None;
+        };
+        let info = self.library.component(&instance.type_name)?;
+        let resolved = match end {
+            End::From => info.output(&port.port).map(Resolved::Output),
+            End::To => info.input(&port.port).map(Resolved::Input),
+        };
+        if resolved.is_none() {
+            self.report_unknown_port(port, end, info, location);
+        }
+        resolved
+    }
+
+    fn report_unknown_port(
+        &mut self,
+        port: &PortRef,
+        end: End,
+        info: &ComponentInfo,
+        location: Option<Location>,
+    ) {
+        let (kind, names): (&str, Vec<&str>) = match end {
+            End::From => ("output", info.outputs.iter().map(|o| o.name.as_str()).collect()),
+            End::To => ("input", info.inputs.iter().map(|i| i.name.as_str()).collect()),
+        };
+        let wrong_direction = match end {
+            End::From => info.input(&port.port).is_some(),
+            End::To => info.output(&port.port).is_some(),
+        };
+        let message = if wrong_direction {
+            let other = if end == End::From { "an input" } else { "an output" };
+            format!("'{port}' is {other}, but a connection goes from an output to an input")
+        } else {
+            format!(
+                "unknown {kind} '{}' on '{}' ({})",
+                port.port, port.component, info.type_name
+            )
+        };
+        let suggestion = closest(&port.port, names.iter().copied())
+            .map(|name| format!("did you mean '{}.{name}'?", port.component))
+            .or_else(|| {
+                Some(if names.is_empty() {
+                    format!("{} has no {kind}s", info.type_name)
+                } else {
+                    format!("the {kind}s of {} are: {}", info.type_name, names.join(", "))
+                })
+            });
+        let diagnostic = Diagnostic::error(DiagnosticCode::UnknownPort, message)
+            .at(location)
+            .with_suggestion(suggestion);
+        self.found.push(diagnostic);
+    }
+
+    /// Reactive components run in their producer's thread; a loop of them would wait on itself forever.
+    fn check_reactive_cycles(&mut self) {
+        let components = &self.diagram.components;
+        let reactive = |id: &str| -> Option<usize> {
+            let index = self.first_with_id.get(id).copied()?;
+            let instance = components.get(index)?;
+            let info = self.library.component(&instance.type_name)?;
+            (info.mode == ExecutionMode::Reactive).then_some(index)
+        };
+        let mut edges: BTreeMap<usize, Vec<usize>> = BTreeMap::new();
+        let mut edge_connections: Vec<(usize, usize, usize)> = Vec::new();
+        for (index, connection) in self.diagram.connections.iter().enumerate() {
+            if let (Some(from), Some(to)) = (
+                reactive(&connection.from.component),
+                reactive(&connection.to.component),
+            ) {
+                edges.entry(from).or_default().push(to);
+                edges.entry(to).or_default();
+                edge_connections.push((from, to, index));
+            }
+        }
+        for members in strongly_connected_components(&edges) {
+            let Some(&(from, _, connection)) = edge_connections
+                .iter()
+                .find(|(from, to, _)| members.contains(from) && members.contains(to))
+            else {
+                // A single component without a connection to itself is no cycle.
+                continue;
+            };
+            let ids: Vec<String> = members
+                .iter()
+                .filter_map(|&i| components.get(i))
+                .map(|c| format!("'{}'", c.id))
+                .collect();
+            let message = if ids.len() == 1 {
+                let id = components.get(from).map(|c| c.id.as_str()).unwrap_or_default();
+                format!("reactive component '{id}' feeds itself, which would deadlock")
+            } else {
+                format!(
+                    "reactive components {} are connected in a cycle, which would deadlock",
+                    join_with_and(&ids)
+                )
+            };
+            let diagnostic = Diagnostic::error(DiagnosticCode::ReactiveCycle, message)
+                .at(self.connection_at(connection).map(|l| l.connection))
+                .with_suggestion(Some(
+                    "break the loop, or put a threaded component in it".to_owned(),
+                ));
+            self.found.push(diagnostic);
+        }
+    }
+}
+
+/// A connection end that resolved to a port of a known component type.
+#[derive(Clone, Copy)]
+enum Resolved<'a> {
+    Output(&'a crate::library::OutputInfo),
+    Input(&'a crate::library::InputInfo),
+}
+
+/// `its properties are: a, b` style help, for when no name is close enough to suggest.
+fn list_of<T>(what: &str, items: &[T], name: impl Fn(&T) -> &String) -> String {
+    if items.is_empty() {
+        return format!("this component type has no {what}");
+    }
+    let names: Vec<&str> = items.iter().map(|i| name(i).as_str()).collect();
+    format!("its {what} are: {}", names.join(", "))
+}
+
+/// The usual requirement for a version: `^0.1` for 0.1.3, `^2.0` for 2.0.1.
+fn caret_requirement(version: &semver::Version) -> String {
+    format!("^{}.{}", version.major, version.minor)
+}
+
+/// `a`, `a and b`, `a, b and c`.
+fn join_with_and(items: &[String]) -> String {
+    match items.split_last() {
+        None => String::new(),
+        Some((last, [])) => last.clone(),
+        Some((last, rest)) => format!("{} and {last}", rest.join(", ")),
+    }
+}
+
+/// Tarjan's algorithm, iterative so that long chains cannot exhaust the stack. Each component's members
+/// come out sorted, and components in order of their smallest member.
+fn strongly_connected_components(edges: &BTreeMap<usize, Vec<usize>>) -> Vec<Vec<usize>> {
+    #[derive(Clone, Copy)]
+    struct Visit {
+        index: usize,
+        low: usize,
+        on_stack: bool,
+    }
+    let mut visits: HashMap<usize, Visit> = HashMap::new();
+    let mut stack: Vec<usize> = Vec::new();
+    let mut components: Vec<Vec<usize>> = Vec::new();
+    let no_edges = Vec::new();
+    for &root in edges.keys() {
+        if visits.contains_key(&root) {
+            continue;
+        }
+        // Each frame: a node and how many of its edges have been followed.
+        let mut frames: Vec<(usize, usize)> = vec![(root, 0)];
+        let fresh = visits.len();
+        visits.insert(
+            root,
+            Visit {
+                index: fresh,
+                low: fresh,
+                on_stack: true,
+            },
+        );
+        stack.push(root);
+        while let Some(&mut (node, ref mut followed)) = frames.last_mut() {
+            let successors = edges.get(&node).unwrap_or(&no_edges);
+            if let Some(&next) = successors.get(*followed) {
+                *followed += 1;
+                match visits.get(&next).copied() {
+                    None => {
+                        let fresh = visits.len();
+                        visits.insert(
+                            next,
+                            Visit {
+                                index: fresh,
+                                low: fresh,
+                                on_stack: true,
+                            },
+                        );
+                        stack.push(next);
+                        frames.push((next, 0));
+                    }
+                    Some(seen) if seen.on_stack => {
+                        if let Some(visit) = visits.get_mut(&node) {
+                            visit.low = visit.low.min(seen.index);
+                        }
+                    }
+                    Some(_) => {}
+                }
+                continue;
+            }
+            frames.pop();
+            let Some(&Visit { index, low, .. }) = visits.get(&node) else {
+                continue;
+            };
+            if let Some(&(parent, _)) = frames.last()
+                && let Some(visit) = visits.get_mut(&parent)
+            {
+                visit.low = visit.low.min(low);
+            }
+            if low == index {
+                let mut members = Vec::new();
+                while let Some(member) = stack.pop() {
+                    if let Some(visit) = visits.get_mut(&member) {
+                        visit.on_stack = false;
+                    }
+                    members.push(member);
+                    if member == node {
+                        break;
+                    }
+                }
+                members.sort_unstable();
+                components.push(members);
+            }
+        }
+    }
+    components.sort_by_key(|members| members.first().copied());
+    components
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn ids() {
+        assert!(is_valid_id("sine_1-a"));
+        assert!(!is_valid_id(""));
+        assert!(!is_valid_id("a.b"));
+        assert!(!is_valid_id("a b"));
+    }
+
+    #[test]
+    fn tarjan_finds_cycles_and_singletons() {
+        let edges: BTreeMap<usize, Vec<usize>> = [
+            (0, vec![1]),
+            (1, vec![2]),
+            (2, vec![0, 3]),
+            (3, vec![]),
+            (4, vec![4]),
+        ]
+        .into_iter()
+        .collect();
+        assert_eq!(
+            strongly_connected_components(&edges),
+            [vec![0, 1, 2], vec![3], vec![4]]
+        );
+    }
+
+    #[test]
+    fn long_chains_do_not_overflow() {
+        let edges: BTreeMap<usize, Vec<usize>> = (0..200_000).map(|i| (i, vec![(i + 1) % 200_000])).collect();
+        let components = strongly_connected_components(&edges);
+        assert_eq!(components.len(), 1);
+    }
+
+    #[test]
+    fn join_with_and_reads_naturally() {
+        let items = |n: usize| (0..n).map(|i| i.to_string()).collect::<Vec<_>>();
+        assert_eq!(join_with_and(&items(1)), "0");
+        assert_eq!(join_with_and(&items(2)), "0 and 1");
+        assert_eq!(join_with_and(&items(3)), "0, 1 and 2");
+    }
+}

@@ -1,0 +1,803 @@
+//! The engine: builds a running diagram from a validated one, runs each component, stops them all.
+
+use std::collections::{BTreeMap, VecDeque};
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::mpsc::{self, Receiver, RecvTimeoutError, SyncSender};
+use std::sync::{Arc, Mutex, MutexGuard, OnceLock, Weak};
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+
+use kairos_diagram::{ComponentInfo, Diagram, ExecutionMode, ThreadSettings, Value};
+use kairos_sdk::{
+    Clock, Component, ComponentError, Context, ContextParts, InputPort, OutputBuffer, OutputPort, ReaderConfig, Registry,
+    RunSignal,
+};
+
+use crate::scheduling;
+use crate::stats::{ComponentState, ComponentStats, LinkStats, StatsSnapshot};
+
+/// Why a diagram could not be built.
+#[derive(Debug, thiserror::Error)]
+pub enum BuildError {
+    /// The diagram did not validate against the library; every problem is listed.
+    #[error("the diagram is not valid:\n{}", .0.iter().map(ToString::to_string).collect::<Vec<_>>().join("\n"))]
+    Invalid(Vec<kairos_diagram::Diagnostic>),
+}
+
+/// Why a control request (property change, action) was refused.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum ControlError {
+    /// No component has that id.
+    #[error("no component '{0}' in the diagram")]
+    UnknownComponent(String),
+    /// The component has no such property.
+    #[error("component '{component}' has no property '{property}'")]
+    UnknownProperty {
+        /// The component.
+        component: String,
+        /// The property.
+        property: String,
+    },
+    /// The component has no such action.
+    #[error("component '{component}' has no action '{action}'")]
+    UnknownAction {
+        /// The component.
+        component: String,
+        /// The action.
+        action: String,
+    },
+    /// The value does not fit the property; the old value stays.
+    #[error("property '{property}' of '{component}': {reason}; it keeps its value")]
+    InvalidValue {
+        /// The component.
+        component: String,
+        /// The property.
+        property: String,
+        /// Why.
+        reason: String,
+    },
+    /// The property may not change while the diagram runs.
+    #[error("property '{property}' of '{component}' cannot change while running; stop the diagram first")]
+    NotLive {
+        /// The component.
+        component: String,
+        /// The property.
+        property: String,
+    },
+    /// The component refused the request or is not running.
+    #[error("'{component}' refused: {reason}")]
+    Refused {
+        /// The component.
+        component: String,
+        /// Why.
+        reason: String,
+    },
+}
+
+/// Where the engine is in its life.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum EngineState {
+    /// Built, not started.
+    Ready,
+    /// Running.
+    Running,
+    /// Paused.
+    Paused,
+    /// Stopped; every thread joined.
+    Stopped,
+}
+
+type Reply = SyncSender<Result<(), String>>;
+
+enum ControlRequest {
+    SetProperty { name: String, value: Value, reply: Reply },
+    Action { name: String, reply: Reply },
+}
+
+/// What a component's thread and the engine share.
+struct Monitor {
+    state: Mutex<ComponentState>,
+    cycles: AtomicU64,
+    busy_nanos: AtomicU64,
+    controls: Mutex<VecDeque<ControlRequest>>,
+}
+
+fn lock<T>(mutex: &Mutex<T>) -> MutexGuard<'_, T> {
+    match mutex.lock() {
+        Ok(guard) => guard,
+        Err(poisoned) => poisoned.into_inner(),
+    }
+}
+
+impl Monitor {
+    fn new() -> Self {
+        Monitor {
+            state: Mutex::new(ComponentState::Idle),
+            cycles: AtomicU64::new(0),
+            busy_nanos: AtomicU64::new(0),
+            controls: Mutex::new(VecDeque::new()),
+        }
+    }
+
+    fn set_state(&self, state: ComponentState) {
+        *lock(&self.state) = state;
+    }
+
+    fn state(&self) -> ComponentState {
+        lock(&self.state).clone()
+    }
+
+    fn is_failed(&self) -> bool {
+        matches!(*lock(&self.state), ComponentState::Failed(_))
+    }
+
+    /// Marks the component failed and reports it by id, once.
+    fn fail(&self, id: &str, stage: &str, message: &str) {
+        let mut state = lock(&self.state);
+        if !matches!(*state, ComponentState::Failed(_)) {
+            tracing::error!(component = id, "component '{id}' failed in {stage}: {message}; the rest of the diagram keeps running");
+            *state = ComponentState::Failed(format!("{stage}: {message}"));
+        }
+    }
+}
+
+/// Runs one lifecycle call, turning a panic into an error so it never leaves the component.
+fn guarded(call: impl FnOnce() -> Result<(), ComponentError>) -> Result<(), ComponentError> {
+    match std::panic::catch_unwind(std::panic::AssertUnwindSafe(call)) {
+        Ok(result) => result,
+        Err(panic) => Err(ComponentError::Failed(format!("panicked: {}", kairos_sdk::panic_message(panic.as_ref())))),
+    }
+}
+
+/// Applies queued property changes and actions on the component's own thread.
+fn apply_controls(id: &str, component: &mut dyn Component, ctx: &mut Context, monitor: &Monitor) -> bool {
+    loop {
+        let Some(request) = lock(&monitor.controls).pop_front() else {
+            return true;
+        };
+        match request {
+            ControlRequest::SetProperty { name, value, reply } => {
+                let old = ctx.set_property(&name, value.clone());
+                let result = guarded(|| component.property_changed(&name, &value, ctx));
+                let answer = match result {
+                    Ok(()) => Ok(()),
+                    Err(error) => {
+                        if let Some(old) = old {
+                            ctx.set_property(&name, old);
+                        }
+                        if error.to_string().starts_with("panicked") {
+                            monitor.fail(id, "property_changed", &error.to_string());
+                            let _ = reply.try_send(Err(error.to_string()));
+                            return false;
+                        }
+                        Err(error.to_string())
+                    }
+                };
+                let _ = reply.try_send(answer);
+            }
+            ControlRequest::Action { name, reply } => {
+                let result = guarded(|| component.action(&name, ctx));
+                if let Err(error) = &result
+                    && error.to_string().starts_with("panicked")
+                {
+                    monitor.fail(id, "action", &error.to_string());
+                    let _ = reply.try_send(Err(error.to_string()));
+                    return false;
+                }
+                let _ = reply.try_send(result.map_err(|e| e.to_string()));
+            }
+        }
+    }
+}
+
+/// A component that runs without a thread of its own, in the thread of whoever writes to it.
+struct ReactiveCell {
+    id: String,
+    inner: Mutex<(Box<dyn Component>, Context)>,
+    monitor: Arc<Monitor>,
+}
+
+impl ReactiveCell {
+    fn on_data(&self) {
+        if self.monitor.is_failed() {
+            return;
+        }
+        let started = Instant::now();
+        let mut guard = lock(&self.inner);
+        let (component, ctx) = &mut *guard;
+        ctx.begin_cycle();
+        let result = guarded(|| component.core(ctx));
+        drop(guard);
+        self.monitor.busy_nanos.fetch_add(started.elapsed().as_nanos() as u64, Ordering::Relaxed);
+        match result {
+            Ok(()) => {
+                self.monitor.cycles.fetch_add(1, Ordering::Relaxed);
+            }
+            Err(ComponentError::Failed(message)) => self.monitor.fail(&self.id, "core", &message),
+            Err(_) => {}
+        }
+    }
+}
+
+enum Driver {
+    Threaded {
+        mode: ExecutionMode,
+        pending: Option<(Box<dyn Component>, Context)>,
+        handle: Option<JoinHandle<()>>,
+    },
+    Reactive(Arc<ReactiveCell>),
+}
+
+struct Slot {
+    id: String,
+    info: ComponentInfo,
+    thread: ThreadSettings,
+    signal: Arc<RunSignal>,
+    monitor: Arc<Monitor>,
+    driver: Driver,
+}
+
+/// A diagram instantiated on a component library: buffers allocated, readers attached, components made.
+pub struct Engine {
+    clock: Arc<dyn Clock>,
+    slots: Vec<Slot>,
+    buffers: Vec<OutputBuffer>,
+    policies: BTreeMap<String, kairos_diagram::ReaderPolicy>,
+    state: EngineState,
+    supervisor: Option<(SyncSender<()>, JoinHandle<()>)>,
+}
+
+impl std::fmt::Debug for Engine {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Engine").field("components", &self.slots.len()).field("state", &self.state).finish_non_exhaustive()
+    }
+}
+
+/// The name of a link in statistics and warnings.
+pub fn link_name(from: &kairos_diagram::PortRef, to: &kairos_diagram::PortRef) -> String {
+    format!("{from} -> {to}")
+}
+
+impl Engine {
+    /// Validates `diagram` against `registry` and builds it; nothing runs until [`Engine::start`].
+    pub fn build(diagram: &Diagram, registry: &Registry, clock: Arc<dyn Clock>) -> Result<Engine, BuildError> {
+        let library = registry.library_info();
+        let diagnostics = kairos_diagram::validate(diagram, None, &library);
+        if diagnostics.iter().any(kairos_diagram::Diagnostic::is_error) {
+            return Err(BuildError::Invalid(diagnostics));
+        }
+
+        struct Pending {
+            id: String,
+            info: ComponentInfo,
+            component: Box<dyn Component>,
+            signal: Arc<RunSignal>,
+            reactive: Option<Arc<OnceLock<Weak<ReactiveCell>>>>,
+            inputs: Vec<InputPort>,
+            outputs: Vec<OutputPort>,
+            properties: BTreeMap<String, Value>,
+            thread: ThreadSettings,
+        }
+
+        let mut pending: Vec<Pending> = Vec::new();
+        let mut buffers: BTreeMap<(String, String), OutputBuffer> = BTreeMap::new();
+        for instance in &diagram.components {
+            let Some(registered) = registry.component(&instance.type_name) else { continue };
+            let info = registered.info.clone();
+            let (signal, reactive) = if info.mode == ExecutionMode::Reactive {
+                let cell: Arc<OnceLock<Weak<ReactiveCell>>> = Arc::new(OnceLock::new());
+                let hook = Arc::clone(&cell);
+                let signal = RunSignal::reactive(move || {
+                    if let Some(cell) = hook.get().and_then(Weak::upgrade) {
+                        cell.on_data();
+                    }
+                });
+                (Arc::new(signal), Some(cell))
+            } else {
+                (Arc::new(RunSignal::new()), None)
+            };
+            let mut outputs = Vec::new();
+            for output in &info.outputs {
+                let settings = instance.outputs.get(&output.name);
+                let size = settings.and_then(|s| s.buffer_size).unwrap_or(output.default_buffer_size);
+                let buffer = OutputBuffer::new(format!("{}.{}", instance.id, output.name), size);
+                buffers.insert((instance.id.clone(), output.name.clone()), buffer.clone());
+                let subsampling = settings.and_then(|s| s.subsampling).unwrap_or(1);
+                let data_type = output.follows_input.is_none().then(|| output.data_type.clone());
+                outputs.push(OutputPort::new(output.name.clone(), data_type, buffer, subsampling));
+            }
+            pending.push(Pending {
+                id: instance.id.clone(),
+                properties: kairos_diagram::resolved_properties(instance, &info),
+                component: (registered.factory)(),
+                info,
+                signal,
+                reactive,
+                inputs: Vec::new(),
+                outputs,
+                thread: instance.thread.clone(),
+            });
+        }
+
+        let mut policies = BTreeMap::new();
+        let mut readers: BTreeMap<(String, String), kairos_sdk::Reader> = BTreeMap::new();
+        for connection in &diagram.connections {
+            let key = (connection.from.component.clone(), connection.from.port.clone());
+            let Some(buffer) = buffers.get(&key) else { continue };
+            let Some(consumer) = pending.iter().find(|p| p.id == connection.to.component) else { continue };
+            let Some(input) = consumer.info.input(&connection.to.port) else { continue };
+            let policy = connection.policy.unwrap_or(input.default_policy);
+            let link = link_name(&connection.from, &connection.to);
+            policies.insert(link.clone(), policy);
+            let reader = buffer.attach(
+                ReaderConfig {
+                    policy,
+                    capacity: connection.buffer_size,
+                    subsampling: connection.subsampling.unwrap_or(1),
+                    link,
+                },
+                Arc::clone(&consumer.signal),
+            );
+            readers.insert((connection.to.component.clone(), connection.to.port.clone()), reader);
+        }
+        for component in &mut pending {
+            component.inputs = component
+                .info
+                .inputs
+                .iter()
+                .map(|input| InputPort::new(input.name.clone(), readers.remove(&(component.id.clone(), input.name.clone()))))
+                .collect();
+        }
+
+        let mut slots = Vec::new();
+        for component in pending {
+            let ctx = Context::new(ContextParts {
+                id: component.id.clone(),
+                inputs: component.inputs,
+                outputs: component.outputs,
+                properties: component.properties,
+                clock: Arc::clone(&clock),
+                signal: Arc::clone(&component.signal),
+            });
+            let monitor = Arc::new(Monitor::new());
+            let driver = match component.reactive {
+                Some(hook) => {
+                    let cell = Arc::new(ReactiveCell {
+                        id: component.id.clone(),
+                        inner: Mutex::new((component.component, ctx)),
+                        monitor: Arc::clone(&monitor),
+                    });
+                    let _ = hook.set(Arc::downgrade(&cell));
+                    Driver::Reactive(cell)
+                }
+                None => Driver::Threaded {
+                    mode: component.info.mode,
+                    pending: Some((component.component, ctx)),
+                    handle: None,
+                },
+            };
+            slots.push(Slot {
+                id: component.id,
+                info: component.info,
+                thread: component.thread,
+                signal: component.signal,
+                monitor,
+                driver,
+            });
+        }
+        Ok(Engine {
+            clock,
+            slots,
+            buffers: buffers.into_values().collect(),
+            policies,
+            state: EngineState::Ready,
+            supervisor: None,
+        })
+    }
+
+    /// The engine's state.
+    pub fn state(&self) -> EngineState {
+        self.state
+    }
+
+    /// The runtime clock.
+    pub fn clock(&self) -> &Arc<dyn Clock> {
+        &self.clock
+    }
+
+    /// Starts every component: reactive ones are born first (they run inside their producers), then each
+    /// threaded and periodic component gets its named thread.
+    pub fn start(&mut self) -> std::io::Result<()> {
+        if self.state != EngineState::Ready {
+            return Ok(());
+        }
+        for slot in &mut self.slots {
+            if let Driver::Reactive(cell) = &slot.driver {
+                let mut guard = lock(&cell.inner);
+                let (component, ctx) = &mut *guard;
+                match guarded(|| component.birth(ctx)) {
+                    Ok(()) => slot.monitor.set_state(ComponentState::Running),
+                    Err(error) => slot.monitor.fail(&slot.id, "birth", &error.to_string()),
+                }
+            }
+        }
+        for slot in &mut self.slots {
+            if let Driver::Threaded { mode, pending, handle } = &mut slot.driver
+                && let Some((component, ctx)) = pending.take()
+            {
+                let worker = Worker {
+                    id: slot.id.clone(),
+                    mode: *mode,
+                    thread: slot.thread.clone(),
+                    signal: Arc::clone(&slot.signal),
+                    monitor: Arc::clone(&slot.monitor),
+                    clock: Arc::clone(&self.clock),
+                };
+                slot.monitor.set_state(ComponentState::Running);
+                let spawned = std::thread::Builder::new().name(thread_name(&slot.id)).spawn(move || worker.run(component, ctx));
+                match spawned {
+                    Ok(joined) => *handle = Some(joined),
+                    Err(error) => {
+                        slot.monitor.fail(&slot.id, "start", &format!("cannot spawn its thread: {error}"));
+                        self.state = EngineState::Running;
+                        self.stop();
+                        return Err(error);
+                    }
+                }
+            }
+        }
+        self.state = EngineState::Running;
+        self.start_supervisor();
+        Ok(())
+    }
+
+    /// Warns about overflowing links at most once a second each, naming the link.
+    fn start_supervisor(&mut self) {
+        let (stop_tx, stop_rx): (SyncSender<()>, Receiver<()>) = mpsc::sync_channel(1);
+        let buffers = self.buffers.clone();
+        let spawned = std::thread::Builder::new().name("kairos-supervisor".to_owned()).spawn(move || {
+            let mut last: BTreeMap<Arc<str>, u64> = BTreeMap::new();
+            loop {
+                match stop_rx.recv_timeout(Duration::from_secs(1)) {
+                    Err(RecvTimeoutError::Timeout) => {}
+                    Ok(()) | Err(RecvTimeoutError::Disconnected) => return,
+                }
+                for buffer in &buffers {
+                    for (link, counters) in buffer.link_counters() {
+                        let before = last.insert(Arc::clone(&link), counters.overwritten).unwrap_or(0);
+                        let lost = counters.overwritten.saturating_sub(before);
+                        if lost > 0 {
+                            tracing::warn!(
+                                link = &*link,
+                                "overflow on link '{link}': {lost} samples overwritten before the reader got them \
+                                 ({} in all); the reader is slower than the writer: enlarge buffer_size, subsample, \
+                                 or read with LastOrNext",
+                                counters.overwritten
+                            );
+                        }
+                    }
+                }
+            }
+        });
+        if let Ok(handle) = spawned {
+            self.supervisor = Some((stop_tx, handle));
+        }
+    }
+
+    /// Pauses every component: periodic ones stop ticking, threaded ones stop between cycles.
+    pub fn pause(&mut self) {
+        if self.state == EngineState::Running {
+            for slot in &self.slots {
+                slot.signal.set_paused(true);
+                if !slot.monitor.is_failed() && matches!(slot.driver, Driver::Reactive(_)) {
+                    slot.monitor.set_state(ComponentState::Paused);
+                }
+            }
+            self.state = EngineState::Paused;
+        }
+    }
+
+    /// Resumes after [`Engine::pause`].
+    pub fn resume(&mut self) {
+        if self.state == EngineState::Paused {
+            for slot in &self.slots {
+                slot.signal.set_paused(false);
+                if !slot.monitor.is_failed() && matches!(slot.driver, Driver::Reactive(_)) {
+                    slot.monitor.set_state(ComponentState::Running);
+                }
+            }
+            self.state = EngineState::Running;
+        }
+    }
+
+    /// Stops every component and joins every thread. Safe to call twice.
+    pub fn stop(&mut self) {
+        if matches!(self.state, EngineState::Stopped | EngineState::Ready) {
+            self.state = EngineState::Stopped;
+            return;
+        }
+        for slot in &self.slots {
+            slot.signal.request_stop();
+        }
+        for slot in &mut self.slots {
+            if let Driver::Threaded { handle, .. } = &mut slot.driver
+                && let Some(handle) = handle.take()
+                && handle.join().is_err()
+            {
+                slot.monitor.fail(&slot.id, "thread", "its thread ended abnormally");
+            }
+        }
+        for slot in &self.slots {
+            if let Driver::Reactive(cell) = &slot.driver {
+                let mut guard = lock(&cell.inner);
+                let (component, ctx) = &mut *guard;
+                if let Err(error) = guarded(|| component.death(ctx)) {
+                    slot.monitor.fail(&slot.id, "death", &error.to_string());
+                }
+                if !slot.monitor.is_failed() {
+                    slot.monitor.set_state(ComponentState::Stopped);
+                }
+            }
+        }
+        if let Some((stop, handle)) = self.supervisor.take() {
+            let _ = stop.try_send(());
+            let _ = handle.join();
+        }
+        self.state = EngineState::Stopped;
+    }
+
+    /// Whether every threaded component has finished or failed on its own (e.g. its stream ended).
+    pub fn all_finished(&self) -> bool {
+        self.slots.iter().filter(|s| matches!(s.driver, Driver::Threaded { .. })).all(|s| {
+            matches!(s.monitor.state(), ComponentState::Finished | ComponentState::Failed(_))
+        })
+    }
+
+    /// Changes a property: checked against its kind and range and whether it may change while running,
+    /// then applied by the component on its own thread. A refused value keeps the old one.
+    pub fn set_property(&self, id: &str, name: &str, value: Value) -> Result<(), ControlError> {
+        let slot = self.slot(id)?;
+        let info = slot.info.property(name).ok_or_else(|| ControlError::UnknownProperty {
+            component: id.to_owned(),
+            property: name.to_owned(),
+        })?;
+        let value = info.kind.check(&value).map_err(|error| ControlError::InvalidValue {
+            component: id.to_owned(),
+            property: name.to_owned(),
+            reason: error.to_string(),
+        })?;
+        if !info.live && self.state != EngineState::Ready {
+            return Err(ControlError::NotLive {
+                component: id.to_owned(),
+                property: name.to_owned(),
+            });
+        }
+        let (reply, answer) = mpsc::sync_channel(1);
+        self.deliver(slot, ControlRequest::SetProperty {
+            name: name.to_owned(),
+            value,
+            reply,
+        }, answer)
+    }
+
+    /// Triggers an action on a component.
+    pub fn trigger_action(&self, id: &str, name: &str) -> Result<(), ControlError> {
+        let slot = self.slot(id)?;
+        if slot.info.action(name).is_none() {
+            return Err(ControlError::UnknownAction {
+                component: id.to_owned(),
+                action: name.to_owned(),
+            });
+        }
+        let (reply, answer) = mpsc::sync_channel(1);
+        self.deliver(slot, ControlRequest::Action { name: name.to_owned(), reply }, answer)
+    }
+
+    fn slot(&self, id: &str) -> Result<&Slot, ControlError> {
+        self.slots.iter().find(|s| s.id == id).ok_or_else(|| ControlError::UnknownComponent(id.to_owned()))
+    }
+
+    fn deliver(&self, slot: &Slot, request: ControlRequest, answer: Receiver<Result<(), String>>) -> Result<(), ControlError> {
+        let refused = |reason: String| ControlError::Refused {
+            component: slot.id.clone(),
+            reason,
+        };
+        if slot.monitor.is_failed() {
+            return Err(refused("the component has failed".to_owned()));
+        }
+        match &slot.driver {
+            Driver::Reactive(cell) => {
+                lock(&slot.monitor.controls).push_back(request);
+                let mut guard = lock(&cell.inner);
+                let (component, ctx) = &mut *guard;
+                apply_controls(&slot.id, component.as_mut(), ctx, &slot.monitor);
+            }
+            Driver::Threaded { .. } if self.state == EngineState::Ready => {
+                // Not started: the request waits in the queue and applies right after birth.
+                lock(&slot.monitor.controls).push_back(request);
+                slot.signal.raise_control();
+                return Ok(());
+            }
+            Driver::Threaded { .. } => {
+                if matches!(self.state, EngineState::Stopped) {
+                    return Err(refused("the diagram is stopped".to_owned()));
+                }
+                lock(&slot.monitor.controls).push_back(request);
+                slot.signal.raise_control();
+            }
+        }
+        match answer.recv_timeout(Duration::from_secs(2)) {
+            Ok(Ok(())) => Ok(()),
+            Ok(Err(reason)) => Err(refused(reason)),
+            Err(_) => Err(refused(
+                "no answer within 2 s (the component is busy in a long cycle); the request stays queued".to_owned(),
+            )),
+        }
+    }
+
+    /// Statistics of every link and component now (rates are filled in by
+    /// [`StatsSnapshot::with_rates_since`]).
+    pub fn snapshot(&self) -> StatsSnapshot {
+        let mut links = Vec::new();
+        for buffer in &self.buffers {
+            for (link, counters) in buffer.link_counters() {
+                // Only the diagram's own links: extra readers (viewers) report elsewhere.
+                let Some(policy) = self.policies.get(&*link).copied() else { continue };
+                links.push(LinkStats {
+                    link: link.to_string(),
+                    policy,
+                    counters,
+                    rate_hz: 0.0,
+                });
+            }
+        }
+        let components = self
+            .slots
+            .iter()
+            .map(|slot| ComponentStats {
+                id: slot.id.clone(),
+                type_name: slot.info.type_name.clone(),
+                state: slot.monitor.state(),
+                cycles: slot.monitor.cycles.load(Ordering::Relaxed),
+                busy_nanos: slot.monitor.busy_nanos.load(Ordering::Relaxed),
+                cycle_rate_hz: 0.0,
+                cpu_share: 0.0,
+            })
+            .collect();
+        StatsSnapshot {
+            at: self.clock.now(),
+            links,
+            components,
+        }
+    }
+
+    /// The output buffer of `component.output`, to attach extra readers (viewers, recorders).
+    pub fn output_buffer(&self, component: &str, output: &str) -> Option<&OutputBuffer> {
+        let name = format!("{component}.{output}");
+        self.buffers.iter().find(|b| b.output() == name)
+    }
+}
+
+impl Drop for Engine {
+    fn drop(&mut self) {
+        self.stop();
+    }
+}
+
+/// Linux limits thread names to 15 bytes; keep the id's end, which is usually the distinctive part.
+fn thread_name(id: &str) -> String {
+    let name = format!("k:{id}");
+    if name.len() <= 15 {
+        return name;
+    }
+    let mut start = name.len() - 15;
+    while !name.is_char_boundary(start) {
+        start += 1;
+    }
+    name.get(start..).unwrap_or("kairos").to_owned()
+}
+
+/// Everything a component's own thread needs.
+struct Worker {
+    id: String,
+    mode: ExecutionMode,
+    thread: ThreadSettings,
+    signal: Arc<RunSignal>,
+    monitor: Arc<Monitor>,
+    clock: Arc<dyn Clock>,
+}
+
+/// How often a component's thread reads its own CPU time.
+const CPU_SAMPLE_PERIOD: Duration = Duration::from_millis(50);
+
+impl Worker {
+    fn run(self, mut component: Box<dyn Component>, mut ctx: Context) {
+        self.signal.bind_current_thread();
+        scheduling::apply_to_current_thread(&self.id, &self.thread);
+        let span = tracing::info_span!("component", id = %self.id);
+        let _entered = span.enter();
+        let cpu_start = scheduling::thread_cpu_nanos();
+        let mut cpu_checked = Instant::now();
+
+        let mut outcome = match guarded(|| component.birth(&mut ctx)) {
+            Ok(()) => None,
+            Err(error) => {
+                self.monitor.fail(&self.id, "birth", &error.to_string());
+                Some(ComponentState::Failed(error.to_string()))
+            }
+        };
+        let mut next_tick = self.clock.now();
+        let mut paused = false;
+        while outcome.is_none() {
+            if self.signal.stop_requested() {
+                outcome = Some(ComponentState::Stopped);
+                break;
+            }
+            if self.signal.take_control() && !apply_controls(&self.id, component.as_mut(), &mut ctx, &self.monitor) {
+                outcome = Some(self.monitor.state());
+                break;
+            }
+            if self.signal.is_paused() {
+                if !paused {
+                    paused = true;
+                    self.monitor.set_state(ComponentState::Paused);
+                }
+                self.signal.park_timeout(Duration::from_millis(100));
+                continue;
+            }
+            if paused {
+                paused = false;
+                self.monitor.set_state(ComponentState::Running);
+                next_tick = self.clock.now();
+            }
+            let period = if self.mode == ExecutionMode::Periodic {
+                let Some(period) = ctx.period() else {
+                    self.monitor.fail(&self.id, "birth", "a periodic component must set its period (ctx.set_frequency)");
+                    outcome = Some(self.monitor.state());
+                    break;
+                };
+                if !self.clock.wait_until(next_tick, &self.signal) {
+                    continue;
+                }
+                Some(period)
+            } else {
+                None
+            };
+            ctx.begin_cycle();
+            match guarded(|| component.core(&mut ctx)) {
+                Ok(()) => {
+                    self.monitor.cycles.fetch_add(1, Ordering::Relaxed);
+                }
+                Err(ComponentError::Stopped) => outcome = Some(ComponentState::Stopped),
+                Err(ComponentError::EndOfStream) => outcome = Some(ComponentState::Finished),
+                Err(ComponentError::Interrupted | ComponentError::NoData) => {}
+                Err(ComponentError::Failed(message)) => {
+                    self.monitor.fail(&self.id, "core", &message);
+                    outcome = Some(self.monitor.state());
+                }
+            }
+            if let Some(period) = period {
+                next_tick = next_tick.after(period);
+                let now = self.clock.now();
+                // Fell more than a period behind (a long cycle, a stall): skip the missed ticks.
+                if now.nanos_since(next_tick) > period.as_nanos() as i64 {
+                    next_tick = now;
+                }
+            }
+            if cpu_checked.elapsed() >= CPU_SAMPLE_PERIOD {
+                cpu_checked = Instant::now();
+                self.monitor.busy_nanos.store(scheduling::thread_cpu_nanos().saturating_sub(cpu_start), Ordering::Relaxed);
+            }
+        }
+        if let Err(error) = guarded(|| component.death(&mut ctx)) {
+            self.monitor.fail(&self.id, "death", &error.to_string());
+        }
+        self.monitor.busy_nanos.store(scheduling::thread_cpu_nanos().saturating_sub(cpu_start), Ordering::Relaxed);
+        if !self.monitor.is_failed() {
+            self.monitor.set_state(outcome.unwrap_or(ComponentState::Stopped));
+        }
+        // Drop the readers now so NeverSkipping writers upstream are released.
+        drop(ctx);
+    }
+}

@@ -1,0 +1,10 @@
+//! The Kairos engine: turns a validated diagram into running components, each in its own thread
+//! (or reactive, in its producer's), moving samples through per-output circular buffers, and keeps
+//! per-link and per-component statistics.
+
+pub mod engine;
+pub mod scheduling;
+pub mod stats;
+
+pub use engine::{BuildError, ControlError, Engine, EngineState, link_name};
+pub use stats::{ComponentState, ComponentStats, LinkStats, StatsSnapshot};

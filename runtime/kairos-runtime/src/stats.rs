@@ -1,0 +1,163 @@
+//! Statistics snapshots: per link and per component, with rates computed between two snapshots.
+
+use std::collections::BTreeMap;
+
+use kairos_diagram::ReaderPolicy;
+use kairos_sdk::{LinkCounters, Timestamp};
+use serde::{Deserialize, Serialize};
+
+/// The life state of a component.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case", tag = "state", content = "error")]
+pub enum ComponentState {
+    /// Built, not started.
+    Idle,
+    /// Running its cycles.
+    Running,
+    /// Paused by the user.
+    Paused,
+    /// Its stream ended and it finished on its own.
+    Finished,
+    /// Stopped by the runtime.
+    Stopped,
+    /// It returned an error or panicked; the message says which and why.
+    Failed(String),
+}
+
+impl ComponentState {
+    /// A short word for tables.
+    pub fn word(&self) -> &'static str {
+        match self {
+            ComponentState::Idle => "idle",
+            ComponentState::Running => "running",
+            ComponentState::Paused => "paused",
+            ComponentState::Finished => "finished",
+            ComponentState::Stopped => "stopped",
+            ComponentState::Failed(_) => "FAILED",
+        }
+    }
+}
+
+/// One link's statistics.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct LinkStats {
+    /// `from -> to`.
+    pub link: String,
+    /// The reader policy.
+    pub policy: ReaderPolicy,
+    /// Counters since the run started.
+    pub counters: LinkCounters,
+    /// Samples written per second over the last interval.
+    pub rate_hz: f64,
+}
+
+/// One component's statistics.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ComponentStats {
+    /// The instance id.
+    pub id: String,
+    /// The component type.
+    pub type_name: String,
+    /// Its state.
+    pub state: ComponentState,
+    /// `core` calls completed.
+    pub cycles: u64,
+    /// CPU time spent by the component (its thread's CPU time; wall time in `core` for reactive ones).
+    pub busy_nanos: u64,
+    /// Cycles per second over the last interval.
+    pub cycle_rate_hz: f64,
+    /// Share of one core over the last interval (0.0 to 1.0).
+    pub cpu_share: f64,
+}
+
+/// Statistics of a whole running diagram at one instant.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct StatsSnapshot {
+    /// When it was taken, on the runtime clock.
+    pub at: Timestamp,
+    /// Per link, in diagram order.
+    pub links: Vec<LinkStats>,
+    /// Per component, in diagram order.
+    pub components: Vec<ComponentStats>,
+}
+
+impl StatsSnapshot {
+    /// Fills in rates from an earlier snapshot of the same run.
+    pub fn with_rates_since(mut self, earlier: &StatsSnapshot) -> StatsSnapshot {
+        let seconds = self.at.nanos_since(earlier.at) as f64 * 1e-9;
+        if seconds <= 0.0 {
+            return self;
+        }
+        let links: BTreeMap<&str, &LinkStats> = earlier.links.iter().map(|l| (l.link.as_str(), l)).collect();
+        for link in &mut self.links {
+            if let Some(before) = links.get(link.link.as_str()) {
+                link.rate_hz = link.counters.written.saturating_sub(before.counters.written) as f64 / seconds;
+            }
+        }
+        let components: BTreeMap<&str, &ComponentStats> = earlier.components.iter().map(|c| (c.id.as_str(), c)).collect();
+        for component in &mut self.components {
+            if let Some(before) = components.get(component.id.as_str()) {
+                component.cycle_rate_hz = component.cycles.saturating_sub(before.cycles) as f64 / seconds;
+                component.cpu_share = component.busy_nanos.saturating_sub(before.busy_nanos) as f64 * 1e-9 / seconds;
+            }
+        }
+        self
+    }
+
+    /// Renders the snapshot as two aligned text tables.
+    pub fn table(&self) -> String {
+        use std::fmt::Write as _;
+        let mut out = String::new();
+        let width = self.links.iter().map(|l| l.link.len()).max().unwrap_or(4).max(4);
+        let _ = writeln!(
+            out,
+            "{:<width$}  {:<13} {:>9} {:>9} {:>8} {:>11} {:>6} {:>9}  {:>10} {:>10} {:>10}",
+            "link", "policy", "written", "read", "skipped", "overwritten", "queued", "rate/s", "lat min", "lat mean", "lat p99"
+        );
+        for link in &self.links {
+            let c = &link.counters;
+            let _ = writeln!(
+                out,
+                "{:<width$}  {:<13} {:>9} {:>9} {:>8} {:>11} {:>6} {:>9.1}  {:>10} {:>10} {:>10}",
+                link.link,
+                link.policy.name(),
+                c.written,
+                c.read,
+                c.skipped,
+                c.overwritten,
+                c.queued,
+                link.rate_hz,
+                micros(c.latency.min_nanos, c.latency.count),
+                micros(c.latency.mean_nanos, c.latency.count),
+                micros(c.latency.p99_nanos, c.latency.count),
+            );
+        }
+        let width = self.components.iter().map(|c| c.id.len()).max().unwrap_or(9).max(9);
+        let _ = writeln!(out);
+        let _ = writeln!(out, "{:<width$}  {:<22} {:<8} {:>10} {:>9} {:>6}", "component", "type", "state", "cycles", "cycles/s", "cpu%");
+        for component in &self.components {
+            let _ = writeln!(
+                out,
+                "{:<width$}  {:<22} {:<8} {:>10} {:>9.1} {:>6.1}",
+                component.id,
+                component.type_name,
+                component.state.word(),
+                component.cycles,
+                component.cycle_rate_hz,
+                component.cpu_share * 100.0,
+            );
+            if let ComponentState::Failed(error) = &component.state {
+                let _ = writeln!(out, "{:<width$}    error: {error}", "");
+            }
+        }
+        out
+    }
+}
+
+fn micros(nanos: i64, count: u64) -> String {
+    if count == 0 {
+        "-".to_owned()
+    } else {
+        format!("{:.1}µs", nanos as f64 / 1000.0)
+    }
+}

@@ -1,0 +1,171 @@
+//! Argument parsing and dispatch.
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::time::Duration;
+
+use anyhow::Context as _;
+use clap::{Parser, Subcommand};
+use kairos_diagram::LibraryInfo;
+
+use crate::duration::parse_duration;
+
+/// Kairos: real-time multi-sensor prototyping, headless.
+#[derive(Debug, Parser)]
+#[command(name = "kairos", version, about, long_about = None)]
+pub struct Cli {
+    /// More log output (-v: debug, -vv: trace). RUST_LOG overrides it.
+    #[arg(short, long, action = clap::ArgAction::Count, global = true)]
+    pub verbose: u8,
+    /// What to do.
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+/// The subcommands.
+#[derive(Debug, Subcommand)]
+pub enum Command {
+    /// Run a diagram until Ctrl-C, or for a given time.
+    Run {
+        /// The diagram file (.ron).
+        diagram: PathBuf,
+        /// Stop after this long (e.g. 10s, 500ms, 2m).
+        #[arg(long = "for", value_parser = parse_duration)]
+        duration: Option<Duration>,
+        /// Print per-link and per-component statistics periodically and a final table at exit.
+        #[arg(long)]
+        stats: bool,
+        /// How often --stats prints.
+        #[arg(long, value_parser = parse_duration, default_value = "1s")]
+        stats_interval: Duration,
+    },
+    /// Check diagrams against the component library; exit 0 when all are valid.
+    Validate {
+        /// The diagram files.
+        #[arg(required = true)]
+        diagrams: Vec<PathBuf>,
+    },
+    /// List the component library.
+    Components {
+        /// Print JSON instead of text.
+        #[arg(long)]
+        json: bool,
+        /// Show only types containing this text.
+        filter: Option<String>,
+    },
+}
+
+/// Sets up logging to standard error.
+pub fn init_logging(verbose: u8) {
+    let default = match verbose {
+        0 => "info",
+        1 => "debug",
+        _ => "trace",
+    };
+    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(default));
+    let _ = tracing_subscriber::fmt().with_env_filter(filter).with_writer(std::io::stderr).with_target(false).try_init();
+}
+
+/// Runs a parsed command line.
+pub fn execute(cli: Cli) -> anyhow::Result<ExitCode> {
+    let registry = crate::builtin_registry();
+    for duplicate in registry.duplicates() {
+        tracing::warn!(
+            "component type '{}' is offered by packs '{}' and '{}'; using the one from '{}'",
+            duplicate.type_name,
+            duplicate.kept_from,
+            duplicate.refused_from,
+            duplicate.kept_from
+        );
+    }
+    match cli.command {
+        Command::Run {
+            diagram,
+            duration,
+            stats,
+            stats_interval,
+        } => crate::run::run(&registry, &diagram, &crate::run::RunOptions {
+            duration,
+            stats: stats.then_some(stats_interval),
+        }),
+        Command::Validate { diagrams } => Ok(validate(&registry.library_info(), &diagrams)),
+        Command::Components { json, filter } => {
+            components(&registry.library_info(), json, filter.as_deref())?;
+            Ok(ExitCode::SUCCESS)
+        }
+    }
+}
+
+fn validate(library: &LibraryInfo, paths: &[PathBuf]) -> ExitCode {
+    let mut all_valid = true;
+    for path in paths {
+        match kairos_diagram::load(path) {
+            Err(error) => {
+                all_valid = false;
+                eprint!("{}", error.render());
+            }
+            Ok((source, parsed)) => {
+                let diagnostics = parsed.validate(library);
+                let name = path.display().to_string();
+                if diagnostics.is_empty() {
+                    println!("{name}: valid");
+                } else {
+                    eprint!("{}", kairos_diagram::render_all(&diagnostics, &name, &source));
+                    if diagnostics.iter().any(kairos_diagram::Diagnostic::is_error) {
+                        all_valid = false;
+                    } else {
+                        println!("{name}: valid (with warnings)");
+                    }
+                }
+            }
+        }
+    }
+    if all_valid { ExitCode::SUCCESS } else { ExitCode::from(1) }
+}
+
+fn components(library: &LibraryInfo, json: bool, filter: Option<&str>) -> anyhow::Result<()> {
+    let selected: Vec<_> = library
+        .components
+        .values()
+        .filter(|c| filter.is_none_or(|f| c.type_name.contains(f)))
+        .collect();
+    if json {
+        let document = serde_json::json!({
+            "packs": library.packs.values().collect::<Vec<_>>(),
+            "components": selected,
+        });
+        println!("{}", serde_json::to_string_pretty(&document).context("encoding the library as JSON")?);
+        return Ok(());
+    }
+    use std::fmt::Write as _;
+    let mut out = String::new();
+    for component in selected {
+        let _ = writeln!(out, "{}  [{} / {}, {:?}]", component.type_name, component.pack, component.category, component.mode);
+        let _ = writeln!(out, "    {}", component.doc);
+        for input in &component.inputs {
+            let _ = writeln!(out, "    in   {:<12} {} (default {})  {}", input.name, input.filter, input.default_policy, input.doc);
+        }
+        for output in &component.outputs {
+            let data_type = output.follows_input.as_ref().map_or_else(|| output.data_type.to_string(), |i| format!("same as input '{i}'"));
+            let _ = writeln!(out, "    out  {:<12} {} (buffer {})  {}", output.name, data_type, output.default_buffer_size, output.doc);
+        }
+        for property in &component.properties {
+            let _ = writeln!(
+                out,
+                "    prop {:<12} {} = {}{}  {}",
+                property.name,
+                property.kind.describe(),
+                property.default,
+                if property.live { " (live)" } else { "" },
+                property.doc
+            );
+        }
+        for action in &component.actions {
+            let _ = writeln!(out, "    act  {:<12} {}", action.name, action.doc);
+        }
+        out.push('\n');
+    }
+    print!("{out}");
+    Ok(())
+}

@@ -1,0 +1,110 @@
+//! `kairos run`: load, validate, start, report, stop.
+
+use std::path::Path;
+use std::process::ExitCode;
+use std::sync::mpsc;
+use std::time::{Duration, Instant};
+
+use anyhow::{Context as _, bail};
+use kairos_runtime::{ComponentState, Engine, StatsSnapshot};
+use kairos_sdk::{RealTimeClock, Registry};
+
+/// How `kairos run` behaves.
+#[derive(Debug, Clone, Default)]
+pub struct RunOptions {
+    /// Stop after this long; `None` runs until Ctrl-C (or until every component has finished).
+    pub duration: Option<Duration>,
+    /// Print statistics at this interval, and a final table.
+    pub stats: Option<Duration>,
+}
+
+/// Exit code when the run ended with a failed component.
+const EXIT_COMPONENT_FAILED: u8 = 2;
+
+/// Runs the diagram at `path` with the components of `registry`.
+pub fn run(registry: &Registry, path: &Path, options: &RunOptions) -> anyhow::Result<ExitCode> {
+    let (source, parsed) = match kairos_diagram::load(path) {
+        Ok(loaded) => loaded,
+        Err(error) => {
+            eprint!("{}", error.render());
+            return Ok(ExitCode::from(1));
+        }
+    };
+    let diagnostics = parsed.validate(&registry.library_info());
+    if !diagnostics.is_empty() {
+        eprint!("{}", kairos_diagram::render_all(&diagnostics, &path.display().to_string(), &source));
+    }
+    if diagnostics.iter().any(kairos_diagram::Diagnostic::is_error) {
+        return Ok(ExitCode::from(1));
+    }
+
+    let (stop_tx, stop_rx) = mpsc::sync_channel::<()>(1);
+    ctrlc::set_handler(move || {
+        let _ = stop_tx.try_send(());
+    })
+    .context("installing the Ctrl-C handler")?;
+
+    let mut engine = match Engine::build(&parsed.diagram, registry, RealTimeClock::shared()) {
+        Ok(engine) => engine,
+        Err(error) => bail!("{error}"),
+    };
+    engine.start().context("starting the diagram")?;
+    tracing::info!(
+        "running {} ({} components){}",
+        path.display(),
+        parsed.diagram.components.len(),
+        options.duration.map_or_else(|| "; Ctrl-C stops".to_owned(), |d| format!(" for {d:?}"))
+    );
+
+    let started = Instant::now();
+    let mut last_stats = engine.snapshot();
+    let mut last_print = Instant::now();
+    let first = last_stats.clone();
+    loop {
+        let tick = Duration::from_millis(50);
+        let stop_requested = !matches!(stop_rx.recv_timeout(tick), Err(mpsc::RecvTimeoutError::Timeout));
+        if stop_requested {
+            tracing::info!("stopping (Ctrl-C)");
+            break;
+        }
+        if options.duration.is_some_and(|d| started.elapsed() >= d) {
+            break;
+        }
+        if engine.all_finished() {
+            tracing::info!("every component has finished");
+            break;
+        }
+        if let Some(interval) = options.stats
+            && last_print.elapsed() >= interval
+        {
+            let now = engine.snapshot();
+            eprintln!("--- {:.1} s ---\n{}", started.elapsed().as_secs_f64(), now.clone().with_rates_since(&last_stats).table());
+            last_stats = now;
+            last_print = Instant::now();
+        }
+    }
+    engine.stop();
+    let last = engine.snapshot().with_rates_since(&first);
+    if options.stats.is_some() {
+        eprintln!("=== final, {:.1} s (rates are averages over the run) ===\n{}", started.elapsed().as_secs_f64(), last.table());
+    }
+    Ok(report_failures(&last))
+}
+
+fn report_failures(snapshot: &StatsSnapshot) -> ExitCode {
+    let failed: Vec<_> = snapshot
+        .components
+        .iter()
+        .filter_map(|c| match &c.state {
+            ComponentState::Failed(error) => Some((c.id.as_str(), error.as_str())),
+            _ => None,
+        })
+        .collect();
+    if failed.is_empty() {
+        return ExitCode::SUCCESS;
+    }
+    for (id, error) in &failed {
+        eprintln!("component '{id}' failed: {error}");
+    }
+    ExitCode::from(EXIT_COMPONENT_FAILED)
+}
