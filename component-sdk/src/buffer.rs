@@ -124,9 +124,9 @@ impl State {
 
     /// Whether a NeverSkipping reader has no room left for one more sample.
     fn never_skipping_full(&self) -> bool {
-        self.readers
-            .iter()
-            .any(|r| r.attached && r.policy == ReaderPolicy::NeverSkipping && self.written - r.cursor >= r.capacity)
+        self.readers.iter().any(|r| {
+            r.attached && r.policy == ReaderPolicy::NeverSkipping && self.written - r.cursor >= r.capacity
+        })
     }
 
     /// Makes the ring at least `capacity` long, keeping every sample a reader may still need.
@@ -138,7 +138,10 @@ impl State {
         let mut slots: Vec<Option<Sample>> = (0..capacity).map(|_| None).collect();
         let first_kept = self.written.saturating_sub(old_len);
         for sequence in first_kept..self.written {
-            let sample = self.slots.get_mut((sequence % old_len) as usize).and_then(Option::take);
+            let sample = self
+                .slots
+                .get_mut((sequence % old_len) as usize)
+                .and_then(Option::take);
             if let Some(slot) = slots.get_mut((sequence % capacity) as usize) {
                 *slot = sample;
             }
@@ -167,6 +170,10 @@ impl State {
                 }
                 ReaderPolicy::Sampling => {
                     if cursor >= written {
+                        // A closed stream has nothing new to give: end it rather than repeat forever.
+                        if self.closed {
+                            return None;
+                        }
                         let again = self.newest()?.clone();
                         if let Some(reader) = self.readers.get_mut(index) {
                             reader.repeated += 1;
@@ -204,7 +211,9 @@ pub struct OutputBuffer {
 
 impl fmt::Debug for OutputBuffer {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.debug_struct("OutputBuffer").field("output", &self.shared.output).finish_non_exhaustive()
+        f.debug_struct("OutputBuffer")
+            .field("output", &self.shared.output)
+            .finish_non_exhaustive()
     }
 }
 
@@ -237,7 +246,9 @@ impl OutputBuffer {
     /// written sees the newest one as pending, so Sampling and LastOrNext readers have data at once.
     pub fn attach(&self, config: ReaderConfig, signal: Arc<RunSignal>) -> Reader {
         let mut state = lock(&self.shared.state);
-        let capacity = config.capacity.map_or(state.default_capacity, |c| c.max(1) as u64);
+        let capacity = config
+            .capacity
+            .map_or(state.default_capacity, |c| c.max(1) as u64);
         state.grow(capacity);
         let joined_at = state.written.saturating_sub(1);
         state.readers.push(ReaderState {
@@ -292,7 +303,10 @@ impl OutputBuffer {
         state.written += 1;
         let written = state.written;
         for reader in &mut state.readers {
-            if reader.attached && reader.policy == ReaderPolicy::Fifo && written - reader.cursor > reader.capacity {
+            if reader.attached
+                && reader.policy == ReaderPolicy::Fifo
+                && written - reader.cursor > reader.capacity
+            {
                 let lapped = written - reader.cursor - reader.capacity;
                 reader.overwritten += lapped;
                 reader.cursor += lapped;
@@ -374,7 +388,8 @@ impl Reader {
     pub fn try_read(&mut self) -> Option<Sample> {
         let mut state = lock(&self.buffer.shared.state);
         let sample = state.take(self.index);
-        let writer = if sample.is_some() { state.blocked_writer.take() } else { None };
+        // Wake a blocked writer even without a sample: subsampling may have consumed some and made room.
+        let writer = state.blocked_writer.take();
         drop(state);
         if let Some(writer) = writer {
             writer.wake();
@@ -392,16 +407,17 @@ impl Reader {
         }
         loop {
             let mut state = lock(&self.buffer.shared.state);
-            if let Some(sample) = state.take(self.index) {
-                let writer = state.blocked_writer.take();
-                drop(state);
-                if let Some(writer) = writer {
-                    writer.wake();
-                }
-                return Ok(sample);
-            }
+            let sample = state.take(self.index);
+            // Wake a blocked writer even without a sample: subsampling may have consumed some and made room.
+            let writer = state.blocked_writer.take();
             let closed = state.closed;
             drop(state);
+            if let Some(writer) = writer {
+                writer.wake();
+            }
+            if let Some(sample) = sample {
+                return Ok(sample);
+            }
             if closed {
                 return Err(ReadError::EndOfStream);
             }
@@ -437,13 +453,21 @@ impl Reader {
     /// This link's counters.
     pub fn counters(&self) -> LinkCounters {
         let state = lock(&self.buffer.shared.state);
-        state.readers.get(self.index).map(|r| r.counters(state.written)).unwrap_or_default()
+        state
+            .readers
+            .get(self.index)
+            .map(|r| r.counters(state.written))
+            .unwrap_or_default()
     }
 
     /// Whether the writer closed the stream and nothing is left to read.
     pub fn is_exhausted(&self) -> bool {
         let state = lock(&self.buffer.shared.state);
-        state.closed && state.readers.get(self.index).is_none_or(|r| r.cursor >= state.written)
+        state.closed
+            && state
+                .readers
+                .get(self.index)
+                .is_none_or(|r| r.cursor >= state.written)
     }
 }
 

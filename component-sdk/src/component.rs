@@ -171,7 +171,12 @@ pub struct OutputPort {
 impl OutputPort {
     /// An output writing into `buffer`, keeping one sample in `subsampling`. Writes are checked against
     /// `data_type`; `None` accepts any type (an output that follows an input).
-    pub fn new(name: impl Into<String>, data_type: Option<DataType>, buffer: OutputBuffer, subsampling: u32) -> Self {
+    pub fn new(
+        name: impl Into<String>,
+        data_type: Option<DataType>,
+        buffer: OutputBuffer,
+        subsampling: u32,
+    ) -> Self {
         OutputPort {
             name: name.into(),
             data_type,
@@ -282,12 +287,18 @@ impl Context {
         self.properties.insert(name.to_owned(), value)
     }
 
-    fn typed<T>(&self, name: &str, get: impl Fn(&Value) -> Option<T>, kind: &str) -> Result<T, ComponentError> {
+    fn typed<T>(
+        &self,
+        name: &str,
+        get: impl Fn(&Value) -> Option<T>,
+        kind: &str,
+    ) -> Result<T, ComponentError> {
         let value = self
             .properties
             .get(name)
             .ok_or_else(|| ComponentError::failed(format_args!("no property '{name}'")))?;
-        get(value).ok_or_else(|| ComponentError::failed(format_args!("property '{name}' is not {kind}: {value}")))
+        get(value)
+            .ok_or_else(|| ComponentError::failed(format_args!("property '{name}' is not {kind}: {value}")))
     }
 
     /// A float property (integers are converted).
@@ -353,7 +364,10 @@ impl Context {
 
     /// Whether the input is connected.
     pub fn is_connected(&self, input: impl PortKey) -> bool {
-        self.input_index(input).ok().and_then(|i| self.inputs.get(i)).is_some_and(InputPort::is_connected)
+        self.input_index(input)
+            .ok()
+            .and_then(|i| self.inputs.get(i))
+            .is_some_and(InputPort::is_connected)
     }
 
     /// Reads one sample from `input` under its reader policy, sleeping until one is there.
@@ -378,7 +392,11 @@ impl Context {
     /// Reads one sample from `input` if one is there under its policy, without blocking.
     pub fn try_read(&mut self, input: impl PortKey) -> Result<Option<Sample>, ComponentError> {
         let index = self.input_index(input)?;
-        let sample = self.inputs.get_mut(index).and_then(|p| p.reader.as_mut()).and_then(Reader::try_read);
+        let sample = self
+            .inputs
+            .get_mut(index)
+            .and_then(|p| p.reader.as_mut())
+            .and_then(Reader::try_read);
         if sample.is_some() {
             self.samples_read_this_cycle += 1;
         }
@@ -388,24 +406,40 @@ impl Context {
     /// Reads from whichever of `inputs` has data first ("any-of"); returns the position in `inputs` and
     /// the sample. Inputs are polled in turn starting after the last one served, so none starves.
     pub fn read_any<K: PortKey>(&mut self, inputs: &[K]) -> Result<(usize, Sample), ComponentError> {
-        let indices: Vec<usize> = inputs.iter().map(|k| self.input_index(*k)).collect::<Result<_, _>>()?;
+        let indices: Vec<usize> = inputs
+            .iter()
+            .map(|k| self.input_index(*k))
+            .collect::<Result<_, _>>()?;
         let count = indices.len();
         loop {
             // Start after the input served last time, so a busy input cannot starve the others.
             for step in 0..count {
                 let position = (self.any_rotation + step) % count;
-                let Some(index) = indices.get(position) else { continue };
-                if let Some(sample) = self.inputs.get_mut(*index).and_then(|p| p.reader.as_mut()).and_then(Reader::try_read)
+                let Some(index) = indices.get(position) else {
+                    continue;
+                };
+                if let Some(sample) = self
+                    .inputs
+                    .get_mut(*index)
+                    .and_then(|p| p.reader.as_mut())
+                    .and_then(Reader::try_read)
                 {
                     self.samples_read_this_cycle += 1;
                     self.any_rotation = position + 1;
                     return Ok((position, sample));
                 }
             }
-            let all_ended = indices
-                .iter()
-                .all(|i| self.inputs.get(*i).and_then(InputPort::reader).is_none_or(Reader::is_exhausted));
-            if all_ended && indices.iter().any(|i| self.inputs.get(*i).is_some_and(InputPort::is_connected)) {
+            let all_ended = indices.iter().all(|i| {
+                self.inputs
+                    .get(*i)
+                    .and_then(InputPort::reader)
+                    .is_none_or(Reader::is_exhausted)
+            });
+            if all_ended
+                && indices
+                    .iter()
+                    .any(|i| self.inputs.get(*i).is_some_and(InputPort::is_connected))
+            {
                 return Err(ComponentError::EndOfStream);
             }
             if self.signal.is_reactive() {
@@ -483,13 +517,23 @@ impl Context {
     }
 
     /// Writes a new sample whose data originated at `timestamp` (a sensor's own acquisition time).
-    pub fn write_at(&mut self, output: impl PortKey, payload: Payload, timestamp: Timestamp) -> Result<(), ComponentError> {
+    pub fn write_at(
+        &mut self,
+        output: impl PortKey,
+        payload: Payload,
+        timestamp: Timestamp,
+    ) -> Result<(), ComponentError> {
         let now = self.clock.now();
         self.emit(output, payload, timestamp, now)
     }
 
     /// Writes the result of processing `input`: it keeps the input's timestamp.
-    pub fn write_processed(&mut self, output: impl PortKey, input: &Sample, payload: Payload) -> Result<(), ComponentError> {
+    pub fn write_processed(
+        &mut self,
+        output: impl PortKey,
+        input: &Sample,
+        payload: Payload,
+    ) -> Result<(), ComponentError> {
         let now = self.clock.now();
         self.emit(output, payload, input.timestamp, now)
     }
@@ -499,10 +543,18 @@ impl Context {
         self.write_processed(output, sample, sample.payload.clone())
     }
 
-    fn emit(&mut self, output: impl PortKey, payload: Payload, timestamp: Timestamp, time_of_issue: Timestamp) -> Result<(), ComponentError> {
+    fn emit(
+        &mut self,
+        output: impl PortKey,
+        payload: Payload,
+        timestamp: Timestamp,
+        time_of_issue: Timestamp,
+    ) -> Result<(), ComponentError> {
         let index = self.output_index(output)?;
         let Some(port) = self.outputs.get_mut(index) else {
-            return Err(ComponentError::failed(format_args!("component has no output '{output}'")));
+            return Err(ComponentError::failed(format_args!(
+                "component has no output '{output}'"
+            )));
         };
         if let Some(data_type) = &port.data_type
             && !payload.is_of(data_type)
@@ -582,7 +634,12 @@ impl Synchronizer {
             }
             if missing {
                 let ended = self.inputs.iter().zip(&self.pending).any(|(index, slot)| {
-                    slot.is_none() && ctx.inputs().get(*index).and_then(InputPort::reader).is_some_and(Reader::is_exhausted)
+                    slot.is_none()
+                        && ctx
+                            .inputs()
+                            .get(*index)
+                            .and_then(InputPort::reader)
+                            .is_some_and(Reader::is_exhausted)
                 });
                 if ended {
                     return Err(ComponentError::EndOfStream);
@@ -590,8 +647,14 @@ impl Synchronizer {
                 ctx.wait_for_data()?;
                 continue;
             }
-            let stamps: Vec<i64> = self.pending.iter().flatten().map(|s| s.timestamp.as_nanos()).collect();
-            let (Some(newest), Some(oldest)) = (stamps.iter().max().copied(), stamps.iter().min().copied()) else {
+            let stamps: Vec<i64> = self
+                .pending
+                .iter()
+                .flatten()
+                .map(|s| s.timestamp.as_nanos())
+                .collect();
+            let (Some(newest), Some(oldest)) = (stamps.iter().max().copied(), stamps.iter().min().copied())
+            else {
                 continue;
             };
             if newest - oldest <= self.tolerance_nanos {
@@ -600,7 +663,10 @@ impl Synchronizer {
             // Timestamps only grow per input: a sample older than the newest minus the tolerance can
             // never be matched, so drop it and read on.
             for slot in &mut self.pending {
-                if slot.as_ref().is_some_and(|s| newest - s.timestamp.as_nanos() > self.tolerance_nanos) {
+                if slot
+                    .as_ref()
+                    .is_some_and(|s| newest - s.timestamp.as_nanos() > self.tolerance_nanos)
+                {
                     *slot = None;
                     self.dropped += 1;
                 }

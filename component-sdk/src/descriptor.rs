@@ -14,8 +14,8 @@
 //! ```
 
 use kairos_diagram::{
-    ActionInfo, ComponentInfo, DataType, ExecutionMode, InputInfo, OutputInfo, PropertyInfo, PropertyKind, ReaderPolicy,
-    TypeFilter, Value,
+    ActionInfo, ComponentInfo, DataType, ExecutionMode, InputInfo, OutputInfo, PropertyInfo, PropertyKind,
+    ReaderPolicy, TypeFilter, Value,
 };
 
 /// The buffer size an output gets unless its descriptor or the diagram says otherwise.
@@ -59,7 +59,13 @@ impl Descriptor {
     }
 
     /// Adds an input with its default reader policy.
-    pub fn input_with_policy(mut self, name: &str, filter: TypeFilter, policy: ReaderPolicy, doc: &str) -> Self {
+    pub fn input_with_policy(
+        mut self,
+        name: &str,
+        filter: TypeFilter,
+        policy: ReaderPolicy,
+        doc: &str,
+    ) -> Self {
         self.info.inputs.push(InputInfo {
             name: name.to_owned(),
             filter,
@@ -75,7 +81,13 @@ impl Descriptor {
     }
 
     /// Adds an output with its own default buffer size.
-    pub fn output_with_buffer(mut self, name: &str, data_type: DataType, buffer_size: usize, doc: &str) -> Self {
+    pub fn output_with_buffer(
+        mut self,
+        name: &str,
+        data_type: DataType,
+        buffer_size: usize,
+        doc: &str,
+    ) -> Self {
         self.info.outputs.push(OutputInfo {
             name: name.to_owned(),
             data_type,
@@ -141,12 +153,20 @@ impl Property {
 
     /// A float property.
     pub fn f64(name: &str, default: f64) -> Self {
-        Self::new(name, PropertyKind::F64 { min: None, max: None }, Value::F64(default))
+        Self::new(
+            name,
+            PropertyKind::F64 { min: None, max: None },
+            Value::F64(default),
+        )
     }
 
     /// An integer property.
     pub fn i64(name: &str, default: i64) -> Self {
-        Self::new(name, PropertyKind::I64 { min: None, max: None }, Value::I64(default))
+        Self::new(
+            name,
+            PropertyKind::I64 { min: None, max: None },
+            Value::I64(default),
+        )
     }
 
     /// A boolean property.

@@ -86,7 +86,10 @@ impl HarnessOutput {
 
     /// The float values written on `output` (other payloads are left out).
     pub fn f64_values(&self, output: &str) -> Vec<f64> {
-        self.samples(output).iter().filter_map(|s| s.payload.as_f64()).collect()
+        self.samples(output)
+            .iter()
+            .filter_map(|s| s.payload.as_f64())
+            .collect()
     }
 
     /// Every output's samples.
@@ -121,11 +124,16 @@ pub struct Harness {
 
 impl std::fmt::Debug for Harness {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("Harness").field("type_name", &self.info.type_name).finish_non_exhaustive()
+        f.debug_struct("Harness")
+            .field("type_name", &self.info.type_name)
+            .finish_non_exhaustive()
     }
 }
 
-fn catch<T>(stage: &'static str, call: impl FnOnce() -> Result<T, ComponentError>) -> Result<T, HarnessError> {
+fn catch<T>(
+    stage: &'static str,
+    call: impl FnOnce() -> Result<T, ComponentError>,
+) -> Result<T, HarnessError> {
     match std::panic::catch_unwind(std::panic::AssertUnwindSafe(call)) {
         Ok(Ok(value)) => Ok(value),
         Ok(Err(error)) => Err(HarnessError::Failed {
@@ -147,7 +155,11 @@ impl Harness {
 
     /// Like [`Harness::new`] for a boxed component (what a registry's factory makes).
     pub fn boxed(info: ComponentInfo, component: Box<dyn Component>) -> Self {
-        let properties = info.properties.iter().map(|p| (p.name.clone(), p.default.clone())).collect();
+        let properties = info
+            .properties
+            .iter()
+            .map(|p| (p.name.clone(), p.default.clone()))
+            .collect();
         Harness {
             info,
             component,
@@ -167,17 +179,25 @@ impl Harness {
     /// Sets a property, checked against its kind. Before the first run it is the initial value; after,
     /// it is a live change delivered through `property_changed`.
     pub fn set_property(&mut self, name: &str, value: impl Into<Value>) -> Result<&mut Self, HarnessError> {
-        let property = self.info.property(name).ok_or_else(|| HarnessError::UnknownProperty(name.to_owned()))?;
-        let value = property.kind.check(&value.into()).map_err(|error| HarnessError::InvalidProperty {
-            name: name.to_owned(),
-            error,
-        })?;
+        let property = self
+            .info
+            .property(name)
+            .ok_or_else(|| HarnessError::UnknownProperty(name.to_owned()))?;
+        let value = property
+            .kind
+            .check(&value.into())
+            .map_err(|error| HarnessError::InvalidProperty {
+                name: name.to_owned(),
+                error,
+            })?;
         self.properties.insert(name.to_owned(), value.clone());
         if let Some(running) = &mut self.running {
             running.ctx.set_property(name, value.clone());
             let component = &mut self.component;
             let ctx = &mut running.ctx;
-            catch("property_changed", || component.property_changed(name, &value, ctx))?;
+            catch("property_changed", || {
+                component.property_changed(name, &value, ctx)
+            })?;
         }
         Ok(self)
     }
@@ -196,9 +216,17 @@ impl Harness {
     /// Scripts a whole sample on `input`. Pushing to an input the component does not have is recorded
     /// and reported by the next run.
     pub fn push_sample(&mut self, input: &str, sample: Sample) -> &mut Self {
-        let index = self.info.inputs.iter().position(|i| i.name == input).unwrap_or(usize::MAX);
+        let index = self
+            .info
+            .inputs
+            .iter()
+            .position(|i| i.name == input)
+            .unwrap_or(usize::MAX);
         if index == usize::MAX {
-            self.pending.push((usize::MAX, Sample::new(Payload::Text(Arc::from(input)), sample.timestamp)));
+            self.pending.push((
+                usize::MAX,
+                Sample::new(Payload::Text(Arc::from(input)), sample.timestamp),
+            ));
         } else {
             self.pending.push((index, sample));
         }
@@ -223,8 +251,15 @@ impl Harness {
         let mut inputs = Vec::new();
         for input in &self.info.inputs {
             let buffer = OutputBuffer::new(format!("harness.{}", input.name), 1 << 16);
-            let policy = self.policies.get(&input.name).copied().unwrap_or(input.default_policy);
-            let reader = buffer.attach(ReaderConfig::new(policy, format!("harness -> {}", input.name)), Arc::clone(&signal));
+            let policy = self
+                .policies
+                .get(&input.name)
+                .copied()
+                .unwrap_or(input.default_policy);
+            let reader = buffer.attach(
+                ReaderConfig::new(policy, format!("harness -> {}", input.name)),
+                Arc::clone(&signal),
+            );
             inputs.push(InputPort::new(input.name.clone(), Some(reader)));
             input_buffers.push(buffer);
         }
@@ -237,7 +272,12 @@ impl Harness {
                 Arc::clone(&feeder),
             );
             collectors.push((output.name.clone(), reader));
-            outputs.push(OutputPort::new(output.name.clone(), output.follows_input.is_none().then(|| output.data_type.clone()), buffer, 1));
+            outputs.push(OutputPort::new(
+                output.name.clone(),
+                output.follows_input.is_none().then(|| output.data_type.clone()),
+                buffer,
+                1,
+            ));
         }
         let clock: Arc<dyn Clock> = Arc::clone(&self.clock) as Arc<dyn Clock>;
         let mut ctx = Context::new(ContextParts {

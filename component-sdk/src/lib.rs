@@ -23,12 +23,16 @@ pub mod time;
 
 pub use buffer::{OutputBuffer, ReadError, Reader, ReaderConfig, WriteError};
 pub use component::{
-    Component, ComponentError, ComponentResult, Context, ContextParts, InputPort, OutputPort, PortKey, Synchronizer,
+    Component, ComponentError, ComponentResult, Context, ContextParts, InputPort, OutputPort, PortKey,
+    Synchronizer,
 };
 pub use kairos_diagram::{
-    ComponentInfo, DataType, ExecutionMode, LibraryInfo, PackInfo, PropertyKind, ReaderPolicy, TypeFilter, Value,
+    ComponentInfo, DataType, ExecutionMode, LibraryInfo, PackInfo, PropertyKind, ReaderPolicy, TypeFilter,
+    Value,
 };
-pub use payload::{CanFrame, CustomPayload, FixStatus, GnssFix, Image, Imu, Matrix, Payload, PixelFormat, PointCloud, Pose};
+pub use payload::{
+    CanFrame, CustomPayload, FixStatus, GnssFix, Image, Imu, Matrix, Payload, PixelFormat, PointCloud, Pose,
+};
 pub use registry::{Factory, PackRegistrar, RegisteredComponent, Registry};
 pub use sample::Sample;
 pub use signal::RunSignal;

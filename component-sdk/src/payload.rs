@@ -90,7 +90,9 @@ impl Payload {
             Payload::Text(t) => t.len(),
             Payload::Bytes(b) => b.len(),
             Payload::Image(image) => image.pixels.len(),
-            Payload::PointCloud(cloud) => cloud.points.len() * 12 + cloud.intensity.as_ref().map_or(0, |i| i.len() * 4),
+            Payload::PointCloud(cloud) => {
+                cloud.points.len() * 12 + cloud.intensity.as_ref().map_or(0, |i| i.len() * 4)
+            }
             Payload::Custom(custom) => custom.data.len(),
             _ => 0,
         }
@@ -143,7 +145,13 @@ impl fmt::Display for Payload {
             Payload::Pose(p) => write!(
                 f,
                 "pos [{:.3} {:.3} {:.3}] rot [{:.4} {:.4} {:.4} {:.4}]",
-                p.position.x, p.position.y, p.position.z, p.orientation.x, p.orientation.y, p.orientation.z, p.orientation.w
+                p.position.x,
+                p.position.y,
+                p.position.z,
+                p.orientation.x,
+                p.orientation.y,
+                p.orientation.z,
+                p.orientation.w
             ),
             other => write!(f, "{other:?}"),
         }
@@ -219,8 +227,19 @@ pub struct ImageSizeError {
 
 impl Image {
     /// An image with rows packed tightly (`stride = width * bytes per pixel`).
-    pub fn packed(width: u32, height: u32, format: PixelFormat, pixels: impl Into<Arc<[u8]>>) -> Result<Self, ImageSizeError> {
-        Self::with_stride(width, height, format, width.saturating_mul(format.bytes_per_pixel()), pixels)
+    pub fn packed(
+        width: u32,
+        height: u32,
+        format: PixelFormat,
+        pixels: impl Into<Arc<[u8]>>,
+    ) -> Result<Self, ImageSizeError> {
+        Self::with_stride(
+            width,
+            height,
+            format,
+            width.saturating_mul(format.bytes_per_pixel()),
+            pixels,
+        )
     }
 
     /// An image with an explicit stride; checks that the buffer is large enough.
@@ -343,7 +362,13 @@ impl CanFrame {
 
 impl fmt::Debug for CanFrame {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        write!(f, "CanFrame(id {:#x}{}, {:02x?})", self.id, if self.extended { " ext" } else { "" }, self.data())
+        write!(
+            f,
+            "CanFrame(id {:#x}{}, {:02x?})",
+            self.id,
+            if self.extended { " ext" } else { "" },
+            self.data()
+        )
     }
 }
 

@@ -22,7 +22,9 @@ pub struct RegisteredComponent {
 
 impl fmt::Debug for RegisteredComponent {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.debug_struct("RegisteredComponent").field("type_name", &self.info.type_name).finish_non_exhaustive()
+        f.debug_struct("RegisteredComponent")
+            .field("type_name", &self.info.type_name)
+            .finish_non_exhaustive()
     }
 }
 
@@ -92,7 +94,11 @@ impl Registry {
     pub fn library_info(&self) -> LibraryInfo {
         LibraryInfo {
             packs: self.packs.clone(),
-            components: self.components.iter().map(|(name, c)| (name.clone(), c.info.clone())).collect(),
+            components: self
+                .components
+                .iter()
+                .map(|(name, c)| (name.clone(), c.info.clone()))
+                .collect(),
             custom_types: self.custom_types.iter().cloned().collect(),
         }
     }

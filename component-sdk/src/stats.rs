@@ -149,12 +149,32 @@ mod tests {
     #[test]
     fn buckets_are_monotonic_and_bounds_cover_values() {
         let mut last = 0;
-        for value in [0_u64, 1, 7, 8, 9, 15, 16, 17, 100, 1000, 12_345, 1 << 20, u64::MAX / 2] {
+        for value in [
+            0_u64,
+            1,
+            7,
+            8,
+            9,
+            15,
+            16,
+            17,
+            100,
+            1000,
+            12_345,
+            1 << 20,
+            u64::MAX / 2,
+        ] {
             let index = bucket_of(value);
             assert!(index >= last, "bucket of {value}");
             last = index;
-            assert!(bucket_upper_bound(index) >= value, "upper bound of bucket for {value}");
-            assert!(bucket_upper_bound(index) <= value + value / 8 + 1, "bound tight for {value}");
+            assert!(
+                bucket_upper_bound(index) >= value,
+                "upper bound of bucket for {value}"
+            );
+            assert!(
+                bucket_upper_bound(index) <= value + value / 8 + 1,
+                "bound tight for {value}"
+            );
         }
     }
 

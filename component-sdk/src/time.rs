@@ -12,7 +12,9 @@ use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 use crate::signal::RunSignal;
 
 /// A point in time on the runtime clock, in nanoseconds since the UNIX epoch.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, PartialOrd, Ord, Hash, serde::Serialize, serde::Deserialize)]
+#[derive(
+    Debug, Clone, Copy, Default, PartialEq, Eq, PartialOrd, Ord, Hash, serde::Serialize, serde::Deserialize,
+)]
 pub struct Timestamp(pub i64);
 
 impl Timestamp {
@@ -56,7 +58,10 @@ impl Timestamp {
 
     /// This time moved forward by `duration`.
     pub fn after(self, duration: Duration) -> Timestamp {
-        Timestamp(self.0.saturating_add(i64::try_from(duration.as_nanos()).unwrap_or(i64::MAX)))
+        Timestamp(
+            self.0
+                .saturating_add(i64::try_from(duration.as_nanos()).unwrap_or(i64::MAX)),
+        )
     }
 
     /// The duration from `earlier` to `self`, zero if `earlier` is later.
@@ -99,7 +104,9 @@ pub struct RealTimeClock {
 impl RealTimeClock {
     /// A clock starting now.
     pub fn new() -> Self {
-        let since_epoch = SystemTime::now().duration_since(UNIX_EPOCH).unwrap_or(Duration::ZERO);
+        let since_epoch = SystemTime::now()
+            .duration_since(UNIX_EPOCH)
+            .unwrap_or(Duration::ZERO);
         RealTimeClock {
             start_instant: Instant::now(),
             start_nanos: i64::try_from(since_epoch.as_nanos()).unwrap_or(i64::MAX),
@@ -121,7 +128,10 @@ impl Default for RealTimeClock {
 impl Clock for RealTimeClock {
     fn now(&self) -> Timestamp {
         let elapsed = self.start_instant.elapsed().as_nanos();
-        Timestamp(self.start_nanos.saturating_add(i64::try_from(elapsed).unwrap_or(i64::MAX)))
+        Timestamp(
+            self.start_nanos
+                .saturating_add(i64::try_from(elapsed).unwrap_or(i64::MAX)),
+        )
     }
 
     fn wait_until(&self, deadline: Timestamp, signal: &RunSignal) -> bool {
@@ -138,7 +148,10 @@ impl Clock for RealTimeClock {
     }
 
     fn describe(&self) -> String {
-        format!("real time (monotonic, epoch read at start: {})", Timestamp(self.start_nanos))
+        format!(
+            "real time (monotonic, epoch read at start: {})",
+            Timestamp(self.start_nanos)
+        )
     }
 }
 

@@ -349,7 +349,7 @@ impl<'a> Validator<'a> {
             let output = self.resolve(connection, End::From, at.map(|l| l.from));
             let input = self.resolve(connection, End::To, at.map(|l| l.to));
             let produced = match output {
-                Some(Resolved::Output(_)) => self.effective_type(&connection.from, 0),
+                Some(Resolved::Output) => self.effective_type(&connection.from, 0),
                 _ => None,
             };
             if let (Some(produced), Some(Resolved::Input(input))) = (produced, input)
@@ -450,7 +450,7 @@ impl<'a> Validator<'a> {
         };
         let info = self.library.component(&instance.type_name)?;
         let resolved = match end {
-            End::From => info.output(&port.port).map(Resolved::Output),
+            End::From => info.output(&port.port).map(|_| Resolved::Output),
             End::To => info.input(&port.port).map(Resolved::Input),
         };
         if resolved.is_none() {
@@ -554,7 +554,7 @@ impl<'a> Validator<'a> {
 /// A connection end that resolved to a port of a known component type.
 #[derive(Clone, Copy)]
 enum Resolved<'a> {
-    Output(&'a crate::library::OutputInfo),
+    Output,
     Input(&'a crate::library::InputInfo),
 }
 

@@ -3,14 +3,17 @@
 use std::f64::consts::TAU;
 
 use kairos_sdk::descriptor::{Descriptor, Property};
-use kairos_sdk::{ComponentInfo, ComponentResult, Context, DataType, ExecutionMode, Payload, Value};
 use kairos_sdk::{Component, PackRegistrar};
+use kairos_sdk::{ComponentInfo, ComponentResult, Context, DataType, ExecutionMode, Payload, Value};
 
 use crate::rng::SplitMix;
 
 /// The sample-rate property every generator has.
 fn rate_property(default_hz: f64) -> Property {
-    Property::f64("rate", default_hz).range(0.001, 100_000.0).live().doc("Samples per second (Hz)")
+    Property::f64("rate", default_hz)
+        .range(0.001, 100_000.0)
+        .live()
+        .doc("Samples per second (Hz)")
 }
 
 fn generator(type_name: &str, doc: &str) -> Descriptor {
@@ -39,14 +42,27 @@ pub struct Sine {
 impl Sine {
     /// The descriptor.
     pub fn info() -> ComponentInfo {
-        generator("core.sine", "A sine wave: offset + amplitude × sin(2π × frequency × t + phase)")
-            .output("out", DataType::F64, "The wave")
-            .property(rate_property(100.0))
-            .property(Property::f64("frequency", 1.0).range(0.0, 50_000.0).live().doc("Wave frequency (Hz)"))
-            .property(Property::f64("amplitude", 1.0).live().doc("Peak amplitude"))
-            .property(Property::f64("offset", 0.0).live().doc("Added to every value"))
-            .property(Property::f64("phase_deg", 0.0).range(-360.0, 360.0).live().doc("Phase at t = 0 (degrees)"))
-            .build()
+        generator(
+            "core.sine",
+            "A sine wave: offset + amplitude × sin(2π × frequency × t + phase)",
+        )
+        .output("out", DataType::F64, "The wave")
+        .property(rate_property(100.0))
+        .property(
+            Property::f64("frequency", 1.0)
+                .range(0.0, 50_000.0)
+                .live()
+                .doc("Wave frequency (Hz)"),
+        )
+        .property(Property::f64("amplitude", 1.0).live().doc("Peak amplitude"))
+        .property(Property::f64("offset", 0.0).live().doc("Added to every value"))
+        .property(
+            Property::f64("phase_deg", 0.0)
+                .range(-360.0, 360.0)
+                .live()
+                .doc("Phase at t = 0 (degrees)"),
+        )
+        .build()
     }
 }
 
@@ -61,7 +77,8 @@ impl Component for Sine {
         let t = now.nanos_since(start) as f64 * 1e-9;
         let value = ctx.f64_property("offset")?
             + ctx.f64_property("amplitude")?
-                * (TAU * ctx.f64_property("frequency")? * t + ctx.f64_property("phase_deg")?.to_radians()).sin();
+                * (TAU * ctx.f64_property("frequency")? * t + ctx.f64_property("phase_deg")?.to_radians())
+                    .sin();
         ctx.write("out", Payload::F64(value))
     }
 
@@ -79,14 +96,31 @@ pub struct Square {
 impl Square {
     /// The descriptor.
     pub fn info() -> ComponentInfo {
-        generator("core.square", "A square wave between offset − amplitude and offset + amplitude")
-            .output("out", DataType::F64, "The wave")
-            .property(rate_property(100.0))
-            .property(Property::f64("frequency", 1.0).range(0.0, 50_000.0).live().doc("Wave frequency (Hz)"))
-            .property(Property::f64("amplitude", 1.0).live().doc("Half the peak-to-peak swing"))
-            .property(Property::f64("offset", 0.0).live().doc("Added to every value"))
-            .property(Property::f64("duty", 0.5).range(0.0, 1.0).live().doc("Fraction of each period spent high"))
-            .build()
+        generator(
+            "core.square",
+            "A square wave between offset − amplitude and offset + amplitude",
+        )
+        .output("out", DataType::F64, "The wave")
+        .property(rate_property(100.0))
+        .property(
+            Property::f64("frequency", 1.0)
+                .range(0.0, 50_000.0)
+                .live()
+                .doc("Wave frequency (Hz)"),
+        )
+        .property(
+            Property::f64("amplitude", 1.0)
+                .live()
+                .doc("Half the peak-to-peak swing"),
+        )
+        .property(Property::f64("offset", 0.0).live().doc("Added to every value"))
+        .property(
+            Property::f64("duty", 0.5)
+                .range(0.0, 1.0)
+                .live()
+                .doc("Fraction of each period spent high"),
+        )
+        .build()
     }
 }
 
@@ -100,7 +134,11 @@ impl Component for Square {
         let start = *self.start.get_or_insert(now);
         let t = now.nanos_since(start) as f64 * 1e-9;
         let phase = (ctx.f64_property("frequency")? * t).fract();
-        let sign = if phase < ctx.f64_property("duty")? { 1.0 } else { -1.0 };
+        let sign = if phase < ctx.f64_property("duty")? {
+            1.0
+        } else {
+            -1.0
+        };
         let value = ctx.f64_property("offset")? + sign * ctx.f64_property("amplitude")?;
         ctx.write("out", Payload::F64(value))
     }
@@ -119,13 +157,16 @@ pub struct Counter {
 impl Counter {
     /// The descriptor.
     pub fn info() -> ComponentInfo {
-        generator("core.counter", "Counts: start, start + step, start + 2 × step, ...")
-            .output("out", DataType::I64, "The count")
-            .property(rate_property(10.0))
-            .property(Property::i64("start", 0).doc("The first value"))
-            .property(Property::i64("step", 1).live().doc("Added at each sample"))
-            .action("reset", "Starts counting again from `start`")
-            .build()
+        generator(
+            "core.counter",
+            "Counts: start, start + step, start + 2 × step, ...",
+        )
+        .output("out", DataType::I64, "The count")
+        .property(rate_property(10.0))
+        .property(Property::i64("start", 0).doc("The first value"))
+        .property(Property::i64("step", 1).live().doc("Added at each sample"))
+        .action("reset", "Starts counting again from `start`")
+        .build()
     }
 }
 
@@ -154,7 +195,9 @@ impl Component for Counter {
                 self.next = None;
                 Ok(())
             }
-            other => Err(kairos_sdk::ComponentError::failed(format_args!("no action '{other}'"))),
+            other => Err(kairos_sdk::ComponentError::failed(format_args!(
+                "no action '{other}'"
+            ))),
         }
     }
 }
@@ -198,16 +241,28 @@ pub struct Random {
 impl Random {
     /// The descriptor.
     pub fn info() -> ComponentInfo {
-        generator("core.random", "Random numbers, uniform in [min, max) or normal (mean, std_dev); seeded, so repeatable")
-            .output("out", DataType::F64, "The numbers")
-            .property(rate_property(10.0))
-            .property(Property::choice("distribution", &["uniform", "normal"], "uniform").live().doc("The distribution"))
-            .property(Property::f64("min", 0.0).live().doc("Uniform: lower bound"))
-            .property(Property::f64("max", 1.0).live().doc("Uniform: upper bound"))
-            .property(Property::f64("mean", 0.0).live().doc("Normal: mean"))
-            .property(Property::f64("std_dev", 1.0).range(0.0, f64::MAX).live().doc("Normal: standard deviation"))
-            .property(Property::i64("seed", 1).doc("Same seed, same numbers"))
-            .build()
+        generator(
+            "core.random",
+            "Random numbers, uniform in [min, max) or normal (mean, std_dev); seeded, so repeatable",
+        )
+        .output("out", DataType::F64, "The numbers")
+        .property(rate_property(10.0))
+        .property(
+            Property::choice("distribution", &["uniform", "normal"], "uniform")
+                .live()
+                .doc("The distribution"),
+        )
+        .property(Property::f64("min", 0.0).live().doc("Uniform: lower bound"))
+        .property(Property::f64("max", 1.0).live().doc("Uniform: upper bound"))
+        .property(Property::f64("mean", 0.0).live().doc("Normal: mean"))
+        .property(
+            Property::f64("std_dev", 1.0)
+                .range(0.0, f64::MAX)
+                .live()
+                .doc("Normal: standard deviation"),
+        )
+        .property(Property::i64("seed", 1).doc("Same seed, same numbers"))
+        .build()
     }
 }
 
@@ -243,11 +298,14 @@ pub struct Timer {
 impl Timer {
     /// The descriptor.
     pub fn info() -> ComponentInfo {
-        generator("core.timer", "Ticks at a fixed rate; connect it to a triggered or Sampling reader to resample")
-            .output("tick", DataType::I64, "The tick number, from 0")
-            .output("elapsed", DataType::F64, "Seconds since the first tick")
-            .property(rate_property(10.0))
-            .build()
+        generator(
+            "core.timer",
+            "Ticks at a fixed rate; connect it to a triggered or Sampling reader to resample",
+        )
+        .output("tick", DataType::I64, "The tick number, from 0")
+        .output("elapsed", DataType::F64, "Seconds since the first tick")
+        .property(rate_property(10.0))
+        .build()
     }
 }
 

@@ -5,8 +5,8 @@ use std::time::Duration;
 
 use kairos_sdk::descriptor::{Descriptor, Property};
 use kairos_sdk::{
-    Component, ComponentError, ComponentInfo, ComponentResult, Context, DataType, PackRegistrar, Payload, Sample,
-    Synchronizer, TypeFilter, Value,
+    Component, ComponentError, ComponentInfo, ComponentResult, Context, DataType, PackRegistrar, Payload,
+    Sample, Synchronizer, TypeFilter, Value,
 };
 
 fn numeric() -> TypeFilter {
@@ -14,10 +14,12 @@ fn numeric() -> TypeFilter {
 }
 
 fn number(sample: &Sample) -> Result<f64, ComponentError> {
-    sample
-        .payload
-        .as_f64()
-        .ok_or_else(|| ComponentError::failed(format_args!("expected a number, got {}", sample.payload.data_type())))
+    sample.payload.as_f64().ok_or_else(|| {
+        ComponentError::failed(format_args!(
+            "expected a number, got {}",
+            sample.payload.data_type()
+        ))
+    })
 }
 
 /// `core.gain`: multiplies by a gain.
@@ -27,11 +29,15 @@ pub struct Gain;
 impl Gain {
     /// The descriptor.
     pub fn info() -> ComponentInfo {
-        Descriptor::new("core.gain", "math", "Multiplies each sample by a gain, keeping its timestamp")
-            .input("in", numeric(), "The signal")
-            .output("out", DataType::F64, "gain × in")
-            .property(Property::f64("gain", 1.0).live().doc("The factor"))
-            .build()
+        Descriptor::new(
+            "core.gain",
+            "math",
+            "Multiplies each sample by a gain, keeping its timestamp",
+        )
+        .input("in", numeric(), "The signal")
+        .output("out", DataType::F64, "gain × in")
+        .property(Property::f64("gain", 1.0).live().doc("The factor"))
+        .build()
     }
 }
 
@@ -74,7 +80,10 @@ impl Component for Add {
     fn birth(&mut self, ctx: &mut Context) -> ComponentResult {
         if ctx.text_property("mode")? == "synchronized" {
             let tolerance = Duration::from_secs_f64(ctx.f64_property("tolerance_ms")? / 1000.0);
-            self.synchronizer = Some(Synchronizer::new(Synchronizer::inputs_of(ctx, &["a", "b"])?, tolerance));
+            self.synchronizer = Some(Synchronizer::new(
+                Synchronizer::inputs_of(ctx, &["a", "b"])?,
+                tolerance,
+            ));
         }
         Ok(())
     }
@@ -110,11 +119,20 @@ pub struct MovingAverage {
 impl MovingAverage {
     /// The descriptor.
     pub fn info() -> ComponentInfo {
-        Descriptor::new("core.moving_average", "math", "The mean of the last `window` samples")
-            .input("in", numeric(), "The signal")
-            .output("out", DataType::F64, "The running mean")
-            .property(Property::i64("window", 10).int_range(1, 1_000_000).live().doc("Number of samples averaged"))
-            .build()
+        Descriptor::new(
+            "core.moving_average",
+            "math",
+            "The mean of the last `window` samples",
+        )
+        .input("in", numeric(), "The signal")
+        .output("out", DataType::F64, "The running mean")
+        .property(
+            Property::i64("window", 10)
+                .int_range(1, 1_000_000)
+                .live()
+                .doc("Number of samples averaged"),
+        )
+        .build()
     }
 }
 
@@ -150,12 +168,21 @@ pub struct Threshold {
 impl Threshold {
     /// The descriptor.
     pub fn info() -> ComponentInfo {
-        Descriptor::new("core.threshold", "math", "true when the input rises above threshold + hysteresis/2, false below threshold − hysteresis/2")
-            .input("in", numeric(), "The signal")
-            .output("out", DataType::Bool, "Whether the signal is above the threshold")
-            .property(Property::f64("threshold", 0.0).live().doc("The level"))
-            .property(Property::f64("hysteresis", 0.0).range(0.0, f64::MAX).live().doc("Width of the dead band"))
-            .build()
+        Descriptor::new(
+            "core.threshold",
+            "math",
+            "true when the input rises above threshold + hysteresis/2, false below threshold − hysteresis/2",
+        )
+        .input("in", numeric(), "The signal")
+        .output("out", DataType::Bool, "Whether the signal is above the threshold")
+        .property(Property::f64("threshold", 0.0).live().doc("The level"))
+        .property(
+            Property::f64("hysteresis", 0.0)
+                .range(0.0, f64::MAX)
+                .live()
+                .doc("Width of the dead band"),
+        )
+        .build()
     }
 }
 
@@ -183,11 +210,20 @@ pub struct Subsampler {
 impl Subsampler {
     /// The descriptor.
     pub fn info() -> ComponentInfo {
-        Descriptor::new("core.subsampler", "flow", "Passes one sample in `factor` on, unchanged (payload shared, not copied)")
-            .input("in", TypeFilter::Any, "Any stream")
-            .output_following("out", "in", "Every factor-th sample of the input")
-            .property(Property::i64("factor", 2).int_range(1, 1_000_000).live().doc("Keep one sample in this many"))
-            .build()
+        Descriptor::new(
+            "core.subsampler",
+            "flow",
+            "Passes one sample in `factor` on, unchanged (payload shared, not copied)",
+        )
+        .input("in", TypeFilter::Any, "Any stream")
+        .output_following("out", "in", "Every factor-th sample of the input")
+        .property(
+            Property::i64("factor", 2)
+                .int_range(1, 1_000_000)
+                .live()
+                .doc("Keep one sample in this many"),
+        )
+        .build()
     }
 }
 
@@ -223,15 +259,26 @@ impl SynchronizerComponent {
             "Matches samples of its connected inputs whose timestamps lie within a tolerance, and writes each matched set",
         );
         for (input, output) in SYNC_INPUTS.iter().zip(SYNC_OUTPUTS) {
-            descriptor = descriptor.input(input, TypeFilter::Any, "A stream to match (FIFO keeps every candidate)").output_following(
-                output,
-                input,
-                "The matched sample of the same-numbered input",
-            );
+            descriptor = descriptor
+                .input(
+                    input,
+                    TypeFilter::Any,
+                    "A stream to match (FIFO keeps every candidate)",
+                )
+                .output_following(output, input, "The matched sample of the same-numbered input");
         }
         descriptor
-            .property(Property::f64("tolerance_ms", 5.0).range(0.0, 60_000.0).live().doc("Largest timestamp gap within a matched set"))
-            .output("dropped", DataType::I64, "Running count of samples that found no match")
+            .property(
+                Property::f64("tolerance_ms", 5.0)
+                    .range(0.0, 60_000.0)
+                    .live()
+                    .doc("Largest timestamp gap within a matched set"),
+            )
+            .output(
+                "dropped",
+                DataType::I64,
+                "Running count of samples that found no match",
+            )
             .build()
     }
 }
@@ -239,7 +286,10 @@ impl SynchronizerComponent {
 impl Component for SynchronizerComponent {
     fn birth(&mut self, ctx: &mut Context) -> ComponentResult {
         let connected: Vec<usize> = (0..SYNC_INPUTS.len()).filter(|i| ctx.is_connected(*i)).collect();
-        self.outputs = connected.iter().filter_map(|i| SYNC_OUTPUTS.get(*i).copied()).collect();
+        self.outputs = connected
+            .iter()
+            .filter_map(|i| SYNC_OUTPUTS.get(*i).copied())
+            .collect();
         let tolerance = Duration::from_secs_f64(ctx.f64_property("tolerance_ms")? / 1000.0);
         self.synchronizer = Some(Synchronizer::new(connected, tolerance));
         Ok(())
@@ -261,7 +311,11 @@ impl Component for SynchronizerComponent {
         if dropped != dropped_before
             && let Some(first) = matched.first()
         {
-            ctx.write_processed("dropped", first, Payload::I64(i64::try_from(dropped).unwrap_or(i64::MAX)))?;
+            ctx.write_processed(
+                "dropped",
+                first,
+                Payload::I64(i64::try_from(dropped).unwrap_or(i64::MAX)),
+            )?;
         }
         Ok(())
     }
@@ -270,7 +324,9 @@ impl Component for SynchronizerComponent {
         if name == "tolerance_ms"
             && let Some(synchronizer) = &mut self.synchronizer
         {
-            synchronizer.set_tolerance(Duration::from_secs_f64(ctx.f64_property("tolerance_ms")? / 1000.0));
+            synchronizer.set_tolerance(Duration::from_secs_f64(
+                ctx.f64_property("tolerance_ms")? / 1000.0,
+            ));
         }
         Ok(())
     }
@@ -290,8 +346,16 @@ impl LatencyProbe {
         )
         .input("in", TypeFilter::Any, "Any stream")
         .output_following("out", "in", "The input, passed on")
-        .output("latency_ms", DataType::F64, "Arrival time − timestamp, in milliseconds")
-        .output("age_ms", DataType::F64, "Time of issue − timestamp of the arriving sample, in milliseconds")
+        .output(
+            "latency_ms",
+            DataType::F64,
+            "Arrival time − timestamp, in milliseconds",
+        )
+        .output(
+            "age_ms",
+            DataType::F64,
+            "Time of issue − timestamp of the arriving sample, in milliseconds",
+        )
         .build()
     }
 }

@@ -7,8 +7,8 @@ use std::time::{Duration, Instant};
 
 use kairos_sdk::descriptor::{Descriptor, Property};
 use kairos_sdk::{
-    Component, ComponentError, ComponentInfo, ComponentResult, Context, PackRegistrar, Payload, Sample, Synchronizer,
-    TypeFilter,
+    Component, ComponentError, ComponentInfo, ComponentResult, Context, PackRegistrar, Payload, Sample,
+    Synchronizer, TypeFilter,
 };
 
 /// `core.console`: prints samples on standard output.
@@ -20,11 +20,24 @@ pub struct Console {
 impl Console {
     /// The descriptor.
     pub fn info() -> ComponentInfo {
-        Descriptor::new("core.console", "sinks", "Prints samples on standard output: timestamp, sequence, latency, value")
-            .input("in", TypeFilter::Any, "Any stream")
-            .property(Property::i64("every", 1).int_range(1, 1_000_000).live().doc("Print one sample in this many"))
-            .property(Property::text("prefix", "").live().doc("Printed first on each line; the component id when empty"))
-            .build()
+        Descriptor::new(
+            "core.console",
+            "sinks",
+            "Prints samples on standard output: timestamp, sequence, latency, value",
+        )
+        .input("in", TypeFilter::Any, "Any stream")
+        .property(
+            Property::i64("every", 1)
+                .int_range(1, 1_000_000)
+                .live()
+                .doc("Print one sample in this many"),
+        )
+        .property(
+            Property::text("prefix", "")
+                .live()
+                .doc("Printed first on each line; the component id when empty"),
+        )
+        .build()
     }
 }
 
@@ -38,7 +51,11 @@ impl Component for Console {
             return Ok(());
         }
         let prefix = ctx.text_property("prefix")?;
-        let prefix = if prefix.is_empty() { ctx.id().to_owned() } else { prefix };
+        let prefix = if prefix.is_empty() {
+            ctx.id().to_owned()
+        } else {
+            prefix
+        };
         let line = format!(
             "{prefix}: t={} seq={} latency={:.1}µs {}\n",
             sample.timestamp,
@@ -61,17 +78,31 @@ pub fn payload_fields(payload: &Payload) -> Vec<(String, String)> {
         Payload::F64(v) => named(["value"], [v.to_string()]),
         Payload::I64(v) => named(["value"], [v.to_string()]),
         Payload::Bool(v) => named(["value"], [v.to_string()]),
-        Payload::Vector(v) => v.iter().enumerate().map(|(i, x)| (format!("v{i}"), x.to_string())).collect(),
+        Payload::Vector(v) => v
+            .iter()
+            .enumerate()
+            .map(|(i, x)| (format!("v{i}"), x.to_string()))
+            .collect(),
         Payload::Matrix(m) => {
             let mut fields = named(["rows", "cols"], [m.rows.to_string(), m.cols.to_string()]);
-            fields.extend(m.values.iter().enumerate().map(|(i, x)| (format!("m{i}"), x.to_string())));
+            fields.extend(
+                m.values
+                    .iter()
+                    .enumerate()
+                    .map(|(i, x)| (format!("m{i}"), x.to_string())),
+            );
             fields
         }
         Payload::Text(t) => named(["text"], [csv_quote(t)]),
         Payload::Bytes(b) => named(["size_bytes"], [b.len().to_string()]),
         Payload::Image(i) => named(
             ["width", "height", "format", "size_bytes"],
-            [i.width.to_string(), i.height.to_string(), format!("{:?}", i.format), i.pixels.len().to_string()],
+            [
+                i.width.to_string(),
+                i.height.to_string(),
+                format!("{:?}", i.format),
+                i.pixels.len().to_string(),
+            ],
         ),
         Payload::PointCloud(c) => named(["points"], [c.points.len().to_string()]),
         Payload::Imu(i) => named(
@@ -86,7 +117,13 @@ pub fn payload_fields(payload: &Payload) -> Vec<(String, String)> {
             ],
         ),
         Payload::GnssFix(g) => named(
-            ["latitude_deg", "longitude_deg", "altitude_m", "horizontal_accuracy_m", "status"],
+            [
+                "latitude_deg",
+                "longitude_deg",
+                "altitude_m",
+                "horizontal_accuracy_m",
+                "status",
+            ],
             [
                 g.latitude_deg.to_string(),
                 g.longitude_deg.to_string(),
@@ -116,7 +153,10 @@ pub fn payload_fields(payload: &Payload) -> Vec<(String, String)> {
                 p.orientation.w.to_string(),
             ],
         ),
-        Payload::Custom(c) => named(["type", "size_bytes"], [c.type_name.to_string(), c.data.len().to_string()]),
+        Payload::Custom(c) => named(
+            ["type", "size_bytes"],
+            [c.type_name.to_string(), c.data.len().to_string()],
+        ),
     }
 }
 
@@ -154,12 +194,17 @@ impl CsvWriter {
             descriptor = descriptor.input(input, TypeFilter::Any, "A stream to write");
         }
         descriptor
-            .property(Property::path("path", "kairos.csv").doc("The file written (created or truncated at start)"))
             .property(
-                Property::bool("synchronize", false)
-                    .doc("false: one row per sample with its input's name; true: one row per set matched by timestamp"),
+                Property::path("path", "kairos.csv").doc("The file written (created or truncated at start)"),
             )
-            .property(Property::f64("tolerance_ms", 5.0).range(0.0, 60_000.0).doc("synchronize: largest timestamp gap in a set"))
+            .property(Property::bool("synchronize", false).doc(
+                "false: one row per sample with its input's name; true: one row per set matched by timestamp",
+            ))
+            .property(
+                Property::f64("tolerance_ms", 5.0)
+                    .range(0.0, 60_000.0)
+                    .doc("synchronize: largest timestamp gap in a set"),
+            )
             .build()
     }
 
@@ -167,17 +212,27 @@ impl CsvWriter {
         let Some(writer) = self.writer.as_mut() else {
             return Err(ComponentError::failed("the CSV file is not open"));
         };
-        writeln!(writer, "{}", row.join(",")).map_err(|e| ComponentError::failed(format_args!("writing {}: {e}", self.path.display())))?;
+        writeln!(writer, "{}", row.join(","))
+            .map_err(|e| ComponentError::failed(format_args!("writing {}: {e}", self.path.display())))?;
         let now = Instant::now();
-        if self.last_flush.is_none_or(|t| now.duration_since(t) >= FLUSH_PERIOD) {
+        if self
+            .last_flush
+            .is_none_or(|t| now.duration_since(t) >= FLUSH_PERIOD)
+        {
             self.last_flush = Some(now);
-            writer.flush().map_err(|e| ComponentError::failed(format_args!("writing {}: {e}", self.path.display())))?;
+            writer
+                .flush()
+                .map_err(|e| ComponentError::failed(format_args!("writing {}: {e}", self.path.display())))?;
         }
         Ok(())
     }
 
     fn sample_columns(prefix: &str, sample: &Sample) -> (Vec<String>, Vec<String>) {
-        let mut names = vec![format!("{prefix}timestamp_ns"), format!("{prefix}time_of_issue_ns"), format!("{prefix}sequence")];
+        let mut names = vec![
+            format!("{prefix}timestamp_ns"),
+            format!("{prefix}time_of_issue_ns"),
+            format!("{prefix}sequence"),
+        ];
         let mut values = vec![
             sample.timestamp.as_nanos().to_string(),
             sample.time_of_issue.as_nanos().to_string(),
@@ -195,11 +250,13 @@ impl Component for CsvWriter {
     fn birth(&mut self, ctx: &mut Context) -> ComponentResult {
         self.path = PathBuf::from(ctx.text_property("path")?);
         if let Some(parent) = self.path.parent().filter(|p| !p.as_os_str().is_empty()) {
-            std::fs::create_dir_all(parent)
-                .map_err(|e| ComponentError::failed(format_args!("cannot create folder {}: {e}", parent.display())))?;
+            std::fs::create_dir_all(parent).map_err(|e| {
+                ComponentError::failed(format_args!("cannot create folder {}: {e}", parent.display()))
+            })?;
         }
-        let file = File::create(&self.path)
-            .map_err(|e| ComponentError::failed(format_args!("cannot create {}: {e}", self.path.display())))?;
+        let file = File::create(&self.path).map_err(|e| {
+            ComponentError::failed(format_args!("cannot create {}: {e}", self.path.display()))
+        })?;
         self.writer = Some(BufWriter::new(file));
         self.connected = (0..CSV_INPUTS.len()).filter(|i| ctx.is_connected(*i)).collect();
         if ctx.bool_property("synchronize")? {
@@ -227,7 +284,11 @@ impl Component for CsvWriter {
         } else {
             let inputs: Vec<usize> = self.connected.clone();
             let (position, sample) = ctx.read_any(&inputs)?;
-            let input = inputs.get(position).and_then(|i| CSV_INPUTS.get(*i)).copied().unwrap_or("in");
+            let input = inputs
+                .get(position)
+                .and_then(|i| CSV_INPUTS.get(*i))
+                .copied()
+                .unwrap_or("in");
             let (mut names, mut values) = Self::sample_columns("", &sample);
             names.insert(0, "input".to_owned());
             values.insert(0, input.to_owned());
@@ -242,7 +303,9 @@ impl Component for CsvWriter {
 
     fn death(&mut self, _ctx: &mut Context) -> ComponentResult {
         if let Some(mut writer) = self.writer.take() {
-            writer.flush().map_err(|e| ComponentError::failed(format_args!("writing {}: {e}", self.path.display())))?;
+            writer
+                .flush()
+                .map_err(|e| ComponentError::failed(format_args!("writing {}: {e}", self.path.display())))?;
         }
         Ok(())
     }
@@ -250,5 +313,6 @@ impl Component for CsvWriter {
 
 /// Registers the sinks.
 pub fn register(pack: &mut PackRegistrar<'_>) {
-    pack.component::<Console>(Console::info()).component::<CsvWriter>(CsvWriter::info());
+    pack.component::<Console>(Console::info())
+        .component::<CsvWriter>(CsvWriter::info());
 }

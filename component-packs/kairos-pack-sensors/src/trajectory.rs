@@ -181,7 +181,8 @@ impl Trajectory {
         let yaw_per_theta = (d1.x * d2.y - d1.y * d2.x) / horizontal_sq.max(f64::EPSILON);
         let pitch = d1.z.atan2(horizontal);
         let horizontal_d = (d1.x * d2.x + d1.y * d2.y) / horizontal;
-        let pitch_per_theta = (horizontal * d2.z - d1.z * horizontal_d) / (horizontal_sq + d1.z * d1.z).max(f64::EPSILON);
+        let pitch_per_theta =
+            (horizontal * d2.z - d1.z * horizontal_d) / (horizontal_sq + d1.z * d1.z).max(f64::EPSILON);
         let yaw_rate = yaw_per_theta * phase.rate;
         let pitch_rate = pitch_per_theta * phase.rate;
 
@@ -189,7 +190,8 @@ impl Trajectory {
         // (a negative rotation about +y lifts the nose).
         let yaw_rotation = DQuat::from_rotation_z(yaw);
         let orientation = (yaw_rotation * DQuat::from_rotation_y(-pitch)).normalize();
-        let angular_velocity_world = DVec3::new(0.0, 0.0, yaw_rate) + yaw_rotation * DVec3::new(0.0, -pitch_rate, 0.0);
+        let angular_velocity_world =
+            DVec3::new(0.0, 0.0, yaw_rate) + yaw_rotation * DVec3::new(0.0, -pitch_rate, 0.0);
         let to_body = orientation.inverse();
         let angular_velocity_body = to_body * angular_velocity_world;
         let specific_force_body = to_body * (acceleration + DVec3::new(0.0, 0.0, GRAVITY));
@@ -241,14 +243,20 @@ mod tests {
             let velocity = numeric_derivative(|s| trajectory.state(s).position, t);
             let acceleration = numeric_derivative(|s| trajectory.state(s).velocity, t);
             assert!((velocity - state.velocity).length() < 1e-5, "velocity at {t}");
-            assert!((acceleration - state.acceleration).length() < 1e-4, "acceleration at {t}");
+            assert!(
+                (acceleration - state.acceleration).length() < 1e-4,
+                "acceleration at {t}"
+            );
             let yaw_rate = wrap(trajectory.state(t + 1e-4).yaw - trajectory.state(t - 1e-4).yaw) / 2e-4;
             assert!((yaw_rate - state.yaw_rate).abs() < 1e-5, "yaw rate at {t}");
             let pitch_rate = (trajectory.state(t + 1e-4).pitch - trajectory.state(t - 1e-4).pitch) / 2e-4;
             assert!((pitch_rate - state.pitch_rate).abs() < 1e-6, "pitch rate at {t}");
             // The body x axis points along the velocity.
             let forward = state.orientation * DVec3::X;
-            assert!((forward - state.velocity.normalize()).length() < 1e-9, "attitude at {t}");
+            assert!(
+                (forward - state.velocity.normalize()).length() < 1e-9,
+                "attitude at {t}"
+            );
         }
     }
 
@@ -261,13 +269,23 @@ mod tests {
         assert!((a.position - b.position).length() < 1e-9);
         let steps = 5200;
         let dt = trajectory.lap_s / f64::from(steps);
-        let speeds: Vec<f64> = (0..steps).map(|i| trajectory.state(start + f64::from(i) * dt).speed()).collect();
+        let speeds: Vec<f64> = (0..steps)
+            .map(|i| trajectory.state(start + f64::from(i) * dt).speed())
+            .collect();
         let mean = speeds.iter().sum::<f64>() / f64::from(steps);
-        let (min, max) = speeds.iter().fold((f64::MAX, f64::MIN), |(lo, hi), s| (lo.min(*s), hi.max(*s)));
+        let (min, max) = speeds
+            .iter()
+            .fold((f64::MAX, f64::MIN), |(lo, hi), s| (lo.min(*s), hi.max(*s)));
         assert!((9.0..11.0).contains(&mean), "mean speed {mean}");
         assert!(min > 6.0 && max < 15.0, "speed range {min}..{max}");
         let lateral = (0..steps)
-            .map(|i| trajectory.state(start + f64::from(i) * dt).specific_force_body.y.abs())
+            .map(|i| {
+                trajectory
+                    .state(start + f64::from(i) * dt)
+                    .specific_force_body
+                    .y
+                    .abs()
+            })
             .fold(0.0, f64::max);
         assert!(lateral < 3.0, "lateral acceleration {lateral}");
     }

@@ -9,8 +9,8 @@ use std::time::{Duration, Instant};
 
 use kairos_diagram::{ComponentInfo, Diagram, ExecutionMode, ThreadSettings, Value};
 use kairos_sdk::{
-    Clock, Component, ComponentError, Context, ContextParts, InputPort, OutputBuffer, OutputPort, ReaderConfig, Registry,
-    RunSignal,
+    Clock, Component, ComponentError, Context, ContextParts, InputPort, OutputBuffer, OutputPort,
+    ReaderConfig, Registry, RunSignal,
 };
 
 use crate::scheduling;
@@ -91,8 +91,15 @@ pub enum EngineState {
 type Reply = SyncSender<Result<(), String>>;
 
 enum ControlRequest {
-    SetProperty { name: String, value: Value, reply: Reply },
-    Action { name: String, reply: Reply },
+    SetProperty {
+        name: String,
+        value: Value,
+        reply: Reply,
+    },
+    Action {
+        name: String,
+        reply: Reply,
+    },
 }
 
 /// What a component's thread and the engine share.
@@ -136,7 +143,10 @@ impl Monitor {
     fn fail(&self, id: &str, stage: &str, message: &str) {
         let mut state = lock(&self.state);
         if !matches!(*state, ComponentState::Failed(_)) {
-            tracing::error!(component = id, "component '{id}' failed in {stage}: {message}; the rest of the diagram keeps running");
+            tracing::error!(
+                component = id,
+                "component '{id}' failed in {stage}: {message}; the rest of the diagram keeps running"
+            );
             *state = ComponentState::Failed(format!("{stage}: {message}"));
         }
     }
@@ -146,7 +156,10 @@ impl Monitor {
 fn guarded(call: impl FnOnce() -> Result<(), ComponentError>) -> Result<(), ComponentError> {
     match std::panic::catch_unwind(std::panic::AssertUnwindSafe(call)) {
         Ok(result) => result,
-        Err(panic) => Err(ComponentError::Failed(format!("panicked: {}", kairos_sdk::panic_message(panic.as_ref())))),
+        Err(panic) => Err(ComponentError::Failed(format!(
+            "panicked: {}",
+            kairos_sdk::panic_message(panic.as_ref())
+        ))),
     }
 }
 
@@ -209,7 +222,9 @@ impl ReactiveCell {
         ctx.begin_cycle();
         let result = guarded(|| component.core(ctx));
         drop(guard);
-        self.monitor.busy_nanos.fetch_add(started.elapsed().as_nanos() as u64, Ordering::Relaxed);
+        self.monitor
+            .busy_nanos
+            .fetch_add(started.elapsed().as_nanos() as u64, Ordering::Relaxed);
         match result {
             Ok(()) => {
                 self.monitor.cycles.fetch_add(1, Ordering::Relaxed);
@@ -250,7 +265,10 @@ pub struct Engine {
 
 impl std::fmt::Debug for Engine {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("Engine").field("components", &self.slots.len()).field("state", &self.state).finish_non_exhaustive()
+        f.debug_struct("Engine")
+            .field("components", &self.slots.len())
+            .field("state", &self.state)
+            .finish_non_exhaustive()
     }
 }
 
@@ -261,7 +279,11 @@ pub fn link_name(from: &kairos_diagram::PortRef, to: &kairos_diagram::PortRef) -
 
 impl Engine {
     /// Validates `diagram` against `registry` and builds it; nothing runs until [`Engine::start`].
-    pub fn build(diagram: &Diagram, registry: &Registry, clock: Arc<dyn Clock>) -> Result<Engine, BuildError> {
+    pub fn build(
+        diagram: &Diagram,
+        registry: &Registry,
+        clock: Arc<dyn Clock>,
+    ) -> Result<Engine, BuildError> {
         let library = registry.library_info();
         let diagnostics = kairos_diagram::validate(diagram, None, &library);
         if diagnostics.iter().any(kairos_diagram::Diagnostic::is_error) {
@@ -283,7 +305,9 @@ impl Engine {
         let mut pending: Vec<Pending> = Vec::new();
         let mut buffers: BTreeMap<(String, String), OutputBuffer> = BTreeMap::new();
         for instance in &diagram.components {
-            let Some(registered) = registry.component(&instance.type_name) else { continue };
+            let Some(registered) = registry.component(&instance.type_name) else {
+                continue;
+            };
             let info = registered.info.clone();
             let (signal, reactive) = if info.mode == ExecutionMode::Reactive {
                 let cell: Arc<OnceLock<Weak<ReactiveCell>>> = Arc::new(OnceLock::new());
@@ -300,12 +324,19 @@ impl Engine {
             let mut outputs = Vec::new();
             for output in &info.outputs {
                 let settings = instance.outputs.get(&output.name);
-                let size = settings.and_then(|s| s.buffer_size).unwrap_or(output.default_buffer_size);
+                let size = settings
+                    .and_then(|s| s.buffer_size)
+                    .unwrap_or(output.default_buffer_size);
                 let buffer = OutputBuffer::new(format!("{}.{}", instance.id, output.name), size);
                 buffers.insert((instance.id.clone(), output.name.clone()), buffer.clone());
                 let subsampling = settings.and_then(|s| s.subsampling).unwrap_or(1);
                 let data_type = output.follows_input.is_none().then(|| output.data_type.clone());
-                outputs.push(OutputPort::new(output.name.clone(), data_type, buffer, subsampling));
+                outputs.push(OutputPort::new(
+                    output.name.clone(),
+                    data_type,
+                    buffer,
+                    subsampling,
+                ));
             }
             pending.push(Pending {
                 id: instance.id.clone(),
@@ -325,8 +356,12 @@ impl Engine {
         for connection in &diagram.connections {
             let key = (connection.from.component.clone(), connection.from.port.clone());
             let Some(buffer) = buffers.get(&key) else { continue };
-            let Some(consumer) = pending.iter().find(|p| p.id == connection.to.component) else { continue };
-            let Some(input) = consumer.info.input(&connection.to.port) else { continue };
+            let Some(consumer) = pending.iter().find(|p| p.id == connection.to.component) else {
+                continue;
+            };
+            let Some(input) = consumer.info.input(&connection.to.port) else {
+                continue;
+            };
             let policy = connection.policy.unwrap_or(input.default_policy);
             let link = link_name(&connection.from, &connection.to);
             policies.insert(link.clone(), policy);
@@ -339,14 +374,22 @@ impl Engine {
                 },
                 Arc::clone(&consumer.signal),
             );
-            readers.insert((connection.to.component.clone(), connection.to.port.clone()), reader);
+            readers.insert(
+                (connection.to.component.clone(), connection.to.port.clone()),
+                reader,
+            );
         }
         for component in &mut pending {
             component.inputs = component
                 .info
                 .inputs
                 .iter()
-                .map(|input| InputPort::new(input.name.clone(), readers.remove(&(component.id.clone(), input.name.clone()))))
+                .map(|input| {
+                    InputPort::new(
+                        input.name.clone(),
+                        readers.remove(&(component.id.clone(), input.name.clone())),
+                    )
+                })
                 .collect();
         }
 
@@ -423,7 +466,11 @@ impl Engine {
             }
         }
         for slot in &mut self.slots {
-            if let Driver::Threaded { mode, pending, handle } = &mut slot.driver
+            if let Driver::Threaded {
+                mode,
+                pending,
+                handle,
+            } = &mut slot.driver
                 && let Some((component, ctx)) = pending.take()
             {
                 let worker = Worker {
@@ -435,11 +482,14 @@ impl Engine {
                     clock: Arc::clone(&self.clock),
                 };
                 slot.monitor.set_state(ComponentState::Running);
-                let spawned = std::thread::Builder::new().name(thread_name(&slot.id)).spawn(move || worker.run(component, ctx));
+                let spawned = std::thread::Builder::new()
+                    .name(thread_name(&slot.id))
+                    .spawn(move || worker.run(component, ctx));
                 match spawned {
                     Ok(joined) => *handle = Some(joined),
                     Err(error) => {
-                        slot.monitor.fail(&slot.id, "start", &format!("cannot spawn its thread: {error}"));
+                        slot.monitor
+                            .fail(&slot.id, "start", &format!("cannot spawn its thread: {error}"));
                         self.state = EngineState::Running;
                         self.stop();
                         return Err(error);
@@ -525,7 +575,8 @@ impl Engine {
                 && let Some(handle) = handle.take()
                 && handle.join().is_err()
             {
-                slot.monitor.fail(&slot.id, "thread", "its thread ended abnormally");
+                slot.monitor
+                    .fail(&slot.id, "thread", "its thread ended abnormally");
             }
         }
         for slot in &self.slots {
@@ -549,24 +600,36 @@ impl Engine {
 
     /// Whether every threaded component has finished or failed on its own (e.g. its stream ended).
     pub fn all_finished(&self) -> bool {
-        self.slots.iter().filter(|s| matches!(s.driver, Driver::Threaded { .. })).all(|s| {
-            matches!(s.monitor.state(), ComponentState::Finished | ComponentState::Failed(_))
-        })
+        self.slots
+            .iter()
+            .filter(|s| matches!(s.driver, Driver::Threaded { .. }))
+            .all(|s| {
+                matches!(
+                    s.monitor.state(),
+                    ComponentState::Finished | ComponentState::Failed(_)
+                )
+            })
     }
 
     /// Changes a property: checked against its kind and range and whether it may change while running,
     /// then applied by the component on its own thread. A refused value keeps the old one.
     pub fn set_property(&self, id: &str, name: &str, value: Value) -> Result<(), ControlError> {
         let slot = self.slot(id)?;
-        let info = slot.info.property(name).ok_or_else(|| ControlError::UnknownProperty {
-            component: id.to_owned(),
-            property: name.to_owned(),
-        })?;
-        let value = info.kind.check(&value).map_err(|error| ControlError::InvalidValue {
-            component: id.to_owned(),
-            property: name.to_owned(),
-            reason: error.to_string(),
-        })?;
+        let info = slot
+            .info
+            .property(name)
+            .ok_or_else(|| ControlError::UnknownProperty {
+                component: id.to_owned(),
+                property: name.to_owned(),
+            })?;
+        let value = info
+            .kind
+            .check(&value)
+            .map_err(|error| ControlError::InvalidValue {
+                component: id.to_owned(),
+                property: name.to_owned(),
+                reason: error.to_string(),
+            })?;
         if !info.live && self.state != EngineState::Ready {
             return Err(ControlError::NotLive {
                 component: id.to_owned(),
@@ -574,11 +637,15 @@ impl Engine {
             });
         }
         let (reply, answer) = mpsc::sync_channel(1);
-        self.deliver(slot, ControlRequest::SetProperty {
-            name: name.to_owned(),
-            value,
-            reply,
-        }, answer)
+        self.deliver(
+            slot,
+            ControlRequest::SetProperty {
+                name: name.to_owned(),
+                value,
+                reply,
+            },
+            answer,
+        )
     }
 
     /// Triggers an action on a component.
@@ -591,14 +658,29 @@ impl Engine {
             });
         }
         let (reply, answer) = mpsc::sync_channel(1);
-        self.deliver(slot, ControlRequest::Action { name: name.to_owned(), reply }, answer)
+        self.deliver(
+            slot,
+            ControlRequest::Action {
+                name: name.to_owned(),
+                reply,
+            },
+            answer,
+        )
     }
 
     fn slot(&self, id: &str) -> Result<&Slot, ControlError> {
-        self.slots.iter().find(|s| s.id == id).ok_or_else(|| ControlError::UnknownComponent(id.to_owned()))
+        self.slots
+            .iter()
+            .find(|s| s.id == id)
+            .ok_or_else(|| ControlError::UnknownComponent(id.to_owned()))
     }
 
-    fn deliver(&self, slot: &Slot, request: ControlRequest, answer: Receiver<Result<(), String>>) -> Result<(), ControlError> {
+    fn deliver(
+        &self,
+        slot: &Slot,
+        request: ControlRequest,
+        answer: Receiver<Result<(), String>>,
+    ) -> Result<(), ControlError> {
         let refused = |reason: String| ControlError::Refused {
             component: slot.id.clone(),
             reason,
@@ -631,7 +713,8 @@ impl Engine {
             Ok(Ok(())) => Ok(()),
             Ok(Err(reason)) => Err(refused(reason)),
             Err(_) => Err(refused(
-                "no answer within 2 s (the component is busy in a long cycle); the request stays queued".to_owned(),
+                "no answer within 2 s (the component is busy in a long cycle); the request stays queued"
+                    .to_owned(),
             )),
         }
     }
@@ -643,7 +726,9 @@ impl Engine {
         for buffer in &self.buffers {
             for (link, counters) in buffer.link_counters() {
                 // Only the diagram's own links: extra readers (viewers) report elsewhere.
-                let Some(policy) = self.policies.get(&*link).copied() else { continue };
+                let Some(policy) = self.policies.get(&*link).copied() else {
+                    continue;
+                };
                 links.push(LinkStats {
                     link: link.to_string(),
                     policy,
@@ -734,7 +819,9 @@ impl Worker {
                 outcome = Some(ComponentState::Stopped);
                 break;
             }
-            if self.signal.take_control() && !apply_controls(&self.id, component.as_mut(), &mut ctx, &self.monitor) {
+            if self.signal.take_control()
+                && !apply_controls(&self.id, component.as_mut(), &mut ctx, &self.monitor)
+            {
                 outcome = Some(self.monitor.state());
                 break;
             }
@@ -753,7 +840,11 @@ impl Worker {
             }
             let period = if self.mode == ExecutionMode::Periodic {
                 let Some(period) = ctx.period() else {
-                    self.monitor.fail(&self.id, "birth", "a periodic component must set its period (ctx.set_frequency)");
+                    self.monitor.fail(
+                        &self.id,
+                        "birth",
+                        "a periodic component must set its period (ctx.set_frequency)",
+                    );
                     outcome = Some(self.monitor.state());
                     break;
                 };
@@ -787,13 +878,19 @@ impl Worker {
             }
             if cpu_checked.elapsed() >= CPU_SAMPLE_PERIOD {
                 cpu_checked = Instant::now();
-                self.monitor.busy_nanos.store(scheduling::thread_cpu_nanos().saturating_sub(cpu_start), Ordering::Relaxed);
+                self.monitor.busy_nanos.store(
+                    scheduling::thread_cpu_nanos().saturating_sub(cpu_start),
+                    Ordering::Relaxed,
+                );
             }
         }
         if let Err(error) = guarded(|| component.death(&mut ctx)) {
             self.monitor.fail(&self.id, "death", &error.to_string());
         }
-        self.monitor.busy_nanos.store(scheduling::thread_cpu_nanos().saturating_sub(cpu_start), Ordering::Relaxed);
+        self.monitor.busy_nanos.store(
+            scheduling::thread_cpu_nanos().saturating_sub(cpu_start),
+            Ordering::Relaxed,
+        );
         if !self.monitor.is_failed() {
             self.monitor.set_state(outcome.unwrap_or(ComponentState::Stopped));
         }

@@ -73,7 +73,11 @@ pub fn thread_cpu_nanos() -> u64 {
     {
         use nix::time::{ClockId, clock_gettime};
         clock_gettime(ClockId::CLOCK_THREAD_CPUTIME_ID)
-            .map(|t| (t.tv_sec() as u64).saturating_mul(1_000_000_000).saturating_add(t.tv_nsec() as u64))
+            .map(|t| {
+                (t.tv_sec() as u64)
+                    .saturating_mul(1_000_000_000)
+                    .saturating_add(t.tv_nsec() as u64)
+            })
             .unwrap_or(0)
     }
     #[cfg(not(target_os = "linux"))]

@@ -94,11 +94,13 @@ impl StatsSnapshot {
                 link.rate_hz = link.counters.written.saturating_sub(before.counters.written) as f64 / seconds;
             }
         }
-        let components: BTreeMap<&str, &ComponentStats> = earlier.components.iter().map(|c| (c.id.as_str(), c)).collect();
+        let components: BTreeMap<&str, &ComponentStats> =
+            earlier.components.iter().map(|c| (c.id.as_str(), c)).collect();
         for component in &mut self.components {
             if let Some(before) = components.get(component.id.as_str()) {
                 component.cycle_rate_hz = component.cycles.saturating_sub(before.cycles) as f64 / seconds;
-                component.cpu_share = component.busy_nanos.saturating_sub(before.busy_nanos) as f64 * 1e-9 / seconds;
+                component.cpu_share =
+                    component.busy_nanos.saturating_sub(before.busy_nanos) as f64 * 1e-9 / seconds;
             }
         }
         self
@@ -112,7 +114,17 @@ impl StatsSnapshot {
         let _ = writeln!(
             out,
             "{:<width$}  {:<13} {:>9} {:>9} {:>8} {:>11} {:>6} {:>9}  {:>10} {:>10} {:>10}",
-            "link", "policy", "written", "read", "skipped", "overwritten", "queued", "rate/s", "lat min", "lat mean", "lat p99"
+            "link",
+            "policy",
+            "written",
+            "read",
+            "skipped",
+            "overwritten",
+            "queued",
+            "rate/s",
+            "lat min",
+            "lat mean",
+            "lat p99"
         );
         for link in &self.links {
             let c = &link.counters;
@@ -132,9 +144,19 @@ impl StatsSnapshot {
                 micros(c.latency.p99_nanos, c.latency.count),
             );
         }
-        let width = self.components.iter().map(|c| c.id.len()).max().unwrap_or(9).max(9);
+        let width = self
+            .components
+            .iter()
+            .map(|c| c.id.len())
+            .max()
+            .unwrap_or(9)
+            .max(9);
         let _ = writeln!(out);
-        let _ = writeln!(out, "{:<width$}  {:<22} {:<8} {:>10} {:>9} {:>6}", "component", "type", "state", "cycles", "cycles/s", "cpu%");
+        let _ = writeln!(
+            out,
+            "{:<width$}  {:<22} {:<8} {:>10} {:>9} {:>6}",
+            "component", "type", "state", "cycles", "cycles/s", "cpu%"
+        );
         for component in &self.components {
             let _ = writeln!(
                 out,

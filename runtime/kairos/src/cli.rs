@@ -38,6 +38,9 @@ pub enum Command {
         /// How often --stats prints.
         #[arg(long, value_parser = parse_duration, default_value = "1s")]
         stats_interval: Duration,
+        /// Override a property before running, e.g. `--set sine1.frequency=2.5` (repeatable).
+        #[arg(long = "set", value_name = "ID.PROPERTY=VALUE")]
+        overrides: Vec<String>,
     },
     /// Check diagrams against the component library; exit 0 when all are valid.
     Validate {
@@ -64,7 +67,11 @@ pub fn init_logging(verbose: u8) {
     };
     let filter = tracing_subscriber::EnvFilter::try_from_default_env()
         .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(default));
-    let _ = tracing_subscriber::fmt().with_env_filter(filter).with_writer(std::io::stderr).with_target(false).try_init();
+    let _ = tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(std::io::stderr)
+        .with_target(false)
+        .try_init();
 }
 
 /// Runs a parsed command line.
@@ -85,10 +92,16 @@ pub fn execute(cli: Cli) -> anyhow::Result<ExitCode> {
             duration,
             stats,
             stats_interval,
-        } => crate::run::run(&registry, &diagram, &crate::run::RunOptions {
-            duration,
-            stats: stats.then_some(stats_interval),
-        }),
+            overrides,
+        } => crate::run::run(
+            &registry,
+            &diagram,
+            &crate::run::RunOptions {
+                duration,
+                stats: stats.then_some(stats_interval),
+                overrides,
+            },
+        ),
         Command::Validate { diagrams } => Ok(validate(&registry.library_info(), &diagrams)),
         Command::Components { json, filter } => {
             components(&registry.library_info(), json, filter.as_deref())?;
@@ -121,7 +134,11 @@ fn validate(library: &LibraryInfo, paths: &[PathBuf]) -> ExitCode {
             }
         }
     }
-    if all_valid { ExitCode::SUCCESS } else { ExitCode::from(1) }
+    if all_valid {
+        ExitCode::SUCCESS
+    } else {
+        ExitCode::from(1)
+    }
 }
 
 fn components(library: &LibraryInfo, json: bool, filter: Option<&str>) -> anyhow::Result<()> {
@@ -135,20 +152,38 @@ fn components(library: &LibraryInfo, json: bool, filter: Option<&str>) -> anyhow
             "packs": library.packs.values().collect::<Vec<_>>(),
             "components": selected,
         });
-        println!("{}", serde_json::to_string_pretty(&document).context("encoding the library as JSON")?);
+        println!(
+            "{}",
+            serde_json::to_string_pretty(&document).context("encoding the library as JSON")?
+        );
         return Ok(());
     }
     use std::fmt::Write as _;
     let mut out = String::new();
     for component in selected {
-        let _ = writeln!(out, "{}  [{} / {}, {:?}]", component.type_name, component.pack, component.category, component.mode);
+        let _ = writeln!(
+            out,
+            "{}  [{} / {}, {:?}]",
+            component.type_name, component.pack, component.category, component.mode
+        );
         let _ = writeln!(out, "    {}", component.doc);
         for input in &component.inputs {
-            let _ = writeln!(out, "    in   {:<12} {} (default {})  {}", input.name, input.filter, input.default_policy, input.doc);
+            let _ = writeln!(
+                out,
+                "    in   {:<12} {} (default {})  {}",
+                input.name, input.filter, input.default_policy, input.doc
+            );
         }
         for output in &component.outputs {
-            let data_type = output.follows_input.as_ref().map_or_else(|| output.data_type.to_string(), |i| format!("same as input '{i}'"));
-            let _ = writeln!(out, "    out  {:<12} {} (buffer {})  {}", output.name, data_type, output.default_buffer_size, output.doc);
+            let data_type = output.follows_input.as_ref().map_or_else(
+                || output.data_type.to_string(),
+                |i| format!("same as input '{i}'"),
+            );
+            let _ = writeln!(
+                out,
+                "    out  {:<12} {} (buffer {})  {}",
+                output.name, data_type, output.default_buffer_size, output.doc
+            );
         }
         for property in &component.properties {
             let _ = writeln!(

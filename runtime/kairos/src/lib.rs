@@ -10,6 +10,6 @@ use kairos_sdk::Registry;
 pub fn builtin_registry() -> Registry {
     let mut registry = Registry::new();
     kairos_pack_core::register(&mut registry);
-    //SENSORS kairos_pack_sensors::register(&mut registry);
+    kairos_pack_sensors::register(&mut registry);
     registry
 }

@@ -6,6 +6,7 @@ use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
 use anyhow::{Context as _, bail};
+use kairos_diagram::Value;
 use kairos_runtime::{ComponentState, Engine, StatsSnapshot};
 use kairos_sdk::{RealTimeClock, Registry};
 
@@ -16,6 +17,29 @@ pub struct RunOptions {
     pub duration: Option<Duration>,
     /// Print statistics at this interval, and a final table.
     pub stats: Option<Duration>,
+    /// Property overrides, `ID.PROPERTY=VALUE`.
+    pub overrides: Vec<String>,
+}
+
+/// Parses `ID.PROPERTY=VALUE`; the value is a boolean, an integer, a number, or else text.
+pub fn parse_override(text: &str) -> anyhow::Result<(String, String, Value)> {
+    let Some((target, value)) = text.split_once('=') else {
+        bail!("--set '{text}': expected ID.PROPERTY=VALUE, e.g. sine1.frequency=2.5");
+    };
+    let Some((id, property)) = target.rsplit_once('.') else {
+        bail!("--set '{text}': expected ID.PROPERTY before '=', e.g. sine1.frequency");
+    };
+    let value = value.trim();
+    let parsed = if let Ok(b) = value.parse::<bool>() {
+        Value::Bool(b)
+    } else if let Ok(i) = value.parse::<i64>() {
+        Value::I64(i)
+    } else if let Ok(f) = value.parse::<f64>() {
+        Value::F64(f)
+    } else {
+        Value::Text(value.trim_matches('"').to_owned())
+    };
+    Ok((id.to_owned(), property.to_owned(), parsed))
 }
 
 /// Exit code when the run ended with a failed component.
@@ -23,16 +47,26 @@ const EXIT_COMPONENT_FAILED: u8 = 2;
 
 /// Runs the diagram at `path` with the components of `registry`.
 pub fn run(registry: &Registry, path: &Path, options: &RunOptions) -> anyhow::Result<ExitCode> {
-    let (source, parsed) = match kairos_diagram::load(path) {
+    let (source, mut parsed) = match kairos_diagram::load(path) {
         Ok(loaded) => loaded,
         Err(error) => {
             eprint!("{}", error.render());
             return Ok(ExitCode::from(1));
         }
     };
+    for text in &options.overrides {
+        let (id, property, value) = parse_override(text)?;
+        let Some(component) = parsed.diagram.component_mut(&id) else {
+            bail!("--set '{text}': the diagram has no component '{id}'");
+        };
+        component.properties.insert(property, value);
+    }
     let diagnostics = parsed.validate(&registry.library_info());
     if !diagnostics.is_empty() {
-        eprint!("{}", kairos_diagram::render_all(&diagnostics, &path.display().to_string(), &source));
+        eprint!(
+            "{}",
+            kairos_diagram::render_all(&diagnostics, &path.display().to_string(), &source)
+        );
     }
     if diagnostics.iter().any(kairos_diagram::Diagnostic::is_error) {
         return Ok(ExitCode::from(1));
@@ -53,7 +87,9 @@ pub fn run(registry: &Registry, path: &Path, options: &RunOptions) -> anyhow::Re
         "running {} ({} components){}",
         path.display(),
         parsed.diagram.components.len(),
-        options.duration.map_or_else(|| "; Ctrl-C stops".to_owned(), |d| format!(" for {d:?}"))
+        options
+            .duration
+            .map_or_else(|| "; Ctrl-C stops".to_owned(), |d| format!(" for {d:?}"))
     );
 
     let started = Instant::now();
@@ -78,7 +114,11 @@ pub fn run(registry: &Registry, path: &Path, options: &RunOptions) -> anyhow::Re
             && last_print.elapsed() >= interval
         {
             let now = engine.snapshot();
-            eprintln!("--- {:.1} s ---\n{}", started.elapsed().as_secs_f64(), now.clone().with_rates_since(&last_stats).table());
+            eprintln!(
+                "--- {:.1} s ---\n{}",
+                started.elapsed().as_secs_f64(),
+                now.clone().with_rates_since(&last_stats).table()
+            );
             last_stats = now;
             last_print = Instant::now();
         }
@@ -86,7 +126,11 @@ pub fn run(registry: &Registry, path: &Path, options: &RunOptions) -> anyhow::Re
     engine.stop();
     let last = engine.snapshot().with_rates_since(&first);
     if options.stats.is_some() {
-        eprintln!("=== final, {:.1} s (rates are averages over the run) ===\n{}", started.elapsed().as_secs_f64(), last.table());
+        eprintln!(
+            "=== final, {:.1} s (rates are averages over the run) ===\n{}",
+            started.elapsed().as_secs_f64(),
+            last.table()
+        );
     }
     Ok(report_failures(&last))
 }

@@ -1,0 +1,312 @@
+//! Each reader policy against a fast producer (the reader falls behind) and a slow one (the reader waits),
+//! asserting exactly which samples arrive and every counter.
+
+use std::sync::Arc;
+use std::thread;
+use std::time::Duration;
+
+use kairos_sdk::{
+    LinkCounters, OutputBuffer, Payload, ReaderConfig, ReaderPolicy, RunSignal, Sample, Timestamp,
+};
+
+fn sample(sequence: u64) -> Sample {
+    Sample {
+        payload: Payload::I64(sequence as i64),
+        timestamp: Timestamp::from_micros(sequence as i64),
+        time_of_issue: Timestamp::from_micros(sequence as i64 + 5),
+        sequence,
+    }
+}
+
+fn write_range(buffer: &OutputBuffer, writer: &Arc<RunSignal>, range: std::ops::Range<u64>) {
+    for sequence in range {
+        buffer.write(sample(sequence), writer).unwrap();
+    }
+}
+
+fn reader(buffer: &OutputBuffer, policy: ReaderPolicy) -> kairos_sdk::Reader {
+    buffer.attach(ReaderConfig::new(policy, "test"), Arc::new(RunSignal::new()))
+}
+
+fn counts(c: LinkCounters) -> [u64; 5] {
+    assert!(c.balanced(), "identity broken: {c:?}");
+    [c.written, c.read, c.skipped, c.overwritten, c.queued]
+}
+
+fn sequences(reader: &mut kairos_sdk::Reader) -> Vec<u64> {
+    std::iter::from_fn(|| reader.try_read())
+        .map(|s| s.sequence)
+        .collect()
+}
+
+// ----- fast producer: ten samples into a buffer of four before the reader looks -----
+
+#[test]
+fn fifo_behind_gets_the_oldest_still_held_and_counts_the_overwritten() {
+    let buffer = OutputBuffer::new("p.out", 4);
+    let writer = Arc::new(RunSignal::new());
+    let mut r = reader(&buffer, ReaderPolicy::Fifo);
+    write_range(&buffer, &writer, 0..10);
+    assert_eq!(counts(r.counters()), [10, 0, 0, 6, 4]);
+    assert_eq!(sequences(&mut r), vec![6, 7, 8, 9]);
+    assert_eq!(counts(r.counters()), [10, 4, 0, 6, 0]);
+}
+
+#[test]
+fn last_or_next_behind_gets_the_newest_and_counts_the_rest_as_skipped() {
+    let buffer = OutputBuffer::new("p.out", 4);
+    let writer = Arc::new(RunSignal::new());
+    let mut r = reader(&buffer, ReaderPolicy::LastOrNext);
+    write_range(&buffer, &writer, 0..10);
+    assert_eq!(sequences(&mut r), vec![9]);
+    assert_eq!(counts(r.counters()), [10, 1, 9, 0, 0]);
+    write_range(&buffer, &writer, 10..12);
+    assert_eq!(sequences(&mut r), vec![11]);
+    assert_eq!(counts(r.counters()), [12, 2, 10, 0, 0]);
+}
+
+#[test]
+fn wait_for_next_behind_ignores_everything_pending_and_waits() {
+    let buffer = OutputBuffer::new("p.out", 4);
+    let writer = Arc::new(RunSignal::new());
+    let signal = Arc::new(RunSignal::new());
+    let mut r = buffer.attach(
+        ReaderConfig::new(ReaderPolicy::WaitForNext, "test"),
+        Arc::clone(&signal),
+    );
+    write_range(&buffer, &writer, 0..10);
+    let waiting = thread::spawn(move || {
+        signal.bind_current_thread();
+        let got = r.read(false).unwrap().sequence;
+        (got, r.counters())
+    });
+    // Let the reader discard the pending ten and go to sleep.
+    thread::sleep(Duration::from_millis(50));
+    write_range(&buffer, &writer, 10..11);
+    let (got, c) = waiting.join().unwrap();
+    assert_eq!(got, 10);
+    assert_eq!(counts(c), [11, 1, 10, 0, 0]);
+}
+
+#[test]
+fn sampling_behind_gets_the_newest_at_once_and_again() {
+    let buffer = OutputBuffer::new("p.out", 4);
+    let writer = Arc::new(RunSignal::new());
+    let mut r = reader(&buffer, ReaderPolicy::Sampling);
+    assert!(r.try_read().is_none(), "nothing written yet");
+    write_range(&buffer, &writer, 0..10);
+    assert_eq!(r.try_read().unwrap().sequence, 9);
+    assert_eq!(r.try_read().unwrap().sequence, 9);
+    assert_eq!(r.try_read().unwrap().sequence, 9);
+    let c = r.counters();
+    assert_eq!(counts(c), [10, 1, 9, 0, 0]);
+    assert_eq!(c.repeated, 2);
+}
+
+#[test]
+fn never_skipping_blocks_the_writer_until_the_reader_makes_room() {
+    let buffer = OutputBuffer::new("p.out", 4);
+    let mut r = reader(&buffer, ReaderPolicy::NeverSkipping);
+    let producer = {
+        let buffer = buffer.clone();
+        thread::spawn(move || {
+            let writer = Arc::new(RunSignal::new());
+            writer.bind_current_thread();
+            write_range(&buffer, &writer, 0..10);
+        })
+    };
+    thread::sleep(Duration::from_millis(100));
+    assert_eq!(buffer.written(), 4, "the writer must wait for room");
+    let mut got = Vec::new();
+    while got.len() < 10 {
+        match r.try_read() {
+            Some(s) => got.push(s.sequence),
+            None => thread::sleep(Duration::from_millis(1)),
+        }
+    }
+    producer.join().unwrap();
+    assert_eq!(got, (0..10).collect::<Vec<_>>());
+    assert_eq!(counts(r.counters()), [10, 10, 0, 0, 0]);
+}
+
+#[test]
+fn a_stop_releases_a_writer_blocked_by_never_skipping() {
+    let buffer = OutputBuffer::new("p.out", 2);
+    let _r = reader(&buffer, ReaderPolicy::NeverSkipping);
+    let writer = Arc::new(RunSignal::new());
+    let producer = {
+        let buffer = buffer.clone();
+        let writer = Arc::clone(&writer);
+        thread::spawn(move || {
+            writer.bind_current_thread();
+            (0..10)
+                .map(|s| buffer.write(sample(s), &writer))
+                .find(Result::is_err)
+        })
+    };
+    thread::sleep(Duration::from_millis(50));
+    writer.request_stop();
+    let failure = producer.join().unwrap();
+    assert_eq!(failure, Some(Err(kairos_sdk::WriteError::Stopped)));
+    assert_eq!(buffer.written(), 2);
+}
+
+#[test]
+fn only_never_skipping_slows_the_writer_other_readers_keep_its_pace() {
+    let buffer = OutputBuffer::new("p.out", 4);
+    let writer = Arc::new(RunSignal::new());
+    let mut readers: Vec<_> = [
+        ReaderPolicy::Fifo,
+        ReaderPolicy::LastOrNext,
+        ReaderPolicy::WaitForNext,
+        ReaderPolicy::Sampling,
+    ]
+    .into_iter()
+    .map(|p| reader(&buffer, p))
+    .collect();
+    // None of them reads: the writer must never block.
+    write_range(&buffer, &writer, 0..1000);
+    assert_eq!(buffer.written(), 1000);
+    for r in &mut readers {
+        assert!(r.counters().balanced());
+    }
+}
+
+// ----- slow producer: the reader is always waiting when a sample arrives -----
+
+fn paced(policy: ReaderPolicy, count: u64) -> (Vec<u64>, LinkCounters) {
+    let buffer = OutputBuffer::new("p.out", 4);
+    let signal = Arc::new(RunSignal::new());
+    let mut r = buffer.attach(ReaderConfig::new(policy, "test"), Arc::clone(&signal));
+    let consumer = thread::spawn(move || {
+        signal.bind_current_thread();
+        let got: Vec<u64> = (0..count).map(|_| r.read(false).unwrap().sequence).collect();
+        (got, r.counters())
+    });
+    let writer = Arc::new(RunSignal::new());
+    for sequence in 0..count {
+        thread::sleep(Duration::from_millis(5));
+        buffer.write(sample(sequence), &writer).unwrap();
+    }
+    consumer.join().unwrap()
+}
+
+#[test]
+fn a_waiting_reader_gets_every_sample_under_each_queueing_policy() {
+    for policy in [
+        ReaderPolicy::Fifo,
+        ReaderPolicy::LastOrNext,
+        ReaderPolicy::WaitForNext,
+        ReaderPolicy::NeverSkipping,
+    ] {
+        let (got, c) = paced(policy, 8);
+        assert_eq!(got, (0..8).collect::<Vec<_>>(), "{policy}");
+        assert_eq!(counts(c), [8, 8, 0, 0, 0], "{policy}");
+    }
+}
+
+#[test]
+fn a_fast_sampling_reader_sees_repeats_between_writes() {
+    let buffer = OutputBuffer::new("p.out", 4);
+    let writer = Arc::new(RunSignal::new());
+    let mut r = reader(&buffer, ReaderPolicy::Sampling);
+    let mut got = Vec::new();
+    for sequence in 0..3 {
+        buffer.write(sample(sequence), &writer).unwrap();
+        got.push(r.try_read().unwrap().sequence);
+        got.push(r.try_read().unwrap().sequence);
+    }
+    assert_eq!(got, vec![0, 0, 1, 1, 2, 2]);
+    let c = r.counters();
+    assert_eq!(counts(c), [3, 3, 0, 0, 0]);
+    assert_eq!(c.repeated, 3);
+}
+
+// ----- subsampling, capacity per reader, late readers, payload sharing -----
+
+#[test]
+fn input_subsampling_keeps_one_in_n_and_counts_the_rest_as_skipped() {
+    let buffer = OutputBuffer::new("p.out", 16);
+    let writer = Arc::new(RunSignal::new());
+    let mut config = ReaderConfig::new(ReaderPolicy::Fifo, "test");
+    config.subsampling = 3;
+    let mut r = buffer.attach(config, Arc::new(RunSignal::new()));
+    write_range(&buffer, &writer, 0..10);
+    assert_eq!(sequences(&mut r), vec![0, 3, 6, 9]);
+    assert_eq!(counts(r.counters()), [10, 4, 6, 0, 0]);
+}
+
+#[test]
+fn a_connection_may_have_a_larger_share_than_the_output_default() {
+    let buffer = OutputBuffer::new("p.out", 2);
+    let writer = Arc::new(RunSignal::new());
+    let mut small = reader(&buffer, ReaderPolicy::Fifo);
+    let mut config = ReaderConfig::new(ReaderPolicy::Fifo, "big");
+    config.capacity = Some(8);
+    let mut big = buffer.attach(config, Arc::new(RunSignal::new()));
+    write_range(&buffer, &writer, 0..8);
+    assert_eq!(sequences(&mut small), vec![6, 7]);
+    assert_eq!(sequences(&mut big), (0..8).collect::<Vec<_>>());
+    assert_eq!(counts(small.counters()), [8, 2, 0, 6, 0]);
+    assert_eq!(counts(big.counters()), [8, 8, 0, 0, 0]);
+}
+
+#[test]
+fn a_late_reader_starts_from_the_newest_sample() {
+    let buffer = OutputBuffer::new("p.out", 4);
+    let writer = Arc::new(RunSignal::new());
+    write_range(&buffer, &writer, 0..5);
+    let mut r = reader(&buffer, ReaderPolicy::Fifo);
+    write_range(&buffer, &writer, 5..6);
+    assert_eq!(sequences(&mut r), vec![4, 5]);
+    assert_eq!(counts(r.counters()), [2, 2, 0, 0, 0]);
+}
+
+#[test]
+fn readers_share_the_payload_instead_of_copying_it() {
+    let buffer = OutputBuffer::new("p.out", 4);
+    let writer = Arc::new(RunSignal::new());
+    let mut a = reader(&buffer, ReaderPolicy::Fifo);
+    let mut b = reader(&buffer, ReaderPolicy::Fifo);
+    let pixels: Arc<[u8]> = Arc::from(vec![7_u8; 1 << 20]);
+    let image =
+        kairos_sdk::Image::packed(1024, 1024, kairos_sdk::PixelFormat::Gray8, Arc::clone(&pixels)).unwrap();
+    buffer
+        .write(Sample::new(Payload::Image(image), Timestamp::ZERO), &writer)
+        .unwrap();
+    for r in [&mut a, &mut b] {
+        let Payload::Image(got) = r.try_read().unwrap().payload else {
+            panic!("not an image")
+        };
+        assert!(Arc::ptr_eq(&got.pixels, &pixels), "the pixel buffer was copied");
+    }
+}
+
+#[test]
+fn closing_ends_the_stream_after_what_is_left() {
+    let buffer = OutputBuffer::new("p.out", 4);
+    let writer = Arc::new(RunSignal::new());
+    let mut r = reader(&buffer, ReaderPolicy::Fifo);
+    write_range(&buffer, &writer, 0..2);
+    buffer.close();
+    assert_eq!(r.read(false).unwrap().sequence, 0);
+    assert_eq!(r.read(false).unwrap().sequence, 1);
+    assert_eq!(r.read(false), Err(kairos_sdk::ReadError::EndOfStream));
+}
+
+#[test]
+fn a_stop_wakes_a_blocked_reader() {
+    let buffer = OutputBuffer::new("p.out", 4);
+    let signal = Arc::new(RunSignal::new());
+    let mut r = buffer.attach(ReaderConfig::new(ReaderPolicy::Fifo, "test"), Arc::clone(&signal));
+    let waiting = {
+        let signal = Arc::clone(&signal);
+        thread::spawn(move || {
+            signal.bind_current_thread();
+            r.read(true)
+        })
+    };
+    thread::sleep(Duration::from_millis(30));
+    signal.request_stop();
+    assert_eq!(waiting.join().unwrap(), Err(kairos_sdk::ReadError::Stopped));
+}
