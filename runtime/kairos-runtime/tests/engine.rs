@@ -1,0 +1,224 @@
+//! The engine running real diagrams: failures stay contained, controls apply live, stop joins all.
+
+use std::sync::Arc;
+use std::thread::sleep;
+use std::time::Duration;
+
+use kairos_diagram::{ComponentInstance, Connection, Diagram, PackRequirement, PortRef, Value};
+use kairos_runtime::{ComponentState, ControlError, Engine, EngineState, StatsSnapshot};
+use kairos_sdk::descriptor::Descriptor;
+use kairos_sdk::{Component, ComponentResult, Context, DataType, Payload, RealTimeClock, Registry, TypeFilter};
+
+/// Panics on the third sample it reads.
+#[derive(Default)]
+struct PanicsOnThird {
+    seen: u32,
+}
+
+impl Component for PanicsOnThird {
+    fn core(&mut self, ctx: &mut Context) -> ComponentResult {
+        let sample = ctx.read("in")?;
+        self.seen += 1;
+        assert!(self.seen < 3, "third sample");
+        ctx.forward("out", &sample)
+    }
+}
+
+fn registry() -> Registry {
+    let mut registry = Registry::new();
+    kairos_pack_core::register(&mut registry);
+    registry.pack("faulty", "1.0.0", "test").component::<PanicsOnThird>(
+        Descriptor::new("faulty.panics_on_third", "test", "Panics on its third sample")
+            .input("in", TypeFilter::Any, "")
+            .output("out", DataType::F64, "")
+            .build(),
+    );
+    registry
+}
+
+fn component(id: &str, type_name: &str, properties: &[(&str, Value)]) -> ComponentInstance {
+    let mut instance = ComponentInstance::new(id, type_name);
+    for (name, value) in properties {
+        instance.properties.insert((*name).to_owned(), value.clone());
+    }
+    instance
+}
+
+fn connect(from: &str, to: &str) -> Connection {
+    Connection::new(PortRef::parse(from).unwrap(), PortRef::parse(to).unwrap())
+}
+
+fn diagram(components: Vec<ComponentInstance>, connections: Vec<Connection>) -> Diagram {
+    Diagram {
+        packs: vec![PackRequirement { name: "core".into(), version: "^0.1".into() }],
+        components,
+        connections,
+        ..Diagram::default()
+    }
+}
+
+fn state_of(snapshot: &StatsSnapshot, id: &str) -> ComponentState {
+    snapshot.components.iter().find(|c| c.id == id).unwrap().state.clone()
+}
+
+fn written(snapshot: &StatsSnapshot, link: &str) -> u64 {
+    snapshot.links.iter().find(|l| l.link == link).unwrap().counters.written
+}
+
+#[test]
+fn a_panicking_component_fails_alone_and_the_rest_keeps_its_rate() {
+    let rate = Value::F64(200.0);
+    let d = diagram(
+        vec![
+            component("source", "core.sine", &[("rate", rate.clone())]),
+            component("bad", "faulty.panics_on_third", &[]),
+            component("other", "core.sine", &[("rate", rate)]),
+            component("gain", "core.gain", &[]),
+        ],
+        vec![connect("source.out", "bad.in"), connect("other.out", "gain.in")],
+    );
+    let mut engine = Engine::build(&d, &registry(), RealTimeClock::shared()).unwrap();
+    engine.start().unwrap();
+    sleep(Duration::from_millis(400));
+    let before = engine.snapshot();
+    match state_of(&before, "bad") {
+        ComponentState::Failed(message) => assert!(message.contains("third sample"), "{message}"),
+        other => panic!("expected failed, got {other:?}"),
+    }
+    sleep(Duration::from_millis(500));
+    let after = engine.snapshot();
+    // 200 Hz for 0.5 s: about 100 more cycles on the healthy chain and on the failed one's producer.
+    let grown = written(&after, "other.out -> gain.in") - written(&before, "other.out -> gain.in");
+    assert!(grown > 50, "the healthy link grew by {grown} only");
+    let cycles = |s: &StatsSnapshot, id: &str| s.components.iter().find(|c| c.id == id).unwrap().cycles;
+    for id in ["source", "other", "gain"] {
+        let grown = cycles(&after, id) - cycles(&before, id);
+        assert!(grown > 50, "{id} ran {grown} cycles only");
+    }
+    assert_eq!(state_of(&after, "gain"), ComponentState::Running);
+    // The failed reader left its link: its counts froze where it failed.
+    assert_eq!(written(&after, "source.out -> bad.in"), written(&before, "source.out -> bad.in"));
+    engine.stop();
+    let last = engine.snapshot();
+    assert!(matches!(state_of(&last, "bad"), ComponentState::Failed(_)));
+    assert_eq!(state_of(&last, "gain"), ComponentState::Stopped);
+    for link in &last.links {
+        assert!(link.counters.balanced(), "{link:?}");
+    }
+}
+
+#[test]
+fn live_property_changes_apply_and_bad_values_keep_the_old_one() {
+    let d = diagram(
+        vec![
+            component("constant", "core.constant", &[("rate", Value::F64(200.0)), ("value", Value::F64(1.0))]),
+            component("gain", "core.gain", &[("gain", Value::F64(2.0))]),
+            component("avg", "core.moving_average", &[("window", Value::I64(1))]),
+        ],
+        vec![connect("constant.out", "gain.in"), connect("gain.out", "avg.in")],
+    );
+    let mut engine = Engine::build(&d, &registry(), RealTimeClock::shared()).unwrap();
+    let mut tap = engine.output_buffer("gain", "out").unwrap().attach(
+        kairos_sdk::ReaderConfig::new(kairos_diagram::ReaderPolicy::Sampling, "tap"),
+        Arc::new(kairos_sdk::RunSignal::new()),
+    );
+    engine.start().unwrap();
+    sleep(Duration::from_millis(100));
+    assert_eq!(tap.try_read().unwrap().payload, Payload::F64(2.0));
+
+    engine.set_property("gain", "gain", Value::F64(5.0)).unwrap();
+    sleep(Duration::from_millis(100));
+    assert_eq!(tap.try_read().unwrap().payload, Payload::F64(5.0));
+
+    // A value of the wrong type, an unknown property, a property that is not live: refused, nothing changes.
+    assert!(matches!(
+        engine.set_property("gain", "gain", Value::Text("loud".into())),
+        Err(ControlError::InvalidValue { .. })
+    ));
+    assert!(matches!(engine.set_property("gain", "gian", Value::F64(1.0)), Err(ControlError::UnknownProperty { .. })));
+    assert!(matches!(engine.set_property("csv", "gain", Value::F64(1.0)), Err(ControlError::UnknownComponent(_))));
+    assert!(matches!(
+        engine.set_property("avg", "window", Value::I64(0)),
+        Err(ControlError::InvalidValue { .. })
+    ));
+    sleep(Duration::from_millis(50));
+    assert_eq!(tap.try_read().unwrap().payload, Payload::F64(5.0));
+    engine.stop();
+}
+
+#[test]
+fn actions_reach_the_component() {
+    let d = diagram(vec![component("counter", "core.counter", &[("rate", Value::F64(200.0))])], vec![]);
+    let mut engine = Engine::build(&d, &registry(), RealTimeClock::shared()).unwrap();
+    let mut tap_config = kairos_sdk::ReaderConfig::new(kairos_diagram::ReaderPolicy::Fifo, "tap");
+    tap_config.capacity = Some(4096);
+    let mut tap = engine.output_buffer("counter", "out").unwrap().attach(
+        tap_config,
+        Arc::new(kairos_sdk::RunSignal::new()),
+    );
+    engine.start().unwrap();
+    sleep(Duration::from_millis(200));
+    engine.trigger_action("counter", "reset").unwrap();
+    sleep(Duration::from_millis(50));
+    engine.stop();
+    let values: Vec<i64> = std::iter::from_fn(|| tap.try_read())
+        .map(|s| if let Payload::I64(v) = s.payload { v } else { -1 })
+        .collect();
+    let restart = values.iter().skip(1).position(|v| *v == 0).expect("the count restarted from 0");
+    assert!(restart > 10, "{values:?}");
+    assert!(matches!(engine.trigger_action("counter", "explode"), Err(ControlError::UnknownAction { .. })));
+}
+
+#[test]
+fn pause_holds_sources_and_resume_restarts_them() {
+    let d = diagram(
+        vec![component("sine", "core.sine", &[("rate", Value::F64(500.0))]), component("gain", "core.gain", &[])],
+        vec![connect("sine.out", "gain.in")],
+    );
+    let mut engine = Engine::build(&d, &registry(), RealTimeClock::shared()).unwrap();
+    engine.start().unwrap();
+    sleep(Duration::from_millis(100));
+    engine.pause();
+    assert_eq!(engine.state(), EngineState::Paused);
+    sleep(Duration::from_millis(150));
+    let paused = written(&engine.snapshot(), "sine.out -> gain.in");
+    sleep(Duration::from_millis(200));
+    assert_eq!(written(&engine.snapshot(), "sine.out -> gain.in"), paused, "nothing is written while paused");
+    assert_eq!(state_of(&engine.snapshot(), "sine"), ComponentState::Paused);
+    engine.resume();
+    sleep(Duration::from_millis(200));
+    assert!(written(&engine.snapshot(), "sine.out -> gain.in") > paused + 20);
+    engine.stop();
+    assert_eq!(engine.state(), EngineState::Stopped);
+}
+
+#[test]
+fn an_invalid_diagram_is_refused_with_every_problem() {
+    let d = diagram(
+        vec![component("a", "core.nothing", &[]), component("b", "core.gain", &[("gain", Value::Text("x".into()))])],
+        vec![],
+    );
+    let error = Engine::build(&d, &registry(), RealTimeClock::shared()).unwrap_err();
+    let message = error.to_string();
+    assert!(message.contains("core.nothing") && message.contains("gain"), "{message}");
+}
+
+#[test]
+fn stop_joins_components_blocked_on_never_skipping_and_silent_inputs() {
+    let mut slow = connect("sine.out", "gain.in");
+    slow.policy = Some(kairos_diagram::ReaderPolicy::NeverSkipping);
+    let d = diagram(
+        vec![
+            component("sine", "core.sine", &[("rate", Value::F64(1000.0))]),
+            component("gain", "core.gain", &[]),
+            component("idle", "core.console", &[]),
+        ],
+        vec![slow],
+    );
+    let mut engine = Engine::build(&d, &registry(), RealTimeClock::shared()).unwrap();
+    engine.start().unwrap();
+    sleep(Duration::from_millis(100));
+    engine.stop();
+    let last = engine.snapshot();
+    assert!(last.components.iter().all(|c| c.state == ComponentState::Stopped), "{last:?}");
+}

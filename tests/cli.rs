@@ -1,0 +1,114 @@
+//! The `kairos` command line as a user meets it: validation messages, the component listing, Ctrl-C.
+
+mod common;
+
+use std::io::Read as _;
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+use common::{example, kairos, text};
+
+#[test]
+fn validate_reports_every_problem_with_its_place_and_a_fix() {
+    let dir = tempfile::tempdir().unwrap();
+    let broken = dir.path().join("broken.ron");
+    std::fs::write(
+        &broken,
+        r#"Diagram(
+    format: 1,
+    packs: [Pack(name: "core", version: "^0.1")],
+    components: [
+        Component(id: "sine1", type: "core.sine", properties: {"frequncy": 2.0}),
+        Component(id: "gain1", type: "core.gian"),
+        Component(id: "console1", type: "core.console"),
+    ],
+    connections: [
+        Connection(from: "sine1.out", to: "console1.in"),
+        Connection(from: "sine1.out", to: "console1.in"),
+    ],
+)
+"#,
+    )
+    .unwrap();
+    let output = kairos(dir.path(), &["validate", broken.to_str().unwrap()]);
+    let (_, stderr) = text(&output);
+    assert_eq!(output.status.code(), Some(1), "{stderr}");
+    assert!(stderr.contains("unknown property 'frequncy' on 'sine1'"), "{stderr}");
+    assert!(stderr.contains("did you mean 'frequency'?"), "{stderr}");
+    assert!(stderr.contains("core.gain"), "suggests the close type name: {stderr}");
+    assert!(stderr.contains("broken.ron:5:"), "located by line: {stderr}");
+    assert!(stderr.contains("fed twice") || stderr.contains("twice"), "{stderr}");
+}
+
+#[test]
+fn validate_accepts_several_files_and_fails_if_one_is_bad() {
+    let dir = tempfile::tempdir().unwrap();
+    let bad = dir.path().join("bad.ron");
+    std::fs::write(&bad, "Diagram(format: 1, packs: [], components: [, connections: [])").unwrap();
+    let good = example("hello");
+    let output = kairos(dir.path(), &["validate", good.to_str().unwrap(), bad.to_str().unwrap()]);
+    let (stdout, stderr) = text(&output);
+    assert_eq!(output.status.code(), Some(1));
+    assert!(stdout.contains("hello.ron: valid"), "{stdout}");
+    assert!(stderr.contains("bad.ron:1:"), "{stderr}");
+}
+
+#[test]
+fn a_missing_file_is_a_clear_error() {
+    let dir = tempfile::tempdir().unwrap();
+    let output = kairos(dir.path(), &["run", "nowhere.ron"]);
+    let (_, stderr) = text(&output);
+    assert_eq!(output.status.code(), Some(1));
+    assert!(stderr.contains("nowhere.ron"), "{stderr}");
+}
+
+#[test]
+fn components_lists_the_library_as_text_and_json() {
+    let dir = tempfile::tempdir().unwrap();
+    let output = kairos(dir.path(), &["components", "--json"]);
+    assert!(output.status.success());
+    let json: serde_json::Value = serde_json::from_slice(&output.stdout).unwrap();
+    let components = json["components"].as_array().unwrap();
+    let sine = components.iter().find(|c| c["type_name"] == "core.sine").unwrap();
+    assert_eq!(sine["outputs"][0]["name"], "out");
+    assert!(sine["properties"].as_array().unwrap().iter().any(|p| p["name"] == "frequency"));
+    for expected in ["core.gain", "core.csv_writer", "sensors.camera", "sensors.imu", "sensors.gnss"] {
+        assert!(components.iter().any(|c| c["type_name"] == expected), "{expected} missing");
+    }
+    assert!(json["packs"].as_array().unwrap().iter().any(|p| p["name"] == "sensors"));
+
+    let output = kairos(dir.path(), &["components", "core.counter"]);
+    let (stdout, _) = text(&output);
+    assert!(stdout.contains("core.counter") && stdout.contains("act  reset"), "{stdout}");
+    assert!(!stdout.contains("core.sine"), "the filter applies: {stdout}");
+}
+
+#[test]
+fn ctrl_c_stops_cleanly_with_a_final_table() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = example("hello");
+    let mut child = Command::new(env!("CARGO_BIN_EXE_kairos"))
+        .args(["run", path.to_str().unwrap(), "--stats", "--stats-interval", "10s"])
+        .current_dir(dir.path())
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    std::thread::sleep(Duration::from_millis(1200));
+    let status = Command::new("kill").args(["-INT", &child.id().to_string()]).status().unwrap();
+    assert!(status.success());
+    let started = Instant::now();
+    let exit = loop {
+        if let Some(exit) = child.try_wait().unwrap() {
+            break exit;
+        }
+        assert!(started.elapsed() < Duration::from_secs(10), "kairos did not stop after Ctrl-C");
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    let mut stderr = String::new();
+    child.stderr.take().unwrap().read_to_string(&mut stderr).unwrap();
+    assert!(exit.success(), "{stderr}");
+    assert!(stderr.contains("stopping (Ctrl-C)"), "{stderr}");
+    assert!(stderr.contains("=== final"), "{stderr}");
+    assert!(stderr.contains("stopped"), "components end stopped: {stderr}");
+}

@@ -1,0 +1,29 @@
+//! Helpers shared by the end-to-end tests: run the real `kairos` binary.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+/// The repository root.
+pub fn repo_root() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../..").canonicalize().expect("repository root")
+}
+
+/// The example diagram `name` (`hello`, `camera`, `fusion`).
+pub fn example(name: &str) -> PathBuf {
+    repo_root().join("examples").join(format!("{name}.ron"))
+}
+
+/// Runs `kairos` with `args` in `dir` and returns its output.
+pub fn kairos(dir: &Path, args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_kairos"))
+        .args(args)
+        .current_dir(dir)
+        .env("RUST_LOG", "info")
+        .output()
+        .expect("running kairos")
+}
+
+/// Standard output and standard error as text.
+pub fn text(output: &Output) -> (String, String) {
+    (String::from_utf8_lossy(&output.stdout).into_owned(), String::from_utf8_lossy(&output.stderr).into_owned())
+}
