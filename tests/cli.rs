@@ -1,4 +1,5 @@
 //! The `kairos` command line as a user meets it: validation messages, the component listing, Ctrl-C.
+#![allow(clippy::unwrap_used, clippy::expect_used, reason = "a failed unwrap is a failed test")]
 
 mod common;
 
@@ -33,20 +34,36 @@ fn validate_reports_every_problem_with_its_place_and_a_fix() {
     let output = kairos(dir.path(), &["validate", broken.to_str().unwrap()]);
     let (_, stderr) = text(&output);
     assert_eq!(output.status.code(), Some(1), "{stderr}");
-    assert!(stderr.contains("unknown property 'frequncy' on 'sine1'"), "{stderr}");
+    assert!(
+        stderr.contains("unknown property 'frequncy' on 'sine1'"),
+        "{stderr}"
+    );
     assert!(stderr.contains("did you mean 'frequency'?"), "{stderr}");
-    assert!(stderr.contains("core.gain"), "suggests the close type name: {stderr}");
+    assert!(
+        stderr.contains("core.gain"),
+        "suggests the close type name: {stderr}"
+    );
     assert!(stderr.contains("broken.ron:5:"), "located by line: {stderr}");
-    assert!(stderr.contains("fed twice") || stderr.contains("twice"), "{stderr}");
+    assert!(
+        stderr.contains("fed twice") || stderr.contains("twice"),
+        "{stderr}"
+    );
 }
 
 #[test]
 fn validate_accepts_several_files_and_fails_if_one_is_bad() {
     let dir = tempfile::tempdir().unwrap();
     let bad = dir.path().join("bad.ron");
-    std::fs::write(&bad, "Diagram(format: 1, packs: [], components: [, connections: [])").unwrap();
+    std::fs::write(
+        &bad,
+        "Diagram(format: 1, packs: [], components: [, connections: [])",
+    )
+    .unwrap();
     let good = example("hello");
-    let output = kairos(dir.path(), &["validate", good.to_str().unwrap(), bad.to_str().unwrap()]);
+    let output = kairos(
+        dir.path(),
+        &["validate", good.to_str().unwrap(), bad.to_str().unwrap()],
+    );
     let (stdout, stderr) = text(&output);
     assert_eq!(output.status.code(), Some(1));
     assert!(stdout.contains("hello.ron: valid"), "{stdout}");
@@ -71,15 +88,39 @@ fn components_lists_the_library_as_text_and_json() {
     let components = json["components"].as_array().unwrap();
     let sine = components.iter().find(|c| c["type_name"] == "core.sine").unwrap();
     assert_eq!(sine["outputs"][0]["name"], "out");
-    assert!(sine["properties"].as_array().unwrap().iter().any(|p| p["name"] == "frequency"));
-    for expected in ["core.gain", "core.csv_writer", "sensors.camera", "sensors.imu", "sensors.gnss"] {
-        assert!(components.iter().any(|c| c["type_name"] == expected), "{expected} missing");
+    assert!(
+        sine["properties"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .any(|p| p["name"] == "frequency")
+    );
+    for expected in [
+        "core.gain",
+        "core.csv_writer",
+        "sensors.camera",
+        "sensors.imu",
+        "sensors.gnss",
+    ] {
+        assert!(
+            components.iter().any(|c| c["type_name"] == expected),
+            "{expected} missing"
+        );
     }
-    assert!(json["packs"].as_array().unwrap().iter().any(|p| p["name"] == "sensors"));
+    assert!(
+        json["packs"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .any(|p| p["name"] == "sensors")
+    );
 
     let output = kairos(dir.path(), &["components", "core.counter"]);
     let (stdout, _) = text(&output);
-    assert!(stdout.contains("core.counter") && stdout.contains("act  reset"), "{stdout}");
+    assert!(
+        stdout.contains("core.counter") && stdout.contains("act  reset"),
+        "{stdout}"
+    );
     assert!(!stdout.contains("core.sine"), "the filter applies: {stdout}");
 }
 
@@ -88,21 +129,33 @@ fn ctrl_c_stops_cleanly_with_a_final_table() {
     let dir = tempfile::tempdir().unwrap();
     let path = example("hello");
     let mut child = Command::new(env!("CARGO_BIN_EXE_kairos"))
-        .args(["run", path.to_str().unwrap(), "--stats", "--stats-interval", "10s"])
+        .args([
+            "run",
+            path.to_str().unwrap(),
+            "--stats",
+            "--stats-interval",
+            "10s",
+        ])
         .current_dir(dir.path())
         .stdout(Stdio::null())
         .stderr(Stdio::piped())
         .spawn()
         .unwrap();
     std::thread::sleep(Duration::from_millis(1200));
-    let status = Command::new("kill").args(["-INT", &child.id().to_string()]).status().unwrap();
+    let status = Command::new("kill")
+        .args(["-INT", &child.id().to_string()])
+        .status()
+        .unwrap();
     assert!(status.success());
     let started = Instant::now();
     let exit = loop {
         if let Some(exit) = child.try_wait().unwrap() {
             break exit;
         }
-        assert!(started.elapsed() < Duration::from_secs(10), "kairos did not stop after Ctrl-C");
+        assert!(
+            started.elapsed() < Duration::from_secs(10),
+            "kairos did not stop after Ctrl-C"
+        );
         std::thread::sleep(Duration::from_millis(20));
     };
     let mut stderr = String::new();

@@ -1,4 +1,5 @@
 //! The example diagrams, validated and run through the real `kairos` binary.
+#![allow(clippy::unwrap_used, clippy::expect_used, reason = "a failed unwrap is a failed test")]
 
 mod common;
 
@@ -20,7 +21,18 @@ fn every_example_validates() {
 fn hello_prints_the_amplified_sine() {
     let dir = tempfile::tempdir().unwrap();
     let path = example("hello");
-    let output = kairos(dir.path(), &["run", path.to_str().unwrap(), "--for", "1500ms", "--stats", "--set", "console1.every=1"]);
+    let output = kairos(
+        dir.path(),
+        &[
+            "run",
+            path.to_str().unwrap(),
+            "--for",
+            "1500ms",
+            "--stats",
+            "--set",
+            "console1.every=1",
+        ],
+    );
     let (stdout, stderr) = text(&output);
     assert!(output.status.success(), "{stderr}");
     let values: Vec<f64> = stdout
@@ -28,10 +40,17 @@ fn hello_prints_the_amplified_sine() {
         .filter(|l| l.starts_with("console1:"))
         .filter_map(|l| l.rsplit(' ').next()?.parse().ok())
         .collect();
-    assert!(values.len() > 50, "expected ~150 lines at 100 Hz, got {}:\n{stdout}", values.len());
+    assert!(
+        values.len() > 50,
+        "expected ~150 lines at 100 Hz, got {}:\n{stdout}",
+        values.len()
+    );
     // gain 2.5 × sine of amplitude 1: every value lies within ±2.5 and the wave leaves ±1.
     assert!(values.iter().all(|v| v.abs() <= 2.5 + 1e-9), "{values:?}");
-    assert!(values.iter().any(|v| v.abs() > 1.0), "the gain was not applied: {values:?}");
+    assert!(
+        values.iter().any(|v| v.abs() > 1.0),
+        "the gain was not applied: {values:?}"
+    );
     // The final statistics table names both links and their counts balance.
     assert!(stderr.contains("sine1.out -> gain1.in"), "{stderr}");
     assert!(stderr.contains("=== final"), "{stderr}");
@@ -40,7 +59,12 @@ fn hello_prints_the_amplified_sine() {
 fn csv_rows(path: &std::path::Path) -> (Vec<String>, Vec<Vec<String>>) {
     let content = std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
     let mut lines = content.lines();
-    let header = lines.next().unwrap_or_default().split(',').map(str::to_owned).collect();
+    let header = lines
+        .next()
+        .unwrap_or_default()
+        .split(',')
+        .map(str::to_owned)
+        .collect();
     let rows = lines.map(|l| l.split(',').map(str::to_owned).collect()).collect();
     (header, rows)
 }
@@ -51,11 +75,17 @@ fn camera_latency_reaches_the_csv() {
     let path = example("camera");
     let csv = dir.path().join("latency.csv");
     let set = format!("csv.path={}", csv.display());
-    let output = kairos(dir.path(), &["run", path.to_str().unwrap(), "--for", "2s", "--set", &set]);
+    let output = kairos(
+        dir.path(),
+        &["run", path.to_str().unwrap(), "--for", "2s", "--set", &set],
+    );
     let (_, stderr) = text(&output);
     assert!(output.status.success(), "{stderr}");
     let (header, rows) = csv_rows(&csv);
-    assert_eq!(header, ["input", "timestamp_ns", "time_of_issue_ns", "sequence", "value"]);
+    assert_eq!(
+        header,
+        ["input", "timestamp_ns", "time_of_issue_ns", "sequence", "value"]
+    );
     // 30 Hz subsampled by 3 for 2 s: about 20 rows.
     assert!((10..=25).contains(&rows.len()), "{} rows", rows.len());
     for row in &rows {
@@ -75,18 +105,28 @@ fn fusion_matches_imu_and_gnss_by_timestamp() {
     let path = example("fusion");
     let csv = dir.path().join("fusion.csv");
     let set = format!("csv.path={}", csv.display());
-    let output = kairos(dir.path(), &["run", path.to_str().unwrap(), "--for", "2s", "--set", &set]);
+    let output = kairos(
+        dir.path(),
+        &["run", path.to_str().unwrap(), "--for", "2s", "--set", &set],
+    );
     let (_, stderr) = text(&output);
     assert!(output.status.success(), "{stderr}");
     let (header, rows) = csv_rows(&csv);
     let imu_ts = header.iter().position(|h| h == "in1.timestamp_ns").unwrap();
     let gnss_ts = header.iter().position(|h| h == "in2.timestamp_ns").unwrap();
-    assert!(header.contains(&"in1.acc_z".to_owned()) && header.contains(&"in2.latitude_deg".to_owned()), "{header:?}");
+    assert!(
+        header.contains(&"in1.acc_z".to_owned()) && header.contains(&"in2.latitude_deg".to_owned()),
+        "{header:?}"
+    );
     // GNSS at 10 Hz for 2 s: about 20 matched pairs, each within the 5 ms tolerance.
     assert!((12..=22).contains(&rows.len()), "{} rows", rows.len());
     for row in &rows {
         let a: i64 = row[imu_ts].parse().unwrap();
         let b: i64 = row[gnss_ts].parse().unwrap();
-        assert!((a - b).abs() <= 5_000_000, "pair {} ms apart", (a - b) as f64 / 1e6);
+        assert!(
+            (a - b).abs() <= 5_000_000,
+            "pair {} ms apart",
+            (a - b) as f64 / 1e6
+        );
     }
 }

@@ -252,7 +252,7 @@ impl OutputBuffer {
         state.grow(capacity);
         let joined_at = state.written.saturating_sub(1);
         state.readers.push(ReaderState {
-            link: Arc::from(config.link.as_str()),
+            link: Arc::from(config.link),
             policy: config.policy,
             capacity,
             subsampling: u64::from(config.subsampling.max(1)),

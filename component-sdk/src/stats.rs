@@ -35,7 +35,7 @@ fn bucket_of(value: u64) -> usize {
     if value < SUB as u64 {
         return value as usize;
     }
-    let magnitude = 63 - value.leading_zeros(); // >= SUB_BITS
+    let magnitude = value.ilog2(); // >= SUB_BITS
     let shift = magnitude - SUB_BITS;
     let sub = ((value >> shift) as usize) & (SUB - 1);
     ((magnitude - SUB_BITS + 1) as usize) * SUB + sub

@@ -57,6 +57,7 @@ impl Timestamp {
     }
 
     /// This time moved forward by `duration`.
+    #[must_use]
     pub fn after(self, duration: Duration) -> Timestamp {
         Timestamp(
             self.0

@@ -231,7 +231,7 @@ impl Component for Subsampler {
     fn core(&mut self, ctx: &mut Context) -> ComponentResult {
         let sample = ctx.read("in")?;
         let factor = u64::try_from(ctx.i64_property("factor")?).unwrap_or(1).max(1);
-        let keep = self.seen % factor == 0;
+        let keep = self.seen.is_multiple_of(factor);
         self.seen += 1;
         if keep {
             ctx.forward("out", &sample)?;

@@ -1,6 +1,6 @@
 //! A small seeded generator: the same seed gives the same numbers on every machine.
 
-/// SplitMix64 (Steele, Lea and Flood, 2014), with Box-Muller for normal deviates.
+/// `SplitMix64` (Steele, Lea and Flood, 2014), with Box-Muller for normal deviates.
 #[derive(Debug, Clone)]
 pub struct SplitMix {
     state: u64,

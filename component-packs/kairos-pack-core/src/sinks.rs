@@ -45,7 +45,7 @@ impl Component for Console {
     fn core(&mut self, ctx: &mut Context) -> ComponentResult {
         let sample = ctx.read("in")?;
         let every = u64::try_from(ctx.i64_property("every")?).unwrap_or(1).max(1);
-        let print = self.seen % every == 0;
+        let print = self.seen.is_multiple_of(every);
         self.seen += 1;
         if !print {
             return Ok(());
@@ -138,7 +138,11 @@ pub fn payload_fields(payload: &Payload) -> Vec<(String, String)> {
                 f.id.to_string(),
                 f.extended.to_string(),
                 f.data().len().to_string(),
-                f.data().iter().map(|b| format!("{b:02x}")).collect(),
+                f.data().iter().fold(String::new(), |mut hex, b| {
+                    use std::fmt::Write as _;
+                    let _ = write!(hex, "{b:02x}");
+                    hex
+                }),
             ],
         ),
         Payload::Pose(p) => named(

@@ -141,13 +141,13 @@ impl Monitor {
 
     /// Marks the component failed and reports it by id, once.
     fn fail(&self, id: &str, stage: &str, message: &str) {
-        let mut state = lock(&self.state);
-        if !matches!(*state, ComponentState::Failed(_)) {
+        let mut current = lock(&self.state);
+        if !matches!(*current, ComponentState::Failed(_)) {
             tracing::error!(
                 component = id,
                 "component '{id}' failed in {stage}: {message}; the rest of the diagram keeps running"
             );
-            *state = ComponentState::Failed(format!("{stage}: {message}"));
+            *current = ComponentState::Failed(format!("{stage}: {message}"));
         }
     }
 }
@@ -253,6 +253,19 @@ struct Slot {
     driver: Driver,
 }
 
+/// A component made but not yet started, while `Engine::build` wires its ports.
+struct Pending {
+    id: String,
+    info: ComponentInfo,
+    component: Box<dyn Component>,
+    signal: Arc<RunSignal>,
+    reactive: Option<Arc<OnceLock<Weak<ReactiveCell>>>>,
+    inputs: Vec<InputPort>,
+    outputs: Vec<OutputPort>,
+    properties: BTreeMap<String, Value>,
+    thread: ThreadSettings,
+}
+
 /// A diagram instantiated on a component library: buffers allocated, readers attached, components made.
 pub struct Engine {
     clock: Arc<dyn Clock>,
@@ -279,6 +292,10 @@ pub fn link_name(from: &kairos_diagram::PortRef, to: &kairos_diagram::PortRef) -
 
 impl Engine {
     /// Validates `diagram` against `registry` and builds it; nothing runs until [`Engine::start`].
+    #[allow(
+        clippy::too_many_lines,
+        reason = "one linear pass: components, buffers, readers, contexts; splitting scatters the wiring"
+    )]
     pub fn build(
         diagram: &Diagram,
         registry: &Registry,
@@ -288,18 +305,6 @@ impl Engine {
         let diagnostics = kairos_diagram::validate(diagram, None, &library);
         if diagnostics.iter().any(kairos_diagram::Diagnostic::is_error) {
             return Err(BuildError::Invalid(diagnostics));
-        }
-
-        struct Pending {
-            id: String,
-            info: ComponentInfo,
-            component: Box<dyn Component>,
-            signal: Arc<RunSignal>,
-            reactive: Option<Arc<OnceLock<Weak<ReactiveCell>>>>,
-            inputs: Vec<InputPort>,
-            outputs: Vec<OutputPort>,
-            properties: BTreeMap<String, Value>,
-            thread: ThreadSettings,
         }
 
         let mut pending: Vec<Pending> = Vec::new();
@@ -507,7 +512,7 @@ impl Engine {
         let (stop_tx, stop_rx): (SyncSender<()>, Receiver<()>) = mpsc::sync_channel(1);
         let buffers = self.buffers.clone();
         let spawned = std::thread::Builder::new().name("kairos-supervisor".to_owned()).spawn(move || {
-            let mut last: BTreeMap<Arc<str>, u64> = BTreeMap::new();
+            let mut overwritten_before: BTreeMap<Arc<str>, u64> = BTreeMap::new();
             loop {
                 match stop_rx.recv_timeout(Duration::from_secs(1)) {
                     Err(RecvTimeoutError::Timeout) => {}
@@ -515,7 +520,7 @@ impl Engine {
                 }
                 for buffer in &buffers {
                     for (link, counters) in buffer.link_counters() {
-                        let before = last.insert(Arc::clone(&link), counters.overwritten).unwrap_or(0);
+                        let before = overwritten_before.insert(Arc::clone(&link), counters.overwritten).unwrap_or(0);
                         let lost = counters.overwritten.saturating_sub(before);
                         if lost > 0 {
                             tracing::warn!(
@@ -613,7 +618,7 @@ impl Engine {
 
     /// Changes a property: checked against its kind and range and whether it may change while running,
     /// then applied by the component on its own thread. A refused value keeps the old one.
-    pub fn set_property(&self, id: &str, name: &str, value: Value) -> Result<(), ControlError> {
+    pub fn set_property(&self, id: &str, name: &str, value: &Value) -> Result<(), ControlError> {
         let slot = self.slot(id)?;
         let info = slot
             .info
@@ -624,7 +629,7 @@ impl Engine {
             })?;
         let value = info
             .kind
-            .check(&value)
+            .check(value)
             .map_err(|error| ControlError::InvalidValue {
                 component: id.to_owned(),
                 property: name.to_owned(),
@@ -644,7 +649,7 @@ impl Engine {
                 value,
                 reply,
             },
-            answer,
+            &answer,
         )
     }
 
@@ -664,7 +669,7 @@ impl Engine {
                 name: name.to_owned(),
                 reply,
             },
-            answer,
+            &answer,
         )
     }
 
@@ -679,7 +684,7 @@ impl Engine {
         &self,
         slot: &Slot,
         request: ControlRequest,
-        answer: Receiver<Result<(), String>>,
+        answer: &Receiver<Result<(), String>>,
     ) -> Result<(), ControlError> {
         let refused = |reason: String| ControlError::Refused {
             component: slot.id.clone(),

@@ -36,7 +36,8 @@ fn set_realtime_priority(priority: u8) -> Result<(), String> {
         RealtimeThreadSchedulePolicy, ThreadSchedulePolicy, set_thread_priority_and_policy, thread_native_id,
     };
     use thread_priority::{ThreadPriority, ThreadPriorityValue};
-    let value = ThreadPriorityValue::try_from(priority.min(99)).map_err(|e| e.to_string())?;
+    let value =
+        ThreadPriorityValue::try_from(priority.min(99)).map_err(|e| format!("priority {priority}: {e}"))?;
     set_thread_priority_and_policy(
         thread_native_id(),
         ThreadPriority::Crossplatform(value),
@@ -72,13 +73,11 @@ pub fn thread_cpu_nanos() -> u64 {
     #[cfg(target_os = "linux")]
     {
         use nix::time::{ClockId, clock_gettime};
-        clock_gettime(ClockId::CLOCK_THREAD_CPUTIME_ID)
-            .map(|t| {
-                (t.tv_sec() as u64)
-                    .saturating_mul(1_000_000_000)
-                    .saturating_add(t.tv_nsec() as u64)
-            })
-            .unwrap_or(0)
+        clock_gettime(ClockId::CLOCK_THREAD_CPUTIME_ID).map_or(0, |t| {
+            (t.tv_sec() as u64)
+                .saturating_mul(1_000_000_000)
+                .saturating_add(t.tv_nsec() as u64)
+        })
     }
     #[cfg(not(target_os = "linux"))]
     {

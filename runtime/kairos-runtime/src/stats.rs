@@ -83,6 +83,7 @@ pub struct StatsSnapshot {
 
 impl StatsSnapshot {
     /// Fills in rates from an earlier snapshot of the same run.
+    #[must_use]
     pub fn with_rates_since(mut self, earlier: &StatsSnapshot) -> StatsSnapshot {
         let seconds = self.at.nanos_since(earlier.at) as f64 * 1e-9;
         if seconds <= 0.0 {

@@ -1,4 +1,5 @@
 //! The engine running real diagrams: failures stay contained, controls apply live, stop joins all.
+#![allow(clippy::unwrap_used, clippy::expect_used, reason = "a failed unwrap is a failed test")]
 
 use std::sync::Arc;
 use std::thread::sleep;
@@ -7,7 +8,9 @@ use std::time::Duration;
 use kairos_diagram::{ComponentInstance, Connection, Diagram, PackRequirement, PortRef, Value};
 use kairos_runtime::{ComponentState, ControlError, Engine, EngineState, StatsSnapshot};
 use kairos_sdk::descriptor::Descriptor;
-use kairos_sdk::{Component, ComponentResult, Context, DataType, Payload, RealTimeClock, Registry, TypeFilter};
+use kairos_sdk::{
+    Component, ComponentResult, Context, DataType, Payload, RealTimeClock, Registry, TypeFilter,
+};
 
 /// Panics on the third sample it reads.
 #[derive(Default)]
@@ -27,12 +30,14 @@ impl Component for PanicsOnThird {
 fn registry() -> Registry {
     let mut registry = Registry::new();
     kairos_pack_core::register(&mut registry);
-    registry.pack("faulty", "1.0.0", "test").component::<PanicsOnThird>(
-        Descriptor::new("faulty.panics_on_third", "test", "Panics on its third sample")
-            .input("in", TypeFilter::Any, "")
-            .output("out", DataType::F64, "")
-            .build(),
-    );
+    registry
+        .pack("faulty", "1.0.0", "test")
+        .component::<PanicsOnThird>(
+            Descriptor::new("faulty.panics_on_third", "test", "Panics on its third sample")
+                .input("in", TypeFilter::Any, "")
+                .output("out", DataType::F64, "")
+                .build(),
+        );
     registry
 }
 
@@ -50,7 +55,10 @@ fn connect(from: &str, to: &str) -> Connection {
 
 fn diagram(components: Vec<ComponentInstance>, connections: Vec<Connection>) -> Diagram {
     Diagram {
-        packs: vec![PackRequirement { name: "core".into(), version: "^0.1".into() }],
+        packs: vec![PackRequirement {
+            name: "core".into(),
+            version: "^0.1".into(),
+        }],
         components,
         connections,
         ..Diagram::default()
@@ -58,11 +66,23 @@ fn diagram(components: Vec<ComponentInstance>, connections: Vec<Connection>) -> 
 }
 
 fn state_of(snapshot: &StatsSnapshot, id: &str) -> ComponentState {
-    snapshot.components.iter().find(|c| c.id == id).unwrap().state.clone()
+    snapshot
+        .components
+        .iter()
+        .find(|c| c.id == id)
+        .unwrap()
+        .state
+        .clone()
 }
 
 fn written(snapshot: &StatsSnapshot, link: &str) -> u64 {
-    snapshot.links.iter().find(|l| l.link == link).unwrap().counters.written
+    snapshot
+        .links
+        .iter()
+        .find(|l| l.link == link)
+        .unwrap()
+        .counters
+        .written
 }
 
 #[test]
@@ -97,7 +117,10 @@ fn a_panicking_component_fails_alone_and_the_rest_keeps_its_rate() {
     }
     assert_eq!(state_of(&after, "gain"), ComponentState::Running);
     // The failed reader left its link: its counts froze where it failed.
-    assert_eq!(written(&after, "source.out -> bad.in"), written(&before, "source.out -> bad.in"));
+    assert_eq!(
+        written(&after, "source.out -> bad.in"),
+        written(&before, "source.out -> bad.in")
+    );
     engine.stop();
     let last = engine.snapshot();
     assert!(matches!(state_of(&last, "bad"), ComponentState::Failed(_)));
@@ -111,7 +134,11 @@ fn a_panicking_component_fails_alone_and_the_rest_keeps_its_rate() {
 fn live_property_changes_apply_and_bad_values_keep_the_old_one() {
     let d = diagram(
         vec![
-            component("constant", "core.constant", &[("rate", Value::F64(200.0)), ("value", Value::F64(1.0))]),
+            component(
+                "constant",
+                "core.constant",
+                &[("rate", Value::F64(200.0)), ("value", Value::F64(1.0))],
+            ),
             component("gain", "core.gain", &[("gain", Value::F64(2.0))]),
             component("avg", "core.moving_average", &[("window", Value::I64(1))]),
         ],
@@ -126,19 +153,25 @@ fn live_property_changes_apply_and_bad_values_keep_the_old_one() {
     sleep(Duration::from_millis(100));
     assert_eq!(tap.try_read().unwrap().payload, Payload::F64(2.0));
 
-    engine.set_property("gain", "gain", Value::F64(5.0)).unwrap();
+    engine.set_property("gain", "gain", &Value::F64(5.0)).unwrap();
     sleep(Duration::from_millis(100));
     assert_eq!(tap.try_read().unwrap().payload, Payload::F64(5.0));
 
     // A value of the wrong type, an unknown property, a property that is not live: refused, nothing changes.
     assert!(matches!(
-        engine.set_property("gain", "gain", Value::Text("loud".into())),
+        engine.set_property("gain", "gain", &Value::Text("loud".into())),
         Err(ControlError::InvalidValue { .. })
     ));
-    assert!(matches!(engine.set_property("gain", "gian", Value::F64(1.0)), Err(ControlError::UnknownProperty { .. })));
-    assert!(matches!(engine.set_property("csv", "gain", Value::F64(1.0)), Err(ControlError::UnknownComponent(_))));
     assert!(matches!(
-        engine.set_property("avg", "window", Value::I64(0)),
+        engine.set_property("gain", "gian", &Value::F64(1.0)),
+        Err(ControlError::UnknownProperty { .. })
+    ));
+    assert!(matches!(
+        engine.set_property("csv", "gain", &Value::F64(1.0)),
+        Err(ControlError::UnknownComponent(_))
+    ));
+    assert!(matches!(
+        engine.set_property("avg", "window", &Value::I64(0)),
         Err(ControlError::InvalidValue { .. })
     ));
     sleep(Duration::from_millis(50));
@@ -148,14 +181,21 @@ fn live_property_changes_apply_and_bad_values_keep_the_old_one() {
 
 #[test]
 fn actions_reach_the_component() {
-    let d = diagram(vec![component("counter", "core.counter", &[("rate", Value::F64(200.0))])], vec![]);
+    let d = diagram(
+        vec![component(
+            "counter",
+            "core.counter",
+            &[("rate", Value::F64(200.0))],
+        )],
+        vec![],
+    );
     let mut engine = Engine::build(&d, &registry(), RealTimeClock::shared()).unwrap();
     let mut tap_config = kairos_sdk::ReaderConfig::new(kairos_diagram::ReaderPolicy::Fifo, "tap");
     tap_config.capacity = Some(4096);
-    let mut tap = engine.output_buffer("counter", "out").unwrap().attach(
-        tap_config,
-        Arc::new(kairos_sdk::RunSignal::new()),
-    );
+    let mut tap = engine
+        .output_buffer("counter", "out")
+        .unwrap()
+        .attach(tap_config, Arc::new(kairos_sdk::RunSignal::new()));
     engine.start().unwrap();
     sleep(Duration::from_millis(200));
     engine.trigger_action("counter", "reset").unwrap();
@@ -164,15 +204,25 @@ fn actions_reach_the_component() {
     let values: Vec<i64> = std::iter::from_fn(|| tap.try_read())
         .map(|s| if let Payload::I64(v) = s.payload { v } else { -1 })
         .collect();
-    let restart = values.iter().skip(1).position(|v| *v == 0).expect("the count restarted from 0");
+    let restart = values
+        .iter()
+        .skip(1)
+        .position(|v| *v == 0)
+        .expect("the count restarted from 0");
     assert!(restart > 10, "{values:?}");
-    assert!(matches!(engine.trigger_action("counter", "explode"), Err(ControlError::UnknownAction { .. })));
+    assert!(matches!(
+        engine.trigger_action("counter", "explode"),
+        Err(ControlError::UnknownAction { .. })
+    ));
 }
 
 #[test]
 fn pause_holds_sources_and_resume_restarts_them() {
     let d = diagram(
-        vec![component("sine", "core.sine", &[("rate", Value::F64(500.0))]), component("gain", "core.gain", &[])],
+        vec![
+            component("sine", "core.sine", &[("rate", Value::F64(500.0))]),
+            component("gain", "core.gain", &[]),
+        ],
         vec![connect("sine.out", "gain.in")],
     );
     let mut engine = Engine::build(&d, &registry(), RealTimeClock::shared()).unwrap();
@@ -183,7 +233,11 @@ fn pause_holds_sources_and_resume_restarts_them() {
     sleep(Duration::from_millis(150));
     let paused = written(&engine.snapshot(), "sine.out -> gain.in");
     sleep(Duration::from_millis(200));
-    assert_eq!(written(&engine.snapshot(), "sine.out -> gain.in"), paused, "nothing is written while paused");
+    assert_eq!(
+        written(&engine.snapshot(), "sine.out -> gain.in"),
+        paused,
+        "nothing is written while paused"
+    );
     assert_eq!(state_of(&engine.snapshot(), "sine"), ComponentState::Paused);
     engine.resume();
     sleep(Duration::from_millis(200));
@@ -195,12 +249,18 @@ fn pause_holds_sources_and_resume_restarts_them() {
 #[test]
 fn an_invalid_diagram_is_refused_with_every_problem() {
     let d = diagram(
-        vec![component("a", "core.nothing", &[]), component("b", "core.gain", &[("gain", Value::Text("x".into()))])],
+        vec![
+            component("a", "core.nothing", &[]),
+            component("b", "core.gain", &[("gain", Value::Text("x".into()))]),
+        ],
         vec![],
     );
     let error = Engine::build(&d, &registry(), RealTimeClock::shared()).unwrap_err();
     let message = error.to_string();
-    assert!(message.contains("core.nothing") && message.contains("gain"), "{message}");
+    assert!(
+        message.contains("core.nothing") && message.contains("gain"),
+        "{message}"
+    );
 }
 
 #[test]
@@ -220,5 +280,8 @@ fn stop_joins_components_blocked_on_never_skipping_and_silent_inputs() {
     sleep(Duration::from_millis(100));
     engine.stop();
     let last = engine.snapshot();
-    assert!(last.components.iter().all(|c| c.state == ComponentState::Stopped), "{last:?}");
+    assert!(
+        last.components.iter().all(|c| c.state == ComponentState::Stopped),
+        "{last:?}"
+    );
 }

@@ -1,5 +1,6 @@
 //! Argument parsing and dispatch.
 
+use std::fmt::Write as _;
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Duration;
@@ -14,7 +15,7 @@ use crate::duration::parse_duration;
 #[derive(Debug, Parser)]
 #[command(name = "kairos", version, about, long_about = None)]
 pub struct Cli {
-    /// More log output (-v: debug, -vv: trace). RUST_LOG overrides it.
+    /// More log output (-v: debug, -vv: trace). `RUST_LOG` overrides it.
     #[arg(short, long, action = clap::ArgAction::Count, global = true)]
     pub verbose: u8,
     /// What to do.
@@ -158,7 +159,6 @@ fn components(library: &LibraryInfo, json: bool, filter: Option<&str>) -> anyhow
         );
         return Ok(());
     }
-    use std::fmt::Write as _;
     let mut out = String::new();
     for component in selected {
         let _ = writeln!(

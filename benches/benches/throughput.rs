@@ -1,0 +1,215 @@
+//! Benchmark 3 — one link, throughput.
+//!
+//! One writer thread, one reader thread, a 1024-sample buffer, N small samples (`Payload::I64`), as fast
+//! as they go. Ours: an `OutputBuffer` with a `NeverSkipping` reader (lossless: the writer waits when the
+//! reader's 1024 are full, like a bounded channel), read blocking (`Reader::read`) or spinning
+//! (`Reader::try_read`). For context, a FIFO reader, where the writer never waits and overwrites what the
+//! reader has not taken. Baselines, moving the same `Sample` struct: `crossbeam-channel` bounded(1024)
+//! with blocking send/recv, and an `rtrb` ring of 1024 with spinning push/pop.
+
+use std::hint::{black_box, spin_loop};
+use std::sync::{Arc, Barrier};
+use std::thread;
+use std::time::Instant;
+
+use kairos_benches::{Goal, Ratios, Spread, Table, header, rate, size};
+use kairos_sdk::{OutputBuffer, Payload, ReaderConfig, ReaderPolicy, RunSignal, Sample, Timestamp};
+
+const CAPACITY: usize = 1024;
+
+/// One run's outcome: samples delivered per second, and how many were delivered.
+#[derive(Clone, Copy)]
+struct Run {
+    per_second: f64,
+    delivered: u64,
+}
+
+fn sample(i: u64) -> Sample {
+    Sample {
+        payload: Payload::I64(i as i64),
+        timestamp: Timestamp::ZERO,
+        time_of_issue: Timestamp::ZERO,
+        sequence: i,
+    }
+}
+
+/// Starts `reader` on its own thread, runs `writer` on this one once both are ready, and times from the
+/// writer's start to the reader's end. The reader returns how many samples it got.
+fn timed(writer: impl FnOnce(), reader: impl FnOnce() -> u64 + Send + 'static) -> Run {
+    let ready = Arc::new(Barrier::new(2));
+    let reader_thread = {
+        let ready = Arc::clone(&ready);
+        thread::spawn(move || {
+            kairos_benches::pin_current_thread(1);
+            ready.wait();
+            let delivered = reader();
+            (delivered, Instant::now())
+        })
+    };
+    ready.wait();
+    let start = Instant::now();
+    writer();
+    let (delivered, end) = reader_thread.join().expect("reader thread panicked");
+    Run {
+        per_second: delivered as f64 / (end - start).as_secs_f64(),
+        delivered,
+    }
+}
+
+#[derive(Clone, Copy, PartialEq)]
+enum ReadMode {
+    Blocking,
+    Spinning,
+}
+
+fn run_ours(count: u64, policy: ReaderPolicy, mode: ReadMode) -> Run {
+    let buffer = OutputBuffer::new("source.out", CAPACITY);
+    let writer_signal = Arc::new(RunSignal::new());
+    writer_signal.bind_current_thread();
+    let reader_signal = Arc::new(RunSignal::new());
+    let mut reader = buffer.attach(
+        ReaderConfig::new(policy, "source.out -> sink.in"),
+        Arc::clone(&reader_signal),
+    );
+    let writer = || {
+        for i in 0..count {
+            let _ = buffer.write(sample(i), &writer_signal);
+        }
+        buffer.close();
+    };
+    timed(writer, move || {
+        reader_signal.bind_current_thread();
+        let mut delivered = 0;
+        match mode {
+            ReadMode::Blocking => {
+                while let Ok(sample) = reader.read(false) {
+                    black_box(&sample);
+                    delivered += 1;
+                }
+            }
+            ReadMode::Spinning => loop {
+                if let Some(sample) = reader.try_read() {
+                    black_box(&sample);
+                    delivered += 1;
+                    if delivered == count {
+                        break;
+                    }
+                } else {
+                    spin_loop();
+                }
+            },
+        }
+        delivered
+    })
+}
+
+fn run_crossbeam(count: u64) -> Run {
+    let (sender, receiver) = crossbeam_channel::bounded::<Sample>(CAPACITY);
+    let writer = move || {
+        for i in 0..count {
+            if sender.send(sample(i)).is_err() {
+                break;
+            }
+        }
+    };
+    timed(writer, move || {
+        let mut delivered = 0;
+        while let Ok(sample) = receiver.recv() {
+            black_box(&sample);
+            delivered += 1;
+        }
+        delivered
+    })
+}
+
+fn run_rtrb(count: u64) -> Run {
+    let (mut producer, mut consumer) = rtrb::RingBuffer::<Sample>::new(CAPACITY);
+    let writer = move || {
+        for i in 0..count {
+            let mut pending = sample(i);
+            while let Err(rtrb::PushError::Full(back)) = producer.push(pending) {
+                pending = back;
+                spin_loop();
+            }
+        }
+    };
+    timed(writer, move || {
+        let mut delivered = 0;
+        while delivered < count {
+            if let Ok(sample) = consumer.pop() {
+                black_box(&sample);
+                delivered += 1;
+            } else {
+                spin_loop();
+            }
+        }
+        delivered
+    })
+}
+
+fn main() {
+    kairos_benches::pin_current_thread(0);
+    let count: u64 = size(200_000, 2_000_000);
+    header(
+        "3. one link, throughput",
+        "back-to-back, as fast as it goes (throughput, not latency)",
+        &format!(
+            "{count} samples of {} bytes per run, buffer/channel of {CAPACITY}",
+            size_of::<Sample>()
+        ),
+    );
+    println!("{}", kairos_benches::pinning_note());
+    let names = [
+        "ours: NeverSkipping, Reader::read (blocking)",
+        "ours: NeverSkipping, try_read (spinning)",
+        "ours: FIFO, Reader::read (lossy, context only)",
+        "baseline: crossbeam-channel bounded(1024)",
+        "baseline: rtrb RingBuffer(1024), spinning",
+    ];
+    let mut runs: Vec<Vec<Run>> = vec![Vec::new(); names.len()];
+    // Warm-up: one short run of each.
+    let _ = run_ours(count / 10, ReaderPolicy::NeverSkipping, ReadMode::Blocking);
+    let _ = run_crossbeam(count / 10);
+    let _ = run_rtrb(count / 10);
+    for _ in 0..kairos_benches::repetitions() {
+        let rep = [
+            run_ours(count, ReaderPolicy::NeverSkipping, ReadMode::Blocking),
+            run_ours(count, ReaderPolicy::NeverSkipping, ReadMode::Spinning),
+            run_ours(count, ReaderPolicy::Fifo, ReadMode::Blocking),
+            run_crossbeam(count),
+            run_rtrb(count),
+        ];
+        for (series, run) in runs.iter_mut().zip(rep) {
+            series.push(run);
+        }
+    }
+    let mut table = Table::new(&[
+        "variant",
+        "delivered/s, median [min–max]",
+        "ns per sample",
+        "delivered",
+    ]);
+    for (name, series) in names.iter().zip(&runs) {
+        let spread = Spread::of(series.iter().map(|r| r.per_second));
+        let delivered = Spread::of(series.iter().map(|r| r.delivered as f64));
+        table.row(vec![
+            (*name).to_owned(),
+            spread.show(rate),
+            format!("{:.1}", 1e9 / spread.median),
+            format!("{:.1} % of {count}", delivered.median / count as f64 * 100.0),
+        ]);
+    }
+    table.print();
+    let ratio = |ours: usize, base: usize| {
+        let (Some(ours), Some(base)) = (runs.get(ours), runs.get(base)) else {
+            return Spread::of([]);
+        };
+        Spread::of(ours.iter().zip(base).map(|(o, b)| o.per_second / b.per_second))
+    };
+    let mut ratios = Ratios::new();
+    ratios.add("blocking ours / crossbeam", ratio(0, 3), Some(Goal::AtLeast(1.5)));
+    ratios.add("blocking ours / rtrb", ratio(0, 4), Some(Goal::AtLeast(0.8)));
+    ratios.add("spinning ours / crossbeam", ratio(1, 3), Some(Goal::AtLeast(1.5)));
+    ratios.add("spinning ours / rtrb", ratio(1, 4), Some(Goal::AtLeast(0.8)));
+    ratios.print();
+}

@@ -1,0 +1,77 @@
+//! A `loom` model of the buffer: every interleaving of a writer and a blocking reader is explored.
+//!
+//! Run with `RUSTFLAGS="--cfg loom" cargo test -p kairos-sdk --test loom --release --target-dir target/loom`.
+#![cfg(loom)]
+#![allow(clippy::unwrap_used, clippy::expect_used, reason = "a failed unwrap is a failed test")]
+
+use std::sync::Arc;
+
+use kairos_sdk::{
+    OutputBuffer, Payload, ReadError, ReaderConfig, ReaderPolicy, RunSignal, Sample, Timestamp,
+};
+
+fn sample(sequence: u64) -> Sample {
+    Sample {
+        payload: Payload::I64(sequence as i64),
+        timestamp: Timestamp(sequence as i64),
+        time_of_issue: Timestamp(sequence as i64),
+        sequence,
+    }
+}
+
+/// A writer writes `count` samples then closes; the reader reads until the end of the stream.
+fn model(policy: ReaderPolicy, capacity: usize, count: u64, check: fn(&[u64])) {
+    loom::model(move || {
+        let buffer = OutputBuffer::new("w.out", capacity);
+        let signal = Arc::new(RunSignal::new());
+        let mut reader = buffer.attach(ReaderConfig::new(policy, "w.out -> r.in"), Arc::clone(&signal));
+        let writer = {
+            let buffer = buffer.clone();
+            loom::thread::spawn(move || {
+                let signal = Arc::new(RunSignal::new());
+                signal.bind_current_thread();
+                for sequence in 0..count {
+                    buffer.write(sample(sequence), &signal).unwrap();
+                }
+                buffer.close();
+            })
+        };
+        signal.bind_current_thread();
+        let mut got = Vec::new();
+        loop {
+            match reader.read(false) {
+                Ok(sample) => got.push(sample.sequence),
+                Err(ReadError::EndOfStream) => break,
+                Err(other) => panic!("unexpected {other:?}"),
+            }
+        }
+        writer.join().unwrap();
+        let counters = reader.counters();
+        assert!(counters.balanced(), "{counters:?}");
+        assert_eq!(counters.written, count);
+        check(&got);
+    });
+}
+
+#[test]
+fn fifo_never_loses_a_wake_up_and_keeps_order() {
+    model(ReaderPolicy::Fifo, 2, 3, |got| {
+        assert!(got.windows(2).all(|w| w[0] < w[1]), "{got:?}");
+        assert_eq!(got.last(), Some(&2), "the newest always arrives: {got:?}");
+    });
+}
+
+#[test]
+fn never_skipping_delivers_everything_in_order() {
+    model(ReaderPolicy::NeverSkipping, 1, 3, |got| {
+        assert_eq!(got, [0, 1, 2])
+    });
+}
+
+#[test]
+fn last_or_next_ends_on_the_newest() {
+    model(ReaderPolicy::LastOrNext, 2, 3, |got| {
+        assert!(got.windows(2).all(|w| w[0] < w[1]), "{got:?}");
+        assert_eq!(got.last(), Some(&2), "{got:?}");
+    });
+}
