@@ -1,5 +1,9 @@
 //! The `kairos` command line as a user meets it: validation messages, the component listing, Ctrl-C.
-#![allow(clippy::unwrap_used, clippy::expect_used, reason = "a failed unwrap is a failed test")]
+#![allow(
+    clippy::unwrap_used,
+    clippy::expect_used,
+    reason = "a failed unwrap is a failed test"
+)]
 
 mod common;
 

@@ -1,6 +1,10 @@
 //! The counting identity `written = read + skipped + overwritten + queued` under random producer and
 //! consumer speeds, for every policy, with real threads.
-#![allow(clippy::unwrap_used, clippy::expect_used, reason = "a failed unwrap is a failed test")]
+#![allow(
+    clippy::unwrap_used,
+    clippy::expect_used,
+    reason = "a failed unwrap is a failed test"
+)]
 
 use std::sync::Arc;
 use std::thread;

@@ -2,7 +2,11 @@
 //!
 //! Run with `RUSTFLAGS="--cfg loom" cargo test -p kairos-sdk --test loom --release --target-dir target/loom`.
 #![cfg(loom)]
-#![allow(clippy::unwrap_used, clippy::expect_used, reason = "a failed unwrap is a failed test")]
+#![allow(
+    clippy::unwrap_used,
+    clippy::expect_used,
+    reason = "a failed unwrap is a failed test"
+)]
 
 use std::sync::Arc;
 

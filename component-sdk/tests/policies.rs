@@ -1,6 +1,10 @@
 //! Each reader policy against a fast producer (the reader falls behind) and a slow one (the reader waits),
 //! asserting exactly which samples arrive and every counter.
-#![allow(clippy::unwrap_used, clippy::expect_used, reason = "a failed unwrap is a failed test")]
+#![allow(
+    clippy::unwrap_used,
+    clippy::expect_used,
+    reason = "a failed unwrap is a failed test"
+)]
 
 use std::sync::Arc;
 use std::thread;

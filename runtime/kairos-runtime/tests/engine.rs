@@ -1,5 +1,9 @@
 //! The engine running real diagrams: failures stay contained, controls apply live, stop joins all.
-#![allow(clippy::unwrap_used, clippy::expect_used, reason = "a failed unwrap is a failed test")]
+#![allow(
+    clippy::unwrap_used,
+    clippy::expect_used,
+    reason = "a failed unwrap is a failed test"
+)]
 
 use std::sync::Arc;
 use std::thread::sleep;
