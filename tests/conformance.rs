@@ -6,8 +6,6 @@
     reason = "a failed unwrap is a failed test"
 )]
 
-mod common;
-
 use std::collections::BTreeSet;
 use std::thread::sleep;
 use std::time::Duration;
