@@ -169,3 +169,51 @@ fn ctrl_c_stops_cleanly_with_a_final_table() {
     assert!(stderr.contains("=== final"), "{stderr}");
     assert!(stderr.contains("stopped"), "components end stopped: {stderr}");
 }
+
+#[test]
+fn an_overflowing_link_is_named_at_most_once_a_second() {
+    let dir = tempfile::tempdir().unwrap();
+    let diagram = dir.path().join("overflow.ron");
+    std::fs::write(
+        &diagram,
+        r#"Diagram(
+    format: 1,
+    packs: [Pack(name: "core", version: "^0.1")],
+    components: [
+        Component(id: "fast", type: "core.sine", properties: {"rate": 1000.0}),
+        Component(id: "slow", type: "core.delay", properties: {"delay_ms": 20.0}),
+    ],
+    connections: [
+        Connection(from: "fast.out", to: "slow.in", buffer_size: 4),
+    ],
+)
+"#,
+    )
+    .unwrap();
+    let output = kairos(
+        dir.path(),
+        &[
+            "run",
+            diagram.to_str().unwrap(),
+            "--for",
+            "2500ms",
+            "--stats",
+            "--stats-interval",
+            "10s",
+        ],
+    );
+    let (_, stderr) = text(&output);
+    assert!(output.status.success(), "{stderr}");
+    let warnings = stderr
+        .lines()
+        .filter(|l| l.contains("overflow on link 'fast.out -> slow.in'"))
+        .count();
+    assert!(
+        (1..=3).contains(&warnings),
+        "{warnings} warnings in 2.5 s:\n{stderr}"
+    );
+    assert!(
+        stderr.contains("enlarge buffer_size"),
+        "the warning says how to fix it: {stderr}"
+    );
+}

@@ -5,6 +5,7 @@
 //! | `core.sine`, `core.square`, `core.counter`, `core.constant`, `core.random`, `core.timer` | periodic sources |
 //! | `core.gain`, `core.add`, `core.moving_average`, `core.threshold` | arithmetic on numbers |
 //! | `core.subsampler` | keeps one sample in N |
+//! | `core.delay` | holds each sample for a while (a stand-in for a slow algorithm) |
 //! | `core.synchronizer` | matches up to four streams by timestamp |
 //! | `core.latency_probe` | measures how old samples are on arrival |
 //! | `core.console`, `core.csv_writer` | sinks |

@@ -372,6 +372,46 @@ impl Component for LatencyProbe {
     }
 }
 
+/// `core.delay`: holds each sample for a while, as a slow algorithm would.
+#[derive(Debug, Default)]
+pub struct Delay;
+
+impl Delay {
+    /// The descriptor.
+    pub fn info() -> ComponentInfo {
+        Descriptor::new(
+            "core.delay",
+            "flow",
+            "Holds each sample for `delay_ms` before passing it on: stands in for a slow algorithm when sizing buffers",
+        )
+        .input("in", TypeFilter::Any, "Any stream")
+        .output_following("out", "in", "The input, later; timestamps kept")
+        .property(Property::f64("delay_ms", 10.0).range(0.0, 60_000.0).live().doc("Time spent on each sample"))
+        .build()
+    }
+}
+
+impl Component for Delay {
+    fn core(&mut self, ctx: &mut Context) -> ComponentResult {
+        let sample = ctx.read("in")?;
+        let deadline = ctx
+            .now()
+            .after(Duration::from_secs_f64(ctx.f64_property("delay_ms")? / 1000.0));
+        let clock = std::sync::Arc::clone(ctx.clock());
+        // Interrupted early only by a stop: then the sample is dropped with the component.
+        while !clock.wait_until(deadline, ctx.signal()) {
+            if ctx.stop_requested() {
+                return Err(ComponentError::Stopped);
+            }
+            if ctx.signal().wants_attention() {
+                // A pause or control request is applied after this sample; wait without being woken again.
+                std::thread::sleep(Duration::from_millis(1));
+            }
+        }
+        ctx.forward("out", &sample)
+    }
+}
+
 /// Registers the processing components.
 pub fn register(pack: &mut PackRegistrar<'_>) {
     pack.component::<Gain>(Gain::info())
@@ -380,5 +420,6 @@ pub fn register(pack: &mut PackRegistrar<'_>) {
         .component::<Threshold>(Threshold::info())
         .component::<Subsampler>(Subsampler::info())
         .component::<SynchronizerComponent>(SynchronizerComponent::info())
-        .component::<LatencyProbe>(LatencyProbe::info());
+        .component::<LatencyProbe>(LatencyProbe::info())
+        .component::<Delay>(Delay::info());
 }

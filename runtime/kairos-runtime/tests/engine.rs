@@ -289,3 +289,70 @@ fn stop_joins_components_blocked_on_never_skipping_and_silent_inputs() {
         "{last:?}"
     );
 }
+
+/// Doubles its input without a thread of its own.
+#[derive(Default)]
+struct ReactiveDouble;
+
+impl Component for ReactiveDouble {
+    fn core(&mut self, ctx: &mut Context) -> ComponentResult {
+        let sample = ctx.read("in")?;
+        let value = sample.payload.as_f64().unwrap_or_default();
+        ctx.write_processed("out", &sample, Payload::F64(2.0 * value))
+    }
+}
+
+#[test]
+fn reactive_components_run_in_their_producer_and_output_subsampling_applies() {
+    let mut registry = registry();
+    registry
+        .pack("reactive", "1.0.0", "test")
+        .component::<ReactiveDouble>(
+            Descriptor::new("reactive.double", "test", "Doubles, reactively")
+                .mode(kairos_diagram::ExecutionMode::Reactive)
+                .input("in", TypeFilter::Any, "")
+                .output("out", DataType::F64, "")
+                .build(),
+        );
+    let mut double = component("double", "reactive.double", &[]);
+    double.outputs.insert(
+        "out".into(),
+        kairos_diagram::OutputSettings {
+            buffer_size: Some(64),
+            subsampling: Some(2),
+        },
+    );
+    let d = diagram(
+        vec![
+            component("counter", "core.counter", &[("rate", Value::F64(500.0))]),
+            double,
+            component("gain", "core.gain", &[]),
+        ],
+        vec![
+            connect("counter.out", "double.in"),
+            connect("double.out", "gain.in"),
+        ],
+    );
+    let mut engine = Engine::build(&d, &registry, RealTimeClock::shared()).unwrap();
+    let mut tap_config = kairos_sdk::ReaderConfig::new(kairos_diagram::ReaderPolicy::Fifo, "tap");
+    tap_config.capacity = Some(4096);
+    let mut tap = engine
+        .output_buffer("double", "out")
+        .unwrap()
+        .attach(tap_config, Arc::new(kairos_sdk::RunSignal::new()));
+    engine.start().unwrap();
+    sleep(Duration::from_millis(300));
+    engine.stop();
+    let values: Vec<f64> = std::iter::from_fn(|| tap.try_read())
+        .filter_map(|s| s.payload.as_f64())
+        .collect();
+    // The counter writes 0, 1, 2, ...; doubled gives 0, 2, 4, ...; keeping one in two gives 0, 4, 8, ...
+    assert!(values.len() > 20, "{values:?}");
+    for (index, value) in values.iter().enumerate() {
+        assert_eq!(*value, 4.0 * index as f64, "{values:?}");
+    }
+    let snapshot = engine.snapshot();
+    let double = snapshot.components.iter().find(|c| c.id == "double").unwrap();
+    assert!(double.cycles as usize >= 2 * values.len() - 1, "{double:?}");
+    assert_eq!(double.state, ComponentState::Stopped);
+}
