@@ -17,6 +17,7 @@ pub fn repo_root() -> PathBuf {
 }
 
 /// The example diagram `name` (`hello`, `camera`, `fusion`).
+#[allow(dead_code, reason = "not every test file uses every helper")]
 pub fn example(name: &str) -> PathBuf {
     repo_root().join("examples").join(format!("{name}.ron"))
 }

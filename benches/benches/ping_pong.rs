@@ -80,7 +80,7 @@ fn run_ours(plan: Plan, spin: bool) -> Percentiles {
     let echo = {
         let (ba, ready) = (ba.clone(), Arc::clone(&ready));
         thread::spawn(move || {
-            kairos_benches::pin_current_thread(1);
+            kairos_benches::pin_current_thread(true);
             signal_b.bind_current_thread();
             ready.wait();
             while let Some(sample) = take(&mut from_a, spin) {
@@ -104,7 +104,7 @@ fn run_condvar(plan: Plan) -> Percentiles {
     let echo = {
         let shared = Arc::clone(&shared);
         thread::spawn(move || {
-            kairos_benches::pin_current_thread(1);
+            kairos_benches::pin_current_thread(true);
             let (mutex, to_a, to_b) = &*shared;
             let mut turn = mutex.lock().unwrap_or_else(PoisonError::into_inner);
             loop {
@@ -141,7 +141,7 @@ fn run_atomic(plan: Plan, spin: bool) -> Percentiles {
     let echo = {
         let turn = Arc::clone(&turn);
         thread::spawn(move || {
-            kairos_benches::pin_current_thread(1);
+            kairos_benches::pin_current_thread(true);
             loop {
                 let now = turn.load(Ordering::Acquire);
                 if now == u64::MAX {
@@ -181,13 +181,13 @@ fn run_atomic(plan: Plan, spin: bool) -> Percentiles {
 }
 
 fn main() {
-    kairos_benches::pin_current_thread(0);
+    kairos_benches::pin_current_thread(false);
     let blocking = Plan {
-        warmup: size(500, 2_000),
-        rounds: size(5_000, 50_000),
+        warmup: size(200, 2_000),
+        rounds: size(2_000, 50_000),
     };
     let spinning = Plan {
-        warmup: size(500, 2_000),
+        warmup: size(200, 2_000),
         rounds: size(5_000, 100_000),
     };
     header(

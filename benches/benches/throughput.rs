@@ -40,7 +40,7 @@ fn timed(writer: impl FnOnce(), reader: impl FnOnce() -> u64 + Send + 'static) -
     let reader_thread = {
         let ready = Arc::clone(&ready);
         thread::spawn(move || {
-            kairos_benches::pin_current_thread(1);
+            kairos_benches::pin_current_thread(true);
             ready.wait();
             let delivered = reader();
             (delivered, Instant::now())
@@ -148,7 +148,7 @@ fn run_rtrb(count: u64) -> Run {
 }
 
 fn main() {
-    kairos_benches::pin_current_thread(0);
+    kairos_benches::pin_current_thread(false);
     let count: u64 = size(200_000, 2_000_000);
     header(
         "3. one link, throughput",

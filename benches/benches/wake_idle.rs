@@ -2,10 +2,12 @@
 //!
 //! A writer thread writes one sample every millisecond; a reader thread sleeps in a blocking read and
 //! wakes when it arrives. Latency = the reader's clock read after the read returns − the writer's clock
-//! read just before it writes. Baselines: the same hand-over through a raw `Mutex<Option<_>>` + `Condvar`,
-//! and through an atomic slot + `thread::park`/`unpark` (one futex wake-up).
+//! read just before it writes. Baselines: the same hand-over through a raw `Mutex<VecDeque<_>>` + `Condvar`,
+//! and through a ring of atomics + `thread::park`/`unpark` (one futex wake-up). All three queue, so a
+//! late reader still sees every sample and the slow wake-ups stay in the figures.
 
-use std::sync::atomic::{AtomicBool, AtomicI64, Ordering};
+use std::collections::VecDeque;
+use std::sync::atomic::{AtomicBool, AtomicI64, AtomicU64, Ordering};
 use std::sync::{Arc, Barrier, Condvar, Mutex, PoisonError};
 use std::thread;
 use std::time::{Duration, Instant};
@@ -16,6 +18,9 @@ use kairos_sdk::{
 };
 
 const PERIOD: Duration = Duration::from_millis(1);
+
+/// One variant's run: the measured latencies of one chunk, in nanoseconds.
+type Variant = fn(&Plan, &Arc<RealTimeClock>) -> Vec<f64>;
 
 struct Plan {
     warmup: usize,
@@ -32,12 +37,11 @@ fn write_paced(plan: &Plan, clock: &RealTimeClock, mut write: impl FnMut(i64)) {
 }
 
 /// Keeps the measured part of a reader's latencies (the warm-up dropped).
-fn measured(plan: &Plan, latencies: &[i64]) -> Percentiles {
-    let mut values: Vec<f64> = latencies.iter().skip(plan.warmup).map(|&l| l as f64).collect();
-    Percentiles::of(&mut values)
+fn measured(plan: &Plan, latencies: &[i64]) -> Vec<f64> {
+    latencies.iter().skip(plan.warmup).map(|&l| l as f64).collect()
 }
 
-fn run_ours(plan: &Plan, clock: &Arc<RealTimeClock>) -> Percentiles {
+fn run_ours(plan: &Plan, clock: &Arc<RealTimeClock>) -> Vec<f64> {
     let buffer = OutputBuffer::new("sensor.out", 16);
     let reader_signal = Arc::new(RunSignal::new());
     let writer_signal = Arc::new(RunSignal::new());
@@ -50,7 +54,7 @@ fn run_ours(plan: &Plan, clock: &Arc<RealTimeClock>) -> Percentiles {
     let reader_thread = {
         let (clock, ready) = (Arc::clone(clock), Arc::clone(&ready));
         thread::spawn(move || {
-            kairos_benches::pin_current_thread(1);
+            kairos_benches::pin_current_thread(true);
             reader_signal.bind_current_thread();
             ready.wait();
             let mut latencies = Vec::new();
@@ -74,17 +78,19 @@ fn run_ours(plan: &Plan, clock: &Arc<RealTimeClock>) -> Percentiles {
     measured(plan, &latencies)
 }
 
-fn run_condvar(plan: &Plan, clock: &Arc<RealTimeClock>) -> Percentiles {
-    let slot = Arc::new((Mutex::new((None::<i64>, false)), Condvar::new()));
+fn run_condvar(plan: &Plan, clock: &Arc<RealTimeClock>) -> Vec<f64> {
+    // A queue, not a single slot: a reader late by more than a period must still see every sample,
+    // or the slowest wake-ups would drop out of the figures.
+    let shared = Arc::new((Mutex::new((VecDeque::<i64>::new(), false)), Condvar::new()));
     let reader_thread = {
-        let (clock, slot) = (Arc::clone(clock), Arc::clone(&slot));
+        let (clock, shared) = (Arc::clone(clock), Arc::clone(&shared));
         thread::spawn(move || {
-            kairos_benches::pin_current_thread(1);
-            let (mutex, condvar) = &*slot;
+            kairos_benches::pin_current_thread(true);
+            let (mutex, condvar) = &*shared;
             let mut latencies = Vec::new();
             let mut guard = mutex.lock().unwrap_or_else(PoisonError::into_inner);
             loop {
-                if let Some(written) = guard.0.take() {
+                if let Some(written) = guard.0.pop_front() {
                     latencies.push(clock.now().as_nanos() - written);
                 } else if guard.1 {
                     break;
@@ -95,9 +101,13 @@ fn run_condvar(plan: &Plan, clock: &Arc<RealTimeClock>) -> Percentiles {
             latencies
         })
     };
-    let (mutex, condvar) = &*slot;
+    let (mutex, condvar) = &*shared;
     write_paced(plan, clock, |now| {
-        mutex.lock().unwrap_or_else(PoisonError::into_inner).0 = Some(now);
+        mutex
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner)
+            .0
+            .push_back(now);
         condvar.notify_one();
     });
     mutex.lock().unwrap_or_else(PoisonError::into_inner).1 = true;
@@ -106,21 +116,45 @@ fn run_condvar(plan: &Plan, clock: &Arc<RealTimeClock>) -> Percentiles {
     measured(plan, &latencies)
 }
 
-fn run_park(plan: &Plan, clock: &Arc<RealTimeClock>) -> Percentiles {
-    // 0 means empty; clock readings are nanoseconds since the epoch, never 0.
-    let slot = Arc::new(AtomicI64::new(0));
-    let done = Arc::new(AtomicBool::new(false));
+/// A single-producer ring of atomics: the writer stores a slot, publishes its count, and unparks.
+struct AtomicRing {
+    slots: Vec<AtomicI64>,
+    published: AtomicU64,
+    done: AtomicBool,
+}
+
+impl AtomicRing {
+    fn slot(&self, sequence: u64) -> Option<&AtomicI64> {
+        self.slots.get((sequence % self.slots.len() as u64) as usize)
+    }
+}
+
+fn run_park(plan: &Plan, clock: &Arc<RealTimeClock>) -> Vec<f64> {
+    let ring = Arc::new(AtomicRing {
+        slots: (0..64).map(|_| AtomicI64::new(0)).collect(),
+        published: AtomicU64::new(0),
+        done: AtomicBool::new(false),
+    });
     let reader_thread = {
-        let (clock, slot, done) = (Arc::clone(clock), Arc::clone(&slot), Arc::clone(&done));
+        let (clock, ring) = (Arc::clone(clock), Arc::clone(&ring));
         thread::spawn(move || {
-            kairos_benches::pin_current_thread(1);
+            kairos_benches::pin_current_thread(true);
             let mut latencies = Vec::new();
+            let mut next = 0;
             loop {
-                let written = slot.swap(0, Ordering::AcqRel);
-                if written != 0 {
-                    latencies.push(clock.now().as_nanos() - written);
-                } else if done.load(Ordering::Acquire) {
-                    break;
+                let published = ring.published.load(Ordering::Acquire);
+                if next < published {
+                    let now = clock.now().as_nanos();
+                    while next < published {
+                        if let Some(slot) = ring.slot(next) {
+                            latencies.push(now - slot.load(Ordering::Relaxed));
+                        }
+                        next += 1;
+                    }
+                } else if ring.done.load(Ordering::Acquire) {
+                    if ring.published.load(Ordering::Acquire) == next {
+                        break;
+                    }
                 } else {
                     thread::park();
                 }
@@ -129,40 +163,60 @@ fn run_park(plan: &Plan, clock: &Arc<RealTimeClock>) -> Percentiles {
         })
     };
     let reader = reader_thread.thread().clone();
+    let mut sequence = 0;
     write_paced(plan, clock, |now| {
-        slot.store(now, Ordering::Release);
+        if let Some(slot) = ring.slot(sequence) {
+            slot.store(now, Ordering::Relaxed);
+        }
+        sequence += 1;
+        ring.published.store(sequence, Ordering::Release);
         reader.unpark();
     });
-    done.store(true, Ordering::Release);
+    ring.done.store(true, Ordering::Release);
     reader.unpark();
     let latencies = reader_thread.join().expect("reader thread panicked");
     measured(plan, &latencies)
 }
 
 fn main() {
-    kairos_benches::pin_current_thread(0);
+    kairos_benches::pin_current_thread(false);
     let plan = Plan {
-        warmup: size(50, 200),
-        samples: size(250, 6_000),
+        warmup: size(30, 50),
+        samples: size(150, 1_500),
     };
+    let chunks = size(1, 4);
     header(
         "1. one link, reader idle 1 ms between samples",
         "reader idle when the sample arrives (blocking reader, writer at 1 kHz)",
         &format!(
-            "{} samples per run after {} warm-up; latency = read return − write start",
-            plan.samples, plan.warmup
+            "{} samples per repetition and variant, in {chunks} interleaved chunk(s) of {} after {} warm-up each; \
+             latency = read return − write start",
+            chunks * plan.samples,
+            plan.samples,
+            plan.warmup
         ),
     );
     println!("{}", kairos_benches::pinning_note());
     let clock = Arc::new(RealTimeClock::new());
     let mut ours = LatencySeries::new("ours: OutputBuffer write → Reader::read (FIFO)");
-    let mut condvar = LatencySeries::new("baseline: Mutex<Option> + Condvar");
-    let mut park = LatencySeries::new("baseline: atomic slot + park/unpark");
-    for _ in 0..kairos_benches::repetitions() {
-        // Interleaved, so slow drifts of the shared machine hit every variant alike.
-        ours.reps.push(run_ours(&plan, &clock));
-        condvar.reps.push(run_condvar(&plan, &clock));
-        park.reps.push(run_park(&plan, &clock));
+    let mut condvar = LatencySeries::new("baseline: Mutex<VecDeque> + Condvar");
+    let mut park = LatencySeries::new("baseline: atomic ring + park/unpark");
+    let variants: [Variant; 3] = [run_ours, run_condvar, run_park];
+    for rep in 0..kairos_benches::repetitions() {
+        let mut values: [Vec<f64>; 3] = Default::default();
+        // Short chunks, interleaved and in a rotating order, so the shared machine's drifts and any
+        // order effect hit every variant alike.
+        for chunk in 0..chunks {
+            for step in 0..variants.len() {
+                let which = (rep + chunk + step) % variants.len();
+                if let (Some(run), Some(into)) = (variants.get(which), values.get_mut(which)) {
+                    into.extend(run(&plan, &clock));
+                }
+            }
+        }
+        for (series, mut values) in [&mut ours, &mut condvar, &mut park].into_iter().zip(values) {
+            series.reps.push(Percentiles::of(&mut values));
+        }
     }
     print_latency(&[&ours, &condvar, &park]);
     let mut ratios = Ratios::new();

@@ -5,6 +5,7 @@
 //! run for about a second; without it they run the full, documented size.
 
 use std::fmt::Write as _;
+use std::sync::OnceLock;
 use std::time::{Duration, Instant};
 
 /// Whether the quick (CI-sized) mode was asked for with `KAIROS_BENCH_QUICK=1`.
@@ -24,7 +25,7 @@ pub fn repetitions() -> usize {
 
 /// The machine, as the protocol asks to record it: core count and CPU model.
 pub fn machine() -> String {
-    let cores = std::thread::available_parallelism().map_or(0, std::num::NonZero::get);
+    let cores = cores();
     let model = std::fs::read_to_string("/proc/cpuinfo")
         .ok()
         .and_then(|text| {
@@ -37,29 +38,53 @@ pub fn machine() -> String {
     format!("{cores} cores, {model}")
 }
 
-/// Whether two-thread benchmarks pin their threads to CPUs 0 and 1 (the default; `KAIROS_BENCH_PIN=0`
-/// leaves placement to the scheduler). Pinning makes every wake-up cross cores, as the protocol's reference
-/// figures do, instead of a mix of same-core and cross-core hand-overs that changes from run to run.
-pub fn pinning() -> bool {
-    std::env::var("KAIROS_BENCH_PIN").map_or(true, |v| v != "0")
-        && std::thread::available_parallelism().is_ok_and(|n| n.get() >= 2)
+/// The machine's core count, read once, before any thread is pinned (pinning narrows what
+/// `available_parallelism` reports).
+pub fn cores() -> usize {
+    static CORES: OnceLock<usize> = OnceLock::new();
+    *CORES.get_or_init(|| std::thread::available_parallelism().map_or(1, std::num::NonZero::get))
 }
 
-/// Pins the calling thread to `cpu` when [`pinning`] is on; returns whether it did.
-pub fn pin_current_thread(cpu: usize) -> bool {
-    if !pinning() {
-        return false;
+/// Where two-thread benchmarks run their threads, from `KAIROS_BENCH_PIN`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Pinning {
+    /// The default: the writer (or initiator) on CPU 0, the reader (or echo) on CPU 1, so every hand-over
+    /// crosses cores, as the protocol's reference figures do.
+    CrossCore,
+    /// `KAIROS_BENCH_PIN=same`: both on CPU 0, so a hand-over is a context switch on one core.
+    SameCore,
+    /// `KAIROS_BENCH_PIN=0`: the scheduler places the threads (a mix of the two, changing run to run).
+    Free,
+}
+
+/// The pinning asked for (cross-core unless the machine has a single core).
+pub fn pinning() -> Pinning {
+    match std::env::var("KAIROS_BENCH_PIN").as_deref() {
+        Ok("0" | "off" | "no") => Pinning::Free,
+        Ok("same") => Pinning::SameCore,
+        _ if cores() < 2 => Pinning::Free,
+        _ => Pinning::CrossCore,
     }
+}
+
+/// Pins the calling thread for its role: `reader` false for the writer/initiator, true for the
+/// reader/echo thread. Returns whether it pinned.
+pub fn pin_current_thread(reader: bool) -> bool {
+    let cpu = match pinning() {
+        Pinning::Free => return false,
+        Pinning::SameCore => 0,
+        Pinning::CrossCore => usize::from(reader),
+    };
     let mut set = nix::sched::CpuSet::new();
     set.set(cpu).is_ok() && nix::sched::sched_setaffinity(nix::unistd::Pid::from_raw(0), &set).is_ok()
 }
 
 /// The pinning as the headers print it.
 pub fn pinning_note() -> &'static str {
-    if pinning() {
-        "threads pinned: writer/initiator on CPU 0, reader/echo on CPU 1"
-    } else {
-        "threads not pinned (KAIROS_BENCH_PIN=0)"
+    match pinning() {
+        Pinning::CrossCore => "threads pinned cross-core: writer/initiator on CPU 0, reader/echo on CPU 1",
+        Pinning::SameCore => "threads pinned same-core: both on CPU 0 (KAIROS_BENCH_PIN=same)",
+        Pinning::Free => "threads not pinned (KAIROS_BENCH_PIN=0)",
     }
 }
 

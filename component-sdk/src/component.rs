@@ -227,6 +227,8 @@ pub struct Context {
     period: Option<Duration>,
     samples_read_this_cycle: u32,
     any_rotation: usize,
+    /// Set in a component loaded from a shared library: ports live in the host, reached through the ABI.
+    remote: Option<crate::abi::RemoteHost>,
 }
 
 impl Context {
@@ -242,6 +244,59 @@ impl Context {
             period: None,
             samples_read_this_cycle: 0,
             any_rotation: 0,
+            remote: None,
+        }
+    }
+
+    /// A context whose ports live in the host across the pack ABI (built by the pack-side shim).
+    pub(crate) fn new_remote(parts: ContextParts, remote: crate::abi::RemoteHost) -> Self {
+        let mut ctx = Self::new(parts);
+        ctx.remote = Some(remote);
+        ctx
+    }
+
+    /// The host link of a pack-side context, to refresh its call-scoped pointer.
+    pub(crate) fn remote_mut(&mut self) -> Option<&mut crate::abi::RemoteHost> {
+        self.remote.as_mut()
+    }
+
+    fn is_reactive(&self) -> bool {
+        self.remote
+            .as_ref()
+            .map_or_else(|| self.signal.is_reactive(), crate::abi::RemoteHost::is_reactive)
+    }
+
+    /// Takes the next sample of input `index` without blocking.
+    fn take_index(&mut self, index: usize) -> Option<Sample> {
+        let sample = match &self.remote {
+            Some(remote) => remote.try_read(index),
+            None => self
+                .inputs
+                .get_mut(index)
+                .and_then(|p| p.reader.as_mut())
+                .and_then(Reader::try_read),
+        };
+        if sample.is_some() {
+            self.samples_read_this_cycle += 1;
+        }
+        sample
+    }
+
+    fn input_connected(&self, index: usize) -> bool {
+        match &self.remote {
+            Some(remote) => remote.input_state(index) != crate::abi::INPUT_UNCONNECTED,
+            None => self.inputs.get(index).is_some_and(InputPort::is_connected),
+        }
+    }
+
+    fn input_exhausted(&self, index: usize) -> bool {
+        match &self.remote {
+            Some(remote) => remote.input_state(index) == crate::abi::INPUT_EXHAUSTED,
+            None => self
+                .inputs
+                .get(index)
+                .and_then(InputPort::reader)
+                .is_some_and(Reader::is_exhausted),
         }
     }
 
@@ -267,6 +322,9 @@ impl Context {
 
     /// Whether the runtime asked the component to stop; long loops inside `core` should check it.
     pub fn stop_requested(&self) -> bool {
+        if let Some(remote) = &self.remote {
+            return remote.stop_requested();
+        }
         self.signal.stop_requested()
     }
 
@@ -325,7 +383,11 @@ impl Context {
 
     /// Sets the period of a periodic component (the runtime calls `core` once per period).
     pub fn set_period(&mut self, period: Duration) {
-        self.period = Some(period.max(Duration::from_micros(1)));
+        let period = period.max(Duration::from_micros(1));
+        if let Some(remote) = &self.remote {
+            remote.set_period(period);
+        }
+        self.period = Some(period);
     }
 
     /// Sets the period from a frequency in hertz (ignored unless finite and positive).
@@ -364,10 +426,7 @@ impl Context {
 
     /// Whether the input is connected.
     pub fn is_connected(&self, input: impl PortKey) -> bool {
-        self.input_index(input)
-            .ok()
-            .and_then(|i| self.inputs.get(i))
-            .is_some_and(InputPort::is_connected)
+        self.input_index(input).is_ok_and(|i| self.input_connected(i))
     }
 
     /// Reads one sample from `input` under its reader policy, sleeping until one is there.
@@ -376,10 +435,15 @@ impl Context {
     /// [`ComponentError::NoData`]. An unconnected input waits until the component is stopped.
     pub fn read(&mut self, input: impl PortKey) -> Result<Sample, ComponentError> {
         let index = self.input_index(input)?;
-        if self.signal.is_reactive() {
+        if self.is_reactive() {
             return self.try_read(index)?.ok_or(ComponentError::NoData);
         }
         let interruptible = self.samples_read_this_cycle == 0;
+        if let Some(remote) = &self.remote {
+            let sample = remote.read(index, interruptible)?;
+            self.samples_read_this_cycle += 1;
+            return Ok(sample);
+        }
         let Some(reader) = self.inputs.get_mut(index).and_then(|p| p.reader.as_mut()) else {
             self.wait_for_attention(interruptible)?;
             return Err(ComponentError::Stopped);
@@ -392,15 +456,7 @@ impl Context {
     /// Reads one sample from `input` if one is there under its policy, without blocking.
     pub fn try_read(&mut self, input: impl PortKey) -> Result<Option<Sample>, ComponentError> {
         let index = self.input_index(input)?;
-        let sample = self
-            .inputs
-            .get_mut(index)
-            .and_then(|p| p.reader.as_mut())
-            .and_then(Reader::try_read);
-        if sample.is_some() {
-            self.samples_read_this_cycle += 1;
-        }
-        Ok(sample)
+        Ok(self.take_index(index))
     }
 
     /// Reads from whichever of `inputs` has data first ("any-of"); returns the position in `inputs` and
@@ -418,31 +474,18 @@ impl Context {
                 let Some(index) = indices.get(position) else {
                     continue;
                 };
-                if let Some(sample) = self
-                    .inputs
-                    .get_mut(*index)
-                    .and_then(|p| p.reader.as_mut())
-                    .and_then(Reader::try_read)
-                {
-                    self.samples_read_this_cycle += 1;
+                if let Some(sample) = self.take_index(*index) {
                     self.any_rotation = position + 1;
                     return Ok((position, sample));
                 }
             }
-            let all_ended = indices.iter().all(|i| {
-                self.inputs
-                    .get(*i)
-                    .and_then(InputPort::reader)
-                    .is_none_or(Reader::is_exhausted)
-            });
-            if all_ended
-                && indices
-                    .iter()
-                    .any(|i| self.inputs.get(*i).is_some_and(InputPort::is_connected))
-            {
+            let all_ended = indices
+                .iter()
+                .all(|i| !self.input_connected(*i) || self.input_exhausted(*i));
+            if all_ended && indices.iter().any(|i| self.input_connected(*i)) {
                 return Err(ComponentError::EndOfStream);
             }
-            if self.signal.is_reactive() {
+            if self.is_reactive() {
                 return Err(ComponentError::NoData);
             }
             self.wait_for_attention(self.samples_read_this_cycle == 0)?;
@@ -466,6 +509,9 @@ impl Context {
 
     /// Sleeps until woken; returns an error when the component must leave `core`.
     fn wait_for_attention(&self, interruptible: bool) -> Result<(), ComponentError> {
+        if let Some(remote) = &self.remote {
+            return remote.wait(interruptible);
+        }
         if self.signal.stop_requested() {
             return Err(ComponentError::Stopped);
         }
@@ -480,18 +526,23 @@ impl Context {
     }
 
     pub(crate) fn wait_for_data(&self) -> Result<(), ComponentError> {
-        if self.signal.is_reactive() {
+        if self.is_reactive() {
             return Err(ComponentError::NoData);
         }
         self.wait_for_attention(self.samples_read_this_cycle == 0)
     }
 
-    pub(crate) fn reader_mut(&mut self, index: usize) -> Option<&mut Reader> {
-        self.inputs.get_mut(index).and_then(|p| p.reader.as_mut())
+    /// A pack's request to sleep until woken (its own any-of or synchronised reads).
+    pub(crate) fn wait_from_pack(&self, interruptible: bool) -> Result<(), ComponentError> {
+        self.wait_for_attention(interruptible && self.samples_read_this_cycle == 0)
     }
 
-    pub(crate) fn note_read(&mut self) {
-        self.samples_read_this_cycle += 1;
+    pub(crate) fn try_read_index(&mut self, index: usize) -> Option<Sample> {
+        self.take_index(index)
+    }
+
+    pub(crate) fn is_input_exhausted(&self, index: usize) -> bool {
+        self.input_exhausted(index)
     }
 
     pub(crate) fn resolve_input(&self, key: impl PortKey) -> Result<usize, ComponentError> {
@@ -551,6 +602,9 @@ impl Context {
         time_of_issue: Timestamp,
     ) -> Result<(), ComponentError> {
         let index = self.output_index(output)?;
+        if let Some(remote) = &self.remote {
+            return remote.write(index, &payload, timestamp, time_of_issue);
+        }
         let Some(port) = self.outputs.get_mut(index) else {
             return Err(ComponentError::failed(format_args!(
                 "component has no output '{output}'"
@@ -624,23 +678,16 @@ impl Synchronizer {
             let mut missing = false;
             for (slot, index) in self.pending.iter_mut().zip(&self.inputs) {
                 if slot.is_none() {
-                    *slot = ctx.reader_mut(*index).and_then(Reader::try_read);
-                    if slot.is_some() {
-                        ctx.note_read();
-                    } else {
-                        missing = true;
-                    }
+                    *slot = ctx.try_read_index(*index);
+                    missing |= slot.is_none();
                 }
             }
             if missing {
-                let ended = self.inputs.iter().zip(&self.pending).any(|(index, slot)| {
-                    slot.is_none()
-                        && ctx
-                            .inputs()
-                            .get(*index)
-                            .and_then(InputPort::reader)
-                            .is_some_and(Reader::is_exhausted)
-                });
+                let ended = self
+                    .inputs
+                    .iter()
+                    .zip(&self.pending)
+                    .any(|(index, slot)| slot.is_none() && ctx.is_input_exhausted(*index));
                 if ended {
                     return Err(ComponentError::EndOfStream);
                 }

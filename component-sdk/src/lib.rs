@@ -9,6 +9,7 @@
 
 #![warn(missing_docs)]
 
+pub mod abi;
 pub mod buffer;
 pub mod component;
 pub mod descriptor;

@@ -238,7 +238,7 @@ impl ReactiveCell {
 enum Driver {
     Threaded {
         mode: ExecutionMode,
-        pending: Option<(Box<dyn Component>, Context)>,
+        pending: Option<Box<(Box<dyn Component>, Context)>>,
         handle: Option<JoinHandle<()>>,
     },
     Reactive(Arc<ReactiveCell>),
@@ -421,7 +421,7 @@ impl Engine {
                 }
                 None => Driver::Threaded {
                     mode: component.info.mode,
-                    pending: Some((component.component, ctx)),
+                    pending: Some(Box::new((component.component, ctx))),
                     handle: None,
                 },
             };
@@ -476,8 +476,9 @@ impl Engine {
                 pending,
                 handle,
             } = &mut slot.driver
-                && let Some((component, ctx)) = pending.take()
+                && let Some(boxed) = pending.take()
             {
+                let (component, ctx) = *boxed;
                 let worker = Worker {
                     id: slot.id.clone(),
                     mode: *mode,

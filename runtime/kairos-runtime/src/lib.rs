@@ -3,8 +3,10 @@
 //! per-link and per-component statistics.
 
 pub mod engine;
+pub mod packs;
 pub mod scheduling;
 pub mod stats;
 
 pub use engine::{BuildError, ControlError, Engine, EngineState, link_name};
+pub use packs::{PackScan, RefusedLibrary, load_packs, pack_path};
 pub use stats::{ComponentState, ComponentStats, LinkStats, StatsSnapshot};

@@ -18,6 +18,10 @@ pub struct Cli {
     /// More log output (-v: debug, -vv: trace). `RUST_LOG` overrides it.
     #[arg(short, long, action = clap::ArgAction::Count, global = true)]
     pub verbose: u8,
+    /// A folder of pack libraries to load (repeatable); `KAIROS_PACK_PATH` and a `packs/` folder beside
+    /// the diagram are searched too.
+    #[arg(long = "pack-path", value_name = "DIR", global = true)]
+    pub pack_path: Vec<PathBuf>,
     /// What to do.
     #[command(subcommand)]
     pub command: Command,
@@ -49,6 +53,12 @@ pub enum Command {
         #[arg(required = true)]
         diagrams: Vec<PathBuf>,
     },
+    /// List the packs: built-in and loaded from the pack path, with the libraries refused and why.
+    Packs {
+        /// Print JSON instead of text.
+        #[arg(long)]
+        json: bool,
+    },
     /// List the component library.
     Components {
         /// Print JSON instead of text.
@@ -77,15 +87,29 @@ pub fn init_logging(verbose: u8) {
 
 /// Runs a parsed command line.
 pub fn execute(cli: Cli) -> anyhow::Result<ExitCode> {
-    let registry = crate::builtin_registry();
-    for duplicate in registry.duplicates() {
-        tracing::warn!(
-            "component type '{}' is offered by packs '{}' and '{}'; using the one from '{}'",
-            duplicate.type_name,
-            duplicate.kept_from,
-            duplicate.refused_from,
-            duplicate.kept_from
-        );
+    let diagrams: Vec<&std::path::Path> = match &cli.command {
+        Command::Run { diagram, .. } => vec![diagram.as_path()],
+        Command::Validate { diagrams } => diagrams.iter().map(PathBuf::as_path).collect(),
+        Command::Packs { .. } | Command::Components { .. } => Vec::new(),
+    };
+    let (registry, scan) = crate::registry_with_packs(&cli.pack_path, &diagrams);
+    if !matches!(cli.command, Command::Packs { .. }) {
+        for refused in &scan.refused {
+            tracing::warn!(
+                "pack library {} refused: {}",
+                refused.path.display(),
+                refused.reason
+            );
+        }
+        for duplicate in registry.duplicates() {
+            tracing::warn!(
+                "component type '{}' is offered by packs '{}' and '{}'; using the one from '{}'",
+                duplicate.type_name,
+                duplicate.kept_from,
+                duplicate.refused_from,
+                duplicate.kept_from
+            );
+        }
     }
     match cli.command {
         Command::Run {
@@ -101,9 +125,14 @@ pub fn execute(cli: Cli) -> anyhow::Result<ExitCode> {
                 duration,
                 stats: stats.then_some(stats_interval),
                 overrides,
+                searched: scan.searched.clone(),
             },
         ),
-        Command::Validate { diagrams } => Ok(validate(&registry.library_info(), &diagrams)),
+        Command::Validate { diagrams } => Ok(validate(&registry.library_info(), &diagrams, &scan.searched)),
+        Command::Packs { json } => {
+            crate::packs::list(&registry, &scan, json)?;
+            Ok(ExitCode::SUCCESS)
+        }
         Command::Components { json, filter } => {
             components(&registry.library_info(), json, filter.as_deref())?;
             Ok(ExitCode::SUCCESS)
@@ -111,7 +140,7 @@ pub fn execute(cli: Cli) -> anyhow::Result<ExitCode> {
     }
 }
 
-fn validate(library: &LibraryInfo, paths: &[PathBuf]) -> ExitCode {
+fn validate(library: &LibraryInfo, paths: &[PathBuf], searched: &[PathBuf]) -> ExitCode {
     let mut all_valid = true;
     for path in paths {
         match kairos_diagram::load(path) {
@@ -126,6 +155,7 @@ fn validate(library: &LibraryInfo, paths: &[PathBuf]) -> ExitCode {
                     println!("{name}: valid");
                 } else {
                     eprint!("{}", kairos_diagram::render_all(&diagnostics, &name, &source));
+                    crate::packs::explain_missing(&diagnostics, searched);
                     if diagnostics.iter().any(kairos_diagram::Diagnostic::is_error) {
                         all_valid = false;
                     } else {

@@ -2,8 +2,12 @@
 
 pub mod cli;
 pub mod duration;
+pub mod packs;
 pub mod run;
 
+use std::path::{Path, PathBuf};
+
+use kairos_runtime::PackScan;
 use kairos_sdk::Registry;
 
 /// A registry holding every built-in pack.
@@ -12,4 +16,20 @@ pub fn builtin_registry() -> Registry {
     kairos_pack_core::register(&mut registry);
     kairos_pack_sensors::register(&mut registry);
     registry
+}
+
+/// The built-in packs, then every pack found on the pack path (`pack_path` folders, `KAIROS_PACK_PATH`, and
+/// a `packs/` folder beside each of `diagrams`).
+pub fn registry_with_packs(pack_path: &[PathBuf], diagrams: &[&Path]) -> (Registry, PackScan) {
+    let mut registry = builtin_registry();
+    let mut folders = kairos_runtime::pack_path(pack_path, None);
+    for diagram in diagrams {
+        for folder in kairos_runtime::pack_path(&[], Some(diagram)) {
+            if !folders.contains(&folder) {
+                folders.push(folder);
+            }
+        }
+    }
+    let scan = kairos_runtime::load_packs(&mut registry, &folders);
+    (registry, scan)
 }

@@ -19,6 +19,8 @@ pub struct RunOptions {
     pub stats: Option<Duration>,
     /// Property overrides, `ID.PROPERTY=VALUE`.
     pub overrides: Vec<String>,
+    /// The pack path searched, for messages about missing packs.
+    pub searched: Vec<std::path::PathBuf>,
 }
 
 /// Parses `ID.PROPERTY=VALUE`; the value is a boolean, an integer, a number, or else text.

@@ -1,0 +1,98 @@
+//! Finding and loading pack libraries: the pack path, what was loaded and what was refused.
+
+use std::path::{Path, PathBuf};
+
+use kairos_sdk::Registry;
+use kairos_sdk::abi::{LoadedPack, load_pack};
+
+/// A library on the pack path that was not loaded, and why.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct RefusedLibrary {
+    /// The file.
+    pub path: PathBuf,
+    /// Why it was refused.
+    pub reason: String,
+}
+
+/// What loading the pack path found.
+#[derive(Debug, Default)]
+pub struct PackScan {
+    /// The folders searched, in order.
+    pub searched: Vec<PathBuf>,
+    /// Packs loaded.
+    pub loaded: Vec<LoadedPack>,
+    /// Libraries refused.
+    pub refused: Vec<RefusedLibrary>,
+}
+
+/// The file name ending of shared libraries on this platform.
+pub const LIBRARY_SUFFIX: &str = std::env::consts::DLL_SUFFIX;
+
+/// The pack path: `--pack-path` folders first, then `KAIROS_PACK_PATH` (separated like `PATH`), then a
+/// `packs/` folder beside the diagram when there is one.
+pub fn pack_path(explicit: &[PathBuf], diagram: Option<&Path>) -> Vec<PathBuf> {
+    let mut folders: Vec<PathBuf> = explicit.to_vec();
+    if let Some(from_env) = std::env::var_os("KAIROS_PACK_PATH") {
+        folders.extend(std::env::split_paths(&from_env).filter(|p| !p.as_os_str().is_empty()));
+    }
+    if let Some(beside) = diagram.and_then(Path::parent).map(|dir| dir.join("packs"))
+        && beside.is_dir()
+    {
+        folders.push(beside);
+    }
+    folders
+}
+
+/// Loads every library in `folders` (files ending in the platform's library suffix, in name order) and
+/// registers the good ones in `registry` after what is already there, so a built-in component type is
+/// never shadowed: a clash is reported by [`Registry::duplicates`].
+pub fn load_packs(registry: &mut Registry, folders: &[PathBuf]) -> PackScan {
+    let mut scan = PackScan {
+        searched: folders.to_vec(),
+        ..PackScan::default()
+    };
+    for folder in folders {
+        let entries = match std::fs::read_dir(folder) {
+            Ok(entries) => entries,
+            Err(error) => {
+                scan.refused.push(RefusedLibrary {
+                    path: folder.clone(),
+                    reason: format!("cannot read the folder: {error}"),
+                });
+                continue;
+            }
+        };
+        let mut files: Vec<PathBuf> = entries
+            .filter_map(Result::ok)
+            .map(|e| e.path())
+            .filter(|p| p.is_file() && p.to_string_lossy().ends_with(LIBRARY_SUFFIX))
+            .collect();
+        files.sort();
+        for file in files {
+            match load_pack(&file) {
+                Ok(pack) => {
+                    if registry.packs().any(|p| p.name == pack.name) {
+                        scan.refused.push(RefusedLibrary {
+                            path: file,
+                            reason: format!("a pack named '{}' is already loaded", pack.name),
+                        });
+                        continue;
+                    }
+                    tracing::debug!(
+                        "loaded pack {} {} from {}",
+                        pack.name,
+                        pack.version,
+                        file.display()
+                    );
+                    pack.register(registry);
+                    scan.loaded.push(pack);
+                }
+                Err(error) => scan.refused.push(RefusedLibrary {
+                    path: file,
+                    reason: error.to_string(),
+                }),
+            }
+        }
+    }
+    scan
+}
