@@ -1332,29 +1332,31 @@ impl RemoteHost {
         })
     }
 
+    /// Writes through the host: `timestamp` `None` stamps the sample now (one clock read, in the host);
+    /// `Some` keeps the given timestamp. The host sets the time of issue.
     pub(crate) fn write(
         &self,
         index: usize,
         payload: &Payload,
-        timestamp: Timestamp,
-        time_of_issue: Timestamp,
+        timestamp: Option<Timestamp>,
     ) -> ComponentResult {
         let api = self.api().ok_or(ComponentError::Stopped)?;
         let sample = Sample {
             payload: payload.clone(),
-            timestamp,
-            time_of_issue,
+            timestamp: timestamp.unwrap_or_default(),
+            time_of_issue: Timestamp::ZERO,
             sequence: 0,
         };
         let mut scratch = Vec::new();
         let described = sample_to_c(&sample, &mut scratch);
-        let mut buffer = vec![0_u8; ERROR_CAPACITY];
+        // On the stack: a write must not allocate for a message it almost never gets.
+        let mut buffer = [0_u8; 256];
         let mut error = KError {
             buffer: buffer.as_mut_ptr(),
             capacity: buffer.len(),
             len: 0,
         };
-        let keep_timestamp = i32::from(timestamp != time_of_issue);
+        let keep_timestamp = i32::from(timestamp.is_some());
         // SAFETY: every pointer is valid for the call; the host copies what it keeps.
         let code = unsafe {
             (api.write)(
@@ -1407,15 +1409,24 @@ impl RemoteHost {
 }
 
 /// The runtime clock as seen from a pack: each reading asks the host.
-#[derive(Debug)]
+#[derive(Debug, Default)]
 struct RemoteClock {
-    remote: std::sync::Mutex<(usize, usize)>,
+    host: std::sync::atomic::AtomicUsize,
+    frame: std::sync::atomic::AtomicUsize,
 }
 
 impl RemoteClock {
+    fn set_link(&self, host: *const KHost, frame: *mut c_void) {
+        self.host
+            .store(host as usize, std::sync::atomic::Ordering::Relaxed);
+        self.frame
+            .store(frame as usize, std::sync::atomic::Ordering::Relaxed);
+    }
+
     fn link(&self) -> Option<(*const KHost, *mut c_void)> {
-        let (host, frame) = *self.remote.lock().ok()?;
-        Some((host as *const KHost, frame as *mut c_void))
+        let host = self.host.load(std::sync::atomic::Ordering::Relaxed) as *const KHost;
+        let frame = self.frame.load(std::sync::atomic::Ordering::Relaxed) as *mut c_void;
+        (!host.is_null()).then_some((host, frame))
     }
 }
 
@@ -1453,9 +1464,7 @@ struct PackInstance {
 impl PackInstance {
     /// The context for this call, created on first use, its host link refreshed.
     fn context(&mut self, host: *const KHost, frame: *mut c_void) -> &mut Context {
-        if let Ok(mut link) = self.clock.remote.lock() {
-            *link = (host as usize, frame as usize);
-        }
+        self.clock.set_link(host, frame);
         let info = self.info;
         let clock: Arc<dyn Clock> = Arc::clone(&self.clock) as Arc<dyn Clock>;
         let ctx = self.ctx.get_or_insert_with(|| {
@@ -1560,9 +1569,7 @@ unsafe extern "C" fn pack_create(data: *const c_void) -> *mut c_void {
             component: (exported.factory)(),
             info,
             ctx: None,
-            clock: Arc::new(RemoteClock {
-                remote: std::sync::Mutex::new((0, 0)),
-            }),
+            clock: Arc::new(RemoteClock::default()),
         };
         Box::into_raw(Box::new(instance)).cast::<c_void>()
     })

@@ -563,8 +563,7 @@ impl Context {
 
     /// Writes a new sample stamped now: timestamp and time of issue come from one clock read.
     pub fn write(&mut self, output: impl PortKey, payload: Payload) -> Result<(), ComponentError> {
-        let now = self.clock.now();
-        self.emit(output, payload, now, now)
+        self.emit(output, payload, None)
     }
 
     /// Writes a new sample whose data originated at `timestamp` (a sensor's own acquisition time).
@@ -574,8 +573,7 @@ impl Context {
         payload: Payload,
         timestamp: Timestamp,
     ) -> Result<(), ComponentError> {
-        let now = self.clock.now();
-        self.emit(output, payload, timestamp, now)
+        self.emit(output, payload, Some(timestamp))
     }
 
     /// Writes the result of processing `input`: it keeps the input's timestamp.
@@ -585,8 +583,7 @@ impl Context {
         input: &Sample,
         payload: Payload,
     ) -> Result<(), ComponentError> {
-        let now = self.clock.now();
-        self.emit(output, payload, input.timestamp, now)
+        self.emit(output, payload, Some(input.timestamp))
     }
 
     /// Passes `sample` on unchanged but for its time of issue; the payload is shared, not copied.
@@ -594,17 +591,21 @@ impl Context {
         self.write_processed(output, sample, sample.payload.clone())
     }
 
+    /// Writes `payload` on `output`; `timestamp` `None` stamps it now. One clock read gives the time of
+    /// issue (and the timestamp when none is given).
     fn emit(
         &mut self,
         output: impl PortKey,
         payload: Payload,
-        timestamp: Timestamp,
-        time_of_issue: Timestamp,
+        timestamp: Option<Timestamp>,
     ) -> Result<(), ComponentError> {
         let index = self.output_index(output)?;
         if let Some(remote) = &self.remote {
-            return remote.write(index, &payload, timestamp, time_of_issue);
+            // The host stamps: one clock read there, none here.
+            return remote.write(index, &payload, timestamp);
         }
+        let time_of_issue = self.clock.now();
+        let timestamp = timestamp.unwrap_or(time_of_issue);
         let Some(port) = self.outputs.get_mut(index) else {
             return Err(ComponentError::failed(format_args!(
                 "component has no output '{output}'"
