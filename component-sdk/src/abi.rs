@@ -1592,19 +1592,38 @@ unsafe fn instance_mut<'a>(instance: *mut c_void) -> Option<&'a mut PackInstance
     unsafe { instance.cast::<PackInstance>().as_mut() }
 }
 
+/// The shared body of every pack-side entry point: finds the instance, links its context to this host
+/// call (re-reading the properties first when `refresh`), and runs `call` under `catch_unwind`.
+fn with_instance(
+    instance: *mut c_void,
+    frame: *mut c_void,
+    host: *const KHost,
+    error: *mut KError,
+    refresh: bool,
+    call: impl FnOnce(&mut dyn Component, &mut Context) -> ComponentResult,
+) -> i32 {
+    pack_guard(error, || {
+        // SAFETY: the host passes an instance it created, exclusively for this call.
+        let instance =
+            unsafe { instance_mut(instance) }.ok_or_else(|| ComponentError::failed("no instance"))?;
+        if refresh {
+            instance.refresh_properties(host, frame);
+        } else {
+            instance.context(host, frame);
+        }
+        let PackInstance { component, ctx, .. } = instance;
+        let ctx = ctx.as_mut().ok_or_else(|| ComponentError::failed("no context"))?;
+        call(component.as_mut(), ctx)
+    })
+}
+
 unsafe extern "C" fn pack_birth(
     instance: *mut c_void,
     frame: *mut c_void,
     host: *const KHost,
     error: *mut KError,
 ) -> i32 {
-    pack_guard(error, || {
-        // SAFETY: the host passes an instance it created, exclusively for this call.
-        let instance =
-            unsafe { instance_mut(instance) }.ok_or_else(|| ComponentError::failed("no instance"))?;
-        instance.refresh_properties(host, frame);
-        let PackInstance { component, ctx, .. } = instance;
-        let ctx = ctx.as_mut().ok_or_else(|| ComponentError::failed("no context"))?;
+    with_instance(instance, frame, host, error, true, |component, ctx| {
         component.birth(ctx)
     })
 }
@@ -1615,13 +1634,8 @@ unsafe extern "C" fn pack_core(
     host: *const KHost,
     error: *mut KError,
 ) -> i32 {
-    pack_guard(error, || {
-        // SAFETY: the host passes an instance it created, exclusively for this call.
-        let instance =
-            unsafe { instance_mut(instance) }.ok_or_else(|| ComponentError::failed("no instance"))?;
-        instance.context(host, frame).begin_cycle();
-        let PackInstance { component, ctx, .. } = instance;
-        let ctx = ctx.as_mut().ok_or_else(|| ComponentError::failed("no context"))?;
+    with_instance(instance, frame, host, error, false, |component, ctx| {
+        ctx.begin_cycle();
         component.core(ctx)
     })
 }
@@ -1632,13 +1646,7 @@ unsafe extern "C" fn pack_death(
     host: *const KHost,
     error: *mut KError,
 ) -> i32 {
-    pack_guard(error, || {
-        // SAFETY: the host passes an instance it created, exclusively for this call.
-        let instance =
-            unsafe { instance_mut(instance) }.ok_or_else(|| ComponentError::failed("no instance"))?;
-        instance.context(host, frame);
-        let PackInstance { component, ctx, .. } = instance;
-        let ctx = ctx.as_mut().ok_or_else(|| ComponentError::failed("no context"))?;
+    with_instance(instance, frame, host, error, false, |component, ctx| {
         component.death(ctx)
     })
 }
@@ -1650,15 +1658,9 @@ unsafe extern "C" fn pack_property_changed(
     name: KStr,
     error: *mut KError,
 ) -> i32 {
-    pack_guard(error, || {
-        // SAFETY: the host passes an instance it created, exclusively for this call.
-        let instance =
-            unsafe { instance_mut(instance) }.ok_or_else(|| ComponentError::failed("no instance"))?;
-        // SAFETY: the host passes a valid name for the call.
-        let name = unsafe { name.as_str() }.unwrap_or_default().to_owned();
-        instance.refresh_properties(host, frame);
-        let PackInstance { component, ctx, .. } = instance;
-        let ctx = ctx.as_mut().ok_or_else(|| ComponentError::failed("no context"))?;
+    // SAFETY: the host passes a valid name for the call.
+    let name = unsafe { name.as_str() }.unwrap_or_default().to_owned();
+    with_instance(instance, frame, host, error, true, |component, ctx| {
         let value = ctx
             .property(&name)
             .cloned()
@@ -1674,15 +1676,9 @@ unsafe extern "C" fn pack_action(
     name: KStr,
     error: *mut KError,
 ) -> i32 {
-    pack_guard(error, || {
-        // SAFETY: the host passes an instance it created, exclusively for this call.
-        let instance =
-            unsafe { instance_mut(instance) }.ok_or_else(|| ComponentError::failed("no instance"))?;
-        // SAFETY: the host passes a valid name for the call.
-        let name = unsafe { name.as_str() }.unwrap_or_default().to_owned();
-        instance.context(host, frame);
-        let PackInstance { component, ctx, .. } = instance;
-        let ctx = ctx.as_mut().ok_or_else(|| ComponentError::failed("no context"))?;
+    // SAFETY: the host passes a valid name for the call.
+    let name = unsafe { name.as_str() }.unwrap_or_default().to_owned();
+    with_instance(instance, frame, host, error, false, |component, ctx| {
         component.action(&name, ctx)
     })
 }

@@ -6,6 +6,7 @@
 //!   and actions; [`Synchronizer`] for data fusion.
 //! - [`descriptor`]: builders for component descriptors; [`Registry`]: how packs register components.
 //! - [`harness`]: run one component offline on scripted samples, for unit tests.
+//! - [`rng`]: a small seeded generator, so simulated components repeat exactly.
 
 #![warn(missing_docs)]
 
@@ -16,6 +17,7 @@ pub mod descriptor;
 pub mod harness;
 pub mod payload;
 pub mod registry;
+pub mod rng;
 pub mod sample;
 pub mod signal;
 pub mod stats;

@@ -6,7 +6,7 @@ use kairos_sdk::descriptor::{Descriptor, Property};
 use kairos_sdk::{Component, PackRegistrar};
 use kairos_sdk::{ComponentInfo, ComponentResult, Context, DataType, ExecutionMode, Payload, Value};
 
-use crate::rng::SplitMix;
+use kairos_sdk::rng::NoiseRng;
 
 /// The sample-rate property every generator has.
 fn rate_property(default_hz: f64) -> Property {
@@ -235,7 +235,7 @@ impl Component for Constant {
 /// `core.random`: uniform or normal random numbers from a seeded generator.
 #[derive(Debug, Default)]
 pub struct Random {
-    rng: Option<SplitMix>,
+    rng: Option<NoiseRng>,
 }
 
 impl Random {
@@ -243,7 +243,7 @@ impl Random {
     pub fn info() -> ComponentInfo {
         generator(
             "core.random",
-            "Random numbers, uniform in [min, max) or normal (mean, std_dev); seeded, so repeatable",
+            "Random numbers, uniform in (min, max] or normal (mean, std_dev); seeded, so repeatable",
         )
         .output("out", DataType::F64, "The numbers")
         .property(rate_property(10.0))
@@ -268,14 +268,14 @@ impl Random {
 
 impl Component for Random {
     fn birth(&mut self, ctx: &mut Context) -> ComponentResult {
-        self.rng = Some(SplitMix::new(ctx.i64_property("seed")? as u64));
+        self.rng = Some(NoiseRng::new(ctx.i64_property("seed")?, 0));
         follow_rate("rate", ctx)
     }
 
     fn core(&mut self, ctx: &mut Context) -> ComponentResult {
-        let rng = self.rng.get_or_insert_with(|| SplitMix::new(1));
+        let rng = self.rng.get_or_insert_with(|| NoiseRng::new(1, 0));
         let value = if ctx.text_property("distribution")? == "normal" {
-            ctx.f64_property("mean")? + ctx.f64_property("std_dev")? * rng.normal()
+            ctx.f64_property("mean")? + ctx.f64_property("std_dev")? * rng.gaussian()
         } else {
             let (min, max) = (ctx.f64_property("min")?, ctx.f64_property("max")?);
             min + (max - min) * rng.uniform()

@@ -12,7 +12,6 @@
 
 pub mod generators;
 pub mod processing;
-mod rng;
 pub mod sinks;
 
 use kairos_sdk::Registry;

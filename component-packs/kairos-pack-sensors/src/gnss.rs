@@ -8,9 +8,9 @@ use kairos_sdk::{
 };
 
 use crate::geo::{GeoPoint, LocalFrame};
-use crate::rng::NoiseRng;
 use crate::trajectory::Trajectory;
 use crate::{TimeBase, apply_rate, rate_changed, rate_property};
+use kairos_sdk::rng::NoiseRng;
 
 /// The component's type name.
 pub const TYPE_NAME: &str = "sensors.gnss";

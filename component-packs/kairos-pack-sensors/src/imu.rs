@@ -6,9 +6,9 @@ use kairos_sdk::{
     Component, ComponentInfo, ComponentResult, Context, DataType, ExecutionMode, Imu, Payload, Pose, Value,
 };
 
-use crate::rng::NoiseRng;
 use crate::trajectory::Trajectory;
 use crate::{TimeBase, apply_rate, rate_changed, rate_property};
+use kairos_sdk::rng::NoiseRng;
 
 /// The component's type name.
 pub const TYPE_NAME: &str = "sensors.imu";

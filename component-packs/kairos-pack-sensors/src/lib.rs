@@ -4,7 +4,7 @@
 //! deterministic vehicle [`trajectory`]: a figure-eight of about 525 m driven at about 10 m/s around a
 //! reference point, after two seconds at rest. A component's trajectory time is the timestamp of its
 //! sample minus that of its first sample, so sensors started together see the same vehicle. Every sample
-//! is written with its acquisition time as timestamp. Noise comes from a seeded generator ([`rng`]):
+//! is written with its acquisition time as timestamp. Noise comes from a seeded generator (`kairos_sdk::rng`):
 //! the same seed gives the same output.
 //!
 //! | Component | Outputs | Properties | Actions |
@@ -13,7 +13,7 @@
 //! | [`sensors.gnss`](gnss::GnssSensor) | `fix` (`gnss_fix`) | `rate` = 10 Hz (live), `noise_m`, `noise_correlation_s` (live), `seed`, `latitude`, `longitude`, `altitude` | `outage` |
 //! | [`sensors.camera`](camera::CameraSensor) | `image` (`image`, RGB8) | `rate` = 30 Hz (live), `width` = 640, `height` = 480, `pattern` (live) | |
 //!
-//! Supporting modules: [`trajectory`] (the vehicle), [`geo`] (local ENU ↔ WGS84), [`rng`] (noise).
+//! Supporting modules: [`trajectory`] (the vehicle), [`geo`] (local ENU ↔ WGS84), and `kairos_sdk::rng` (noise).
 
 #![warn(missing_docs)]
 
@@ -22,7 +22,6 @@ pub mod geo;
 pub mod gnss;
 pub mod imu;
 mod render;
-pub mod rng;
 pub mod trajectory;
 
 use kairos_sdk::descriptor::Property;
@@ -32,8 +31,8 @@ pub use camera::{CameraSensor, decode_frame_number};
 pub use geo::{GeoPoint, LocalFrame};
 pub use gnss::GnssSensor;
 pub use imu::ImuSensor;
+pub use kairos_sdk::rng::NoiseRng;
 pub use render::Pattern;
-pub use rng::NoiseRng;
 pub use trajectory::{Trajectory, VehicleState};
 
 /// The pack's name.

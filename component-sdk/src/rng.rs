@@ -1,4 +1,4 @@
-//! A small seeded pseudo-random generator for sensor noise: `SplitMix64` for uniform bits, Box–Muller
+//! A small seeded pseudo-random generator for simulation and noise: `SplitMix64` for uniform bits, Box–Muller
 //! for normal deviates. The same seed always gives the same sequence, on every platform.
 
 /// A deterministic pseudo-random generator (`SplitMix64`) with a Gaussian sampler.
