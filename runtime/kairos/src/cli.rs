@@ -53,6 +53,14 @@ pub enum Command {
         #[arg(required = true)]
         diagrams: Vec<PathBuf>,
     },
+    /// Describe a recording: channels, types, counts, rates, duration, drops and metadata.
+    Inspect {
+        /// The MCAP file.
+        file: PathBuf,
+        /// Print JSON instead of text.
+        #[arg(long)]
+        json: bool,
+    },
     /// List the packs: built-in and loaded from the pack path, with the libraries refused and why.
     Packs {
         /// Print JSON instead of text.
@@ -90,7 +98,7 @@ pub fn execute(cli: Cli) -> anyhow::Result<ExitCode> {
     let diagrams: Vec<&std::path::Path> = match &cli.command {
         Command::Run { diagram, .. } => vec![diagram.as_path()],
         Command::Validate { diagrams } => diagrams.iter().map(PathBuf::as_path).collect(),
-        Command::Packs { .. } | Command::Components { .. } => Vec::new(),
+        Command::Packs { .. } | Command::Components { .. } | Command::Inspect { .. } => Vec::new(),
     };
     let (registry, scan) = crate::registry_with_packs(&cli.pack_path, &diagrams);
     if !matches!(cli.command, Command::Packs { .. }) {
@@ -129,6 +137,22 @@ pub fn execute(cli: Cli) -> anyhow::Result<ExitCode> {
             },
         ),
         Command::Validate { diagrams } => Ok(validate(&registry.library_info(), &diagrams, &scan.searched)),
+        Command::Inspect { file, json } => {
+            let report = kairos_pack_recording::inspect(&file)?;
+            if json {
+                println!(
+                    "{}",
+                    serde_json::to_string_pretty(&report).context("encoding the report as JSON")?
+                );
+            } else {
+                print!("{}", report.text());
+            }
+            Ok(if report.damage.is_some() {
+                ExitCode::from(3)
+            } else {
+                ExitCode::SUCCESS
+            })
+        }
         Command::Packs { json } => {
             crate::packs::list(&registry, &scan, json)?;
             Ok(ExitCode::SUCCESS)

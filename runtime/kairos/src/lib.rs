@@ -15,6 +15,7 @@ pub fn builtin_registry() -> Registry {
     let mut registry = Registry::new();
     kairos_pack_core::register(&mut registry);
     kairos_pack_sensors::register(&mut registry);
+    kairos_pack_recording::register(&mut registry);
     registry
 }
 

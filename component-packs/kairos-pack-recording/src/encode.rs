@@ -1,0 +1,271 @@
+//! How each payload type is written to MCAP: Foxglove well-known schemas (protobuf) where one exists,
+//! otherwise a JSON schema of ours, so every channel decodes from the file alone.
+
+use foxglove::Encode as _;
+use foxglove::schemas::{
+    LocationFix, PackedElementField, PointCloud as FoxglovePointCloud, Pose as FoxglovePose, PoseInFrame,
+    Quaternion, RawImage, Timestamp as FoxgloveTimestamp, Vector3, location_fix, packed_element_field,
+};
+use kairos_sdk::{FixStatus, Payload, PixelFormat, Timestamp};
+use serde_json::json;
+
+/// A schema as MCAP stores it.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct SchemaSpec {
+    /// The schema's name (`foxglove.RawImage`, `kairos.F64`).
+    pub name: String,
+    /// `protobuf` or `jsonschema`.
+    pub encoding: String,
+    /// The schema itself.
+    pub data: Vec<u8>,
+    /// The message encoding of channels using it (`protobuf` or `json`).
+    pub message_encoding: String,
+}
+
+fn foxglove_schema<T: foxglove::Encode>() -> SchemaSpec {
+    let schema = T::get_schema();
+    SchemaSpec {
+        name: schema.as_ref().map_or_else(String::new, |s| s.name.clone()),
+        encoding: schema.as_ref().map_or_else(String::new, |s| s.encoding.clone()),
+        data: schema.map_or_else(Vec::new, |s| s.data.into_owned()),
+        message_encoding: T::get_message_encoding(),
+    }
+}
+
+fn json_schema(name: &str, properties: &serde_json::Value) -> SchemaSpec {
+    let schema = json!({
+        "title": name,
+        "description": "Kairos sample payload; the message's publish time is the sample's timestamp and its log time the time of issue",
+        "type": "object",
+        "properties": properties,
+    });
+    SchemaSpec {
+        name: name.to_owned(),
+        encoding: "jsonschema".to_owned(),
+        data: schema.to_string().into_bytes(),
+        message_encoding: "json".to_owned(),
+    }
+}
+
+/// The schema for a payload's type.
+pub fn schema_for(payload: &Payload) -> SchemaSpec {
+    let number = json!({"type": "number"});
+    let numbers = json!({"type": "array", "items": {"type": "number"}});
+    match payload {
+        Payload::Image(_) => foxglove_schema::<RawImage>(),
+        Payload::PointCloud(_) => foxglove_schema::<FoxglovePointCloud>(),
+        Payload::GnssFix(_) => foxglove_schema::<LocationFix>(),
+        Payload::Pose(_) => foxglove_schema::<PoseInFrame>(),
+        Payload::F64(_) => json_schema("kairos.F64", &json!({"value": number})),
+        Payload::I64(_) => json_schema("kairos.I64", &json!({"value": {"type": "integer"}})),
+        Payload::Bool(_) => json_schema("kairos.Bool", &json!({"value": {"type": "boolean"}})),
+        Payload::Vector(_) => json_schema("kairos.Vector", &json!({"values": numbers})),
+        Payload::Matrix(_) => json_schema(
+            "kairos.Matrix",
+            &json!({"rows": {"type": "integer"}, "cols": {"type": "integer"}, "values": numbers}),
+        ),
+        Payload::Text(_) => json_schema("kairos.Text", &json!({"text": {"type": "string"}})),
+        Payload::Bytes(_) => json_schema(
+            "kairos.Bytes",
+            &json!({"base64": {"type": "string", "contentEncoding": "base64"}}),
+        ),
+        Payload::Imu(_) => {
+            let vector = json!({"type": "object", "properties": {"x": number, "y": number, "z": number}});
+            json_schema(
+                "kairos.Imu",
+                &json!({
+                    "angular_velocity": vector, "linear_acceleration": vector,
+                    "orientation": {"type": ["object", "null"], "properties": {"x": number, "y": number, "z": number, "w": number}},
+                }),
+            )
+        }
+        Payload::CanFrame(_) => json_schema(
+            "kairos.CanFrame",
+            &json!({"id": {"type": "integer"}, "extended": {"type": "boolean"}, "fd": {"type": "boolean"}, "data": {"type": "array", "items": {"type": "integer"}}}),
+        ),
+        Payload::Custom(custom) => json_schema(
+            &format!("kairos.Custom.{}", custom.type_name),
+            &json!({"type_name": {"type": "string"}, "base64": {"type": "string", "contentEncoding": "base64"}}),
+        ),
+    }
+}
+
+fn foxglove_time(time: Timestamp) -> FoxgloveTimestamp {
+    let nanos = time.as_nanos().max(0);
+    FoxgloveTimestamp::new(
+        u32::try_from(nanos / 1_000_000_000).unwrap_or(u32::MAX),
+        u32::try_from(nanos % 1_000_000_000).unwrap_or(0),
+    )
+}
+
+fn base64(bytes: &[u8]) -> String {
+    const TABLE: &[u8; 64] = b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
+    let mut out = String::with_capacity(bytes.len().div_ceil(3) * 4);
+    for chunk in bytes.chunks(3) {
+        let b = [
+            chunk.first().copied().unwrap_or(0),
+            chunk.get(1).copied().unwrap_or(0),
+            chunk.get(2).copied().unwrap_or(0),
+        ];
+        let n = (u32::from(b[0]) << 16) | (u32::from(b[1]) << 8) | u32::from(b[2]);
+        for (i, shift) in [18, 12, 6, 0].into_iter().enumerate() {
+            if i <= chunk.len() {
+                out.push(char::from(
+                    TABLE.get(((n >> shift) & 63) as usize).copied().unwrap_or(b'='),
+                ));
+            } else {
+                out.push('=');
+            }
+        }
+    }
+    out
+}
+
+fn image_encoding(format: PixelFormat) -> &'static str {
+    match format {
+        PixelFormat::Gray8 => "mono8",
+        PixelFormat::Gray16 => "mono16",
+        PixelFormat::Rgb8 => "rgb8",
+        PixelFormat::Rgba8 => "rgba8",
+        PixelFormat::Bgr8 => "bgr8",
+        PixelFormat::Bgra8 => "bgra8",
+    }
+}
+
+/// Encodes `payload` (of a sample stamped `timestamp`) in its schema's message encoding into `out`.
+#[allow(
+    clippy::too_many_lines,
+    reason = "one arm per payload type; the mapping reads best in one place"
+)]
+pub fn encode(
+    payload: &Payload,
+    timestamp: Timestamp,
+    frame_id: &str,
+    out: &mut Vec<u8>,
+) -> Result<(), String> {
+    out.clear();
+    let protobuf = |message: &dyn Fn(&mut Vec<u8>) -> Result<(), String>, out: &mut Vec<u8>| message(out);
+    let json_value = match payload {
+        Payload::Image(image) => {
+            let message = RawImage {
+                timestamp: Some(foxglove_time(timestamp)),
+                frame_id: frame_id.to_owned(),
+                width: image.width,
+                height: image.height,
+                encoding: image_encoding(image.format).to_owned(),
+                step: image.stride,
+                data: foxglove::bytes::Bytes::copy_from_slice(&image.pixels),
+            };
+            return protobuf(&|buf| message.encode(buf).map_err(|e| e.to_string()), out);
+        }
+        Payload::PointCloud(cloud) => {
+            let with_intensity = cloud.intensity.is_some();
+            let stride: u32 = if with_intensity { 16 } else { 12 };
+            let mut data = Vec::with_capacity(cloud.points.len() * stride as usize);
+            for (index, point) in cloud.points.iter().enumerate() {
+                for value in point.to_array() {
+                    data.extend_from_slice(&value.to_le_bytes());
+                }
+                if let Some(intensity) = &cloud.intensity {
+                    data.extend_from_slice(&intensity.get(index).copied().unwrap_or(0.0).to_le_bytes());
+                }
+            }
+            let field = |name: &str, offset: u32| PackedElementField {
+                name: name.to_owned(),
+                offset,
+                r#type: packed_element_field::NumericType::Float32 as i32,
+            };
+            let mut fields = vec![field("x", 0), field("y", 4), field("z", 8)];
+            if with_intensity {
+                fields.push(field("intensity", 12));
+            }
+            let message = FoxglovePointCloud {
+                timestamp: Some(foxglove_time(timestamp)),
+                frame_id: frame_id.to_owned(),
+                pose: None,
+                point_stride: stride,
+                fields,
+                data: foxglove::bytes::Bytes::from(data),
+            };
+            return protobuf(&|buf| message.encode(buf).map_err(|e| e.to_string()), out);
+        }
+        Payload::GnssFix(fix) => {
+            let h = fix.horizontal_accuracy_m * fix.horizontal_accuracy_m;
+            let v = fix.vertical_accuracy_m * fix.vertical_accuracy_m;
+            let mut metadata = Vec::new();
+            if fix.status == FixStatus::NoFix {
+                metadata.push(foxglove::schemas::KeyValuePair {
+                    key: "status".to_owned(),
+                    value: "no_fix".to_owned(),
+                });
+            }
+            let message = LocationFix {
+                timestamp: Some(foxglove_time(timestamp)),
+                frame_id: frame_id.to_owned(),
+                latitude: fix.latitude_deg,
+                longitude: fix.longitude_deg,
+                altitude: fix.altitude_m,
+                position_covariance: vec![h, 0.0, 0.0, 0.0, h, 0.0, 0.0, 0.0, v],
+                position_covariance_type: location_fix::PositionCovarianceType::DiagonalKnown as i32,
+                heading: None,
+                velocity: None,
+                color: None,
+                metadata,
+            };
+            return protobuf(&|buf| message.encode(buf).map_err(|e| e.to_string()), out);
+        }
+        Payload::Pose(pose) => {
+            let message = PoseInFrame {
+                timestamp: Some(foxglove_time(timestamp)),
+                frame_id: frame_id.to_owned(),
+                pose: Some(FoxglovePose {
+                    position: Some(Vector3 {
+                        x: pose.position.x,
+                        y: pose.position.y,
+                        z: pose.position.z,
+                    }),
+                    orientation: Some(Quaternion {
+                        x: pose.orientation.x,
+                        y: pose.orientation.y,
+                        z: pose.orientation.z,
+                        w: pose.orientation.w,
+                    }),
+                }),
+            };
+            return protobuf(&|buf| message.encode(buf).map_err(|e| e.to_string()), out);
+        }
+        Payload::F64(v) => json!({"value": v}),
+        Payload::I64(v) => json!({"value": v}),
+        Payload::Bool(v) => json!({"value": v}),
+        Payload::Vector(v) => json!({"values": &v[..]}),
+        Payload::Matrix(m) => json!({"rows": m.rows, "cols": m.cols, "values": m.values}),
+        Payload::Text(t) => json!({"text": &t[..]}),
+        Payload::Bytes(b) => json!({"base64": base64(b)}),
+        Payload::Imu(imu) => json!({
+            "angular_velocity": {"x": imu.angular_velocity.x, "y": imu.angular_velocity.y, "z": imu.angular_velocity.z},
+            "linear_acceleration": {"x": imu.linear_acceleration.x, "y": imu.linear_acceleration.y, "z": imu.linear_acceleration.z},
+            "orientation": imu.orientation.map(|q| json!({"x": q.x, "y": q.y, "z": q.z, "w": q.w})),
+        }),
+        Payload::CanFrame(frame) => {
+            json!({"id": frame.id, "extended": frame.extended, "fd": frame.fd, "data": frame.data()})
+        }
+        Payload::Custom(custom) => {
+            json!({"type_name": &custom.type_name[..], "base64": base64(&custom.data)})
+        }
+    };
+    serde_json::to_writer(out, &json_value).map_err(|e| e.to_string())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::base64;
+
+    #[test]
+    fn base64_matches_the_standard_alphabet_and_padding() {
+        assert_eq!(base64(b""), "");
+        assert_eq!(base64(b"f"), "Zg==");
+        assert_eq!(base64(b"fo"), "Zm8=");
+        assert_eq!(base64(b"foo"), "Zm9v");
+        assert_eq!(base64(b"foobar"), "Zm9vYmFy");
+    }
+}

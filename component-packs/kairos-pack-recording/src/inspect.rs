@@ -1,0 +1,226 @@
+//! Reading a recording back for `kairos inspect`: channels, types, counts, rates, duration, metadata, and
+//! where a damaged file stops being readable.
+
+use std::collections::BTreeMap;
+use std::path::Path;
+
+use mcap::read::{MessageStream, Options, Summary};
+use serde::Serialize;
+
+/// One channel of a recording.
+#[derive(Debug, Clone, Serialize)]
+pub struct ChannelReport {
+    /// The topic (the recorded output, `camera.image`).
+    pub topic: String,
+    /// The schema's name (`foxglove.RawImage`, `kairos.F64`).
+    pub schema: String,
+    /// The message encoding.
+    pub encoding: String,
+    /// The Kairos data type, when the recorder wrote it.
+    pub kairos_type: Option<String>,
+    /// Messages on the channel.
+    pub messages: u64,
+    /// Messages per second between the first and the last.
+    pub rate_hz: f64,
+}
+
+/// What a recording holds.
+#[derive(Debug, Clone, Serialize)]
+pub struct Report {
+    /// The file.
+    pub path: String,
+    /// Its size.
+    pub size_bytes: u64,
+    /// Whether it ends properly with a summary (false after a crash: `kairos recover` rewrites it).
+    pub complete: bool,
+    /// All messages.
+    pub messages: u64,
+    /// First publish time (the samples' timestamps), ns since the UNIX epoch.
+    pub start_ns: u64,
+    /// Last publish time.
+    pub end_ns: u64,
+    /// `end − start`, in seconds.
+    pub duration_s: f64,
+    /// Per channel, by topic.
+    pub channels: Vec<ChannelReport>,
+    /// Metadata records, by name.
+    pub metadata: BTreeMap<String, BTreeMap<String, String>>,
+    /// Where reading stopped on a damaged file, and why.
+    pub damage: Option<String>,
+}
+
+/// Why a file could not be inspected at all.
+#[derive(Debug, thiserror::Error)]
+pub enum InspectError {
+    /// It could not be read.
+    #[error("cannot read {path}: {source}")]
+    Io {
+        /// The file.
+        path: String,
+        /// Why.
+        source: std::io::Error,
+    },
+    /// It is not MCAP.
+    #[error("{path} is not an MCAP recording: {reason}")]
+    NotMcap {
+        /// The file.
+        path: String,
+        /// Why.
+        reason: String,
+    },
+}
+
+#[derive(Default)]
+struct Tally {
+    schema: String,
+    encoding: String,
+    kairos_type: Option<String>,
+    messages: u64,
+    first: u64,
+    last: u64,
+}
+
+/// Reads `path`; a damaged file is read as far as it is intact and the damage reported.
+pub fn inspect(path: &Path) -> Result<Report, InspectError> {
+    let shown = path.display().to_string();
+    let bytes = std::fs::read(path).map_err(|source| InspectError::Io {
+        path: shown.clone(),
+        source,
+    })?;
+    if bytes.get(..8) != Some(mcap::MAGIC) {
+        return Err(InspectError::NotMcap {
+            path: shown,
+            reason: "it does not start with the MCAP magic bytes".to_owned(),
+        });
+    }
+    let summary = Summary::read(&bytes).ok().flatten();
+    let complete = summary.is_some();
+    let mut metadata = BTreeMap::new();
+    if let Some(summary) = &summary {
+        for index in &summary.metadata_indexes {
+            if let Ok(record) = mcap::read::metadata(&bytes, index) {
+                metadata.insert(record.name, record.metadata);
+            }
+        }
+    }
+    // Count by reading every message: it works the same on complete and damaged files, and checks CRCs.
+    let mut tallies: BTreeMap<String, Tally> = BTreeMap::new();
+    let mut damage = None;
+    let options = Options::IgnoreEndMagic | Options::ValidateChunkCrcs;
+    match MessageStream::new_with_options(&bytes, options) {
+        Err(error) => damage = Some(error.to_string()),
+        Ok(stream) => {
+            for message in stream {
+                match message {
+                    Ok(message) => {
+                        let channel = &message.channel;
+                        let tally = tallies.entry(channel.topic.clone()).or_insert_with(|| Tally {
+                            schema: channel
+                                .schema
+                                .as_ref()
+                                .map_or_else(String::new, |s| s.name.clone()),
+                            encoding: channel.message_encoding.clone(),
+                            kairos_type: channel.metadata.get("kairos.type").cloned(),
+                            first: message.publish_time,
+                            ..Tally::default()
+                        });
+                        tally.messages += 1;
+                        tally.first = tally.first.min(message.publish_time);
+                        tally.last = tally.last.max(message.publish_time);
+                    }
+                    Err(error) => {
+                        damage = Some(format!("{error} (messages before this point are intact)"));
+                        break;
+                    }
+                }
+            }
+        }
+    }
+    if !complete && damage.is_none() {
+        damage = Some(
+            "the file has no summary: it was not closed (a crash?); every closed chunk is intact".to_owned(),
+        );
+    }
+    let messages = tallies.values().map(|t| t.messages).sum();
+    let start_ns = tallies.values().map(|t| t.first).min().unwrap_or(0);
+    let end_ns = tallies.values().map(|t| t.last).max().unwrap_or(0);
+    let channels = tallies
+        .into_iter()
+        .map(|(topic, t)| {
+            let span = (t.last.saturating_sub(t.first)) as f64 * 1e-9;
+            ChannelReport {
+                topic,
+                schema: t.schema,
+                encoding: t.encoding,
+                kairos_type: t.kairos_type,
+                messages: t.messages,
+                rate_hz: if span > 0.0 {
+                    (t.messages.saturating_sub(1)) as f64 / span
+                } else {
+                    0.0
+                },
+            }
+        })
+        .collect();
+    Ok(Report {
+        path: shown,
+        size_bytes: bytes.len() as u64,
+        complete,
+        messages,
+        start_ns,
+        end_ns,
+        duration_s: end_ns.saturating_sub(start_ns) as f64 * 1e-9,
+        channels,
+        metadata,
+        damage,
+    })
+}
+
+impl Report {
+    /// The report as text for people.
+    pub fn text(&self) -> String {
+        use std::fmt::Write as _;
+        let mut out = String::new();
+        let _ = writeln!(
+            out,
+            "{}: {} bytes, {}",
+            self.path,
+            self.size_bytes,
+            if self.complete { "complete" } else { "NOT complete" }
+        );
+        let _ = writeln!(out, "{} messages over {:.3} s", self.messages, self.duration_s);
+        let width = self
+            .channels
+            .iter()
+            .map(|c| c.topic.len())
+            .max()
+            .unwrap_or(5)
+            .max(5);
+        let _ = writeln!(
+            out,
+            "\n{:<width$}  {:<24} {:<14} {:>9} {:>9}",
+            "topic", "schema", "type", "messages", "rate/s"
+        );
+        for channel in &self.channels {
+            let _ = writeln!(
+                out,
+                "{:<width$}  {:<24} {:<14} {:>9} {:>9.2}",
+                channel.topic,
+                channel.schema,
+                channel.kairos_type.as_deref().unwrap_or("-"),
+                channel.messages,
+                channel.rate_hz
+            );
+        }
+        for (name, entries) in &self.metadata {
+            let _ = writeln!(out, "\nmetadata {name}:");
+            for (key, value) in entries {
+                let _ = writeln!(out, "  {key}: {value}");
+            }
+        }
+        if let Some(damage) = &self.damage {
+            let _ = writeln!(out, "\ndamage: {damage}");
+        }
+        out
+    }
+}

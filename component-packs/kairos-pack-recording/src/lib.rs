@@ -1,0 +1,21 @@
+//! The recording pack: `recording.recorder` writes time-stamped samples to MCAP files that open in
+//! Foxglove, Lichtblick and any MCAP reader; [`inspect`] reads them back for `kairos inspect`.
+//!
+//! Every message keeps both times: MCAP's publish time is the sample's timestamp (when the data
+//! originated) and its log time the sample's time of issue (when it was last written). Images, point
+//! clouds, GNSS fixes and poses use the Foxglove well-known schemas (protobuf); every other type a JSON
+//! schema of ours (`kairos.F64`, `kairos.Imu`, ...), so each channel decodes from the file alone.
+
+pub mod encode;
+pub mod inspect;
+pub mod recorder;
+
+pub use inspect::{InspectError, Report, inspect};
+use kairos_sdk::Registry;
+
+/// Registers the pack "recording".
+pub fn register(registry: &mut Registry) {
+    registry
+        .pack("recording", env!("CARGO_PKG_VERSION"), "built-in")
+        .component::<recorder::Recorder>(recorder::Recorder::info());
+}

@@ -1,0 +1,402 @@
+//! `recording.recorder`: writes every sample of its inputs to MCAP, one channel per input.
+
+use std::collections::BTreeMap;
+use std::fs::File;
+use std::io::BufWriter;
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+use kairos_sdk::descriptor::{Descriptor, Property};
+use kairos_sdk::{
+    Component, ComponentError, ComponentInfo, ComponentResult, Context, ReaderPolicy, Sample, TypeFilter,
+    Value,
+};
+use mcap::records::{MessageHeader, Metadata};
+
+use crate::encode::{encode, schema_for};
+
+/// How many inputs a recorder offers.
+pub const RECORDER_INPUTS: usize = 8;
+const INPUT_NAMES: [&str; RECORDER_INPUTS] = ["in1", "in2", "in3", "in4", "in5", "in6", "in7", "in8"];
+const SPACE_CHECK_PERIOD: Duration = Duration::from_secs(1);
+
+struct OpenFile {
+    writer: mcap::Writer<BufWriter<File>>,
+    path: PathBuf,
+    opened: Instant,
+    last_chunk: Instant,
+    bytes: u64,
+    channels: BTreeMap<usize, (u16, u32)>,
+    schemas: BTreeMap<String, u16>,
+}
+
+/// The recorder component. See [`Recorder::info`].
+#[derive(Default)]
+pub struct Recorder {
+    file: Option<OpenFile>,
+    recording: bool,
+    part: u32,
+    connected: Vec<usize>,
+    scratch: Vec<u8>,
+    last_space_check: Option<Instant>,
+    split_requested: bool,
+}
+
+impl std::fmt::Debug for Recorder {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Recorder")
+            .field("recording", &self.recording)
+            .field("part", &self.part)
+            .finish_non_exhaustive()
+    }
+}
+
+fn failed(path: &Path, what: &str, error: impl std::fmt::Display) -> ComponentError {
+    ComponentError::failed(format_args!("{what} {}: {error}", path.display()))
+}
+
+impl Recorder {
+    /// The descriptor.
+    pub fn info() -> ComponentInfo {
+        let mut descriptor = Descriptor::new(
+            "recording.recorder",
+            "recording",
+            "Records its inputs to an MCAP file: one channel per input, both times kept, Foxglove schemas where they exist",
+        );
+        for name in INPUT_NAMES {
+            descriptor =
+                descriptor.input_with_policy(name, TypeFilter::Any, ReaderPolicy::Fifo, "A stream to record");
+        }
+        descriptor
+            .property(
+                Property::path("path", "recording.mcap")
+                    .doc("The file; later parts of a split are named <stem>_001.mcap, ..."),
+            )
+            .property(
+                Property::choice("compression", &["zstd", "lz4", "none"], "zstd").doc("Chunk compression"),
+            )
+            .property(
+                Property::i64("chunk_size_kb", 1024)
+                    .int_range(16, 1_048_576)
+                    .doc("A chunk closes at this size..."),
+            )
+            .property(
+                Property::f64("chunk_period_s", 1.0)
+                    .range(0.05, 60.0)
+                    .doc("...or this long after it opened: a crash loses at most the open chunk"),
+            )
+            .property(
+                Property::f64("split_size_mb", 0.0)
+                    .range(0.0, 1e9)
+                    .live()
+                    .doc("Start a new file past this size (0: never)"),
+            )
+            .property(
+                Property::f64("split_duration_s", 0.0)
+                    .range(0.0, 1e9)
+                    .live()
+                    .doc("Start a new file after this long (0: never)"),
+            )
+            .property(
+                Property::f64("min_free_mb", 256.0)
+                    .range(0.0, 1e9)
+                    .live()
+                    .doc("Stop recording cleanly when the disk has less free space than this"),
+            )
+            .property(
+                Property::bool("record_at_start", true)
+                    .doc("Record from the start; otherwise wait for the start action"),
+            )
+            .action("start", "Start recording (a new file if one was closed)")
+            .action("stop", "Stop recording and close the file")
+            .action(
+                "split",
+                "Close the current file and continue in a new one, losing no sample",
+            )
+            .build()
+    }
+
+    fn part_path(base: &Path, part: u32) -> PathBuf {
+        if part == 0 {
+            return base.to_owned();
+        }
+        let stem = base
+            .file_stem()
+            .map_or_else(|| "recording".into(), |s| s.to_string_lossy().into_owned());
+        let extension = base
+            .extension()
+            .map_or_else(|| "mcap".into(), |e| e.to_string_lossy().into_owned());
+        base.with_file_name(format!("{stem}_{part:03}.{extension}"))
+    }
+
+    fn open(&mut self, ctx: &Context) -> ComponentResult {
+        let base = PathBuf::from(ctx.text_property("path")?);
+        let path = Self::part_path(&base, self.part);
+        self.part += 1;
+        if let Some(parent) = path.parent().filter(|p| !p.as_os_str().is_empty()) {
+            std::fs::create_dir_all(parent).map_err(|e| failed(parent, "cannot create the folder", e))?;
+        }
+        let compression = match ctx.text_property("compression")?.as_str() {
+            "zstd" => Some(mcap::Compression::Zstd),
+            "lz4" => Some(mcap::Compression::Lz4),
+            _ => None,
+        };
+        let chunk_size = u64::try_from(ctx.i64_property("chunk_size_kb")?).unwrap_or(1024) * 1024;
+        let file = File::create(&path).map_err(|e| failed(&path, "cannot create", e))?;
+        let mut writer = mcap::WriteOptions::new()
+            .compression(compression)
+            .chunk_size(Some(chunk_size))
+            .profile("kairos")
+            .library(concat!("kairos-pack-recording ", env!("CARGO_PKG_VERSION")))
+            .create(BufWriter::new(file))
+            .map_err(|e| failed(&path, "cannot start", e))?;
+        let about = BTreeMap::from([
+            ("recorder".to_owned(), ctx.id().to_owned()),
+            ("clock".to_owned(), ctx.clock().describe()),
+            ("opened_at_ns".to_owned(), ctx.now().as_nanos().to_string()),
+            (
+                "publish_time".to_owned(),
+                "the sample's timestamp (when the data originated)".to_owned(),
+            ),
+            (
+                "log_time".to_owned(),
+                "the sample's time of issue (when it was last written)".to_owned(),
+            ),
+            ("sdk_version".to_owned(), kairos_sdk::SDK_VERSION.to_owned()),
+        ]);
+        writer
+            .write_metadata(&Metadata {
+                name: "kairos.recording".to_owned(),
+                metadata: about,
+            })
+            .map_err(|e| failed(&path, "cannot write to", e))?;
+        tracing::info!("recording to {}", path.display());
+        let now = Instant::now();
+        self.file = Some(OpenFile {
+            writer,
+            path,
+            opened: now,
+            last_chunk: now,
+            bytes: 0,
+            channels: BTreeMap::new(),
+            schemas: BTreeMap::new(),
+        });
+        Ok(())
+    }
+
+    /// Writes the drop counts of every track and closes the file; it is complete and indexed.
+    fn close(&mut self, ctx: &Context) -> ComponentResult {
+        let Some(mut file) = self.file.take() else {
+            return Ok(());
+        };
+        let mut drops = BTreeMap::new();
+        for index in &self.connected {
+            let Some(reader) = ctx.inputs().get(*index).and_then(kairos_sdk::InputPort::reader) else {
+                continue;
+            };
+            let counters = reader.counters();
+            let name = INPUT_NAMES.get(*index).copied().unwrap_or("in");
+            drops.insert(
+                format!("{name} {}", reader.output()),
+                format!(
+                    "written={} recorded={} overwritten={} skipped={} queued={}",
+                    counters.written, counters.read, counters.overwritten, counters.skipped, counters.queued
+                ),
+            );
+        }
+        let result = file
+            .writer
+            .write_metadata(&Metadata {
+                name: "kairos.drops".to_owned(),
+                metadata: drops,
+            })
+            .and_then(|()| file.writer.finish().map(|_| ()));
+        let inner = file.writer.into_inner();
+        let flushed = inner
+            .into_inner()
+            .map_err(std::io::IntoInnerError::into_error)
+            .and_then(|f| f.sync_all());
+        result.map_err(|e| failed(&file.path, "cannot finish", e))?;
+        flushed.map_err(|e| failed(&file.path, "cannot flush", e))?;
+        tracing::info!(
+            "closed {} ({} bytes of messages)",
+            file.path.display(),
+            file.bytes
+        );
+        Ok(())
+    }
+
+    fn record(&mut self, ctx: &Context, input: usize, sample: &Sample) -> ComponentResult {
+        if self.file.is_none() {
+            self.open(ctx)?;
+        }
+        let Some(file) = self.file.as_mut() else {
+            return Ok(());
+        };
+        let path = file.path.clone();
+        let (channel, sequence) = if let Some(entry) = file.channels.get_mut(&input) {
+            entry.1 = entry.1.wrapping_add(1);
+            *entry
+        } else {
+            let spec = schema_for(&sample.payload);
+            let schema = if let Some(id) = file.schemas.get(&spec.name) {
+                *id
+            } else {
+                let id = file
+                    .writer
+                    .add_schema(&spec.name, &spec.encoding, &spec.data)
+                    .map_err(|e| failed(&path, "cannot write to", e))?;
+                file.schemas.insert(spec.name.clone(), id);
+                id
+            };
+            let reader = ctx.inputs().get(input).and_then(kairos_sdk::InputPort::reader);
+            let topic = reader.map_or_else(
+                || INPUT_NAMES.get(input).copied().unwrap_or("in").to_owned(),
+                |r| r.output().to_owned(),
+            );
+            let metadata = BTreeMap::from([
+                (
+                    "input".to_owned(),
+                    INPUT_NAMES.get(input).copied().unwrap_or("in").to_owned(),
+                ),
+                ("kairos.type".to_owned(), sample.payload.data_type().to_string()),
+            ]);
+            let id = file
+                .writer
+                .add_channel(schema, &topic, &spec.message_encoding, &metadata)
+                .map_err(|e| failed(&path, "cannot write to", e))?;
+            file.channels.insert(input, (id, 0));
+            (id, 0)
+        };
+        let frame_id = ctx
+            .inputs()
+            .get(input)
+            .and_then(kairos_sdk::InputPort::reader)
+            .map_or("", |r| r.output());
+        encode(&sample.payload, sample.timestamp, frame_id, &mut self.scratch)
+            .map_err(|e| failed(&path, "cannot encode a sample for", e))?;
+        let header = MessageHeader {
+            channel_id: channel,
+            sequence,
+            log_time: u64::try_from(sample.time_of_issue.as_nanos()).unwrap_or(0),
+            publish_time: u64::try_from(sample.timestamp.as_nanos()).unwrap_or(0),
+        };
+        file.writer
+            .write_to_known_channel(&header, &self.scratch)
+            .map_err(|e| failed(&path, "cannot write to", e))?;
+        file.bytes += self.scratch.len() as u64;
+        let period = Duration::from_secs_f64(ctx.f64_property("chunk_period_s")?);
+        if file.last_chunk.elapsed() >= period {
+            file.last_chunk = Instant::now();
+            file.writer
+                .flush()
+                .map_err(|e| failed(&path, "cannot write to", e))?;
+        }
+        Ok(())
+    }
+
+    fn split_due(&self, ctx: &Context) -> Result<bool, ComponentError> {
+        let Some(file) = &self.file else { return Ok(false) };
+        let size_mb = ctx.f64_property("split_size_mb")?;
+        let duration_s = ctx.f64_property("split_duration_s")?;
+        Ok(self.split_requested
+            || (size_mb > 0.0 && file.bytes as f64 >= size_mb * 1e6)
+            || (duration_s > 0.0 && file.opened.elapsed().as_secs_f64() >= duration_s))
+    }
+
+    /// Stops cleanly, before the disk is full: the file is closed and valid, and the error names it.
+    fn check_free_space(&mut self, ctx: &Context) -> ComponentResult {
+        if self
+            .last_space_check
+            .is_some_and(|t| t.elapsed() < SPACE_CHECK_PERIOD)
+        {
+            return Ok(());
+        }
+        self.last_space_check = Some(Instant::now());
+        let Some(file) = &self.file else { return Ok(()) };
+        let path = file.path.clone();
+        let folder = path
+            .parent()
+            .filter(|p| !p.as_os_str().is_empty())
+            .unwrap_or(Path::new("."));
+        let Ok(stats) = nix::sys::statvfs::statvfs(folder) else {
+            return Ok(());
+        };
+        let free_mb = (stats.blocks_available() as f64) * (stats.fragment_size() as f64) / 1e6;
+        let minimum = ctx.f64_property("min_free_mb")?;
+        if free_mb < minimum {
+            self.close(ctx)?;
+            self.recording = false;
+            return Err(ComponentError::failed(format_args!(
+                "stopped recording {}: {free_mb:.0} MB free on its disk, below min_free_mb = {minimum}; the file is closed and valid",
+                path.display()
+            )));
+        }
+        Ok(())
+    }
+}
+
+impl Component for Recorder {
+    fn birth(&mut self, ctx: &mut Context) -> ComponentResult {
+        self.connected = (0..RECORDER_INPUTS).filter(|i| ctx.is_connected(*i)).collect();
+        self.recording = ctx.bool_property("record_at_start")?;
+        if self.recording {
+            self.open(ctx)?;
+        }
+        Ok(())
+    }
+
+    fn core(&mut self, ctx: &mut Context) -> ComponentResult {
+        if self.connected.is_empty() {
+            return Err(ComponentError::Stopped);
+        }
+        let inputs = self.connected.clone();
+        let (position, sample) = ctx.read_any(&inputs)?;
+        if !self.recording {
+            return Ok(());
+        }
+        let input = inputs.get(position).copied().unwrap_or(0);
+        self.record(ctx, input, &sample)?;
+        if self.split_due(ctx)? {
+            self.split_requested = false;
+            self.close(ctx)?;
+            self.open(ctx)?;
+        }
+        self.check_free_space(ctx)
+    }
+
+    fn death(&mut self, ctx: &mut Context) -> ComponentResult {
+        self.close(ctx)
+    }
+
+    fn property_changed(&mut self, _name: &str, _value: &Value, _ctx: &mut Context) -> ComponentResult {
+        Ok(())
+    }
+
+    fn action(&mut self, name: &str, ctx: &mut Context) -> ComponentResult {
+        match name {
+            "start" => {
+                if !self.recording {
+                    self.recording = true;
+                    if self.file.is_none() {
+                        self.open(ctx)?;
+                    }
+                }
+                Ok(())
+            }
+            "stop" => {
+                self.recording = false;
+                self.close(ctx)
+            }
+            "split" => {
+                if self.file.is_some() {
+                    self.split_requested = true;
+                }
+                Ok(())
+            }
+            other => Err(ComponentError::failed(format_args!(
+                "no action '{other}' (start, stop, split)"
+            ))),
+        }
+    }
+}

@@ -1,0 +1,194 @@
+//! Recording to MCAP through the real binary: what goes in comes out (our reader and an independent one),
+//! and a recorder killed mid-run leaves every closed chunk readable.
+#![allow(
+    clippy::unwrap_used,
+    clippy::expect_used,
+    reason = "a failed unwrap is a failed test"
+)]
+
+mod common;
+
+use std::path::Path;
+use std::process::{Command, Stdio};
+use std::time::Duration;
+
+use common::{example, kairos, repo_root, text};
+
+fn inspect(dir: &Path, file: &Path) -> (Option<i32>, serde_json::Value) {
+    let output = kairos(dir, &["inspect", "--json", file.to_str().unwrap()]);
+    let (stdout, stderr) = text(&output);
+    let json = serde_json::from_str(&stdout).unwrap_or_else(|e| panic!("{e}: {stdout}{stderr}"));
+    (output.status.code(), json)
+}
+
+fn channel<'a>(report: &'a serde_json::Value, topic: &str) -> &'a serde_json::Value {
+    report["channels"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|c| c["topic"] == topic)
+        .unwrap_or_else(|| panic!("no {topic}: {report}"))
+}
+
+#[test]
+fn camera_imu_and_gnss_are_recorded_with_their_schemas_and_read_back() {
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("drive.mcap");
+    let set = format!("recorder.path={}", file.display());
+    let output = kairos(
+        dir.path(),
+        &[
+            "run",
+            example("record").to_str().unwrap(),
+            "--for",
+            "2s",
+            "--set",
+            &set,
+        ],
+    );
+    let (_, stderr) = text(&output);
+    assert!(output.status.success(), "{stderr}");
+
+    let (code, report) = inspect(dir.path(), &file);
+    assert_eq!(code, Some(0), "{report}");
+    assert_eq!(report["complete"], true);
+    for (topic, schema, kind, rate) in [
+        ("camera.image", "foxglove.RawImage", "image", 30.0),
+        ("imu.imu", "kairos.Imu", "imu", 100.0),
+        ("imu.pose", "foxglove.PoseInFrame", "pose", 100.0),
+        ("gnss.fix", "foxglove.LocationFix", "gnss_fix", 10.0),
+    ] {
+        let c = channel(&report, topic);
+        assert_eq!(
+            (c["schema"].as_str(), c["kairos_type"].as_str()),
+            (Some(schema), Some(kind)),
+            "{c}"
+        );
+        let messages = c["messages"].as_f64().unwrap();
+        assert!(
+            messages >= rate * 1.5 && messages <= rate * 2.2,
+            "{topic}: {messages} messages in 2 s"
+        );
+    }
+    // Drops are recorded per track, and none happened.
+    let drops = &report["metadata"]["kairos.drops"];
+    let camera = drops["in1 camera.image"].as_str().unwrap();
+    assert!(
+        camera.contains("overwritten=0") && camera.contains("skipped=0"),
+        "{camera}"
+    );
+    assert!(
+        report["metadata"]["kairos.recording"]["clock"]
+            .as_str()
+            .unwrap()
+            .starts_with("real time")
+    );
+
+    // An independent reader (Python `mcap`, CRCs checked, Foxglove schemas decoded with protobuf) agrees.
+    let checked = Command::new("python3")
+        .arg(repo_root().join("tests/recording/check_mcap.py"))
+        .arg(&file)
+        .output()
+        .expect("python3");
+    let (stdout, stderr) = text(&checked);
+    assert!(
+        checked.status.success(),
+        "install the Python packages mcap and mcap-protobuf-support: {stderr}"
+    );
+    let topics: serde_json::Value = serde_json::from_str(&stdout).unwrap();
+    for topic in ["camera.image", "imu.imu", "imu.pose", "gnss.fix"] {
+        assert_eq!(
+            topics[topic]["count"],
+            channel(&report, topic)["messages"],
+            "{topic}"
+        );
+    }
+    assert_eq!(topics["camera.image"]["first"]["width"], 320);
+    assert_eq!(topics["camera.image"]["first"]["encoding"], "rgb8");
+    assert!((topics["gnss.fix"]["first"]["latitude"].as_f64().unwrap() - 48.7167).abs() < 0.01);
+}
+
+#[test]
+fn a_recorder_killed_mid_run_leaves_every_closed_chunk_readable() {
+    let dir = tempfile::tempdir().unwrap();
+    for attempt in 0..3 {
+        let file = dir.path().join(format!("killed{attempt}.mcap"));
+        let mut child = Command::new(env!("CARGO_BIN_EXE_kairos"))
+            .args(["run", example("record").to_str().unwrap()])
+            .args([
+                "--set",
+                &format!("recorder.path={}", file.display()),
+                "--set",
+                "recorder.chunk_period_s=0.2",
+            ])
+            .current_dir(dir.path())
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap();
+        std::thread::sleep(Duration::from_millis(900 + 150 * attempt));
+        child.kill().unwrap();
+        child.wait().unwrap();
+
+        let (code, report) = inspect(dir.path(), &file);
+        assert_eq!(code, Some(3), "a damaged file is reported: {report}");
+        assert_eq!(report["complete"], false);
+        assert!(report["damage"].as_str().unwrap().contains("intact"), "{report}");
+        // About 0.7 s of closed chunks at least: every track has data.
+        for topic in ["camera.image", "imu.imu", "gnss.fix"] {
+            assert!(
+                channel(&report, topic)["messages"].as_u64().unwrap() > 0,
+                "{topic} empty after a crash: {report}"
+            );
+        }
+    }
+}
+
+#[test]
+fn a_truncated_or_foreign_file_is_reported_not_a_crash() {
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("whole.mcap");
+    let set = format!("recorder.path={}", file.display());
+    let output = kairos(
+        dir.path(),
+        &[
+            "run",
+            example("record").to_str().unwrap(),
+            "--for",
+            "1500ms",
+            "--set",
+            &set,
+            "--set",
+            "recorder.chunk_period_s=0.2",
+        ],
+    );
+    assert!(output.status.success());
+    let whole = std::fs::read(&file).unwrap();
+    let (_, complete) = inspect(dir.path(), &file);
+    let total = complete["messages"].as_u64().unwrap();
+
+    let cut = dir.path().join("cut.mcap");
+    std::fs::write(&cut, &whole[..whole.len() * 2 / 3]).unwrap();
+    let (code, report) = inspect(dir.path(), &cut);
+    assert_eq!(code, Some(3));
+    let kept = report["messages"].as_u64().unwrap();
+    assert!(kept > 0 && kept < total, "{kept} of {total}");
+
+    let mut flipped = whole.clone();
+    let middle = flipped.len() / 2;
+    for byte in &mut flipped[middle..middle + 64] {
+        *byte ^= 0x5a;
+    }
+    let damaged = dir.path().join("flipped.mcap");
+    std::fs::write(&damaged, &flipped).unwrap();
+    let (code, report) = inspect(dir.path(), &damaged);
+    assert_eq!(code, Some(3), "{report}");
+    assert!(report["messages"].as_u64().unwrap() < total);
+
+    let foreign = dir.path().join("notes.mcap");
+    std::fs::write(&foreign, "not a recording").unwrap();
+    let output = kairos(dir.path(), &["inspect", foreign.to_str().unwrap()]);
+    let (_, stderr) = text(&output);
+    assert_eq!(output.status.code(), Some(1));
+    assert!(stderr.contains("not an MCAP recording"), "{stderr}");
+}
