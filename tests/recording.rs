@@ -192,3 +192,130 @@ fn a_truncated_or_foreign_file_is_reported_not_a_crash() {
     assert_eq!(output.status.code(), Some(1));
     assert!(stderr.contains("not an MCAP recording"), "{stderr}");
 }
+
+#[test]
+fn recover_turns_a_crashed_recording_into_a_complete_one() {
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("crashed.mcap");
+    let mut child = Command::new(env!("CARGO_BIN_EXE_kairos"))
+        .args(["run", example("record").to_str().unwrap()])
+        .args([
+            "--set",
+            &format!("recorder.path={}", file.display()),
+            "--set",
+            "recorder.chunk_period_s=0.2",
+        ])
+        .current_dir(dir.path())
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    std::thread::sleep(Duration::from_millis(1000));
+    child.kill().unwrap();
+    child.wait().unwrap();
+    let (_, damaged) = inspect(dir.path(), &file);
+
+    let fixed = dir.path().join("fixed.mcap");
+    let output = kairos(
+        dir.path(),
+        &["recover", file.to_str().unwrap(), fixed.to_str().unwrap()],
+    );
+    let (stdout, stderr) = text(&output);
+    assert!(output.status.success(), "{stderr}");
+    assert!(stdout.contains("recovered"), "{stdout}");
+    let (code, report) = inspect(dir.path(), &fixed);
+    assert_eq!(code, Some(0), "{report}");
+    assert_eq!(report["complete"], true);
+    assert_eq!(
+        report["messages"], damaged["messages"],
+        "every intact message is kept"
+    );
+    assert!(
+        report["metadata"]["kairos.recording"]["clock"].is_string(),
+        "metadata is kept: {report}"
+    );
+}
+
+#[test]
+fn splitting_by_duration_loses_and_repeats_nothing() {
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("split.mcap");
+    let output = kairos(
+        dir.path(),
+        &[
+            "run",
+            example("record").to_str().unwrap(),
+            "--for",
+            "1800ms",
+            "--set",
+            &format!("recorder.path={}", file.display()),
+            "--set",
+            "recorder.split_duration_s=0.5",
+        ],
+    );
+    assert!(output.status.success());
+    let mut parts: Vec<_> = std::fs::read_dir(dir.path())
+        .unwrap()
+        .filter_map(Result::ok)
+        .map(|e| e.path())
+        .filter(|p| p.extension().is_some_and(|e| e == "mcap"))
+        .collect();
+    parts.sort();
+    assert!(parts.len() >= 3, "{parts:?}");
+    let mut recorded = 0;
+    let mut last_report = serde_json::Value::Null;
+    for part in &parts {
+        let (code, report) = inspect(dir.path(), part);
+        assert_eq!(code, Some(0), "{report}");
+        recorded += channel(&report, "imu.imu")["messages"].as_u64().unwrap();
+        if part.file_name().is_some_and(|n| n == "split.mcap") {
+            continue;
+        }
+        last_report = report;
+    }
+    // The drop counters in the last part are cumulative over the run: every sample read was recorded once.
+    let drops = last_report["metadata"]["kairos.drops"]["in2 imu.imu"]
+        .as_str()
+        .unwrap()
+        .to_owned();
+    let read: u64 = drops
+        .split_whitespace()
+        .find_map(|f| f.strip_prefix("recorded="))
+        .unwrap()
+        .parse()
+        .unwrap();
+    assert_eq!(recorded, read, "{drops}");
+}
+
+#[test]
+fn the_free_space_guard_stops_the_recorder_alone_and_leaves_a_valid_file() {
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("guarded.mcap");
+    let output = kairos(
+        dir.path(),
+        &[
+            "run",
+            example("record").to_str().unwrap(),
+            "--for",
+            "1500ms",
+            "--stats",
+            "--set",
+            &format!("recorder.path={}", file.display()),
+            "--set",
+            "recorder.min_free_mb=1000000000",
+        ],
+    );
+    let (_, stderr) = text(&output);
+    assert_eq!(output.status.code(), Some(2), "{stderr}");
+    assert!(
+        stderr.contains("stopped recording") && stderr.contains("guarded.mcap"),
+        "{stderr}"
+    );
+    let camera = stderr.lines().rev().find(|l| l.starts_with("camera ")).unwrap();
+    assert!(
+        camera.contains("stopped"),
+        "the camera kept running until the end: {camera}"
+    );
+    let (code, report) = inspect(dir.path(), &file);
+    assert_eq!(code, Some(0), "the file is closed and valid: {report}");
+}

@@ -9,9 +9,11 @@
 pub mod encode;
 pub mod inspect;
 pub mod recorder;
+pub mod recover;
 
 pub use inspect::{InspectError, Report, inspect};
 use kairos_sdk::Registry;
+pub use recover::{Recovered, recover};
 
 /// Registers the pack "recording".
 pub fn register(registry: &mut Registry) {

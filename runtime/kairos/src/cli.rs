@@ -61,6 +61,13 @@ pub enum Command {
         #[arg(long)]
         json: bool,
     },
+    /// Rewrite an unfinished or damaged recording into a complete one, keeping everything intact.
+    Recover {
+        /// The damaged recording.
+        input: PathBuf,
+        /// Where to write the complete one.
+        output: PathBuf,
+    },
     /// List the packs: built-in and loaded from the pack path, with the libraries refused and why.
     Packs {
         /// Print JSON instead of text.
@@ -98,7 +105,10 @@ pub fn execute(cli: Cli) -> anyhow::Result<ExitCode> {
     let diagrams: Vec<&std::path::Path> = match &cli.command {
         Command::Run { diagram, .. } => vec![diagram.as_path()],
         Command::Validate { diagrams } => diagrams.iter().map(PathBuf::as_path).collect(),
-        Command::Packs { .. } | Command::Components { .. } | Command::Inspect { .. } => Vec::new(),
+        Command::Packs { .. }
+        | Command::Components { .. }
+        | Command::Inspect { .. }
+        | Command::Recover { .. } => Vec::new(),
     };
     let (registry, scan) = crate::registry_with_packs(&cli.pack_path, &diagrams);
     if !matches!(cli.command, Command::Packs { .. }) {
@@ -152,6 +162,19 @@ pub fn execute(cli: Cli) -> anyhow::Result<ExitCode> {
             } else {
                 ExitCode::SUCCESS
             })
+        }
+        Command::Recover { input, output } => {
+            let recovered = kairos_pack_recording::recover(&input, &output)?;
+            println!(
+                "{}: {} messages and {} metadata records recovered{}",
+                output.display(),
+                recovered.messages,
+                recovered.metadata,
+                recovered
+                    .damage
+                    .map_or_else(String::new, |d| format!("; reading stopped at: {d}"))
+            );
+            Ok(ExitCode::SUCCESS)
         }
         Command::Packs { json } => {
             crate::packs::list(&registry, &scan, json)?;
