@@ -210,7 +210,7 @@ fn recover_turns_a_crashed_recording_into_a_complete_one() {
         .stderr(Stdio::null())
         .spawn()
         .unwrap();
-    std::thread::sleep(Duration::from_millis(1000));
+    std::thread::sleep(Duration::from_secs(1));
     child.kill().unwrap();
     child.wait().unwrap();
     let (_, damaged) = inspect(dir.path(), &file);
