@@ -229,6 +229,8 @@ pub struct Context {
     any_rotation: usize,
     /// Set in a component loaded from a shared library: ports live in the host, reached through the ABI.
     remote: Option<crate::abi::RemoteHost>,
+    /// The diagram this component runs in, as its file text, when the runtime provides it.
+    diagram_text: Option<Arc<str>>,
 }
 
 impl Context {
@@ -245,6 +247,7 @@ impl Context {
             samples_read_this_cycle: 0,
             any_rotation: 0,
             remote: None,
+            diagram_text: None,
         }
     }
 
@@ -303,6 +306,16 @@ impl Context {
     /// The component instance's id in the diagram.
     pub fn id(&self) -> &str {
         &self.id
+    }
+
+    /// The text of the diagram the component runs in (what a recorder stores with its data), if known.
+    pub fn diagram_text(&self) -> Option<&Arc<str>> {
+        self.diagram_text.as_ref()
+    }
+
+    /// Gives the component the text of its diagram (the runtime does this).
+    pub fn set_diagram_text(&mut self, text: Arc<str>) {
+        self.diagram_text = Some(text);
     }
 
     /// The current time on the runtime clock.

@@ -215,7 +215,12 @@ impl Report {
         for (name, entries) in &self.metadata {
             let _ = writeln!(out, "\nmetadata {name}:");
             for (key, value) in entries {
-                let _ = writeln!(out, "  {key}: {value}");
+                // Long values (the diagram's text) would drown the rest: `--json` has them whole.
+                if value.len() > 160 || value.contains('\n') {
+                    let _ = writeln!(out, "  {key}: ({} bytes; see --json)", value.len());
+                } else {
+                    let _ = writeln!(out, "  {key}: {value}");
+                }
             }
         }
         if let Some(damage) = &self.damage {

@@ -170,6 +170,14 @@ impl Recorder {
                 metadata: about,
             })
             .map_err(|e| failed(&path, "cannot write to", e))?;
+        if let Some(text) = ctx.diagram_text() {
+            writer
+                .write_metadata(&Metadata {
+                    name: "kairos.diagram".to_owned(),
+                    metadata: BTreeMap::from([("ron".to_owned(), text.to_string())]),
+                })
+                .map_err(|e| failed(&path, "cannot write to", e))?;
+        }
         tracing::info!("recording to {}", path.display());
         let now = Instant::now();
         self.file = Some(OpenFile {

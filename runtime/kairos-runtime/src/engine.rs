@@ -398,9 +398,10 @@ impl Engine {
                 .collect();
         }
 
+        let diagram_text: Arc<str> = Arc::from(diagram.to_ron());
         let mut slots = Vec::new();
         for component in pending {
-            let ctx = Context::new(ContextParts {
+            let mut ctx = Context::new(ContextParts {
                 id: component.id.clone(),
                 inputs: component.inputs,
                 outputs: component.outputs,
@@ -408,6 +409,7 @@ impl Engine {
                 clock: Arc::clone(&clock),
                 signal: Arc::clone(&component.signal),
             });
+            ctx.set_diagram_text(Arc::clone(&diagram_text));
             let monitor = Arc::new(Monitor::new());
             let driver = match component.reactive {
                 Some(hook) => {
