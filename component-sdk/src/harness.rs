@@ -42,6 +42,11 @@ use crate::sample::Sample;
 use crate::signal::RunSignal;
 use crate::time::{Clock, ManualClock, Timestamp};
 
+/// Room per scripted input.
+const INPUT_CAPACITY: usize = 1024;
+/// Room per output: what one `core` call may write before the harness collects it.
+const OUTPUT_CAPACITY: usize = 4096;
+
 /// What went wrong in a harness run.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum HarnessError {
@@ -237,12 +242,6 @@ impl Harness {
         if self.running.is_some() {
             return Ok(());
         }
-        let mut per_input = vec![0_usize; self.info.inputs.len()];
-        for (index, _) in &self.pending {
-            if let Some(count) = per_input.get_mut(*index) {
-                *count += 1;
-            }
-        }
         // The harness feeds and drains in the calling thread, so reads must never block: the component's
         // signal is a reactive one whose wake-up does nothing.
         let signal = Arc::new(RunSignal::reactive(|| {}));
@@ -250,7 +249,9 @@ impl Harness {
         let mut input_buffers = Vec::new();
         let mut inputs = Vec::new();
         for input in &self.info.inputs {
-            let buffer = OutputBuffer::new(format!("harness.{}", input.name), 1 << 16);
+            // Samples arrive one at a time and `core` runs until idle, so only an input the component leaves
+            // unread (waiting for a match elsewhere) ever holds many: room for a thousand.
+            let buffer = OutputBuffer::new(format!("harness.{}", input.name), INPUT_CAPACITY);
             let policy = self
                 .policies
                 .get(&input.name)
@@ -266,7 +267,10 @@ impl Harness {
         let mut outputs = Vec::new();
         let mut collectors = Vec::new();
         for output in &self.info.outputs {
-            let buffer = OutputBuffer::new(format!("{}.{}", self.info.type_name, output.name), 1 << 16);
+            let buffer = OutputBuffer::new(
+                format!("{}.{}", self.info.type_name, output.name),
+                OUTPUT_CAPACITY,
+            );
             let reader = buffer.attach(
                 ReaderConfig::new(ReaderPolicy::Fifo, format!("{} -> harness", output.name)),
                 Arc::clone(&feeder),
