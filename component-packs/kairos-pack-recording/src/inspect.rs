@@ -4,7 +4,7 @@
 use std::collections::BTreeMap;
 use std::path::Path;
 
-use mcap::read::{MessageStream, Options, Summary};
+use mcap::read::Summary;
 use serde::Serialize;
 
 /// One channel of a recording.
@@ -87,55 +87,51 @@ pub fn inspect(path: &Path) -> Result<Report, InspectError> {
         path: shown.clone(),
         source,
     })?;
+    inspect_bytes(&shown, &bytes)
+}
+
+/// Like [`inspect`] for a recording already in memory; `shown` names it in the report.
+pub fn inspect_bytes(shown: &str, bytes: &[u8]) -> Result<Report, InspectError> {
+    let shown = shown.to_owned();
     if bytes.get(..8) != Some(mcap::MAGIC) {
         return Err(InspectError::NotMcap {
             path: shown,
             reason: "it does not start with the MCAP magic bytes".to_owned(),
         });
     }
-    let summary = Summary::read(&bytes).ok().flatten();
+    let summary = Summary::read(bytes).ok().flatten();
     let complete = summary.is_some();
     let mut metadata = BTreeMap::new();
     if let Some(summary) = &summary {
         for index in &summary.metadata_indexes {
-            if let Ok(record) = mcap::read::metadata(&bytes, index) {
+            if let Ok(record) = mcap::read::metadata(bytes, index) {
                 metadata.insert(record.name, record.metadata);
             }
         }
     }
-    // Count by reading every message: it works the same on complete and damaged files, and checks CRCs.
+    // Count by reading every message: it works the same on complete and damaged files.
     let mut tallies: BTreeMap<String, Tally> = BTreeMap::new();
-    let mut damage = None;
-    let options = Options::IgnoreEndMagic | Options::ValidateChunkCrcs;
-    match MessageStream::new_with_options(&bytes, options) {
-        Err(error) => damage = Some(error.to_string()),
-        Ok(stream) => {
-            for message in stream {
-                match message {
-                    Ok(message) => {
-                        let channel = &message.channel;
-                        let tally = tallies.entry(channel.topic.clone()).or_insert_with(|| Tally {
-                            schema: channel
-                                .schema
-                                .as_ref()
-                                .map_or_else(String::new, |s| s.name.clone()),
-                            encoding: channel.message_encoding.clone(),
-                            kairos_type: channel.metadata.get("kairos.type").cloned(),
-                            first: message.publish_time,
-                            ..Tally::default()
-                        });
-                        tally.messages += 1;
-                        tally.first = tally.first.min(message.publish_time);
-                        tally.last = tally.last.max(message.publish_time);
-                    }
-                    Err(error) => {
-                        damage = Some(format!("{error} (messages before this point are intact)"));
-                        break;
-                    }
-                }
-            }
-        }
-    }
+    let mut damage = crate::safe_read::read_intact(
+        bytes,
+        |message| {
+            let channel = &message.channel;
+            let tally = tallies.entry(channel.topic.clone()).or_insert_with(|| Tally {
+                schema: channel
+                    .schema
+                    .as_ref()
+                    .map_or_else(String::new, |s| s.name.clone()),
+                encoding: channel.message_encoding.clone(),
+                kairos_type: channel.metadata.get("kairos.type").cloned(),
+                first: message.publish_time,
+                ..Tally::default()
+            });
+            tally.messages += 1;
+            tally.first = tally.first.min(message.publish_time);
+            tally.last = tally.last.max(message.publish_time);
+        },
+        |_| {},
+    )
+    .map(|d| format!("{d} (messages before this point are intact)"));
     if !complete && damage.is_none() {
         damage = Some(
             "the file has no summary: it was not closed (a crash?); every closed chunk is intact".to_owned(),

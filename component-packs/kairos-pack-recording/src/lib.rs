@@ -10,8 +10,9 @@ pub mod encode;
 pub mod inspect;
 pub mod recorder;
 pub mod recover;
+pub mod safe_read;
 
-pub use inspect::{InspectError, Report, inspect};
+pub use inspect::{InspectError, Report, inspect, inspect_bytes};
 use kairos_sdk::Registry;
 pub use recover::{Recovered, recover};
 

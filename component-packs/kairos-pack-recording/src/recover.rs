@@ -5,8 +5,6 @@ use std::fs::File;
 use std::io::BufWriter;
 use std::path::Path;
 
-use mcap::read::{LinearReader, MessageStream, Options};
-use mcap::records::Record;
 use serde::Serialize;
 
 use crate::inspect::InspectError;
@@ -53,43 +51,31 @@ pub fn recover(input: &Path, output: &Path) -> Result<Recovered, InspectError> {
         .profile("kairos")
         .create(BufWriter::new(file))
         .map_err(|e| io_error(output, e))?;
-    let options = Options::IgnoreEndMagic | Options::ValidateChunkCrcs;
     let mut recovered = Recovered {
         messages: 0,
         metadata: 0,
         damage: None,
     };
-    // Metadata records sit outside chunks: a linear pass finds those written before the damage.
-    if let Ok(records) = LinearReader::new_with_options(&bytes, options) {
-        for record in records {
-            match record {
-                Ok(Record::Metadata(metadata)) => {
-                    writer
-                        .write_metadata(&metadata)
-                        .map_err(|e| io_error(output, e))?;
-                    recovered.metadata += 1;
+    let mut failure = None;
+    let mut metadata = Vec::new();
+    recovered.damage = crate::safe_read::read_intact(
+        &bytes,
+        |message| {
+            if failure.is_none() {
+                match writer.write(message) {
+                    Ok(()) => recovered.messages += 1,
+                    Err(error) => failure = Some(error.to_string()),
                 }
-                Ok(_) => {}
-                Err(_) => break,
             }
-        }
+        },
+        |record| metadata.push(record),
+    );
+    if let Some(error) = failure {
+        return Err(io_error(output, error));
     }
-    match MessageStream::new_with_options(&bytes, options) {
-        Err(error) => recovered.damage = Some(error.to_string()),
-        Ok(stream) => {
-            for message in stream {
-                match message {
-                    Ok(message) => {
-                        writer.write(&message).map_err(|e| io_error(output, e))?;
-                        recovered.messages += 1;
-                    }
-                    Err(error) => {
-                        recovered.damage = Some(error.to_string());
-                        break;
-                    }
-                }
-            }
-        }
+    for record in &metadata {
+        writer.write_metadata(record).map_err(|e| io_error(output, e))?;
+        recovered.metadata += 1;
     }
     writer.finish().map_err(|e| io_error(output, e))?;
     Ok(recovered)
