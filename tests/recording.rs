@@ -39,23 +39,52 @@ fn channel<'a>(report: &'a serde_json::Value, topic: &str) -> &'a serde_json::Va
         .unwrap_or_else(|| panic!("no {topic}: {report}"))
 }
 
+/// Runs the record example for `duration` into `file`, with extra `--set` overrides.
+fn record_for(dir: &Path, file: &Path, duration: &str, overrides: &[&str]) -> std::process::Output {
+    let path = format!("recorder.path={}", file.display());
+    let mut args = vec![
+        "run",
+        example_path(),
+        "--for",
+        duration,
+        "--stats",
+        "--set",
+        &path,
+    ];
+    for o in overrides {
+        args.extend(["--set", o]);
+    }
+    kairos(dir, &args)
+}
+
+/// Starts the record example into `file` with 0.2 s chunks, to be killed.
+fn start_recording(dir: &Path, file: &Path) -> std::process::Child {
+    Command::new(env!("CARGO_BIN_EXE_kairos"))
+        .args(["run", example_path()])
+        .args([
+            "--set",
+            &format!("recorder.path={}", file.display()),
+            "--set",
+            "recorder.chunk_period_s=0.2",
+        ])
+        .current_dir(dir)
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap()
+}
+
+fn example_path() -> &'static str {
+    static PATH: std::sync::OnceLock<String> = std::sync::OnceLock::new();
+    PATH.get_or_init(|| example("record").to_str().unwrap().to_owned())
+}
+
 #[test]
 fn camera_imu_and_gnss_are_recorded_with_their_schemas_and_read_back() {
     let _serial = one_at_a_time();
     let dir = tempfile::tempdir().unwrap();
     let file = dir.path().join("drive.mcap");
-    let set = format!("recorder.path={}", file.display());
-    let output = kairos(
-        dir.path(),
-        &[
-            "run",
-            example("record").to_str().unwrap(),
-            "--for",
-            "2s",
-            "--set",
-            &set,
-        ],
-    );
+    let output = record_for(dir.path(), &file, "2s", &[]);
     let (_, stderr) = text(&output);
     assert!(output.status.success(), "{stderr}");
 
@@ -124,19 +153,7 @@ fn a_recorder_killed_mid_run_leaves_every_closed_chunk_readable() {
     let dir = tempfile::tempdir().unwrap();
     for attempt in 0..3 {
         let file = dir.path().join(format!("killed{attempt}.mcap"));
-        let mut child = Command::new(env!("CARGO_BIN_EXE_kairos"))
-            .args(["run", example("record").to_str().unwrap()])
-            .args([
-                "--set",
-                &format!("recorder.path={}", file.display()),
-                "--set",
-                "recorder.chunk_period_s=0.2",
-            ])
-            .current_dir(dir.path())
-            .stdout(Stdio::null())
-            .stderr(Stdio::null())
-            .spawn()
-            .unwrap();
+        let mut child = start_recording(dir.path(), &file);
         std::thread::sleep(Duration::from_millis(1500 + 200 * attempt));
         child.kill().unwrap();
         child.wait().unwrap();
@@ -160,20 +177,7 @@ fn a_truncated_or_foreign_file_is_reported_not_a_crash() {
     let _serial = one_at_a_time();
     let dir = tempfile::tempdir().unwrap();
     let file = dir.path().join("whole.mcap");
-    let set = format!("recorder.path={}", file.display());
-    let output = kairos(
-        dir.path(),
-        &[
-            "run",
-            example("record").to_str().unwrap(),
-            "--for",
-            "1500ms",
-            "--set",
-            &set,
-            "--set",
-            "recorder.chunk_period_s=0.2",
-        ],
-    );
+    let output = record_for(dir.path(), &file, "1500ms", &["recorder.chunk_period_s=0.2"]);
     assert!(output.status.success());
     let whole = std::fs::read(&file).unwrap();
     let (_, complete) = inspect(dir.path(), &file);
@@ -210,19 +214,7 @@ fn recover_turns_a_crashed_recording_into_a_complete_one() {
     let _serial = one_at_a_time();
     let dir = tempfile::tempdir().unwrap();
     let file = dir.path().join("crashed.mcap");
-    let mut child = Command::new(env!("CARGO_BIN_EXE_kairos"))
-        .args(["run", example("record").to_str().unwrap()])
-        .args([
-            "--set",
-            &format!("recorder.path={}", file.display()),
-            "--set",
-            "recorder.chunk_period_s=0.2",
-        ])
-        .current_dir(dir.path())
-        .stdout(Stdio::null())
-        .stderr(Stdio::null())
-        .spawn()
-        .unwrap();
+    let mut child = start_recording(dir.path(), &file);
     std::thread::sleep(Duration::from_millis(1500));
     child.kill().unwrap();
     child.wait().unwrap();
@@ -254,19 +246,7 @@ fn splitting_by_duration_loses_and_repeats_nothing() {
     let _serial = one_at_a_time();
     let dir = tempfile::tempdir().unwrap();
     let file = dir.path().join("split.mcap");
-    let output = kairos(
-        dir.path(),
-        &[
-            "run",
-            example("record").to_str().unwrap(),
-            "--for",
-            "1800ms",
-            "--set",
-            &format!("recorder.path={}", file.display()),
-            "--set",
-            "recorder.split_duration_s=0.5",
-        ],
-    );
+    let output = record_for(dir.path(), &file, "1800ms", &["recorder.split_duration_s=0.5"]);
     assert!(output.status.success());
     let mut parts: Vec<_> = std::fs::read_dir(dir.path())
         .unwrap()
@@ -306,20 +286,7 @@ fn the_free_space_guard_stops_the_recorder_alone_and_leaves_a_valid_file() {
     let _serial = one_at_a_time();
     let dir = tempfile::tempdir().unwrap();
     let file = dir.path().join("guarded.mcap");
-    let output = kairos(
-        dir.path(),
-        &[
-            "run",
-            example("record").to_str().unwrap(),
-            "--for",
-            "1500ms",
-            "--stats",
-            "--set",
-            &format!("recorder.path={}", file.display()),
-            "--set",
-            "recorder.min_free_mb=1000000000",
-        ],
-    );
+    let output = record_for(dir.path(), &file, "1500ms", &["recorder.min_free_mb=1000000000"]);
     let (_, stderr) = text(&output);
     assert_eq!(output.status.code(), Some(2), "{stderr}");
     assert!(
