@@ -73,19 +73,25 @@ fn csv_rows(path: &std::path::Path) -> (Vec<String>, Vec<Vec<String>>) {
     (header, rows)
 }
 
-#[test]
-fn camera_latency_reaches_the_csv() {
+/// Runs example `name` for 2 s with its CSV writer `csv` redirected into a temporary folder, and returns the
+/// CSV's header and rows.
+fn run_to_csv(name: &str) -> (Vec<String>, Vec<Vec<String>>) {
     let dir = tempfile::tempdir().unwrap();
-    let path = example("camera");
-    let csv = dir.path().join("latency.csv");
+    let csv = dir.path().join(format!("{name}.csv"));
     let set = format!("csv.path={}", csv.display());
+    let path = example(name);
     let output = kairos(
         dir.path(),
         &["run", path.to_str().unwrap(), "--for", "2s", "--set", &set],
     );
     let (_, stderr) = text(&output);
     assert!(output.status.success(), "{stderr}");
-    let (header, rows) = csv_rows(&csv);
+    csv_rows(&csv)
+}
+
+#[test]
+fn camera_latency_reaches_the_csv() {
+    let (header, rows) = run_to_csv("camera");
     assert_eq!(
         header,
         ["input", "timestamp_ns", "time_of_issue_ns", "sequence", "value"]
@@ -105,17 +111,7 @@ fn camera_latency_reaches_the_csv() {
 
 #[test]
 fn fusion_matches_imu_and_gnss_by_timestamp() {
-    let dir = tempfile::tempdir().unwrap();
-    let path = example("fusion");
-    let csv = dir.path().join("fusion.csv");
-    let set = format!("csv.path={}", csv.display());
-    let output = kairos(
-        dir.path(),
-        &["run", path.to_str().unwrap(), "--for", "2s", "--set", &set],
-    );
-    let (_, stderr) = text(&output);
-    assert!(output.status.success(), "{stderr}");
-    let (header, rows) = csv_rows(&csv);
+    let (header, rows) = run_to_csv("fusion");
     let imu_ts = header.iter().position(|h| h == "in1.timestamp_ns").unwrap();
     let gnss_ts = header.iter().position(|h| h == "in2.timestamp_ns").unwrap();
     assert!(

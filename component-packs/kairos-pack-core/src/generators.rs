@@ -26,6 +26,24 @@ fn generator(type_name: &str, doc: &str, default_rate_hz: f64) -> Descriptor {
         .property(rate_property(default_rate_hz))
 }
 
+/// A waveform generator: its output and the properties every wave has.
+fn wave(type_name: &str, doc: &str) -> Descriptor {
+    generator(type_name, doc, 100.0)
+        .output("out", DataType::F64, "The wave")
+        .property(
+            Property::f64("frequency", 1.0)
+                .range(0.0, 50_000.0)
+                .live()
+                .doc("Wave frequency (Hz)"),
+        )
+        .property(
+            Property::f64("amplitude", 1.0)
+                .live()
+                .doc("Peak amplitude (half the peak-to-peak swing)"),
+        )
+        .property(Property::f64("offset", 0.0).live().doc("Added to every value"))
+}
+
 /// What differs between generators: what they write at each tick.
 pub trait Generate: Default + Send + 'static {
     /// Called once before the first tick (after the period is set).
@@ -83,20 +101,10 @@ pub struct Sine;
 impl Sine {
     /// The descriptor.
     pub fn info() -> ComponentInfo {
-        generator(
+        wave(
             "core.sine",
             "A sine wave: offset + amplitude × sin(2π × frequency × t + phase)",
-            100.0,
         )
-        .output("out", DataType::F64, "The wave")
-        .property(
-            Property::f64("frequency", 1.0)
-                .range(0.0, 50_000.0)
-                .live()
-                .doc("Wave frequency (Hz)"),
-        )
-        .property(Property::f64("amplitude", 1.0).live().doc("Peak amplitude"))
-        .property(Property::f64("offset", 0.0).live().doc("Added to every value"))
         .property(
             Property::f64("phase_deg", 0.0)
                 .range(-360.0, 360.0)
@@ -122,24 +130,10 @@ pub struct Square;
 impl Square {
     /// The descriptor.
     pub fn info() -> ComponentInfo {
-        generator(
+        wave(
             "core.square",
             "A square wave between offset − amplitude and offset + amplitude",
-            100.0,
         )
-        .output("out", DataType::F64, "The wave")
-        .property(
-            Property::f64("frequency", 1.0)
-                .range(0.0, 50_000.0)
-                .live()
-                .doc("Wave frequency (Hz)"),
-        )
-        .property(
-            Property::f64("amplitude", 1.0)
-                .live()
-                .doc("Half the peak-to-peak swing"),
-        )
-        .property(Property::f64("offset", 0.0).live().doc("Added to every value"))
         .property(
             Property::f64("duty", 0.5)
                 .range(0.0, 1.0)
