@@ -22,6 +22,29 @@ fn every_example_validates() {
 }
 
 #[test]
+fn replay_fuses_a_recording_as_if_the_sensors_were_live() {
+    let dir = tempfile::tempdir().unwrap();
+    let record = kairos(
+        dir.path(),
+        &["run", example("record").to_str().unwrap(), "--for", "1500ms"],
+    );
+    assert!(record.status.success(), "{}", text(&record).1);
+    // No --for: the replay ends with the recording.
+    let output = kairos(dir.path(), &["run", example("replay").to_str().unwrap()]);
+    let (_, stderr) = text(&output);
+    assert!(output.status.success(), "{stderr}");
+    assert!(stderr.contains("every component has finished"), "{stderr}");
+    let (header, rows) = csv_rows(&dir.path().join("replay.csv"));
+    assert!(rows.len() >= 12, "about 15 fixes in 1.5 s, got {}", rows.len());
+    let column = |name: &str| header.iter().position(|h| h == name).unwrap();
+    let (imu, gnss) = (column("in1.timestamp_ns"), column("in2.timestamp_ns"));
+    for row in &rows {
+        let (a, b): (i64, i64) = (row[imu].parse().unwrap(), row[gnss].parse().unwrap());
+        assert!((a - b).abs() <= 5_000_000, "matched within 5 ms: {row:?}");
+    }
+}
+
+#[test]
 fn hello_prints_the_amplified_sine() {
     let dir = tempfile::tempdir().unwrap();
     let path = example("hello");

@@ -604,6 +604,20 @@ impl Context {
         self.write_processed(output, sample, sample.payload.clone())
     }
 
+    /// Writes a sample with both of its times given: a replayed recording's samples, exactly as recorded.
+    ///
+    /// In a component of a loaded pack the host stamps the time of issue itself (ABI version 1 carries
+    /// only the timestamp).
+    pub fn write_replayed(
+        &mut self,
+        output: impl PortKey,
+        payload: Payload,
+        timestamp: Timestamp,
+        time_of_issue: Timestamp,
+    ) -> Result<(), ComponentError> {
+        self.emit_with_times(output, payload, Some(timestamp), Some(time_of_issue))
+    }
+
     /// Writes `payload` on `output`; `timestamp` `None` stamps it now. One clock read gives the time of
     /// issue (and the timestamp when none is given).
     fn emit(
@@ -612,12 +626,22 @@ impl Context {
         payload: Payload,
         timestamp: Option<Timestamp>,
     ) -> Result<(), ComponentError> {
+        self.emit_with_times(output, payload, timestamp, None)
+    }
+
+    fn emit_with_times(
+        &mut self,
+        output: impl PortKey,
+        payload: Payload,
+        timestamp: Option<Timestamp>,
+        time_of_issue: Option<Timestamp>,
+    ) -> Result<(), ComponentError> {
         let index = self.output_index(output)?;
         if let Some(remote) = &self.remote {
             // The host stamps: one clock read there, none here.
             return remote.write(index, &payload, timestamp);
         }
-        let time_of_issue = self.clock.now();
+        let time_of_issue = time_of_issue.unwrap_or_else(|| self.clock.now());
         let timestamp = timestamp.unwrap_or(time_of_issue);
         let Some(port) = self.outputs.get_mut(index) else {
             return Err(ComponentError::failed(format_args!(

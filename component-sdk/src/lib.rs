@@ -30,13 +30,13 @@ pub use component::{
     Synchronizer,
 };
 pub use kairos_diagram::{
-    ComponentInfo, DataType, ExecutionMode, LibraryInfo, PackInfo, PropertyKind, ReaderPolicy, TypeFilter,
-    Value,
+    ComponentInfo, DataType, DescribeError, ExecutionMode, LibraryInfo, OutputInfo, PackInfo, PropertyKind,
+    ReaderPolicy, TypeFilter, Value,
 };
 pub use payload::{
     CanFrame, CustomPayload, FixStatus, GnssFix, Image, Imu, Matrix, Payload, PixelFormat, PointCloud, Pose,
 };
-pub use registry::{Factory, PackRegistrar, RegisteredComponent, Registry};
+pub use registry::{Describe, Factory, PackRegistrar, RegisteredComponent, Registry};
 pub use sample::Sample;
 pub use signal::RunSignal;
 pub use stats::{LatencySummary, LinkCounters};

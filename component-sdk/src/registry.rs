@@ -4,20 +4,29 @@ use std::collections::{BTreeMap, BTreeSet};
 use std::fmt;
 use std::sync::Arc;
 
-use kairos_diagram::{ComponentInfo, LibraryInfo, PackInfo};
+use kairos_diagram::{
+    ComponentInfo, DescribeError, Diagnostic, Diagram, InstanceInfos, LibraryInfo, PackInfo, SourceMap, Value,
+};
 
 use crate::component::Component;
 
 /// Makes a new instance of a component.
 pub type Factory = Arc<dyn Fn() -> Box<dyn Component> + Send + Sync>;
 
+/// Describes one instance of a component type whose ports depend on its properties (a player's
+/// outputs are the channels of its recording), from the instance's resolved properties.
+pub type Describe =
+    Arc<dyn Fn(&BTreeMap<String, Value>) -> Result<ComponentInfo, DescribeError> + Send + Sync>;
+
 /// A component type: its descriptor and how to make one.
 #[derive(Clone)]
 pub struct RegisteredComponent {
-    /// The descriptor.
+    /// The descriptor: for a type with `describe`, what holds before its properties are known.
     pub info: ComponentInfo,
     /// The factory.
     pub factory: Factory,
+    /// For types whose ports depend on their properties: the descriptor of one instance.
+    pub describe: Option<Describe>,
 }
 
 impl fmt::Debug for RegisteredComponent {
@@ -90,6 +99,48 @@ impl Registry {
         &self.duplicates
     }
 
+    /// The descriptors of the diagram's instances whose ports depend on their properties, by id.
+    ///
+    /// A describe function that panics is reported as that instance's error, never propagated.
+    pub fn instance_infos(&self, diagram: &Diagram) -> InstanceInfos {
+        let mut infos = InstanceInfos::new();
+        for instance in &diagram.components {
+            let Some(registered) = self.components.get(&instance.type_name) else {
+                continue;
+            };
+            let Some(describe) = &registered.describe else {
+                continue;
+            };
+            let properties = kairos_diagram::resolved_properties(instance, &registered.info);
+            let described = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| describe(&properties)))
+                .unwrap_or_else(|_| {
+                    Err(DescribeError {
+                        property: None,
+                        message: "the component panicked while describing its ports".to_owned(),
+                        suggestion: None,
+                    })
+                })
+                .map(|mut info| {
+                    info.pack.clone_from(&registered.info.pack);
+                    info.type_name.clone_from(&registered.info.type_name);
+                    info
+                });
+            infos.insert(instance.id.clone(), described);
+        }
+        infos
+    }
+
+    /// Validates `diagram` against this registry, instances that describe themselves included; see
+    /// [`kairos_diagram::validate_with`].
+    pub fn validate(&self, diagram: &Diagram, source_map: Option<&SourceMap>) -> Vec<Diagnostic> {
+        kairos_diagram::validate_with(
+            diagram,
+            source_map,
+            &self.library_info(),
+            &self.instance_infos(diagram),
+        )
+    }
+
     /// The library as plain data, for validation and listings.
     pub fn library_info(&self) -> LibraryInfo {
         LibraryInfo {
@@ -117,12 +168,33 @@ impl PackRegistrar<'_> {
         self.component_with(info, || Box::new(C::default()))
     }
 
+    /// Registers a component type made by `Default` whose ports depend on its properties: `describe`
+    /// gives one instance's descriptor (validation and the engine use it instead of `info`).
+    pub fn component_described<C: Component + Default>(
+        &mut self,
+        info: ComponentInfo,
+        describe: impl Fn(&BTreeMap<String, Value>) -> Result<ComponentInfo, DescribeError>
+        + Send
+        + Sync
+        + 'static,
+    ) -> &mut Self {
+        self.insert(
+            info,
+            Arc::new(|| Box::new(C::default())),
+            Some(Arc::new(describe)),
+        )
+    }
+
     /// Registers a component type with its own factory.
     pub fn component_with(
         &mut self,
-        mut info: ComponentInfo,
+        info: ComponentInfo,
         factory: impl Fn() -> Box<dyn Component> + Send + Sync + 'static,
     ) -> &mut Self {
+        self.insert(info, Arc::new(factory), None)
+    }
+
+    fn insert(&mut self, mut info: ComponentInfo, factory: Factory, describe: Option<Describe>) -> &mut Self {
         info.pack.clone_from(&self.pack);
         if let Some(existing) = self.registry.components.get(&info.type_name) {
             self.registry.duplicates.push(DuplicateComponent {
@@ -136,7 +208,8 @@ impl PackRegistrar<'_> {
             info.type_name.clone(),
             RegisteredComponent {
                 info,
-                factory: Arc::new(factory),
+                factory,
+                describe,
             },
         );
         self

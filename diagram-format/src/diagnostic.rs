@@ -82,6 +82,9 @@ pub enum DiagnosticCode {
     UnlistedPack,
     /// Reactive components connected in a cycle, which would deadlock.
     ReactiveCycle,
+    /// A component whose ports depend on its properties could not describe itself (a player whose
+    /// recording cannot be read).
+    CannotDescribe,
 }
 
 /// Where a problem is in the source text.

@@ -27,8 +27,8 @@ pub mod write;
 
 pub use diagnostic::{Diagnostic, DiagnosticCode, Location, Note, Severity, render_all};
 pub use library::{
-    ActionInfo, ComponentInfo, DataType, ExecutionMode, InputInfo, LibraryInfo, OutputInfo, PackInfo,
-    PropertyInfo, PropertyKind, ReaderPolicy, TypeFilter, Value, ValueError,
+    ActionInfo, ComponentInfo, DataType, DescribeError, ExecutionMode, InputInfo, InstanceInfos, LibraryInfo,
+    OutputInfo, PackInfo, PropertyInfo, PropertyKind, ReaderPolicy, TypeFilter, Value, ValueError,
 };
 pub use model::{
     ComponentInstance, Connection, Diagram, FORMAT_VERSION, OutputSettings, PackRequirement, PortRef,
@@ -39,5 +39,5 @@ pub use read::{
     ParsedDiagram, SourceMap, load, parse,
 };
 pub use ron_syntax::MAX_DEPTH;
-pub use validate::{is_valid_id, resolved_properties, validate};
+pub use validate::{is_valid_id, resolved_properties, validate, validate_with};
 pub use write::save;

@@ -518,6 +518,40 @@ impl ComponentInfo {
     }
 }
 
+/// Why a component whose ports depend on its properties (a player's outputs come from its recording)
+/// could not describe itself.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct DescribeError {
+    /// The property at fault, when one is.
+    pub property: Option<String>,
+    /// What went wrong.
+    pub message: String,
+    /// How to fix it, when known.
+    pub suggestion: Option<String>,
+}
+
+impl DescribeError {
+    /// An error about `property`.
+    pub fn property(property: &str, message: impl Into<String>) -> Self {
+        DescribeError {
+            property: Some(property.to_owned()),
+            message: message.into(),
+            suggestion: None,
+        }
+    }
+
+    /// Adds a suggestion.
+    #[must_use]
+    pub fn with_suggestion(mut self, suggestion: impl Into<String>) -> Self {
+        self.suggestion = Some(suggestion.into());
+        self
+    }
+}
+
+/// Descriptors of component instances whose ports depend on their properties, by component id: what
+/// [`crate::validate_with`] uses instead of the library's descriptor of their type.
+pub type InstanceInfos = BTreeMap<String, Result<ComponentInfo, DescribeError>>;
+
 /// A pack as the library knows it.
 #[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
 pub struct PackInfo {

@@ -111,6 +111,12 @@ impl ParsedDiagram {
     pub fn validate(&self, library: &LibraryInfo) -> Vec<Diagnostic> {
         crate::validate::validate(&self.diagram, Some(&self.source_map), library)
     }
+
+    /// Like [`ParsedDiagram::validate`], with the descriptors of instances whose ports depend on their
+    /// properties; see [`crate::validate_with()`].
+    pub fn validate_with(&self, library: &LibraryInfo, instances: &crate::InstanceInfos) -> Vec<Diagnostic> {
+        crate::validate::validate_with(&self.diagram, Some(&self.source_map), library, instances)
+    }
 }
 
 /// Reads a diagram from its RON text.

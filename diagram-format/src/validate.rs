@@ -4,7 +4,7 @@
 use std::collections::{BTreeMap, BTreeSet, HashMap};
 
 use crate::diagnostic::{Diagnostic, DiagnosticCode, Location, closest, did_you_mean};
-use crate::library::{ComponentInfo, ExecutionMode, LibraryInfo, Value};
+use crate::library::{ComponentInfo, DescribeError, ExecutionMode, InstanceInfos, LibraryInfo, Value};
 use crate::model::{ComponentInstance, Connection, Diagram, FORMAT_VERSION, PortRef};
 use crate::read::{ComponentLocations, ConnectionLocations, PackLocations, SourceMap};
 
@@ -14,6 +14,18 @@ use crate::read::{ComponentLocations, ConnectionLocations, PackLocations, Source
 /// offending token; without it, diagnostics carry no location. An empty result means the diagram can be
 /// built; warnings alone do not prevent that.
 pub fn validate(diagram: &Diagram, source_map: Option<&SourceMap>, library: &LibraryInfo) -> Vec<Diagnostic> {
+    validate_with(diagram, source_map, library, &InstanceInfos::new())
+}
+
+/// Like [`validate`], for a diagram with components whose ports depend on their properties: `instances`
+/// gives their descriptors by component id (the runtime's registry computes them). An instance whose
+/// description failed is reported where its fault lies, and its connections are not checked further.
+pub fn validate_with(
+    diagram: &Diagram,
+    source_map: Option<&SourceMap>,
+    library: &LibraryInfo,
+    instances: &InstanceInfos,
+) -> Vec<Diagnostic> {
     let mut first_with_id = HashMap::new();
     for (index, component) in diagram.components.iter().enumerate() {
         first_with_id.entry(component.id.as_str()).or_insert(index);
@@ -22,6 +34,7 @@ pub fn validate(diagram: &Diagram, source_map: Option<&SourceMap>, library: &Lib
         diagram,
         source_map,
         library,
+        instances,
         first_with_id,
         found: Vec::new(),
     };
@@ -71,6 +84,7 @@ struct Validator<'a> {
     diagram: &'a Diagram,
     source_map: Option<&'a SourceMap>,
     library: &'a LibraryInfo,
+    instances: &'a InstanceInfos,
     /// Component ids to the index of the first component with that id.
     first_with_id: HashMap<&'a str, usize>,
     found: Vec<Diagnostic>,
@@ -219,8 +233,49 @@ impl<'a> Validator<'a> {
             if !pack_listed && unlisted_packs_reported.insert(&info.pack) {
                 self.report_unlisted_pack(component, info, at);
             }
+            let info = match self.instances.get(&component.id) {
+                Some(Ok(described)) => described,
+                Some(Err(error)) => {
+                    self.check_properties(component, info, at);
+                    self.report_describe_error(component, error, at);
+                    continue;
+                }
+                None => info,
+            };
             self.check_properties(component, info, at);
             self.check_output_names(component, info, at);
+        }
+    }
+
+    fn report_describe_error(
+        &mut self,
+        component: &ComponentInstance,
+        error: &DescribeError,
+        at: Option<&ComponentLocations>,
+    ) {
+        let location = match &error.property {
+            Some(property) => at
+                .and_then(|l| l.properties.get(property))
+                .map(|l| l.value)
+                .or_else(|| at.map(|l| l.type_name)),
+            None => at.map(|l| l.type_name),
+        };
+        let message = match &error.property {
+            Some(property) => format!("'{}' (property '{property}'): {}", component.id, error.message),
+            None => format!("'{}': {}", component.id, error.message),
+        };
+        let diagnostic = Diagnostic::error(DiagnosticCode::CannotDescribe, message)
+            .at(location)
+            .with_suggestion(error.suggestion.clone());
+        self.found.push(diagnostic);
+    }
+
+    /// The descriptor of `instance`: its own when its ports depend on its properties, else its type's.
+    /// `None` for an unknown type or an instance that could not describe itself.
+    fn info_of(&self, instance: &ComponentInstance) -> Option<&'a ComponentInfo> {
+        match self.instances.get(&instance.id) {
+            Some(described) => described.as_ref().ok(),
+            None => self.library.component(&instance.type_name),
         }
     }
 
@@ -415,7 +470,7 @@ impl<'a> Validator<'a> {
             return None;
         }
         let instance = self.instance(&port.component)?;
-        let info = self.library.component(&instance.type_name)?;
+        let info = self.info_of(instance)?;
         let output = info.output(&port.port)?;
         let Some(input) = &output.follows_input else {
             return Some(output.data_type.clone());
@@ -448,7 +503,7 @@ impl<'a> Validator<'a> {
             self.found.push(diagnostic);
             return None;
         };
-        let info = self.library.component(&instance.type_name)?;
+        let info = self.info_of(instance)?;
         let resolved = match end {
             End::From => info.output(&port.port).map(|_| Resolved::Output),
             End::To => info.input(&port.port).map(Resolved::Input),
@@ -504,7 +559,7 @@ impl<'a> Validator<'a> {
         let reactive = |id: &str| -> Option<usize> {
             let index = self.first_with_id.get(id).copied()?;
             let instance = components.get(index)?;
-            let info = self.library.component(&instance.type_name)?;
+            let info = self.info_of(instance)?;
             (info.mode == ExecutionMode::Reactive).then_some(index)
         };
         let mut edges: BTreeMap<usize, Vec<usize>> = BTreeMap::new();

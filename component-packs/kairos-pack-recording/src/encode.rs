@@ -192,13 +192,17 @@ pub fn encode(
         Payload::GnssFix(fix) => {
             let h = fix.horizontal_accuracy_m * fix.horizontal_accuracy_m;
             let v = fix.vertical_accuracy_m * fix.vertical_accuracy_m;
-            let mut metadata = Vec::new();
-            if fix.status == FixStatus::NoFix {
-                metadata.push(foxglove::schemas::KeyValuePair {
-                    key: "status".to_owned(),
-                    value: "no_fix".to_owned(),
-                });
-            }
+            // Foxglove has no field for the fix's quality: a metadata pair keeps it for replay.
+            let status = match fix.status {
+                FixStatus::NoFix => "no_fix",
+                FixStatus::Fix => "fix",
+                FixStatus::Differential => "differential",
+                FixStatus::RtkFixed => "rtk_fixed",
+            };
+            let metadata = vec![foxglove::schemas::KeyValuePair {
+                key: "kairos.status".to_owned(),
+                value: status.to_owned(),
+            }];
             let message = LocationFix {
                 timestamp: Some(foxglove_time(timestamp)),
                 frame_id: frame_id.to_owned(),

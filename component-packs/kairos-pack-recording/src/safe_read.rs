@@ -15,10 +15,20 @@ use mcap::{Channel, Message, Schema};
 /// Where and why reading stopped.
 pub type Damage = Option<String>;
 
-#[derive(Default)]
-struct Catalog {
+/// The schemas and channels read so far; messages refer to them by id.
+#[derive(Default, Clone)]
+pub struct Catalog {
     schemas: HashMap<u16, Arc<Schema<'static>>>,
     channels: HashMap<u16, Arc<Channel<'static>>>,
+}
+
+impl std::fmt::Debug for Catalog {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Catalog")
+            .field("schemas", &self.schemas.len())
+            .field("channels", &self.channels.len())
+            .finish()
+    }
 }
 
 impl Catalog {
@@ -77,21 +87,34 @@ impl Catalog {
 
 /// The longest record accepted, a message inside a chunk included: it bounds every allocation the reader
 /// makes from a size found in the file.
-const MAX_RECORD_BYTES: usize = 1 << 30;
+pub(crate) const MAX_RECORD_BYTES: usize = 1 << 30;
 
 /// Visits every intact message and metadata record of `bytes`, in file order, and returns where reading
 /// stopped on a damaged file.
 pub fn read_intact(
     bytes: &[u8],
+    on_message: impl FnMut(&Message<'_>),
+    on_metadata: impl FnMut(Metadata),
+) -> Damage {
+    read_records(bytes, true, &mut Catalog::default(), on_message, on_metadata)
+}
+
+/// Visits the intact messages and metadata of `bytes`: a whole file when `whole_file` (it starts with the
+/// magic), otherwise a run of records cut from one (a chunk); `catalog` carries schemas and channels from
+/// one call to the next. Returns where reading stopped on damaged data.
+pub fn read_records(
+    bytes: &[u8],
+    whole_file: bool,
+    catalog: &mut Catalog,
     mut on_message: impl FnMut(&Message<'_>),
     mut on_metadata: impl FnMut(Metadata),
 ) -> Damage {
     let options = LinearReaderOptions::default()
+        .with_skip_start_magic(!whole_file)
         .with_skip_end_magic(true)
         .with_validate_chunk_crcs(true)
         .with_record_length_limit(MAX_RECORD_BYTES);
     let mut reader = LinearReader::new_with_options(options);
-    let mut catalog = Catalog::default();
     let mut offset = 0;
     while let Some(event) = reader.next_event() {
         match event {
@@ -99,6 +122,9 @@ pub fn read_intact(
             Ok(LinearReadEvent::ReadRequest(wanted)) => {
                 let available = bytes.len().saturating_sub(offset);
                 if available == 0 {
+                    if !whole_file {
+                        return None;
+                    }
                     return Some("the file ends in the middle of a record".to_owned());
                 }
                 let take = wanted.min(available);

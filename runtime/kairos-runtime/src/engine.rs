@@ -301,8 +301,8 @@ impl Engine {
         registry: &Registry,
         clock: Arc<dyn Clock>,
     ) -> Result<Engine, BuildError> {
-        let library = registry.library_info();
-        let diagnostics = kairos_diagram::validate(diagram, None, &library);
+        let instances = registry.instance_infos(diagram);
+        let diagnostics = kairos_diagram::validate_with(diagram, None, &registry.library_info(), &instances);
         if diagnostics.iter().any(kairos_diagram::Diagnostic::is_error) {
             return Err(BuildError::Invalid(diagnostics));
         }
@@ -313,7 +313,10 @@ impl Engine {
             let Some(registered) = registry.component(&instance.type_name) else {
                 continue;
             };
-            let info = registered.info.clone();
+            let info = match instances.get(&instance.id) {
+                Some(Ok(described)) => described.clone(),
+                _ => registered.info.clone(),
+            };
             let (signal, reactive) = if info.mode == ExecutionMode::Reactive {
                 let cell: Arc<OnceLock<Weak<ReactiveCell>>> = Arc::new(OnceLock::new());
                 let hook = Arc::clone(&cell);
@@ -894,6 +897,12 @@ impl Worker {
         }
         if let Err(error) = guarded(|| component.death(&mut ctx)) {
             self.monitor.fail(&self.id, "death", &error.to_string());
+        }
+        if matches!(outcome, Some(ComponentState::Finished)) {
+            // Its streams ended: readers drain what is left, then finish in turn.
+            for output in ctx.outputs() {
+                output.buffer().close();
+            }
         }
         self.monitor.busy_nanos.store(
             scheduling::thread_cpu_nanos().saturating_sub(cpu_start),

@@ -8,6 +8,7 @@ use std::time::Duration;
 use anyhow::Context as _;
 use clap::{Parser, Subcommand};
 use kairos_diagram::LibraryInfo;
+use kairos_sdk::Registry;
 
 use crate::duration::parse_duration;
 
@@ -146,7 +147,7 @@ pub fn execute(cli: Cli) -> anyhow::Result<ExitCode> {
                 searched: scan.searched.clone(),
             },
         ),
-        Command::Validate { diagrams } => Ok(validate(&registry.library_info(), &diagrams, &scan.searched)),
+        Command::Validate { diagrams } => Ok(validate(&registry, &diagrams, &scan.searched)),
         Command::Inspect { file, json } => {
             let report = kairos_pack_recording::inspect(&file)?;
             if json {
@@ -187,7 +188,7 @@ pub fn execute(cli: Cli) -> anyhow::Result<ExitCode> {
     }
 }
 
-fn validate(library: &LibraryInfo, paths: &[PathBuf], searched: &[PathBuf]) -> ExitCode {
+fn validate(registry: &Registry, paths: &[PathBuf], searched: &[PathBuf]) -> ExitCode {
     let mut all_valid = true;
     for path in paths {
         match kairos_diagram::load(path) {
@@ -196,7 +197,7 @@ fn validate(library: &LibraryInfo, paths: &[PathBuf], searched: &[PathBuf]) -> E
                 eprint!("{}", error.render());
             }
             Ok((source, parsed)) => {
-                let diagnostics = parsed.validate(library);
+                let diagnostics = registry.validate(&parsed.diagram, Some(&parsed.source_map));
                 let name = path.display().to_string();
                 if diagnostics.is_empty() {
                     println!("{name}: valid");

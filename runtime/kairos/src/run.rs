@@ -63,7 +63,7 @@ pub fn run(registry: &Registry, path: &Path, options: &RunOptions) -> anyhow::Re
         };
         component.properties.insert(property, value);
     }
-    let diagnostics = parsed.validate(&registry.library_info());
+    let diagnostics = registry.validate(&parsed.diagram, Some(&parsed.source_map));
     if !diagnostics.is_empty() {
         eprint!(
             "{}",

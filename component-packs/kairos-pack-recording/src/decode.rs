@@ -1,0 +1,402 @@
+//! Recorded messages back into payloads: the inverse of [`crate::encode`], and raw bytes for schemas that
+//! are not ours.
+
+use std::sync::Arc;
+
+use foxglove::Decode as _;
+use foxglove::schemas::{
+    LocationFix, PointCloud as FoxglovePointCloud, PoseInFrame, RawImage, packed_element_field,
+};
+use glam::{DQuat, DVec3, Vec3};
+use kairos_sdk::{
+    CanFrame, CustomPayload, DataType, FixStatus, GnssFix, Image, Imu, Matrix, Payload, PixelFormat,
+    PointCloud, Pose,
+};
+use serde_json::Value as Json;
+
+/// The prefix of the schemas of pack-defined types (`kairos.Custom.<type>`).
+const CUSTOM_PREFIX: &str = "kairos.Custom.";
+
+/// The data type a channel with this schema replays as. A schema that is not one we write replays as
+/// that schema's raw messages, typed by the schema's name.
+pub fn data_type_of(schema: &str) -> DataType {
+    match schema {
+        "foxglove.RawImage" => DataType::Image,
+        "foxglove.PointCloud" => DataType::PointCloud,
+        "foxglove.LocationFix" => DataType::GnssFix,
+        "foxglove.PoseInFrame" => DataType::Pose,
+        "kairos.F64" => DataType::F64,
+        "kairos.I64" => DataType::I64,
+        "kairos.Bool" => DataType::Bool,
+        "kairos.Vector" => DataType::Vector,
+        "kairos.Matrix" => DataType::Matrix,
+        "kairos.Text" => DataType::Text,
+        "kairos.Bytes" => DataType::Bytes,
+        "kairos.Imu" => DataType::Imu,
+        "kairos.CanFrame" => DataType::CanFrame,
+        other => match other.strip_prefix(CUSTOM_PREFIX) {
+            Some(name) => DataType::Custom(name.to_owned()),
+            None if other.is_empty() => DataType::Custom("raw".to_owned()),
+            None => DataType::Custom(other.to_owned()),
+        },
+    }
+}
+
+/// Decodes one message of a channel with schema `schema` into the payload [`data_type_of`] promises.
+pub fn decode(schema: &str, data: &[u8]) -> Result<Payload, String> {
+    match data_type_of(schema) {
+        DataType::Image => decode_image(data),
+        DataType::PointCloud => decode_point_cloud(data),
+        DataType::GnssFix => decode_fix(data),
+        DataType::Pose => decode_pose(data),
+        DataType::Custom(name) => {
+            if schema.starts_with(CUSTOM_PREFIX) {
+                let json = parse_json(data)?;
+                let bytes = unbase64(text_field(&json, "base64")?)?;
+                Ok(Payload::Custom(CustomPayload {
+                    type_name: Arc::from(name.as_str()),
+                    data: Arc::from(bytes),
+                }))
+            } else {
+                Ok(Payload::Custom(CustomPayload {
+                    type_name: Arc::from(name.as_str()),
+                    data: Arc::from(data),
+                }))
+            }
+        }
+        json_type => decode_json(&json_type, &parse_json(data)?),
+    }
+}
+
+fn parse_json(data: &[u8]) -> Result<Json, String> {
+    serde_json::from_slice(data).map_err(|e| format!("not the JSON this schema describes: {e}"))
+}
+
+fn field<'a>(json: &'a Json, name: &str) -> Result<&'a Json, String> {
+    json.get(name).ok_or_else(|| format!("no field '{name}'"))
+}
+
+fn number(json: &Json, name: &str) -> Result<f64, String> {
+    field(json, name)?
+        .as_f64()
+        .ok_or_else(|| format!("field '{name}' is not a number"))
+}
+
+fn integer(json: &Json, name: &str) -> Result<i64, String> {
+    field(json, name)?
+        .as_i64()
+        .ok_or_else(|| format!("field '{name}' is not an integer"))
+}
+
+fn boolean(json: &Json, name: &str) -> Result<bool, String> {
+    field(json, name)?
+        .as_bool()
+        .ok_or_else(|| format!("field '{name}' is not a boolean"))
+}
+
+fn text_field<'a>(json: &'a Json, name: &str) -> Result<&'a str, String> {
+    field(json, name)?
+        .as_str()
+        .ok_or_else(|| format!("field '{name}' is not text"))
+}
+
+fn numbers(json: &Json, name: &str) -> Result<Vec<f64>, String> {
+    field(json, name)?
+        .as_array()
+        .ok_or_else(|| format!("field '{name}' is not a list"))?
+        .iter()
+        .map(|v| {
+            v.as_f64()
+                .ok_or_else(|| format!("field '{name}' holds a non-number"))
+        })
+        .collect()
+}
+
+fn vector3(json: &Json, name: &str) -> Result<DVec3, String> {
+    let v = field(json, name)?;
+    Ok(DVec3::new(number(v, "x")?, number(v, "y")?, number(v, "z")?))
+}
+
+fn decode_json(data_type: &DataType, json: &Json) -> Result<Payload, String> {
+    Ok(match data_type {
+        DataType::F64 => Payload::F64(number(json, "value")?),
+        DataType::I64 => Payload::I64(integer(json, "value")?),
+        DataType::Bool => Payload::Bool(boolean(json, "value")?),
+        DataType::Vector => Payload::Vector(Arc::from(numbers(json, "values")?)),
+        DataType::Matrix => {
+            let rows = usize::try_from(integer(json, "rows")?).map_err(|_| "negative row count")?;
+            let cols = usize::try_from(integer(json, "cols")?).map_err(|_| "negative column count")?;
+            let values = numbers(json, "values")?;
+            if rows.checked_mul(cols) != Some(values.len()) {
+                return Err(format!("a {rows}x{cols} matrix with {} values", values.len()));
+            }
+            Payload::Matrix(Arc::new(Matrix { rows, cols, values }))
+        }
+        DataType::Text => Payload::Text(Arc::from(text_field(json, "text")?)),
+        DataType::Bytes => Payload::Bytes(Arc::from(unbase64(text_field(json, "base64")?)?)),
+        DataType::Imu => {
+            let orientation = match field(json, "orientation")? {
+                Json::Null => None,
+                q => Some(DQuat::from_xyzw(
+                    number(q, "x")?,
+                    number(q, "y")?,
+                    number(q, "z")?,
+                    number(q, "w")?,
+                )),
+            };
+            Payload::Imu(Imu {
+                angular_velocity: vector3(json, "angular_velocity")?,
+                linear_acceleration: vector3(json, "linear_acceleration")?,
+                orientation,
+            })
+        }
+        DataType::CanFrame => {
+            let id = u32::try_from(integer(json, "id")?).map_err(|_| "CAN id out of range")?;
+            let data: Vec<u8> = field(json, "data")?
+                .as_array()
+                .ok_or("field 'data' is not a list")?
+                .iter()
+                .map(|b| {
+                    b.as_u64()
+                        .and_then(|b| u8::try_from(b).ok())
+                        .ok_or("a data byte out of range")
+                })
+                .collect::<Result<_, _>>()?;
+            let frame = CanFrame::new(id, boolean(json, "extended")?, &data)
+                .ok_or_else(|| format!("a CAN frame of {} bytes", data.len()))?;
+            Payload::CanFrame(frame)
+        }
+        other => return Err(format!("no JSON decoding for {other}")),
+    })
+}
+
+fn decode_image(data: &[u8]) -> Result<Payload, String> {
+    let message = RawImage::decode(data).map_err(|e| format!("not a foxglove.RawImage: {e}"))?;
+    let format = match message.encoding.as_str() {
+        "mono8" | "8UC1" => PixelFormat::Gray8,
+        "mono16" | "16UC1" => PixelFormat::Gray16,
+        "rgb8" => PixelFormat::Rgb8,
+        "rgba8" => PixelFormat::Rgba8,
+        "bgr8" | "8UC3" => PixelFormat::Bgr8,
+        "bgra8" => PixelFormat::Bgra8,
+        other => return Err(format!("image encoding '{other}' is not one Kairos images have")),
+    };
+    let image = Image::with_stride(
+        message.width,
+        message.height,
+        format,
+        message.step,
+        Arc::<[u8]>::from(&message.data[..]),
+    )
+    .map_err(|e| e.to_string())?;
+    Ok(Payload::Image(image))
+}
+
+/// Reads one numeric field of a packed point as `f32`.
+type FieldReader = Box<dyn Fn(&[u8]) -> Option<f32>>;
+
+fn decode_point_cloud(data: &[u8]) -> Result<Payload, String> {
+    use packed_element_field::NumericType;
+    let message = FoxglovePointCloud::decode(data).map_err(|e| format!("not a foxglove.PointCloud: {e}"))?;
+    let stride = message.point_stride as usize;
+    let reader = |name: &str| -> Result<Option<FieldReader>, String> {
+        let Some(field) = message.fields.iter().find(|f| f.name == name) else {
+            return Ok(None);
+        };
+        let offset = field.offset as usize;
+        let read: FieldReader = match NumericType::try_from(field.r#type) {
+            Ok(NumericType::Float32) => Box::new(move |point: &[u8]| {
+                Some(f32::from_le_bytes(
+                    point.get(offset..offset + 4)?.try_into().ok()?,
+                ))
+            }),
+            #[allow(clippy::cast_possible_truncation, reason = "points are f32 in Kairos")]
+            Ok(NumericType::Float64) => Box::new(move |point: &[u8]| {
+                Some(f64::from_le_bytes(point.get(offset..offset + 8)?.try_into().ok()?) as f32)
+            }),
+            _ => return Err(format!("point field '{name}' is neither float32 nor float64")),
+        };
+        Ok(Some(read))
+    };
+    let (Some(x), Some(y), Some(z)) = (reader("x")?, reader("y")?, reader("z")?) else {
+        return Err("a point cloud without x, y and z fields".to_owned());
+    };
+    let intensity_of = reader("intensity")?;
+    if stride == 0 {
+        return Err("a point cloud with a point stride of 0".to_owned());
+    }
+    let count = message.data.len() / stride;
+    let mut points = Vec::with_capacity(count);
+    let mut intensity = intensity_of.as_ref().map(|_| Vec::with_capacity(count));
+    for point in message.data.chunks_exact(stride) {
+        let (Some(px), Some(py), Some(pz)) = (x(point), y(point), z(point)) else {
+            return Err("a point field lies outside the point stride".to_owned());
+        };
+        points.push(Vec3::new(px, py, pz));
+        if let (Some(read), Some(values)) = (&intensity_of, &mut intensity) {
+            values.push(read(point).unwrap_or(0.0));
+        }
+    }
+    Ok(Payload::PointCloud(Arc::new(PointCloud { points, intensity })))
+}
+
+fn decode_fix(data: &[u8]) -> Result<Payload, String> {
+    let message = LocationFix::decode(data).map_err(|e| format!("not a foxglove.LocationFix: {e}"))?;
+    let covariance = |i: usize| {
+        message
+            .position_covariance
+            .get(i)
+            .copied()
+            .unwrap_or(0.0)
+            .max(0.0)
+            .sqrt()
+    };
+    let status_of = |key: &str| {
+        message
+            .metadata
+            .iter()
+            .find(|pair| pair.key == key)
+            .map(|pair| pair.value.as_str())
+    };
+    let status = match status_of("kairos.status").or_else(|| status_of("status")) {
+        Some("no_fix") => FixStatus::NoFix,
+        Some("differential") => FixStatus::Differential,
+        Some("rtk_fixed") => FixStatus::RtkFixed,
+        _ => FixStatus::Fix,
+    };
+    Ok(Payload::GnssFix(GnssFix {
+        latitude_deg: message.latitude,
+        longitude_deg: message.longitude,
+        altitude_m: message.altitude,
+        horizontal_accuracy_m: covariance(0),
+        vertical_accuracy_m: covariance(8),
+        status,
+    }))
+}
+
+fn decode_pose(data: &[u8]) -> Result<Payload, String> {
+    let message = PoseInFrame::decode(data).map_err(|e| format!("not a foxglove.PoseInFrame: {e}"))?;
+    let pose = message.pose.unwrap_or_default();
+    let position = pose.position.unwrap_or_default();
+    let orientation = pose.orientation.unwrap_or_default();
+    Ok(Payload::Pose(Pose {
+        position: DVec3::new(position.x, position.y, position.z),
+        orientation: DQuat::from_xyzw(orientation.x, orientation.y, orientation.z, orientation.w),
+    }))
+}
+
+/// Standard base64 with padding, as [`crate::encode`] writes it.
+fn unbase64(text: &str) -> Result<Vec<u8>, String> {
+    let value = |c: u8| -> Result<u32, String> {
+        Ok(match c {
+            b'A'..=b'Z' => c - b'A',
+            b'a'..=b'z' => c - b'a' + 26,
+            b'0'..=b'9' => c - b'0' + 52,
+            b'+' => 62,
+            b'/' => 63,
+            _ => return Err(format!("'{}' is not a base64 character", char::from(c))),
+        }
+        .into())
+    };
+    let bytes = text.as_bytes();
+    if !bytes.len().is_multiple_of(4) {
+        return Err("base64 text whose length is not a multiple of 4".to_owned());
+    }
+    let mut out = Vec::with_capacity(bytes.len() / 4 * 3);
+    for group in bytes.chunks_exact(4) {
+        let padding = group.iter().rev().take_while(|&&c| c == b'=').count();
+        if padding > 2 {
+            return Err("base64 text with too much padding".to_owned());
+        }
+        let mut n = 0_u32;
+        for (i, &c) in group.iter().enumerate() {
+            n = (n << 6) | if i >= 4 - padding { 0 } else { value(c)? };
+        }
+        let [_, a, b, c] = n.to_be_bytes();
+        out.extend_from_slice(&[a, b, c][..3 - padding]);
+    }
+    Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use kairos_sdk::{
+        CanFrame, FixStatus, GnssFix, Image, Payload, PixelFormat, PointCloud, Pose, Timestamp,
+    };
+
+    use super::{decode, unbase64};
+    use crate::encode::{encode, schema_for};
+
+    fn round_trip(payload: &Payload) -> Payload {
+        let mut bytes = Vec::new();
+        encode(payload, Timestamp(1_700_000_000_123_456_789), "frame", &mut bytes).unwrap();
+        decode(&schema_for(payload).name, &bytes).unwrap()
+    }
+
+    #[test]
+    fn every_payload_type_survives_encoding_and_decoding() {
+        use std::sync::Arc;
+        let payloads = vec![
+            Payload::F64(-1.25e-3),
+            Payload::I64(-42),
+            Payload::Bool(true),
+            Payload::Vector(Arc::from(vec![1.0, 2.5, -3.0])),
+            Payload::Matrix(Arc::new(kairos_sdk::Matrix {
+                rows: 2,
+                cols: 2,
+                values: vec![1.0, 2.0, 3.0, 4.0],
+            })),
+            Payload::Text(Arc::from("héllo")),
+            Payload::Bytes(Arc::from(vec![0_u8, 1, 2, 254, 255])),
+            Payload::Image(Image::packed(3, 2, PixelFormat::Rgb8, vec![7_u8; 18]).unwrap()),
+            Payload::PointCloud(Arc::new(PointCloud {
+                points: vec![glam::Vec3::new(1.0, -2.0, 3.5), glam::Vec3::ZERO],
+                intensity: Some(vec![0.5, 1.0]),
+            })),
+            Payload::Imu(kairos_sdk::Imu {
+                angular_velocity: glam::DVec3::new(0.1, 0.2, 0.3),
+                linear_acceleration: glam::DVec3::new(0.0, 0.0, 9.81),
+                orientation: Some(glam::DQuat::IDENTITY),
+            }),
+            Payload::GnssFix(GnssFix {
+                latitude_deg: 48.8,
+                longitude_deg: 2.3,
+                altitude_m: 35.0,
+                horizontal_accuracy_m: 1.5,
+                vertical_accuracy_m: 3.0,
+                status: FixStatus::RtkFixed,
+            }),
+            Payload::CanFrame(CanFrame::new(0x1AB, true, &[1, 2, 3]).unwrap()),
+            Payload::Pose(Pose {
+                position: glam::DVec3::new(1.0, 2.0, 3.0),
+                orientation: glam::DQuat::from_rotation_z(0.5),
+            }),
+            Payload::Custom(kairos_sdk::CustomPayload {
+                type_name: Arc::from("lidar.Scan"),
+                data: Arc::from(vec![9_u8, 8, 7]),
+            }),
+        ];
+        for payload in &payloads {
+            assert_eq!(&round_trip(payload), payload, "{:?}", payload.data_type());
+        }
+    }
+
+    #[test]
+    fn a_foreign_schema_replays_as_its_raw_bytes_named_by_the_schema() {
+        let payload = decode("ros2msg/sensor_msgs/msg/Range", &[1, 2, 3]).unwrap();
+        let Payload::Custom(custom) = payload else {
+            panic!("expected raw bytes")
+        };
+        assert_eq!(&*custom.type_name, "ros2msg/sensor_msgs/msg/Range");
+        assert_eq!(&*custom.data, &[1, 2, 3]);
+    }
+
+    #[test]
+    fn malformed_messages_are_errors_not_panics() {
+        assert!(decode("kairos.F64", b"{\"value\": \"x\"}").is_err());
+        assert!(decode("kairos.Matrix", b"{\"rows\": 3, \"cols\": 3, \"values\": [1]}").is_err());
+        assert!(decode("foxglove.RawImage", &[0xff, 0xff, 0xff]).is_err());
+        assert!(unbase64("Zm9v=").is_err());
+        assert_eq!(unbase64("Zm9vYg==").unwrap(), b"foob");
+    }
+}

@@ -1,0 +1,284 @@
+//! A recording opened for replay: its channels, an index of its blocks (chunks, or messages outside
+//! chunks) with their time ranges, and where a damaged file stops being readable.
+//!
+//! Opening walks the file's top-level records once, reading each block through the length-limited,
+//! CRC-checking reader of [`crate::safe_read`]; nothing is kept in memory but the index. Replay then reads
+//! one block at a time by its offset, so a recording of any size replays in bounded memory, and seeking
+//! is a binary search over block times.
+
+use std::collections::{BTreeMap, HashMap};
+use std::fs::File;
+use std::os::unix::fs::FileExt as _;
+use std::path::{Path, PathBuf};
+use std::sync::{Arc, Mutex, OnceLock};
+use std::time::SystemTime;
+
+use mcap::records::op;
+
+use crate::safe_read::{Catalog, MAX_RECORD_BYTES, read_records};
+
+/// One recorded channel.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct ChannelEntry {
+    /// The channel's id in its file.
+    pub id: u16,
+    /// The topic (`camera.image`).
+    pub topic: String,
+    /// The schema's name (`foxglove.RawImage`, `kairos.F64`); empty for schemaless channels.
+    pub schema: String,
+    /// The message encoding (`protobuf`, `json`, ...).
+    pub encoding: String,
+    /// Intact messages.
+    pub messages: u64,
+}
+
+/// A run of messages read together: one chunk, or one message outside any chunk.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+struct Block {
+    offset: u64,
+    length: u64,
+    first_log_time: u64,
+    last_log_time: u64,
+}
+
+/// One message as recorded.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct RawMessage {
+    /// Its channel's id.
+    pub channel: u16,
+    /// MCAP log time: the sample's time of issue.
+    pub log_time: u64,
+    /// MCAP publish time: the sample's timestamp.
+    pub publish_time: u64,
+    /// The encoded payload.
+    pub data: Vec<u8>,
+}
+
+/// The index of one recording.
+#[derive(Debug)]
+pub struct RecordingIndex {
+    path: PathBuf,
+    file: File,
+    catalog: Catalog,
+    channels: Vec<ChannelEntry>,
+    blocks: Vec<Block>,
+    damage: Option<String>,
+}
+
+type CacheKey = (PathBuf, u64, Option<SystemTime>);
+
+/// Indexes already built, so validating, building and starting a diagram read a file once.
+fn cache() -> &'static Mutex<HashMap<CacheKey, Arc<RecordingIndex>>> {
+    static CACHE: OnceLock<Mutex<HashMap<CacheKey, Arc<RecordingIndex>>>> = OnceLock::new();
+    CACHE.get_or_init(|| Mutex::new(HashMap::new()))
+}
+
+const CACHE_ENTRIES: usize = 16;
+
+impl RecordingIndex {
+    /// Opens and indexes `path`, or returns the index already built for the file as it is now.
+    ///
+    /// A damaged file opens: the index stops before the damage, which [`Self::damage`] describes. Only a
+    /// file that cannot be read at all, or is not MCAP, is an error.
+    pub fn open(path: &Path) -> Result<Arc<RecordingIndex>, String> {
+        let metadata = std::fs::metadata(path).map_err(|e| format!("cannot read {}: {e}", path.display()))?;
+        let key = (path.to_owned(), metadata.len(), metadata.modified().ok());
+        let mut cache = cache().lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+        if let Some(index) = cache.get(&key) {
+            return Ok(Arc::clone(index));
+        }
+        let index = Arc::new(Self::scan(path)?);
+        if cache.len() >= CACHE_ENTRIES {
+            cache.clear();
+        }
+        cache.insert(key, Arc::clone(&index));
+        Ok(index)
+    }
+
+    fn scan(path: &Path) -> Result<RecordingIndex, String> {
+        let shown = path.display();
+        let file = File::open(path).map_err(|e| format!("cannot open {shown}: {e}"))?;
+        let length = file
+            .metadata()
+            .map_err(|e| format!("cannot read {shown}: {e}"))?
+            .len();
+        let mut magic = [0_u8; 8];
+        if file.read_exact_at(&mut magic, 0).is_err() || magic[..] != *mcap::MAGIC {
+            return Err(format!(
+                "{shown} is not an MCAP recording (it does not start with the MCAP magic bytes)"
+            ));
+        }
+        let mut index = RecordingIndex {
+            path: path.to_owned(),
+            file,
+            catalog: Catalog::default(),
+            channels: Vec::new(),
+            blocks: Vec::new(),
+            damage: None,
+        };
+        let mut channels: BTreeMap<u16, ChannelEntry> = BTreeMap::new();
+        let mut offset = 8_u64;
+        let mut bytes = Vec::new();
+        loop {
+            if offset == length {
+                break;
+            }
+            let mut header = [0_u8; 9];
+            if offset + 9 > length || index.file.read_exact_at(&mut header, offset).is_err() {
+                index.damage = Some(format!(
+                    "the file ends in the middle of a record at byte {offset}"
+                ));
+                break;
+            }
+            let opcode = header[0];
+            let mut size = [0_u8; 8];
+            size.copy_from_slice(&header[1..]);
+            let body = u64::from_le_bytes(size);
+            let end = offset.saturating_add(9).saturating_add(body);
+            if body > MAX_RECORD_BYTES as u64 || end > length {
+                index.damage = Some(format!(
+                    "the record at byte {offset} claims {body} bytes, past the end of the file (truncated?)"
+                ));
+                break;
+            }
+            if opcode == op::DATA_END || opcode == op::FOOTER {
+                break;
+            }
+            if matches!(opcode, op::CHUNK | op::MESSAGE | op::SCHEMA | op::CHANNEL) {
+                bytes.resize(usize::try_from(end - offset).unwrap_or(0), 0);
+                if let Err(error) = index.file.read_exact_at(&mut bytes, offset) {
+                    index.damage = Some(format!("cannot read the record at byte {offset}: {error}"));
+                    break;
+                }
+                let mut block: Option<(u64, u64)> = None;
+                let damage = read_records(
+                    &bytes,
+                    false,
+                    &mut index.catalog,
+                    |message| {
+                        let channel = &message.channel;
+                        channels
+                            .entry(channel.id)
+                            .or_insert_with(|| ChannelEntry {
+                                id: channel.id,
+                                topic: channel.topic.clone(),
+                                schema: channel
+                                    .schema
+                                    .as_ref()
+                                    .map_or_else(String::new, |s| s.name.clone()),
+                                encoding: channel.message_encoding.clone(),
+                                messages: 0,
+                            })
+                            .messages += 1;
+                        let (first, last) = block.get_or_insert((message.log_time, message.log_time));
+                        *first = (*first).min(message.log_time);
+                        *last = (*last).max(message.log_time);
+                    },
+                    |_| {},
+                );
+                if let Some(damage) = damage {
+                    index.damage = Some(format!("the record at byte {offset} is damaged: {damage}"));
+                    // Its messages were counted; a block is replayed whole or not at all.
+                    break;
+                }
+                if let Some((first_log_time, last_log_time)) = block {
+                    index.blocks.push(Block {
+                        offset,
+                        length: end - offset,
+                        first_log_time,
+                        last_log_time,
+                    });
+                }
+            }
+            offset = end;
+        }
+        index.channels = channels.into_values().collect();
+        index
+            .channels
+            .sort_by(|a, b| a.topic.cmp(&b.topic).then(a.id.cmp(&b.id)));
+        Ok(index)
+    }
+
+    /// The file.
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    /// The channels that have intact messages, by topic.
+    pub fn channels(&self) -> &[ChannelEntry] {
+        &self.channels
+    }
+
+    /// Where and why reading stopped, for a damaged file; everything before it replays.
+    pub fn damage(&self) -> Option<&str> {
+        self.damage.as_deref()
+    }
+
+    /// How many blocks replay.
+    pub fn block_count(&self) -> usize {
+        self.blocks.len()
+    }
+
+    /// The log time of the first intact message.
+    pub fn first_log_time(&self) -> Option<u64> {
+        self.blocks.iter().map(|b| b.first_log_time).min()
+    }
+
+    /// The log time of the last intact message.
+    pub fn last_log_time(&self) -> Option<u64> {
+        self.blocks.iter().map(|b| b.last_log_time).max()
+    }
+
+    /// The first block that may hold a message logged at or after `log_time`.
+    pub fn block_at(&self, log_time: u64) -> usize {
+        // Blocks are in file order, which is time order for files written live; the running maximum of
+        // their last times is monotonic even where chunks overlap a little.
+        let mut latest = 0;
+        self.blocks
+            .iter()
+            .position(|b| {
+                latest = latest.max(b.last_log_time);
+                latest >= log_time
+            })
+            .unwrap_or(self.blocks.len())
+    }
+
+    /// The messages of block `block`, by log time (ties in file order).
+    pub fn read_block(&self, block: usize) -> Result<Vec<RawMessage>, String> {
+        let Some(entry) = self.blocks.get(block) else {
+            return Ok(Vec::new());
+        };
+        let mut bytes = vec![0_u8; usize::try_from(entry.length).unwrap_or(0)];
+        self.file.read_exact_at(&mut bytes, entry.offset).map_err(|e| {
+            format!(
+                "cannot read {} at byte {}: {e}",
+                self.path.display(),
+                entry.offset
+            )
+        })?;
+        let mut messages = Vec::new();
+        let damage = read_records(
+            &bytes,
+            false,
+            &mut self.catalog.clone(),
+            |message| {
+                messages.push(RawMessage {
+                    channel: message.channel.id,
+                    log_time: message.log_time,
+                    publish_time: message.publish_time,
+                    data: message.data.to_vec(),
+                });
+            },
+            |_| {},
+        );
+        if let Some(damage) = damage {
+            return Err(format!(
+                "{} changed since it was opened: the record at byte {} is damaged: {damage}",
+                self.path.display(),
+                entry.offset
+            ));
+        }
+        messages.sort_by_key(|m| m.log_time);
+        Ok(messages)
+    }
+}
