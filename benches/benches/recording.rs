@@ -103,7 +103,11 @@ fn main() {
         "1920×1080 RGB frames (6.2 MB), foxglove.RawImage",
     );
     let frames = frames(size(12, 48));
-    let Ok(dir) = tempfile::tempdir() else { return };
+    let Ok(dir) =
+        std::env::var("KAIROS_BENCH_DIR").map_or_else(|_| tempfile::tempdir(), tempfile::tempdir_in)
+    else {
+        return;
+    };
     let mut ours = Vec::new();
     let mut bare = Vec::new();
     for repetition in 0..repetitions() {

@@ -132,6 +132,55 @@ fn image_encoding(format: PixelFormat) -> &'static str {
     }
 }
 
+fn varint(mut value: u64, out: &mut Vec<u8>) {
+    while value >= 0x80 {
+        out.push((value as u8) | 0x80);
+        value >>= 7;
+    }
+    out.push(value as u8);
+}
+
+fn length_delimited(tag: u8, bytes: &[u8], out: &mut Vec<u8>) {
+    if !bytes.is_empty() {
+        out.push((tag << 3) | 2);
+        varint(bytes.len() as u64, out);
+        out.extend_from_slice(bytes);
+    }
+}
+
+fn fixed32(tag: u8, value: u32, out: &mut Vec<u8>) {
+    if value != 0 {
+        out.push((tag << 3) | 5);
+        out.extend_from_slice(&value.to_le_bytes());
+    }
+}
+
+/// `foxglove.RawImage` in protobuf, written straight from the shared pixels: the generic encoder would
+/// first copy them into a message of its own, a second full copy of every frame. The bytes are the ones
+/// that encoder writes (fields by tag; a unit test compares).
+fn encode_raw_image(image: &kairos_sdk::Image, timestamp: Timestamp, frame_id: &str, out: &mut Vec<u8>) {
+    out.reserve(image.pixels.len() + frame_id.len() + 64);
+    let time = foxglove_time(timestamp);
+    let mut stamp = Vec::with_capacity(12);
+    if time.sec() != 0 {
+        stamp.push(1 << 3);
+        varint(u64::from(time.sec()), &mut stamp);
+    }
+    if time.nsec() != 0 {
+        stamp.push(2 << 3);
+        varint(u64::from(time.nsec()), &mut stamp);
+    }
+    out.push((1 << 3) | 2);
+    varint(stamp.len() as u64, out);
+    out.extend_from_slice(&stamp);
+    fixed32(2, image.width, out);
+    fixed32(3, image.height, out);
+    length_delimited(4, image_encoding(image.format).as_bytes(), out);
+    fixed32(5, image.stride, out);
+    length_delimited(6, &image.pixels, out);
+    length_delimited(7, frame_id.as_bytes(), out);
+}
+
 /// Encodes `payload` (of a sample stamped `timestamp`) in its schema's message encoding into `out`.
 #[allow(
     clippy::too_many_lines,
@@ -147,16 +196,8 @@ pub fn encode(
     let protobuf = |message: &dyn Fn(&mut Vec<u8>) -> Result<(), String>, out: &mut Vec<u8>| message(out);
     let json_value = match payload {
         Payload::Image(image) => {
-            let message = RawImage {
-                timestamp: Some(foxglove_time(timestamp)),
-                frame_id: frame_id.to_owned(),
-                width: image.width,
-                height: image.height,
-                encoding: image_encoding(image.format).to_owned(),
-                step: image.stride,
-                data: foxglove::bytes::Bytes::copy_from_slice(&image.pixels),
-            };
-            return protobuf(&|buf| message.encode(buf).map_err(|e| e.to_string()), out);
+            encode_raw_image(image, timestamp, frame_id, out);
+            return Ok(());
         }
         Payload::PointCloud(cloud) => {
             let with_intensity = cloud.intensity.is_some();
@@ -262,7 +303,37 @@ pub fn encode(
 
 #[cfg(test)]
 mod tests {
-    use super::base64;
+    use foxglove::Encode as _;
+    use kairos_sdk::{Image, Payload, PixelFormat, Timestamp};
+
+    use super::{base64, encode, foxglove_time, image_encoding};
+
+    #[test]
+    fn raw_images_encode_to_the_bytes_the_foxglove_encoder_writes() {
+        for (time, frame) in [(1_700_000_000_123_456_789, "camera.image"), (0, ""), (5, "x")] {
+            let pixels: Vec<u8> = (0..300 * 7 * 3).map(|i| (i % 251) as u8).collect();
+            let image = Image::with_stride(299, 7, PixelFormat::Rgb8, 300 * 3, pixels).unwrap();
+            let mut ours = Vec::new();
+            encode(&Payload::Image(image.clone()), Timestamp(time), frame, &mut ours).unwrap();
+            let reference = foxglove::schemas::RawImage {
+                timestamp: Some(foxglove_time(Timestamp(time))),
+                frame_id: frame.to_owned(),
+                width: image.width,
+                height: image.height,
+                encoding: image_encoding(image.format).to_owned(),
+                step: image.stride,
+                data: foxglove::bytes::Bytes::copy_from_slice(&image.pixels),
+            };
+            let mut theirs = Vec::new();
+            reference.encode(&mut theirs).unwrap();
+            assert!(
+                ours == theirs,
+                "time {time}, frame {frame:?}: {:?} vs {:?}",
+                &ours[..40.min(ours.len())],
+                &theirs[..40.min(theirs.len())]
+            );
+        }
+    }
 
     #[test]
     fn base64_matches_the_standard_alphabet_and_padding() {

@@ -8,8 +8,10 @@
 
 use std::sync::{Arc, OnceLock};
 
+use kairos_pack_recording::decode::decode;
 use kairos_pack_recording::inspect_bytes;
 use kairos_pack_recording::recorder::Recorder;
+use kairos_pack_recording::timeline::RecordingIndex;
 use kairos_sdk::harness::Harness;
 use kairos_sdk::{Image, Payload, PixelFormat, Timestamp};
 use proptest::prelude::*;
@@ -80,6 +82,7 @@ proptest! {
             }
         }
         let _ = inspect_bytes("corrupted", &bytes);
+        replay_everything(&bytes);
     }
 
     #[test]
@@ -87,5 +90,46 @@ proptest! {
         let mut bytes = mcap::MAGIC.to_vec();
         bytes.extend(tail);
         let _ = inspect_bytes("arbitrary", &bytes);
+        replay_everything(&bytes);
     }
+}
+
+/// Opens `bytes` as the player does and reads every block it indexed, decoding every message: whatever
+/// the damage, this returns (errors are fine, panics and aborts are not).
+fn replay_everything(bytes: &[u8]) {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("damaged.mcap");
+    std::fs::write(&path, bytes).unwrap();
+    let Ok(index) = RecordingIndex::open(&path) else {
+        return;
+    };
+    let schemas: std::collections::BTreeMap<u16, String> = index
+        .channels()
+        .iter()
+        .map(|c| (c.id, c.schema.clone()))
+        .collect();
+    for block in 0..index.block_count() {
+        for message in index.read_block(block).unwrap_or_default() {
+            let schema = schemas.get(&message.channel).map_or("", String::as_str);
+            let _ = decode(schema, &message.data);
+        }
+    }
+}
+
+#[test]
+fn the_player_reads_a_truncated_recording_up_to_the_damage() {
+    let whole = recording();
+    for len in (8..whole.len()).step_by(389) {
+        replay_everything(&whole[..len]);
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("cut.mcap");
+    std::fs::write(&path, &whole[..whole.len() / 2]).unwrap();
+    let index = RecordingIndex::open(&path).unwrap();
+    assert!(
+        index.damage().unwrap().contains("past the end of the file"),
+        "{:?}",
+        index.damage()
+    );
+    assert!(index.block_count() > 0);
 }
