@@ -499,3 +499,63 @@ fn a_player_without_its_recording_is_refused_where_the_path_is_given() {
         "{stderr}"
     );
 }
+
+/// Runs `script` (sh) where it may mount a small tmpfs: in a user and mount namespace of its own
+/// (`unshare -rm`), or directly when that is refused and we are root. `$KAIROS` is the binary.
+fn with_a_small_disk(dir: &Path, script: &str) -> std::process::Output {
+    let run = |wrapper: &[&str]| {
+        Command::new(wrapper[0])
+            .args(&wrapper[1..])
+            .args(["sh", "-ec", script])
+            .current_dir(dir)
+            .env("KAIROS", env!("CARGO_BIN_EXE_kairos"))
+            .env("RUST_LOG", "info")
+            .output()
+    };
+    match run(&["unshare", "-rm"]) {
+        Ok(output) if output.status.success() => output,
+        first => run(&["env"]).unwrap_or_else(|e| {
+            panic!("cannot mount a tmpfs: unshare -rm gave {first:?}, and sh failed: {e}")
+        }),
+    }
+}
+
+#[test]
+fn a_full_disk_stops_the_recorder_alone_naming_the_file() {
+    let _serial = one_at_a_time();
+    let dir = tempfile::tempdir().unwrap();
+    let record = example_path();
+    // Uncompressed camera frames fill 16 MB in about two seconds. First with the free-space guard
+    // (stop at 4 MB free), then without it (min_free_mb = 0: the writes themselves fail).
+    let script = format!(
+        r#"mkdir -p disk
+mount -t tmpfs -o size=16m tmpfs disk
+for guard in 4 0; do
+  "$KAIROS" run {record} --for 3s --stats --set recorder.path=disk/drive.mcap \
+    --set recorder.compression=none --set recorder.min_free_mb=$guard > out-$guard.txt 2> err-$guard.txt || echo $? > code-$guard.txt
+  cp disk/drive.mcap copy-$guard.mcap
+  rm disk/drive.mcap
+done
+umount disk"#
+    );
+    let output = with_a_small_disk(dir.path(), &script);
+    let (_, stderr) = text(&output);
+    assert!(output.status.success(), "{stderr}");
+    for (guard, expected_inspect) in [("4", 0), ("0", 3)] {
+        let log = std::fs::read_to_string(dir.path().join(format!("err-{guard}.txt"))).unwrap();
+        let code = std::fs::read_to_string(dir.path().join(format!("code-{guard}.txt"))).unwrap_or_default();
+        assert_eq!(code.trim(), "2", "min_free_mb={guard}: a failed component is exit code 2\n{log}");
+        assert!(log.contains("disk/drive.mcap"), "min_free_mb={guard}: the error names the file\n{log}");
+        if guard == "0" {
+            assert!(log.contains("No space left on device"), "{log}");
+        } else {
+            assert!(log.contains("stopped recording"), "{log}");
+        }
+        let camera = log.lines().rev().find(|l| l.starts_with("camera ")).unwrap();
+        assert!(camera.contains("stopped"), "the camera ran to the end: {camera}");
+        // With the guard the file is closed and valid; without it, readable up to the last closed chunk.
+        let (code, report) = inspect(dir.path(), &dir.path().join(format!("copy-{guard}.mcap")));
+        assert_eq!(code, Some(expected_inspect), "min_free_mb={guard}: {report}");
+        assert!(report["messages"].as_u64().unwrap() > 0, "{report}");
+    }
+}

@@ -34,6 +34,8 @@ fn frames(count: usize) -> Vec<Payload> {
 /// Bytes per second through a bare loop: encode each frame as `foxglove.RawImage`, write it.
 fn bare_loop(dir: &std::path::Path, frames: &[Payload]) -> Option<f64> {
     let path = dir.join("bare.mcap");
+    // Truncating the previous run's file frees hundreds of megabytes: not part of either measurement.
+    let _ = std::fs::remove_file(&path);
     let file = File::create(&path).ok()?;
     let started = Instant::now();
     let mut writer = mcap::WriteOptions::new()
@@ -81,6 +83,7 @@ fn bare_loop(dir: &std::path::Path, frames: &[Payload]) -> Option<f64> {
 /// Bytes per second through the recorder component, driven by the offline harness.
 fn recorder(dir: &std::path::Path, frames: &[Payload]) -> Option<f64> {
     let path = dir.join("ours.mcap");
+    let _ = std::fs::remove_file(&path);
     let mut harness = Harness::new(Recorder::info(), Recorder::default());
     harness.set_property("path", path.display().to_string()).ok()?;
     harness.set_property("compression", "none").ok()?;

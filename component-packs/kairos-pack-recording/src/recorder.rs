@@ -19,6 +19,8 @@ use crate::encode::{encode, schema_for};
 pub const RECORDER_INPUTS: usize = 8;
 const INPUT_NAMES: [&str; RECORDER_INPUTS] = ["in1", "in2", "in3", "in4", "in5", "in6", "in7", "in8"];
 const SPACE_CHECK_PERIOD: Duration = Duration::from_secs(1);
+/// The free-space check never runs more often than once per this many bytes written.
+const SPACE_CHECK_MIN_BYTES: u64 = 64 * 1024;
 
 struct OpenFile {
     writer: mcap::Writer<BufWriter<File>>,
@@ -39,6 +41,9 @@ pub struct Recorder {
     connected: Vec<usize>,
     scratch: Vec<u8>,
     last_space_check: Option<Instant>,
+    /// Bytes written since the last free-space check, and how many may be before the next one.
+    written_since_check: u64,
+    check_budget: u64,
     split_requested: bool,
 }
 
@@ -53,6 +58,19 @@ impl std::fmt::Debug for Recorder {
 
 fn failed(path: &Path, what: &str, error: impl std::fmt::Display) -> ComponentError {
     ComponentError::failed(format_args!("{what} {}: {error}", path.display()))
+}
+
+/// `error` and its causes: the `mcap` crate's I/O errors say only "I/O error" and keep the reason (no
+/// space left on device, ...) as their source.
+fn with_causes(error: &dyn std::error::Error) -> String {
+    let mut text = error.to_string();
+    let mut cause = error.source();
+    while let Some(inner) = cause {
+        text.push_str(": ");
+        text.push_str(&inner.to_string());
+        cause = inner.source();
+    }
+    text
 }
 
 impl Recorder {
@@ -149,7 +167,7 @@ impl Recorder {
             .profile("kairos")
             .library(concat!("kairos-pack-recording ", env!("CARGO_PKG_VERSION")))
             .create(BufWriter::new(file))
-            .map_err(|e| failed(&path, "cannot start", e))?;
+            .map_err(|e| failed(&path, "cannot start", with_causes(&e)))?;
         let about = BTreeMap::from([
             ("recorder".to_owned(), ctx.id().to_owned()),
             ("clock".to_owned(), ctx.clock().describe()),
@@ -169,14 +187,14 @@ impl Recorder {
                 name: "kairos.recording".to_owned(),
                 metadata: about,
             })
-            .map_err(|e| failed(&path, "cannot write to", e))?;
+            .map_err(|e| failed(&path, "cannot write to", with_causes(&e)))?;
         if let Some(text) = ctx.diagram_text() {
             writer
                 .write_metadata(&Metadata {
                     name: "kairos.diagram".to_owned(),
                     metadata: BTreeMap::from([("ron".to_owned(), text.to_string())]),
                 })
-                .map_err(|e| failed(&path, "cannot write to", e))?;
+                .map_err(|e| failed(&path, "cannot write to", with_causes(&e)))?;
         }
         tracing::info!("recording to {}", path.display());
         let now = Instant::now();
@@ -224,7 +242,7 @@ impl Recorder {
             .into_inner()
             .map_err(std::io::IntoInnerError::into_error)
             .and_then(|f| f.sync_all());
-        result.map_err(|e| failed(&file.path, "cannot finish", e))?;
+        result.map_err(|e| failed(&file.path, "cannot finish", with_causes(&e)))?;
         flushed.map_err(|e| failed(&file.path, "cannot flush", e))?;
         tracing::info!(
             "closed {} ({} bytes of messages)",
@@ -253,7 +271,7 @@ impl Recorder {
                 let id = file
                     .writer
                     .add_schema(&spec.name, &spec.encoding, &spec.data)
-                    .map_err(|e| failed(&path, "cannot write to", e))?;
+                    .map_err(|e| failed(&path, "cannot write to", with_causes(&e)))?;
                 file.schemas.insert(spec.name.clone(), id);
                 id
             };
@@ -272,7 +290,7 @@ impl Recorder {
             let id = file
                 .writer
                 .add_channel(schema, &topic, &spec.message_encoding, &metadata)
-                .map_err(|e| failed(&path, "cannot write to", e))?;
+                .map_err(|e| failed(&path, "cannot write to", with_causes(&e)))?;
             file.channels.insert(input, (id, 0));
             (id, 0)
         };
@@ -291,14 +309,15 @@ impl Recorder {
         };
         file.writer
             .write_to_known_channel(&header, &self.scratch)
-            .map_err(|e| failed(&path, "cannot write to", e))?;
+            .map_err(|e| failed(&path, "cannot write to", with_causes(&e)))?;
         file.bytes += self.scratch.len() as u64;
+        self.written_since_check += self.scratch.len() as u64;
         let period = Duration::from_secs_f64(ctx.f64_property("chunk_period_s")?);
         if file.last_chunk.elapsed() >= period {
             file.last_chunk = Instant::now();
             file.writer
                 .flush()
-                .map_err(|e| failed(&path, "cannot write to", e))?;
+                .map_err(|e| failed(&path, "cannot write to", with_causes(&e)))?;
         }
         Ok(())
     }
@@ -314,13 +333,16 @@ impl Recorder {
 
     /// Stops cleanly, before the disk is full: the file is closed and valid, and the error names it.
     fn check_free_space(&mut self, ctx: &Context) -> ComponentResult {
+        // Once a second, and sooner when a fast writer could use half the margin left before then.
         if self
             .last_space_check
             .is_some_and(|t| t.elapsed() < SPACE_CHECK_PERIOD)
+            && self.written_since_check < self.check_budget
         {
             return Ok(());
         }
         self.last_space_check = Some(Instant::now());
+        self.written_since_check = 0;
         let Some(file) = &self.file else { return Ok(()) };
         let path = file.path.clone();
         let folder = path
@@ -332,6 +354,9 @@ impl Recorder {
         };
         let free_mb = (stats.blocks_available() as f64) * (stats.fragment_size() as f64) / 1e6;
         let minimum = ctx.f64_property("min_free_mb")?;
+        #[allow(clippy::cast_possible_truncation, clippy::cast_sign_loss, reason = "a positive byte count")]
+        let budget = ((free_mb - minimum).max(0.0) * 1e6 / 2.0) as u64;
+        self.check_budget = budget.max(SPACE_CHECK_MIN_BYTES);
         if free_mb < minimum {
             self.close(ctx)?;
             self.recording = false;
