@@ -544,8 +544,15 @@ umount disk"#
     for (guard, expected_inspect) in [("4", 0), ("0", 3)] {
         let log = std::fs::read_to_string(dir.path().join(format!("err-{guard}.txt"))).unwrap();
         let code = std::fs::read_to_string(dir.path().join(format!("code-{guard}.txt"))).unwrap_or_default();
-        assert_eq!(code.trim(), "2", "min_free_mb={guard}: a failed component is exit code 2\n{log}");
-        assert!(log.contains("disk/drive.mcap"), "min_free_mb={guard}: the error names the file\n{log}");
+        assert_eq!(
+            code.trim(),
+            "2",
+            "min_free_mb={guard}: a failed component is exit code 2\n{log}"
+        );
+        assert!(
+            log.contains("disk/drive.mcap"),
+            "min_free_mb={guard}: the error names the file\n{log}"
+        );
         if guard == "0" {
             assert!(log.contains("No space left on device"), "{log}");
         } else {

@@ -354,7 +354,11 @@ impl Recorder {
         };
         let free_mb = (stats.blocks_available() as f64) * (stats.fragment_size() as f64) / 1e6;
         let minimum = ctx.f64_property("min_free_mb")?;
-        #[allow(clippy::cast_possible_truncation, clippy::cast_sign_loss, reason = "a positive byte count")]
+        #[allow(
+            clippy::cast_possible_truncation,
+            clippy::cast_sign_loss,
+            reason = "a positive byte count"
+        )]
         let budget = ((free_mb - minimum).max(0.0) * 1e6 / 2.0) as u64;
         self.check_budget = budget.max(SPACE_CHECK_MIN_BYTES);
         if free_mb < minimum {
