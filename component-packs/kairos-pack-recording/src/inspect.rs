@@ -82,16 +82,56 @@ struct Tally {
 
 /// Reads `path`; a damaged file is read as far as it is intact and the damage reported.
 pub fn inspect(path: &Path) -> Result<Report, InspectError> {
+    inspect_with_progress(path, |_| {})
+}
+
+/// What [`inspect_with_progress`] is doing.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Progress {
+    /// Reading the file: bytes read, of the total.
+    Reading(u64, u64),
+    /// Checking and counting its records: bytes done, of the total.
+    Checking(u64, u64),
+}
+
+/// Like [`inspect`], reporting progress now and then (for a progress bar on large files).
+pub fn inspect_with_progress(
+    path: &Path,
+    mut progress: impl FnMut(Progress),
+) -> Result<Report, InspectError> {
+    use std::io::Read as _;
     let shown = path.display().to_string();
-    let bytes = std::fs::read(path).map_err(|source| InspectError::Io {
+    let io_error = |source| InspectError::Io {
         path: shown.clone(),
         source,
-    })?;
-    inspect_bytes(&shown, &bytes)
+    };
+    let mut file = std::fs::File::open(path).map_err(io_error)?;
+    let total = file.metadata().map_err(io_error)?.len();
+    let mut bytes = Vec::with_capacity(usize::try_from(total).unwrap_or(0));
+    let mut piece = vec![0_u8; 8 << 20];
+    loop {
+        let read = file.read(&mut piece).map_err(io_error)?;
+        if read == 0 {
+            break;
+        }
+        bytes.extend_from_slice(piece.get(..read).unwrap_or_default());
+        progress(Progress::Reading(bytes.len() as u64, total));
+    }
+    inspect_bytes_with_progress(&shown, &bytes, |done| {
+        progress(Progress::Checking(done as u64, total));
+    })
 }
 
 /// Like [`inspect`] for a recording already in memory; `shown` names it in the report.
 pub fn inspect_bytes(shown: &str, bytes: &[u8]) -> Result<Report, InspectError> {
+    inspect_bytes_with_progress(shown, bytes, |_| {})
+}
+
+fn inspect_bytes_with_progress(
+    shown: &str,
+    bytes: &[u8],
+    on_progress: impl FnMut(usize),
+) -> Result<Report, InspectError> {
     let shown = shown.to_owned();
     if bytes.get(..8) != Some(mcap::MAGIC) {
         return Err(InspectError::NotMcap {
@@ -111,7 +151,7 @@ pub fn inspect_bytes(shown: &str, bytes: &[u8]) -> Result<Report, InspectError> 
     }
     // Count by reading every message: it works the same on complete and damaged files.
     let mut tallies: BTreeMap<String, Tally> = BTreeMap::new();
-    let mut damage = crate::safe_read::read_intact(
+    let mut damage = crate::safe_read::read_intact_with_progress(
         bytes,
         |message| {
             let channel = &message.channel;
@@ -130,6 +170,7 @@ pub fn inspect_bytes(shown: &str, bytes: &[u8]) -> Result<Report, InspectError> 
             tally.last = tally.last.max(message.publish_time);
         },
         |_| {},
+        on_progress,
     )
     .map(|d| format!("{d} (messages before this point are intact)"));
     if !complete && damage.is_none() {

@@ -16,7 +16,7 @@ pub mod recover;
 pub mod safe_read;
 pub mod timeline;
 
-pub use inspect::{InspectError, Report, inspect, inspect_bytes};
+pub use inspect::{InspectError, Progress, Report, inspect, inspect_bytes, inspect_with_progress};
 use kairos_sdk::Registry;
 pub use recover::{Recovered, recover};
 

@@ -99,6 +99,23 @@ pub fn read_intact(
     read_records(bytes, true, &mut Catalog::default(), on_message, on_metadata)
 }
 
+/// Like [`read_intact`], telling `on_progress` how many bytes were read so far, now and then.
+pub fn read_intact_with_progress(
+    bytes: &[u8],
+    on_message: impl FnMut(&Message<'_>),
+    on_metadata: impl FnMut(Metadata),
+    on_progress: impl FnMut(usize),
+) -> Damage {
+    read_records_with_progress(
+        bytes,
+        true,
+        &mut Catalog::default(),
+        on_message,
+        on_metadata,
+        on_progress,
+    )
+}
+
 /// Visits the intact messages and metadata of `bytes`: a whole file when `whole_file` (it starts with the
 /// magic), otherwise a run of records cut from one (a chunk); `catalog` carries schemas and channels from
 /// one call to the next. Returns where reading stopped on damaged data.
@@ -106,8 +123,19 @@ pub fn read_records(
     bytes: &[u8],
     whole_file: bool,
     catalog: &mut Catalog,
+    on_message: impl FnMut(&Message<'_>),
+    on_metadata: impl FnMut(Metadata),
+) -> Damage {
+    read_records_with_progress(bytes, whole_file, catalog, on_message, on_metadata, |_| {})
+}
+
+fn read_records_with_progress(
+    bytes: &[u8],
+    whole_file: bool,
+    catalog: &mut Catalog,
     mut on_message: impl FnMut(&Message<'_>),
     mut on_metadata: impl FnMut(Metadata),
+    mut on_progress: impl FnMut(usize),
 ) -> Damage {
     let options = LinearReaderOptions::default()
         .with_skip_start_magic(!whole_file)
@@ -132,6 +160,7 @@ pub fn read_records(
                 reader.insert(take).copy_from_slice(source);
                 reader.notify_read(take);
                 offset += take;
+                on_progress(offset);
             }
             Ok(LinearReadEvent::Record { data, opcode }) => {
                 let record = match mcap::parse_record(opcode, data) {

@@ -149,7 +149,7 @@ pub fn execute(cli: Cli) -> anyhow::Result<ExitCode> {
         ),
         Command::Validate { diagrams } => Ok(validate(&registry, &diagrams, &scan.searched)),
         Command::Inspect { file, json } => {
-            let report = kairos_pack_recording::inspect(&file)?;
+            let report = inspect_showing_progress(&file)?;
             if json {
                 println!(
                     "{}",
@@ -281,4 +281,43 @@ fn components(library: &LibraryInfo, json: bool, filter: Option<&str>) -> anyhow
     }
     print!("{out}");
     Ok(())
+}
+
+/// Files smaller than this are inspected without a progress bar: it would only flicker.
+const PROGRESS_BAR_FROM_BYTES: u64 = 64 << 20;
+
+/// `kairos inspect`'s reading, with a progress bar on standard error for large files when it is a terminal.
+fn inspect_showing_progress(
+    file: &std::path::Path,
+) -> Result<kairos_pack_recording::Report, kairos_pack_recording::InspectError> {
+    use kairos_pack_recording::Progress;
+    use std::io::{IsTerminal as _, Write as _};
+    let large = std::fs::metadata(file).is_ok_and(|m| m.len() >= PROGRESS_BAR_FROM_BYTES);
+    if !large || !std::io::stderr().is_terminal() {
+        return kairos_pack_recording::inspect(file);
+    }
+    let mut shown_percent = u64::MAX;
+    let report = kairos_pack_recording::inspect_with_progress(file, |progress| {
+        let (phase, done, total) = match progress {
+            Progress::Reading(done, total) => ("reading ", done, total),
+            Progress::Checking(done, total) => ("checking", done, total),
+        };
+        let percent = (done * 100).checked_div(total).unwrap_or(100);
+        if percent == shown_percent {
+            return;
+        }
+        shown_percent = percent;
+        let filled = usize::try_from(percent / 4).unwrap_or(25);
+        let mut stderr = std::io::stderr();
+        let _ = write!(
+            stderr,
+            "\r{phase} [{}{}] {percent:>3} % of {:.1} MB",
+            "#".repeat(filled),
+            " ".repeat(25 - filled.min(25)),
+            total as f64 / 1e6
+        );
+        let _ = stderr.flush();
+    });
+    eprint!("\r{}\r", " ".repeat(60));
+    report
 }
