@@ -5,8 +5,11 @@
 
 use std::fmt;
 
+use serde::{Deserialize, Serialize};
+
 /// How bad a problem is.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
 pub enum Severity {
     /// The diagram cannot be run as it is.
     Error,
@@ -31,7 +34,8 @@ impl fmt::Display for Severity {
 }
 
 /// What kind of problem a diagnostic reports, so tools can react without parsing messages.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
 #[non_exhaustive]
 pub enum DiagnosticCode {
     /// The text is not valid RON (of the subset diagrams use).
@@ -88,7 +92,7 @@ pub enum DiagnosticCode {
 }
 
 /// Where a problem is in the source text.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
 pub struct Location {
     /// The line, counted from 1.
     pub line: usize,
@@ -107,7 +111,7 @@ impl fmt::Display for Location {
 }
 
 /// A secondary remark attached to a diagnostic, such as where the first of two duplicates is.
-#[derive(Debug, Clone, PartialEq, Eq)]
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
 pub struct Note {
     /// What the note says.
     pub message: String,
@@ -116,7 +120,7 @@ pub struct Note {
 }
 
 /// One problem found in a diagram.
-#[derive(Debug, Clone, PartialEq, Eq)]
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
 pub struct Diagnostic {
     /// Whether the diagram is unusable or merely suspicious.
     pub severity: Severity,

@@ -48,6 +48,27 @@ pub enum Command {
         #[arg(long = "set", value_name = "ID.PROPERTY=VALUE")]
         overrides: Vec<String>,
     },
+    /// Serve a headless runtime that the studio or any WebSocket client drives (the control protocol).
+    Serve {
+        /// Where to listen. Anything but loopback requires --token-file.
+        #[arg(long, default_value = crate::serve::DEFAULT_LISTEN, value_name = "HOST:PORT")]
+        listen: String,
+        /// The operator token: read from FILE, or a fresh one written there (owner-only) if FILE is missing.
+        #[arg(long, value_name = "FILE")]
+        token_file: Option<PathBuf>,
+        /// A token for read-only (monitor) clients, read or made the same way.
+        #[arg(long, value_name = "FILE")]
+        monitor_token_file: Option<PathBuf>,
+        /// Deploy this diagram at boot.
+        #[arg(long, value_name = "FILE")]
+        diagram: Option<PathBuf>,
+        /// Start the --diagram at boot, for unattended targets.
+        #[arg(long, requires = "diagram")]
+        start: bool,
+        /// The most clients served at once.
+        #[arg(long, default_value_t = kairos_protocol::DEFAULT_MAX_CONNECTIONS)]
+        max_connections: usize,
+    },
     /// Check diagrams against the component library; exit 0 when all are valid.
     Validate {
         /// The diagram files.
@@ -87,6 +108,8 @@ pub enum Command {
 
 /// Sets up logging to standard error.
 pub fn init_logging(verbose: u8) {
+    use tracing_subscriber::layer::SubscriberExt as _;
+    use tracing_subscriber::util::SubscriberInitExt as _;
     let default = match verbose {
         0 => "info",
         1 => "debug",
@@ -94,17 +117,23 @@ pub fn init_logging(verbose: u8) {
     };
     let filter = tracing_subscriber::EnvFilter::try_from_default_env()
         .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(default));
-    let _ = tracing_subscriber::fmt()
-        .with_env_filter(filter)
-        .with_writer(std::io::stderr)
-        .with_target(false)
+    let _ = tracing_subscriber::registry()
+        .with(filter)
+        .with(
+            tracing_subscriber::fmt::layer()
+                .with_writer(std::io::stderr)
+                .with_target(false),
+        )
+        .with(crate::log_tap::LogTap)
         .try_init();
 }
 
 /// Runs a parsed command line.
+#[allow(clippy::too_many_lines, reason = "one arm per subcommand, each a call")]
 pub fn execute(cli: Cli) -> anyhow::Result<ExitCode> {
     let diagrams: Vec<&std::path::Path> = match &cli.command {
         Command::Run { diagram, .. } => vec![diagram.as_path()],
+        Command::Serve { diagram, .. } => diagram.iter().map(PathBuf::as_path).collect(),
         Command::Validate { diagrams } => diagrams.iter().map(PathBuf::as_path).collect(),
         Command::Packs { .. }
         | Command::Components { .. }
@@ -148,6 +177,24 @@ pub fn execute(cli: Cli) -> anyhow::Result<ExitCode> {
             },
         ),
         Command::Validate { diagrams } => Ok(validate(&registry, &diagrams, &scan.searched)),
+        Command::Serve {
+            listen,
+            token_file,
+            monitor_token_file,
+            diagram,
+            start,
+            max_connections,
+        } => crate::serve::serve(
+            registry,
+            &crate::serve::ServeOptions {
+                listen,
+                token_file,
+                monitor_token_file,
+                diagram,
+                start,
+                max_connections,
+            },
+        ),
         Command::Inspect { file, json } => {
             let report = inspect_showing_progress(&file)?;
             if json {

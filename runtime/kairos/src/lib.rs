@@ -2,8 +2,10 @@
 
 pub mod cli;
 pub mod duration;
+pub mod log_tap;
 pub mod packs;
 pub mod run;
+pub mod serve;
 
 use std::path::{Path, PathBuf};
 

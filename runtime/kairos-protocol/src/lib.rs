@@ -1,0 +1,70 @@
+//! The Kairos control protocol: how a client (the studio, a script in any language) drives a runtime
+//! (`kairos serve`), on the same machine or across a network.
+//!
+//! Transport: WebSocket. Requests, replies and events are JSON text messages; sample data travels in
+//! binary messages ([`frame`]). A session starts with `hello` (protocol version, token, wanted role); every
+//! later request is checked against the role table ([`RequestKind::required_role`]). `docs/protocol.md`
+//! lists every message with an example.
+//!
+//! ```
+//! use kairos_protocol::{Request, RequestBody, ServerMessage};
+//!
+//! let request: Request = serde_json::from_str(r#"{"id": 1, "type": "start"}"#).unwrap();
+//! assert_eq!(request.body, RequestBody::Start);
+//! let reply = ServerMessage::ok(1, serde_json::json!({}));
+//! assert_eq!(serde_json::to_string(&reply).unwrap(), r#"{"type":"reply","id":1,"ok":true,"result":{}}"#);
+//! ```
+
+#![warn(missing_docs)]
+
+pub mod frame;
+mod messages;
+
+pub use messages::{
+    ComponentTelemetry, DeployResult, DiagramReply, ErrorCode, LatencyTelemetry, LinkTelemetry, LogLevel,
+    LogRecord, ProtocolError, Reply, Request, RequestBody, RequestKind, Role, RuntimeState, ServerMessage,
+    Status, Telemetry, Welcome, decode_request,
+};
+
+/// The protocol version this crate speaks. A client with another version is refused at `hello`, with
+/// both versions named.
+pub const PROTOCOL_VERSION: u32 = 1;
+
+/// The largest message a server accepts (text or binary), in bytes: a diagram's text fits many times over.
+pub const MAX_MESSAGE_BYTES: usize = 4 << 20;
+
+/// How many messages may wait for one client before the server drops events for it (replies are never
+/// dropped: a client that lets this many pile up is disconnected).
+pub const CLIENT_QUEUE: usize = 256;
+
+/// How many clients a server serves at once unless told otherwise.
+pub const DEFAULT_MAX_CONNECTIONS: usize = 32;
+
+/// The shortest token a server accepts.
+pub const MIN_TOKEN_CHARS: usize = 32;
+
+/// Compares two tokens in time that depends only on their lengths, so a client cannot find a token's
+/// prefix by timing refusals.
+pub fn tokens_match(given: &str, expected: &str) -> bool {
+    let (a, b) = (given.as_bytes(), expected.as_bytes());
+    let mut difference = u8::from(a.len() != b.len());
+    for (index, byte) in b.iter().enumerate() {
+        difference |= byte ^ a.get(index).copied().unwrap_or(0);
+    }
+    difference == 0
+}
+
+#[cfg(test)]
+mod tests {
+    use super::tokens_match;
+
+    #[test]
+    fn tokens_match_only_when_equal() {
+        let token = "a".repeat(40);
+        assert!(tokens_match(&token, &token));
+        assert!(!tokens_match(&"a".repeat(39), &token));
+        assert!(!tokens_match(&"a".repeat(41), &token));
+        assert!(!tokens_match(&format!("{}b", "a".repeat(39)), &token));
+        assert!(!tokens_match("", &token));
+    }
+}

@@ -1,0 +1,180 @@
+//! `kairos serve`: a headless runtime driven over the control protocol (`kairos_protocol`) by the studio
+//! or any WebSocket client, on this machine or across a network.
+//!
+//! The network side runs on a small tokio runtime of its own; the diagram's components keep their own
+//! threads, so clients (slow, flooding, vanishing) never share a thread with a component.
+
+mod auth;
+mod runtime;
+mod samples;
+mod session;
+
+use std::net::{SocketAddr, ToSocketAddrs as _};
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::sync::Arc;
+
+use anyhow::{Context as _, bail};
+use kairos_protocol::{ErrorCode, ProtocolError, ServerMessage};
+use kairos_sdk::Registry;
+use tokio_tungstenite::tungstenite::Message;
+
+pub use auth::{Access, load_or_create_token};
+pub use runtime::Runtime;
+
+/// The address `kairos serve` listens on unless told otherwise.
+pub const DEFAULT_LISTEN: &str = "127.0.0.1:7400";
+
+/// What `kairos serve` was asked to do.
+#[derive(Debug, Clone)]
+pub struct ServeOptions {
+    /// Where to listen.
+    pub listen: String,
+    /// The operator token's file (created with a fresh token when missing).
+    pub token_file: Option<PathBuf>,
+    /// The monitor token's file (created when missing).
+    pub monitor_token_file: Option<PathBuf>,
+    /// A diagram to deploy at boot.
+    pub diagram: Option<PathBuf>,
+    /// Start that diagram at boot.
+    pub start: bool,
+    /// The most clients at once.
+    pub max_connections: usize,
+}
+
+/// What every session shares.
+pub(crate) struct Shared {
+    runtime: Arc<Runtime>,
+    access: Access,
+    server_name: String,
+}
+
+fn token(path: Option<&PathBuf>, what: &str) -> anyhow::Result<Option<String>> {
+    let Some(path) = path else { return Ok(None) };
+    let (token, created) = load_or_create_token(path)?;
+    if created {
+        println!(
+            "wrote a new {what} token to {} (readable only by you); clients send it in their hello",
+            path.display()
+        );
+    }
+    Ok(Some(token))
+}
+
+/// Runs `kairos serve` until Ctrl-C or SIGTERM.
+pub fn serve(registry: Registry, options: &ServeOptions) -> anyhow::Result<ExitCode> {
+    let address: SocketAddr = options
+        .listen
+        .to_socket_addrs()
+        .with_context(|| {
+            format!(
+                "--listen {}: not an address (use HOST:PORT, e.g. {DEFAULT_LISTEN})",
+                options.listen
+            )
+        })?
+        .next()
+        .with_context(|| format!("--listen {}: the name resolves to no address", options.listen))?;
+    let operator = token(options.token_file.as_ref(), "operator")?;
+    let monitor = token(options.monitor_token_file.as_ref(), "monitor")?;
+    if !address.ip().is_loopback() && operator.is_none() {
+        bail!(
+            "refusing to listen on {address} without a token: anyone who can reach it could run code on this \
+             machine. Give --token-file FILE (a fresh token is written there if FILE does not exist; or make \
+             one with `openssl rand -hex 32 > FILE`)"
+        );
+    }
+    let runtime = Runtime::new(registry);
+    if let Some(path) = &options.diagram {
+        let text =
+            std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
+        if let Err(error) = runtime.deploy(&text) {
+            eprintln!("{}: {}", path.display(), error.message);
+            return Ok(ExitCode::from(1));
+        }
+        if options.start {
+            if let Err(error) = runtime.start() {
+                eprintln!("{}: {}", path.display(), error.message);
+                return Ok(ExitCode::from(1));
+            }
+            tracing::info!("started {}", path.display());
+        }
+    }
+    let shared = Arc::new(Shared {
+        runtime: Arc::clone(&runtime),
+        access: Access::new(operator, monitor),
+        server_name: format!("kairos {}", env!("CARGO_PKG_VERSION")),
+    });
+    let network = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .thread_name("k:net")
+        .enable_all()
+        .build()
+        .context("cannot start the network threads")?;
+    let (stop_tx, mut stop_rx) = tokio::sync::watch::channel(false);
+    ctrlc::set_handler(move || {
+        let _ = stop_tx.send(true);
+    })
+    .context("cannot install the Ctrl-C handler")?;
+    let max_connections = options.max_connections.max(1);
+    let result: anyhow::Result<()> = network.block_on(async move {
+        let listener = tokio::net::TcpListener::bind(address)
+            .await
+            .with_context(|| format!("cannot listen on {address}"))?;
+        let bound = listener.local_addr().context("the listening address")?;
+        // The one line scripts read to find the port (with --listen HOST:0).
+        println!("listening on ws://{bound}");
+        tracing::info!(
+            "serving on ws://{bound}{}",
+            if shared.access.requires_token() {
+                " (token required)"
+            } else {
+                " (loopback, no token)"
+            }
+        );
+        let slots = Arc::new(tokio::sync::Semaphore::new(max_connections));
+        loop {
+            tokio::select! {
+                _ = stop_rx.changed() => break,
+                accepted = listener.accept() => {
+                    let Ok((stream, peer)) = accepted else { continue };
+                    let _ = stream.set_nodelay(true);
+                    let shared = Arc::clone(&shared);
+                    match Arc::clone(&slots).try_acquire_owned() {
+                        Ok(slot) => {
+                            tokio::spawn(async move {
+                                session::run(stream, peer, shared).await;
+                                drop(slot);
+                            });
+                        }
+                        Err(_) => {
+                            tokio::spawn(refuse_busy(stream, max_connections));
+                        }
+                    }
+                }
+            }
+        }
+        Ok(())
+    });
+    network.shutdown_timeout(std::time::Duration::from_secs(1));
+    runtime.shutdown();
+    tracing::info!("stopped");
+    result.map(|()| ExitCode::SUCCESS)
+}
+
+/// Tells a client over the connection limit why it is turned away.
+async fn refuse_busy(stream: tokio::net::TcpStream, limit: usize) {
+    use futures_util::SinkExt as _;
+    let Ok(mut websocket) = tokio_tungstenite::accept_async(stream).await else {
+        return;
+    };
+    let refusal = ServerMessage::error(
+        None,
+        ProtocolError::new(
+            ErrorCode::Busy,
+            format!("this runtime already serves {limit} clients; try again later"),
+        ),
+    );
+    let text = serde_json::to_string(&refusal).unwrap_or_default();
+    let _ = websocket.send(Message::text(text)).await;
+    let _ = websocket.close(None).await;
+}

@@ -1,0 +1,342 @@
+//! The runtime a server drives: the deployed diagram and its engine, and every operation a request maps to.
+//!
+//! One lock guards the deployment; operations that may block (start, stop, a property change waiting for
+//! the component's answer) run on blocking threads, never on the server's network threads.
+
+use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
+
+use kairos_diagram::{Diagnostic, Diagram, Value};
+use kairos_protocol::{
+    ComponentTelemetry, DeployResult, ErrorCode, LatencyTelemetry, LinkTelemetry, ProtocolError,
+    RuntimeState, Telemetry,
+};
+use kairos_runtime::{ComponentState, ControlError, Engine, EngineState, StatsSnapshot};
+use kairos_sdk::{OutputBuffer, RealTimeClock, Registry};
+
+/// The deployed diagram, its text as deployed, and the engine built from it.
+#[derive(Default)]
+struct Deployment {
+    diagram: Option<Diagram>,
+    engine: Option<Engine>,
+    previous: Option<StatsSnapshot>,
+    /// Changes whenever the engine is replaced: sample subscriptions re-attach when it does.
+    generation: u64,
+}
+
+/// The shared runtime state of a server.
+pub struct Runtime {
+    registry: Registry,
+    deployment: Mutex<Deployment>,
+}
+
+impl std::fmt::Debug for Runtime {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Runtime").finish_non_exhaustive()
+    }
+}
+
+fn error(code: ErrorCode, message: impl Into<String>) -> ProtocolError {
+    ProtocolError::new(code, message)
+}
+
+fn control_error(e: &ControlError) -> ProtocolError {
+    let code = match e {
+        ControlError::UnknownComponent(_)
+        | ControlError::UnknownProperty { .. }
+        | ControlError::UnknownAction { .. } => ErrorCode::NotFound,
+        ControlError::InvalidValue { .. } => ErrorCode::InvalidValue,
+        ControlError::NotLive { .. } | ControlError::Refused { .. } => ErrorCode::WrongState,
+    };
+    error(code, e.to_string())
+}
+
+fn state_of(deployment: &Deployment) -> RuntimeState {
+    match (&deployment.diagram, deployment.engine.as_ref().map(Engine::state)) {
+        (None, _) => RuntimeState::Empty,
+        (Some(_), Some(EngineState::Running)) => RuntimeState::Running,
+        (Some(_), Some(EngineState::Paused)) => RuntimeState::Paused,
+        (Some(_), _) => RuntimeState::Ready,
+    }
+}
+
+fn telemetry(snapshot: &StatsSnapshot, state: RuntimeState) -> Telemetry {
+    Telemetry {
+        at_ns: snapshot.at.as_nanos(),
+        state,
+        links: snapshot
+            .links
+            .iter()
+            .map(|l| LinkTelemetry {
+                link: l.link.clone(),
+                policy: l.policy,
+                written: l.counters.written,
+                read: l.counters.read,
+                skipped: l.counters.skipped,
+                overwritten: l.counters.overwritten,
+                queued: l.counters.queued,
+                repeated: l.counters.repeated,
+                rate_hz: l.rate_hz,
+                latency: LatencyTelemetry {
+                    count: l.counters.latency.count,
+                    min_ns: l.counters.latency.min_nanos,
+                    mean_ns: l.counters.latency.mean_nanos,
+                    p50_ns: l.counters.latency.p50_nanos,
+                    p99_ns: l.counters.latency.p99_nanos,
+                    max_ns: l.counters.latency.max_nanos,
+                },
+            })
+            .collect(),
+        components: snapshot
+            .components
+            .iter()
+            .map(|c| ComponentTelemetry {
+                id: c.id.clone(),
+                type_name: c.type_name.clone(),
+                state: c.state.word().to_lowercase(),
+                error: match &c.state {
+                    ComponentState::Failed(why) => Some(why.clone()),
+                    _ => None,
+                },
+                cycles: c.cycles,
+                cycle_rate_hz: c.cycle_rate_hz,
+                cpu_share: c.cpu_share,
+            })
+            .collect(),
+    }
+}
+
+impl Runtime {
+    /// A runtime with nothing deployed.
+    pub fn new(registry: Registry) -> Arc<Self> {
+        Arc::new(Runtime {
+            registry,
+            deployment: Mutex::new(Deployment::default()),
+        })
+    }
+
+    fn lock(&self) -> MutexGuard<'_, Deployment> {
+        self.deployment.lock().unwrap_or_else(PoisonError::into_inner)
+    }
+
+    /// The component library as plain data.
+    pub fn library(&self) -> kairos_diagram::LibraryInfo {
+        self.registry.library_info()
+    }
+
+    /// The deployed diagram's canonical text.
+    pub fn diagram_text(&self) -> Option<String> {
+        self.lock().diagram.as_ref().map(Diagram::to_ron)
+    }
+
+    /// Validates `text` and makes it the deployed diagram, stopping and replacing the running one.
+    pub fn deploy(&self, text: &str) -> Result<DeployResult, ProtocolError> {
+        let parsed = kairos_diagram::parse(text).map_err(|diagnostics| invalid(text, diagnostics))?;
+        let diagnostics = self.registry.validate(&parsed.diagram, Some(&parsed.source_map));
+        if diagnostics.iter().any(Diagnostic::is_error) {
+            return Err(invalid(text, diagnostics));
+        }
+        let engine = Engine::build(&parsed.diagram, &self.registry, RealTimeClock::shared())
+            .map_err(|e| error(ErrorCode::InvalidDiagram, e.to_string()))?;
+        let mut deployment = self.lock();
+        if let Some(mut old) = deployment.engine.take() {
+            old.stop();
+        }
+        let components = parsed.diagram.components.len();
+        deployment.diagram = Some(parsed.diagram);
+        deployment.engine = Some(engine);
+        deployment.previous = None;
+        deployment.generation += 1;
+        tracing::info!("deployed a diagram of {components} components");
+        Ok(DeployResult {
+            diagnostics,
+            components,
+        })
+    }
+
+    /// Starts the deployed diagram (building it afresh if it ran before).
+    pub fn start(&self) -> Result<(), ProtocolError> {
+        let mut deployment = self.lock();
+        let Some(diagram) = deployment.diagram.clone() else {
+            return Err(error(
+                ErrorCode::WrongState,
+                "nothing to start: deploy a diagram first",
+            ));
+        };
+        let stale = deployment
+            .engine
+            .as_ref()
+            .is_none_or(|e| e.state() == EngineState::Stopped);
+        if stale {
+            let engine = Engine::build(&diagram, &self.registry, RealTimeClock::shared())
+                .map_err(|e| error(ErrorCode::InvalidDiagram, e.to_string()))?;
+            deployment.engine = Some(engine);
+            deployment.previous = None;
+            deployment.generation += 1;
+        }
+        let Some(engine) = deployment.engine.as_mut() else {
+            return Err(error(ErrorCode::Internal, "no engine after building one"));
+        };
+        match engine.state() {
+            EngineState::Ready => engine.start().map_err(|e| {
+                error(
+                    ErrorCode::Internal,
+                    format!("cannot start a component thread: {e}"),
+                )
+            }),
+            EngineState::Paused => {
+                engine.resume();
+                Ok(())
+            }
+            EngineState::Running | EngineState::Stopped => Ok(()),
+        }
+    }
+
+    /// Pauses a running diagram.
+    pub fn pause(&self) -> Result<(), ProtocolError> {
+        let mut deployment = self.lock();
+        match deployment.engine.as_mut() {
+            Some(engine) if engine.state() == EngineState::Running => {
+                engine.pause();
+                Ok(())
+            }
+            _ => Err(error(ErrorCode::WrongState, "nothing is running")),
+        }
+    }
+
+    /// Resumes a paused diagram.
+    pub fn resume(&self) -> Result<(), ProtocolError> {
+        let mut deployment = self.lock();
+        match deployment.engine.as_mut() {
+            Some(engine) if engine.state() == EngineState::Paused => {
+                engine.resume();
+                Ok(())
+            }
+            _ => Err(error(ErrorCode::WrongState, "nothing is paused")),
+        }
+    }
+
+    /// Stops the diagram; it stays deployed and can start again.
+    pub fn stop(&self) -> Result<(), ProtocolError> {
+        let mut deployment = self.lock();
+        if let Some(engine) = deployment.engine.as_mut() {
+            engine.stop();
+        }
+        Ok(())
+    }
+
+    /// Changes a property. While the diagram runs the component applies it (or refuses it, keeping the old
+    /// value); otherwise the deployed diagram changes, validated, for the next start. Either way the
+    /// deployed diagram remembers the new value.
+    pub fn set_property(&self, component: &str, property: &str, value: &Value) -> Result<(), ProtocolError> {
+        let mut deployment = self.lock();
+        let Some(diagram) = deployment.diagram.as_ref() else {
+            return Err(error(ErrorCode::WrongState, "no diagram deployed"));
+        };
+        let mut changed = diagram.clone();
+        let Some(instance) = changed.component_mut(component) else {
+            return Err(error(
+                ErrorCode::NotFound,
+                format!("no component '{component}' in the diagram"),
+            ));
+        };
+        instance.properties.insert(property.to_owned(), value.clone());
+        let live = deployment.engine.as_ref().is_some_and(|e| {
+            matches!(
+                e.state(),
+                EngineState::Running | EngineState::Paused | EngineState::Ready
+            )
+        });
+        if live {
+            if let Some(engine) = deployment.engine.as_ref() {
+                engine
+                    .set_property(component, property, value)
+                    .map_err(|e| control_error(&e))?;
+            }
+        } else {
+            let problems: Vec<Diagnostic> = self
+                .registry
+                .validate(&changed, None)
+                .into_iter()
+                .filter(Diagnostic::is_error)
+                .collect();
+            if let Some(first) = problems.first() {
+                let mut refused = error(
+                    ErrorCode::InvalidValue,
+                    format!("{}; it keeps its value", first.message),
+                );
+                refused.diagnostics = problems;
+                return Err(refused);
+            }
+            // Rebuilt with the new value at the next start.
+            deployment.engine = None;
+        }
+        deployment.diagram = Some(changed);
+        Ok(())
+    }
+
+    /// Triggers an action on a running (or ready) component.
+    pub fn trigger_action(&self, component: &str, action: &str) -> Result<(), ProtocolError> {
+        let deployment = self.lock();
+        let Some(engine) = deployment.engine.as_ref() else {
+            return Err(error(ErrorCode::WrongState, "no diagram is running"));
+        };
+        engine
+            .trigger_action(component, action)
+            .map_err(|e| control_error(&e))
+    }
+
+    /// The runtime's state.
+    pub fn state(&self) -> RuntimeState {
+        state_of(&self.lock())
+    }
+
+    /// Statistics now, with rates since the previous call.
+    pub fn telemetry(&self) -> Option<Telemetry> {
+        let mut deployment = self.lock();
+        let state = state_of(&deployment);
+        let snapshot = deployment.engine.as_ref()?.snapshot();
+        let with_rates = match &deployment.previous {
+            Some(previous) => snapshot.clone().with_rates_since(previous),
+            None => snapshot.clone(),
+        };
+        deployment.previous = Some(snapshot);
+        Some(telemetry(&with_rates, state))
+    }
+
+    /// The buffer of output `component.output` of the current engine, and the engine's generation.
+    pub fn output(&self, component: &str, output: &str) -> Option<(OutputBuffer, u64)> {
+        let deployment = self.lock();
+        let buffer = deployment
+            .engine
+            .as_ref()?
+            .output_buffer(component, output)?
+            .clone();
+        Some((buffer, deployment.generation))
+    }
+
+    /// Which engine is current: changes when one is replaced.
+    pub fn generation(&self) -> u64 {
+        self.lock().generation
+    }
+
+    /// Stops everything (the server is shutting down).
+    pub fn shutdown(&self) {
+        let mut deployment = self.lock();
+        if let Some(mut engine) = deployment.engine.take() {
+            engine.stop();
+        }
+    }
+}
+
+fn invalid(text: &str, diagnostics: Vec<Diagnostic>) -> ProtocolError {
+    let errors = diagnostics.iter().filter(|d| d.is_error()).count();
+    let mut refused = error(
+        ErrorCode::InvalidDiagram,
+        format!(
+            "the diagram has {errors} error(s), nothing was deployed:\n{}",
+            kairos_diagram::render_all(&diagnostics, "diagram", text)
+        ),
+    );
+    refused.diagnostics = diagnostics;
+    refused
+}

@@ -1,0 +1,165 @@
+//! Samples into binary frames for subscribed clients (see `kairos_protocol::frame`).
+
+use kairos_protocol::frame::{self, ImageLayout, SampleHeader};
+use kairos_sdk::{FixStatus, Image, Payload, PixelFormat, Sample};
+use serde_json::json;
+
+fn format_name(format: PixelFormat) -> &'static str {
+    match format {
+        PixelFormat::Gray8 => "gray8",
+        PixelFormat::Gray16 => "gray16",
+        PixelFormat::Rgb8 => "rgb8",
+        PixelFormat::Rgba8 => "rgba8",
+        PixelFormat::Bgr8 => "bgr8",
+        PixelFormat::Bgra8 => "bgra8",
+    }
+}
+
+/// The image's pixels, packed, keeping one pixel in `factor` along both axes.
+fn downscale(image: &Image, factor: u32) -> (u32, u32, Vec<u8>) {
+    let pixel = image.format.bytes_per_pixel() as usize;
+    let width = image.width.div_ceil(factor);
+    let height = image.height.div_ceil(factor);
+    let mut pixels = Vec::with_capacity(width as usize * height as usize * pixel);
+    for y in (0..image.height).step_by(factor as usize) {
+        let row = y as usize * image.stride as usize;
+        for x in (0..image.width).step_by(factor as usize) {
+            let at = row + x as usize * pixel;
+            pixels.extend_from_slice(image.pixels.get(at..at + pixel).unwrap_or(&[0; 8][..pixel]));
+        }
+    }
+    (width, height, pixels)
+}
+
+/// Small payloads as the JSON `value` of a frame header; `None` for those that travel as bytes.
+fn value_of(payload: &Payload) -> Option<serde_json::Value> {
+    macro_rules! xyz {
+        ($v:expr) => {
+            json!([$v.x, $v.y, $v.z])
+        };
+    }
+    Some(match payload {
+        Payload::F64(v) => json!(v),
+        Payload::I64(v) => json!(v),
+        Payload::Bool(v) => json!(v),
+        Payload::Vector(v) => json!(&v[..]),
+        Payload::Matrix(m) => json!({"rows": m.rows, "cols": m.cols, "values": m.values}),
+        Payload::Text(t) => json!(&t[..]),
+        Payload::Imu(imu) => json!({
+            "angular_velocity": xyz!(imu.angular_velocity),
+            "linear_acceleration": xyz!(imu.linear_acceleration),
+            "orientation": imu.orientation.map(|q| json!([q.x, q.y, q.z, q.w])),
+        }),
+        Payload::GnssFix(fix) => {
+            let status = match fix.status {
+                FixStatus::NoFix => "no_fix",
+                FixStatus::Fix => "fix",
+                FixStatus::Differential => "differential",
+                FixStatus::RtkFixed => "rtk_fixed",
+            };
+            json!({
+                "latitude_deg": fix.latitude_deg, "longitude_deg": fix.longitude_deg, "altitude_m": fix.altitude_m,
+                "horizontal_accuracy_m": fix.horizontal_accuracy_m, "vertical_accuracy_m": fix.vertical_accuracy_m,
+                "status": status,
+            })
+        }
+        Payload::CanFrame(frame) => {
+            json!({"id": frame.id, "extended": frame.extended, "fd": frame.fd, "data": frame.data()})
+        }
+        Payload::Pose(pose) => {
+            let q = pose.orientation;
+            json!({"position": xyz!(pose.position), "orientation": [q.x, q.y, q.z, q.w]})
+        }
+        Payload::Image(_) | Payload::PointCloud(_) | Payload::Bytes(_) | Payload::Custom(_) => return None,
+    })
+}
+
+/// Encodes `sample` of `output` as a frame; images wider than `max_image_width` are downscaled.
+pub fn encode(output: &str, sample: &Sample, skipped: u64, max_image_width: Option<u32>) -> Vec<u8> {
+    let mut header = SampleHeader {
+        output: output.to_owned(),
+        data_type: sample.payload.data_type().to_string(),
+        timestamp_ns: sample.timestamp.as_nanos(),
+        time_of_issue_ns: sample.time_of_issue.as_nanos(),
+        sequence: sample.sequence,
+        skipped,
+        value: value_of(&sample.payload),
+        image: None,
+        intensity: false,
+    };
+    let body: Vec<u8> = match &sample.payload {
+        Payload::Image(image) => {
+            let factor = max_image_width
+                .filter(|max| *max > 0 && image.width > *max)
+                .map_or(1, |max| image.width.div_ceil(max));
+            let (width, height, pixels) = if factor > 1 {
+                downscale(image, factor)
+            } else {
+                (image.width, image.height, image.pixels.to_vec())
+            };
+            header.image = Some(ImageLayout {
+                width,
+                height,
+                format: format_name(image.format).to_owned(),
+                stride: if factor > 1 {
+                    width * image.format.bytes_per_pixel()
+                } else {
+                    image.stride
+                },
+                original_width: (factor > 1).then_some(image.width),
+            });
+            pixels
+        }
+        Payload::PointCloud(cloud) => {
+            header.intensity = cloud.intensity.is_some();
+            let mut bytes = Vec::with_capacity(cloud.points.len() * 16);
+            for (index, point) in cloud.points.iter().enumerate() {
+                for value in point.to_array() {
+                    bytes.extend_from_slice(&value.to_le_bytes());
+                }
+                if let Some(intensity) = &cloud.intensity {
+                    bytes.extend_from_slice(&intensity.get(index).copied().unwrap_or(0.0).to_le_bytes());
+                }
+            }
+            bytes
+        }
+        Payload::Bytes(bytes) => bytes.to_vec(),
+        Payload::Custom(custom) => custom.data.to_vec(),
+        _ => Vec::new(),
+    };
+    frame::encode(&header, &body)
+}
+
+#[cfg(test)]
+mod tests {
+    use std::sync::Arc;
+
+    use kairos_protocol::frame;
+    use kairos_sdk::{Image, Payload, PixelFormat, Sample, Timestamp};
+
+    use super::encode;
+
+    #[test]
+    fn wide_images_are_downscaled_by_a_whole_factor() {
+        let pixels: Vec<u8> = (0..8 * 4 * 3).map(|i| i as u8).collect();
+        let image = Image::packed(8, 4, PixelFormat::Rgb8, Arc::<[u8]>::from(pixels)).unwrap();
+        let sample = Sample::new(Payload::Image(image), Timestamp(9));
+        let bytes = encode("camera.image", &sample, 0, Some(4));
+        let (header, body) = frame::decode(&bytes).unwrap();
+        let layout = header.image.unwrap();
+        assert_eq!((layout.width, layout.height, layout.stride), (4, 2, 12));
+        assert_eq!(layout.original_width, Some(8));
+        assert_eq!(body.len(), 4 * 2 * 3);
+        // Row 0, pixel 2 of the downscaled image is pixel 4 of row 0 of the original.
+        assert_eq!(&body[6..9], &[12, 13, 14]);
+    }
+
+    #[test]
+    fn scalars_travel_in_the_header() {
+        let bytes = encode("sine.out", &Sample::new(Payload::F64(0.5), Timestamp(1)), 3, None);
+        let (header, body) = frame::decode(&bytes).unwrap();
+        assert_eq!(header.value, Some(serde_json::json!(0.5)));
+        assert_eq!((header.skipped, header.data_type.as_str()), (3, "f64"));
+        assert!(body.is_empty());
+    }
+}

@@ -1,0 +1,523 @@
+//! One client's session: hello, then requests answered in order, plus the event streams it subscribed to.
+//!
+//! Replies and events go through one bounded queue per client, written to the socket by a task of their
+//! own. Events never wait for room (a slow client misses some and gets the latest next time); a client
+//! whose queue is full of unread replies is disconnected. Nothing here ever waits on a component.
+
+use std::collections::BTreeMap;
+use std::net::SocketAddr;
+use std::sync::Arc;
+use std::time::Duration;
+
+use futures_util::{SinkExt as _, StreamExt as _};
+use kairos_protocol::{
+    CLIENT_QUEUE, DiagramReply, ErrorCode, LogLevel, MAX_MESSAGE_BYTES, PROTOCOL_VERSION, ProtocolError,
+    RequestBody, RequestKind, Role, ServerMessage, Status, Welcome, decode_request,
+};
+use kairos_sdk::{ReaderConfig, ReaderPolicy, RunSignal, Value};
+use serde::Serialize;
+use tokio::net::TcpStream;
+use tokio::sync::mpsc;
+use tokio::sync::mpsc::error::TrySendError;
+use tokio::task::JoinHandle;
+use tokio_tungstenite::tungstenite::protocol::WebSocketConfig;
+use tokio_tungstenite::tungstenite::{Error as WsError, Message};
+
+use super::Shared;
+use super::runtime::Runtime;
+
+/// The shortest telemetry period a client may ask for.
+const MIN_TELEMETRY_MS: u64 = 20;
+/// The most sample frames per second per output a client may ask for.
+const MAX_SAMPLE_RATE_HZ: f64 = 120.0;
+
+fn websocket_config() -> WebSocketConfig {
+    WebSocketConfig::default()
+        .max_message_size(Some(MAX_MESSAGE_BYTES))
+        .max_frame_size(Some(MAX_MESSAGE_BYTES))
+}
+
+/// Serves one connection until the client leaves or misbehaves.
+pub async fn run(stream: TcpStream, peer: SocketAddr, shared: Arc<Shared>) {
+    let websocket = match tokio_tungstenite::accept_async_with_config(stream, Some(websocket_config())).await
+    {
+        Ok(websocket) => websocket,
+        Err(e) => {
+            tracing::debug!("{peer}: not a WebSocket handshake: {e}");
+            return;
+        }
+    };
+    let (mut sink, mut source) = websocket.split();
+    let (out, mut queue) = mpsc::channel::<Message>(CLIENT_QUEUE);
+    let writer = tokio::spawn(async move {
+        while let Some(message) = queue.recv().await {
+            if sink.send(message).await.is_err() {
+                return;
+            }
+        }
+        let _ = sink.close().await;
+    });
+    let mut session = Session {
+        peer,
+        shared,
+        role: None,
+        out,
+        telemetry: None,
+        log: None,
+        samples: BTreeMap::new(),
+    };
+    tracing::debug!("{peer}: connected");
+    while let Some(message) = source.next().await {
+        let keep_going = match message {
+            Ok(Message::Text(text)) => session.handle(text.as_str()).await,
+            Ok(Message::Binary(_)) => session.refuse(
+                None,
+                ProtocolError::new(
+                    ErrorCode::BadRequest,
+                    "requests are JSON text messages; binary messages only carry sample frames from the runtime",
+                ),
+            ),
+            Ok(Message::Close(_)) => false,
+            Ok(_) => true,
+            Err(WsError::Capacity(e)) => {
+                session.refuse(
+                    None,
+                    ProtocolError::new(
+                        ErrorCode::TooLarge,
+                        format!("{e}; the largest message accepted is {MAX_MESSAGE_BYTES} bytes"),
+                    ),
+                );
+                false
+            }
+            Err(e) => {
+                tracing::debug!("{peer}: {e}");
+                false
+            }
+        };
+        if !keep_going {
+            break;
+        }
+    }
+    session.end();
+    drop(session);
+    let _ = writer.await;
+    tracing::debug!("{peer}: gone");
+}
+
+struct Session {
+    peer: SocketAddr,
+    shared: Arc<Shared>,
+    role: Option<Role>,
+    out: mpsc::Sender<Message>,
+    telemetry: Option<JoinHandle<()>>,
+    log: Option<JoinHandle<()>>,
+    samples: BTreeMap<String, JoinHandle<()>>,
+}
+
+fn to_json(value: &impl Serialize) -> serde_json::Value {
+    serde_json::to_value(value).unwrap_or(serde_json::Value::Null)
+}
+
+/// Queues a text message; `false` when the client has stopped reading (its queue is full) or is gone.
+fn send(out: &mpsc::Sender<Message>, message: &ServerMessage) -> bool {
+    let text = serde_json::to_string(message).unwrap_or_default();
+    out.try_send(Message::text(text)).is_ok()
+}
+
+impl Session {
+    fn runtime(&self) -> Arc<Runtime> {
+        Arc::clone(&self.shared.runtime)
+    }
+
+    fn reply(&self, id: u64, result: serde_json::Value) -> bool {
+        let delivered = send(&self.out, &ServerMessage::ok(id, result));
+        if !delivered {
+            tracing::warn!(
+                "{}: disconnected: the client does not read its replies",
+                self.peer
+            );
+        }
+        delivered
+    }
+
+    fn refuse(&self, id: Option<u64>, error: ProtocolError) -> bool {
+        send(&self.out, &ServerMessage::error(id, error))
+    }
+
+    fn answer(&self, id: u64, outcome: Result<serde_json::Value, ProtocolError>) -> bool {
+        match outcome {
+            Ok(result) => self.reply(id, result),
+            Err(error) => self.refuse(Some(id), error),
+        }
+    }
+
+    /// Runs `operation` on a blocking thread (it may join threads or wait for a component).
+    async fn blocking<T: Serialize + Send + 'static>(
+        &self,
+        operation: impl FnOnce(&Runtime) -> Result<T, ProtocolError> + Send + 'static,
+    ) -> Result<serde_json::Value, ProtocolError> {
+        let runtime = self.runtime();
+        tokio::task::spawn_blocking(move || operation(&runtime).map(|v| to_json(&v)))
+            .await
+            .unwrap_or_else(|e| {
+                Err(ProtocolError::new(
+                    ErrorCode::Internal,
+                    format!("the operation failed: {e}"),
+                ))
+            })
+    }
+
+    /// Handles one text message; `false` ends the session.
+    async fn handle(&mut self, text: &str) -> bool {
+        let request = match decode_request(text) {
+            Ok(request) => request,
+            Err((id, error)) => return self.refuse(id, error),
+        };
+        let (id, kind) = (request.id, request.body.kind());
+        match (self.role, kind) {
+            (None, RequestKind::Hello) => {}
+            (None, _) => {
+                return self.refuse(
+                    Some(id),
+                    ProtocolError::new(
+                        ErrorCode::Unauthorized,
+                        format!(
+                            "say hello first: {{\"id\": 1, \"type\": \"hello\", \"protocol\": {PROTOCOL_VERSION}, \"client\": \"...\", \"token\": \"...\"}}"
+                        ),
+                    ),
+                );
+            }
+            (Some(_), RequestKind::Hello) => {
+                return self.refuse(
+                    Some(id),
+                    ProtocolError::new(ErrorCode::BadRequest, "hello was already said"),
+                );
+            }
+            (Some(role), kind) if role < kind.required_role() => {
+                return self.refuse(
+                    Some(id),
+                    ProtocolError::new(
+                        ErrorCode::Forbidden,
+                        format!(
+                            "'{}' needs the operator role; this session is a monitor",
+                            kind.name()
+                        ),
+                    ),
+                );
+            }
+            (Some(_), _) => {}
+        }
+        self.dispatch(id, request.body).await
+    }
+
+    #[allow(
+        clippy::too_many_lines,
+        reason = "one arm per request type: the protocol in one place"
+    )]
+    async fn dispatch(&mut self, id: u64, body: RequestBody) -> bool {
+        fn empty() -> serde_json::Value {
+            serde_json::json!({})
+        }
+        match body {
+            RequestBody::Hello {
+                protocol,
+                client,
+                token,
+                role,
+            } => match self.shared.access.grant(protocol, token.as_deref(), role) {
+                Ok(role) => {
+                    self.role = Some(role);
+                    tracing::info!("{}: {client} connected as {role:?}", self.peer);
+                    self.reply(
+                        id,
+                        to_json(&Welcome {
+                            protocol: PROTOCOL_VERSION,
+                            server: self.shared.server_name.clone(),
+                            role,
+                        }),
+                    )
+                }
+                Err(error) => {
+                    tracing::warn!("{}: refused: {}", self.peer, error.message);
+                    // One try per connection: guessing tokens costs a connection each.
+                    self.refuse(Some(id), error);
+                    false
+                }
+            },
+            RequestBody::Library => self.reply(id, to_json(&self.shared.runtime.library())),
+            RequestBody::GetDiagram => {
+                let diagram = self
+                    .blocking(|r| {
+                        Ok(DiagramReply {
+                            diagram: r.diagram_text(),
+                        })
+                    })
+                    .await;
+                self.answer(id, diagram)
+            }
+            RequestBody::Deploy { diagram } => {
+                let outcome = self.blocking(move |r| r.deploy(&diagram)).await;
+                self.answer(id, outcome)
+            }
+            RequestBody::Start => {
+                let outcome = self.blocking(|r| r.start().map(|()| empty())).await;
+                self.answer(id, outcome)
+            }
+            RequestBody::Pause => {
+                let outcome = self.blocking(|r| r.pause().map(|()| empty())).await;
+                self.answer(id, outcome)
+            }
+            RequestBody::Resume => {
+                let outcome = self.blocking(|r| r.resume().map(|()| empty())).await;
+                self.answer(id, outcome)
+            }
+            RequestBody::Stop => {
+                let outcome = self.blocking(|r| r.stop().map(|()| empty())).await;
+                self.answer(id, outcome)
+            }
+            RequestBody::SetProperty {
+                component,
+                property,
+                value,
+            } => self.set_property(id, component, property, value).await,
+            RequestBody::TriggerAction { component, action } => self.action(id, component, action).await,
+            RequestBody::Status => {
+                let outcome = self
+                    .blocking(|r| {
+                        Ok(Status {
+                            state: r.state(),
+                            telemetry: r.telemetry(),
+                        })
+                    })
+                    .await;
+                self.answer(id, outcome)
+            }
+            RequestBody::SubscribeTelemetry { interval_ms } => {
+                let period = Duration::from_millis(interval_ms.max(MIN_TELEMETRY_MS));
+                if let Some(old) = self.telemetry.replace(self.telemetry_task(period)) {
+                    old.abort();
+                }
+                self.reply(id, serde_json::json!({"interval_ms": period.as_millis()}))
+            }
+            RequestBody::UnsubscribeTelemetry => {
+                if let Some(task) = self.telemetry.take() {
+                    task.abort();
+                }
+                self.reply(id, empty())
+            }
+            RequestBody::SubscribeLog { level } => {
+                if let Some(old) = self.log.replace(self.log_task(level)) {
+                    old.abort();
+                }
+                self.reply(id, empty())
+            }
+            RequestBody::UnsubscribeLog => {
+                if let Some(task) = self.log.take() {
+                    task.abort();
+                }
+                self.reply(id, empty())
+            }
+            RequestBody::SubscribeSamples {
+                outputs,
+                max_rate_hz,
+                max_image_width,
+            } => self.subscribe_samples(id, outputs, max_rate_hz, max_image_width),
+            RequestBody::UnsubscribeSamples { outputs } => {
+                let names: Vec<String> = if outputs.is_empty() {
+                    self.samples.keys().cloned().collect()
+                } else {
+                    outputs
+                };
+                for name in names {
+                    if let Some(task) = self.samples.remove(&name) {
+                        task.abort();
+                    }
+                }
+                self.reply(id, empty())
+            }
+            RequestBody::RecordStart { component } => self.action(id, component, "start".to_owned()).await,
+            RequestBody::RecordStop { component } => self.action(id, component, "stop".to_owned()).await,
+            RequestBody::RecordSplit { component } => self.action(id, component, "split".to_owned()).await,
+            RequestBody::PlayerPlay { component } => self.action(id, component, "play".to_owned()).await,
+            RequestBody::PlayerPause { component } => self.action(id, component, "pause".to_owned()).await,
+            RequestBody::PlayerStep { component } => self.action(id, component, "step".to_owned()).await,
+            RequestBody::PlayerSeek { component, seconds } => {
+                self.set_property(id, component, "seek_s".to_owned(), Value::F64(seconds))
+                    .await
+            }
+            RequestBody::PlayerSpeed { component, factor } => {
+                self.set_property(id, component, "speed".to_owned(), Value::F64(factor))
+                    .await
+            }
+        }
+    }
+
+    async fn set_property(&self, id: u64, component: String, property: String, value: Value) -> bool {
+        let outcome = self
+            .blocking(move |r| {
+                r.set_property(&component, &property, &value)
+                    .map(|()| serde_json::json!({}))
+            })
+            .await;
+        self.answer(id, outcome)
+    }
+
+    async fn action(&self, id: u64, component: String, action: String) -> bool {
+        let outcome = self
+            .blocking(move |r| {
+                r.trigger_action(&component, &action)
+                    .map(|()| serde_json::json!({}))
+            })
+            .await;
+        self.answer(id, outcome)
+    }
+
+    fn telemetry_task(&self, period: Duration) -> JoinHandle<()> {
+        let runtime = self.runtime();
+        let out = self.out.clone();
+        tokio::spawn(async move {
+            let mut ticker = tokio::time::interval(period);
+            ticker.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
+            loop {
+                ticker.tick().await;
+                let runtime = Arc::clone(&runtime);
+                let Ok(Some(telemetry)) = tokio::task::spawn_blocking(move || runtime.telemetry()).await
+                else {
+                    continue;
+                };
+                let text = serde_json::to_string(&ServerMessage::Telemetry(telemetry)).unwrap_or_default();
+                if let Err(TrySendError::Closed(_)) = out.try_send(Message::text(text)) {
+                    return;
+                }
+            }
+        })
+    }
+
+    fn log_task(&self, level: LogLevel) -> JoinHandle<()> {
+        let mut records = crate::log_tap::subscribe();
+        let out = self.out.clone();
+        tokio::spawn(async move {
+            loop {
+                let record = match records.recv().await {
+                    Ok(record) => record,
+                    Err(tokio::sync::broadcast::error::RecvError::Lagged(_)) => continue,
+                    Err(tokio::sync::broadcast::error::RecvError::Closed) => return,
+                };
+                if record.level < level {
+                    continue;
+                }
+                let text = serde_json::to_string(&ServerMessage::Log(record)).unwrap_or_default();
+                if let Err(TrySendError::Closed(_)) = out.try_send(Message::text(text)) {
+                    return;
+                }
+            }
+        })
+    }
+
+    fn subscribe_samples(
+        &mut self,
+        id: u64,
+        outputs: Vec<String>,
+        max_rate_hz: f64,
+        max_image_width: Option<u32>,
+    ) -> bool {
+        let runtime = self.runtime();
+        let mut unknown = Vec::new();
+        for output in &outputs {
+            let known = output
+                .rsplit_once('.')
+                .is_some_and(|(component, port)| runtime.output(component, port).is_some());
+            if !known {
+                unknown.push(output.clone());
+            }
+        }
+        if !unknown.is_empty() {
+            return self.refuse(
+                Some(id),
+                ProtocolError::new(
+                    ErrorCode::NotFound,
+                    format!(
+                        "no output {} in the deployed diagram (outputs are named component.port)",
+                        unknown.join(", ")
+                    ),
+                ),
+            );
+        }
+        let rate = if max_rate_hz.is_finite() && max_rate_hz > 0.0 {
+            max_rate_hz.min(MAX_SAMPLE_RATE_HZ)
+        } else {
+            10.0
+        };
+        for output in outputs {
+            let task = sample_task(
+                Arc::clone(&runtime),
+                self.out.clone(),
+                output.clone(),
+                rate,
+                max_image_width,
+                self.peer,
+            );
+            if let Some(old) = self.samples.insert(output, task) {
+                old.abort();
+            }
+        }
+        self.reply(id, serde_json::json!({"max_rate_hz": rate}))
+    }
+
+    fn end(&mut self) {
+        for task in self
+            .telemetry
+            .take()
+            .into_iter()
+            .chain(self.log.take())
+            .chain(std::mem::take(&mut self.samples).into_values())
+        {
+            task.abort();
+        }
+    }
+}
+
+/// Sends the latest sample of `output` at most `rate` times a second. Its reader is LastOrNext on the
+/// output's buffer: it never slows the writer, and what the client cannot take is skipped, not queued.
+fn sample_task(
+    runtime: Arc<Runtime>,
+    out: mpsc::Sender<Message>,
+    output: String,
+    rate: f64,
+    max_image_width: Option<u32>,
+    peer: SocketAddr,
+) -> JoinHandle<()> {
+    tokio::spawn(async move {
+        let mut ticker = tokio::time::interval(Duration::from_secs_f64(1.0 / rate));
+        ticker.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
+        let mut reader: Option<(kairos_sdk::Reader, u64)> = None;
+        let mut skipped_before = 0;
+        let mut unsent = 0;
+        loop {
+            ticker.tick().await;
+            let generation = runtime.generation();
+            if reader.as_ref().is_none_or(|(_, g)| *g != generation) {
+                reader = output.rsplit_once('.').and_then(|(component, port)| {
+                    let (buffer, generation) = runtime.output(component, port)?;
+                    let config =
+                        ReaderConfig::new(ReaderPolicy::LastOrNext, format!("{output} -> client {peer}"));
+                    Some((buffer.attach(config, Arc::new(RunSignal::new())), generation))
+                });
+                skipped_before = 0;
+            }
+            let Some((active, _)) = reader.as_mut() else {
+                continue;
+            };
+            let Some(sample) = active.try_read() else { continue };
+            let skipped_now = active.counters().skipped;
+            let skipped = skipped_now.saturating_sub(skipped_before) + unsent;
+            skipped_before = skipped_now;
+            let frame = super::samples::encode(&output, &sample, skipped, max_image_width);
+            match out.try_send(Message::binary(frame)) {
+                Ok(()) => unsent = 0,
+                Err(TrySendError::Full(_)) => unsent += 1,
+                Err(TrySendError::Closed(_)) => return,
+            }
+        }
+    })
+}
