@@ -23,6 +23,7 @@ pub fn example(name: &str) -> PathBuf {
 }
 
 /// Runs `kairos` with `args` in `dir` and returns its output.
+#[allow(dead_code, reason = "not every test file uses every helper")]
 pub fn kairos(dir: &Path, args: &[&str]) -> Output {
     Command::new(env!("CARGO_BIN_EXE_kairos"))
         .args(args)

@@ -9,13 +9,16 @@
 use std::process::Command;
 
 const GUI_CRATES: [&str; 5] = ["egui", "eframe", "wgpu", "winit", "glutin"];
-const HEADLESS: [&str; 6] = [
+const HEADLESS: [&str; 9] = [
     "kairos-sdk",
     "kairos-diagram",
     "kairos-runtime",
+    "kairos-protocol",
     "kairos",
     "kairos-pack-core",
     "kairos-pack-sensors",
+    "kairos-pack-recording",
+    "kairos-pack-filters",
 ];
 
 #[test]

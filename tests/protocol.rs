@@ -1,0 +1,449 @@
+//! The control protocol over a real socket against the real `kairos serve`: the role table, bad input,
+//! tokens, isolation of a running diagram from misbehaving clients, and the Python example client.
+#![allow(
+    clippy::unwrap_used,
+    clippy::expect_used,
+    reason = "a failed unwrap is a failed test"
+)]
+
+mod common;
+
+use std::io::{BufRead as _, BufReader};
+use std::net::TcpStream;
+use std::path::Path;
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+use common::{example, repo_root, text};
+use kairos_protocol::{RequestKind, Role};
+use serde_json::{Value, json};
+use tungstenite::stream::MaybeTlsStream;
+use tungstenite::{Message, WebSocket};
+
+type Socket = WebSocket<MaybeTlsStream<TcpStream>>;
+
+/// A `kairos serve` on a free loopback port, killed when dropped.
+struct Server {
+    child: Child,
+    url: String,
+    token: String,
+}
+
+impl Drop for Server {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+fn serve(dir: &Path, extra: &[&str]) -> Server {
+    let token_file = dir.join("token.txt");
+    let mut child = Command::new(env!("CARGO_BIN_EXE_kairos"))
+        .args(["serve", "--listen", "127.0.0.1:0", "--token-file"])
+        .arg(&token_file)
+        .arg("--monitor-token-file")
+        .arg(dir.join("monitor.txt"))
+        .args(extra)
+        .current_dir(dir)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    let mut lines = BufReader::new(child.stdout.take().unwrap()).lines();
+    let url = loop {
+        let line = lines.next().expect("serve printed its address").unwrap();
+        if let Some(url) = line.strip_prefix("listening on ") {
+            break url.to_owned();
+        }
+    };
+    // Keep draining standard output (the console component prints there) so the server never blocks.
+    std::thread::spawn(move || for _ in lines {});
+    let token = std::fs::read_to_string(&token_file).unwrap().trim().to_owned();
+    Server { child, url, token }
+}
+
+fn connect(server: &Server) -> Socket {
+    let (socket, _) = tungstenite::connect(&server.url).unwrap();
+    if let MaybeTlsStream::Plain(stream) = socket.get_ref() {
+        stream.set_read_timeout(Some(Duration::from_secs(10))).unwrap();
+    }
+    socket
+}
+
+/// Sends `request` and returns the reply with its id, skipping events and sample frames.
+fn call(socket: &mut Socket, request: &Value) -> Value {
+    socket.send(Message::text(request.to_string())).unwrap();
+    loop {
+        match socket.read().unwrap() {
+            Message::Text(text) => {
+                let message: Value = serde_json::from_str(text.as_str()).unwrap();
+                if message["type"] == "reply" && message["id"] == request["id"] {
+                    return message;
+                }
+            }
+            Message::Close(_) => panic!("closed while waiting for {request}"),
+            _ => {}
+        }
+    }
+}
+
+/// The next reply, whatever its id.
+fn next_reply(socket: &mut Socket) -> Value {
+    loop {
+        if let Message::Text(text) = socket.read().unwrap() {
+            let message: Value = serde_json::from_str(text.as_str()).unwrap();
+            if message["type"] == "reply" {
+                return message;
+            }
+        }
+    }
+}
+
+fn hello(socket: &mut Socket, token: &str, role: &str) -> Value {
+    call(
+        socket,
+        &json!({"id": 1, "type": "hello", "protocol": 1, "client": "test", "token": token, "role": role}),
+    )
+}
+
+fn operator(server: &Server) -> Socket {
+    let mut socket = connect(server);
+    let reply = hello(&mut socket, &server.token, "operator");
+    assert_eq!(reply["ok"], true, "{reply}");
+    socket
+}
+
+fn deploy_and_start(socket: &mut Socket, diagram: &str) {
+    let reply = call(socket, &json!({"id": 2, "type": "deploy", "diagram": diagram}));
+    assert_eq!(reply["ok"], true, "{reply}");
+    let reply = call(socket, &json!({"id": 3, "type": "start"}));
+    assert_eq!(reply["ok"], true, "{reply}");
+}
+
+fn state(socket: &mut Socket) -> String {
+    let reply = call(socket, &json!({"id": 99, "type": "status"}));
+    reply["result"]["state"].as_str().unwrap().to_owned()
+}
+
+/// A request of each type, with plausible fields (what they name may not exist: only the role check
+/// matters for the matrix).
+fn sample_request(kind: RequestKind, id: u64) -> Value {
+    let mut request = json!({"id": id, "type": kind.name()});
+    let fields = match kind {
+        RequestKind::Hello => json!({"protocol": 1, "client": "x"}),
+        RequestKind::Deploy => json!({"diagram": "Diagram(format: 1)"}),
+        RequestKind::SetProperty => json!({"component": "gain1", "property": "gain", "value": 3.0}),
+        RequestKind::TriggerAction => json!({"component": "gain1", "action": "reset"}),
+        RequestKind::SubscribeTelemetry => json!({"interval_ms": 1000}),
+        RequestKind::SubscribeSamples => json!({"outputs": ["sine1.out"]}),
+        RequestKind::PlayerSeek => json!({"component": "gain1", "seconds": 1.0}),
+        RequestKind::PlayerSpeed => json!({"component": "gain1", "factor": 2.0}),
+        RequestKind::RecordStart
+        | RequestKind::RecordStop
+        | RequestKind::RecordSplit
+        | RequestKind::PlayerPlay
+        | RequestKind::PlayerPause
+        | RequestKind::PlayerStep => json!({"component": "gain1"}),
+        _ => json!({}),
+    };
+    for (key, value) in fields.as_object().unwrap() {
+        request[key] = value.clone();
+    }
+    request
+}
+
+#[test]
+fn every_request_type_is_checked_against_the_role_table() {
+    let dir = tempfile::tempdir().unwrap();
+    let server = serve(dir.path(), &[]);
+    let mut admin = operator(&server);
+    let hello_text = std::fs::read_to_string(example("hello")).unwrap();
+    deploy_and_start(&mut admin, &hello_text);
+
+    let monitor_token = std::fs::read_to_string(dir.path().join("monitor.txt")).unwrap();
+    let mut monitor = connect(&server);
+    let reply = hello(&mut monitor, monitor_token.trim(), "monitor");
+    assert_eq!(reply["result"]["role"], "monitor", "{reply}");
+    for (index, kind) in RequestKind::ALL.into_iter().enumerate() {
+        if kind == RequestKind::Hello {
+            continue;
+        }
+        let request = sample_request(kind, 100 + index as u64);
+        let reply = call(&mut monitor, &request);
+        let forbidden = reply["error"]["code"] == "forbidden";
+        assert_eq!(
+            forbidden,
+            kind.required_role() == Role::Operator,
+            "{}: {reply}",
+            kind.name()
+        );
+    }
+    assert_eq!(state(&mut admin), "running", "the monitor changed nothing");
+    let diagram = call(&mut admin, &json!({"id": 7, "type": "get_diagram"}));
+    assert!(
+        diagram["result"]["diagram"]
+            .as_str()
+            .unwrap()
+            .contains("\"gain\": 2.5")
+    );
+
+    // A monitor token cannot buy the operator role.
+    let mut sneaky = connect(&server);
+    let reply = hello(&mut sneaky, monitor_token.trim(), "operator");
+    assert_eq!(reply["error"]["code"], "forbidden", "{reply}");
+}
+
+#[test]
+fn wrong_or_missing_tokens_and_versions_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let server = serve(dir.path(), &[]);
+    for (hello_request, code) in [
+        (
+            json!({"id": 1, "type": "hello", "protocol": 1, "client": "t", "token": "x".repeat(64)}),
+            "unauthorized",
+        ),
+        (
+            json!({"id": 1, "type": "hello", "protocol": 1, "client": "t"}),
+            "unauthorized",
+        ),
+        (
+            json!({"id": 1, "type": "hello", "protocol": 99, "client": "t", "token": server.token}),
+            "unsupported_version",
+        ),
+        (json!({"id": 1, "type": "status"}), "unauthorized"),
+    ] {
+        let mut socket = connect(&server);
+        let reply = call(&mut socket, &hello_request);
+        assert_eq!(reply["error"]["code"], code, "{hello_request}: {reply}");
+        if code == "unsupported_version" {
+            let message = reply["error"]["message"].as_str().unwrap();
+            assert!(
+                message.contains("version 1") && message.contains("99"),
+                "{message}"
+            );
+        }
+    }
+}
+
+#[test]
+fn bad_messages_get_error_replies_and_the_server_carries_on() {
+    let dir = tempfile::tempdir().unwrap();
+    let server = serve(dir.path(), &[]);
+    let mut socket = operator(&server);
+    for (message, needle) in [
+        ("{not json", "not JSON"),
+        (r#"{"id": 5, "type": "explode"}"#, "unknown request type"),
+        (
+            r#"{"id": 6, "type": "set_property", "component": 3}"#,
+            "invalid type",
+        ),
+        (r#"{"id": 7, "type": "deploy"}"#, "missing field"),
+        (
+            r#"{"id": 8, "type": "deploy", "diagram": "Diagram(format: 1, components: [Component(id: \"a\", type: \"core.nothing\")])"}"#,
+            "unknown component type",
+        ),
+        (r#"{"id": 9, "type": "start"}"#, "deploy a diagram first"),
+    ] {
+        socket.send(Message::text(message)).unwrap();
+        let reply = next_reply(&mut socket);
+        assert_eq!(reply["ok"], false, "{message}");
+        let error = reply["error"]["message"].as_str().unwrap();
+        assert!(error.contains(needle), "{message}: {error}");
+    }
+    socket.send(Message::binary(vec![1_u8, 2, 3])).unwrap();
+    let reply = next_reply(&mut socket);
+    assert!(
+        reply["error"]["message"].as_str().unwrap().contains("JSON text"),
+        "{reply}"
+    );
+    // A deploy with errors lists every diagnostic.
+    let reply = call(
+        &mut socket,
+        &json!({"id": 10, "type": "deploy", "diagram": "Diagram(format: 1, components: [Component(id: \"a\", type: \"core.nothing\"), Component(id: \"b\", type: \"core.sine\", properties: {\"rate\": \"fast\"})])"}),
+    );
+    assert_eq!(reply["error"]["code"], "invalid_diagram");
+    let errors = reply["error"]["diagnostics"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|d| d["severity"] == "error")
+        .count();
+    assert_eq!(errors, 2, "{reply}");
+
+    // Too large: refused, the connection closes, and the server still serves others.
+    let huge = format!(
+        r#"{{"id": 11, "type": "deploy", "diagram": "{}"}}"#,
+        "x".repeat(5 << 20)
+    );
+    let _ = socket.send(Message::text(huge));
+    let mut closed = false;
+    for _ in 0..10 {
+        match socket.read() {
+            Ok(Message::Text(text)) if text.as_str().contains("too_large") => {}
+            Ok(Message::Close(_)) | Err(_) => {
+                closed = true;
+                break;
+            }
+            Ok(_) => {}
+        }
+    }
+    assert!(closed, "an oversized message ends the connection");
+    let mut again = operator(&server);
+    assert_eq!(state(&mut again), "empty");
+}
+
+/// The longest gap between consecutive timestamps in the CSV the 1 kHz diagram writes.
+fn longest_gap_ms(csv: &Path) -> (f64, usize) {
+    let content = std::fs::read_to_string(csv).unwrap();
+    let stamps: Vec<i64> = content
+        .lines()
+        .skip(1)
+        .filter_map(|l| l.split(',').nth(1)?.parse().ok())
+        .collect();
+    let gap = stamps.windows(2).map(|w| w[1] - w[0]).max().unwrap_or(0);
+    (gap as f64 / 1e6, stamps.len())
+}
+
+#[test]
+fn clients_that_flood_vanish_or_never_read_do_not_disturb_a_running_diagram() {
+    let dir = tempfile::tempdir().unwrap();
+    let server = serve(dir.path(), &[]);
+    let mut admin = operator(&server);
+    let diagram = r#"Diagram(
+    format: 1,
+    packs: [Pack(name: "core", version: "^0.1")],
+    components: [
+        Component(id: "counter", type: "core.counter", properties: {"rate": 1000.0}),
+        Component(id: "csv", type: "core.csv_writer", properties: {"path": "ticks.csv"}),
+    ],
+    connections: [Connection(from: "counter.out", to: "csv.in1", buffer_size: 4096)],
+)"#;
+    deploy_and_start(&mut admin, diagram);
+
+    // A client that subscribes to everything and never reads again.
+    let mut sluggish = operator(&server);
+    for request in [
+        json!({"id": 20, "type": "subscribe_telemetry", "interval_ms": 20}),
+        json!({"id": 21, "type": "subscribe_samples", "outputs": ["counter.out"], "max_rate_hz": 120}),
+        json!({"id": 22, "type": "subscribe_log", "level": "trace"}),
+    ] {
+        assert_eq!(call(&mut sluggish, &request)["ok"], true);
+    }
+    // A client flooding requests without reading replies.
+    let mut flooder = operator(&server);
+    for id in 0..2000 {
+        if flooder
+            .send(Message::text(
+                json!({"id": 1000 + id, "type": "status"}).to_string(),
+            ))
+            .is_err()
+        {
+            break;
+        }
+    }
+    // 300 connections (and more, for at least two seconds) that come and go, some mid-message.
+    let started = Instant::now();
+    let mut round = 0;
+    while round < 300 || started.elapsed() < Duration::from_secs(2) {
+        round += 1;
+        let mut socket = connect(&server);
+        if round % 3 == 0 {
+            let _ = socket.send(Message::text(
+                json!({"id": 1, "type": "hello", "protocol": 1, "client": "x", "token": server.token})
+                    .to_string(),
+            ));
+        }
+        if round % 5 == 0 {
+            // Half a frame, then gone.
+            if let MaybeTlsStream::Plain(stream) = socket.get_mut() {
+                use std::io::Write as _;
+                let _ = stream.write_all(&[0x81, 0xFE, 0x10]);
+            }
+        }
+        drop(socket);
+    }
+    let churn = started.elapsed();
+    assert_eq!(call(&mut admin, &json!({"id": 30, "type": "stop"}))["ok"], true);
+    let (gap_ms, samples) = longest_gap_ms(&dir.path().join("ticks.csv"));
+    assert!(
+        samples > 1500,
+        "{samples} samples in {churn:?} ({round} connections)"
+    );
+    assert!(
+        gap_ms <= 50.0,
+        "a gap of {gap_ms:.1} ms in the 1 kHz output while clients misbehaved"
+    );
+    drop(sluggish);
+    drop(flooder);
+}
+
+#[test]
+fn a_sample_subscription_gets_the_latest_frames_at_the_asked_rate() {
+    let dir = tempfile::tempdir().unwrap();
+    let server = serve(dir.path(), &[]);
+    let mut socket = operator(&server);
+    deploy_and_start(&mut socket, &std::fs::read_to_string(example("camera")).unwrap());
+    let reply = call(
+        &mut socket,
+        &json!({"id": 4, "type": "subscribe_samples", "outputs": ["camera.image"], "max_rate_hz": 5, "max_image_width": 160}),
+    );
+    assert_eq!(reply["ok"], true, "{reply}");
+    let started = Instant::now();
+    let mut frames = 0;
+    while started.elapsed() < Duration::from_millis(1500) {
+        if let Message::Binary(bytes) = socket.read().unwrap() {
+            let (header, pixels) = kairos_protocol::frame::decode(&bytes).unwrap();
+            let image = header.image.unwrap();
+            assert_eq!((image.width, image.original_width), (160, Some(640)));
+            assert_eq!(pixels.len(), (image.stride * image.height) as usize);
+            frames += 1;
+        }
+    }
+    assert!(
+        (4..=9).contains(&frames),
+        "{frames} frames in 1.5 s at 5 per second"
+    );
+    let reply = call(
+        &mut socket,
+        &json!({"id": 5, "type": "subscribe_samples", "outputs": ["camera.nothing"]}),
+    );
+    assert_eq!(reply["error"]["code"], "not_found");
+}
+
+#[test]
+fn serve_refuses_a_network_address_without_a_token_and_says_how_to_make_one() {
+    let dir = tempfile::tempdir().unwrap();
+    let output = Command::new(env!("CARGO_BIN_EXE_kairos"))
+        .args(["serve", "--listen", "0.0.0.0:0"])
+        .current_dir(dir.path())
+        .output()
+        .unwrap();
+    let (_, stderr) = text(&output);
+    assert_eq!(output.status.code(), Some(1));
+    assert!(
+        stderr.contains("--token-file") && stderr.contains("openssl rand -hex 32"),
+        "{stderr}"
+    );
+}
+
+#[test]
+fn the_python_example_client_drives_a_real_server() {
+    let dir = tempfile::tempdir().unwrap();
+    let server = serve(dir.path(), &[]);
+    let output = Command::new("python3")
+        .arg(repo_root().join("examples/clients/python/demo.py"))
+        .args(["--url", &server.url, "--token-file"])
+        .arg(dir.path().join("token.txt"))
+        .args(["--seconds", "1.5"])
+        .output()
+        .expect("python3");
+    let (stdout, stderr) = text(&output);
+    assert!(
+        output.status.success(),
+        "the demo failed (pip install websockets?):\n{stdout}\n{stderr}"
+    );
+    assert!(
+        stdout.contains("-- done") && stdout.contains("sine1.out -> gain1.in"),
+        "{stdout}"
+    );
+}
