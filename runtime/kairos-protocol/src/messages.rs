@@ -386,11 +386,6 @@ pub enum ServerMessage {
     Telemetry(Telemetry),
     /// One log record.
     Log(LogRecord),
-    /// Sent before the server closes a session on its own (a client too slow, the server stopping).
-    Goodbye {
-        /// Why.
-        reason: String,
-    },
 }
 
 impl ServerMessage {
