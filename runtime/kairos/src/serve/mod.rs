@@ -63,6 +63,21 @@ fn token(path: Option<&PathBuf>, what: &str) -> anyhow::Result<Option<String>> {
 
 /// Runs `kairos serve` until Ctrl-C or SIGTERM.
 pub fn serve(registry: Registry, options: &ServeOptions) -> anyhow::Result<ExitCode> {
+    serve_with(registry, options, |bound| {
+        use std::io::Write as _;
+        // The one line scripts read to find the port (with --listen HOST:0).
+        println!("listening on ws://{bound}");
+        let _ = std::io::stdout().flush();
+    })
+}
+
+/// Like [`serve`], calling `on_listening` with the bound address once connections are accepted (for
+/// embedding a server in another program, such as the benchmarks).
+pub fn serve_with(
+    registry: Registry,
+    options: &ServeOptions,
+    on_listening: impl FnOnce(SocketAddr) + Send,
+) -> anyhow::Result<ExitCode> {
     let address: SocketAddr = options
         .listen
         .to_socket_addrs()
@@ -121,8 +136,7 @@ pub fn serve(registry: Registry, options: &ServeOptions) -> anyhow::Result<ExitC
             .await
             .with_context(|| format!("cannot listen on {address}"))?;
         let bound = listener.local_addr().context("the listening address")?;
-        // The one line scripts read to find the port (with --listen HOST:0).
-        println!("listening on ws://{bound}");
+        on_listening(bound);
         tracing::info!(
             "serving on ws://{bound}{}",
             if shared.access.requires_token() {
