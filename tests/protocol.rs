@@ -447,3 +447,121 @@ fn the_python_example_client_drives_a_real_server() {
         "{stdout}"
     );
 }
+
+#[test]
+fn the_log_stream_and_the_connection_limit() {
+    let dir = tempfile::tempdir().unwrap();
+    let server = serve(dir.path(), &["--max-connections", "2"]);
+    let mut first = operator(&server);
+    assert_eq!(
+        call(
+            &mut first,
+            &json!({"id": 2, "type": "subscribe_log", "level": "info"})
+        )["ok"],
+        true
+    );
+    let hello_text = std::fs::read_to_string(example("hello")).unwrap();
+    first
+        .send(Message::text(
+            json!({"id": 3, "type": "deploy", "diagram": hello_text}).to_string(),
+        ))
+        .unwrap();
+    // The log event may come before or after the deploy's reply.
+    let (mut logged, mut replied) = (false, false);
+    for _ in 0..20 {
+        if let Message::Text(text) = first.read().unwrap() {
+            let event: Value = serde_json::from_str(text.as_str()).unwrap();
+            if event["type"] == "log" && event["message"].as_str().unwrap().contains("deployed a diagram") {
+                assert_eq!(event["level"], "info");
+                logged = true;
+            }
+            replied |= event["type"] == "reply" && event["id"] == 3 && event["ok"] == true;
+        }
+        if logged && replied {
+            break;
+        }
+    }
+    assert!(logged, "the deploy was logged to the subscriber");
+
+    let _second = operator(&server);
+    let mut third = connect(&server);
+    let refusal = next_reply(&mut third);
+    assert_eq!(refusal["error"]["code"], "busy", "{refusal}");
+    assert!(
+        refusal["error"]["message"]
+            .as_str()
+            .unwrap()
+            .contains("2 clients")
+    );
+}
+
+#[test]
+fn recorders_and_players_are_driven_over_the_protocol() {
+    let dir = tempfile::tempdir().unwrap();
+    let server = serve(dir.path(), &[]);
+    let mut socket = operator(&server);
+    let recording = r#"Diagram(
+    format: 1,
+    packs: [Pack(name: "sensors", version: "^0.1"), Pack(name: "recording", version: "^0.1")],
+    components: [
+        Component(id: "imu", type: "sensors.imu"),
+        Component(id: "recorder", type: "recording.recorder", properties: {"path": "imu.mcap", "record_at_start": false}),
+    ],
+    connections: [Connection(from: "imu.imu", to: "recorder.in1", buffer_size: 64)],
+)"#;
+    deploy_and_start(&mut socket, recording);
+    std::thread::sleep(Duration::from_millis(200));
+    assert!(
+        !dir.path().join("imu.mcap").exists(),
+        "not recording before record_start"
+    );
+    assert_eq!(
+        call(
+            &mut socket,
+            &json!({"id": 4, "type": "record_start", "component": "recorder"})
+        )["ok"],
+        true
+    );
+    std::thread::sleep(Duration::from_millis(1200));
+    assert_eq!(
+        call(
+            &mut socket,
+            &json!({"id": 5, "type": "record_stop", "component": "recorder"})
+        )["ok"],
+        true
+    );
+    let report = kairos_pack_recording::inspect(&dir.path().join("imu.mcap")).unwrap();
+    assert!(report.complete && report.messages > 80, "{report:?}");
+
+    let replay = r#"Diagram(
+    format: 1,
+    packs: [Pack(name: "recording", version: "^0.1")],
+    components: [Component(id: "player", type: "recording.player", properties: {"path": "imu.mcap", "loop": true})],
+)"#;
+    deploy_and_start(&mut socket, replay);
+    for (id, request) in [
+        (10, json!({"type": "player_pause"})),
+        (11, json!({"type": "player_seek", "seconds": 0.5})),
+        (12, json!({"type": "player_step"})),
+        (13, json!({"type": "player_speed", "factor": 4.0})),
+        (14, json!({"type": "player_play"})),
+    ] {
+        let mut request = request;
+        request["id"] = json!(id);
+        request["component"] = json!("player");
+        let reply = call(&mut socket, &request);
+        assert_eq!(reply["ok"], true, "{request}: {reply}");
+    }
+    let reply = call(
+        &mut socket,
+        &json!({"id": 15, "type": "player_speed", "component": "player", "factor": 500.0}),
+    );
+    assert_eq!(reply["error"]["code"], "invalid_value", "{reply}");
+    assert!(
+        reply["error"]["message"].as_str().unwrap().contains("100"),
+        "{reply}"
+    );
+    let status = call(&mut socket, &json!({"id": 16, "type": "status"}));
+    let player = &status["result"]["telemetry"]["components"][0];
+    assert_eq!(player["state"], "running", "{status}");
+}
