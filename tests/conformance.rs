@@ -67,6 +67,7 @@ fn every_component_starts_runs_and_stops_alone() {
     let registry = kairos::builtin_registry();
     let library = registry.library_info();
     let dir = tempfile::tempdir().unwrap();
+    let recording = small_recording(dir.path());
     let mut diagram = Diagram::default();
     for (index, info) in library.components.values().enumerate() {
         let mut instance = ComponentInstance::new(format!("c{index}"), info.type_name.clone());
@@ -77,6 +78,18 @@ fn every_component_starts_runs_and_stops_alone() {
                     .properties
                     .insert(property.name.clone(), Value::Text(path.display().to_string()));
             }
+        }
+        if info.type_name == "recording.player" {
+            // A player needs a recording to describe its outputs; looping, it runs until stopped.
+            instance
+                .properties
+                .insert("path".to_owned(), Value::Text(recording.clone()));
+            for extra in ["path2", "path3", "path4"] {
+                instance
+                    .properties
+                    .insert(extra.to_owned(), Value::Text(String::new()));
+            }
+            instance.properties.insert("loop".to_owned(), Value::Bool(true));
         }
         diagram.components.push(instance);
     }
@@ -97,4 +110,23 @@ fn every_component_starts_runs_and_stops_alone() {
             assert!(component.cycles > 0, "source {} never ran", info.type_name);
         }
     }
+}
+
+/// A recording of a few numbers, for the player.
+fn small_recording(dir: &std::path::Path) -> String {
+    let path = dir.join("small.mcap");
+    let mut harness = kairos_sdk::harness::Harness::new(
+        kairos_pack_recording::recorder::Recorder::info(),
+        kairos_pack_recording::recorder::Recorder::default(),
+    );
+    harness.set_property("path", path.display().to_string()).unwrap();
+    for i in 0..20 {
+        harness.push(
+            "in1",
+            kairos_sdk::Payload::F64(f64::from(i)),
+            kairos_sdk::Timestamp::from_millis(i64::from(i) * 10),
+        );
+    }
+    harness.finish().unwrap();
+    path.display().to_string()
 }

@@ -533,12 +533,12 @@ fn recorders_and_players_are_driven_over_the_protocol() {
     let report = kairos_pack_recording::inspect(&dir.path().join("imu.mcap")).unwrap();
     assert!(report.complete && report.messages > 80, "{report:?}");
 
-    let replay = r#"Diagram(
+    let playback = r#"Diagram(
     format: 1,
     packs: [Pack(name: "recording", version: "^0.1")],
     components: [Component(id: "player", type: "recording.player", properties: {"path": "imu.mcap", "loop": true})],
 )"#;
-    deploy_and_start(&mut socket, replay);
+    deploy_and_start(&mut socket, playback);
     for (id, request) in [
         (10, json!({"type": "player_pause"})),
         (11, json!({"type": "player_seek", "seconds": 0.5})),
