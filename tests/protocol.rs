@@ -187,6 +187,16 @@ fn every_request_type_is_checked_against_the_role_table() {
             .contains("\"gain\": 2.5")
     );
 
+    // An operator may make every request (the replies may be errors, but never `forbidden`).
+    for (index, kind) in RequestKind::ALL.into_iter().enumerate() {
+        if kind == RequestKind::Hello {
+            continue;
+        }
+        let request = sample_request(kind, 200 + index as u64);
+        let reply = call(&mut admin, &request);
+        assert_ne!(reply["error"]["code"], "forbidden", "{}: {reply}", kind.name());
+    }
+
     // A monitor token cannot buy the operator role.
     let mut sneaky = connect(&server);
     let reply = hello(&mut sneaky, monitor_token.trim(), "operator");
