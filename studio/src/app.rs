@@ -1,0 +1,777 @@
+//! The studio window: palette, canvas, inspector, log, files and run controls, around one [`Document`] and
+//! one runtime connection.
+
+use std::collections::{BTreeMap, VecDeque};
+use std::path::PathBuf;
+
+use egui::{Color32, RichText};
+use kairos_diagram::{ComponentInstance, LibraryInfo, PropertyKind, ReaderPolicy, Value};
+use kairos_protocol::{RequestBody, RuntimeState};
+
+use crate::canvas::{Canvas, NewComponent, NodeState, auto_layout};
+use crate::client::{ClientEvent, RuntimeClient};
+use crate::document::Document;
+
+/// What a request in flight was for.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Pending {
+    Library,
+    Deploy,
+    Other,
+}
+
+/// A question about unsaved changes, and what to do after it.
+#[derive(Debug, Clone, PartialEq, Eq)]
+enum AfterDiscard {
+    New,
+    Open(PathBuf),
+    Quit,
+}
+
+/// Which path prompt is open.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Prompt {
+    Open,
+    SaveAs,
+}
+
+/// The studio.
+pub struct StudioApp {
+    /// The diagram being edited.
+    pub document: Document,
+    /// The connected runtime's component library.
+    pub library: LibraryInfo,
+    /// The node editor.
+    pub canvas: Canvas,
+    client: Option<RuntimeClient>,
+    runtime_label: String,
+    connected: bool,
+    run_state: RuntimeState,
+    states: BTreeMap<String, NodeState>,
+    pending: BTreeMap<u64, Pending>,
+    start_after_deploy: bool,
+    log: VecDeque<(Color32, String)>,
+    search: String,
+    prompt: Option<(Prompt, String)>,
+    confirm: Option<AfterDiscard>,
+    recent: Vec<PathBuf>,
+    clipboard: Vec<ComponentInstance>,
+    quitting: bool,
+    /// Kept alive as long as the studio: dropping it stops the local runtime.
+    _local: Option<crate::local::LocalRuntime>,
+}
+
+impl std::fmt::Debug for StudioApp {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("StudioApp")
+            .field("runtime", &self.runtime_label)
+            .finish_non_exhaustive()
+    }
+}
+
+const LOG_LINES: usize = 500;
+
+fn recent_file() -> Option<PathBuf> {
+    let base = std::env::var_os("XDG_CONFIG_HOME")
+        .map(PathBuf::from)
+        .or_else(|| std::env::var_os("HOME").map(|h| PathBuf::from(h).join(".config")))?;
+    Some(base.join("kairos").join("studio-recent.txt"))
+}
+
+impl StudioApp {
+    /// A studio editing `document`, driving the runtime behind `client` (none: editing only, with
+    /// `library` as the palette).
+    pub fn new(
+        document: Document,
+        library: LibraryInfo,
+        client: Option<RuntimeClient>,
+        runtime_label: String,
+        local: Option<crate::local::LocalRuntime>,
+    ) -> Self {
+        let recent = recent_file()
+            .and_then(|f| std::fs::read_to_string(f).ok())
+            .map(|text| text.lines().map(PathBuf::from).collect())
+            .unwrap_or_default();
+        let mut app = StudioApp {
+            document,
+            library,
+            canvas: Canvas::default(),
+            client,
+            runtime_label,
+            connected: false,
+            run_state: RuntimeState::Empty,
+            states: BTreeMap::new(),
+            pending: BTreeMap::new(),
+            start_after_deploy: false,
+            log: VecDeque::new(),
+            search: String::new(),
+            prompt: None,
+            confirm: None,
+            recent,
+            clipboard: Vec::new(),
+            quitting: false,
+            _local: local,
+        };
+        let library = app.library.clone();
+        app.canvas.fit(&app.document, &library);
+        app
+    }
+
+    fn note(&mut self, color: Color32, text: impl Into<String>) {
+        self.log.push_back((color, text.into()));
+        while self.log.len() > LOG_LINES {
+            self.log.pop_front();
+        }
+    }
+
+    fn request(&mut self, body: RequestBody, pending: Pending) {
+        if let Some(client) = &mut self.client {
+            let id = client.request(body);
+            self.pending.insert(id, pending);
+        } else {
+            self.note(Color32::LIGHT_RED, "no runtime connected");
+        }
+    }
+
+    fn remember_recent(&mut self, path: PathBuf) {
+        self.recent.retain(|p| p != &path);
+        self.recent.insert(0, path);
+        self.recent.truncate(10);
+        if let Some(file) = recent_file() {
+            if let Some(folder) = file.parent() {
+                let _ = std::fs::create_dir_all(folder);
+            }
+            let text: Vec<String> = self.recent.iter().map(|p| p.display().to_string()).collect();
+            let _ = std::fs::write(file, text.join("\n"));
+        }
+    }
+
+    fn poll_runtime(&mut self) {
+        let Some(client) = &self.client else { return };
+        for event in client.poll() {
+            match event {
+                ClientEvent::Connected(welcome) => {
+                    self.connected = true;
+                    self.note(
+                        Color32::LIGHT_GREEN,
+                        format!("connected to {} ({:?})", welcome.server, welcome.role),
+                    );
+                    self.request(RequestBody::Library, Pending::Library);
+                    self.request(
+                        RequestBody::SubscribeTelemetry { interval_ms: 250 },
+                        Pending::Other,
+                    );
+                    self.request(
+                        RequestBody::SubscribeLog {
+                            level: kairos_protocol::LogLevel::Info,
+                        },
+                        Pending::Other,
+                    );
+                }
+                ClientEvent::Reply(reply) => {
+                    let what = reply.id.and_then(|id| self.pending.remove(&id));
+                    if let Some(error) = reply.error {
+                        self.note(Color32::LIGHT_RED, error.message);
+                        self.start_after_deploy = false;
+                        continue;
+                    }
+                    match what {
+                        Some(Pending::Library) => {
+                            if let Some(library) = reply.result.and_then(|r| serde_json::from_value(r).ok()) {
+                                self.library = library;
+                            }
+                        }
+                        Some(Pending::Deploy) => {
+                            self.note(Color32::LIGHT_GREEN, "deployed");
+                            if std::mem::take(&mut self.start_after_deploy) {
+                                self.request(RequestBody::Start, Pending::Other);
+                            }
+                        }
+                        Some(Pending::Other) | None => {}
+                    }
+                }
+                ClientEvent::Telemetry(telemetry) => {
+                    self.run_state = telemetry.state;
+                    self.states = telemetry
+                        .components
+                        .into_iter()
+                        .map(|c| {
+                            let state = match (c.state.as_str(), c.error) {
+                                ("running", _) => NodeState::Running,
+                                ("finished", _) => NodeState::Finished,
+                                (_, Some(error)) => NodeState::Failed(error),
+                                (other, None) => NodeState::Waiting(other.to_owned()),
+                            };
+                            (c.id, state)
+                        })
+                        .collect();
+                }
+                ClientEvent::Log(record) => {
+                    let color = match record.level {
+                        kairos_protocol::LogLevel::Error => Color32::LIGHT_RED,
+                        kairos_protocol::LogLevel::Warn => Color32::YELLOW,
+                        _ => Color32::GRAY,
+                    };
+                    let who = record.component.map_or_else(String::new, |c| format!("{c}: "));
+                    self.note(color, format!("{who}{}", record.message));
+                }
+                ClientEvent::Disconnected(reason) => {
+                    self.connected = false;
+                    self.note(Color32::LIGHT_RED, reason);
+                }
+            }
+        }
+    }
+
+    fn deploy_and_start(&mut self) {
+        self.start_after_deploy = true;
+        self.request(
+            RequestBody::Deploy {
+                diagram: self.document.diagram().to_ron(),
+            },
+            Pending::Deploy,
+        );
+    }
+
+    fn open(&mut self, path: PathBuf) {
+        match Document::open(&path) {
+            Ok(document) => {
+                self.document = document;
+                self.canvas = Canvas::default();
+                self.canvas.fit(&self.document, &self.library);
+                self.note(Color32::GRAY, format!("opened {}", path.display()));
+                self.remember_recent(path);
+            }
+            Err(error) => self.note(Color32::LIGHT_RED, error),
+        }
+    }
+
+    /// Runs `after` now, or asks first when there are unsaved changes.
+    fn unless_unsaved(&mut self, after: AfterDiscard) {
+        if self.document.is_dirty() {
+            self.confirm = Some(after);
+        } else {
+            self.proceed(after);
+        }
+    }
+
+    fn proceed(&mut self, after: AfterDiscard) {
+        match after {
+            AfterDiscard::New => {
+                self.document = Document::default();
+                self.canvas = Canvas::default();
+            }
+            AfterDiscard::Open(path) => self.open(path),
+            AfterDiscard::Quit => self.quitting = true,
+        }
+    }
+
+    fn save(&mut self) {
+        if self.document.path().is_none() {
+            self.prompt = Some((Prompt::SaveAs, "diagram.ron".to_owned()));
+            return;
+        }
+        match self.document.save() {
+            Ok(()) => {
+                let path = self.document.path().map(std::path::Path::to_path_buf);
+                self.note(
+                    Color32::GRAY,
+                    format!(
+                        "saved {}",
+                        path.as_deref()
+                            .map(|p| p.display().to_string())
+                            .unwrap_or_default()
+                    ),
+                );
+                if let Some(path) = path {
+                    self.remember_recent(path);
+                }
+            }
+            Err(error) => self.note(Color32::LIGHT_RED, error),
+        }
+    }
+
+    fn shortcuts(&mut self, ctx: &egui::Context) {
+        use egui::{Key, KeyboardShortcut, Modifiers};
+        let typing = ctx.egui_wants_keyboard_input();
+        let pressed =
+            |modifiers, key| ctx.input_mut(|i| i.consume_shortcut(&KeyboardShortcut::new(modifiers, key)));
+        if pressed(Modifiers::COMMAND, Key::S) {
+            self.save();
+        }
+        if typing {
+            return;
+        }
+        if pressed(Modifiers::COMMAND | Modifiers::SHIFT, Key::Z) || pressed(Modifiers::COMMAND, Key::Y) {
+            self.document.redo();
+        }
+        if pressed(Modifiers::COMMAND, Key::Z) {
+            self.document.undo();
+        }
+        if pressed(Modifiers::COMMAND, Key::C) {
+            self.copy();
+        }
+        if pressed(Modifiers::COMMAND, Key::V) {
+            self.paste();
+        }
+        if pressed(Modifiers::COMMAND, Key::D) {
+            self.copy();
+            self.paste();
+        }
+        if pressed(Modifiers::NONE, Key::Delete) || pressed(Modifiers::NONE, Key::Backspace) {
+            self.delete_selection();
+        }
+    }
+
+    fn copy(&mut self) {
+        self.clipboard = self
+            .document
+            .diagram()
+            .components
+            .iter()
+            .filter(|c| self.canvas.selected.contains(&c.id))
+            .cloned()
+            .collect();
+    }
+
+    fn paste(&mut self) {
+        let copies = self.clipboard.clone();
+        let mut pasted = Vec::new();
+        self.document.edit(|diagram| {
+            for mut component in copies {
+                let base = component
+                    .id
+                    .trim_end_matches(|c: char| c.is_ascii_digit())
+                    .to_owned();
+                let id = crate::document::fresh_id(diagram, &base);
+                component.id.clone_from(&id);
+                component.position.x += 30.0;
+                component.position.y += 30.0;
+                diagram.components.push(component);
+                pasted.push(id);
+            }
+        });
+        if !pasted.is_empty() {
+            self.canvas.selected = pasted.into_iter().collect();
+        }
+    }
+
+    fn delete_selection(&mut self) {
+        if let Some((from, to)) = self.canvas.selected_connection.take() {
+            self.document.remove_connection(&from, &to);
+        }
+        let ids: Vec<String> = std::mem::take(&mut self.canvas.selected).into_iter().collect();
+        if !ids.is_empty() {
+            self.document.remove_components(&ids);
+        }
+    }
+
+    fn menu_bar(&mut self, ui: &mut egui::Ui) {
+        egui::MenuBar::new().ui(ui, |ui| {
+            ui.menu_button("File", |ui| {
+                if ui.button("New").clicked() {
+                    self.unless_unsaved(AfterDiscard::New);
+                }
+                if ui.button("Open…").clicked() {
+                    self.prompt = Some((Prompt::Open, String::new()));
+                }
+                if ui.button("Save").clicked() {
+                    self.save();
+                }
+                if ui.button("Save as…").clicked() {
+                    let current = self
+                        .document
+                        .path()
+                        .map_or_else(|| "diagram.ron".to_owned(), |p| p.display().to_string());
+                    self.prompt = Some((Prompt::SaveAs, current));
+                }
+                ui.menu_button("Recent", |ui| {
+                    for path in self.recent.clone() {
+                        if ui.button(path.display().to_string()).clicked() {
+                            self.unless_unsaved(AfterDiscard::Open(path));
+                        }
+                    }
+                });
+                if ui.button("Quit").clicked() {
+                    self.unless_unsaved(AfterDiscard::Quit);
+                }
+            });
+            ui.menu_button("Edit", |ui| {
+                if ui.button("Undo").clicked() {
+                    self.document.undo();
+                }
+                if ui.button("Redo").clicked() {
+                    self.document.redo();
+                }
+                if ui.button("Delete").clicked() {
+                    self.delete_selection();
+                }
+                if ui.button("Tidy the layout").clicked() {
+                    auto_layout(&mut self.document);
+                    self.canvas.fit(&self.document, &self.library);
+                }
+            });
+            ui.separator();
+            let running = matches!(self.run_state, RuntimeState::Running);
+            if ui
+                .button("Run")
+                .on_hover_text("Deploy this diagram to the runtime and start it")
+                .clicked()
+            {
+                self.deploy_and_start();
+            }
+            if ui.add_enabled(running, egui::Button::new("Pause")).clicked() {
+                self.request(RequestBody::Pause, Pending::Other);
+            }
+            if ui
+                .add_enabled(
+                    matches!(self.run_state, RuntimeState::Paused),
+                    egui::Button::new("Resume"),
+                )
+                .clicked()
+            {
+                self.request(RequestBody::Resume, Pending::Other);
+            }
+            if ui
+                .add_enabled(
+                    running || matches!(self.run_state, RuntimeState::Paused),
+                    egui::Button::new("Stop"),
+                )
+                .clicked()
+            {
+                self.request(RequestBody::Stop, Pending::Other);
+            }
+            ui.separator();
+            let (word, color) = if self.connected {
+                ("connected to", Color32::LIGHT_GREEN)
+            } else {
+                ("not connected to", Color32::LIGHT_RED)
+            };
+            ui.label(RichText::new(format!("{word} {}", self.runtime_label)).color(color));
+            ui.label(format!("— {:?}", self.run_state).to_lowercase());
+        });
+    }
+
+    fn palette(&mut self, ui: &mut egui::Ui) {
+        ui.heading("Components");
+        ui.add(egui::TextEdit::singleline(&mut self.search).hint_text("search"));
+        let needle = self.search.to_lowercase();
+        let mut groups: BTreeMap<(String, String), Vec<&kairos_diagram::ComponentInfo>> = BTreeMap::new();
+        for info in self.library.components.values() {
+            let matches = needle.is_empty()
+                || info.type_name.to_lowercase().contains(&needle)
+                || info.doc.to_lowercase().contains(&needle);
+            if matches {
+                groups
+                    .entry((info.pack.clone(), info.category.clone()))
+                    .or_default()
+                    .push(info);
+            }
+        }
+        egui::ScrollArea::vertical().show(ui, |ui| {
+            for ((pack, category), entries) in groups {
+                egui::CollapsingHeader::new(format!("{pack} / {category}"))
+                    .default_open(true)
+                    .show(ui, |ui| {
+                        for info in entries {
+                            let id = ui.make_persistent_id(("palette", &info.type_name));
+                            let response = ui
+                                .dnd_drag_source(id, NewComponent(info.type_name.clone()), |ui| {
+                                    ui.label(&info.type_name);
+                                })
+                                .response;
+                            response.on_hover_text(&info.doc);
+                        }
+                    });
+            }
+        });
+    }
+
+    #[allow(clippy::too_many_lines, reason = "one widget per property kind")]
+    fn inspector(&mut self, ui: &mut egui::Ui) {
+        ui.heading("Inspector");
+        if let Some((from, to)) = self.canvas.selected_connection.clone() {
+            ui.label(format!("{from} → {to}"));
+            let Some(connection) = self
+                .document
+                .diagram()
+                .connections
+                .iter()
+                .find(|c| c.from == from && c.to == to)
+                .cloned()
+            else {
+                return;
+            };
+            let mut policy = connection.policy;
+            egui::ComboBox::from_label("reader policy")
+                .selected_text(policy.map_or("input's default", ReaderPolicy::name))
+                .show_ui(ui, |ui| {
+                    ui.selectable_value(&mut policy, None, "input's default");
+                    for choice in [
+                        ReaderPolicy::Fifo,
+                        ReaderPolicy::LastOrNext,
+                        ReaderPolicy::WaitForNext,
+                        ReaderPolicy::Sampling,
+                        ReaderPolicy::NeverSkipping,
+                    ] {
+                        ui.selectable_value(&mut policy, Some(choice), choice.name());
+                    }
+                });
+            let mut buffer = connection.buffer_size.unwrap_or(0);
+            ui.horizontal(|ui| {
+                ui.label("buffer size (0: the output's)");
+                ui.add(egui::DragValue::new(&mut buffer).range(0..=1_000_000));
+            });
+            let mut subsampling = connection.subsampling.unwrap_or(1);
+            ui.horizontal(|ui| {
+                ui.label("keep one sample in");
+                ui.add(egui::DragValue::new(&mut subsampling).range(1..=1_000_000));
+            });
+            if policy != connection.policy
+                || buffer != connection.buffer_size.unwrap_or(0)
+                || subsampling != connection.subsampling.unwrap_or(1)
+            {
+                self.document.edit(|d| {
+                    if let Some(c) = d.connections.iter_mut().find(|c| c.from == from && c.to == to) {
+                        c.policy = policy;
+                        c.buffer_size = (buffer > 0).then_some(buffer);
+                        c.subsampling = (subsampling > 1).then_some(subsampling);
+                    }
+                });
+            }
+            return;
+        }
+        let selected: Vec<String> = self.canvas.selected.iter().cloned().collect();
+        let [id] = selected.as_slice() else {
+            ui.label("Select a component or a connection.");
+            return;
+        };
+        let id = id.clone();
+        let Some(instance) = self.document.diagram().component(&id).cloned() else {
+            return;
+        };
+        ui.label(RichText::new(&instance.id).strong());
+        let Some(info) = self.library.component(&instance.type_name).cloned() else {
+            ui.colored_label(Color32::LIGHT_RED, format!("unknown type {}", instance.type_name));
+            return;
+        };
+        ui.label(RichText::new(&info.type_name).weak());
+        ui.label(&info.doc);
+        ui.separator();
+        let running = matches!(self.run_state, RuntimeState::Running | RuntimeState::Paused);
+        for property in &info.properties {
+            let current = instance
+                .properties
+                .get(&property.name)
+                .cloned()
+                .unwrap_or_else(|| property.default.clone());
+            let mut edited = current.clone();
+            ui.horizontal(|ui| {
+                let name_label = ui.label(&property.name).on_hover_text(&property.doc).id;
+                match (&property.kind, &mut edited) {
+                    (PropertyKind::F64 { min, max }, value) => {
+                        let mut number = value.as_f64().unwrap_or(0.0);
+                        let mut drag = egui::DragValue::new(&mut number).speed(0.1);
+                        if let (Some(min), Some(max)) = (min, max) {
+                            drag = drag.range(*min..=*max);
+                        }
+                        if ui.add(drag).labelled_by(name_label).changed() {
+                            *value = Value::F64(number);
+                        }
+                    }
+                    (PropertyKind::I64 { min, max }, value) => {
+                        let mut number = value.as_i64().unwrap_or(0);
+                        let mut drag = egui::DragValue::new(&mut number);
+                        if let (Some(min), Some(max)) = (min, max) {
+                            drag = drag.range(*min..=*max);
+                        }
+                        if ui.add(drag).labelled_by(name_label).changed() {
+                            *value = Value::I64(number);
+                        }
+                    }
+                    (PropertyKind::Bool, value) => {
+                        let mut flag = value.as_bool().unwrap_or(false);
+                        if ui.checkbox(&mut flag, "").labelled_by(name_label).changed() {
+                            *value = Value::Bool(flag);
+                        }
+                    }
+                    (PropertyKind::Choice(choices), value) => {
+                        let mut chosen = value.as_text().unwrap_or("").to_owned();
+                        egui::ComboBox::from_id_salt(("choice", &property.name))
+                            .selected_text(&chosen)
+                            .show_ui(ui, |ui| {
+                                for choice in choices {
+                                    ui.selectable_value(&mut chosen, choice.clone(), choice);
+                                }
+                            });
+                        if Some(chosen.as_str()) != value.as_text() {
+                            *value = Value::Text(chosen);
+                        }
+                    }
+                    (PropertyKind::Text | PropertyKind::Path, value) => {
+                        let mut text = value.as_text().unwrap_or("").to_owned();
+                        let edit = egui::TextEdit::singleline(&mut text).desired_width(160.0);
+                        if ui.add(edit).labelled_by(name_label).changed() {
+                            *value = Value::Text(text);
+                        }
+                    }
+                }
+                if property.live {
+                    ui.label(RichText::new("live").small().weak())
+                        .on_hover_text("changes apply at once while the diagram runs");
+                }
+            });
+            if let Err(error) = property.kind.check(&edited) {
+                ui.colored_label(Color32::LIGHT_RED, error.to_string());
+            }
+            if edited != current {
+                let name = property.name.clone();
+                let value = edited.clone();
+                self.document.edit(|d| {
+                    if let Some(c) = d.component_mut(&id) {
+                        c.properties.insert(name, value);
+                    }
+                });
+                if running && property.live && property.kind.check(&edited).is_ok() {
+                    self.request(
+                        RequestBody::SetProperty {
+                            component: id.clone(),
+                            property: property.name.clone(),
+                            value: edited,
+                        },
+                        Pending::Other,
+                    );
+                }
+            }
+        }
+        if !info.actions.is_empty() {
+            ui.separator();
+            for action in &info.actions {
+                if ui.button(&action.name).on_hover_text(&action.doc).clicked() {
+                    self.request(
+                        RequestBody::TriggerAction {
+                            component: id.clone(),
+                            action: action.name.clone(),
+                        },
+                        Pending::Other,
+                    );
+                }
+            }
+        }
+        if let Some(NodeState::Failed(error)) = self.states.get(&id) {
+            ui.separator();
+            ui.colored_label(Color32::LIGHT_RED, format!("failed: {error}"));
+        }
+    }
+
+    fn dialogs(&mut self, ctx: &egui::Context) {
+        if let Some((kind, mut text)) = self.prompt.take() {
+            let mut open = true;
+            let mut done = false;
+            egui::Window::new(if kind == Prompt::Open {
+                "Open a diagram"
+            } else {
+                "Save the diagram as"
+            })
+            .collapsible(false)
+            .open(&mut open)
+            .show(ctx, |ui| {
+                ui.label("File path:");
+                let response = ui.text_edit_singleline(&mut text);
+                done = ui.button("OK").clicked()
+                    || (response.lost_focus() && ui.input(|i| i.key_pressed(egui::Key::Enter)));
+            });
+            if done {
+                let path = PathBuf::from(&text);
+                match kind {
+                    Prompt::Open => self.unless_unsaved(AfterDiscard::Open(path)),
+                    Prompt::SaveAs => match self.document.save_as(&path) {
+                        Ok(()) => {
+                            self.note(Color32::GRAY, format!("saved {}", path.display()));
+                            self.remember_recent(path);
+                        }
+                        Err(error) => self.note(Color32::LIGHT_RED, error),
+                    },
+                }
+            } else if open {
+                self.prompt = Some((kind, text));
+            }
+        }
+        if let Some(after) = self.confirm.clone() {
+            egui::Window::new("Unsaved changes")
+                .collapsible(false)
+                .show(ctx, |ui| {
+                    ui.label("The diagram has changes that are not saved.");
+                    ui.horizontal(|ui| {
+                        if ui.button("Save").clicked() {
+                            self.save();
+                            self.confirm = None;
+                            if !self.document.is_dirty() {
+                                self.proceed(after.clone());
+                            }
+                        }
+                        if ui.button("Discard").clicked() {
+                            self.confirm = None;
+                            self.proceed(after.clone());
+                        }
+                        if ui.button("Cancel").clicked() {
+                            self.confirm = None;
+                        }
+                    });
+                });
+        }
+    }
+
+    /// One frame of the whole window (also what the interface tests drive).
+    pub fn show(&mut self, ui: &mut egui::Ui) {
+        let ctx = ui.ctx().clone();
+        self.poll_runtime();
+        self.shortcuts(&ctx);
+        if ctx.input(|i| i.viewport().close_requested()) && !self.quitting && self.document.is_dirty() {
+            ctx.send_viewport_cmd(egui::ViewportCommand::CancelClose);
+            self.confirm = Some(AfterDiscard::Quit);
+        }
+        if self.quitting {
+            ctx.send_viewport_cmd(egui::ViewportCommand::Close);
+        }
+        let title = format!(
+            "{}{} — Kairos studio",
+            self.document
+                .path()
+                .map_or_else(|| "untitled".to_owned(), |p| p.display().to_string()),
+            if self.document.is_dirty() { " •" } else { "" }
+        );
+        ctx.send_viewport_cmd(egui::ViewportCommand::Title(title));
+        egui::Panel::top("menu").show(ui, |ui| self.menu_bar(ui));
+        egui::Panel::left("palette")
+            .default_size(210.0)
+            .size_range(160.0..=400.0)
+            .show(ui, |ui| self.palette(ui));
+        // Bounded, so selecting a component whose properties are wide does not resize (and move) the canvas.
+        egui::Panel::right("inspector")
+            .default_size(300.0)
+            .size_range(220.0..=520.0)
+            .show(ui, |ui| self.inspector(ui));
+        egui::Panel::bottom("log")
+            .default_size(110.0)
+            .size_range(60.0..=400.0)
+            .show(ui, |ui| {
+                egui::ScrollArea::vertical().stick_to_bottom(true).show(ui, |ui| {
+                    for (color, line) in &self.log {
+                        ui.colored_label(*color, line);
+                    }
+                });
+            });
+        egui::CentralPanel::default().show(ui, |ui| {
+            let library = self.library.clone();
+            self.canvas.show(ui, &mut self.document, &library, &self.states);
+        });
+        self.dialogs(&ctx);
+    }
+}
+
+impl eframe::App for StudioApp {
+    fn ui(&mut self, ui: &mut egui::Ui, _frame: &mut eframe::Frame) {
+        self.show(ui);
+    }
+}

@@ -1,0 +1,168 @@
+//! The studio's side of the control protocol: one connection to a runtime, on a thread of its own, so the
+//! interface never waits for the network.
+
+use std::net::TcpStream;
+use std::sync::mpsc::{Receiver, Sender, TryRecvError, channel};
+use std::time::Duration;
+
+use kairos_protocol::{
+    LogRecord, PROTOCOL_VERSION, Reply, Request, RequestBody, Role, ServerMessage, Telemetry, Welcome,
+};
+use tungstenite::stream::MaybeTlsStream;
+use tungstenite::{Message, WebSocket};
+
+/// What the connection reports.
+#[derive(Debug, Clone)]
+pub enum ClientEvent {
+    /// The runtime accepted the session.
+    Connected(Welcome),
+    /// The answer to a request.
+    Reply(Reply),
+    /// Statistics.
+    Telemetry(Telemetry),
+    /// A log record.
+    Log(LogRecord),
+    /// The connection failed or ended, and why.
+    Disconnected(String),
+}
+
+/// A connection to a runtime.
+#[derive(Debug)]
+pub struct RuntimeClient {
+    url: String,
+    outgoing: Sender<String>,
+    incoming: Receiver<ClientEvent>,
+    next_id: u64,
+}
+
+/// How long a read waits before the thread looks for requests to send.
+const POLL: Duration = Duration::from_millis(15);
+
+impl RuntimeClient {
+    /// Connects to `url` with `token` on a background thread; `wake` is called after every event (to
+    /// repaint the interface).
+    pub fn connect(url: &str, token: Option<String>, wake: impl Fn() + Send + 'static) -> RuntimeClient {
+        let (outgoing, requests) = channel::<String>();
+        let (events, incoming) = channel();
+        let address = url.to_owned();
+        std::thread::Builder::new()
+            .name("studio:net".to_owned())
+            .spawn(move || {
+                let reason = run(&address, token, &requests, &events, &wake);
+                let _ = events.send(ClientEvent::Disconnected(reason));
+                wake();
+            })
+            .ok();
+        RuntimeClient {
+            url: url.to_owned(),
+            outgoing,
+            incoming,
+            next_id: 1,
+        }
+    }
+
+    /// The runtime's address.
+    pub fn url(&self) -> &str {
+        &self.url
+    }
+
+    /// Sends a request; returns its id, which its reply carries.
+    pub fn request(&mut self, body: RequestBody) -> u64 {
+        self.next_id += 1;
+        let request = Request {
+            id: self.next_id,
+            body,
+        };
+        let _ = self
+            .outgoing
+            .send(serde_json::to_string(&request).unwrap_or_default());
+        self.next_id
+    }
+
+    /// Everything that arrived since the last call.
+    pub fn poll(&self) -> Vec<ClientEvent> {
+        let mut events = Vec::new();
+        loop {
+            match self.incoming.try_recv() {
+                Ok(event) => events.push(event),
+                Err(TryRecvError::Empty | TryRecvError::Disconnected) => return events,
+            }
+        }
+    }
+}
+
+fn run(
+    url: &str,
+    token: Option<String>,
+    requests: &Receiver<String>,
+    events: &Sender<ClientEvent>,
+    wake: &impl Fn(),
+) -> String {
+    let mut socket: WebSocket<MaybeTlsStream<TcpStream>> = match tungstenite::connect(url) {
+        Ok((socket, _)) => socket,
+        Err(e) => return format!("cannot connect to {url}: {e}"),
+    };
+    if let MaybeTlsStream::Plain(stream) = socket.get_ref() {
+        let _ = stream.set_read_timeout(Some(POLL));
+        let _ = stream.set_nodelay(true);
+    }
+    let hello = Request {
+        id: 1,
+        body: RequestBody::Hello {
+            protocol: PROTOCOL_VERSION,
+            client: format!("kairos-studio {}", env!("CARGO_PKG_VERSION")),
+            token,
+            role: Some(Role::Operator),
+        },
+    };
+    if let Err(e) = socket.send(Message::text(serde_json::to_string(&hello).unwrap_or_default())) {
+        return format!("cannot talk to {url}: {e}");
+    }
+    loop {
+        loop {
+            match requests.try_recv() {
+                Ok(text) => {
+                    if let Err(e) = socket.send(Message::text(text)) {
+                        return format!("lost the runtime at {url}: {e}");
+                    }
+                }
+                Err(TryRecvError::Empty) => break,
+                Err(TryRecvError::Disconnected) => return "the studio closed the connection".to_owned(),
+            }
+        }
+        match socket.read() {
+            Ok(Message::Text(text)) => {
+                let Ok(message) = serde_json::from_str::<ServerMessage>(text.as_str()) else {
+                    continue;
+                };
+                let event = match message {
+                    ServerMessage::Reply(reply) if reply.id == Some(1) => {
+                        if !reply.ok {
+                            let why = reply.error.map_or_else(String::new, |e| e.message);
+                            return format!("the runtime at {url} refused the studio: {why}");
+                        }
+                        match reply.result.and_then(|r| serde_json::from_value(r).ok()) {
+                            Some(welcome) => ClientEvent::Connected(welcome),
+                            None => return format!("the runtime at {url} answered hello strangely"),
+                        }
+                    }
+                    ServerMessage::Reply(reply) => ClientEvent::Reply(reply),
+                    ServerMessage::Telemetry(telemetry) => ClientEvent::Telemetry(telemetry),
+                    ServerMessage::Log(record) => ClientEvent::Log(record),
+                };
+                if events.send(event).is_err() {
+                    return "the studio closed the connection".to_owned();
+                }
+                wake();
+            }
+            Ok(Message::Close(_)) => return format!("the runtime at {url} closed the connection"),
+            Ok(_) => {}
+            Err(tungstenite::Error::Io(e))
+                if matches!(
+                    e.kind(),
+                    std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut
+                ) => {}
+            Err(e) => return format!("lost the runtime at {url}: {e}"),
+        }
+    }
+}

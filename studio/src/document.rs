@@ -1,0 +1,331 @@
+//! The diagram being edited: its file, whether it changed, and the undo history. Every edit goes through
+//! here, so every edit can be undone and the file written is always the canonical text the CLI runs.
+
+use std::path::{Path, PathBuf};
+
+use kairos_diagram::{
+    ComponentInfo, ComponentInstance, Connection, DataType, Diagram, LibraryInfo, PackRequirement, PortRef,
+    Position, TypeFilter,
+};
+
+/// How many edits can be undone.
+const HISTORY: usize = 200;
+
+/// A diagram with its file and history.
+#[derive(Debug, Clone, Default)]
+pub struct Document {
+    diagram: Diagram,
+    path: Option<PathBuf>,
+    /// The diagram as it was last read or written: unchanged means nothing to save.
+    saved: Diagram,
+    undo: Vec<Diagram>,
+    redo: Vec<Diagram>,
+}
+
+/// Why a connection is not made.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Refusal(pub String);
+
+impl Document {
+    /// Opens a diagram file; syntax errors are returned rendered, with their line and column.
+    pub fn open(path: &Path) -> Result<Document, String> {
+        let (_, parsed) = kairos_diagram::load(path).map_err(|e| e.render())?;
+        Ok(Document {
+            saved: parsed.diagram.clone(),
+            diagram: parsed.diagram,
+            path: Some(path.to_owned()),
+            undo: Vec::new(),
+            redo: Vec::new(),
+        })
+    }
+
+    /// The diagram.
+    pub fn diagram(&self) -> &Diagram {
+        &self.diagram
+    }
+
+    /// The file, once saved or opened.
+    pub fn path(&self) -> Option<&Path> {
+        self.path.as_deref()
+    }
+
+    /// Whether there are changes a save would write.
+    pub fn is_dirty(&self) -> bool {
+        self.diagram != self.saved
+    }
+
+    /// Writes the diagram (canonical text) to its file. With no change since it was opened, the file is left
+    /// as it is, byte for byte.
+    pub fn save(&mut self) -> Result<(), String> {
+        let Some(path) = self.path.clone() else {
+            return Err("the diagram has no file yet: use Save as".to_owned());
+        };
+        if !self.is_dirty() && path.exists() {
+            return Ok(());
+        }
+        self.save_as(&path)
+    }
+
+    /// Writes the diagram to `path`, which becomes its file.
+    pub fn save_as(&mut self, path: &Path) -> Result<(), String> {
+        kairos_diagram::save(path, &self.diagram)
+            .map_err(|e| format!("cannot write {}: {e}", path.display()))?;
+        self.path = Some(path.to_owned());
+        self.saved = self.diagram.clone();
+        Ok(())
+    }
+
+    /// Applies `edit` as one undoable step.
+    pub fn edit<R>(&mut self, edit: impl FnOnce(&mut Diagram) -> R) -> R {
+        let before = self.diagram.clone();
+        let result = edit(&mut self.diagram);
+        if self.diagram != before {
+            self.undo.push(before);
+            if self.undo.len() > HISTORY {
+                self.undo.remove(0);
+            }
+            self.redo.clear();
+        }
+        result
+    }
+
+    /// Makes the change from `before` to now one undoable step (for a drag applied frame by frame).
+    pub fn record(&mut self, before: Diagram) {
+        if before != self.diagram {
+            self.undo.push(before);
+            if self.undo.len() > HISTORY {
+                self.undo.remove(0);
+            }
+            self.redo.clear();
+        }
+    }
+
+    /// Undoes the last edit; `false` when there is none.
+    pub fn undo(&mut self) -> bool {
+        let Some(previous) = self.undo.pop() else {
+            return false;
+        };
+        self.redo.push(std::mem::replace(&mut self.diagram, previous));
+        true
+    }
+
+    /// Redoes the last undone edit; `false` when there is none.
+    pub fn redo(&mut self) -> bool {
+        let Some(next) = self.redo.pop() else { return false };
+        self.undo.push(std::mem::replace(&mut self.diagram, next));
+        true
+    }
+
+    /// Adds a component of `info`'s type at `position`, with a fresh id, and lists its pack. Returns the id.
+    pub fn add_component(
+        &mut self,
+        info: &ComponentInfo,
+        library: &LibraryInfo,
+        position: Position,
+    ) -> String {
+        let base = info
+            .type_name
+            .rsplit('.')
+            .next()
+            .unwrap_or("component")
+            .to_owned();
+        let id = fresh_id(&self.diagram, &base);
+        let pack = library.packs.get(&info.pack).map(|p| PackRequirement {
+            name: p.name.clone(),
+            version: caret(&p.version),
+        });
+        self.edit(|diagram| {
+            let mut instance = ComponentInstance::new(id.clone(), info.type_name.clone());
+            instance.position = position;
+            diagram.components.push(instance);
+            if let Some(pack) = pack
+                && !diagram.packs.iter().any(|p| p.name == pack.name)
+            {
+                diagram.packs.push(pack);
+            }
+        });
+        id
+    }
+
+    /// Removes components and every connection touching them.
+    pub fn remove_components(&mut self, ids: &[String]) {
+        self.edit(|diagram| {
+            diagram.components.retain(|c| !ids.contains(&c.id));
+            diagram
+                .connections
+                .retain(|c| !ids.contains(&c.from.component) && !ids.contains(&c.to.component));
+        });
+    }
+
+    /// Removes one connection.
+    pub fn remove_connection(&mut self, from: &PortRef, to: &PortRef) {
+        self.edit(|diagram| diagram.connections.retain(|c| !(&c.from == from && &c.to == to)));
+    }
+
+    /// Moves a component (not an undo step of its own per frame: call [`Document::edit`] around a whole drag
+    /// to make it one).
+    pub fn move_component(&mut self, id: &str, position: Position) {
+        if let Some(component) = self.diagram.component_mut(id) {
+            component.position = position;
+        }
+    }
+
+    /// Connects `from` (an output) to `to` (an input) when the input's type filter accepts the output's type
+    /// and the input is free; otherwise says why not.
+    pub fn connect(&mut self, from: &PortRef, to: &PortRef, library: &LibraryInfo) -> Result<(), Refusal> {
+        let output_type = self.output_type(from, library);
+        let Some(input) = self
+            .diagram
+            .component(&to.component)
+            .and_then(|c| library.component(&c.type_name))
+            .and_then(|info| info.input(&to.port))
+        else {
+            return Err(Refusal(format!("{to} is not an input")));
+        };
+        if from.component == to.component {
+            return Err(Refusal("a component cannot feed itself".to_owned()));
+        }
+        if let Some(data_type) = &output_type
+            && !input.filter.accepts(data_type)
+        {
+            return Err(Refusal(format!(
+                "{to} accepts {}, not {data_type} from {from}",
+                describe_filter(&input.filter)
+            )));
+        }
+        if let Some(existing) = self.diagram.connections.iter().find(|c| &c.to == to) {
+            return Err(Refusal(format!("{to} is already fed by {}", existing.from)));
+        }
+        self.edit(|diagram| {
+            diagram
+                .connections
+                .push(Connection::new(from.clone(), to.clone()));
+        });
+        Ok(())
+    }
+
+    /// The type an output carries, following pass-through outputs to what feeds them.
+    pub fn output_type(&self, port: &PortRef, library: &LibraryInfo) -> Option<DataType> {
+        let mut port = port.clone();
+        for _ in 0..32 {
+            let component = self.diagram.component(&port.component)?;
+            let output = library.component(&component.type_name)?.output(&port.port)?;
+            let Some(input) = &output.follows_input else {
+                return Some(output.data_type.clone());
+            };
+            let feeding = self
+                .diagram
+                .connections
+                .iter()
+                .find(|c| c.to.component == port.component && &c.to.port == input)?;
+            port = feeding.from.clone();
+        }
+        None
+    }
+}
+
+/// `base1`, `base2`, ...: the first id not taken in `diagram`.
+pub fn fresh_id(diagram: &Diagram, base: &str) -> String {
+    (1..=diagram.components.len() + 1)
+        .map(|n| format!("{base}{n}"))
+        .find(|id| diagram.component(id).is_none())
+        .unwrap_or_else(|| base.to_owned())
+}
+
+/// `^0.1` for `0.1.3`, `^1` for `1.2.0`: what a new diagram asks of a pack it uses.
+fn caret(version: &str) -> String {
+    let mut parts = version.split('.');
+    match (parts.next(), parts.next()) {
+        (Some("0"), Some(minor)) => format!("^0.{minor}"),
+        (Some(major), _) => format!("^{major}"),
+        _ => "*".to_owned(),
+    }
+}
+
+/// `f64 | i64`, `any type`.
+pub fn describe_filter(filter: &TypeFilter) -> String {
+    match filter {
+        TypeFilter::Any => "any type".to_owned(),
+        TypeFilter::OneOf(types) => types
+            .iter()
+            .map(ToString::to_string)
+            .collect::<Vec<_>>()
+            .join(" | "),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use kairos_diagram::{LibraryInfo, PortRef, Position};
+
+    use super::Document;
+
+    /// The built-in library as `kairos components --json` prints it (and the protocol's `library` sends).
+    fn library() -> LibraryInfo {
+        serde_json::from_str(include_str!("../tests/library.json")).unwrap()
+    }
+
+    #[test]
+    fn edits_undo_and_redo_and_saving_twice_writes_the_same_bytes() {
+        let library = library();
+        let mut document = Document::default();
+        let sine = document.add_component(
+            library.component("core.sine").unwrap(),
+            &library,
+            Position { x: 0.0, y: 0.0 },
+        );
+        let console = document.add_component(
+            library.component("core.console").unwrap(),
+            &library,
+            Position { x: 200.0, y: 0.0 },
+        );
+        assert_eq!((sine.as_str(), console.as_str()), ("sine1", "console1"));
+        document
+            .connect(
+                &PortRef::new("sine1", "out"),
+                &PortRef::new("console1", "in"),
+                &library,
+            )
+            .unwrap();
+        assert_eq!(document.diagram().connections.len(), 1);
+        assert_eq!(document.diagram().packs[0].name, "core");
+        assert!(document.undo());
+        assert!(document.diagram().connections.is_empty());
+        assert!(document.redo());
+        assert_eq!(document.diagram().connections.len(), 1);
+
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("d.ron");
+        document.save_as(&path).unwrap();
+        let first = std::fs::read(&path).unwrap();
+        let mut reopened = Document::open(&path).unwrap();
+        assert!(!reopened.is_dirty());
+        reopened.save().unwrap();
+        assert_eq!(std::fs::read(&path).unwrap(), first);
+    }
+
+    #[test]
+    fn a_connection_the_input_refuses_is_not_made_and_says_why() {
+        let library = library();
+        let mut document = Document::default();
+        document.add_component(
+            library.component("sensors.camera").unwrap(),
+            &library,
+            Position::default(),
+        );
+        document.add_component(
+            library.component("core.gain").unwrap(),
+            &library,
+            Position::default(),
+        );
+        let refusal = document
+            .connect(
+                &PortRef::new("camera1", "image"),
+                &PortRef::new("gain1", "in"),
+                &library,
+            )
+            .unwrap_err();
+        assert!(refusal.0.contains("not image"), "{}", refusal.0);
+        assert!(document.diagram().connections.is_empty());
+    }
+}

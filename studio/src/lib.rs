@@ -1,0 +1,12 @@
+//! The Kairos studio: a node editor that builds, deploys, runs and watches diagrams, for people who do not
+//! program. It edits the same diagram files the CLI runs and drives a runtime only through the control
+//! protocol: a local `kairos serve` it starts itself, or a remote one.
+
+pub mod app;
+pub mod canvas;
+pub mod client;
+pub mod document;
+pub mod local;
+
+pub use app::StudioApp;
+pub use document::Document;

@@ -1,0 +1,87 @@
+//! The local runtime the studio starts when it is not told to connect elsewhere: `kairos serve` on loopback,
+//! a free port, a fresh token, stopped with the studio.
+
+use std::io::{BufRead as _, BufReader};
+use std::path::PathBuf;
+use std::process::{Child, Command, Stdio};
+
+/// A `kairos serve` child process.
+#[derive(Debug)]
+pub struct LocalRuntime {
+    child: Child,
+    /// Its address (`ws://127.0.0.1:PORT`).
+    pub url: String,
+    /// Its token.
+    pub token: String,
+    folder: PathBuf,
+}
+
+impl Drop for LocalRuntime {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+        let _ = std::fs::remove_dir_all(&self.folder);
+    }
+}
+
+/// Where the `kairos` binary is: beside the studio's own executable, else on `PATH`.
+pub fn kairos_binary() -> Option<PathBuf> {
+    let beside = std::env::current_exe().ok()?.parent()?.join("kairos");
+    if beside.is_file() {
+        return Some(beside);
+    }
+    std::env::var_os("PATH").and_then(|paths| {
+        std::env::split_paths(&paths)
+            .map(|folder| folder.join("kairos"))
+            .find(|candidate| candidate.is_file())
+    })
+}
+
+impl LocalRuntime {
+    /// Starts `kairos serve` and waits until it listens.
+    pub fn start() -> Result<LocalRuntime, String> {
+        let binary = kairos_binary().ok_or_else(|| {
+            "cannot find the `kairos` runtime beside the studio or on PATH; build it with `cargo build --release`"
+                .to_owned()
+        })?;
+        let folder = std::env::temp_dir().join(format!("kairos-studio-{}", std::process::id()));
+        std::fs::create_dir_all(&folder).map_err(|e| format!("cannot create {}: {e}", folder.display()))?;
+        let token_file = folder.join("token");
+        let _ = std::fs::remove_file(&token_file);
+        let mut child = Command::new(&binary)
+            .args(["serve", "--listen", "127.0.0.1:0", "--token-file"])
+            .arg(&token_file)
+            .stdin(Stdio::null())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::inherit())
+            .spawn()
+            .map_err(|e| format!("cannot start {}: {e}", binary.display()))?;
+        let stdout = child.stdout.take().ok_or("no output from the runtime")?;
+        let mut lines = BufReader::new(stdout).lines();
+        let url = loop {
+            let Some(Ok(line)) = lines.next() else {
+                let _ = child.kill();
+                return Err(format!("{} stopped before listening", binary.display()));
+            };
+            if let Some(url) = line.strip_prefix("listening on ") {
+                break url.to_owned();
+            }
+        };
+        // Its console output (core.console) keeps flowing; let it go to ours.
+        std::thread::spawn(move || {
+            for line in lines.map_while(Result::ok) {
+                println!("{line}");
+            }
+        });
+        let token = std::fs::read_to_string(&token_file)
+            .map_err(|e| format!("cannot read the runtime's token: {e}"))?
+            .trim()
+            .to_owned();
+        Ok(LocalRuntime {
+            child,
+            url,
+            token,
+            folder,
+        })
+    }
+}

@@ -1,0 +1,149 @@
+//! `kairos-studio [FILE] [--connect ws://HOST:PORT --token-file FILE]`: the studio. Without `--connect` it
+//! starts a local runtime (`kairos serve` on loopback with a fresh token) and drives that.
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use kairos_studio::client::RuntimeClient;
+use kairos_studio::local::LocalRuntime;
+use kairos_studio::{Document, StudioApp};
+
+struct Arguments {
+    file: Option<PathBuf>,
+    connect: Option<String>,
+    token_file: Option<PathBuf>,
+}
+
+fn arguments() -> Result<Arguments, String> {
+    let mut parsed = Arguments {
+        file: None,
+        connect: None,
+        token_file: None,
+    };
+    let mut args = std::env::args().skip(1);
+    while let Some(arg) = args.next() {
+        match arg.as_str() {
+            "--connect" => parsed.connect = Some(args.next().ok_or("--connect needs ws://HOST:PORT")?),
+            "--token-file" => {
+                parsed.token_file = Some(args.next().ok_or("--token-file needs a file")?.into());
+            }
+            "-h" | "--help" => {
+                return Err(
+                    "usage: kairos-studio [FILE] [--connect ws://HOST:PORT --token-file FILE]".to_owned(),
+                );
+            }
+            other if other.starts_with('-') => return Err(format!("unknown option {other}")),
+            file => parsed.file = Some(file.into()),
+        }
+    }
+    Ok(parsed)
+}
+
+/// Without a display there is no window: the diagram runs headless instead (`kairos run FILE --stats`).
+fn headless(file: Option<&std::path::Path>) -> ExitCode {
+    let Some(file) = file else {
+        eprintln!(
+            "no display (neither DISPLAY nor WAYLAND_DISPLAY is set): give a diagram file to run it headless"
+        );
+        return ExitCode::from(2);
+    };
+    let Some(kairos) = kairos_studio::local::kairos_binary() else {
+        eprintln!(
+            "no display, and no `kairos` runtime beside the studio or on PATH to run {} headless",
+            file.display()
+        );
+        return ExitCode::from(2);
+    };
+    eprintln!(
+        "no display: running {} headless with `kairos run --stats` (Ctrl-C stops it)",
+        file.display()
+    );
+    match std::process::Command::new(kairos)
+        .arg("run")
+        .arg(file)
+        .arg("--stats")
+        .status()
+    {
+        Ok(status) => ExitCode::from(u8::try_from(status.code().unwrap_or(1)).unwrap_or(1)),
+        Err(error) => {
+            eprintln!("cannot run kairos: {error}");
+            ExitCode::from(1)
+        }
+    }
+}
+
+fn main() -> ExitCode {
+    let arguments = match arguments() {
+        Ok(arguments) => arguments,
+        Err(message) => {
+            eprintln!("{message}");
+            return ExitCode::from(2);
+        }
+    };
+    if std::env::var_os("DISPLAY").is_none() && std::env::var_os("WAYLAND_DISPLAY").is_none() {
+        return headless(arguments.file.as_deref());
+    }
+    let mut notes = Vec::new();
+    let document = match &arguments.file {
+        Some(path) => Document::open(path).unwrap_or_else(|error| {
+            notes.push(error);
+            Document::default()
+        }),
+        None => Document::default(),
+    };
+    let (local, url, token) = match &arguments.connect {
+        Some(url) => {
+            let token = arguments
+                .token_file
+                .as_ref()
+                .and_then(|f| std::fs::read_to_string(f).ok())
+                .map(|t| t.lines().next().unwrap_or("").trim().to_owned());
+            (None, Some(url.clone()), token)
+        }
+        None => match LocalRuntime::start() {
+            Ok(local) => {
+                let (url, token) = (local.url.clone(), local.token.clone());
+                (Some(local), Some(url), Some(token))
+            }
+            Err(error) => {
+                notes.push(error);
+                (None, None, None)
+            }
+        },
+    };
+    let label = match (&local, &url) {
+        (Some(_), Some(url)) => format!("local runtime {url}"),
+        (None, Some(url)) => format!("runtime {url}"),
+        _ => "no runtime".to_owned(),
+    };
+    let options = eframe::NativeOptions {
+        viewport: egui::ViewportBuilder::default().with_inner_size([1280.0, 800.0]),
+        ..Default::default()
+    };
+    let result = eframe::run_native(
+        "Kairos studio",
+        options,
+        Box::new(move |creation| {
+            let ctx = creation.egui_ctx.clone();
+            let client = url.map(|url| RuntimeClient::connect(&url, token, move || ctx.request_repaint()));
+            let app = StudioApp::new(
+                document,
+                kairos_diagram::LibraryInfo::default(),
+                client,
+                label,
+                local,
+            );
+            for note in notes {
+                eprintln!("{note}");
+            }
+            Ok(Box::new(app))
+        }),
+    );
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(error) => {
+            eprintln!("the studio could not open its window: {error}");
+            ExitCode::from(1)
+        }
+    }
+}

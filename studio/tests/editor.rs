@@ -1,0 +1,167 @@
+//! The editor driven through its interface, as a user would: components dragged from the palette onto the
+//! canvas, ports connected by dragging, a connection the input refuses, a property typed in, undo, save.
+//! Widgets are found by their accessible labels.
+#![allow(
+    clippy::unwrap_used,
+    clippy::expect_used,
+    reason = "a failed unwrap is a failed test"
+)]
+
+use egui::accesskit::Role;
+use egui::{Pos2, Vec2};
+use egui_kittest::Harness;
+use egui_kittest::kittest::Queryable as _;
+use kairos_diagram::{LibraryInfo, PortRef};
+use kairos_studio::{Document, StudioApp};
+
+fn library() -> LibraryInfo {
+    serde_json::from_str(include_str!("library.json")).unwrap()
+}
+
+fn studio() -> Harness<'static, StudioApp> {
+    let app = StudioApp::new(
+        Document::default(),
+        library(),
+        None,
+        "no runtime (test)".to_owned(),
+        None,
+    );
+    let mut harness = Harness::new_ui_state(|ui, app: &mut StudioApp| app.show(ui), app);
+    harness.set_size(Vec2::new(1280.0, 800.0));
+    harness.run_steps(2);
+    harness
+}
+
+/// Presses at `from`, moves in small steps to `to`, releases there.
+fn drag(harness: &mut Harness<'_, StudioApp>, from: Pos2, to: Pos2) {
+    harness.hover_at(from);
+    harness.run_steps(1);
+    harness.drag_at(from);
+    harness.run_steps(1);
+    for step in 1..=8 {
+        let t = step as f32 / 8.0;
+        harness.hover_at(from + (to - from) * t);
+        harness.run_steps(1);
+    }
+    harness.drop_at(to);
+    harness.run_steps(2);
+}
+
+fn center_of(harness: &Harness<'_, StudioApp>, label: &str) -> Pos2 {
+    harness.get_by_label(label).rect().center()
+}
+
+/// Where a canvas widget is on the screen (accessible bounds inside the zoomable canvas are in canvas
+/// coordinates).
+fn on_canvas(harness: &Harness<'_, StudioApp>, label: &str) -> Pos2 {
+    harness.state().canvas.to_screen(center_of(harness, label))
+}
+
+fn click_on_canvas(harness: &mut Harness<'_, StudioApp>, label: &str) {
+    let at = on_canvas(harness, label);
+    harness.hover_at(at);
+    harness.run_steps(1);
+    harness.drag_at(at);
+    harness.run_steps(1);
+    harness.event(egui::Event::PointerButton {
+        pos: at,
+        button: egui::PointerButton::Primary,
+        pressed: false,
+        modifiers: egui::Modifiers::NONE,
+    });
+    harness.run_steps(2);
+}
+
+fn add_from_palette(harness: &mut Harness<'_, StudioApp>, type_name: &str, at: Pos2) {
+    let from = center_of(harness, type_name);
+    drag(harness, from, at);
+}
+
+#[test]
+fn a_diagram_is_built_through_the_interface_and_saved() {
+    let mut harness = studio();
+    add_from_palette(&mut harness, "core.sine", Pos2::new(450.0, 250.0));
+    add_from_palette(&mut harness, "core.console", Pos2::new(800.0, 250.0));
+    let ids: Vec<String> = harness
+        .state()
+        .document
+        .diagram()
+        .components
+        .iter()
+        .map(|c| c.id.clone())
+        .collect();
+    assert_eq!(ids, ["sine1", "console1"]);
+
+    let from = on_canvas(&harness, "output sine1.out (f64)");
+    let to = on_canvas(&harness, "input console1.in (any type)");
+    drag(&mut harness, from, to);
+    let connections = &harness.state().document.diagram().connections;
+    assert_eq!(
+        connections.len(),
+        1,
+        "the ports were connected: {:?}",
+        harness.state().canvas.notice()
+    );
+    assert_eq!(connections[0].from, PortRef::new("sine1", "out"));
+
+    // Select the console and type a prefix into its inspector.
+    click_on_canvas(&mut harness, "component console1 (core.console)");
+    let prefix = harness.get_by_role_and_label(Role::TextInput, "prefix");
+    prefix.focus();
+    harness.run_steps(1);
+    harness
+        .get_by_role_and_label(Role::TextInput, "prefix")
+        .type_text("wave: ");
+    harness.run_steps(2);
+    let console = harness
+        .state()
+        .document
+        .diagram()
+        .component("console1")
+        .unwrap()
+        .clone();
+    assert_eq!(
+        console.properties["prefix"],
+        kairos_diagram::Value::Text("wave: ".to_owned())
+    );
+
+    // Undo takes the typing back; the connection stays.
+    harness.state_mut().document.undo();
+    harness.run_steps(1);
+    assert!(
+        harness
+            .state()
+            .document
+            .diagram()
+            .component("console1")
+            .unwrap()
+            .properties
+            .get("prefix")
+            .is_none_or(|v| v != &kairos_diagram::Value::Text("wave: ".to_owned()))
+    );
+    assert_eq!(harness.state().document.diagram().connections.len(), 1);
+
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("built.ron");
+    harness.state_mut().document.save_as(&path).unwrap();
+    let saved = kairos_diagram::load(&path).unwrap().1.diagram;
+    assert_eq!(saved.to_ron(), harness.state().document.diagram().to_ron());
+    assert!(
+        std::fs::read_to_string(&path)
+            .unwrap()
+            .contains("Connection(from: \"sine1.out\", to: \"console1.in\")")
+    );
+}
+
+#[test]
+fn a_connection_the_input_refuses_is_not_made_and_the_canvas_says_why() {
+    let mut harness = studio();
+    add_from_palette(&mut harness, "sensors.camera", Pos2::new(450.0, 250.0));
+    add_from_palette(&mut harness, "core.gain", Pos2::new(800.0, 250.0));
+    let from = on_canvas(&harness, "output camera1.image (image)");
+    let to = on_canvas(&harness, "input gain1.in (f64 | i64 | bool)");
+    drag(&mut harness, from, to);
+    assert!(harness.state().document.diagram().connections.is_empty());
+    let notice = harness.state().canvas.notice().unwrap_or_default().to_owned();
+    assert!(notice.contains("not image"), "{notice}");
+}
