@@ -16,6 +16,7 @@ use crate::document::Document;
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum Pending {
     Library,
+    /// A deploy of this text.
     Deploy,
     Other,
 }
@@ -50,6 +51,8 @@ pub struct StudioApp {
     states: BTreeMap<String, NodeState>,
     pending: BTreeMap<u64, Pending>,
     start_after_deploy: bool,
+    /// The text of the last deploy, to place the runtime's diagnostics on the nodes they concern.
+    deployed_text: String,
     log: VecDeque<(Color32, String)>,
     search: String,
     prompt: Option<(Prompt, String)>,
@@ -103,6 +106,7 @@ impl StudioApp {
             states: BTreeMap::new(),
             pending: BTreeMap::new(),
             start_after_deploy: false,
+            deployed_text: String::new(),
             log: VecDeque::new(),
             search: String::new(),
             prompt: None,
@@ -171,6 +175,15 @@ impl StudioApp {
                 ClientEvent::Reply(reply) => {
                     let what = reply.id.and_then(|id| self.pending.remove(&id));
                     if let Some(error) = reply.error {
+                        if what == Some(Pending::Deploy) && !error.diagnostics.is_empty() {
+                            let by_component = crate::document::diagnostics_by_component(
+                                &self.deployed_text,
+                                &error.diagnostics,
+                            );
+                            for (id, problems) in by_component {
+                                self.states.insert(id, NodeState::Invalid(problems.join("\n")));
+                            }
+                        }
                         self.note(Color32::LIGHT_RED, error.message);
                         self.start_after_deploy = false;
                         continue;
@@ -182,6 +195,7 @@ impl StudioApp {
                             }
                         }
                         Some(Pending::Deploy) => {
+                            self.states.clear();
                             self.note(Color32::LIGHT_GREEN, "deployed");
                             if std::mem::take(&mut self.start_after_deploy) {
                                 self.request(RequestBody::Start, Pending::Other);
@@ -192,6 +206,13 @@ impl StudioApp {
                 }
                 ClientEvent::Telemetry(telemetry) => {
                     self.run_state = telemetry.state;
+                    // A refused deploy's marks stay until the next deploy, whatever runs meanwhile.
+                    let refused: Vec<(String, NodeState)> = self
+                        .states
+                        .iter()
+                        .filter(|(_, s)| matches!(s, NodeState::Invalid(_)))
+                        .map(|(id, s)| (id.clone(), s.clone()))
+                        .collect();
                     self.states = telemetry
                         .components
                         .into_iter()
@@ -205,6 +226,7 @@ impl StudioApp {
                             (c.id, state)
                         })
                         .collect();
+                    self.states.extend(refused);
                 }
                 ClientEvent::Log(record) => {
                     let color = match record.level {
@@ -225,9 +247,10 @@ impl StudioApp {
 
     fn deploy_and_start(&mut self) {
         self.start_after_deploy = true;
+        self.deployed_text = self.document.diagram().to_ron();
         self.request(
             RequestBody::Deploy {
-                diagram: self.document.diagram().to_ron(),
+                diagram: self.deployed_text.clone(),
             },
             Pending::Deploy,
         );

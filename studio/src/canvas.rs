@@ -27,6 +27,8 @@ pub enum NodeState {
     Finished,
     /// Failed, with the error.
     Failed(String),
+    /// The runtime refused the diagram because of this component; the problems, one per line.
+    Invalid(String),
 }
 
 /// The canvas's own state between frames.
@@ -106,7 +108,7 @@ fn state_color(state: Option<&NodeState>) -> Color32 {
     match state {
         Some(NodeState::Running) => Color32::from_rgb(70, 170, 90),
         Some(NodeState::Finished) => Color32::from_rgb(90, 120, 200),
-        Some(NodeState::Failed(_)) => Color32::from_rgb(210, 60, 60),
+        Some(NodeState::Failed(_) | NodeState::Invalid(_)) => Color32::from_rgb(210, 60, 60),
         Some(NodeState::Waiting(_)) => Color32::from_rgb(200, 170, 60),
         None => Color32::from_gray(110),
     }

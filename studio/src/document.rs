@@ -224,6 +224,50 @@ impl Document {
     }
 }
 
+/// The runtime's diagnostics about `text` (a deployed diagram), by the component they concern: a
+/// component's own problems, and a connection's problems on the component it feeds. Problems outside any
+/// component (the format, the pack list) are left out; the log shows every one.
+pub fn diagnostics_by_component(
+    text: &str,
+    diagnostics: &[kairos_diagram::Diagnostic],
+) -> std::collections::BTreeMap<String, Vec<String>> {
+    let mut found: std::collections::BTreeMap<String, Vec<String>> = std::collections::BTreeMap::new();
+    let Ok(parsed) = kairos_diagram::parse(text) else {
+        return found;
+    };
+    let map = &parsed.source_map;
+    for diagnostic in diagnostics {
+        let Some(offset) = diagnostic.location.map(|l| l.offset) else {
+            continue;
+        };
+        let in_connection = map
+            .connections
+            .iter()
+            .zip(&parsed.diagram.connections)
+            .rfind(|(at, _)| at.connection.offset <= offset)
+            .map(|(_, c)| c.to.component.clone());
+        let in_component = map
+            .components
+            .iter()
+            .zip(&parsed.diagram.components)
+            .rfind(|(at, _)| at.component.offset <= offset)
+            .map(|(_, c)| c.id.clone());
+        let first_connection = map
+            .connections
+            .first()
+            .map_or(usize::MAX, |c| c.connection.offset);
+        let concerned = if offset >= first_connection {
+            in_connection
+        } else {
+            in_component
+        };
+        if let Some(id) = concerned {
+            found.entry(id).or_default().push(diagnostic.message.clone());
+        }
+    }
+    found
+}
+
 /// `base1`, `base2`, ...: the first id not taken in `diagram`.
 pub fn fresh_id(diagram: &Diagram, base: &str) -> String {
     (1..=diagram.components.len() + 1)
@@ -302,6 +346,23 @@ mod tests {
         assert!(!reopened.is_dirty());
         reopened.save().unwrap();
         assert_eq!(std::fs::read(&path).unwrap(), first);
+    }
+
+    #[test]
+    fn diagnostics_land_on_the_components_they_concern() {
+        let text = "Diagram(\n    format: 1,\n    components: [\n        Component(id: \"a\", type: \"core.sine\", properties: {\"rate\": \"fast\"}),\n        Component(id: \"b\", type: \"core.nothing\"),\n    ],\n    connections: [\n        Connection(from: \"a.out\", to: \"b.in\"),\n    ],\n)\n";
+        let library = library();
+        let parsed = kairos_diagram::parse(text).unwrap();
+        let diagnostics = parsed.validate(&library);
+        let by_component = super::diagnostics_by_component(text, &diagnostics);
+        assert!(
+            by_component["a"].iter().any(|m| m.contains("rate")),
+            "{by_component:?}"
+        );
+        assert!(
+            by_component["b"].iter().any(|m| m.contains("core.nothing")),
+            "{by_component:?}"
+        );
     }
 
     #[test]
