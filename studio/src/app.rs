@@ -745,6 +745,16 @@ impl StudioApp {
         }
     }
 
+    /// A component's state as the runtime last reported it.
+    pub fn node_state(&self, id: &str) -> Option<&NodeState> {
+        self.states.get(id)
+    }
+
+    /// Whether the runtime accepted the session.
+    pub fn is_connected(&self) -> bool {
+        self.connected
+    }
+
     /// One frame of the whole window (also what the interface tests drive).
     pub fn show(&mut self, ui: &mut egui::Ui) {
         let ctx = ui.ctx().clone();

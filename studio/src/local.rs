@@ -44,11 +44,16 @@ impl LocalRuntime {
             "cannot find the `kairos` runtime beside the studio or on PATH; build it with `cargo build --release`"
                 .to_owned()
         })?;
+        Self::start_binary(&binary)
+    }
+
+    /// Starts `binary serve` (a `kairos` at a known place) and waits until it listens.
+    pub fn start_binary(binary: &std::path::Path) -> Result<LocalRuntime, String> {
         let folder = std::env::temp_dir().join(format!("kairos-studio-{}", std::process::id()));
         std::fs::create_dir_all(&folder).map_err(|e| format!("cannot create {}: {e}", folder.display()))?;
         let token_file = folder.join("token");
         let _ = std::fs::remove_file(&token_file);
-        let mut child = Command::new(&binary)
+        let mut child = Command::new(binary)
             .args(["serve", "--listen", "127.0.0.1:0", "--token-file"])
             .arg(&token_file)
             .stdin(Stdio::null())

@@ -1,0 +1,109 @@
+//! The studio against a real runtime: it starts `kairos serve`, a diagram built in the interface is
+//! deployed and run with the Run button, and the components' states come back on the nodes.
+#![allow(
+    clippy::unwrap_used,
+    clippy::expect_used,
+    reason = "a failed unwrap is a failed test"
+)]
+
+use std::time::{Duration, Instant};
+
+use egui::{Pos2, Vec2};
+use egui_kittest::Harness;
+use egui_kittest::kittest::Queryable as _;
+use kairos_studio::canvas::NodeState;
+use kairos_studio::client::RuntimeClient;
+use kairos_studio::local::LocalRuntime;
+use kairos_studio::{Document, StudioApp};
+
+/// The `kairos` binary of this build (`cargo test` in the workspace builds it before running tests).
+fn kairos_binary() -> std::path::PathBuf {
+    let test = std::env::current_exe().unwrap();
+    let binary = test
+        .parent()
+        .and_then(std::path::Path::parent)
+        .unwrap()
+        .join("kairos");
+    assert!(
+        binary.is_file(),
+        "{} is missing: run the workspace's tests (cargo test), or `cargo build -p kairos` first",
+        binary.display()
+    );
+    binary
+}
+
+fn run_until(harness: &mut Harness<'_, StudioApp>, what: &str, done: impl Fn(&StudioApp) -> bool) {
+    let started = Instant::now();
+    while !done(harness.state()) {
+        assert!(
+            started.elapsed() < Duration::from_secs(15),
+            "timed out waiting for {what}"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+        harness.run_steps(1);
+    }
+}
+
+fn drag(harness: &mut Harness<'_, StudioApp>, from: Pos2, to: Pos2) {
+    harness.hover_at(from);
+    harness.run_steps(1);
+    harness.drag_at(from);
+    harness.run_steps(1);
+    for step in 1..=8 {
+        harness.hover_at(from + (to - from) * (step as f32 / 8.0));
+        harness.run_steps(1);
+    }
+    harness.drop_at(to);
+    harness.run_steps(2);
+}
+
+#[test]
+fn a_diagram_built_in_the_studio_runs_on_a_real_runtime() {
+    let local = LocalRuntime::start_binary(&kairos_binary()).unwrap();
+    let client = RuntimeClient::connect(&local.url, Some(local.token.clone()), || {});
+    let label = format!("local runtime {}", local.url);
+    let app = StudioApp::new(
+        Document::default(),
+        kairos_diagram::LibraryInfo::default(),
+        Some(client),
+        label,
+        Some(local),
+    );
+    let mut harness = Harness::new_ui_state(|ui, app: &mut StudioApp| app.show(ui), app);
+    harness.set_size(Vec2::new(1280.0, 800.0));
+    run_until(&mut harness, "the connection", StudioApp::is_connected);
+    run_until(&mut harness, "the library", |app| {
+        app.library.component("core.counter").is_some()
+    });
+    harness.run_steps(2);
+
+    let from = harness.get_by_label("core.counter").rect().center();
+    drag(&mut harness, from, Pos2::new(500.0, 300.0));
+    let from = harness.get_by_label("core.console").rect().center();
+    drag(&mut harness, from, Pos2::new(800.0, 300.0));
+    let output = harness.get_by_label("output counter1.out (i64)").rect().center();
+    let input = harness
+        .get_by_label("input console1.in (any type)")
+        .rect()
+        .center();
+    let (output, input) = (
+        harness.state().canvas.to_screen(output),
+        harness.state().canvas.to_screen(input),
+    );
+    drag(&mut harness, output, input);
+    assert_eq!(harness.state().document.diagram().connections.len(), 1);
+
+    harness.get_by_label("Run").click();
+    harness.run_steps(1);
+    run_until(&mut harness, "both components running", |app| {
+        app.node_state("counter1") == Some(&NodeState::Running)
+            && app.node_state("console1") == Some(&NodeState::Running)
+    });
+    harness.get_by_label("Stop").click();
+    harness.run_steps(1);
+    run_until(
+        &mut harness,
+        "the stop",
+        |app| matches!(app.node_state("counter1"), Some(NodeState::Waiting(state)) if state == "stopped"),
+    );
+}
