@@ -465,12 +465,18 @@ impl StudioApp {
                 self.request(RequestBody::Stop, Pending::Other);
             }
             ui.separator();
-            let (word, color) = if self.connected {
-                ("connected to", Color32::LIGHT_GREEN)
-            } else {
-                ("not connected to", Color32::LIGHT_RED)
+            let (text, color) = match (&self.client, self.connected) {
+                (None, _) => ("no runtime: editing only".to_owned(), Color32::GRAY),
+                (Some(_), true) => (
+                    format!("connected to {}", self.runtime_label),
+                    Color32::LIGHT_GREEN,
+                ),
+                (Some(_), false) => (
+                    format!("not connected to {}", self.runtime_label),
+                    Color32::LIGHT_RED,
+                ),
             };
-            ui.label(RichText::new(format!("{word} {}", self.runtime_label)).color(color));
+            ui.label(RichText::new(text).color(color));
             ui.label(format!("— {:?}", self.run_state).to_lowercase());
         });
     }
