@@ -60,6 +60,12 @@ pub struct StudioApp {
     recent: Vec<PathBuf>,
     clipboard: Vec<ComponentInstance>,
     quitting: bool,
+    /// The connect dialog's address and token file, while it is open.
+    connect_prompt: Option<(String, String)>,
+    /// The local runtime's address and token, to go back to it.
+    local_address: Option<(String, String)>,
+    /// Where recent files and the last remote runtime are remembered.
+    config_dir: Option<PathBuf>,
     /// Kept alive as long as the studio: dropping it stops the local runtime.
     _local: Option<crate::local::LocalRuntime>,
 }
@@ -74,11 +80,33 @@ impl std::fmt::Debug for StudioApp {
 
 const LOG_LINES: usize = 500;
 
-fn recent_file() -> Option<PathBuf> {
+/// Where the studio keeps what it remembers between launches: `$XDG_CONFIG_HOME/kairos` or
+/// `~/.config/kairos`.
+fn default_config_dir() -> Option<PathBuf> {
     let base = std::env::var_os("XDG_CONFIG_HOME")
         .map(PathBuf::from)
         .or_else(|| std::env::var_os("HOME").map(|h| PathBuf::from(h).join(".config")))?;
-    Some(base.join("kairos").join("studio-recent.txt"))
+    Some(base.join("kairos"))
+}
+
+/// The last remote runtime connected to: its address and token file (never the token itself).
+fn remembered_remote(config: Option<&std::path::Path>) -> (String, String) {
+    let text = config
+        .map(|c| c.join("studio-remote.txt"))
+        .and_then(|f| std::fs::read_to_string(f).ok())
+        .unwrap_or_default();
+    let mut lines = text.lines();
+    (
+        lines.next().unwrap_or("ws://HOST:7400").to_owned(),
+        lines.next().unwrap_or("").to_owned(),
+    )
+}
+
+fn remember_remote(config: Option<&std::path::Path>, url: &str, token_file: &str) {
+    if let Some(folder) = config {
+        let _ = std::fs::create_dir_all(folder);
+        let _ = std::fs::write(folder.join("studio-remote.txt"), format!("{url}\n{token_file}\n"));
+    }
 }
 
 impl StudioApp {
@@ -91,8 +119,10 @@ impl StudioApp {
         runtime_label: String,
         local: Option<crate::local::LocalRuntime>,
     ) -> Self {
-        let recent = recent_file()
-            .and_then(|f| std::fs::read_to_string(f).ok())
+        let config_dir = default_config_dir();
+        let recent = config_dir
+            .as_ref()
+            .and_then(|c| std::fs::read_to_string(c.join("studio-recent.txt")).ok())
             .map(|text| text.lines().map(PathBuf::from).collect())
             .unwrap_or_default();
         let mut app = StudioApp {
@@ -114,6 +144,9 @@ impl StudioApp {
             recent,
             clipboard: Vec::new(),
             quitting: false,
+            connect_prompt: None,
+            local_address: local.as_ref().map(|l| (l.url.clone(), l.token.clone())),
+            config_dir,
             _local: local,
         };
         let library = app.library.clone();
@@ -141,12 +174,10 @@ impl StudioApp {
         self.recent.retain(|p| p != &path);
         self.recent.insert(0, path);
         self.recent.truncate(10);
-        if let Some(file) = recent_file() {
-            if let Some(folder) = file.parent() {
-                let _ = std::fs::create_dir_all(folder);
-            }
+        if let Some(folder) = &self.config_dir {
+            let _ = std::fs::create_dir_all(folder);
             let text: Vec<String> = self.recent.iter().map(|p| p.display().to_string()).collect();
-            let _ = std::fs::write(file, text.join("\n"));
+            let _ = std::fs::write(folder.join("studio-recent.txt"), text.join("\n"));
         }
     }
 
@@ -243,6 +274,20 @@ impl StudioApp {
                 }
             }
         }
+    }
+
+    /// Drops the current connection and connects to `url`.
+    fn connect(&mut self, ctx: &egui::Context, url: &str, token: Option<String>, label: String) {
+        let waker = ctx.clone();
+        self.client = Some(RuntimeClient::connect(url, token, move || {
+            waker.request_repaint();
+        }));
+        self.runtime_label = label;
+        self.connected = false;
+        self.pending.clear();
+        self.states.clear();
+        self.run_state = RuntimeState::Empty;
+        self.note(Color32::GRAY, format!("connecting to {url}"));
     }
 
     fn deploy_and_start(&mut self) {
@@ -415,6 +460,17 @@ impl StudioApp {
                         }
                     }
                 });
+                ui.separator();
+                if ui.button("Connect to a runtime…").clicked() {
+                    self.connect_prompt = Some(remembered_remote(self.config_dir.as_deref()));
+                }
+                if let Some((url, token)) = self.local_address.clone()
+                    && ui.button("Use the local runtime").clicked()
+                {
+                    let ctx = ui.ctx().clone();
+                    self.connect(&ctx, &url, Some(token), format!("local runtime {url}"));
+                }
+                ui.separator();
                 if ui.button("Quit").clicked() {
                     self.unless_unsaved(AfterDiscard::Quit);
                 }
@@ -693,7 +749,48 @@ impl StudioApp {
         }
     }
 
+    fn connect_dialog(&mut self, ctx: &egui::Context) {
+        let Some((mut url, mut token_file)) = self.connect_prompt.take() else {
+            return;
+        };
+        let mut open = true;
+        let mut go = false;
+        egui::Window::new("Connect to a runtime")
+            .collapsible(false)
+            .open(&mut open)
+            .show(ctx, |ui| {
+                let address = ui.label("Address of a `kairos serve` (ws://HOST:PORT):").id;
+                ui.text_edit_singleline(&mut url).labelled_by(address);
+                let token = ui.label("File holding its token (empty when it needs none):").id;
+                ui.text_edit_singleline(&mut token_file).labelled_by(token);
+                go = ui.button("Connect").clicked();
+            });
+        if go {
+            let token = if token_file.trim().is_empty() {
+                Ok(None)
+            } else {
+                std::fs::read_to_string(token_file.trim())
+                    .map(|t| Some(t.lines().next().unwrap_or("").trim().to_owned()))
+                    .map_err(|e| format!("cannot read the token file {}: {e}", token_file.trim()))
+            };
+            match token {
+                Ok(token) => {
+                    remember_remote(self.config_dir.as_deref(), url.trim(), token_file.trim());
+                    let url = url.trim().to_owned();
+                    self.connect(ctx, &url, token, format!("runtime {url}"));
+                }
+                Err(error) => {
+                    self.note(Color32::LIGHT_RED, error);
+                    self.connect_prompt = Some((url, token_file));
+                }
+            }
+        } else if open {
+            self.connect_prompt = Some((url, token_file));
+        }
+    }
+
     fn dialogs(&mut self, ctx: &egui::Context) {
+        self.connect_dialog(ctx);
         if let Some((kind, mut text)) = self.prompt.take() {
             let mut open = true;
             let mut done = false;
@@ -749,6 +846,13 @@ impl StudioApp {
                     });
                 });
         }
+    }
+
+    /// Remembers recent files and the last remote runtime in `folder` instead of the user's configuration.
+    #[must_use]
+    pub fn with_config_dir(mut self, folder: PathBuf) -> Self {
+        self.config_dir = Some(folder);
+        self
     }
 
     /// A component's state as the runtime last reported it.

@@ -38,6 +38,11 @@ pub fn kairos_binary() -> Option<PathBuf> {
 }
 
 impl LocalRuntime {
+    /// The file holding its token (private to this user).
+    pub fn token_file(&self) -> PathBuf {
+        self.folder.join("token")
+    }
+
     /// Starts `kairos serve` and waits until it listens.
     pub fn start() -> Result<LocalRuntime, String> {
         let binary = kairos_binary().ok_or_else(|| {
@@ -49,7 +54,10 @@ impl LocalRuntime {
 
     /// Starts `binary serve` (a `kairos` at a known place) and waits until it listens.
     pub fn start_binary(binary: &std::path::Path) -> Result<LocalRuntime, String> {
-        let folder = std::env::temp_dir().join(format!("kairos-studio-{}", std::process::id()));
+        // One folder per runtime started, so two in one process never share a token file.
+        static STARTED: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
+        let serial = STARTED.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        let folder = std::env::temp_dir().join(format!("kairos-studio-{}-{serial}", std::process::id()));
         std::fs::create_dir_all(&folder).map_err(|e| format!("cannot create {}: {e}", folder.display()))?;
         let token_file = folder.join("token");
         let _ = std::fs::remove_file(&token_file);

@@ -107,3 +107,63 @@ fn a_diagram_built_in_the_studio_runs_on_a_real_runtime() {
         |app| matches!(app.node_state("counter1"), Some(NodeState::Waiting(state)) if state == "stopped"),
     );
 }
+
+#[test]
+fn the_connect_dialog_connects_to_a_runtime_and_remembers_it() {
+    let local = LocalRuntime::start_binary(&kairos_binary()).unwrap();
+    let config = tempfile::tempdir().unwrap();
+    let app = StudioApp::new(
+        Document::default(),
+        kairos_diagram::LibraryInfo::default(),
+        None,
+        "no runtime".to_owned(),
+        None,
+    )
+    .with_config_dir(config.path().to_owned());
+    let mut harness = Harness::new_ui_state(|ui, app: &mut StudioApp| app.show(ui), app);
+    harness.set_size(Vec2::new(1280.0, 800.0));
+    harness.run_steps(2);
+    harness.get_by_label("File").click();
+    harness.run_steps(2);
+    harness.get_by_label("Connect to a runtime…").click();
+    harness.run_steps(2);
+    let address = harness.get_by_role_and_label(
+        egui::accesskit::Role::TextInput,
+        "Address of a `kairos serve` (ws://HOST:PORT):",
+    );
+    address.focus();
+    harness.run_steps(1);
+    harness.key_press_modifiers(egui::Modifiers::COMMAND, egui::Key::A);
+    harness.run_steps(1);
+    harness
+        .get_by_role_and_label(
+            egui::accesskit::Role::TextInput,
+            "Address of a `kairos serve` (ws://HOST:PORT):",
+        )
+        .type_text(&local.url);
+    harness.run_steps(1);
+    let token_file = local.token_file().display().to_string();
+    harness
+        .get_by_role_and_label(
+            egui::accesskit::Role::TextInput,
+            "File holding its token (empty when it needs none):",
+        )
+        .focus();
+    harness.run_steps(1);
+    harness
+        .get_by_role_and_label(
+            egui::accesskit::Role::TextInput,
+            "File holding its token (empty when it needs none):",
+        )
+        .type_text(&token_file);
+    harness.run_steps(1);
+    harness.get_by_label("Connect").click();
+    harness.run_steps(1);
+    run_until(&mut harness, "the connection", StudioApp::is_connected);
+    let remembered = std::fs::read_to_string(config.path().join("studio-remote.txt")).unwrap();
+    assert_eq!(remembered, format!("{}\n{token_file}\n", local.url));
+    assert!(
+        !remembered.contains(&local.token),
+        "the token itself is never written"
+    );
+}
