@@ -36,6 +36,35 @@ enum Prompt {
     SaveAs,
 }
 
+/// The file chooser of a path property: which property, and the folder shown.
+#[derive(Debug, Clone)]
+struct Browse {
+    component: String,
+    property: String,
+    folder: PathBuf,
+}
+
+impl Browse {
+    /// Opens in the folder of `current` (a path property's value), or the working folder.
+    fn starting_at(component: &str, property: &str, current: &str) -> Browse {
+        let working = std::env::current_dir().unwrap_or_default();
+        let current = working.join(current);
+        let folder = if current.is_dir() {
+            current
+        } else {
+            current
+                .parent()
+                .filter(|p| p.is_dir())
+                .map_or(working, std::path::Path::to_path_buf)
+        };
+        Browse {
+            component: component.to_owned(),
+            property: property.to_owned(),
+            folder,
+        }
+    }
+}
+
 /// The studio.
 pub struct StudioApp {
     /// The diagram being edited.
@@ -66,6 +95,8 @@ pub struct StudioApp {
     local_address: Option<(String, String)>,
     /// Where recent files and the last remote runtime are remembered.
     config_dir: Option<PathBuf>,
+    /// The file chooser, while it is open.
+    browse: Option<Browse>,
     /// Kept alive as long as the studio: dropping it stops the local runtime.
     _local: Option<crate::local::LocalRuntime>,
 }
@@ -147,6 +178,7 @@ impl StudioApp {
             connect_prompt: None,
             local_address: local.as_ref().map(|l| (l.url.clone(), l.token.clone())),
             config_dir,
+            browse: None,
             _local: local,
         };
         let library = app.library.clone();
@@ -214,6 +246,11 @@ impl StudioApp {
                             for (id, problems) in by_component {
                                 self.states.insert(id, NodeState::Invalid(problems.join("\n")));
                             }
+                            self.canvas.port_problems =
+                                crate::document::diagnostics_by_port(&self.deployed_text, &error.diagnostics)
+                                    .into_iter()
+                                    .map(|(port, problems)| (port, problems.join("\n")))
+                                    .collect();
                         }
                         self.note(Color32::LIGHT_RED, error.message);
                         self.start_after_deploy = false;
@@ -227,6 +264,7 @@ impl StudioApp {
                         }
                         Some(Pending::Deploy) => {
                             self.states.clear();
+                            self.canvas.port_problems.clear();
                             self.note(Color32::LIGHT_GREEN, "deployed");
                             if std::mem::take(&mut self.start_after_deploy) {
                                 self.request(RequestBody::Start, Pending::Other);
@@ -644,6 +682,7 @@ impl StudioApp {
         ui.label(&info.doc);
         ui.separator();
         let running = matches!(self.run_state, RuntimeState::Running | RuntimeState::Paused);
+        let mut browse = None;
         for property in &info.properties {
             let current = instance
                 .properties
@@ -693,11 +732,16 @@ impl StudioApp {
                             *value = Value::Text(chosen);
                         }
                     }
-                    (PropertyKind::Text | PropertyKind::Path, value) => {
+                    (kind @ (PropertyKind::Text | PropertyKind::Path), value) => {
                         let mut text = value.as_text().unwrap_or("").to_owned();
                         let edit = egui::TextEdit::singleline(&mut text).desired_width(160.0);
                         if ui.add(edit).labelled_by(name_label).changed() {
-                            *value = Value::Text(text);
+                            *value = Value::Text(text.clone());
+                        }
+                        if *kind == PropertyKind::Path
+                            && ui.button("…").on_hover_text("Choose a file").clicked()
+                        {
+                            browse = Some(Browse::starting_at(&id, &property.name, &text));
                         }
                     }
                 }
@@ -728,6 +772,9 @@ impl StudioApp {
                     );
                 }
             }
+        }
+        if browse.is_some() {
+            self.browse = browse;
         }
         if !info.actions.is_empty() {
             ui.separator();
@@ -789,7 +836,59 @@ impl StudioApp {
         }
     }
 
+    /// The file chooser: folders to walk, files to pick; a picked file inside the working folder is written
+    /// relative to it, as the CLI resolves paths from there.
+    fn browse_dialog(&mut self, ctx: &egui::Context) {
+        let Some(mut browse) = self.browse.take() else {
+            return;
+        };
+        let mut open = true;
+        let mut picked: Option<PathBuf> = None;
+        egui::Window::new(format!("Choose {} of {}", browse.property, browse.component))
+            .collapsible(false)
+            .open(&mut open)
+            .show(ctx, |ui| {
+                ui.label(browse.folder.display().to_string());
+                let mut entries: Vec<(bool, PathBuf)> = std::fs::read_dir(&browse.folder)
+                    .map(|dir| dir.flatten().map(|e| (e.path().is_dir(), e.path())).collect())
+                    .unwrap_or_default();
+                entries.sort_by(|a, b| b.0.cmp(&a.0).then(a.1.cmp(&b.1)));
+                egui::ScrollArea::vertical().max_height(320.0).show(ui, |ui| {
+                    if let Some(parent) = browse.folder.parent()
+                        && ui.button("..").clicked()
+                    {
+                        browse.folder = parent.to_path_buf();
+                    }
+                    for (is_dir, path) in entries {
+                        let name = path
+                            .file_name()
+                            .map_or_else(String::new, |n| n.to_string_lossy().into_owned());
+                        if is_dir {
+                            if ui.button(format!("{name}/")).clicked() {
+                                browse.folder.clone_from(&path);
+                            }
+                        } else if ui.button(name).clicked() {
+                            picked = Some(path);
+                        }
+                    }
+                });
+            });
+        if let Some(path) = picked {
+            let working = std::env::current_dir().unwrap_or_default();
+            let shown = path.strip_prefix(&working).unwrap_or(&path).display().to_string();
+            let (component, property) = (browse.component.clone(), browse.property.clone());
+            self.document.edit(|d| {
+                if let Some(c) = d.component_mut(&component) {
+                    c.properties.insert(property, Value::Text(shown));
+                }
+            });
+        } else if open {
+            self.browse = Some(browse);
+        }
+    }
+
     fn dialogs(&mut self, ctx: &egui::Context) {
+        self.browse_dialog(ctx);
         self.connect_dialog(ctx);
         if let Some((kind, mut text)) = self.prompt.take() {
             let mut open = true;

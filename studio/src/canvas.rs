@@ -44,6 +44,8 @@ pub struct Canvas {
     notice: Option<(String, Pos2, Instant)>,
     /// Scene to screen, as of the last frame.
     to_screen: egui::emath::TSTransform,
+    /// Problems the runtime found with ports (a refused deploy), shown on them until the next deploy.
+    pub port_problems: BTreeMap<PortRef, String>,
 }
 
 impl Default for Canvas {
@@ -56,6 +58,7 @@ impl Default for Canvas {
             drag_origin: None,
             notice: None,
             to_screen: egui::emath::TSTransform::IDENTITY,
+            port_problems: BTreeMap::new(),
         }
     }
 }
@@ -318,7 +321,13 @@ impl Canvas {
                     let response = ui.interact(hit, ui.make_persistent_id(("input", &port)), Sense::click());
                     let label = format!("input {port} ({accepts})");
                     response.widget_info(|| WidgetInfo::labeled(egui::Role::Button, true, &label));
-                    response.on_hover_text(format!("{}: {} ({accepts})", name, input.doc));
+                    if let Some(problem) = self.port_problems.get(&port) {
+                        let ring = Stroke::new(2.0, Color32::from_rgb(230, 90, 80));
+                        painter.circle_stroke(*at, PORT_RADIUS + 3.0, ring);
+                        response.on_hover_text(problem);
+                    } else {
+                        response.on_hover_text(format!("{}: {} ({accepts})", name, input.doc));
+                    }
                     let color = match &input.filter {
                         kairos_diagram::TypeFilter::OneOf(types) if types.len() == 1 => {
                             type_color(types[0].name())
@@ -347,6 +356,11 @@ impl Canvas {
                     response.widget_info(|| WidgetInfo::labeled(egui::Role::Button, true, &label));
                     if response.drag_started() {
                         self.pending_link = Some(port.clone());
+                    }
+                    if let Some(problem) = self.port_problems.get(&port) {
+                        let ring = Stroke::new(2.0, Color32::from_rgb(230, 90, 80));
+                        painter.circle_stroke(*at, PORT_RADIUS + 3.0, ring);
+                        response.clone().on_hover_text(problem);
                     }
 
                     if response.drag_stopped() {

@@ -268,6 +268,39 @@ pub fn diagnostics_by_component(
     found
 }
 
+/// The runtime's diagnostics about `text` that concern connections, by the port at fault: the output when
+/// the diagnostic points at the `from` end, otherwise the input.
+pub fn diagnostics_by_port(
+    text: &str,
+    diagnostics: &[kairos_diagram::Diagnostic],
+) -> std::collections::BTreeMap<PortRef, Vec<String>> {
+    let mut found: std::collections::BTreeMap<PortRef, Vec<String>> = std::collections::BTreeMap::new();
+    let Ok(parsed) = kairos_diagram::parse(text) else {
+        return found;
+    };
+    for diagnostic in diagnostics {
+        let Some(offset) = diagnostic.location.map(|l| l.offset) else {
+            continue;
+        };
+        let Some((at, connection)) = parsed
+            .source_map
+            .connections
+            .iter()
+            .zip(&parsed.diagram.connections)
+            .rfind(|(at, _)| at.connection.offset <= offset)
+        else {
+            continue;
+        };
+        let on_from = (at.from.offset..at.from.offset + at.from.len).contains(&offset);
+        let port = if on_from { &connection.from } else { &connection.to };
+        found
+            .entry(port.clone())
+            .or_default()
+            .push(diagnostic.message.clone());
+    }
+    found
+}
+
 /// `base1`, `base2`, ...: the first id not taken in `diagram`.
 pub fn fresh_id(diagram: &Diagram, base: &str) -> String {
     (1..=diagram.components.len() + 1)
@@ -363,6 +396,21 @@ mod tests {
             by_component["b"].iter().any(|m| m.contains("core.nothing")),
             "{by_component:?}"
         );
+    }
+
+    #[test]
+    fn a_refused_connection_is_marked_on_its_ports() {
+        let text = "Diagram(\n    format: 1,\n    components: [\n        Component(id: \"cam\", type: \"sensors.camera\"),\n        Component(id: \"g\", type: \"core.gain\"),\n    ],\n    connections: [\n        Connection(from: \"cam.image\", to: \"g.in\"),\n        Connection(from: \"cam.nothing\", to: \"g.in\"),\n    ],\n)\n";
+        let parsed = kairos_diagram::parse(text).unwrap();
+        let diagnostics = parsed.validate(&library());
+        let by_port = super::diagnostics_by_port(text, &diagnostics);
+        assert!(
+            by_port[&PortRef::new("cam", "nothing")]
+                .iter()
+                .any(|m| m.contains("nothing")),
+            "{by_port:?}"
+        );
+        assert!(by_port.contains_key(&PortRef::new("g", "in")), "{by_port:?}");
     }
 
     #[test]

@@ -165,3 +165,26 @@ fn a_connection_the_input_refuses_is_not_made_and_the_canvas_says_why() {
     let notice = harness.state().canvas.notice().unwrap_or_default().to_owned();
     assert!(notice.contains("not image"), "{notice}");
 }
+
+#[test]
+fn a_path_property_is_chosen_in_the_file_chooser() {
+    let mut harness = studio();
+    add_from_palette(&mut harness, "recording.recorder", Pos2::new(600.0, 300.0));
+    click_on_canvas(&mut harness, "component recorder1 (recording.recorder)");
+    harness.get_by_label("…").click();
+    harness.run_steps(2);
+    // Tests run in the package's folder, which holds Cargo.toml.
+    harness.get_by_label("Cargo.toml").click();
+    harness.run_steps(2);
+    let recorder = harness
+        .state()
+        .document
+        .diagram()
+        .component("recorder1")
+        .unwrap()
+        .clone();
+    assert_eq!(
+        recorder.properties["path"],
+        kairos_diagram::Value::Text("Cargo.toml".to_owned())
+    );
+}
