@@ -7,12 +7,8 @@
 //! produce 80 % of that many bytes per second. Reported: frames each camera produced against its schedule,
 //! frames the recorder lost (overwritten or skipped on its four inputs) and frames recorded.
 
-use std::collections::BTreeMap;
-use std::fs::File;
-use std::io::BufWriter;
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
-use foxglove::Encode as _;
 use kairos_benches::{Table, header, quick, repetitions, size};
 use kairos_runtime::Engine;
 use kairos_sdk::{RealTimeClock, Registry};
@@ -21,53 +17,15 @@ const WIDTH: u32 = 1920;
 const HEIGHT: u32 = 1080;
 const FRAME_BYTES: f64 = (WIDTH * HEIGHT * 3) as f64;
 
-/// Bytes per second the bare `mcap` loop writes, frames as in benchmark 7.
+/// Bytes per second the bare `mcap` loop of benchmark 7 sustains over `frames` frames.
 fn bare_rate(dir: &std::path::Path, frames: usize) -> Option<f64> {
-    let path = dir.join("bare.mcap");
-    let _ = std::fs::remove_file(&path);
     let pixels: Vec<u8> = (0..(WIDTH * HEIGHT * 3) as usize)
         .map(|p| (p % 251) as u8)
         .collect();
-    let file = File::create(&path).ok()?;
-    let started = Instant::now();
-    let mut writer = mcap::WriteOptions::new()
-        .compression(None)
-        .create(BufWriter::new(file))
-        .ok()?;
-    let schema = foxglove::schemas::RawImage::get_schema()?;
-    let schema_id = writer
-        .add_schema(&schema.name, &schema.encoding, &schema.data)
-        .ok()?;
-    let channel = writer
-        .add_channel(schema_id, "camera.image", "protobuf", &BTreeMap::new())
-        .ok()?;
-    let mut buffer = Vec::new();
-    for index in 0..frames {
-        buffer.clear();
-        let message = foxglove::schemas::RawImage {
-            timestamp: None,
-            frame_id: "camera.image".to_owned(),
-            width: WIDTH,
-            height: HEIGHT,
-            encoding: "rgb8".to_owned(),
-            step: WIDTH * 3,
-            data: foxglove::bytes::Bytes::copy_from_slice(&pixels),
-        };
-        message.encode(&mut buffer).ok()?;
-        let time = index as u64 * 33_000_000;
-        let header = mcap::records::MessageHeader {
-            channel_id: channel,
-            sequence: index as u32,
-            log_time: time,
-            publish_time: time,
-        };
-        writer.write_to_known_channel(&header, &buffer).ok()?;
-    }
-    writer.finish().ok()?;
-    writer.into_inner().into_inner().ok()?.sync_all().ok()?;
-    let rate = (frames as f64 * FRAME_BYTES) / started.elapsed().as_secs_f64();
+    let path = dir.join("bare.mcap");
+    let rate = kairos_benches::bare_mcap_rate(&path, WIDTH, HEIGHT, frames, |_| &pixels[..]);
     let _ = std::fs::remove_file(&path);
-    Some(rate)
+    rate
 }
 
 struct Outcome {

@@ -2,13 +2,9 @@
 //! same samples (the same Foxglove `RawImage` encoding, no compression, synced to disk at the end) to the
 //! same folder.
 
-use std::collections::BTreeMap;
-use std::fs::File;
-use std::io::BufWriter;
 use std::sync::Arc;
 use std::time::Instant;
 
-use foxglove::Encode as _;
 use kairos_benches::{Goal, Spread, Table, header, machine, quick, ratio, repetitions, size};
 use kairos_pack_recording::recorder::Recorder;
 use kairos_sdk::harness::Harness;
@@ -31,53 +27,26 @@ fn frames(count: usize) -> Vec<Payload> {
         .collect()
 }
 
-/// Bytes per second through a bare loop: encode each frame as `foxglove.RawImage`, write it.
+/// Bytes per second through the bare `mcap` loop, same frames.
 fn bare_loop(dir: &std::path::Path, frames: &[Payload]) -> Option<f64> {
-    let path = dir.join("bare.mcap");
-    // Truncating the previous run's file frees hundreds of megabytes: not part of either measurement.
-    let _ = std::fs::remove_file(&path);
-    let file = File::create(&path).ok()?;
-    let started = Instant::now();
-    let mut writer = mcap::WriteOptions::new()
-        .compression(None)
-        .create(BufWriter::new(file))
-        .ok()?;
-    let schema = foxglove::schemas::RawImage::get_schema()?;
-    let schema_id = writer
-        .add_schema(&schema.name, &schema.encoding, &schema.data)
-        .ok()?;
-    let channel = writer
-        .add_channel(schema_id, "camera.image", "protobuf", &BTreeMap::new())
-        .ok()?;
-    let mut buffer = Vec::new();
-    let mut bytes = 0;
-    for (index, frame) in frames.iter().enumerate() {
-        let Payload::Image(image) = frame else { return None };
-        buffer.clear();
-        let message = foxglove::schemas::RawImage {
-            timestamp: None,
-            frame_id: "camera.image".to_owned(),
-            width: image.width,
-            height: image.height,
-            encoding: "rgb8".to_owned(),
-            step: image.stride,
-            data: foxglove::bytes::Bytes::copy_from_slice(&image.pixels),
-        };
-        message.encode(&mut buffer).ok()?;
-        let time = index as u64 * 33_000_000;
-        let header = mcap::records::MessageHeader {
-            channel_id: channel,
-            sequence: index as u32,
-            log_time: time,
-            publish_time: time,
-        };
-        writer.write_to_known_channel(&header, &buffer).ok()?;
-        bytes += buffer.len();
-    }
-    writer.finish().ok()?;
-    // Same durability as the recorder, which syncs a finished file to disk.
-    writer.into_inner().into_inner().ok()?.sync_all().ok()?;
-    Some(bytes as f64 / started.elapsed().as_secs_f64())
+    let images: Vec<&Image> = frames
+        .iter()
+        .filter_map(|f| {
+            if let Payload::Image(image) = f {
+                Some(image)
+            } else {
+                None
+            }
+        })
+        .collect();
+    let first = images.first()?;
+    kairos_benches::bare_mcap_rate(
+        &dir.join("bare.mcap"),
+        first.width,
+        first.height,
+        images.len(),
+        |i| images.get(i).map_or(&[][..], |image| &image.pixels[..]),
+    )
 }
 
 /// Bytes per second through the recorder component, driven by the offline harness.

@@ -380,3 +380,64 @@ impl Ratios {
         table.print();
     }
 }
+
+/// The baseline of the recording benchmarks: a bare loop over the `mcap` crate that encodes each of
+/// `count` RGB8 frames (`pixels(index)`, `width`×`height`, rows packed) as `foxglove.RawImage`, writes it
+/// uncompressed to `path` and syncs the finished file, as the recorder does. The previous file at `path` is
+/// removed before the clock starts (truncating hundreds of megabytes is no part of a measurement). Returns
+/// message bytes written per second.
+pub fn bare_mcap_rate<'p>(
+    path: &std::path::Path,
+    width: u32,
+    height: u32,
+    count: usize,
+    pixels: impl Fn(usize) -> &'p [u8],
+) -> Option<f64> {
+    use foxglove::Encode as _;
+    let _ = std::fs::remove_file(path);
+    let file = std::fs::File::create(path).ok()?;
+    let started = Instant::now();
+    let mut writer = mcap::WriteOptions::new()
+        .compression(None)
+        .create(std::io::BufWriter::new(file))
+        .ok()?;
+    let schema = foxglove::schemas::RawImage::get_schema()?;
+    let schema_id = writer
+        .add_schema(&schema.name, &schema.encoding, &schema.data)
+        .ok()?;
+    let channel = writer
+        .add_channel(
+            schema_id,
+            "camera.image",
+            "protobuf",
+            &std::collections::BTreeMap::new(),
+        )
+        .ok()?;
+    let mut buffer = Vec::new();
+    let mut bytes = 0;
+    for index in 0..count {
+        buffer.clear();
+        let message = foxglove::schemas::RawImage {
+            timestamp: None,
+            frame_id: "camera.image".to_owned(),
+            width,
+            height,
+            encoding: "rgb8".to_owned(),
+            step: width * 3,
+            data: foxglove::bytes::Bytes::copy_from_slice(pixels(index)),
+        };
+        message.encode(&mut buffer).ok()?;
+        let time = index as u64 * 33_000_000;
+        let header = mcap::records::MessageHeader {
+            channel_id: channel,
+            sequence: index as u32,
+            log_time: time,
+            publish_time: time,
+        };
+        writer.write_to_known_channel(&header, &buffer).ok()?;
+        bytes += buffer.len();
+    }
+    writer.finish().ok()?;
+    writer.into_inner().into_inner().ok()?.sync_all().ok()?;
+    Some(bytes as f64 / started.elapsed().as_secs_f64())
+}

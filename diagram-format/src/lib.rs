@@ -39,5 +39,5 @@ pub use read::{
     ParsedDiagram, SourceMap, load, parse,
 };
 pub use ron_syntax::MAX_DEPTH;
-pub use validate::{is_valid_id, resolved_properties, validate, validate_with};
+pub use validate::{is_valid_id, output_type, resolved_properties, validate, validate_with};
 pub use write::save;

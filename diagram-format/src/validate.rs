@@ -71,6 +71,30 @@ pub fn resolved_properties(instance: &ComponentInstance, info: &ComponentInfo) -
         .collect()
 }
 
+/// The type output `port` really carries: its declared type, or for an output that follows an input, the
+/// type of whatever feeds that input. `info_of` gives each instance's descriptor. `None` when unknown
+/// (unconnected, unknown port, a cycle).
+pub fn output_type<'i>(
+    diagram: &Diagram,
+    port: &PortRef,
+    info_of: impl Fn(&ComponentInstance) -> Option<&'i ComponentInfo>,
+) -> Option<crate::library::DataType> {
+    let mut port = port.clone();
+    for _ in 0..=crate::MAX_DEPTH {
+        let info = info_of(diagram.component(&port.component)?)?;
+        let output = info.output(&port.port)?;
+        let Some(input) = &output.follows_input else {
+            return Some(output.data_type.clone());
+        };
+        let feeding = diagram
+            .connections
+            .iter()
+            .find(|c| c.to.component == port.component && &c.to.port == input)?;
+        port = feeding.from.clone();
+    }
+    None
+}
+
 /// Whether `id` is a valid component id: non-empty, ASCII letters, digits, `_` and `-` only (ids end up
 /// in thread names, file names and command lines).
 pub fn is_valid_id(id: &str) -> bool {
@@ -404,7 +428,7 @@ impl<'a> Validator<'a> {
             let output = self.resolve(connection, End::From, at.map(|l| l.from));
             let input = self.resolve(connection, End::To, at.map(|l| l.to));
             let produced = match output {
-                Some(Resolved::Output) => self.effective_type(&connection.from, 0),
+                Some(Resolved::Output) => self.effective_type(&connection.from),
                 _ => None,
             };
             if let (Some(produced), Some(Resolved::Input(input))) = (produced, input)
@@ -462,25 +486,8 @@ impl<'a> Validator<'a> {
 
     /// Finds the port a connection end names, reporting what is missing. `None` when it does not resolve
     /// (or its component's type is unknown, which was reported already).
-    /// The type an output really carries: its declared type, or for an output that follows an input, the
-    /// type of whatever feeds that input. `None` when unknown (unconnected, unknown port, a cycle), in
-    /// which case no type error is reported.
-    fn effective_type(&self, port: &PortRef, depth: usize) -> Option<crate::library::DataType> {
-        if depth > crate::MAX_DEPTH {
-            return None;
-        }
-        let instance = self.instance(&port.component)?;
-        let info = self.info_of(instance)?;
-        let output = info.output(&port.port)?;
-        let Some(input) = &output.follows_input else {
-            return Some(output.data_type.clone());
-        };
-        let feeding = self
-            .diagram
-            .connections
-            .iter()
-            .find(|c| c.to.component == port.component && &c.to.port == input)?;
-        self.effective_type(&feeding.from, depth + 1)
+    fn effective_type(&self, port: &PortRef) -> Option<crate::library::DataType> {
+        output_type(self.diagram, port, |instance| self.info_of(instance))
     }
 
     fn resolve(

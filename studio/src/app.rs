@@ -1005,8 +1005,8 @@ impl StudioApp {
                 });
             });
         egui::CentralPanel::default().show(ui, |ui| {
-            let library = self.library.clone();
-            self.canvas.show(ui, &mut self.document, &library, &self.states);
+            self.canvas
+                .show(ui, &mut self.document, &self.library, &self.states);
         });
         self.dialogs(&ctx);
     }

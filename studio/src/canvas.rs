@@ -9,7 +9,7 @@ use std::time::{Duration, Instant};
 use egui::{Align2, Color32, FontId, Pos2, Rect, Sense, Stroke, StrokeKind, Vec2, WidgetInfo};
 use kairos_diagram::{ComponentInfo, Diagram, LibraryInfo, PortRef, Position};
 
-use crate::document::{Document, describe_filter};
+use crate::document::Document;
 
 const NODE_WIDTH: f32 = 180.0;
 const HEADER: f32 = 38.0;
@@ -316,7 +316,7 @@ impl Canvas {
                         continue;
                     };
                     let port = PortRef::new(&component.id, name);
-                    let accepts = describe_filter(&input.filter);
+                    let accepts = input.filter.to_string();
                     let hit = Rect::from_center_size(*at, Vec2::splat(PORT_RADIUS * 3.0));
                     let response = ui.interact(hit, ui.make_persistent_id(("input", &port)), Sense::click());
                     let label = format!("input {port} ({accepts})");

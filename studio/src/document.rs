@@ -5,7 +5,7 @@ use std::path::{Path, PathBuf};
 
 use kairos_diagram::{
     ComponentInfo, ComponentInstance, Connection, DataType, Diagram, LibraryInfo, PackRequirement, PortRef,
-    Position, TypeFilter,
+    Position,
 };
 
 /// How many edits can be undone.
@@ -190,7 +190,7 @@ impl Document {
         {
             return Err(Refusal(format!(
                 "{to} accepts {}, not {data_type} from {from}",
-                describe_filter(&input.filter)
+                input.filter
             )));
         }
         if let Some(existing) = self.diagram.connections.iter().find(|c| &c.to == to) {
@@ -206,21 +206,7 @@ impl Document {
 
     /// The type an output carries, following pass-through outputs to what feeds them.
     pub fn output_type(&self, port: &PortRef, library: &LibraryInfo) -> Option<DataType> {
-        let mut port = port.clone();
-        for _ in 0..32 {
-            let component = self.diagram.component(&port.component)?;
-            let output = library.component(&component.type_name)?.output(&port.port)?;
-            let Some(input) = &output.follows_input else {
-                return Some(output.data_type.clone());
-            };
-            let feeding = self
-                .diagram
-                .connections
-                .iter()
-                .find(|c| c.to.component == port.component && &c.to.port == input)?;
-            port = feeding.from.clone();
-        }
-        None
+        kairos_diagram::output_type(&self.diagram, port, |c| library.component(&c.type_name))
     }
 }
 
@@ -316,18 +302,6 @@ fn caret(version: &str) -> String {
         (Some("0"), Some(minor)) => format!("^0.{minor}"),
         (Some(major), _) => format!("^{major}"),
         _ => "*".to_owned(),
-    }
-}
-
-/// `f64 | i64`, `any type`.
-pub fn describe_filter(filter: &TypeFilter) -> String {
-    match filter {
-        TypeFilter::Any => "any type".to_owned(),
-        TypeFilter::OneOf(types) => types
-            .iter()
-            .map(ToString::to_string)
-            .collect::<Vec<_>>()
-            .join(" | "),
     }
 }
 

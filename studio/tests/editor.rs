@@ -93,7 +93,7 @@ fn a_diagram_is_built_through_the_interface_and_saved() {
     assert_eq!(ids, ["sine1", "console1"]);
 
     let from = on_canvas(&harness, "output sine1.out (f64)");
-    let to = on_canvas(&harness, "input console1.in (any type)");
+    let to = on_canvas(&harness, "input console1.in (any)");
     drag(&mut harness, from, to);
     let connections = &harness.state().document.diagram().connections;
     assert_eq!(

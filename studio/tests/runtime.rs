@@ -82,10 +82,7 @@ fn a_diagram_built_in_the_studio_runs_on_a_real_runtime() {
     let from = harness.get_by_label("core.console").rect().center();
     drag(&mut harness, from, Pos2::new(800.0, 300.0));
     let output = harness.get_by_label("output counter1.out (i64)").rect().center();
-    let input = harness
-        .get_by_label("input console1.in (any type)")
-        .rect()
-        .center();
+    let input = harness.get_by_label("input console1.in (any)").rect().center();
     let (output, input) = (
         harness.state().canvas.to_screen(output),
         harness.state().canvas.to_screen(input),

@@ -3,6 +3,7 @@
 //! One lock guards the deployment; operations that may block (start, stop, a property change waiting for
 //! the component's answer) run on blocking threads, never on the server's network threads.
 
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
 
 use kairos_diagram::{Diagnostic, Diagram, Value};
@@ -19,14 +20,15 @@ struct Deployment {
     diagram: Option<Diagram>,
     engine: Option<Engine>,
     previous: Option<StatsSnapshot>,
-    /// Changes whenever the engine is replaced: sample subscriptions re-attach when it does.
-    generation: u64,
 }
 
 /// The shared runtime state of a server.
 pub struct Runtime {
     registry: Registry,
     deployment: Mutex<Deployment>,
+    /// Changes whenever the engine is replaced: sample subscriptions re-attach when it does. Outside the
+    /// lock, so their frequent checks never wait behind a control operation.
+    generation: AtomicU64,
 }
 
 impl std::fmt::Debug for Runtime {
@@ -111,6 +113,7 @@ impl Runtime {
         Arc::new(Runtime {
             registry,
             deployment: Mutex::new(Deployment::default()),
+            generation: AtomicU64::new(0),
         })
     }
 
@@ -145,7 +148,7 @@ impl Runtime {
         deployment.diagram = Some(parsed.diagram);
         deployment.engine = Some(engine);
         deployment.previous = None;
-        deployment.generation += 1;
+        self.generation.fetch_add(1, Ordering::Release);
         tracing::info!("deployed a diagram of {components} components");
         Ok(DeployResult {
             diagnostics,
@@ -171,7 +174,7 @@ impl Runtime {
                 .map_err(|e| error(ErrorCode::InvalidDiagram, e.to_string()))?;
             deployment.engine = Some(engine);
             deployment.previous = None;
-            deployment.generation += 1;
+            self.generation.fetch_add(1, Ordering::Release);
         }
         let Some(engine) = deployment.engine.as_mut() else {
             return Err(error(ErrorCode::Internal, "no engine after building one"));
@@ -311,12 +314,12 @@ impl Runtime {
             .as_ref()?
             .output_buffer(component, output)?
             .clone();
-        Some((buffer, deployment.generation))
+        Some((buffer, self.generation.load(Ordering::Acquire)))
     }
 
     /// Which engine is current: changes when one is replaced.
     pub fn generation(&self) -> u64 {
-        self.lock().generation
+        self.generation.load(Ordering::Acquire)
     }
 
     /// Stops everything (the server is shutting down).
