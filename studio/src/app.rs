@@ -9,6 +9,7 @@ use kairos_diagram::{ComponentInstance, LibraryInfo, PropertyKind, ReaderPolicy,
 use kairos_protocol::{RequestBody, RuntimeState};
 
 use crate::canvas::{Canvas, NewComponent, NodeState, auto_layout};
+use crate::chooser::{self, Choice, FileChooser, Purpose};
 use crate::client::{ClientEvent, RuntimeClient};
 use crate::document::Document;
 
@@ -27,42 +28,6 @@ enum AfterDiscard {
     New,
     Open(PathBuf),
     Quit,
-}
-
-/// Which path prompt is open.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-enum Prompt {
-    Open,
-    SaveAs,
-}
-
-/// The file chooser of a path property: which property, and the folder shown.
-#[derive(Debug, Clone)]
-struct Browse {
-    component: String,
-    property: String,
-    folder: PathBuf,
-}
-
-impl Browse {
-    /// Opens in the folder of `current` (a path property's value), or the working folder.
-    fn starting_at(component: &str, property: &str, current: &str) -> Browse {
-        let working = std::env::current_dir().unwrap_or_default();
-        let current = working.join(current);
-        let folder = if current.is_dir() {
-            current
-        } else {
-            current
-                .parent()
-                .filter(|p| p.is_dir())
-                .map_or(working, std::path::Path::to_path_buf)
-        };
-        Browse {
-            component: component.to_owned(),
-            property: property.to_owned(),
-            folder,
-        }
-    }
 }
 
 /// The studio.
@@ -84,7 +49,6 @@ pub struct StudioApp {
     deployed_text: String,
     log: VecDeque<(Color32, String)>,
     search: String,
-    prompt: Option<(Prompt, String)>,
     confirm: Option<AfterDiscard>,
     recent: Vec<PathBuf>,
     clipboard: Vec<ComponentInstance>,
@@ -96,7 +60,7 @@ pub struct StudioApp {
     /// Where recent files and the last remote runtime are remembered.
     config_dir: Option<PathBuf>,
     /// The file chooser, while it is open.
-    browse: Option<Browse>,
+    chooser: Option<FileChooser>,
     /// Kept alive as long as the studio: dropping it stops the local runtime.
     _local: Option<crate::local::LocalRuntime>,
 }
@@ -170,7 +134,6 @@ impl StudioApp {
             deployed_text: String::new(),
             log: VecDeque::new(),
             search: String::new(),
-            prompt: None,
             confirm: None,
             recent,
             clipboard: Vec::new(),
@@ -178,7 +141,7 @@ impl StudioApp {
             connect_prompt: None,
             local_address: local.as_ref().map(|l| (l.url.clone(), l.token.clone())),
             config_dir,
-            browse: None,
+            chooser: None,
             _local: local,
         };
         let library = app.library.clone();
@@ -374,7 +337,7 @@ impl StudioApp {
 
     fn save(&mut self) {
         if self.document.path().is_none() {
-            self.prompt = Some((Prompt::SaveAs, "diagram.ron".to_owned()));
+            self.choose_file(Purpose::SaveDiagram);
             return;
         }
         match self.document.save() {
@@ -472,6 +435,17 @@ impl StudioApp {
         }
     }
 
+    /// Opens the file chooser for a diagram, in the folder of the current file (and on its name, to save).
+    fn choose_file(&mut self, purpose: Purpose) {
+        let current = match (self.document.path(), &purpose) {
+            (Some(path), Purpose::SaveDiagram) => path.display().to_string(),
+            (Some(path), _) => path.parent().map(|f| f.display().to_string()).unwrap_or_default(),
+            (None, Purpose::SaveDiagram) => "diagram.ron".to_owned(),
+            (None, _) => String::new(),
+        };
+        self.chooser = Some(FileChooser::new(purpose, &current));
+    }
+
     fn menu_bar(&mut self, ui: &mut egui::Ui) {
         egui::MenuBar::new().ui(ui, |ui| {
             ui.menu_button("File", |ui| {
@@ -479,17 +453,13 @@ impl StudioApp {
                     self.unless_unsaved(AfterDiscard::New);
                 }
                 if ui.button("Open…").clicked() {
-                    self.prompt = Some((Prompt::Open, String::new()));
+                    self.choose_file(Purpose::OpenDiagram);
                 }
                 if ui.button("Save").clicked() {
                     self.save();
                 }
                 if ui.button("Save as…").clicked() {
-                    let current = self
-                        .document
-                        .path()
-                        .map_or_else(|| "diagram.ron".to_owned(), |p| p.display().to_string());
-                    self.prompt = Some((Prompt::SaveAs, current));
+                    self.choose_file(Purpose::SaveDiagram);
                 }
                 ui.menu_button("Recent", |ui| {
                     for path in self.recent.clone() {
@@ -741,7 +711,13 @@ impl StudioApp {
                         if *kind == PropertyKind::Path
                             && ui.button("…").on_hover_text("Choose a file").clicked()
                         {
-                            browse = Some(Browse::starting_at(&id, &property.name, &text));
+                            browse = Some(FileChooser::new(
+                                Purpose::Property {
+                                    component: id.clone(),
+                                    property: property.name.clone(),
+                                },
+                                &text,
+                            ));
                         }
                     }
                 }
@@ -774,7 +750,7 @@ impl StudioApp {
             }
         }
         if browse.is_some() {
-            self.browse = browse;
+            self.chooser = browse;
         }
         if !info.actions.is_empty() {
             ui.separator();
@@ -836,92 +812,42 @@ impl StudioApp {
         }
     }
 
-    /// The file chooser: folders to walk, files to pick; a picked file inside the working folder is written
-    /// relative to it, as the CLI resolves paths from there.
-    fn browse_dialog(&mut self, ctx: &egui::Context) {
-        let Some(mut browse) = self.browse.take() else {
+    /// The file chooser, for whichever purpose it is open.
+    fn chooser_dialog(&mut self, ctx: &egui::Context) {
+        let Some(mut chooser) = self.chooser.take() else {
             return;
         };
-        let mut open = true;
-        let mut picked: Option<PathBuf> = None;
-        egui::Window::new(format!("Choose {} of {}", browse.property, browse.component))
-            .collapsible(false)
-            .open(&mut open)
-            .show(ctx, |ui| {
-                ui.label(browse.folder.display().to_string());
-                let mut entries: Vec<(bool, PathBuf)> = std::fs::read_dir(&browse.folder)
-                    .map(|dir| dir.flatten().map(|e| (e.path().is_dir(), e.path())).collect())
-                    .unwrap_or_default();
-                entries.sort_by(|a, b| b.0.cmp(&a.0).then(a.1.cmp(&b.1)));
-                egui::ScrollArea::vertical().max_height(320.0).show(ui, |ui| {
-                    if let Some(parent) = browse.folder.parent()
-                        && ui.button("..").clicked()
-                    {
-                        browse.folder = parent.to_path_buf();
-                    }
-                    for (is_dir, path) in entries {
-                        let name = path
-                            .file_name()
-                            .map_or_else(String::new, |n| n.to_string_lossy().into_owned());
-                        if is_dir {
-                            if ui.button(format!("{name}/")).clicked() {
-                                browse.folder.clone_from(&path);
-                            }
-                        } else if ui.button(name).clicked() {
-                            picked = Some(path);
-                        }
+        let path = match chooser.show(ctx) {
+            Choice::Open => {
+                self.chooser = Some(chooser);
+                return;
+            }
+            Choice::Cancelled => return,
+            Choice::Chosen(path) => path,
+        };
+        match chooser.purpose {
+            Purpose::OpenDiagram => self.unless_unsaved(AfterDiscard::Open(path)),
+            Purpose::SaveDiagram => match self.document.save_as(&path) {
+                Ok(()) => {
+                    self.note(Color32::GRAY, format!("saved {}", path.display()));
+                    self.remember_recent(path);
+                }
+                Err(error) => self.note(Color32::LIGHT_RED, error),
+            },
+            Purpose::Property { component, property } => {
+                let written = chooser::as_written(&path);
+                self.document.edit(|d| {
+                    if let Some(c) = d.component_mut(&component) {
+                        c.properties.insert(property, Value::Text(written));
                     }
                 });
-            });
-        if let Some(path) = picked {
-            let working = std::env::current_dir().unwrap_or_default();
-            let shown = path.strip_prefix(&working).unwrap_or(&path).display().to_string();
-            let (component, property) = (browse.component.clone(), browse.property.clone());
-            self.document.edit(|d| {
-                if let Some(c) = d.component_mut(&component) {
-                    c.properties.insert(property, Value::Text(shown));
-                }
-            });
-        } else if open {
-            self.browse = Some(browse);
+            }
         }
     }
 
     fn dialogs(&mut self, ctx: &egui::Context) {
-        self.browse_dialog(ctx);
+        self.chooser_dialog(ctx);
         self.connect_dialog(ctx);
-        if let Some((kind, mut text)) = self.prompt.take() {
-            let mut open = true;
-            let mut done = false;
-            egui::Window::new(if kind == Prompt::Open {
-                "Open a diagram"
-            } else {
-                "Save the diagram as"
-            })
-            .collapsible(false)
-            .open(&mut open)
-            .show(ctx, |ui| {
-                ui.label("File path:");
-                let response = ui.text_edit_singleline(&mut text);
-                done = ui.button("OK").clicked()
-                    || (response.lost_focus() && ui.input(|i| i.key_pressed(egui::Key::Enter)));
-            });
-            if done {
-                let path = PathBuf::from(&text);
-                match kind {
-                    Prompt::Open => self.unless_unsaved(AfterDiscard::Open(path)),
-                    Prompt::SaveAs => match self.document.save_as(&path) {
-                        Ok(()) => {
-                            self.note(Color32::GRAY, format!("saved {}", path.display()));
-                            self.remember_recent(path);
-                        }
-                        Err(error) => self.note(Color32::LIGHT_RED, error),
-                    },
-                }
-            } else if open {
-                self.prompt = Some((kind, text));
-            }
-        }
         if let Some(after) = self.confirm.clone() {
             egui::Window::new("Unsaved changes")
                 .collapsible(false)

@@ -46,6 +46,9 @@ pub struct Canvas {
     to_screen: egui::emath::TSTransform,
     /// Problems the runtime found with ports (a refused deploy), shown on them until the next deploy.
     pub port_problems: BTreeMap<PortRef, String>,
+    /// A box being dragged out on the background to select what it touches (scene coordinates), and
+    /// whether it adds to the selection (Shift or Ctrl held when it started).
+    rubber_band: Option<(Pos2, Pos2, bool)>,
 }
 
 impl Default for Canvas {
@@ -59,6 +62,7 @@ impl Default for Canvas {
             notice: None,
             to_screen: egui::emath::TSTransform::IDENTITY,
             port_problems: BTreeMap::new(),
+            rubber_band: None,
         }
     }
 }
@@ -95,6 +99,17 @@ fn geometry(position: Position, info: Option<&ComponentInfo>) -> Geometry {
                 .map(|(n, p)| (p.name.clone(), Pos2::new(rect.right(), row_y(n))))
                 .collect()
         }),
+    }
+}
+
+/// A reader policy in a few letters, for connections too short for its name.
+fn short_policy(policy: kairos_diagram::ReaderPolicy) -> &'static str {
+    match policy {
+        kairos_diagram::ReaderPolicy::Fifo => "FIFO",
+        kairos_diagram::ReaderPolicy::LastOrNext => "LoN",
+        kairos_diagram::ReaderPolicy::WaitForNext => "WfN",
+        kairos_diagram::ReaderPolicy::Sampling => "Smp",
+        kairos_diagram::ReaderPolicy::NeverSkipping => "NS",
     }
 }
 
@@ -141,7 +156,11 @@ impl Canvas {
         library: &LibraryInfo,
         states: &BTreeMap<String, NodeState>,
     ) {
-        let scene = egui::Scene::new().zoom_range(0.2..=3.0);
+        // A primary drag on the background selects with a box; the middle or secondary button (or scrolling)
+        // pans, as in most node editors.
+        let scene = egui::Scene::new().zoom_range(0.2..=3.0).drag_pan_buttons(
+            egui::containers::DragPanButtons::MIDDLE | egui::containers::DragPanButtons::SECONDARY,
+        );
         let mut scene_rect = self.scene_rect;
         let response = scene.show(ui, &mut scene_rect, |ui| {
             let painter = ui.painter().clone();
@@ -190,18 +209,22 @@ impl Canvas {
                     to,
                     Stroke::new(if selected { 4.0 } else { 2.0 }, color),
                 );
-                let policy = connection
-                    .policy
-                    .or_else(|| {
-                        diagram
-                            .component(&connection.to.component)
-                            .and_then(|c| library.component(&c.type_name))
-                            .and_then(|i| i.input(&connection.to.port))
-                            .map(|i| i.default_policy)
-                    })
-                    .map_or("?", kairos_diagram::ReaderPolicy::name);
+                let policy = connection.policy.or_else(|| {
+                    diagram
+                        .component(&connection.to.component)
+                        .and_then(|c| library.component(&c.type_name))
+                        .and_then(|i| i.input(&connection.to.port))
+                        .map(|i| i.default_policy)
+                });
                 let middle = from + (to - from) * 0.5;
-                let label_rect = Rect::from_center_size(middle, Vec2::new(86.0, 16.0));
+                // The policy's full name where there is room for it, its short form on short connections.
+                let roomy = (to - from).length() > 130.0 || selected;
+                let (text, width) = if roomy {
+                    (policy.map_or("?", kairos_diagram::ReaderPolicy::name), 86.0)
+                } else {
+                    (policy.map_or("?", short_policy), 34.0)
+                };
+                let label_rect = Rect::from_center_size(middle, Vec2::new(width, 16.0));
                 let label = format!("connection {} -> {}", connection.from, connection.to);
                 let id = ui.make_persistent_id(("connection", &connection.from, &connection.to));
                 let clicked = ui.interact(label_rect, id, Sense::click());
@@ -210,17 +233,25 @@ impl Canvas {
                     self.selected_connection = Some((connection.from.clone(), connection.to.clone()));
                     self.selected.clear();
                 }
-                // The policy is written on the connection where there is room for it.
-                if (to - from).length() > 130.0 || selected {
-                    painter.rect_filled(label_rect, 4.0, ui.visuals().extreme_bg_color);
-                    painter.text(
-                        middle,
-                        Align2::CENTER_CENTER,
-                        policy,
-                        FontId::proportional(11.0),
-                        color,
-                    );
-                }
+                painter.rect_filled(label_rect, 4.0, ui.visuals().extreme_bg_color);
+                painter.text(
+                    middle,
+                    Align2::CENTER_CENTER,
+                    text,
+                    FontId::proportional(11.0),
+                    color,
+                );
+                clicked.on_hover_text(format!(
+                    "{} → {}\nreader policy: {}{}",
+                    connection.from,
+                    connection.to,
+                    policy.map_or("?", kairos_diagram::ReaderPolicy::name),
+                    if connection.policy.is_none() {
+                        " (the input's default)"
+                    } else {
+                        ""
+                    }
+                ));
             }
 
             // Nodes and ports.
@@ -377,6 +408,18 @@ impl Canvas {
                 }
             }
 
+            if let Some((start, end, _)) = self.rubber_band {
+                let band = Rect::from_two_pos(start, end);
+                let selection = ui.visuals().selection;
+                painter.rect_filled(band, 0.0, selection.bg_fill.gamma_multiply(0.25));
+                painter.rect_stroke(
+                    band,
+                    0.0,
+                    Stroke::new(1.0, selection.stroke.color),
+                    StrokeKind::Inside,
+                );
+            }
+
             // A connection being dragged out of an output.
             if let (Some(from), Some(to)) = (&self.pending_link, cursor)
                 && let Some(start) = port_at(from, true)
@@ -423,6 +466,7 @@ impl Canvas {
             self.selected.clear();
             self.selected_connection = None;
         }
+        self.rubber_band_select(ui, &background, document, library);
         if let Some(payload) = background.dnd_release_payload::<NewComponent>()
             && let Some(info) = library.component(&payload.0)
         {
@@ -436,6 +480,44 @@ impl Canvas {
                 },
             );
             self.selected = BTreeSet::from([id]);
+        }
+    }
+
+    /// Box selection: a primary drag on the background selects every node the box touches.
+    fn rubber_band_select(
+        &mut self,
+        ui: &egui::Ui,
+        background: &egui::Response,
+        document: &Document,
+        library: &LibraryInfo,
+    ) {
+        let to_scene = self.to_screen.inverse();
+        if background.drag_started_by(egui::PointerButton::Primary)
+            && let Some(origin) = ui.input(|i| i.pointer.press_origin())
+        {
+            let adds = ui.input(|i| i.modifiers.shift || i.modifiers.command);
+            let start = to_scene * origin;
+            self.rubber_band = Some((start, start, adds));
+        }
+        if let Some((start, _, adds)) = self.rubber_band
+            && let Some(pointer) = ui.input(|i| i.pointer.latest_pos())
+        {
+            self.rubber_band = Some((start, to_scene * pointer, adds));
+        }
+        if background.drag_stopped()
+            && let Some((start, end, adds)) = self.rubber_band.take()
+        {
+            let band = Rect::from_two_pos(start, end);
+            if !adds {
+                self.selected.clear();
+            }
+            self.selected_connection = None;
+            for component in &document.diagram().components {
+                let rect = geometry(component.position, library.component(&component.type_name)).rect;
+                if band.intersects(rect) {
+                    self.selected.insert(component.id.clone());
+                }
+            }
         }
     }
 

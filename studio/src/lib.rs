@@ -4,6 +4,7 @@
 
 pub mod app;
 pub mod canvas;
+pub mod chooser;
 pub mod client;
 pub mod document;
 pub mod local;

@@ -141,9 +141,30 @@ fn a_diagram_is_built_through_the_interface_and_saved() {
     );
     assert_eq!(harness.state().document.diagram().connections.len(), 1);
 
+    // File > Save as…, a typed path, Save.
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("built.ron");
-    harness.state_mut().document.save_as(&path).unwrap();
+    harness.get_by_label("File").click();
+    harness.run_steps(2);
+    harness.get_by_label("Save as…").click();
+    harness.run_steps(2);
+    let typed = dir.path().join("built");
+    let field = harness.get_by_role_and_label(Role::TextInput, "File:");
+    field.focus();
+    harness.run_steps(1);
+    harness.key_press_modifiers(egui::Modifiers::COMMAND, egui::Key::A);
+    harness
+        .get_by_role_and_label(Role::TextInput, "File:")
+        .type_text(typed.to_str().unwrap());
+    harness.run_steps(1);
+    harness.get_by_label("Save").click();
+    harness.run_steps(2);
+    assert_eq!(
+        harness.state().document.path(),
+        Some(path.as_path()),
+        "saved with .ron added"
+    );
+    assert!(!harness.state().document.is_dirty());
     let saved = kairos_diagram::load(&path).unwrap().1.diagram;
     assert_eq!(saved.to_ron(), harness.state().document.diagram().to_ron());
     assert!(
@@ -187,4 +208,31 @@ fn a_path_property_is_chosen_in_the_file_chooser() {
         recorder.properties["path"],
         kairos_diagram::Value::Text("Cargo.toml".to_owned())
     );
+}
+
+#[test]
+fn a_box_dragged_on_the_background_selects_what_it_touches() {
+    let mut harness = studio();
+    add_from_palette(&mut harness, "core.sine", Pos2::new(450.0, 250.0));
+    add_from_palette(&mut harness, "core.gain", Pos2::new(800.0, 250.0));
+    add_from_palette(&mut harness, "core.console", Pos2::new(800.0, 600.0));
+    let before = harness.state().document.diagram().clone();
+    let sine = on_canvas(&harness, "component sine1 (core.sine)");
+    let gain = on_canvas(&harness, "component gain1 (core.gain)");
+    // From empty canvas above and left of the sine to below the gain's middle: not the console.
+    drag(
+        &mut harness,
+        sine - Vec2::new(130.0, 90.0),
+        gain + Vec2::new(0.0, 20.0),
+    );
+    let selected: Vec<&str> = harness
+        .state()
+        .canvas
+        .selected
+        .iter()
+        .map(String::as_str)
+        .collect();
+    assert_eq!(selected, ["gain1", "sine1"]);
+    // Nothing moved: the drag selected instead of panning or dragging a node.
+    assert_eq!(harness.state().document.diagram(), &before);
 }
