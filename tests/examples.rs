@@ -12,7 +12,7 @@ use common::{example, kairos, text};
 #[test]
 fn every_example_validates() {
     let dir = tempfile::tempdir().unwrap();
-    for name in ["hello", "camera", "fusion", "record"] {
+    for name in ["hello", "camera", "fusion", "record", "sensors"] {
         let path = example(name);
         let output = kairos(dir.path(), &["validate", path.to_str().unwrap()]);
         let (stdout, stderr) = text(&output);

@@ -6,12 +6,14 @@ use std::path::PathBuf;
 
 use egui::{Color32, RichText};
 use kairos_diagram::{ComponentInstance, LibraryInfo, PropertyKind, ReaderPolicy, Value};
-use kairos_protocol::{RequestBody, RuntimeState};
+use kairos_protocol::{LogLevel, RequestBody, RuntimeState};
 
 use crate::canvas::{Canvas, NewComponent, NodeState, auto_layout};
 use crate::chooser::{self, Choice, FileChooser, Purpose};
 use crate::client::{ClientEvent, RuntimeClient};
 use crate::document::Document;
+use crate::monitor::Monitor;
+use crate::viewers::Viewers;
 
 /// What a request in flight was for.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -47,7 +49,17 @@ pub struct StudioApp {
     start_after_deploy: bool,
     /// The text of the last deploy, to place the runtime's diagnostics on the nodes they concern.
     deployed_text: String,
-    log: VecDeque<(Color32, String)>,
+    log: VecDeque<LogLine>,
+    /// The log panel's filters: the least level shown, and one component (all when `None`).
+    log_level: LogLevel,
+    log_component: Option<String>,
+    bottom_tab: BottomTab,
+    /// Live figures from telemetry.
+    pub monitor: Monitor,
+    /// The open data viewers.
+    pub viewers: Viewers,
+    /// Outputs to open viewers on, and whether to run, once the runtime's library is known (command line).
+    startup: (Vec<String>, bool),
     search: String,
     confirm: Option<AfterDiscard>,
     recent: Vec<PathBuf>,
@@ -73,7 +85,29 @@ impl std::fmt::Debug for StudioApp {
     }
 }
 
-const LOG_LINES: usize = 500;
+const LOG_LINES: usize = 2000;
+/// Viewers get at most this many samples a second per output, always the latest.
+const VIEWER_RATE_HZ: f64 = 30.0;
+/// Wider images are sent scaled down by a whole factor.
+const VIEWER_IMAGE_WIDTH: u32 = 1920;
+const WARN_COLOR: Color32 = Color32::from_rgb(240, 170, 60);
+
+/// One line of the log panel.
+#[derive(Debug, Clone)]
+struct LogLine {
+    color: Color32,
+    level: LogLevel,
+    /// The component it concerns, for runtime records that name one.
+    component: Option<String>,
+    text: String,
+}
+
+/// Which view the bottom panel shows.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum BottomTab {
+    Log,
+    Monitor,
+}
 
 /// Where the studio keeps what it remembers between launches: `$XDG_CONFIG_HOME/kairos` or
 /// `~/.config/kairos`.
@@ -133,6 +167,12 @@ impl StudioApp {
             start_after_deploy: false,
             deployed_text: String::new(),
             log: VecDeque::new(),
+            log_level: LogLevel::Info,
+            log_component: None,
+            bottom_tab: BottomTab::Log,
+            monitor: Monitor::default(),
+            viewers: Viewers::default(),
+            startup: (Vec::new(), false),
             search: String::new(),
             confirm: None,
             recent,
@@ -149,8 +189,25 @@ impl StudioApp {
         app
     }
 
+    /// A line of the studio's own in the log panel; its level follows from its colour.
     fn note(&mut self, color: Color32, text: impl Into<String>) {
-        self.log.push_back((color, text.into()));
+        let level = if color == Color32::LIGHT_RED {
+            LogLevel::Error
+        } else if color == WARN_COLOR {
+            LogLevel::Warn
+        } else {
+            LogLevel::Info
+        };
+        self.log_line(LogLine {
+            color,
+            level,
+            component: None,
+            text: text.into(),
+        });
+    }
+
+    fn log_line(&mut self, line: LogLine) {
+        self.log.push_back(line);
         while self.log.len() > LOG_LINES {
             self.log.pop_front();
         }
@@ -193,7 +250,7 @@ impl StudioApp {
                     );
                     self.request(
                         RequestBody::SubscribeLog {
-                            level: kairos_protocol::LogLevel::Info,
+                            level: LogLevel::Info,
                         },
                         Pending::Other,
                     );
@@ -224,9 +281,13 @@ impl StudioApp {
                             if let Some(library) = reply.result.and_then(|r| serde_json::from_value(r).ok()) {
                                 self.library = library;
                             }
+                            self.start_up();
                         }
                         Some(Pending::Deploy) => {
                             self.states.clear();
+                            self.monitor.clear();
+                            self.run_state = RuntimeState::Ready;
+                            self.subscribe_viewers();
                             self.canvas.port_problems.clear();
                             self.note(Color32::LIGHT_GREEN, "deployed");
                             if std::mem::take(&mut self.start_after_deploy) {
@@ -236,44 +297,60 @@ impl StudioApp {
                         Some(Pending::Other) | None => {}
                     }
                 }
-                ClientEvent::Telemetry(telemetry) => {
-                    self.run_state = telemetry.state;
-                    // A refused deploy's marks stay until the next deploy, whatever runs meanwhile.
-                    let refused: Vec<(String, NodeState)> = self
-                        .states
-                        .iter()
-                        .filter(|(_, s)| matches!(s, NodeState::Invalid(_)))
-                        .map(|(id, s)| (id.clone(), s.clone()))
-                        .collect();
-                    self.states = telemetry
-                        .components
-                        .into_iter()
-                        .map(|c| {
-                            let state = match (c.state.as_str(), c.error) {
-                                ("running", _) => NodeState::Running,
-                                ("finished", _) => NodeState::Finished,
-                                (_, Some(error)) => NodeState::Failed(error),
-                                (other, None) => NodeState::Waiting(other.to_owned()),
-                            };
-                            (c.id, state)
-                        })
-                        .collect();
-                    self.states.extend(refused);
-                }
+                ClientEvent::Telemetry(telemetry) => self.take_telemetry(&telemetry),
                 ClientEvent::Log(record) => {
                     let color = match record.level {
-                        kairos_protocol::LogLevel::Error => Color32::LIGHT_RED,
-                        kairos_protocol::LogLevel::Warn => Color32::YELLOW,
+                        LogLevel::Error => Color32::LIGHT_RED,
+                        LogLevel::Warn => WARN_COLOR,
                         _ => Color32::GRAY,
                     };
-                    let who = record.component.map_or_else(String::new, |c| format!("{c}: "));
-                    self.note(color, format!("{who}{}", record.message));
+                    let who = record
+                        .component
+                        .as_ref()
+                        .map_or_else(String::new, |c| format!("{c}: "));
+                    self.log_line(LogLine {
+                        color,
+                        level: record.level,
+                        component: record.component,
+                        text: format!("{who}{}", record.message),
+                    });
                 }
+                ClientEvent::Sample(header, payload) => self.viewers.receive(&header, &payload),
                 ClientEvent::Disconnected(reason) => {
                     self.connected = false;
                     self.note(Color32::LIGHT_RED, reason);
                 }
             }
+        }
+    }
+
+    /// Node states and live figures from one telemetry event.
+    fn take_telemetry(&mut self, telemetry: &kairos_protocol::Telemetry) {
+        self.run_state = telemetry.state;
+        // A refused deploy's marks stay until the next deploy, whatever runs meanwhile.
+        let refused: Vec<(String, NodeState)> = self
+            .states
+            .iter()
+            .filter(|(_, s)| matches!(s, NodeState::Invalid(_)))
+            .map(|(id, s)| (id.clone(), s.clone()))
+            .collect();
+        self.states = telemetry
+            .components
+            .iter()
+            .cloned()
+            .map(|c| {
+                let state = match (c.state.as_str(), c.error) {
+                    ("running", _) => NodeState::Running,
+                    ("finished", _) => NodeState::Finished,
+                    (_, Some(error)) => NodeState::Failed(error),
+                    (other, None) => NodeState::Waiting(other.to_owned()),
+                };
+                (c.id, state)
+            })
+            .collect();
+        self.states.extend(refused);
+        for notice in self.monitor.update(telemetry) {
+            self.note(WARN_COLOR, notice);
         }
     }
 
@@ -890,6 +967,103 @@ impl StudioApp {
         self.connected
     }
 
+    /// Opens viewers on `outputs` (`component.port`) and, with `run`, deploys and starts the diagram, as soon
+    /// as the runtime's library is known.
+    #[must_use]
+    pub fn with_startup(mut self, outputs: Vec<String>, run: bool) -> Self {
+        self.startup = (outputs, run);
+        self
+    }
+
+    fn start_up(&mut self) {
+        let (outputs, run) = std::mem::take(&mut self.startup);
+        for output in outputs {
+            let port = kairos_diagram::PortRef::parse(&output);
+            match port.and_then(|p| self.document.output_type(&p, &self.library)) {
+                Some(data_type) => self.viewers.open(output, data_type.name()),
+                None => self.note(
+                    Color32::LIGHT_RED,
+                    format!(
+                        "--view {output}: no such output in the diagram (outputs are named component.port)"
+                    ),
+                ),
+            }
+        }
+        if run {
+            self.deploy_and_start();
+        }
+    }
+
+    /// Asks the runtime for the samples of every output a viewer shows (and no others). Before a deployment
+    /// there is nothing to subscribe to; deploying subscribes again.
+    fn subscribe_viewers(&mut self) {
+        if !self.connected || self.run_state == RuntimeState::Empty {
+            return;
+        }
+        self.request(
+            RequestBody::UnsubscribeSamples { outputs: Vec::new() },
+            Pending::Other,
+        );
+        let outputs = self.viewers.outputs();
+        if !outputs.is_empty() {
+            self.request(
+                RequestBody::SubscribeSamples {
+                    outputs,
+                    max_rate_hz: VIEWER_RATE_HZ,
+                    max_image_width: Some(VIEWER_IMAGE_WIDTH),
+                },
+                Pending::Other,
+            );
+        }
+    }
+
+    /// The log (filterable by level and component) or the monitoring panel.
+    fn bottom_panel(&mut self, ui: &mut egui::Ui) {
+        ui.horizontal(|ui| {
+            ui.selectable_value(&mut self.bottom_tab, BottomTab::Log, "Log");
+            ui.selectable_value(&mut self.bottom_tab, BottomTab::Monitor, "Monitor");
+            if self.bottom_tab == BottomTab::Log {
+                ui.separator();
+                egui::ComboBox::from_id_salt("log level")
+                    .selected_text(format!("{:?} and above", self.log_level))
+                    .show_ui(ui, |ui| {
+                        for level in [LogLevel::Debug, LogLevel::Info, LogLevel::Warn, LogLevel::Error] {
+                            ui.selectable_value(&mut self.log_level, level, format!("{level:?} and above"));
+                        }
+                    });
+                let mut components: Vec<String> =
+                    self.log.iter().filter_map(|l| l.component.clone()).collect();
+                components.sort();
+                components.dedup();
+                egui::ComboBox::from_id_salt("log component")
+                    .selected_text(self.log_component.as_deref().unwrap_or("all components"))
+                    .show_ui(ui, |ui| {
+                        ui.selectable_value(&mut self.log_component, None, "all components");
+                        for component in components {
+                            let label = component.clone();
+                            ui.selectable_value(&mut self.log_component, Some(component), label);
+                        }
+                    });
+            }
+        });
+        match self.bottom_tab {
+            BottomTab::Log => {
+                egui::ScrollArea::vertical().stick_to_bottom(true).show(ui, |ui| {
+                    for line in self.log.iter().filter(|l| {
+                        l.level >= self.log_level
+                            && self
+                                .log_component
+                                .as_ref()
+                                .is_none_or(|c| l.component.as_ref() == Some(c))
+                    }) {
+                        ui.colored_label(line.color, &line.text);
+                    }
+                });
+            }
+            BottomTab::Monitor => self.monitor.panel(ui),
+        }
+    }
+
     /// One frame of the whole window (also what the interface tests drive).
     pub fn show(&mut self, ui: &mut egui::Ui) {
         let ctx = ui.ctx().clone();
@@ -920,20 +1094,31 @@ impl StudioApp {
             .default_size(300.0)
             .size_range(220.0..=520.0)
             .show(ui, |ui| self.inspector(ui));
+        if self.viewers.any_docked() {
+            egui::Panel::right("viewers")
+                .default_size(470.0)
+                .size_range(300.0..=900.0)
+                .show(ui, |ui| self.viewers.show_docked(ui));
+        }
         egui::Panel::bottom("log")
-            .default_size(110.0)
-            .size_range(60.0..=400.0)
+            .default_size(150.0)
+            .size_range(60.0..=500.0)
+            .show(ui, |ui| self.bottom_panel(ui));
+        let canvas_rect = egui::CentralPanel::default()
             .show(ui, |ui| {
-                egui::ScrollArea::vertical().stick_to_bottom(true).show(ui, |ui| {
-                    for (color, line) in &self.log {
-                        ui.colored_label(*color, line);
-                    }
-                });
-            });
-        egui::CentralPanel::default().show(ui, |ui| {
-            self.canvas
-                .show(ui, &mut self.document, &self.library, &self.states);
-        });
+                self.canvas
+                    .show(ui, &mut self.document, &self.library, &self.states, &self.monitor);
+                if let Some((port, data_type)) = self.canvas.take_viewer_request() {
+                    self.viewers.open(port.to_string(), &data_type);
+                }
+            })
+            .response
+            .rect;
+        self.monitor.show_notices(&ctx, canvas_rect);
+        self.viewers.show_floating(&ctx);
+        if self.viewers.take_changed() {
+            self.subscribe_viewers();
+        }
         self.dialogs(&ctx);
     }
 }

@@ -4,17 +4,21 @@
 //! `output sine1.out (f64)`, `connection sine1.out -> gain1.in`), so tests and screen readers find them.
 
 use std::collections::{BTreeMap, BTreeSet};
+use std::fmt::Write as _;
 use std::time::{Duration, Instant};
 
 use egui::{Align2, Color32, FontId, Pos2, Rect, Sense, Stroke, StrokeKind, Vec2, WidgetInfo};
 use kairos_diagram::{ComponentInfo, Diagram, LibraryInfo, PortRef, Position};
 
 use crate::document::Document;
+use crate::monitor::{Monitor, milliseconds};
 
 const NODE_WIDTH: f32 = 180.0;
 const HEADER: f32 = 38.0;
 const ROW: f32 = 20.0;
 const PORT_RADIUS: f32 = 5.5;
+/// The colour of lost samples.
+const DROP_COLOR: Color32 = Color32::from_rgb(240, 110, 60);
 
 /// How a component is doing, as the runtime reports it.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -49,6 +53,8 @@ pub struct Canvas {
     /// A box being dragged out on the background to select what it touches (scene coordinates), and
     /// whether it adds to the selection (Shift or Ctrl held when it started).
     rubber_band: Option<(Pos2, Pos2, bool)>,
+    /// An output the user asked to watch (its context menu), with its data type, until the studio takes it.
+    viewer_request: Option<(PortRef, String)>,
 }
 
 impl Default for Canvas {
@@ -63,6 +69,7 @@ impl Default for Canvas {
             to_screen: egui::emath::TSTransform::IDENTITY,
             port_problems: BTreeMap::new(),
             rubber_band: None,
+            viewer_request: None,
         }
     }
 }
@@ -155,6 +162,7 @@ impl Canvas {
         document: &mut Document,
         library: &LibraryInfo,
         states: &BTreeMap<String, NodeState>,
+        monitor: &Monitor,
     ) {
         // A primary drag on the background selects with a box; the middle or secondary button (or scrolling)
         // pans, as in most node editors.
@@ -203,12 +211,15 @@ impl Canvas {
                 let color = document
                     .output_type(&connection.from, library)
                     .map_or(Color32::GRAY, |t| type_color(t.name()));
-                edge(
-                    &painter,
-                    from,
-                    to,
-                    Stroke::new(if selected { 4.0 } else { 2.0 }, color),
-                );
+                let figures = monitor.link(&connection.from, &connection.to);
+                // A connection that lost samples lately turns to the warning colour and thickens.
+                let dropping = figures.is_some_and(crate::monitor::LinkHistory::dropping);
+                let stroke = match (dropping, selected) {
+                    (true, _) => Stroke::new(4.0, DROP_COLOR),
+                    (false, true) => Stroke::new(4.0, color),
+                    (false, false) => Stroke::new(2.0, color),
+                };
+                edge(&painter, from, to, stroke);
                 let policy = connection.policy.or_else(|| {
                     diagram
                         .component(&connection.to.component)
@@ -241,8 +252,8 @@ impl Canvas {
                     FontId::proportional(11.0),
                     color,
                 );
-                clicked.on_hover_text(format!(
-                    "{} → {}\nreader policy: {}{}",
+                let mut hover = format!(
+                    "{} -> {}\nreader policy: {}{}",
                     connection.from,
                     connection.to,
                     policy.map_or("?", kairos_diagram::ReaderPolicy::name),
@@ -251,7 +262,41 @@ impl Canvas {
                     } else {
                         ""
                     }
-                ));
+                );
+                if let Some(figures) = figures {
+                    let t = &figures.latest;
+                    let live = format!("{:.0} Hz · {}", t.rate_hz, milliseconds(t.latency.p50_ns));
+                    painter.text(
+                        label_rect.center_bottom() + Vec2::new(0.0, 2.0),
+                        Align2::CENTER_TOP,
+                        &live,
+                        FontId::proportional(10.0),
+                        ui.visuals().weak_text_color(),
+                    );
+                    if t.overwritten > 0 {
+                        painter.text(
+                            label_rect.center_bottom() + Vec2::new(0.0, 14.0),
+                            Align2::CENTER_TOP,
+                            format!("{} lost", t.overwritten),
+                            FontId::proportional(10.5),
+                            DROP_COLOR,
+                        );
+                    }
+                    let _ = write!(
+                        hover,
+                        "\n{:.1} samples/s; latency p50 {}, p99 {}\nwritten {}, read {}, skipped {}, lost \
+                         (overwritten unread) {}, queued {}",
+                        t.rate_hz,
+                        milliseconds(t.latency.p50_ns),
+                        milliseconds(t.latency.p99_ns),
+                        t.written,
+                        t.read,
+                        t.skipped,
+                        t.overwritten,
+                        t.queued
+                    );
+                }
+                clicked.on_hover_text(hover);
             }
 
             // Nodes and ports.
@@ -333,6 +378,16 @@ impl Canvas {
                     FontId::proportional(10.5),
                     visuals.weak_text_color(),
                 );
+                if let Some(figures) = monitor.components.get(&component.id) {
+                    let t = &figures.latest;
+                    painter.text(
+                        g.rect.right_top() + Vec2::new(-8.0, 5.0),
+                        Align2::RIGHT_TOP,
+                        format!("{:.0}/s · {:.0} % CPU", t.cycle_rate_hz, t.cpu_share * 100.0),
+                        FontId::proportional(10.0),
+                        visuals.weak_text_color(),
+                    );
+                }
                 if let Some(NodeState::Failed(error)) = state {
                     node.clone().on_hover_text(format!("failed: {error}"));
                 } else if let Some(info) = info {
@@ -382,7 +437,11 @@ impl Canvas {
                     let data_type = document.output_type(&port, library);
                     let type_name = data_type.as_ref().map_or("?", |t| t.name()).to_owned();
                     let hit = Rect::from_center_size(*at, Vec2::splat(PORT_RADIUS * 3.0));
-                    let response = ui.interact(hit, ui.make_persistent_id(("output", &port)), Sense::drag());
+                    let response = ui.interact(
+                        hit,
+                        ui.make_persistent_id(("output", &port)),
+                        Sense::click_and_drag(),
+                    );
                     let label = format!("output {port} ({type_name})");
                     response.widget_info(|| WidgetInfo::labeled(egui::Role::Button, true, &label));
                     if response.drag_started() {
@@ -397,6 +456,13 @@ impl Canvas {
                     if response.drag_stopped() {
                         link_released = true;
                     }
+                    let viewer = crate::viewers::ViewerKind::for_type(&type_name);
+                    response.context_menu(|ui| {
+                        if ui.button(format!("Open a viewer ({})", viewer.name())).clicked() {
+                            self.viewer_request = Some((port.clone(), type_name.clone()));
+                            ui.close();
+                        }
+                    });
                     painter.circle_filled(*at, PORT_RADIUS, type_color(&type_name));
                     painter.text(
                         *at - Vec2::new(9.0, 0.0),
@@ -519,6 +585,11 @@ impl Canvas {
                 }
             }
         }
+    }
+
+    /// The output the user asked to open a viewer on, with its data type, if any since the last call.
+    pub fn take_viewer_request(&mut self) -> Option<(PortRef, String)> {
+        self.viewer_request.take()
     }
 
     /// Where a point of the canvas (a node's or port's accessible bounds, which are in canvas coordinates)

@@ -22,6 +22,8 @@ pub enum ClientEvent {
     Telemetry(Telemetry),
     /// A log record.
     Log(LogRecord),
+    /// A sample of a subscribed output: its header and payload bytes.
+    Sample(kairos_protocol::frame::SampleHeader, Vec<u8>),
     /// The connection failed or ended, and why.
     Disconnected(String),
 }
@@ -154,6 +156,18 @@ fn run(
                     return "the studio closed the connection".to_owned();
                 }
                 wake();
+            }
+            Ok(Message::Binary(frame)) => {
+                // A frame that does not decode is skipped: one bad sample must not end the session.
+                if let Ok((header, payload)) = kairos_protocol::frame::decode(&frame) {
+                    if events
+                        .send(ClientEvent::Sample(header, payload.to_vec()))
+                        .is_err()
+                    {
+                        return "the studio closed the connection".to_owned();
+                    }
+                    wake();
+                }
             }
             Ok(Message::Close(_)) => return format!("the runtime at {url} closed the connection"),
             Ok(_) => {}

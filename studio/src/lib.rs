@@ -8,6 +8,8 @@ pub mod chooser;
 pub mod client;
 pub mod document;
 pub mod local;
+pub mod monitor;
+pub mod viewers;
 
 pub use app::StudioApp;
 pub use document::Document;

@@ -1,4 +1,5 @@
-//! `kairos-studio [FILE] [--connect ws://HOST:PORT --token-file FILE]`: the studio. Without `--connect` it
+//! `kairos-studio [FILE] [--connect ws://HOST:PORT --token-file FILE] [--view OUTPUT]... [--run]`: the
+//! studio. Without `--connect` it
 //! starts a local runtime (`kairos serve` on loopback with a fresh token) and drives that.
 
 use std::path::PathBuf;
@@ -12,6 +13,8 @@ struct Arguments {
     file: Option<PathBuf>,
     connect: Option<String>,
     token_file: Option<PathBuf>,
+    views: Vec<String>,
+    run: bool,
 }
 
 fn arguments() -> Result<Arguments, String> {
@@ -19,6 +22,8 @@ fn arguments() -> Result<Arguments, String> {
         file: None,
         connect: None,
         token_file: None,
+        views: Vec::new(),
+        run: false,
     };
     let mut args = std::env::args().skip(1);
     while let Some(arg) = args.next() {
@@ -27,9 +32,16 @@ fn arguments() -> Result<Arguments, String> {
             "--token-file" => {
                 parsed.token_file = Some(args.next().ok_or("--token-file needs a file")?.into());
             }
+            "--view" => parsed
+                .views
+                .push(args.next().ok_or("--view needs an output (component.port)")?),
+            "--run" => parsed.run = true,
             "-h" | "--help" => {
                 return Err(
-                    "usage: kairos-studio [FILE] [--connect ws://HOST:PORT --token-file FILE]".to_owned(),
+                    "usage: kairos-studio [FILE] [--connect ws://HOST:PORT --token-file FILE] \
+                     [--view OUTPUT]... [--run]\n  --view camera.image  opens a viewer on that output\n  \
+                     --run                deploys and starts the diagram once connected"
+                        .to_owned(),
                 );
             }
             other if other.starts_with('-') => return Err(format!("unknown option {other}")),
@@ -124,6 +136,7 @@ fn main() -> ExitCode {
         "Kairos studio",
         options,
         Box::new(move |creation| {
+            let (views, run) = (arguments.views, arguments.run);
             let ctx = creation.egui_ctx.clone();
             let client = url.map(|url| RuntimeClient::connect(&url, token, move || ctx.request_repaint()));
             let app = StudioApp::new(
@@ -132,7 +145,8 @@ fn main() -> ExitCode {
                 client,
                 label,
                 local,
-            );
+            )
+            .with_startup(views, run);
             for note in notes {
                 eprintln!("{note}");
             }

@@ -164,3 +164,109 @@ fn the_connect_dialog_connects_to_a_runtime_and_remembers_it() {
         "the token itself is never written"
     );
 }
+
+/// Opens a viewer on `output` through its context menu on the canvas.
+fn open_viewer(harness: &mut Harness<'_, StudioApp>, output: &str, menu_entry: &str) {
+    let port = harness.get_by_label(output).rect().center();
+    let at = harness.state().canvas.to_screen(port);
+    harness.hover_at(at);
+    harness.run_steps(1);
+    for pressed in [true, false] {
+        harness.event(egui::Event::PointerButton {
+            pos: at,
+            button: egui::PointerButton::Secondary,
+            pressed,
+            modifiers: egui::Modifiers::NONE,
+        });
+        harness.run_steps(1);
+    }
+    harness.run_steps(1);
+    harness.get_by_label(menu_entry).click();
+    harness.run_steps(2);
+}
+
+#[test]
+fn viewers_and_monitoring_show_a_running_diagram() {
+    let local = LocalRuntime::start_binary(&kairos_binary()).unwrap();
+    let client = RuntimeClient::connect(&local.url, Some(local.token.clone()), || {});
+    let example = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../examples/sensors.ron");
+    let app = StudioApp::new(
+        Document::open(&example).unwrap(),
+        kairos_diagram::LibraryInfo::default(),
+        Some(client),
+        "local runtime".to_owned(),
+        Some(local),
+    );
+    let mut harness = Harness::new_ui_state(|ui, app: &mut StudioApp| app.show(ui), app);
+    harness.set_size(Vec2::new(1400.0, 900.0));
+    run_until(&mut harness, "the connection", StudioApp::is_connected);
+    run_until(&mut harness, "the library", |app| {
+        app.library.component("sensors.camera").is_some()
+    });
+    harness.run_steps(2);
+    open_viewer(
+        &mut harness,
+        "output camera.image (image)",
+        "Open a viewer (image)",
+    );
+    open_viewer(&mut harness, "output imu.imu (imu)", "Open a viewer (plot)");
+    open_viewer(
+        &mut harness,
+        "output gnss.fix (gnss_fix)",
+        "Open a viewer (GNSS track)",
+    );
+    open_viewer(&mut harness, "output counter.out (i64)", "Open a viewer (plot)");
+    assert_eq!(harness.state().viewers.list.len(), 4);
+
+    harness.get_by_label("Run").click();
+    harness.run_steps(1);
+    run_until(&mut harness, "every viewer's first samples", |app| {
+        let list = &app.viewers.list;
+        list[0].texture_size().is_some()
+            && list[1].series().len() == 6
+            && list[2].track().len() >= 3
+            && list[3].series().first().is_some_and(|(_, n)| *n >= 10)
+    });
+    let list = &harness.state().viewers.list;
+    assert_eq!(
+        list[0].texture_size(),
+        Some([320, 240]),
+        "the camera's frames, full size"
+    );
+    assert!(
+        list[1]
+            .series()
+            .iter()
+            .any(|(name, _)| *name == "linear_acceleration.z")
+    );
+    // The simulated vehicle stays within a few kilometres of its reference point.
+    assert!(
+        list[2]
+            .track()
+            .iter()
+            .all(|[e, n]| e.abs() < 5_000.0 && n.abs() < 5_000.0)
+    );
+
+    // The slow consumer's 4-sample FIFO overflows: the monitor counts the losses and raises a notice that
+    // names the link.
+    run_until(&mut harness, "the overflow on the canvas", |app| {
+        app.monitor
+            .links
+            .get("counter.out -> slow.in")
+            .is_some_and(|l| l.latest.overwritten > 0 && l.dropping())
+    });
+    run_until(&mut harness, "the overflow notice", |app| {
+        app.monitor
+            .recent_notices()
+            .any(|n| n.starts_with("counter.out -> slow.in:") && n.contains("lost"))
+    });
+    run_until(&mut harness, "the camera's cycle rate", |app| {
+        app.monitor
+            .components
+            .get("camera")
+            .is_some_and(|c| c.latest.state == "running" && c.latest.cycle_rate_hz > 5.0)
+    });
+
+    harness.get_by_label("Stop").click();
+    harness.run_steps(1);
+}

@@ -1,0 +1,353 @@
+//! Live monitoring, fed by the runtime's telemetry: each link's rate, latency and losses, each component's
+//! state, cycle rate and CPU share, a short history of each for sparklines, and notices when samples are lost
+//! or a component fails. The canvas draws the latest figures on connections and nodes; the monitoring panel
+//! lists them all.
+
+use std::collections::{BTreeMap, VecDeque};
+use std::time::{Duration, Instant};
+
+use egui::{Color32, RichText, Sense, Stroke, Vec2};
+use kairos_protocol::{ComponentTelemetry, LinkTelemetry, Telemetry};
+
+/// How many telemetry periods a sparkline shows (a minute at the studio's 4 Hz).
+const HISTORY: usize = 240;
+/// How long a connection stays marked after it lost samples.
+pub const DROP_MARK: Duration = Duration::from_secs(3);
+/// How long a notice stays on the canvas.
+const NOTICE_SHOWN: Duration = Duration::from_secs(8);
+/// The least time between two notices about the same link.
+const NOTICE_EVERY: Duration = Duration::from_secs(5);
+
+/// One link's latest figures and recent history.
+#[derive(Debug, Clone)]
+pub struct LinkHistory {
+    /// The latest telemetry.
+    pub latest: LinkTelemetry,
+    /// Samples per second, oldest first.
+    pub rates: VecDeque<f32>,
+    /// p99 latency in milliseconds, oldest first.
+    pub latencies_ms: VecDeque<f32>,
+    /// When it last lost samples (overwritten unread).
+    pub last_drop: Option<Instant>,
+    last_notice: Option<Instant>,
+}
+
+impl LinkHistory {
+    /// Whether it lost samples lately.
+    pub fn dropping(&self) -> bool {
+        self.last_drop.is_some_and(|at| at.elapsed() < DROP_MARK)
+    }
+}
+
+/// One component's latest figures and recent history.
+#[derive(Debug, Clone)]
+pub struct ComponentHistory {
+    /// The latest telemetry.
+    pub latest: ComponentTelemetry,
+    /// Cycles per second, oldest first.
+    pub rates: VecDeque<f32>,
+    /// Share of one core in percent, oldest first.
+    pub cpu: VecDeque<f32>,
+}
+
+/// What the panel's tables are sorted by.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum SortBy {
+    /// Name (link or component id).
+    Name,
+    /// Rate.
+    Rate,
+    /// Latency (links) or CPU share (components).
+    Cost,
+    /// Samples lost (links) or state (components).
+    Trouble,
+}
+
+/// The monitoring state of the studio.
+#[derive(Debug)]
+pub struct Monitor {
+    /// Per link name (`a.out -> b.in`).
+    pub links: BTreeMap<String, LinkHistory>,
+    /// Per component id.
+    pub components: BTreeMap<String, ComponentHistory>,
+    notices: VecDeque<(String, Instant)>,
+    sort: SortBy,
+    descending: bool,
+}
+
+impl Default for Monitor {
+    fn default() -> Self {
+        Monitor {
+            links: BTreeMap::new(),
+            components: BTreeMap::new(),
+            notices: VecDeque::new(),
+            sort: SortBy::Name,
+            descending: false,
+        }
+    }
+}
+
+fn push(history: &mut VecDeque<f32>, value: f32) {
+    if history.len() == HISTORY {
+        history.pop_front();
+    }
+    history.push_back(value);
+}
+
+impl Monitor {
+    /// Forgets everything (a new deployment).
+    pub fn clear(&mut self) {
+        self.links.clear();
+        self.components.clear();
+    }
+
+    /// Takes in one telemetry event; returns the notices it raised (samples lost, a component failed).
+    pub fn update(&mut self, telemetry: &Telemetry) -> Vec<String> {
+        let now = Instant::now();
+        let mut raised = Vec::new();
+        for link in &telemetry.links {
+            let entry = self
+                .links
+                .entry(link.link.clone())
+                .or_insert_with(|| LinkHistory {
+                    latest: link.clone(),
+                    rates: VecDeque::new(),
+                    latencies_ms: VecDeque::new(),
+                    last_drop: (link.overwritten > 0).then_some(now),
+                    last_notice: None,
+                });
+            let lost = link.overwritten.saturating_sub(entry.latest.overwritten);
+            if lost > 0 || (entry.rates.is_empty() && link.overwritten > 0) {
+                entry.last_drop = Some(now);
+                if entry.last_notice.is_none_or(|at| now - at >= NOTICE_EVERY) {
+                    entry.last_notice = Some(now);
+                    raised.push(format!(
+                        "{}: {} samples lost so far (the reader is slower than the writer and its {} \
+                         buffer overflowed; a larger buffer, subsampling or LastOrNext helps)",
+                        link.link, link.overwritten, link.policy
+                    ));
+                }
+            }
+            push(&mut entry.rates, link.rate_hz as f32);
+            push(&mut entry.latencies_ms, link.latency.p99_ns as f32 / 1e6);
+            entry.latest = link.clone();
+        }
+        for component in &telemetry.components {
+            let entry = self
+                .components
+                .entry(component.id.clone())
+                .or_insert_with(|| ComponentHistory {
+                    latest: component.clone(),
+                    rates: VecDeque::new(),
+                    cpu: VecDeque::new(),
+                });
+            let newly_failed =
+                component.state == "failed" && (entry.latest.state != "failed" || entry.rates.is_empty());
+            if newly_failed {
+                raised.push(format!(
+                    "{} failed: {}",
+                    component.id,
+                    component.error.as_deref().unwrap_or("no reason given")
+                ));
+            }
+            push(&mut entry.rates, component.cycle_rate_hz as f32);
+            push(&mut entry.cpu, (component.cpu_share * 100.0) as f32);
+            entry.latest = component.clone();
+        }
+        for notice in &raised {
+            self.notices.push_back((notice.clone(), now));
+        }
+        while self.notices.len() > 8 {
+            self.notices.pop_front();
+        }
+        raised
+    }
+
+    /// A link's figures, by its ends.
+    pub fn link(&self, from: &kairos_diagram::PortRef, to: &kairos_diagram::PortRef) -> Option<&LinkHistory> {
+        self.links.get(&format!("{from} -> {to}"))
+    }
+
+    /// The notices raised lately, newest last.
+    pub fn recent_notices(&self) -> impl Iterator<Item = &str> {
+        self.notices
+            .iter()
+            .filter(|(_, at)| at.elapsed() < NOTICE_SHOWN)
+            .map(|(text, _)| text.as_str())
+    }
+
+    /// Shows the recent notices over the canvas, top right.
+    pub fn show_notices(&self, ctx: &egui::Context, over: egui::Rect) {
+        let recent: Vec<&str> = self.recent_notices().collect();
+        if recent.is_empty() {
+            return;
+        }
+        egui::Area::new(egui::Id::unique("monitor notices"))
+            .fixed_pos(over.right_top() + Vec2::new(-430.0, 8.0))
+            .show(ctx, |ui| {
+                egui::Frame::popup(ui.style()).show(ui, |ui| {
+                    ui.set_max_width(410.0);
+                    for text in recent {
+                        ui.label(RichText::new(format!("! {text}")).color(Color32::from_rgb(240, 140, 60)));
+                    }
+                });
+            });
+        ctx.request_repaint_after(Duration::from_millis(500));
+    }
+
+    fn sort_header(&mut self, ui: &mut egui::Ui, label: &str, by: SortBy) {
+        let arrow = match (self.sort == by, self.descending) {
+            (true, false) => " ^",
+            (true, true) => " v",
+            _ => "",
+        };
+        if ui
+            .add(egui::Button::new(RichText::new(format!("{label}{arrow}")).strong()).frame(false))
+            .on_hover_text("sort by this column")
+            .clicked()
+        {
+            if self.sort == by {
+                self.descending = !self.descending;
+            } else {
+                self.sort = by;
+                self.descending = by != SortBy::Name;
+            }
+        }
+    }
+
+    /// Link names in the panel's order.
+    pub fn sorted_links(&self) -> Vec<&LinkHistory> {
+        let mut links: Vec<&LinkHistory> = self.links.values().collect();
+        links.sort_by(|a, b| {
+            let (a, b) = (&a.latest, &b.latest);
+            match self.sort {
+                SortBy::Name => a.link.cmp(&b.link),
+                SortBy::Rate => a.rate_hz.total_cmp(&b.rate_hz),
+                SortBy::Cost => a.latency.p99_ns.cmp(&b.latency.p99_ns),
+                SortBy::Trouble => a.overwritten.cmp(&b.overwritten),
+            }
+        });
+        if self.descending {
+            links.reverse();
+        }
+        links
+    }
+
+    fn sorted_components(&self) -> Vec<&ComponentHistory> {
+        let mut components: Vec<&ComponentHistory> = self.components.values().collect();
+        components.sort_by(|a, b| {
+            let (a, b) = (&a.latest, &b.latest);
+            match self.sort {
+                SortBy::Name => a.id.cmp(&b.id),
+                SortBy::Rate => a.cycle_rate_hz.total_cmp(&b.cycle_rate_hz),
+                SortBy::Cost => a.cpu_share.total_cmp(&b.cpu_share),
+                SortBy::Trouble => a.state.cmp(&b.state),
+            }
+        });
+        if self.descending {
+            components.reverse();
+        }
+        components
+    }
+
+    /// The monitoring panel: every link and component, sortable by clicking a column's title, with
+    /// sparklines of the last minute.
+    pub fn panel(&mut self, ui: &mut egui::Ui) {
+        if self.links.is_empty() && self.components.is_empty() {
+            ui.weak("Nothing deployed: run a diagram to see its links and components here.");
+            return;
+        }
+        egui::ScrollArea::vertical().show(ui, |ui| {
+            egui::Grid::new("links")
+                .striped(true)
+                .num_columns(7)
+                .show(ui, |ui| {
+                    self.sort_header(ui, "link", SortBy::Name);
+                    ui.strong("policy");
+                    self.sort_header(ui, "rate", SortBy::Rate);
+                    ui.strong("last minute");
+                    self.sort_header(ui, "latency p50 / p99", SortBy::Cost);
+                    self.sort_header(ui, "lost", SortBy::Trouble);
+                    ui.strong("queued / skipped");
+                    ui.end_row();
+                    for link in self.sorted_links() {
+                        let t = &link.latest;
+                        ui.label(&t.link);
+                        ui.label(t.policy.name());
+                        ui.label(format!("{:.1} Hz", t.rate_hz));
+                        sparkline(ui, &link.rates, Color32::LIGHT_BLUE);
+                        ui.label(format!(
+                            "{} / {}",
+                            milliseconds(t.latency.p50_ns),
+                            milliseconds(t.latency.p99_ns)
+                        ));
+                        let lost = RichText::new(t.overwritten.to_string());
+                        ui.label(if link.dropping() {
+                            lost.color(Color32::from_rgb(240, 110, 60)).strong()
+                        } else {
+                            lost
+                        });
+                        ui.label(format!("{} / {}", t.queued, t.skipped));
+                        ui.end_row();
+                    }
+                });
+            ui.separator();
+            egui::Grid::new("components")
+                .striped(true)
+                .num_columns(6)
+                .show(ui, |ui| {
+                    self.sort_header(ui, "component", SortBy::Name);
+                    self.sort_header(ui, "state", SortBy::Trouble);
+                    self.sort_header(ui, "cycles/s", SortBy::Rate);
+                    ui.strong("last minute");
+                    self.sort_header(ui, "CPU", SortBy::Cost);
+                    ui.strong("last minute");
+                    ui.end_row();
+                    for component in self.sorted_components() {
+                        let t = &component.latest;
+                        ui.label(&t.id);
+                        let state = RichText::new(&t.state);
+                        let state = if t.state == "failed" {
+                            state.color(Color32::LIGHT_RED)
+                        } else {
+                            state
+                        };
+                        let response = ui.label(state);
+                        if let Some(error) = &t.error {
+                            response.on_hover_text(error);
+                        }
+                        ui.label(format!("{:.1}", t.cycle_rate_hz));
+                        sparkline(ui, &component.rates, Color32::LIGHT_GREEN);
+                        ui.label(format!("{:.1} %", t.cpu_share * 100.0));
+                        sparkline(ui, &component.cpu, Color32::GOLD);
+                        ui.end_row();
+                    }
+                });
+        });
+    }
+}
+
+/// A latency in nanoseconds, in milliseconds or microseconds.
+pub fn milliseconds(ns: i64) -> String {
+    if ns.abs() >= 1_000_000 {
+        format!("{:.1} ms", ns as f64 / 1e6)
+    } else {
+        format!("{} µs", ns / 1_000)
+    }
+}
+
+/// A small line of `values` scaled to their own maximum.
+fn sparkline(ui: &mut egui::Ui, values: &VecDeque<f32>, color: Color32) {
+    let (rect, _) = ui.allocate_exact_size(Vec2::new(90.0, 16.0), Sense::hover());
+    let max = values.iter().copied().fold(0.0_f32, f32::max).max(f32::EPSILON);
+    let step = rect.width() / (HISTORY - 1) as f32;
+    let start = rect.right() - step * values.len().saturating_sub(1) as f32;
+    let points: Vec<egui::Pos2> = values
+        .iter()
+        .enumerate()
+        .map(|(i, v)| egui::pos2(start + step * i as f32, rect.bottom() - rect.height() * (v / max)))
+        .collect();
+    ui.painter().rect_filled(rect, 2.0, ui.visuals().extreme_bg_color);
+    ui.painter()
+        .add(egui::Shape::line(points, Stroke::new(1.2, color)));
+}

@@ -1,0 +1,638 @@
+//! Data viewers: floating windows that show the samples of one output as they arrive. The kind follows the
+//! output's data type: images as GPU textures, numbers, vectors, IMU and poses as plots against time, GNSS
+//! fixes as a track on a local metric plane, anything else as a table of the latest samples. Viewers get
+//! samples as protocol frames (header and bytes) and do not care how they travelled.
+
+use std::collections::VecDeque;
+
+use egui::{Color32, ColorImage, RichText, TextureHandle, TextureOptions, Vec2};
+use egui_plot::{Legend, Line, Plot, PlotPoints, Points};
+use kairos_protocol::frame::SampleHeader;
+
+/// The most points a series keeps (at 30 Hz, more than five minutes to scroll back through).
+const SERIES_POINTS: usize = 10_000;
+/// The most rows a table keeps.
+const TABLE_ROWS: usize = 200;
+/// The time window a live plot follows, in seconds.
+const LIVE_WINDOW_S: f64 = 10.0;
+/// Mean Earth radius (IUGG), for the local projection of GNSS fixes.
+const EARTH_RADIUS_M: f64 = 6_371_008.8;
+
+/// How a viewer shows its samples.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ViewerKind {
+    /// An image.
+    Image,
+    /// Numbers against time.
+    Plot,
+    /// GNSS fixes on a plane.
+    Track,
+    /// The latest samples as text.
+    Table,
+}
+
+impl ViewerKind {
+    /// The viewer a data type gets.
+    pub fn for_type(data_type: &str) -> ViewerKind {
+        match data_type {
+            "image" => ViewerKind::Image,
+            "f64" | "i64" | "bool" | "vector" | "imu" | "pose" => ViewerKind::Plot,
+            "gnss_fix" => ViewerKind::Track,
+            _ => ViewerKind::Table,
+        }
+    }
+
+    /// What the viewer is called in menus and titles.
+    pub fn name(self) -> &'static str {
+        match self {
+            ViewerKind::Image => "image",
+            ViewerKind::Plot => "plot",
+            ViewerKind::Track => "GNSS track",
+            ViewerKind::Table => "latest samples",
+        }
+    }
+}
+
+/// The latest image and what is needed to read its pixels back.
+struct Frame {
+    texture: TextureHandle,
+    pixels: ColorImage,
+    original_width: Option<u32>,
+}
+
+/// One open viewer.
+#[allow(clippy::struct_excessive_bools, reason = "independent switches of one window")]
+pub struct Viewer {
+    id: u64,
+    /// The output it shows (`camera.image`).
+    pub output: String,
+    /// How it shows it.
+    pub kind: ViewerKind,
+    open: bool,
+    docked: bool,
+    paused: bool,
+    /// Samples received, and samples the runtime did not send (rate limit, slow link).
+    pub received: u64,
+    /// Samples skipped on the way, as the frames reported.
+    pub skipped: u64,
+    first_timestamp_ns: Option<i64>,
+    last: Option<SampleHeader>,
+    pending_image: Option<(ColorImage, Option<u32>)>,
+    frame: Option<Frame>,
+    zoom: f32,
+    /// Whether the zoom follows the viewer's width.
+    fit: bool,
+    /// Plot series: name and (seconds since the first sample, value) points.
+    series: Vec<(String, VecDeque<[f64; 2]>)>,
+    track: Vec<[f64; 2]>,
+    origin: Option<(f64, f64)>,
+    rows: VecDeque<(u64, i64, i64, String)>,
+}
+
+impl std::fmt::Debug for Viewer {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Viewer")
+            .field("output", &self.output)
+            .field("kind", &self.kind)
+            .field("received", &self.received)
+            .finish_non_exhaustive()
+    }
+}
+
+/// Turns frame pixels into an RGBA image; `None` for a layout that does not add up.
+fn color_image(layout: &kairos_protocol::frame::ImageLayout, bytes: &[u8]) -> Option<ColorImage> {
+    let (width, height, stride) = (
+        layout.width as usize,
+        layout.height as usize,
+        layout.stride as usize,
+    );
+    let per_pixel = match layout.format.as_str() {
+        "gray8" => 1,
+        "gray16" => 2,
+        "rgb8" | "bgr8" => 3,
+        "rgba8" | "bgra8" => 4,
+        _ => return None,
+    };
+    if width == 0
+        || height == 0
+        || stride < width * per_pixel
+        || bytes.len() < stride * (height - 1) + width * per_pixel
+    {
+        return None;
+    }
+    let mut rgba = Vec::with_capacity(width * height * 4);
+    for row in 0..height {
+        let line = bytes.get(row * stride..row * stride + width * per_pixel)?;
+        for px in line.chunks_exact(per_pixel) {
+            let [r, g, b, a] = match (layout.format.as_str(), px) {
+                ("gray8", [v]) => [*v, *v, *v, 255],
+                ("gray16", [_, high]) => [*high, *high, *high, 255],
+                ("rgb8", [r, g, b]) | ("bgr8", [b, g, r]) => [*r, *g, *b, 255],
+                ("rgba8", [r, g, b, a]) | ("bgra8", [b, g, r, a]) => [*r, *g, *b, *a],
+                _ => return None,
+            };
+            rgba.extend_from_slice(&[r, g, b, a]);
+        }
+    }
+    Some(ColorImage::from_rgba_unmultiplied([width, height], &rgba))
+}
+
+/// The numbers a plot draws from a sample's JSON value, with their series names.
+fn plotted(data_type: &str, value: &serde_json::Value) -> Vec<(String, f64)> {
+    let xyz = |prefix: &str, v: Option<&serde_json::Value>| -> Vec<(String, f64)> {
+        v.and_then(serde_json::Value::as_array)
+            .map(|a| {
+                a.iter()
+                    .zip(["x", "y", "z"])
+                    .filter_map(|(n, axis)| Some((format!("{prefix}.{axis}"), n.as_f64()?)))
+                    .collect()
+            })
+            .unwrap_or_default()
+    };
+    match data_type {
+        "f64" | "i64" => value
+            .as_f64()
+            .map(|v| vec![("value".to_owned(), v)])
+            .unwrap_or_default(),
+        "bool" => value
+            .as_bool()
+            .map(|v| vec![("value".to_owned(), f64::from(u8::from(v)))])
+            .unwrap_or_default(),
+        "vector" => value
+            .as_array()
+            .map(|a| {
+                a.iter()
+                    .take(16)
+                    .enumerate()
+                    .filter_map(|(i, n)| Some((format!("[{i}]"), n.as_f64()?)))
+                    .collect()
+            })
+            .unwrap_or_default(),
+        "imu" => {
+            let mut values = xyz("angular_velocity", value.get("angular_velocity"));
+            values.extend(xyz("linear_acceleration", value.get("linear_acceleration")));
+            values
+        }
+        "pose" => xyz("position", value.get("position")),
+        _ => Vec::new(),
+    }
+}
+
+impl Viewer {
+    fn new(id: u64, output: String, kind: ViewerKind) -> Viewer {
+        Viewer {
+            id,
+            output,
+            kind,
+            open: true,
+            docked: true,
+            paused: false,
+            received: 0,
+            skipped: 0,
+            first_timestamp_ns: None,
+            last: None,
+            pending_image: None,
+            frame: None,
+            zoom: 1.0,
+            fit: true,
+            series: Vec::new(),
+            track: Vec::new(),
+            origin: None,
+            rows: VecDeque::new(),
+        }
+    }
+
+    /// The plot's series: name and point count.
+    pub fn series(&self) -> Vec<(&str, usize)> {
+        self.series
+            .iter()
+            .map(|(name, points)| (name.as_str(), points.len()))
+            .collect()
+    }
+
+    /// The size of the image shown, once one arrived.
+    pub fn texture_size(&self) -> Option<[usize; 2]> {
+        self.frame.as_ref().map(|f| f.texture.size())
+    }
+
+    /// The track's points so far (metres east and north of the first fix).
+    pub fn track(&self) -> &[[f64; 2]] {
+        &self.track
+    }
+
+    /// The table's rows, newest first: the sample's text.
+    pub fn rows(&self) -> impl Iterator<Item = &str> {
+        self.rows.iter().map(|(_, _, _, text)| text.as_str())
+    }
+
+    fn receive(&mut self, header: &SampleHeader, payload: &[u8]) {
+        self.received += 1;
+        self.skipped += header.skipped;
+        if self.paused {
+            return;
+        }
+        let first = *self.first_timestamp_ns.get_or_insert(header.timestamp_ns);
+        let t = (header.timestamp_ns - first) as f64 / 1e9;
+        let value = header.value.clone().unwrap_or(serde_json::Value::Null);
+        match self.kind {
+            ViewerKind::Image => {
+                if let Some(layout) = &header.image
+                    && let Some(image) = color_image(layout, payload)
+                {
+                    self.pending_image = Some((image, layout.original_width));
+                }
+            }
+            ViewerKind::Plot => {
+                for (name, y) in plotted(&header.data_type, &value) {
+                    let index = self
+                        .series
+                        .iter()
+                        .position(|(n, _)| *n == name)
+                        .unwrap_or_else(|| {
+                            self.series.push((name, VecDeque::new()));
+                            self.series.len() - 1
+                        });
+                    if let Some((_, points)) = self.series.get_mut(index) {
+                        if points.len() == SERIES_POINTS {
+                            points.pop_front();
+                        }
+                        points.push_back([t, y]);
+                    }
+                }
+            }
+            ViewerKind::Track => {
+                let (Some(lat), Some(lon)) = (
+                    value.get("latitude_deg").and_then(serde_json::Value::as_f64),
+                    value.get("longitude_deg").and_then(serde_json::Value::as_f64),
+                ) else {
+                    return;
+                };
+                // Equirectangular around the first fix: metres east and north, exact enough over the
+                // few kilometres a test drive covers.
+                let (lat0, lon0) = *self.origin.get_or_insert((lat, lon));
+                let east = EARTH_RADIUS_M * (lon - lon0).to_radians() * lat0.to_radians().cos();
+                let north = EARTH_RADIUS_M * (lat - lat0).to_radians();
+                if self.track.len() == SERIES_POINTS {
+                    self.track.remove(0);
+                }
+                self.track.push([east, north]);
+            }
+            ViewerKind::Table => {
+                let text = if value.is_null() {
+                    format!("{} bytes", payload.len())
+                } else {
+                    value.to_string()
+                };
+                if self.rows.len() == TABLE_ROWS {
+                    self.rows.pop_back();
+                }
+                self.rows.push_front((
+                    header.sequence,
+                    header.timestamp_ns,
+                    header.time_of_issue_ns - header.timestamp_ns,
+                    text,
+                ));
+            }
+        }
+        self.last = Some(header.clone());
+    }
+
+    fn title(&self) -> String {
+        format!("{} — {}", self.output, self.kind.name())
+    }
+
+    /// Whether it sits in the dock beside the canvas (or floats in a window).
+    pub fn is_docked(&self) -> bool {
+        self.docked
+    }
+
+    fn contents(&mut self, ui: &mut egui::Ui) {
+        self.status(ui);
+        match self.kind {
+            ViewerKind::Image => self.image(ui),
+            ViewerKind::Plot => self.plot(ui),
+            ViewerKind::Track => self.track_view(ui),
+            ViewerKind::Table => self.table(ui),
+        }
+    }
+
+    fn status(&mut self, ui: &mut egui::Ui) {
+        ui.horizontal(|ui| {
+            let label = if self.paused { "Resume" } else { "Pause" };
+            if ui.button(label).clicked() {
+                self.paused = !self.paused;
+            }
+            ui.label(format!("{} received", self.received));
+            if self.skipped > 0 {
+                ui.weak(format!("{} not sent (rate limit)", self.skipped))
+                    .on_hover_text("the viewer gets at most 30 samples a second, always the latest");
+            }
+            if let Some(last) = &self.last {
+                ui.weak(format!(
+                    "#{} · latency {}",
+                    last.sequence,
+                    crate::monitor::milliseconds(last.time_of_issue_ns - last.timestamp_ns)
+                ));
+            }
+        });
+    }
+
+    fn image(&mut self, ui: &mut egui::Ui) {
+        if let Some((image, original_width)) = self.pending_image.take() {
+            if let Some(frame) = &mut self.frame {
+                frame.texture.set(image.clone(), TextureOptions::NEAREST);
+                frame.pixels = image;
+                frame.original_width = original_width;
+            } else {
+                let texture = ui.ctx().load_texture(
+                    format!("viewer {}", self.id),
+                    image.clone(),
+                    TextureOptions::NEAREST,
+                );
+                self.frame = Some(Frame {
+                    texture,
+                    pixels: image,
+                    original_width,
+                });
+            }
+        }
+        ui.horizontal(|ui| {
+            let slider = egui::Slider::new(&mut self.zoom, 0.1..=8.0)
+                .logarithmic(true)
+                .text("zoom");
+            if ui.add(slider).changed() {
+                self.fit = false;
+            }
+            ui.checkbox(&mut self.fit, "fit")
+                .on_hover_text("scale the image to the viewer's width");
+        });
+        if self.fit
+            && let Some(frame) = &self.frame
+        {
+            self.zoom = (ui.available_width() / frame.texture.size_vec2().x).clamp(0.1, 8.0);
+        }
+        let Some(frame) = &self.frame else {
+            ui.weak("waiting for an image…");
+            return;
+        };
+        let size = frame.texture.size_vec2();
+        egui::ScrollArea::both().max_height(600.0).show(ui, |ui| {
+            let response =
+                ui.add(egui::Image::new((frame.texture.id(), size * self.zoom)).sense(egui::Sense::hover()));
+            if let Some(pointer) = response.hover_pos() {
+                let at = (pointer - response.rect.min) / self.zoom;
+                let (x, y) = (at.x as usize, at.y as usize);
+                let [w, h] = frame.pixels.size;
+                if x < w
+                    && y < h
+                    && let Some(pixel) = frame.pixels.pixels.get(y * w + x)
+                {
+                    response.on_hover_text(format!(
+                        "x {x}, y {y}: r {} g {} b {} a {}",
+                        pixel.r(),
+                        pixel.g(),
+                        pixel.b(),
+                        pixel.a()
+                    ));
+                }
+            }
+        });
+        let [w, h] = frame.texture.size();
+        let scaled = frame
+            .original_width
+            .map_or_else(String::new, |o| format!(" (sent scaled down from {o} px wide)"));
+        ui.weak(format!("{w}×{h}{scaled}"));
+    }
+
+    fn plot(&mut self, ui: &mut egui::Ui) {
+        let latest = self
+            .series
+            .iter()
+            .filter_map(|(_, points)| points.back().map(|p| p[0]))
+            .fold(f64::NEG_INFINITY, f64::max);
+        let mut plot = Plot::new(("plot", self.id))
+            .legend(Legend::default())
+            .height(260.0)
+            .x_axis_label("s");
+        if !self.paused && latest.is_finite() {
+            // Live: follow the last seconds; paused: pan and zoom freely through what was kept.
+            plot = plot
+                .include_x(latest - LIVE_WINDOW_S)
+                .include_x(latest)
+                .auto_bounds(egui::Vec2b::new(false, true))
+                .allow_drag(false)
+                .allow_zoom(false)
+                .allow_scroll(false);
+        }
+        let series = &self.series;
+        let live = !self.paused;
+        plot.show(ui, |plot_ui| {
+            if live && latest.is_finite() {
+                plot_ui.set_plot_bounds_x(latest - LIVE_WINDOW_S..=latest);
+            }
+            for (name, points) in series {
+                let points: PlotPoints<'_> = points.iter().copied().collect();
+                plot_ui.line(Line::new(name.clone(), points));
+            }
+        });
+    }
+
+    fn track_view(&self, ui: &mut egui::Ui) {
+        Plot::new(("track", self.id))
+            .data_aspect(1.0)
+            .height(300.0)
+            .x_axis_label("east, m")
+            .y_axis_label("north, m")
+            .show(ui, |plot_ui| {
+                let points: PlotPoints<'_> = self.track.iter().copied().collect();
+                plot_ui.line(Line::new("track", points));
+                if let Some(last) = self.track.last() {
+                    plot_ui.points(
+                        Points::new("now", vec![*last])
+                            .radius(5.0)
+                            .color(Color32::LIGHT_RED),
+                    );
+                }
+            });
+        if let (Some((lat, lon)), Some(last)) = (self.origin, &self.last)
+            && let Some(value) = &last.value
+        {
+            ui.weak(format!(
+                "origin {lat:.6}°, {lon:.6}° · status {}",
+                value
+                    .get("status")
+                    .and_then(serde_json::Value::as_str)
+                    .unwrap_or("?")
+            ));
+        }
+    }
+
+    fn table(&self, ui: &mut egui::Ui) {
+        egui::ScrollArea::vertical().max_height(300.0).show(ui, |ui| {
+            egui::Grid::new(("table", self.id)).striped(true).show(ui, |ui| {
+                ui.strong("#");
+                ui.strong("timestamp (s)");
+                ui.strong("latency");
+                ui.strong("value");
+                ui.end_row();
+                for (sequence, timestamp, latency, text) in &self.rows {
+                    ui.label(sequence.to_string());
+                    ui.label(format!("{:.3}", *timestamp as f64 / 1e9));
+                    ui.label(crate::monitor::milliseconds(*latency));
+                    ui.label(RichText::new(text).monospace());
+                    ui.end_row();
+                }
+            });
+        });
+    }
+}
+
+/// Every open viewer.
+#[derive(Debug, Default)]
+pub struct Viewers {
+    /// The viewers, in the order they were opened.
+    pub list: Vec<Viewer>,
+    next_id: u64,
+    changed: bool,
+}
+
+impl Viewers {
+    /// Opens a viewer of `output` (`component.port`) whose samples are of `data_type`.
+    pub fn open(&mut self, output: String, data_type: &str) {
+        self.next_id += 1;
+        self.list
+            .push(Viewer::new(self.next_id, output, ViewerKind::for_type(data_type)));
+        self.changed = true;
+    }
+
+    /// The outputs the viewers show, each once.
+    pub fn outputs(&self) -> Vec<String> {
+        let mut outputs: Vec<String> = self.list.iter().map(|v| v.output.clone()).collect();
+        outputs.sort();
+        outputs.dedup();
+        outputs
+    }
+
+    /// Whether the set of outputs changed since the last call (a viewer opened or closed).
+    pub fn take_changed(&mut self) -> bool {
+        std::mem::take(&mut self.changed)
+    }
+
+    /// Hands a sample to every viewer of its output.
+    pub fn receive(&mut self, header: &SampleHeader, payload: &[u8]) {
+        for viewer in self.list.iter_mut().filter(|v| v.output == header.output) {
+            viewer.receive(header, payload);
+        }
+    }
+
+    /// Whether any viewer is docked (the studio then shows the dock).
+    pub fn any_docked(&self) -> bool {
+        self.list.iter().any(|v| v.docked)
+    }
+
+    /// The docked viewers, one under the other, each with its title and buttons to float or close it.
+    pub fn show_docked(&mut self, ui: &mut egui::Ui) {
+        egui::ScrollArea::vertical().show(ui, |ui| {
+            for viewer in self.list.iter_mut().filter(|v| v.docked) {
+                ui.push_id(("docked viewer", viewer.id), |ui| {
+                    ui.horizontal(|ui| {
+                        ui.strong(viewer.title());
+                        ui.with_layout(egui::Layout::right_to_left(egui::Align::Center), |ui| {
+                            if ui.button("Close").clicked() {
+                                viewer.open = false;
+                            }
+                            if ui
+                                .button("Float")
+                                .on_hover_text("show it in a window of its own")
+                                .clicked()
+                            {
+                                viewer.docked = false;
+                            }
+                        });
+                    });
+                    viewer.contents(ui);
+                    ui.separator();
+                });
+            }
+        });
+        self.forget_closed();
+    }
+
+    /// The floating viewers, each in a window of its own.
+    pub fn show_floating(&mut self, ctx: &egui::Context) {
+        let screen = ctx.content_rect();
+        for (index, viewer) in self.list.iter_mut().enumerate().filter(|(_, v)| !v.docked) {
+            let mut open = viewer.open;
+            let step = (index % 8) as f32 * 32.0;
+            let at = egui::pos2(screen.center().x - 240.0 + step, screen.top() + 80.0 + step);
+            let mut dock = false;
+            egui::Window::new(viewer.title())
+                .id(egui::Id::unique(("viewer", viewer.id)))
+                .open(&mut open)
+                .default_pos(at)
+                .default_size(Vec2::new(480.0, 360.0))
+                .resizable(true)
+                .show(ctx, |ui| {
+                    dock = ui
+                        .button("Dock")
+                        .on_hover_text("put it back beside the canvas")
+                        .clicked();
+                    viewer.contents(ui);
+                });
+            viewer.open = open;
+            if dock {
+                viewer.docked = true;
+            }
+        }
+        self.forget_closed();
+    }
+
+    fn forget_closed(&mut self) {
+        let before = self.list.len();
+        self.list.retain(|v| v.open);
+        if self.list.len() != before {
+            self.changed = true;
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn images_of_every_format_become_rgba() {
+        let layout = |format: &str, stride| kairos_protocol::frame::ImageLayout {
+            width: 2,
+            height: 1,
+            format: format.to_owned(),
+            stride,
+            original_width: None,
+        };
+        let bgr = color_image(&layout("bgr8", 6), &[1, 2, 3, 4, 5, 6]);
+        assert_eq!(
+            bgr.map(|i| i.pixels),
+            Some(vec![Color32::from_rgb(3, 2, 1), Color32::from_rgb(6, 5, 4)])
+        );
+        assert!(
+            color_image(&layout("rgb8", 6), &[1, 2, 3]).is_none(),
+            "too few bytes"
+        );
+        assert!(
+            color_image(&layout("yuv", 6), &[0; 6]).is_none(),
+            "unknown format"
+        );
+    }
+
+    #[test]
+    fn imu_samples_plot_six_series() {
+        let value = serde_json::json!({
+            "angular_velocity": [0.1, 0.2, 0.3],
+            "linear_acceleration": [1.0, 2.0, 9.8],
+            "orientation": null
+        });
+        let plotted = plotted("imu", &value);
+        assert_eq!(plotted.len(), 6);
+        assert_eq!(plotted[5], ("linear_acceleration.z".to_owned(), 9.8));
+    }
+}
