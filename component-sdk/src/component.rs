@@ -231,6 +231,28 @@ pub struct Context {
     remote: Option<crate::abi::RemoteHost>,
     /// The diagram this component runs in, as its file text, when the runtime provides it.
     diagram_text: Option<Arc<str>>,
+    /// What the component last said about itself (see [`Context::set_status`]).
+    status: StatusCell,
+}
+
+/// A component's latest self-description, shared between its context and the runtime that reports it.
+#[derive(Debug, Clone, Default)]
+pub struct StatusCell(Arc<std::sync::Mutex<Option<serde_json::Value>>>);
+
+impl StatusCell {
+    /// The latest status, if the component set one.
+    pub fn get(&self) -> Option<serde_json::Value> {
+        self.0
+            .lock()
+            .map_or_else(|p| p.into_inner().clone(), |s| s.clone())
+    }
+
+    fn set(&self, status: serde_json::Value) {
+        match self.0.lock() {
+            Ok(mut slot) => *slot = Some(status),
+            Err(poisoned) => *poisoned.into_inner() = Some(status),
+        }
+    }
 }
 
 impl Context {
@@ -248,6 +270,7 @@ impl Context {
             any_rotation: 0,
             remote: None,
             diagram_text: None,
+            status: StatusCell::default(),
         }
     }
 
@@ -301,6 +324,18 @@ impl Context {
                 .and_then(InputPort::reader)
                 .is_some_and(Reader::is_exhausted),
         }
+    }
+
+    /// Publishes what the component wants its users to see about it (a player's position and duration, a
+    /// recorder's file and size), as JSON; the runtime sends the latest with its telemetry and the studio
+    /// shows it. Cheap, but meant for a few updates a second, not one per sample.
+    pub fn set_status(&self, status: serde_json::Value) {
+        self.status.set(status);
+    }
+
+    /// The cell the runtime reads the status from.
+    pub fn status_cell(&self) -> StatusCell {
+        self.status.clone()
     }
 
     /// The component instance's id in the diagram.

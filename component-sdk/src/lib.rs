@@ -27,7 +27,7 @@ pub mod time;
 pub use buffer::{OutputBuffer, ReadError, Reader, ReaderConfig, WriteError};
 pub use component::{
     Component, ComponentError, ComponentResult, Context, ContextParts, InputPort, OutputPort, PortKey,
-    Synchronizer,
+    StatusCell, Synchronizer,
 };
 pub use kairos_diagram::{
     ComponentInfo, DataType, DescribeError, ExecutionMode, LibraryInfo, OutputInfo, PackInfo, PropertyKind,

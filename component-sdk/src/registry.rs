@@ -151,6 +151,7 @@ impl Registry {
                 .map(|(name, c)| (name.clone(), c.info.clone()))
                 .collect(),
             custom_types: self.custom_types.iter().cloned().collect(),
+            instances: BTreeMap::new(),
         }
     }
 }

@@ -572,11 +572,25 @@ pub struct LibraryInfo {
     pub components: BTreeMap<String, ComponentInfo>,
     /// Names of pack-defined data types.
     pub custom_types: Vec<String>,
+    /// Descriptions of particular instances, by id, for types whose ports depend on their properties (a
+    /// player's outputs follow its recordings). Filled by clients that asked the runtime for them
+    /// (`describe_instances`); empty in the library the runtime sends.
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub instances: BTreeMap<String, ComponentInfo>,
 }
 
 impl LibraryInfo {
     /// The component type with this name.
     pub fn component(&self, type_name: &str) -> Option<&ComponentInfo> {
         self.components.get(type_name)
+    }
+
+    /// What `instance` is: its own description when one is known for it (and still of its type), else its
+    /// type's.
+    pub fn component_of(&self, instance: &crate::model::ComponentInstance) -> Option<&ComponentInfo> {
+        self.instances
+            .get(&instance.id)
+            .filter(|info| info.type_name == instance.type_name)
+            .or_else(|| self.component(&instance.type_name))
     }
 }

@@ -8,17 +8,20 @@ use egui::{Color32, RichText};
 use kairos_diagram::{ComponentInstance, LibraryInfo, PropertyKind, ReaderPolicy, Value};
 use kairos_protocol::{LogLevel, RequestBody, RuntimeState};
 
-use crate::canvas::{Canvas, NewComponent, NodeState, auto_layout};
+use crate::canvas::{Canvas, NewComponent, NewViewer, NodeState, auto_layout};
 use crate::chooser::{self, Choice, FileChooser, Purpose};
 use crate::client::{ClientEvent, RuntimeClient};
 use crate::document::Document;
 use crate::monitor::Monitor;
+use crate::transport::Transport;
 use crate::viewers::Viewers;
 
 /// What a request in flight was for.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum Pending {
     Library,
+    /// A description of the instances whose ports depend on their properties.
+    Describe,
     /// A deploy of this text.
     Deploy,
     Other,
@@ -58,6 +61,10 @@ pub struct StudioApp {
     pub monitor: Monitor,
     /// The open data viewers.
     pub viewers: Viewers,
+    /// Recording and replay controls.
+    transport: Transport,
+    /// The instances (id, type, properties) last sent to be described, and whether an answer is awaited.
+    described: (InstanceKey, bool),
     /// Outputs to open viewers on, and whether to run, once the runtime's library is known (command line).
     startup: (Vec<String>, bool),
     search: String,
@@ -91,6 +98,9 @@ const VIEWER_RATE_HZ: f64 = 30.0;
 /// Wider images are sent scaled down by a whole factor.
 const VIEWER_IMAGE_WIDTH: u32 = 1920;
 const WARN_COLOR: Color32 = Color32::from_rgb(240, 170, 60);
+
+/// What a description of instances depends on: each component's id, type and properties.
+type InstanceKey = Vec<(String, String, BTreeMap<String, Value>)>;
 
 /// One line of the log panel.
 #[derive(Debug, Clone)]
@@ -172,6 +182,8 @@ impl StudioApp {
             bottom_tab: BottomTab::Log,
             monitor: Monitor::default(),
             viewers: Viewers::default(),
+            transport: Transport::default(),
+            described: (Vec::new(), false),
             startup: (Vec::new(), false),
             search: String::new(),
             confirm: None,
@@ -255,48 +267,7 @@ impl StudioApp {
                         Pending::Other,
                     );
                 }
-                ClientEvent::Reply(reply) => {
-                    let what = reply.id.and_then(|id| self.pending.remove(&id));
-                    if let Some(error) = reply.error {
-                        if what == Some(Pending::Deploy) && !error.diagnostics.is_empty() {
-                            let by_component = crate::document::diagnostics_by_component(
-                                &self.deployed_text,
-                                &error.diagnostics,
-                            );
-                            for (id, problems) in by_component {
-                                self.states.insert(id, NodeState::Invalid(problems.join("\n")));
-                            }
-                            self.canvas.port_problems =
-                                crate::document::diagnostics_by_port(&self.deployed_text, &error.diagnostics)
-                                    .into_iter()
-                                    .map(|(port, problems)| (port, problems.join("\n")))
-                                    .collect();
-                        }
-                        self.note(Color32::LIGHT_RED, error.message);
-                        self.start_after_deploy = false;
-                        continue;
-                    }
-                    match what {
-                        Some(Pending::Library) => {
-                            if let Some(library) = reply.result.and_then(|r| serde_json::from_value(r).ok()) {
-                                self.library = library;
-                            }
-                            self.start_up();
-                        }
-                        Some(Pending::Deploy) => {
-                            self.states.clear();
-                            self.monitor.clear();
-                            self.run_state = RuntimeState::Ready;
-                            self.subscribe_viewers();
-                            self.canvas.port_problems.clear();
-                            self.note(Color32::LIGHT_GREEN, "deployed");
-                            if std::mem::take(&mut self.start_after_deploy) {
-                                self.request(RequestBody::Start, Pending::Other);
-                            }
-                        }
-                        Some(Pending::Other) | None => {}
-                    }
-                }
+                ClientEvent::Reply(reply) => self.take_reply(reply),
                 ClientEvent::Telemetry(telemetry) => self.take_telemetry(&telemetry),
                 ClientEvent::Log(record) => {
                     let color = match record.level {
@@ -321,6 +292,71 @@ impl StudioApp {
                     self.note(Color32::LIGHT_RED, reason);
                 }
             }
+        }
+    }
+
+    /// The answer to one of our requests.
+    fn take_reply(&mut self, reply: kairos_protocol::Reply) {
+        let what = reply.id.and_then(|id| self.pending.remove(&id));
+        if let Some(error) = reply.error {
+            if what == Some(Pending::Deploy) && !error.diagnostics.is_empty() {
+                let by_component =
+                    crate::document::diagnostics_by_component(&self.deployed_text, &error.diagnostics);
+                for (id, problems) in by_component {
+                    self.states.insert(id, NodeState::Invalid(problems.join("\n")));
+                }
+                self.canvas.port_problems =
+                    crate::document::diagnostics_by_port(&self.deployed_text, &error.diagnostics)
+                        .into_iter()
+                        .map(|(port, problems)| (port, problems.join("\n")))
+                        .collect();
+            }
+            if what == Some(Pending::Describe) {
+                // A diagram the runtime cannot parse yet: the editor keeps the type's ports.
+                self.described.1 = false;
+                self.start_up();
+                return;
+            }
+            self.note(Color32::LIGHT_RED, error.message);
+            self.start_after_deploy = false;
+            return;
+        }
+        match what {
+            Some(Pending::Library) => {
+                if let Some(library) = reply.result.and_then(|r| serde_json::from_value(r).ok()) {
+                    self.library = library;
+                }
+                self.described = (Vec::new(), false);
+                self.describe_instances();
+                if !self.described.1 {
+                    self.start_up();
+                }
+            }
+            Some(Pending::Describe) => {
+                self.described.1 = false;
+                if let Some(described) = reply
+                    .result
+                    .and_then(|r| serde_json::from_value::<kairos_protocol::Described>(r).ok())
+                {
+                    self.library.instances = described.instances;
+                    for (id, problem) in described.problems {
+                        self.note(Color32::LIGHT_RED, format!("{id}: {}", problem.message));
+                    }
+                }
+                self.start_up();
+            }
+            Some(Pending::Deploy) => {
+                self.states.clear();
+                self.monitor.clear();
+                self.run_state = RuntimeState::Ready;
+                self.subscribe_viewers();
+                self.canvas.port_problems.clear();
+                self.note(Color32::LIGHT_GREEN, "deployed");
+                if std::mem::take(&mut self.start_after_deploy) {
+                    self.request(RequestBody::Start, Pending::Other);
+                }
+            }
+            Some(Pending::Other) | None => {}
         }
     }
 
@@ -654,6 +690,19 @@ impl StudioApp {
                         }
                     });
             }
+            egui::CollapsingHeader::new("studio / viewers")
+                .default_open(true)
+                .show(ui, |ui| {
+                    let id = ui.make_persistent_id("palette viewer");
+                    ui.dnd_drag_source(id, NewViewer, |ui| {
+                        ui.label("viewer");
+                    })
+                    .response
+                    .on_hover_text(
+                        "Drop on an output to watch its samples: images, plots, a GNSS track or a table, \
+                         by the output's type",
+                    );
+                });
         });
     }
 
@@ -721,7 +770,7 @@ impl StudioApp {
             return;
         };
         ui.label(RichText::new(&instance.id).strong());
-        let Some(info) = self.library.component(&instance.type_name).cloned() else {
+        let Some(info) = self.library.component_of(&instance).cloned() else {
             ui.colored_label(Color32::LIGHT_RED, format!("unknown type {}", instance.type_name));
             return;
         };
@@ -967,6 +1016,31 @@ impl StudioApp {
         self.connected
     }
 
+    /// Asks the runtime to describe the instances whose ports depend on their properties (a player's
+    /// outputs), whenever components or their properties changed since the last answer.
+    fn describe_instances(&mut self) {
+        if !self.connected || self.described.1 {
+            return;
+        }
+        let key: InstanceKey = self
+            .document
+            .diagram()
+            .components
+            .iter()
+            .map(|c| (c.id.clone(), c.type_name.clone(), c.properties.clone()))
+            .collect();
+        if key == self.described.0 {
+            return;
+        }
+        self.described = (key, true);
+        self.request(
+            RequestBody::DescribeInstances {
+                diagram: self.document.diagram().to_ron(),
+            },
+            Pending::Describe,
+        );
+    }
+
     /// Opens viewers on `outputs` (`component.port`) and, with `run`, deploys and starts the diagram, as soon
     /// as the runtime's library is known.
     #[must_use]
@@ -1068,6 +1142,7 @@ impl StudioApp {
     pub fn show(&mut self, ui: &mut egui::Ui) {
         let ctx = ui.ctx().clone();
         self.poll_runtime();
+        self.describe_instances();
         self.shortcuts(&ctx);
         if ctx.input(|i| i.viewport().close_requested()) && !self.quitting && self.document.is_dirty() {
             ctx.send_viewport_cmd(egui::ViewportCommand::CancelClose);
@@ -1104,6 +1179,14 @@ impl StudioApp {
             .default_size(150.0)
             .size_range(60.0..=500.0)
             .show(ui, |ui| self.bottom_panel(ui));
+        if crate::transport::has_controls(&self.monitor) {
+            let requests = egui::Panel::bottom("transport")
+                .show(ui, |ui| self.transport.show(ui, &self.monitor))
+                .inner;
+            for request in requests {
+                self.request(request, Pending::Other);
+            }
+        }
         let canvas_rect = egui::CentralPanel::default()
             .show(ui, |ui| {
                 self.canvas

@@ -78,6 +78,10 @@ impl Default for Canvas {
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct NewComponent(pub String);
 
+/// The palette's viewer being dragged onto an output.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct NewViewer;
+
 /// Where a node's parts are, in scene coordinates.
 struct Geometry {
     rect: Rect,
@@ -184,12 +188,7 @@ impl Canvas {
             let geometries: BTreeMap<&str, Geometry> = diagram
                 .components
                 .iter()
-                .map(|c| {
-                    (
-                        c.id.as_str(),
-                        geometry(c.position, library.component(&c.type_name)),
-                    )
-                })
+                .map(|c| (c.id.as_str(), geometry(c.position, library.component_of(c))))
                 .collect();
             let port_at = |port: &PortRef, output: bool| -> Option<Pos2> {
                 let g = geometries.get(port.component.as_str())?;
@@ -223,7 +222,7 @@ impl Canvas {
                 let policy = connection.policy.or_else(|| {
                     diagram
                         .component(&connection.to.component)
-                        .and_then(|c| library.component(&c.type_name))
+                        .and_then(|c| library.component_of(c))
                         .and_then(|i| i.input(&connection.to.port))
                         .map(|i| i.default_policy)
                 });
@@ -306,7 +305,7 @@ impl Canvas {
                 let Some(g) = geometries.get(component.id.as_str()) else {
                     continue;
                 };
-                let info = library.component(&component.type_name);
+                let info = library.component_of(component);
                 let node = ui.interact(
                     g.rect,
                     ui.make_persistent_id(("node", &component.id)),
@@ -456,6 +455,13 @@ impl Canvas {
                     if response.drag_stopped() {
                         link_released = true;
                     }
+                    if response.dnd_hover_payload::<NewViewer>().is_some() {
+                        let ring = Stroke::new(2.5, ui.visuals().selection.stroke.color);
+                        painter.circle_stroke(*at, PORT_RADIUS + 4.0, ring);
+                    }
+                    if response.dnd_release_payload::<NewViewer>().is_some() {
+                        self.viewer_request = Some((port.clone(), type_name.clone()));
+                    }
                     let viewer = crate::viewers::ViewerKind::for_type(&type_name);
                     response.context_menu(|ui| {
                         if ui.button(format!("Open a viewer ({})", viewer.name())).clicked() {
@@ -579,7 +585,7 @@ impl Canvas {
             }
             self.selected_connection = None;
             for component in &document.diagram().components {
-                let rect = geometry(component.position, library.component(&component.type_name)).rect;
+                let rect = geometry(component.position, library.component_of(component)).rect;
                 if band.intersects(rect) {
                     self.selected.insert(component.id.clone());
                 }
@@ -607,7 +613,7 @@ impl Canvas {
     pub fn fit(&mut self, document: &Document, library: &LibraryInfo) {
         let mut bounds = Rect::NOTHING;
         for component in &document.diagram().components {
-            bounds = bounds.union(geometry(component.position, library.component(&component.type_name)).rect);
+            bounds = bounds.union(geometry(component.position, library.component_of(component)).rect);
         }
         if bounds.is_positive() {
             self.scene_rect = bounds.expand(60.0);

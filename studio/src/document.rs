@@ -177,7 +177,7 @@ impl Document {
         let Some(input) = self
             .diagram
             .component(&to.component)
-            .and_then(|c| library.component(&c.type_name))
+            .and_then(|c| library.component_of(c))
             .and_then(|info| info.input(&to.port))
         else {
             return Err(Refusal(format!("{to} is not an input")));
@@ -206,7 +206,7 @@ impl Document {
 
     /// The type an output carries, following pass-through outputs to what feeds them.
     pub fn output_type(&self, port: &PortRef, library: &LibraryInfo) -> Option<DataType> {
-        kairos_diagram::output_type(&self.diagram, port, |c| library.component(&c.type_name))
+        kairos_diagram::output_type(&self.diagram, port, |c| library.component_of(c))
     }
 }
 

@@ -9,6 +9,7 @@ pub mod client;
 pub mod document;
 pub mod local;
 pub mod monitor;
+pub mod transport;
 pub mod viewers;
 
 pub use app::StudioApp;

@@ -15,6 +15,8 @@ const SERIES_POINTS: usize = 10_000;
 const TABLE_ROWS: usize = 200;
 /// The time window a live plot follows, in seconds.
 const LIVE_WINDOW_S: f64 = 10.0;
+/// A timestamp this far before the previous one means time went back (nanoseconds).
+const TIME_JUMP_NS: i64 = 500_000_000;
 /// Mean Earth radius (IUGG), for the local projection of GNSS fixes.
 const EARTH_RADIUS_M: f64 = 6_371_008.8;
 
@@ -230,6 +232,13 @@ impl Viewer {
         self.skipped += header.skipped;
         if self.paused {
             return;
+        }
+        // Time going back (a replay that loops or seeks back) starts the plot afresh.
+        if let Some(last) = &self.last
+            && header.timestamp_ns < last.timestamp_ns - TIME_JUMP_NS
+        {
+            self.first_timestamp_ns = None;
+            self.series.clear();
         }
         let first = *self.first_timestamp_ns.get_or_insert(header.timestamp_ns);
         let t = (header.timestamp_ns - first) as f64 / 1e9;

@@ -236,3 +236,26 @@ fn a_box_dragged_on_the_background_selects_what_it_touches() {
     // Nothing moved: the drag selected instead of panning or dragging a node.
     assert_eq!(harness.state().document.diagram(), &before);
 }
+
+#[test]
+fn a_viewer_dropped_on_an_output_opens_for_its_type() {
+    let mut harness = studio();
+    add_from_palette(&mut harness, "sensors.camera", Pos2::new(450.0, 250.0));
+    let from = center_of(&harness, "viewer");
+    let to = on_canvas(&harness, "output camera1.image (image)");
+    drag(&mut harness, from, to);
+    let viewers: Vec<(String, kairos_studio::viewers::ViewerKind)> = harness
+        .state()
+        .viewers
+        .list
+        .iter()
+        .map(|v| (v.output.clone(), v.kind))
+        .collect();
+    assert_eq!(
+        viewers,
+        [(
+            "camera1.image".to_owned(),
+            kairos_studio::viewers::ViewerKind::Image
+        )]
+    );
+}

@@ -270,3 +270,101 @@ fn viewers_and_monitoring_show_a_running_diagram() {
     harness.get_by_label("Stop").click();
     harness.run_steps(1);
 }
+
+/// The status a component publishes, from the latest telemetry.
+fn status(app: &StudioApp, id: &str, key: &str) -> Option<serde_json::Value> {
+    app.monitor
+        .components
+        .get(id)?
+        .latest
+        .status
+        .as_ref()?
+        .get(key)
+        .cloned()
+}
+
+#[test]
+fn the_timeline_pauses_seeks_and_plays_a_recording() {
+    // A 4-second recording of the simulated sensors, made by the runtime itself.
+    let dir = tempfile::tempdir().unwrap();
+    let record = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../examples/record.ron");
+    let made = std::process::Command::new(kairos_binary())
+        .current_dir(dir.path())
+        .args(["run", record.to_str().unwrap(), "--for", "4s"])
+        .output()
+        .unwrap();
+    assert!(made.status.success(), "{}", String::from_utf8_lossy(&made.stderr));
+    let recording = dir.path().join("drive.mcap");
+    let diagram = dir.path().join("replay.ron");
+    std::fs::write(
+        &diagram,
+        format!(
+            "Diagram(format: 1, packs: [Pack(name: \"recording\", version: \"^0.1\")], components: [\
+             Component(id: \"player\", type: \"recording.player\", position: (x: 40.0, y: 40.0), \
+             properties: {{\"path\": {:?}}})], connections: [])",
+            recording.display().to_string()
+        ),
+    )
+    .unwrap();
+
+    let local = LocalRuntime::start_binary(&kairos_binary()).unwrap();
+    let client = RuntimeClient::connect(&local.url, Some(local.token.clone()), || {});
+    let app = StudioApp::new(
+        Document::open(&diagram).unwrap(),
+        kairos_diagram::LibraryInfo::default(),
+        Some(client),
+        "local runtime".to_owned(),
+        Some(local),
+    );
+    let mut harness = Harness::new_ui_state(|ui, app: &mut StudioApp| app.show(ui), app);
+    harness.set_size(Vec2::new(1400.0, 900.0));
+    run_until(&mut harness, "the connection", StudioApp::is_connected);
+    // The player's outputs come from its recording: the runtime describes them to the studio.
+    run_until(&mut harness, "the player's outputs", |app| {
+        app.library
+            .instances
+            .get("player")
+            .is_some_and(|info| info.outputs.len() >= 3)
+    });
+    harness.run_steps(2);
+    assert!(harness.query_by_label("output player.imu_imu (imu)").is_some());
+
+    harness.get_by_label("Run").click();
+    harness.run_steps(1);
+    run_until(&mut harness, "the timeline", |app| {
+        status(app, "player", "playing") == Some(serde_json::json!(true))
+    });
+    harness.run_steps(2);
+    // The menu bar has a Pause of its own (the whole diagram); the player's is the last one.
+    harness.get_all_by_label("Pause").last().unwrap().click();
+    harness.run_steps(1);
+    run_until(&mut harness, "the pause", |app| {
+        status(app, "player", "playing") == Some(serde_json::json!(false))
+    });
+    let duration = status(harness.state(), "player", "duration_s")
+        .unwrap()
+        .as_f64()
+        .unwrap();
+    assert!(duration > 3.0, "{duration}");
+
+    // Drag along the timeline to three quarters of the recording: the player jumps there.
+    let timeline = harness.get_by_label("timeline of player").rect();
+    let bar_left = timeline.left() + 130.0_f32.min(timeline.width() * 0.3);
+    let bar_right = timeline.right() - 6.0;
+    let y = timeline.top() + 7.0;
+    drag(
+        &mut harness,
+        Pos2::new(bar_left + 10.0, y),
+        Pos2::new(bar_left + (bar_right - bar_left) * 0.75, y),
+    );
+    run_until(&mut harness, "the seek", |app| {
+        status(app, "player", "position_s")
+            .and_then(|p| p.as_f64())
+            .is_some_and(|p| (p - duration * 0.75).abs() < 0.3)
+    });
+    harness.get_by_label("Play").click();
+    harness.run_steps(1);
+    run_until(&mut harness, "the end of the replay", |app| {
+        status(app, "player", "ended") == Some(serde_json::json!(true))
+    });
+}

@@ -27,6 +27,9 @@ pub const FILE_PROPERTIES: [&str; 4] = ["path", "path2", "path3", "path4"];
 /// diagram was paused, or downstream held it up).
 const MAX_LATENESS_NANOS: i64 = 250_000_000;
 
+/// The least time between two status updates while playing.
+const STATUS_EVERY: std::time::Duration = std::time::Duration::from_millis(100);
+
 /// How often a paused player looks up when nothing wakes it.
 const PAUSED_RECHECK: std::time::Duration = std::time::Duration::from_millis(100);
 
@@ -193,6 +196,10 @@ enum Transport {
 
 /// The player component. See [`Player::info`].
 #[derive(Default)]
+#[allow(
+    clippy::struct_excessive_bools,
+    reason = "independent settings of a replay, and whether it ended"
+)]
 pub struct Player {
     sources: Vec<Source>,
     /// The timeline's first and last message times.
@@ -208,6 +215,13 @@ pub struct Player {
     /// Samples to emit at once after a seek: each channel's last one before the target.
     restore: VecDeque<(usize, RawMessage)>,
     undecodable: BTreeMap<usize, u64>,
+    /// The timeline time of the last sample emitted: where the replay stands.
+    reached: i64,
+    /// One per output: its name, the recording it comes from and its message count (the status's tracks).
+    tracks: Vec<(String, usize, u64)>,
+    /// When the status was last published, and whether the replay reached its end.
+    published: Option<std::time::Instant>,
+    ended: bool,
 }
 
 impl std::fmt::Debug for Player {
@@ -394,6 +408,9 @@ impl Player {
         };
         let publish = i64::try_from(message.publish_time).unwrap_or(i64::MAX);
         let log = i64::try_from(message.log_time).unwrap_or(i64::MAX);
+        if let Some(source) = self.sources.get(source) {
+            self.reached = to_timeline(message.log_time, source.shift);
+        }
         if self.recorded_times {
             ctx.write_replayed(output, payload, Timestamp(publish), Timestamp(log))
         } else {
@@ -417,6 +434,46 @@ impl Player {
         } else {
             Err(ComponentError::Interrupted)
         }
+    }
+
+    /// Publishes where the replay stands (for the studio's timeline): at most ten times a second, or at once
+    /// with `now`.
+    fn publish_status(&mut self, ctx: &Context, now: bool) {
+        if !now && self.published.is_some_and(|at| at.elapsed() < STATUS_EVERY) {
+            return;
+        }
+        self.published = Some(std::time::Instant::now());
+        let seconds = |t: i64| t.saturating_sub(self.timeline.0) as f64 * 1e-9;
+        let files: Vec<serde_json::Value> = self
+            .sources
+            .iter()
+            .map(|s| {
+                let first = s.index.first_log_time().map_or(0, |t| to_timeline(t, s.shift));
+                let last = s.index.last_log_time().map_or(0, |t| to_timeline(t, s.shift));
+                serde_json::json!({
+                    "path": s.index.path().display().to_string(),
+                    "start_s": seconds(first),
+                    "end_s": seconds(last),
+                })
+            })
+            .collect();
+        let tracks: Vec<serde_json::Value> = self
+            .tracks
+            .iter()
+            .map(|(output, file, messages)| serde_json::json!({"output": output, "file": file, "messages": messages}))
+            .collect();
+        ctx.set_status(serde_json::json!({
+            "kind": "player",
+            "position_s": seconds(self.reached.max(self.timeline.0)),
+            "duration_s": seconds(self.timeline.1),
+            "range_s": [seconds(self.range.0), seconds(self.range.1)],
+            "playing": self.transport == Transport::Playing && !self.ended,
+            "ended": self.ended,
+            "speed": self.speed,
+            "loop": self.looping,
+            "files": files,
+            "tracks": tracks,
+        }));
     }
 
     /// The timeline time the replay has reached, when running in real time.
@@ -476,6 +533,13 @@ impl Component for Player {
                 .iter()
                 .find(|c| c.id == output.channel)
                 .map_or_else(String::new, |c| c.schema.clone());
+            let messages = source
+                .index
+                .channels()
+                .iter()
+                .find(|c| c.id == output.channel)
+                .map_or(0, |c| c.messages);
+            self.tracks.push((output.name.clone(), output.file, messages));
             source.routes.insert(output.channel, (port, schema));
         }
         let first = self
@@ -519,10 +583,34 @@ impl Component for Player {
             start
         };
         self.seek(target)?;
+        self.reached = target;
+        self.publish_status(ctx, true);
         Ok(())
     }
 
     fn core(&mut self, ctx: &mut Context) -> ComponentResult {
+        let result = self.cycle(ctx);
+        let finished = matches!(result, Err(ComponentError::EndOfStream));
+        self.ended |= finished;
+        self.publish_status(ctx, finished);
+        result
+    }
+
+    fn property_changed(&mut self, name: &str, value: &Value, ctx: &mut Context) -> ComponentResult {
+        self.change_property(name, value, ctx)?;
+        self.publish_status(ctx, true);
+        Ok(())
+    }
+
+    fn action(&mut self, name: &str, ctx: &mut Context) -> ComponentResult {
+        self.act(name)?;
+        self.publish_status(ctx, true);
+        Ok(())
+    }
+}
+
+impl Player {
+    fn cycle(&mut self, ctx: &mut Context) -> ComponentResult {
         if self.transport == Transport::Paused {
             // Not a wait on the clock: a manual clock (the offline harness) would jump to the deadline.
             if !ctx.signal().wants_attention() {
@@ -536,7 +624,11 @@ impl Component for Player {
             self.anchor = None;
         }
         if let Some((source, message)) = self.restore.pop_front() {
-            return self.emit(ctx, source, &message);
+            // Restored samples come from before the seek target, which is where the replay stands.
+            let reached = self.reached;
+            let result = self.emit(ctx, source, &message);
+            self.reached = reached;
+            return result;
         }
         let next = self.next_source()?;
         let Some((source, at)) = next.filter(|(_, at)| *at <= self.range.1) else {
@@ -574,7 +666,7 @@ impl Component for Player {
         self.emit(ctx, source, &message)
     }
 
-    fn property_changed(&mut self, name: &str, value: &Value, ctx: &mut Context) -> ComponentResult {
+    fn change_property(&mut self, name: &str, value: &Value, ctx: &Context) -> ComponentResult {
         match name {
             "speed" => {
                 let speed = value.as_f64().unwrap_or(1.0);
@@ -590,7 +682,9 @@ impl Component for Player {
             "seek_s" => {
                 let seconds = value.as_f64().unwrap_or(-1.0);
                 if seconds >= 0.0 {
-                    self.seek(self.timeline.0.saturating_add(seconds_to_nanos(seconds)))?;
+                    let target = self.timeline.0.saturating_add(seconds_to_nanos(seconds));
+                    self.seek(target)?;
+                    self.reached = target.clamp(self.range.0, self.range.1);
                 }
             }
             _ => {}
@@ -598,7 +692,7 @@ impl Component for Player {
         Ok(())
     }
 
-    fn action(&mut self, name: &str, _ctx: &mut Context) -> ComponentResult {
+    fn act(&mut self, name: &str) -> ComponentResult {
         match name {
             "play" => {
                 self.transport = Transport::Playing;
@@ -609,7 +703,10 @@ impl Component for Player {
                 self.anchor = None;
             }
             "step" => self.transport = Transport::Stepping,
-            "rewind" => self.seek(self.range.0)?,
+            "rewind" => {
+                self.seek(self.range.0)?;
+                self.reached = self.range.0;
+            }
             other => return Err(ComponentError::failed(format_args!("no action named '{other}'"))),
         }
         Ok(())

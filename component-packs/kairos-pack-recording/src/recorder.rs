@@ -45,6 +45,9 @@ pub struct Recorder {
     written_since_check: u64,
     check_budget: u64,
     split_requested: bool,
+    /// When the status was last published, and the files closed so far.
+    published: Option<Instant>,
+    closed_files: u32,
 }
 
 impl std::fmt::Debug for Recorder {
@@ -215,6 +218,7 @@ impl Recorder {
         let Some(mut file) = self.file.take() else {
             return Ok(());
         };
+        self.closed_files += 1;
         let mut drops = BTreeMap::new();
         for index in &self.connected {
             let Some(reader) = ctx.inputs().get(*index).and_then(kairos_sdk::InputPort::reader) else {
@@ -380,10 +384,59 @@ impl Component for Recorder {
         if self.recording {
             self.open(ctx)?;
         }
+        self.publish_status(ctx, true);
         Ok(())
     }
 
     fn core(&mut self, ctx: &mut Context) -> ComponentResult {
+        let result = self.cycle(ctx);
+        self.publish_status(ctx, result.is_err());
+        result
+    }
+
+    fn death(&mut self, ctx: &mut Context) -> ComponentResult {
+        let result = self.close(ctx);
+        self.publish_status(ctx, true);
+        result
+    }
+
+    fn property_changed(&mut self, _name: &str, _value: &Value, _ctx: &mut Context) -> ComponentResult {
+        Ok(())
+    }
+
+    fn action(&mut self, name: &str, ctx: &mut Context) -> ComponentResult {
+        let result = self.act(name, ctx);
+        self.publish_status(ctx, true);
+        result
+    }
+}
+
+impl Recorder {
+    /// Publishes whether it records, to which file and how much (for the studio), at most twice a second
+    /// unless `now`.
+    fn publish_status(&mut self, ctx: &Context, now: bool) {
+        if !now
+            && self
+                .published
+                .is_some_and(|at| at.elapsed() < Duration::from_millis(500))
+        {
+            return;
+        }
+        self.published = Some(Instant::now());
+        let (path, bytes) = self
+            .file
+            .as_ref()
+            .map_or((None, 0), |f| (Some(f.path.display().to_string()), f.bytes));
+        ctx.set_status(serde_json::json!({
+            "kind": "recorder",
+            "recording": self.recording && self.file.is_some(),
+            "path": path,
+            "bytes": bytes,
+            "files_closed": self.closed_files,
+        }));
+    }
+
+    fn cycle(&mut self, ctx: &mut Context) -> ComponentResult {
         if self.connected.is_empty() {
             return Err(ComponentError::Stopped);
         }
@@ -402,15 +455,7 @@ impl Component for Recorder {
         self.check_free_space(ctx)
     }
 
-    fn death(&mut self, ctx: &mut Context) -> ComponentResult {
-        self.close(ctx)
-    }
-
-    fn property_changed(&mut self, _name: &str, _value: &Value, _ctx: &mut Context) -> ComponentResult {
-        Ok(())
-    }
-
-    fn action(&mut self, name: &str, ctx: &mut Context) -> ComponentResult {
+    fn act(&mut self, name: &str, ctx: &Context) -> ComponentResult {
         match name {
             "start" => {
                 if !self.recording {

@@ -21,9 +21,9 @@ pub mod frame;
 mod messages;
 
 pub use messages::{
-    ComponentTelemetry, DeployResult, DiagramReply, ErrorCode, LatencyTelemetry, LinkTelemetry, LogLevel,
-    LogRecord, ProtocolError, Reply, Request, RequestBody, RequestKind, Role, RuntimeState, ServerMessage,
-    Status, Telemetry, Welcome, decode_request,
+    ComponentTelemetry, DeployResult, Described, DiagramReply, ErrorCode, LatencyTelemetry, LinkTelemetry,
+    LogLevel, LogRecord, ProtocolError, Reply, Request, RequestBody, RequestKind, Role, RuntimeState,
+    ServerMessage, Status, Telemetry, Welcome, decode_request,
 };
 
 /// The protocol version this crate speaks. A client with another version is refused at `hello`, with

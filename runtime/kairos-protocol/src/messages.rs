@@ -1,5 +1,7 @@
 //! Requests, replies and events: the JSON text messages.
 
+use std::collections::BTreeMap;
+
 use kairos_diagram::{Diagnostic, ReaderPolicy, Value};
 use serde::{Deserialize, Serialize};
 
@@ -63,6 +65,12 @@ pub enum RequestBody {
     },
     /// The component library: packs, component types, ports, properties, actions, docs.
     Library,
+    /// The ports of the instances of a diagram (RON text, not deployed) whose ports depend on their
+    /// properties (a player's outputs follow its recordings). Replies a [`Described`].
+    DescribeInstances {
+        /// The diagram file's text.
+        diagram: String,
+    },
     /// The deployed diagram's text.
     GetDiagram,
     /// Validates a diagram (RON text) and, if valid, makes it the runtime's diagram, stopping the old one.
@@ -182,6 +190,7 @@ pub enum RequestBody {
 pub enum RequestKind {
     Hello,
     Library,
+    DescribeInstances,
     GetDiagram,
     Deploy,
     Start,
@@ -209,9 +218,10 @@ pub enum RequestKind {
 
 impl RequestKind {
     /// Every request type.
-    pub const ALL: [RequestKind; 25] = [
+    pub const ALL: [RequestKind; 26] = [
         RequestKind::Hello,
         RequestKind::Library,
+        RequestKind::DescribeInstances,
         RequestKind::GetDiagram,
         RequestKind::Deploy,
         RequestKind::Start,
@@ -242,6 +252,7 @@ impl RequestKind {
         match self {
             RequestKind::Hello
             | RequestKind::Library
+            | RequestKind::DescribeInstances
             | RequestKind::GetDiagram
             | RequestKind::Status
             | RequestKind::SubscribeTelemetry
@@ -283,6 +294,7 @@ impl RequestBody {
         match self {
             RequestBody::Hello { .. } => RequestKind::Hello,
             RequestBody::Library => RequestKind::Library,
+            RequestBody::DescribeInstances { .. } => RequestKind::DescribeInstances,
             RequestBody::GetDiagram => RequestKind::GetDiagram,
             RequestBody::Deploy { .. } => RequestKind::Deploy,
             RequestBody::Start => RequestKind::Start,
@@ -508,6 +520,15 @@ pub enum RuntimeState {
     Paused,
 }
 
+/// The result of `describe_instances`: the instances whose ports depend on their properties, described.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct Described {
+    /// By instance id: the instance's own description (ports as its properties make them).
+    pub instances: BTreeMap<String, kairos_diagram::ComponentInfo>,
+    /// By instance id: why an instance cannot be described (a recording that cannot be read).
+    pub problems: BTreeMap<String, kairos_diagram::DescribeError>,
+}
+
 /// The result of `status`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Status {
@@ -572,6 +593,10 @@ pub struct ComponentTelemetry {
     pub cycle_rate_hz: f64,
     /// Share of one core lately (0 to 1).
     pub cpu_share: f64,
+    /// What the component publishes about itself, when it does: a player's `position_s`, `duration_s`,
+    /// `playing`, `speed`, `loop` and `tracks`; a recorder's `recording`, `path` and `bytes`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub status: Option<serde_json::Value>,
 }
 
 /// Statistics of the whole diagram at one instant.

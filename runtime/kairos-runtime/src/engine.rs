@@ -108,6 +108,7 @@ struct Monitor {
     cycles: AtomicU64,
     busy_nanos: AtomicU64,
     controls: Mutex<VecDeque<ControlRequest>>,
+    status: kairos_sdk::StatusCell,
 }
 
 fn lock<T>(mutex: &Mutex<T>) -> MutexGuard<'_, T> {
@@ -118,12 +119,13 @@ fn lock<T>(mutex: &Mutex<T>) -> MutexGuard<'_, T> {
 }
 
 impl Monitor {
-    fn new() -> Self {
+    fn new(status: kairos_sdk::StatusCell) -> Self {
         Monitor {
             state: Mutex::new(ComponentState::Idle),
             cycles: AtomicU64::new(0),
             busy_nanos: AtomicU64::new(0),
             controls: Mutex::new(VecDeque::new()),
+            status,
         }
     }
 
@@ -413,7 +415,7 @@ impl Engine {
                 signal: Arc::clone(&component.signal),
             });
             ctx.set_diagram_text(Arc::clone(&diagram_text));
-            let monitor = Arc::new(Monitor::new());
+            let monitor = Arc::new(Monitor::new(ctx.status_cell()));
             let driver = match component.reactive {
                 Some(hook) => {
                     let cell = Arc::new(ReactiveCell {
@@ -759,6 +761,7 @@ impl Engine {
                 busy_nanos: slot.monitor.busy_nanos.load(Ordering::Relaxed),
                 cycle_rate_hz: 0.0,
                 cpu_share: 0.0,
+                status: slot.monitor.status.get(),
             })
             .collect();
         StatsSnapshot {

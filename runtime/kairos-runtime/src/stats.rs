@@ -68,6 +68,9 @@ pub struct ComponentStats {
     pub cycle_rate_hz: f64,
     /// Share of one core over the last interval (0.0 to 1.0).
     pub cpu_share: f64,
+    /// What the component last published about itself ([`kairos_sdk::Context::set_status`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub status: Option<serde_json::Value>,
 }
 
 /// Statistics of a whole running diagram at one instant.

@@ -102,6 +102,7 @@ fn telemetry(snapshot: &StatsSnapshot, state: RuntimeState) -> Telemetry {
                 cycles: c.cycles,
                 cycle_rate_hz: c.cycle_rate_hz,
                 cpu_share: c.cpu_share,
+                status: c.status.clone(),
             })
             .collect(),
     }
@@ -124,6 +125,23 @@ impl Runtime {
     /// The component library as plain data.
     pub fn library(&self) -> kairos_diagram::LibraryInfo {
         self.registry.library_info()
+    }
+
+    /// Describes the instances of `text` whose ports depend on their properties.
+    pub fn describe_instances(&self, text: &str) -> Result<kairos_protocol::Described, ProtocolError> {
+        let parsed = kairos_diagram::parse(text).map_err(|diagnostics| invalid(text, diagnostics))?;
+        let mut described = kairos_protocol::Described::default();
+        for (id, result) in self.registry.instance_infos(&parsed.diagram) {
+            match result {
+                Ok(info) => {
+                    described.instances.insert(id, info);
+                }
+                Err(problem) => {
+                    described.problems.insert(id, problem);
+                }
+            }
+        }
+        Ok(described)
     }
 
     /// The deployed diagram's canonical text.

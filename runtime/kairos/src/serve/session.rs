@@ -241,6 +241,12 @@ impl Session {
                 }
             },
             RequestBody::Library => self.reply(id, to_json(&self.shared.runtime.library())),
+            RequestBody::DescribeInstances { diagram } => {
+                match tokio::task::block_in_place(|| self.shared.runtime.describe_instances(&diagram)) {
+                    Ok(described) => self.reply(id, to_json(&described)),
+                    Err(error) => self.refuse(Some(id), error),
+                }
+            }
             RequestBody::GetDiagram => {
                 let diagram = self
                     .blocking(|r| {
