@@ -17,6 +17,8 @@ const NODE_WIDTH: f32 = 180.0;
 const HEADER: f32 = 38.0;
 const ROW: f32 = 20.0;
 const PORT_RADIUS: f32 = 5.5;
+/// Below this zoom the canvas leaves out port names, type names, policies and live figures.
+const DETAIL_SCALE: f32 = 0.45;
 /// The colour of lost samples.
 const DROP_COLOR: Color32 = Color32::from_rgb(240, 110, 60);
 
@@ -174,6 +176,8 @@ impl Canvas {
             egui::containers::DragPanButtons::MIDDLE | egui::containers::DragPanButtons::SECONDARY,
         );
         let mut scene_rect = self.scene_rect;
+        // Zoomed far out, small text is unreadable and costly: only ids, boxes, curves and losses are drawn.
+        let detail = self.to_screen.scaling >= DETAIL_SCALE;
         let response = scene.show(ui, &mut scene_rect, |ui| {
             let painter = ui.painter().clone();
             let to_scene = ui.ctx().layer_transform_from_global(ui.layer_id());
@@ -244,14 +248,19 @@ impl Canvas {
                     self.selected.clear();
                 }
                 painter.rect_filled(label_rect, 4.0, ui.visuals().extreme_bg_color);
-                painter.text(
-                    middle,
-                    Align2::CENTER_CENTER,
-                    text,
-                    FontId::proportional(11.0),
-                    color,
-                );
-                let mut hover = format!(
+                if detail {
+                    painter.text(
+                        middle,
+                        Align2::CENTER_CENTER,
+                        text,
+                        FontId::proportional(11.0),
+                        color,
+                    );
+                }
+                let hovered = clicked.hovered();
+                let mut hover = String::new();
+                if hovered {
+                    hover = format!(
                     "{} -> {}\nreader policy: {}{}",
                     connection.from,
                     connection.to,
@@ -261,17 +270,20 @@ impl Canvas {
                     } else {
                         ""
                     }
-                );
+                    );
+                }
                 if let Some(figures) = figures {
                     let t = &figures.latest;
-                    let live = format!("{:.0} Hz · {}", t.rate_hz, milliseconds(t.latency.p50_ns));
-                    painter.text(
-                        label_rect.center_bottom() + Vec2::new(0.0, 2.0),
-                        Align2::CENTER_TOP,
-                        &live,
-                        FontId::proportional(10.0),
-                        ui.visuals().weak_text_color(),
-                    );
+                    if detail {
+                        let live = format!("{:.0} Hz · {}", t.rate_hz, milliseconds(t.latency.p50_ns));
+                        painter.text(
+                            label_rect.center_bottom() + Vec2::new(0.0, 2.0),
+                            Align2::CENTER_TOP,
+                            &live,
+                            FontId::proportional(10.0),
+                            ui.visuals().weak_text_color(),
+                        );
+                    }
                     if t.overwritten > 0 {
                         painter.text(
                             label_rect.center_bottom() + Vec2::new(0.0, 14.0),
@@ -281,7 +293,8 @@ impl Canvas {
                             DROP_COLOR,
                         );
                     }
-                    let _ = write!(
+                    if hovered {
+                        let _ = write!(
                         hover,
                         "\n{:.1} samples/s; latency p50 {}, p99 {}\nwritten {}, read {}, skipped {}, lost \
                          (overwritten unread) {}, queued {}",
@@ -294,8 +307,11 @@ impl Canvas {
                         t.overwritten,
                         t.queued
                     );
+                    }
                 }
-                clicked.on_hover_text(hover);
+                if hovered {
+                    clicked.on_hover_text(hover);
+                }
             }
 
             // Nodes and ports.
@@ -370,14 +386,16 @@ impl Canvas {
                     FontId::proportional(14.0),
                     text,
                 );
-                painter.text(
-                    g.rect.min + Vec2::new(12.0, 22.0),
-                    Align2::LEFT_TOP,
-                    &component.type_name,
-                    FontId::proportional(10.5),
-                    visuals.weak_text_color(),
-                );
-                if let Some(figures) = monitor.components.get(&component.id) {
+                if detail {
+                    painter.text(
+                        g.rect.min + Vec2::new(12.0, 22.0),
+                        Align2::LEFT_TOP,
+                        &component.type_name,
+                        FontId::proportional(10.5),
+                        visuals.weak_text_color(),
+                    );
+                }
+                if detail && let Some(figures) = monitor.components.get(&component.id) {
                     let t = &figures.latest;
                     painter.text(
                         g.rect.right_top() + Vec2::new(-8.0, 5.0),
@@ -410,7 +428,7 @@ impl Canvas {
                         let ring = Stroke::new(2.0, Color32::from_rgb(230, 90, 80));
                         painter.circle_stroke(*at, PORT_RADIUS + 3.0, ring);
                         response.on_hover_text(problem);
-                    } else {
+                    } else if response.hovered() {
                         response.on_hover_text(format!("{}: {} ({accepts})", name, input.doc));
                     }
                     let color = match &input.filter {
@@ -420,13 +438,15 @@ impl Canvas {
                         _ => Color32::LIGHT_GRAY,
                     };
                     painter.circle_filled(*at, PORT_RADIUS, color);
-                    painter.text(
-                        *at + Vec2::new(9.0, 0.0),
-                        Align2::LEFT_CENTER,
-                        name,
-                        FontId::proportional(11.5),
-                        text,
-                    );
+                    if detail {
+                        painter.text(
+                            *at + Vec2::new(9.0, 0.0),
+                            Align2::LEFT_CENTER,
+                            name,
+                            FontId::proportional(11.5),
+                            text,
+                        );
+                    }
                     if cursor.is_some_and(|p| hit.contains(p)) {
                         link_target = Some(port);
                     }
@@ -470,13 +490,15 @@ impl Canvas {
                         }
                     });
                     painter.circle_filled(*at, PORT_RADIUS, type_color(&type_name));
-                    painter.text(
-                        *at - Vec2::new(9.0, 0.0),
-                        Align2::RIGHT_CENTER,
-                        name,
-                        FontId::proportional(11.5),
-                        text,
-                    );
+                    if detail {
+                        painter.text(
+                            *at - Vec2::new(9.0, 0.0),
+                            Align2::RIGHT_CENTER,
+                            name,
+                            FontId::proportional(11.5),
+                            text,
+                        );
+                    }
                 }
             }
 

@@ -6,6 +6,7 @@ pub mod app;
 pub mod canvas;
 pub mod chooser;
 pub mod client;
+pub mod cloud3d;
 pub mod document;
 pub mod local;
 pub mod monitor;

@@ -137,6 +137,9 @@ fn main() -> ExitCode {
         options,
         Box::new(move |creation| {
             let (views, run) = (arguments.views, arguments.run);
+            if let Some(render_state) = &creation.wgpu_render_state {
+                kairos_studio::cloud3d::install(render_state);
+            }
             let ctx = creation.egui_ctx.clone();
             let client = url.map(|url| RuntimeClient::connect(&url, token, move || ctx.request_repaint()));
             let app = StudioApp::new(

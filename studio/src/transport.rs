@@ -121,7 +121,7 @@ impl Transport {
                 });
             }
             let speed = number(status, "speed");
-            egui::ComboBox::from_id_salt(("speed", id))
+            egui::ComboBox::new(("speed", id), "speed")
                 .width(70.0)
                 .selected_text(format!("{speed}×"))
                 .show_ui(ui, |ui| {

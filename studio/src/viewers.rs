@@ -5,9 +5,13 @@
 
 use std::collections::VecDeque;
 
+use std::sync::Arc;
+
 use egui::{Color32, ColorImage, RichText, TextureHandle, TextureOptions, Vec2};
 use egui_plot::{Legend, Line, Plot, PlotPoints, Points};
 use kairos_protocol::frame::SampleHeader;
+
+use crate::cloud3d::{CloudCallback, ColorBy, GpuCloud, OrbitCamera};
 
 /// The most points a series keeps (at 30 Hz, more than five minutes to scroll back through).
 const SERIES_POINTS: usize = 10_000;
@@ -29,6 +33,8 @@ pub enum ViewerKind {
     Plot,
     /// GNSS fixes on a plane.
     Track,
+    /// Point clouds in 3D.
+    Cloud,
     /// The latest samples as text.
     Table,
 }
@@ -40,6 +46,7 @@ impl ViewerKind {
             "image" => ViewerKind::Image,
             "f64" | "i64" | "bool" | "vector" | "imu" | "pose" => ViewerKind::Plot,
             "gnss_fix" => ViewerKind::Track,
+            "point_cloud" => ViewerKind::Cloud,
             _ => ViewerKind::Table,
         }
     }
@@ -50,6 +57,7 @@ impl ViewerKind {
             ViewerKind::Image => "image",
             ViewerKind::Plot => "plot",
             ViewerKind::Track => "GNSS track",
+            ViewerKind::Cloud => "3D point cloud",
             ViewerKind::Table => "latest samples",
         }
     }
@@ -89,6 +97,10 @@ pub struct Viewer {
     track: Vec<[f64; 2]>,
     origin: Option<(f64, f64)>,
     rows: VecDeque<(u64, i64, i64, String)>,
+    cloud: Arc<GpuCloud>,
+    camera: OrbitCamera,
+    color_by: ColorBy,
+    point_size: f32,
 }
 
 impl std::fmt::Debug for Viewer {
@@ -201,7 +213,16 @@ impl Viewer {
             track: Vec::new(),
             origin: None,
             rows: VecDeque::new(),
+            cloud: Arc::new(GpuCloud::default()),
+            camera: OrbitCamera::default(),
+            color_by: ColorBy::Height,
+            point_size: 2.0,
         }
+    }
+
+    /// How many points the 3D view shows.
+    pub fn cloud_points(&self) -> usize {
+        self.cloud.points.len()
     }
 
     /// The plot's series: name and point count.
@@ -286,6 +307,33 @@ impl Viewer {
                 }
                 self.track.push([east, north]);
             }
+            ViewerKind::Cloud => {
+                let stride = if header.intensity { 16 } else { 12 };
+                let mut points = Vec::with_capacity(payload.len() / stride);
+                let (mut low, mut high) = (f32::INFINITY, f32::NEG_INFINITY);
+                for chunk in payload.chunks_exact(stride) {
+                    let value = |at: usize| {
+                        chunk
+                            .get(at..at + 4)
+                            .and_then(|b| b.try_into().ok())
+                            .map_or(0.0, f32::from_le_bytes)
+                    };
+                    let point = [
+                        value(0),
+                        value(4),
+                        value(8),
+                        if header.intensity { value(12) } else { 0.5 },
+                    ];
+                    low = low.min(point[2]);
+                    high = high.max(point[2]);
+                    points.push(point);
+                }
+                self.cloud = Arc::new(GpuCloud {
+                    generation: self.received,
+                    points,
+                    z_range: if low <= high { (low, high) } else { (0.0, 1.0) },
+                });
+            }
             ViewerKind::Table => {
                 let text = if value.is_null() {
                     format!("{} bytes", payload.len())
@@ -321,8 +369,54 @@ impl Viewer {
             ViewerKind::Image => self.image(ui),
             ViewerKind::Plot => self.plot(ui),
             ViewerKind::Track => self.track_view(ui),
+            ViewerKind::Cloud => self.cloud_view(ui),
             ViewerKind::Table => self.table(ui),
         }
+    }
+
+    fn cloud_view(&mut self, ui: &mut egui::Ui) {
+        ui.horizontal(|ui| {
+            egui::ComboBox::new(("colour", self.id), "colour")
+                .selected_text(match self.color_by {
+                    ColorBy::Height => "by height",
+                    ColorBy::Intensity => "by intensity",
+                })
+                .show_ui(ui, |ui| {
+                    ui.selectable_value(&mut self.color_by, ColorBy::Height, "by height");
+                    ui.selectable_value(&mut self.color_by, ColorBy::Intensity, "by intensity");
+                });
+            ui.add(egui::Slider::new(&mut self.point_size, 1.0..=6.0).text("point size"));
+            if ui.button("Reset view").clicked() {
+                self.camera = OrbitCamera::default();
+            }
+        });
+        if !crate::cloud3d::available() {
+            ui.colored_label(
+                Color32::LIGHT_RED,
+                "the 3D view needs the GPU renderer (wgpu), which this window does not have",
+            );
+            return;
+        }
+        let size = Vec2::new(ui.available_width(), 360.0);
+        let (rect, response) = ui.allocate_exact_size(size, egui::Sense::click_and_drag());
+        self.camera.handle(&response, ui);
+        ui.painter().rect_filled(rect, 0.0, Color32::from_gray(12));
+        crate::cloud3d::paint(
+            ui,
+            rect,
+            CloudCallback {
+                viewer: self.id,
+                cloud: Arc::clone(&self.cloud),
+                view_projection: self.camera.view_projection(rect.width() / rect.height().max(1.0)),
+                point_size: self.point_size,
+                color_by: self.color_by,
+                rect_size: rect.size(),
+            },
+        );
+        ui.weak(format!(
+            "{} points · drag to turn, right-drag to pan, scroll to zoom",
+            self.cloud.points.len()
+        ));
     }
 
     fn status(&mut self, ui: &mut egui::Ui) {

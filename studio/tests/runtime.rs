@@ -216,7 +216,12 @@ fn viewers_and_monitoring_show_a_running_diagram() {
         "Open a viewer (GNSS track)",
     );
     open_viewer(&mut harness, "output counter.out (i64)", "Open a viewer (plot)");
-    assert_eq!(harness.state().viewers.list.len(), 4);
+    open_viewer(
+        &mut harness,
+        "output lidar.points (point_cloud)",
+        "Open a viewer (3D point cloud)",
+    );
+    assert_eq!(harness.state().viewers.list.len(), 5);
 
     harness.get_by_label("Run").click();
     harness.run_steps(1);
@@ -226,6 +231,7 @@ fn viewers_and_monitoring_show_a_running_diagram() {
             && list[1].series().len() == 6
             && list[2].track().len() >= 3
             && list[3].series().first().is_some_and(|(_, n)| *n >= 10)
+            && list[4].cloud_points() > 1000
     });
     let list = &harness.state().viewers.list;
     assert_eq!(

@@ -21,6 +21,7 @@ pub mod camera;
 pub mod geo;
 pub mod gnss;
 pub mod imu;
+pub mod lidar;
 mod render;
 pub mod trajectory;
 
@@ -44,7 +45,8 @@ pub fn register(registry: &mut Registry) {
         .pack(PACK_NAME, env!("CARGO_PKG_VERSION"), "built-in")
         .component::<ImuSensor>(imu::descriptor())
         .component::<GnssSensor>(gnss::descriptor())
-        .component::<CameraSensor>(camera::descriptor());
+        .component::<CameraSensor>(camera::descriptor())
+        .component::<lidar::LidarSensor>(lidar::descriptor());
 }
 
 /// The live `rate` property every sensor has, in hertz.
@@ -103,6 +105,7 @@ mod tests {
             ),
             ("sensors.gnss", vec![("fix", DataType::GnssFix)]),
             ("sensors.camera", vec![("image", DataType::Image)]),
+            ("sensors.lidar", vec![("points", DataType::PointCloud)]),
         ];
         for (name, outputs) in expected {
             let component = registry.component(name).expect(name);
