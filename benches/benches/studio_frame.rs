@@ -71,6 +71,7 @@ fn input(frame: usize) -> egui::RawInput {
 }
 
 /// Telemetry for every link and component of `diagram`, as the runtime sends it; `tick` varies the figures.
+/// One link in fifty loses samples, as an overloaded consumer would.
 fn telemetry(diagram: &Diagram, tick: u64) -> kairos_protocol::Telemetry {
     kairos_protocol::Telemetry {
         at_ns: i64::try_from(tick).unwrap_or(0) * 100_000_000,
@@ -78,13 +79,14 @@ fn telemetry(diagram: &Diagram, tick: u64) -> kairos_protocol::Telemetry {
         links: diagram
             .connections
             .iter()
-            .map(|c| kairos_protocol::LinkTelemetry {
+            .enumerate()
+            .map(|(index, c)| kairos_protocol::LinkTelemetry {
                 link: format!("{} -> {}", c.from, c.to),
                 policy: kairos_diagram::ReaderPolicy::Fifo,
                 written: tick * 10,
-                read: tick * 10 - tick % 3,
+                read: if index % 50 == 0 { tick * 5 } else { tick * 10 },
                 skipped: 0,
-                overwritten: tick % 3,
+                overwritten: if index % 50 == 0 { tick * 5 } else { 0 },
                 queued: 0,
                 repeated: 0,
                 rate_hz: 100.0 + (tick % 7) as f64,

@@ -22,6 +22,8 @@ enum Pending {
     Library,
     /// A description of the instances whose ports depend on their properties.
     Describe,
+    /// A subscription to the viewers' sample frames.
+    Samples,
     /// A deploy of this text.
     Deploy,
     Other,
@@ -36,6 +38,10 @@ enum AfterDiscard {
 }
 
 /// The studio.
+#[allow(
+    clippy::struct_excessive_bools,
+    reason = "independent facts of one session: connected, quitting, starting after a deploy, shared memory"
+)]
 pub struct StudioApp {
     /// The diagram being edited.
     pub document: Document,
@@ -63,6 +69,8 @@ pub struct StudioApp {
     pub viewers: Viewers,
     /// Recording and replay controls.
     transport: Transport,
+    /// Whether the runtime is on this machine and can hand viewer frames over in shared memory.
+    shared_memory: bool,
     /// The instances (id, type, properties) last sent to be described, and whether an answer is awaited.
     described: (InstanceKey, bool),
     /// Outputs to open viewers on, and whether to run, once the runtime's library is known (command line).
@@ -183,6 +191,7 @@ impl StudioApp {
             monitor: Monitor::default(),
             viewers: Viewers::default(),
             transport: Transport::default(),
+            shared_memory: false,
             described: (Vec::new(), false),
             startup: (Vec::new(), false),
             search: String::new(),
@@ -251,6 +260,8 @@ impl StudioApp {
             match event {
                 ClientEvent::Connected(welcome) => {
                     self.connected = true;
+                    self.shared_memory = welcome.shared_memory_host.is_some()
+                        && welcome.shared_memory_host == kairos_protocol::this_host();
                     self.note(
                         Color32::LIGHT_GREEN,
                         format!("connected to {} ({:?})", welcome.server, welcome.role),
@@ -311,6 +322,15 @@ impl StudioApp {
                         .map(|(port, problems)| (port, problems.join("\n")))
                         .collect();
             }
+            if what == Some(Pending::Samples) && self.shared_memory {
+                self.note(
+                    WARN_COLOR,
+                    format!("{}; viewers use the socket instead", error.message),
+                );
+                self.shared_memory = false;
+                self.subscribe_viewers();
+                return;
+            }
             if what == Some(Pending::Describe) {
                 // A diagram the runtime cannot parse yet: the editor keeps the type's ports.
                 self.described.1 = false;
@@ -332,6 +352,7 @@ impl StudioApp {
                     self.start_up();
                 }
             }
+            Some(Pending::Samples) => self.samples_subscribed(reply.result.as_ref()),
             Some(Pending::Describe) => {
                 self.described.1 = false;
                 if let Some(described) = reply
@@ -1079,16 +1100,48 @@ impl StudioApp {
             Pending::Other,
         );
         let outputs = self.viewers.outputs();
-        if !outputs.is_empty() {
-            self.request(
-                RequestBody::SubscribeSamples {
-                    outputs,
-                    max_rate_hz: VIEWER_RATE_HZ,
-                    max_image_width: Some(VIEWER_IMAGE_WIDTH),
-                },
-                Pending::Other,
-            );
+        if outputs.is_empty() {
+            if let Some(client) = &mut self.client {
+                let _ = client.receive_shared(BTreeMap::new());
+            }
+            return;
         }
+        let transport = if self.shared_memory {
+            kairos_protocol::SampleTransport::SharedMemory
+        } else {
+            kairos_protocol::SampleTransport::Socket
+        };
+        self.request(
+            RequestBody::SubscribeSamples {
+                outputs,
+                max_rate_hz: VIEWER_RATE_HZ,
+                max_image_width: Some(VIEWER_IMAGE_WIDTH),
+                transport,
+            },
+            Pending::Samples,
+        );
+    }
+
+    /// A subscription was accepted: with shared memory, start reading its services (or fall back to the
+    /// socket when they cannot be read).
+    fn samples_subscribed(&mut self, result: Option<&serde_json::Value>) {
+        let services: Option<BTreeMap<String, String>> = result
+            .and_then(|r| r.get("services"))
+            .and_then(|s| serde_json::from_value(s.clone()).ok());
+        let Some(services) = services else {
+            return;
+        };
+        let Some(client) = &mut self.client else { return };
+        if let Err(error) = client.receive_shared(services) {
+            self.note(WARN_COLOR, format!("{error}; viewers use the socket instead"));
+            self.shared_memory = false;
+            self.subscribe_viewers();
+        }
+    }
+
+    /// Whether viewer frames come through shared memory (a runtime on this machine) rather than the socket.
+    pub fn uses_shared_memory(&self) -> bool {
+        self.shared_memory
     }
 
     /// The log (filterable by level and component) or the monitoring panel.

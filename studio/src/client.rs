@@ -1,7 +1,10 @@
 //! The studio's side of the control protocol: one connection to a runtime, on a thread of its own, so the
 //! interface never waits for the network.
 
+use std::collections::BTreeMap;
 use std::net::TcpStream;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc::{Receiver, Sender, TryRecvError, channel};
 use std::time::Duration;
 
@@ -28,13 +31,37 @@ pub enum ClientEvent {
     Disconnected(String),
 }
 
+/// Calls that repaint the interface when something arrived.
+type Wake = Arc<dyn Fn() + Send + Sync>;
+
 /// A connection to a runtime.
-#[derive(Debug)]
 pub struct RuntimeClient {
     url: String,
     outgoing: Sender<String>,
     incoming: Receiver<ClientEvent>,
     next_id: u64,
+    /// Where sample frames from shared memory join the other events.
+    events: Sender<ClientEvent>,
+    wake: Wake,
+    /// The thread reading shared-memory frames, stopped by dropping its flag's other end.
+    shared: Option<Arc<AtomicBool>>,
+}
+
+impl std::fmt::Debug for RuntimeClient {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("RuntimeClient")
+            .field("url", &self.url)
+            .field("shared_memory", &self.shared.is_some())
+            .finish_non_exhaustive()
+    }
+}
+
+impl Drop for RuntimeClient {
+    fn drop(&mut self) {
+        if let Some(stop) = self.shared.take() {
+            stop.store(true, Ordering::Relaxed);
+        }
+    }
 }
 
 /// How long a read waits before the thread looks for requests to send.
@@ -43,16 +70,22 @@ const POLL: Duration = Duration::from_millis(15);
 impl RuntimeClient {
     /// Connects to `url` with `token` on a background thread; `wake` is called after every event (to
     /// repaint the interface).
-    pub fn connect(url: &str, token: Option<String>, wake: impl Fn() + Send + 'static) -> RuntimeClient {
+    pub fn connect(
+        url: &str,
+        token: Option<String>,
+        wake: impl Fn() + Send + Sync + 'static,
+    ) -> RuntimeClient {
         let (outgoing, requests) = channel::<String>();
         let (events, incoming) = channel();
         let address = url.to_owned();
+        let wake: Wake = Arc::new(wake);
+        let (thread_events, thread_wake) = (events.clone(), Arc::clone(&wake));
         std::thread::Builder::new()
             .name("studio:net".to_owned())
             .spawn(move || {
-                let reason = run(&address, token, &requests, &events, &wake);
-                let _ = events.send(ClientEvent::Disconnected(reason));
-                wake();
+                let reason = run(&address, token, &requests, &thread_events, &*thread_wake);
+                let _ = thread_events.send(ClientEvent::Disconnected(reason));
+                thread_wake();
             })
             .ok();
         RuntimeClient {
@@ -60,6 +93,36 @@ impl RuntimeClient {
             outgoing,
             incoming,
             next_id: 1,
+            events,
+            wake,
+            shared: None,
+        }
+    }
+
+    /// Reads sample frames from these iceoryx2 services (output → service, as a shared-memory subscription
+    /// named them), in place of any read before; they arrive as [`ClientEvent::Sample`] like socket frames.
+    /// An error says why the services cannot be read (the caller then subscribes through the socket).
+    pub fn receive_shared(&mut self, services: BTreeMap<String, String>) -> Result<(), String> {
+        if let Some(stop) = self.shared.take() {
+            stop.store(true, Ordering::Relaxed);
+        }
+        if services.is_empty() {
+            return Ok(());
+        }
+        let stop = Arc::new(AtomicBool::new(false));
+        let (ready_tx, ready_rx) = channel::<Result<(), String>>();
+        let (events, wake, stopping) = (self.events.clone(), Arc::clone(&self.wake), Arc::clone(&stop));
+        std::thread::Builder::new()
+            .name("studio:shm".to_owned())
+            .spawn(move || crate::shared::read_frames(&services, &stopping, &ready_tx, &events, &*wake))
+            .map_err(|e| format!("cannot start a thread: {e}"))?;
+        match ready_rx.recv_timeout(Duration::from_secs(10)) {
+            Ok(Ok(())) => {
+                self.shared = Some(stop);
+                Ok(())
+            }
+            Ok(Err(error)) => Err(error),
+            Err(_) => Err("the shared-memory reader did not start in 10 s".to_owned()),
         }
     }
 
@@ -98,7 +161,7 @@ fn run(
     token: Option<String>,
     requests: &Receiver<String>,
     events: &Sender<ClientEvent>,
-    wake: &impl Fn(),
+    wake: &dyn Fn(),
 ) -> String {
     let mut socket: WebSocket<MaybeTlsStream<TcpStream>> = match tungstenite::connect(url) {
         Ok((socket, _)) => socket,

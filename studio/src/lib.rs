@@ -10,6 +10,7 @@ pub mod cloud3d;
 pub mod document;
 pub mod local;
 pub mod monitor;
+pub mod shared;
 pub mod transport;
 pub mod viewers;
 

@@ -222,6 +222,10 @@ fn viewers_and_monitoring_show_a_running_diagram() {
         "Open a viewer (3D point cloud)",
     );
     assert_eq!(harness.state().viewers.list.len(), 5);
+    assert!(
+        harness.state().uses_shared_memory(),
+        "a local runtime hands viewer frames over in shared memory"
+    );
 
     harness.get_by_label("Run").click();
     harness.run_steps(1);
@@ -373,4 +377,96 @@ fn the_timeline_pauses_seeks_and_plays_a_recording() {
     run_until(&mut harness, "the end of the replay", |app| {
         status(app, "player", "ended") == Some(serde_json::json!(true))
     });
+}
+
+type Frames = std::collections::BTreeMap<u64, (kairos_protocol::frame::SampleHeader, Vec<u8>)>;
+
+/// Every sample frame each client gets within `within`, by sequence number.
+fn frames_by_sequence(a: &RuntimeClient, b: &RuntimeClient, within: Duration) -> (Frames, Frames) {
+    let (mut frames_a, mut frames_b) = (Frames::new(), Frames::new());
+    let started = Instant::now();
+    while started.elapsed() < within {
+        for (client, frames) in [(a, &mut frames_a), (b, &mut frames_b)] {
+            for event in client.poll() {
+                if let kairos_studio::client::ClientEvent::Sample(header, payload) = event {
+                    frames.insert(header.sequence, (header, payload));
+                }
+            }
+        }
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    (frames_a, frames_b)
+}
+
+fn wait_for_reply(client: &RuntimeClient, id: u64) -> kairos_protocol::Reply {
+    let started = Instant::now();
+    loop {
+        assert!(
+            started.elapsed() < Duration::from_secs(15),
+            "no reply to request {id}"
+        );
+        for event in client.poll() {
+            if let kairos_studio::client::ClientEvent::Reply(reply) = event
+                && reply.id == Some(id)
+            {
+                assert!(reply.ok, "{:?}", reply.error);
+                return reply;
+            }
+        }
+        std::thread::sleep(Duration::from_millis(5));
+    }
+}
+
+#[test]
+fn shared_memory_and_the_socket_deliver_identical_frames() {
+    use kairos_protocol::{RequestBody, SampleTransport};
+    let local = LocalRuntime::start_binary(&kairos_binary()).unwrap();
+    let mut socket = RuntimeClient::connect(&local.url, Some(local.token.clone()), || {});
+    let mut shared = RuntimeClient::connect(&local.url, Some(local.token.clone()), || {});
+    let deploy = socket.request(RequestBody::Deploy {
+        diagram: "Diagram(format: 1, packs: [Pack(name: \"sensors\", version: \"^0.1\")], components: [\
+                  Component(id: \"camera\", type: \"sensors.camera\", position: (x: 0.0, y: 0.0), \
+                  properties: {\"width\": 320, \"height\": 240, \"rate\": 20.0})], connections: [])"
+            .to_owned(),
+    });
+    wait_for_reply(&socket, deploy);
+    let start = socket.request(RequestBody::Start);
+    wait_for_reply(&socket, start);
+    let subscribe = |client: &mut RuntimeClient, transport| {
+        client.request(RequestBody::SubscribeSamples {
+            outputs: vec!["camera.image".to_owned()],
+            max_rate_hz: 100.0,
+            max_image_width: None,
+            transport,
+        })
+    };
+    let id = subscribe(&mut socket, SampleTransport::Socket);
+    wait_for_reply(&socket, id);
+    let id = subscribe(&mut shared, SampleTransport::SharedMemory);
+    let reply = wait_for_reply(&shared, id);
+    let services = serde_json::from_value(reply.result.unwrap()["services"].clone()).unwrap();
+    shared.receive_shared(services).unwrap();
+
+    let (by_socket, by_memory) = frames_by_sequence(&socket, &shared, Duration::from_secs(3));
+    let common: Vec<u64> = by_socket
+        .keys()
+        .filter(|s| by_memory.contains_key(s))
+        .copied()
+        .collect();
+    assert!(
+        common.len() >= 20,
+        "{} frames in common ({} by socket, {} by shared memory)",
+        common.len(),
+        by_socket.len(),
+        by_memory.len()
+    );
+    for sequence in common {
+        let (mut a, pixels_a) = by_socket[&sequence].clone();
+        let (mut b, pixels_b) = by_memory[&sequence].clone();
+        // How many samples each path passed over depends on its own timing; the rest must be equal.
+        (a.skipped, b.skipped) = (0, 0);
+        assert_eq!(a, b, "frame {sequence}");
+        assert!(pixels_a == pixels_b, "frame {sequence}: the pixels differ");
+        assert_eq!(pixels_a.len(), 320 * 240 * 3);
+    }
 }

@@ -23,7 +23,7 @@ mod messages;
 pub use messages::{
     ComponentTelemetry, DeployResult, Described, DiagramReply, ErrorCode, LatencyTelemetry, LinkTelemetry,
     LogLevel, LogRecord, ProtocolError, Reply, Request, RequestBody, RequestKind, Role, RuntimeState,
-    ServerMessage, Status, Telemetry, Welcome, decode_request,
+    SampleTransport, ServerMessage, Status, Telemetry, Welcome, decode_request, this_host,
 };
 
 /// The protocol version this crate speaks. A client with another version is refused at `hello`, with

@@ -122,6 +122,10 @@ pub enum RequestBody {
         /// Images wider than this are downscaled (by a whole factor) before sending.
         #[serde(default)]
         max_image_width: Option<u32>,
+        /// How the frames travel: on this connection (default), or through shared memory for a client on
+        /// the server's own machine (see [`Welcome::shared_memory_host`]).
+        #[serde(default)]
+        transport: SampleTransport,
     },
     /// Stops sample frames from these outputs (all, when empty).
     UnsubscribeSamples {
@@ -181,6 +185,18 @@ pub enum RequestBody {
         /// The factor.
         factor: f64,
     },
+}
+
+/// How sample frames reach a client.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum SampleTransport {
+    /// As binary messages on the protocol connection.
+    #[default]
+    Socket,
+    /// Published through iceoryx2 shared memory, one service per output, named in the reply
+    /// (`{"services": {"camera.image": "kairos/..."}}`); only for clients on the server's machine.
+    SharedMemory,
 }
 
 /// A request's type without its fields: what the role table is keyed by.
@@ -488,6 +504,18 @@ pub struct Welcome {
     pub server: String,
     /// The role granted.
     pub role: Role,
+    /// The server machine's boot id, when the server can publish sample frames in shared memory: a client
+    /// whose machine has the same id may subscribe with [`SampleTransport::SharedMemory`].
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub shared_memory_host: Option<String>,
+}
+
+/// This machine's boot id (Linux), which tells whether a client and a server share a machine.
+pub fn this_host() -> Option<String> {
+    std::fs::read_to_string("/proc/sys/kernel/random/boot_id")
+        .ok()
+        .map(|id| id.trim().to_owned())
+        .filter(|id| !id.is_empty())
 }
 
 /// The result of `get_diagram`.

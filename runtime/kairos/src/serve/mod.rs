@@ -8,6 +8,7 @@ mod auth;
 mod runtime;
 mod samples;
 mod session;
+mod shm;
 
 use std::net::{SocketAddr, ToSocketAddrs as _};
 use std::path::PathBuf;

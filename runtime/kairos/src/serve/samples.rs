@@ -1,5 +1,7 @@
 //! Samples into binary frames for subscribed clients (see `kairos_protocol::frame`).
 
+use std::borrow::Cow;
+
 use kairos_protocol::frame::{self, ImageLayout, SampleHeader};
 use kairos_sdk::{FixStatus, Image, Payload, PixelFormat, Sample};
 use serde_json::json;
@@ -76,6 +78,21 @@ fn value_of(payload: &Payload) -> Option<serde_json::Value> {
 
 /// Encodes `sample` of `output` as a frame; images wider than `max_image_width` are downscaled.
 pub fn encode(output: &str, sample: &Sample, skipped: u64, max_image_width: Option<u32>) -> Vec<u8> {
+    let (head, body) = encode_parts(output, sample, skipped, max_image_width);
+    let mut frame = Vec::with_capacity(head.len() + body.len());
+    frame.extend_from_slice(&head);
+    frame.extend_from_slice(&body);
+    frame
+}
+
+/// A frame in two parts: its start (magic, header length, header) and its payload bytes, borrowed from the
+/// sample where they can be (an image's pixels), so a transport copies them once, where they go.
+pub fn encode_parts<'s>(
+    output: &str,
+    sample: &'s Sample,
+    skipped: u64,
+    max_image_width: Option<u32>,
+) -> (Vec<u8>, Cow<'s, [u8]>) {
     let mut header = SampleHeader {
         output: output.to_owned(),
         data_type: sample.payload.data_type().to_string(),
@@ -87,15 +104,16 @@ pub fn encode(output: &str, sample: &Sample, skipped: u64, max_image_width: Opti
         image: None,
         intensity: false,
     };
-    let body: Vec<u8> = match &sample.payload {
+    let body: Cow<'s, [u8]> = match &sample.payload {
         Payload::Image(image) => {
             let factor = max_image_width
                 .filter(|max| *max > 0 && image.width > *max)
                 .map_or(1, |max| image.width.div_ceil(max));
             let (width, height, pixels) = if factor > 1 {
-                downscale(image, factor)
+                let (width, height, pixels) = downscale(image, factor);
+                (width, height, Cow::Owned(pixels))
             } else {
-                (image.width, image.height, image.pixels.to_vec())
+                (image.width, image.height, Cow::Borrowed(&image.pixels[..]))
             };
             header.image = Some(ImageLayout {
                 width,
@@ -121,13 +139,13 @@ pub fn encode(output: &str, sample: &Sample, skipped: u64, max_image_width: Opti
                     bytes.extend_from_slice(&intensity.get(index).copied().unwrap_or(0.0).to_le_bytes());
                 }
             }
-            bytes
+            Cow::Owned(bytes)
         }
-        Payload::Bytes(bytes) => bytes.to_vec(),
-        Payload::Custom(custom) => custom.data.to_vec(),
-        _ => Vec::new(),
+        Payload::Bytes(bytes) => Cow::Borrowed(&bytes[..]),
+        Payload::Custom(custom) => Cow::Borrowed(&custom.data[..]),
+        _ => Cow::Borrowed(&[]),
     };
-    frame::encode(&header, &body)
+    (frame::encode(&header, &[]), body)
 }
 
 #[cfg(test)]

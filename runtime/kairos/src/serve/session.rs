@@ -12,7 +12,7 @@ use std::time::Duration;
 use futures_util::{SinkExt as _, StreamExt as _};
 use kairos_protocol::{
     CLIENT_QUEUE, DiagramReply, ErrorCode, LogLevel, MAX_MESSAGE_BYTES, PROTOCOL_VERSION, ProtocolError,
-    RequestBody, RequestKind, Role, ServerMessage, Status, Welcome, decode_request,
+    RequestBody, RequestKind, Role, SampleTransport, ServerMessage, Status, Welcome, decode_request,
 };
 use kairos_sdk::{ReaderConfig, ReaderPolicy, RunSignal, Value};
 use serde::Serialize;
@@ -65,6 +65,7 @@ pub async fn run(stream: TcpStream, peer: SocketAddr, shared: Arc<Shared>) {
         telemetry: None,
         log: None,
         samples: BTreeMap::new(),
+        shared_samples: BTreeMap::new(),
     };
     tracing::debug!("{peer}: connected");
     while let Some(message) = source.next().await {
@@ -112,6 +113,8 @@ struct Session {
     telemetry: Option<JoinHandle<()>>,
     log: Option<JoinHandle<()>>,
     samples: BTreeMap<String, JoinHandle<()>>,
+    /// Outputs published in shared memory for this client; dropping one stops it.
+    shared_samples: BTreeMap<String, super::shm::ShmPublication>,
 }
 
 fn to_json(value: &impl Serialize) -> serde_json::Value {
@@ -230,6 +233,7 @@ impl Session {
                             protocol: PROTOCOL_VERSION,
                             server: self.shared.server_name.clone(),
                             role,
+                            shared_memory_host: kairos_protocol::this_host(),
                         }),
                     )
                 }
@@ -323,10 +327,15 @@ impl Session {
                 outputs,
                 max_rate_hz,
                 max_image_width,
-            } => self.subscribe_samples(id, outputs, max_rate_hz, max_image_width),
+                transport,
+            } => self.subscribe_samples(id, outputs, max_rate_hz, max_image_width, transport),
             RequestBody::UnsubscribeSamples { outputs } => {
                 let names: Vec<String> = if outputs.is_empty() {
-                    self.samples.keys().cloned().collect()
+                    self.samples
+                        .keys()
+                        .chain(self.shared_samples.keys())
+                        .cloned()
+                        .collect()
                 } else {
                     outputs
                 };
@@ -334,6 +343,7 @@ impl Session {
                     if let Some(task) = self.samples.remove(&name) {
                         task.abort();
                     }
+                    self.shared_samples.remove(&name);
                 }
                 self.reply(id, empty())
             }
@@ -422,6 +432,7 @@ impl Session {
         outputs: Vec<String>,
         max_rate_hz: f64,
         max_image_width: Option<u32>,
+        transport: SampleTransport,
     ) -> bool {
         let runtime = self.runtime();
         let mut unknown = Vec::new();
@@ -450,7 +461,11 @@ impl Session {
         } else {
             10.0
         };
+        if transport == SampleTransport::SharedMemory {
+            return self.subscribe_shared(id, outputs, rate, max_image_width);
+        }
         for output in outputs {
+            self.shared_samples.remove(&output);
             let task = sample_task(
                 Arc::clone(&runtime),
                 self.out.clone(),
@@ -466,6 +481,66 @@ impl Session {
         self.reply(id, serde_json::json!({"max_rate_hz": rate}))
     }
 
+    /// Publishes `outputs` in shared memory, one iceoryx2 service each, named in the reply.
+    fn subscribe_shared(
+        &mut self,
+        id: u64,
+        outputs: Vec<String>,
+        rate: f64,
+        max_image_width: Option<u32>,
+    ) -> bool {
+        if !self.peer.ip().is_loopback() {
+            return self.refuse(
+                Some(id),
+                ProtocolError::new(
+                    ErrorCode::BadRequest,
+                    "shared memory is only for clients on the server's machine; use the socket transport",
+                ),
+            );
+        }
+        let mut services = BTreeMap::new();
+        for output in outputs {
+            // A fresh name per subscription: a publisher being stopped may still hold the previous one.
+            let service = format!(
+                "kairos/{}/{}/{}/{output}",
+                std::process::id(),
+                self.peer.port(),
+                super::shm::next_publication()
+            );
+            let started = tokio::task::block_in_place(|| {
+                super::shm::publish(
+                    self.runtime(),
+                    output.clone(),
+                    service.clone(),
+                    rate,
+                    max_image_width,
+                    self.peer.to_string(),
+                )
+            });
+            match started {
+                Ok(publication) => {
+                    if let Some(task) = self.samples.remove(&output) {
+                        task.abort();
+                    }
+                    self.shared_samples.insert(output.clone(), publication);
+                    services.insert(output, service);
+                }
+                Err(error) => {
+                    return self.refuse(
+                        Some(id),
+                        ProtocolError::new(
+                            ErrorCode::Internal,
+                            format!(
+                                "cannot publish {output} in shared memory: {error}; use the socket transport"
+                            ),
+                        ),
+                    );
+                }
+            }
+        }
+        self.reply(id, serde_json::json!({"max_rate_hz": rate, "services": services}))
+    }
+
     fn end(&mut self) {
         for task in self
             .telemetry
@@ -476,6 +551,7 @@ impl Session {
         {
             task.abort();
         }
+        self.shared_samples.clear();
     }
 }
 

@@ -1,0 +1,231 @@
+//! Benchmark 12 — a 1920×1080 RGB camera at 30 Hz watched in an image viewer, through the socket and through
+//! shared memory, against a real `kairos serve` in this process.
+//!
+//! The studio side is the studio's own code: a `RuntimeClient` (its network thread, and its shared-memory
+//! reader thread) and `Viewers` fed with every frame and shown in a headless egui frame at 60 Hz (the frame's
+//! conversion to a texture and its tessellation included; the GPU upload is not). Measured over the same
+//! window for each transport, interleaved:
+//! - the runtime's cost of the stream: CPU time of the server's transport threads (`k:net`, the network and
+//!   blocking pools; `k:shm`, the shared-memory publishers), as a share of one core; the camera's own thread
+//!   is not counted, it is the same either way;
+//! - the studio's cost: its network and shared-memory threads plus the viewer's thread.
+
+use std::net::SocketAddr;
+use std::time::{Duration, Instant};
+
+use kairos::serve::{ServeOptions, serve_with};
+use kairos_benches::{Goal, Ratios, Spread, Table, header, size};
+use kairos_protocol::{RequestBody, SampleTransport};
+use kairos_studio::client::{ClientEvent, RuntimeClient};
+use kairos_studio::viewers::Viewers;
+
+const WIDTH: u32 = 1920;
+const HEIGHT: u32 = 1080;
+const RATE_HZ: f64 = 30.0;
+
+fn start_server() -> Option<SocketAddr> {
+    let (tx, rx) = std::sync::mpsc::channel();
+    std::thread::spawn(move || {
+        let options = ServeOptions {
+            listen: "127.0.0.1:0".to_owned(),
+            token_file: None,
+            monitor_token_file: None,
+            diagram: None,
+            start: false,
+            max_connections: 16,
+        };
+        let _ = serve_with(kairos::builtin_registry(), &options, move |address| {
+            let _ = tx.send(address);
+        });
+    });
+    rx.recv_timeout(Duration::from_secs(10)).ok()
+}
+
+/// CPU time of this process's threads whose name starts with one of `prefixes`, in nanoseconds.
+fn threads_cpu_nanos(prefixes: &[&str]) -> f64 {
+    let ticks_per_second = 100.0; // USER_HZ on Linux
+    let Ok(tasks) = std::fs::read_dir("/proc/self/task") else {
+        return 0.0;
+    };
+    let mut total = 0.0;
+    for task in tasks.flatten() {
+        let path = task.path();
+        let name = std::fs::read_to_string(path.join("comm")).unwrap_or_default();
+        if !prefixes.iter().any(|p| name.starts_with(p)) {
+            continue;
+        }
+        let stat = std::fs::read_to_string(path.join("stat")).unwrap_or_default();
+        let fields: Vec<&str> = stat
+            .rsplit_once(')')
+            .map_or("", |(_, rest)| rest)
+            .split_whitespace()
+            .collect();
+        let ticks: f64 = [11, 12]
+            .iter()
+            .filter_map(|i| fields.get(*i).and_then(|f| f.parse::<f64>().ok()))
+            .sum();
+        total += ticks / ticks_per_second;
+    }
+    total * 1e9
+}
+
+fn this_thread_cpu_nanos() -> f64 {
+    nix::time::clock_gettime(nix::time::ClockId::CLOCK_THREAD_CPUTIME_ID)
+        .map_or(0.0, |t| t.tv_sec() as f64 * 1e9 + t.tv_nsec() as f64)
+}
+
+fn wait_for_reply(client: &RuntimeClient, id: u64) -> Option<kairos_protocol::Reply> {
+    let started = Instant::now();
+    while started.elapsed() < Duration::from_secs(20) {
+        for event in client.poll() {
+            if let ClientEvent::Reply(reply) = event
+                && reply.id == Some(id)
+            {
+                return reply.ok.then_some(reply);
+            }
+        }
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    None
+}
+
+/// One measurement: (runtime transport CPU share, studio CPU share, frames shown per second).
+fn measure(address: SocketAddr, transport: SampleTransport, window: Duration) -> Option<(f64, f64, f64)> {
+    let mut client = RuntimeClient::connect(&format!("ws://{address}"), None, || {});
+    let subscribe = client.request(RequestBody::SubscribeSamples {
+        outputs: vec!["camera.image".to_owned()],
+        max_rate_hz: RATE_HZ,
+        max_image_width: None,
+        transport,
+    });
+    let reply = wait_for_reply(&client, subscribe)?;
+    if transport == SampleTransport::SharedMemory {
+        let services = serde_json::from_value(reply.result?.get("services")?.clone()).ok()?;
+        client.receive_shared(services).ok()?;
+    }
+    let mut viewers = Viewers::default();
+    viewers.open("camera.image".to_owned(), "image");
+    let ctx = egui::Context::default();
+    let frame = |ctx: &egui::Context, viewers: &mut Viewers| {
+        let output = ctx.run_ui(egui::RawInput::default(), |ui| viewers.show_docked(ui));
+        std::hint::black_box(ctx.tessellate(output.shapes, output.pixels_per_point));
+    };
+    // Warm up: the stream flowing, the texture made.
+    let warm = Instant::now();
+    while warm.elapsed() < Duration::from_millis(800) {
+        for event in client.poll() {
+            if let ClientEvent::Sample(header, payload) = event {
+                viewers.receive(&header, &payload);
+            }
+        }
+        frame(&ctx, &mut viewers);
+        std::thread::sleep(Duration::from_millis(16));
+    }
+    let received_before = viewers.list.first().map_or(0, |v| v.received);
+    let runtime_before = threads_cpu_nanos(&["k:net", "k:shm"]);
+    let studio_before = threads_cpu_nanos(&["studio:net", "studio:shm"]) + this_thread_cpu_nanos();
+    let started = Instant::now();
+    let mut next = started;
+    while started.elapsed() < window {
+        for event in client.poll() {
+            if let ClientEvent::Sample(header, payload) = event {
+                viewers.receive(&header, &payload);
+            }
+        }
+        frame(&ctx, &mut viewers);
+        next += Duration::from_micros(16_667);
+        if let Some(rest) = next.checked_duration_since(Instant::now()) {
+            std::thread::sleep(rest);
+        }
+    }
+    let seconds = started.elapsed().as_secs_f64();
+    let runtime = (threads_cpu_nanos(&["k:net", "k:shm"]) - runtime_before) / 1e9 / seconds;
+    let studio = (threads_cpu_nanos(&["studio:net", "studio:shm"]) + this_thread_cpu_nanos() - studio_before)
+        / 1e9
+        / seconds;
+    let shown = viewers.list.first().map_or(0, |v| v.received) - received_before;
+    Some((runtime, studio, shown as f64 / seconds))
+}
+
+fn main() {
+    let window = Duration::from_secs(size(2, 5));
+    header(
+        "12. a 1080p camera in an image viewer: socket vs shared memory",
+        "throughput at 30 Hz; CPU shares of one core",
+        &format!(
+            "{WIDTH}×{HEIGHT} RGB8 at {RATE_HZ} Hz, {} s windows, transports interleaved",
+            window.as_secs()
+        ),
+    );
+    let Some(address) = start_server() else {
+        eprintln!("the server did not start");
+        return;
+    };
+    let mut control = RuntimeClient::connect(&format!("ws://{address}"), None, || {});
+    let diagram = format!(
+        "Diagram(format: 1, packs: [Pack(name: \"sensors\", version: \"^0.1\")], components: [\
+         Component(id: \"camera\", type: \"sensors.camera\", position: (x: 0.0, y: 0.0), \
+         properties: {{\"width\": {WIDTH}, \"height\": {HEIGHT}, \"rate\": {RATE_HZ:.1}, \"pattern\": \"color_bars\"}})], \
+         connections: [])"
+    );
+    let deploy = control.request(RequestBody::Deploy { diagram });
+    let start = control.request(RequestBody::Start);
+    if wait_for_reply(&control, deploy).is_none() || wait_for_reply(&control, start).is_none() {
+        eprintln!("the camera diagram did not start");
+        return;
+    }
+    let mut table = Table::new(&[
+        "rep",
+        "transport",
+        "runtime transport CPU",
+        "studio CPU",
+        "frames shown/s",
+    ]);
+    let (mut socket_runtime, mut shared_runtime, mut socket_studio, mut shared_studio) =
+        (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+    for rep in 0..kairos_benches::repetitions() {
+        for transport in [SampleTransport::Socket, SampleTransport::SharedMemory] {
+            let Some((runtime, studio, shown)) = measure(address, transport, window) else {
+                eprintln!("{transport:?}: no measurement");
+                continue;
+            };
+            table.row(vec![
+                rep.to_string(),
+                format!("{transport:?}"),
+                format!("{:.1} %", runtime * 100.0),
+                format!("{:.1} %", studio * 100.0),
+                format!("{shown:.1}"),
+            ]);
+            if transport == SampleTransport::Socket {
+                socket_runtime.push(runtime);
+                socket_studio.push(studio);
+            } else {
+                shared_runtime.push(runtime);
+                shared_studio.push(studio);
+            }
+        }
+    }
+    table.print();
+    let mut ratios = Ratios::new();
+    ratios.add(
+        "runtime CPU: socket / shared memory",
+        Spread::of(
+            socket_runtime
+                .iter()
+                .zip(&shared_runtime)
+                .map(|(s, m)| s / m.max(1e-4)),
+        ),
+        Some(Goal::AtLeast(5.0)),
+    );
+    ratios.add(
+        "studio CPU share, shared memory (of one core) / 25 %",
+        Spread::of(shared_studio.iter().map(|s| s / 0.25)),
+        Some(Goal::AtMost(1.0)),
+    );
+    ratios.add(
+        "studio CPU share, socket (of one core) / 25 %",
+        Spread::of(socket_studio.iter().map(|s| s / 0.25)),
+        None,
+    );
+    ratios.print();
+}
