@@ -41,32 +41,44 @@ fn start_server() -> Option<SocketAddr> {
     rx.recv_timeout(Duration::from_secs(10)).ok()
 }
 
-/// CPU time of this process's threads whose name starts with one of `prefixes`, in nanoseconds.
-fn threads_cpu_nanos(prefixes: &[&str]) -> f64 {
-    let ticks_per_second = 100.0; // USER_HZ on Linux
-    let Ok(tasks) = std::fs::read_dir("/proc/self/task") else {
-        return 0.0;
-    };
-    let mut total = 0.0;
-    for task in tasks.flatten() {
-        let path = task.path();
-        let name = std::fs::read_to_string(path.join("comm")).unwrap_or_default();
-        if !prefixes.iter().any(|p| name.starts_with(p)) {
-            continue;
+/// CPU time of this process's threads by group of names, from each thread's `schedstat` (nanoseconds on a
+/// CPU). Sampled often and summed per thread, so a thread that ends (tokio retires idle blocking threads)
+/// keeps what it used up to the last sample.
+#[derive(Debug, Default)]
+struct CpuMeter {
+    last: std::collections::HashMap<String, f64>,
+    runtime: f64,
+    studio: f64,
+}
+
+impl CpuMeter {
+    fn sample(&mut self) {
+        let Ok(tasks) = std::fs::read_dir("/proc/self/task") else {
+            return;
+        };
+        for task in tasks.flatten() {
+            let path = task.path();
+            let name = std::fs::read_to_string(path.join("comm")).unwrap_or_default();
+            let runtime = name.starts_with("k:net") || name.starts_with("k:shm");
+            let studio = name.starts_with("studio:net") || name.starts_with("studio:shm");
+            if !runtime && !studio {
+                continue;
+            }
+            let on_cpu: f64 = std::fs::read_to_string(path.join("schedstat"))
+                .ok()
+                .and_then(|s| s.split_whitespace().next().and_then(|f| f.parse().ok()))
+                .unwrap_or(0.0);
+            let key = task.file_name().to_string_lossy().into_owned();
+            let before = self.last.insert(key, on_cpu);
+            // A thread seen for the first time counts from now.
+            let spent = before.map_or(0.0, |b| (on_cpu - b).max(0.0));
+            if runtime {
+                self.runtime += spent;
+            } else {
+                self.studio += spent;
+            }
         }
-        let stat = std::fs::read_to_string(path.join("stat")).unwrap_or_default();
-        let fields: Vec<&str> = stat
-            .rsplit_once(')')
-            .map_or("", |(_, rest)| rest)
-            .split_whitespace()
-            .collect();
-        let ticks: f64 = [11, 12]
-            .iter()
-            .filter_map(|i| fields.get(*i).and_then(|f| f.parse::<f64>().ok()))
-            .sum();
-        total += ticks / ticks_per_second;
     }
-    total * 1e9
 }
 
 fn this_thread_cpu_nanos() -> f64 {
@@ -122,11 +134,17 @@ fn measure(address: SocketAddr, transport: SampleTransport, window: Duration) ->
         std::thread::sleep(Duration::from_millis(16));
     }
     let received_before = viewers.list.first().map_or(0, |v| v.received);
-    let runtime_before = threads_cpu_nanos(&["k:net", "k:shm"]);
-    let studio_before = threads_cpu_nanos(&["studio:net", "studio:shm"]) + this_thread_cpu_nanos();
+    let mut meter = CpuMeter::default();
+    meter.sample();
+    let main_before = this_thread_cpu_nanos();
     let started = Instant::now();
     let mut next = started;
+    let mut frames = 0_u64;
     while started.elapsed() < window {
+        frames += 1;
+        if frames.is_multiple_of(6) {
+            meter.sample();
+        }
         for event in client.poll() {
             if let ClientEvent::Sample(header, payload) = event {
                 viewers.receive(&header, &payload);
@@ -138,11 +156,10 @@ fn measure(address: SocketAddr, transport: SampleTransport, window: Duration) ->
             std::thread::sleep(rest);
         }
     }
+    meter.sample();
     let seconds = started.elapsed().as_secs_f64();
-    let runtime = (threads_cpu_nanos(&["k:net", "k:shm"]) - runtime_before) / 1e9 / seconds;
-    let studio = (threads_cpu_nanos(&["studio:net", "studio:shm"]) + this_thread_cpu_nanos() - studio_before)
-        / 1e9
-        / seconds;
+    let runtime = meter.runtime / 1e9 / seconds;
+    let studio = (meter.studio + this_thread_cpu_nanos() - main_before) / 1e9 / seconds;
     let shown = viewers.list.first().map_or(0, |v| v.received) - received_before;
     Some((runtime, studio, shown as f64 / seconds))
 }
@@ -169,8 +186,9 @@ fn main() {
          connections: [])"
     );
     let deploy = control.request(RequestBody::Deploy { diagram });
+    let deployed = wait_for_reply(&control, deploy).is_some();
     let start = control.request(RequestBody::Start);
-    if wait_for_reply(&control, deploy).is_none() || wait_for_reply(&control, start).is_none() {
+    if !deployed || wait_for_reply(&control, start).is_none() {
         eprintln!("the camera diagram did not start");
         return;
     }

@@ -1244,8 +1244,8 @@ impl StudioApp {
             .show(ui, |ui| {
                 self.canvas
                     .show(ui, &mut self.document, &self.library, &self.states, &self.monitor);
-                if let Some((port, data_type)) = self.canvas.take_viewer_request() {
-                    self.viewers.open(port.to_string(), &data_type);
+                if let Some((port, kind)) = self.canvas.take_viewer_request() {
+                    self.viewers.open_kind(port.to_string(), kind);
                 }
             })
             .response

@@ -56,7 +56,7 @@ pub struct Canvas {
     /// whether it adds to the selection (Shift or Ctrl held when it started).
     rubber_band: Option<(Pos2, Pos2, bool)>,
     /// An output the user asked to watch (its context menu), with its data type, until the studio takes it.
-    viewer_request: Option<(PortRef, String)>,
+    viewer_request: Option<(PortRef, crate::viewers::ViewerKind)>,
 }
 
 impl Default for Canvas {
@@ -480,13 +480,15 @@ impl Canvas {
                         painter.circle_stroke(*at, PORT_RADIUS + 4.0, ring);
                     }
                     if response.dnd_release_payload::<NewViewer>().is_some() {
-                        self.viewer_request = Some((port.clone(), type_name.clone()));
+                        self.viewer_request =
+                            Some((port.clone(), crate::viewers::ViewerKind::for_type(&type_name)));
                     }
-                    let viewer = crate::viewers::ViewerKind::for_type(&type_name);
                     response.context_menu(|ui| {
-                        if ui.button(format!("Open a viewer ({})", viewer.name())).clicked() {
-                            self.viewer_request = Some((port.clone(), type_name.clone()));
-                            ui.close();
+                        for kind in crate::viewers::ViewerKind::choices(&type_name) {
+                            if ui.button(format!("Open a viewer ({})", kind.name())).clicked() {
+                                self.viewer_request = Some((port.clone(), kind));
+                                ui.close();
+                            }
                         }
                     });
                     painter.circle_filled(*at, PORT_RADIUS, type_color(&type_name));
@@ -615,8 +617,8 @@ impl Canvas {
         }
     }
 
-    /// The output the user asked to open a viewer on, with its data type, if any since the last call.
-    pub fn take_viewer_request(&mut self) -> Option<(PortRef, String)> {
+    /// The output the user asked to open a viewer on, with the viewer's kind, if any since the last call.
+    pub fn take_viewer_request(&mut self) -> Option<(PortRef, crate::viewers::ViewerKind)> {
         self.viewer_request.take()
     }
 

@@ -35,6 +35,8 @@ pub enum ViewerKind {
     Track,
     /// Point clouds in 3D.
     Cloud,
+    /// Poses in 3D: the path so far and where the body points now.
+    Trajectory,
     /// The latest samples as text.
     Table,
 }
@@ -44,11 +46,25 @@ impl ViewerKind {
     pub fn for_type(data_type: &str) -> ViewerKind {
         match data_type {
             "image" => ViewerKind::Image,
-            "f64" | "i64" | "bool" | "vector" | "imu" | "pose" => ViewerKind::Plot,
+            "f64" | "i64" | "bool" | "vector" | "imu" => ViewerKind::Plot,
+            "pose" => ViewerKind::Trajectory,
             "gnss_fix" => ViewerKind::Track,
             "point_cloud" => ViewerKind::Cloud,
             _ => ViewerKind::Table,
         }
+    }
+
+    /// The viewers that can show a data type, the usual one first.
+    pub fn choices(data_type: &str) -> Vec<ViewerKind> {
+        let usual = ViewerKind::for_type(data_type);
+        let mut choices = vec![usual];
+        if data_type == "pose" {
+            choices.push(ViewerKind::Plot);
+        }
+        if usual != ViewerKind::Table {
+            choices.push(ViewerKind::Table);
+        }
+        choices
     }
 
     /// What the viewer is called in menus and titles.
@@ -58,6 +74,7 @@ impl ViewerKind {
             ViewerKind::Plot => "plot",
             ViewerKind::Track => "GNSS track",
             ViewerKind::Cloud => "3D point cloud",
+            ViewerKind::Trajectory => "3D poses",
             ViewerKind::Table => "latest samples",
         }
     }
@@ -66,7 +83,8 @@ impl ViewerKind {
 /// The latest image and what is needed to read its pixels back.
 struct Frame {
     texture: TextureHandle,
-    pixels: ColorImage,
+    /// The same pixels the texture was made from (shared, not copied), for the value under the pointer.
+    pixels: Arc<ColorImage>,
     original_width: Option<u32>,
 }
 
@@ -98,6 +116,8 @@ pub struct Viewer {
     origin: Option<(f64, f64)>,
     rows: VecDeque<(u64, i64, i64, String)>,
     cloud: Arc<GpuCloud>,
+    /// A pose viewer's positions so far.
+    path: VecDeque<glam::Vec3>,
     camera: OrbitCamera,
     color_by: ColorBy,
     point_size: f32,
@@ -113,7 +133,9 @@ impl std::fmt::Debug for Viewer {
     }
 }
 
-/// Turns frame pixels into an RGBA image; `None` for a layout that does not add up.
+/// Turns frame pixels into an image for the GPU; `None` for a layout that does not add up. The format is
+/// looked at once per image and each row converted by a loop of its own (a 1920×1080 frame in a few
+/// milliseconds).
 fn color_image(layout: &kairos_protocol::frame::ImageLayout, bytes: &[u8]) -> Option<ColorImage> {
     let (width, height, stride) = (
         layout.width as usize,
@@ -134,21 +156,87 @@ fn color_image(layout: &kairos_protocol::frame::ImageLayout, bytes: &[u8]) -> Op
     {
         return None;
     }
-    let mut rgba = Vec::with_capacity(width * height * 4);
+    let convert: fn(&[u8]) -> Color32 = match layout.format.as_str() {
+        "gray8" => |p| Color32::from_gray(p[0]),
+        "gray16" => |p| Color32::from_gray(p[1]),
+        "rgb8" => |p| Color32::from_rgb(p[0], p[1], p[2]),
+        "bgr8" => |p| Color32::from_rgb(p[2], p[1], p[0]),
+        "rgba8" => |p| Color32::from_rgba_unmultiplied(p[0], p[1], p[2], p[3]),
+        _ => |p| Color32::from_rgba_unmultiplied(p[2], p[1], p[0], p[3]),
+    };
+    let mut pixels = Vec::with_capacity(width * height);
     for row in 0..height {
         let line = bytes.get(row * stride..row * stride + width * per_pixel)?;
-        for px in line.chunks_exact(per_pixel) {
-            let [r, g, b, a] = match (layout.format.as_str(), px) {
-                ("gray8", [v]) => [*v, *v, *v, 255],
-                ("gray16", [_, high]) => [*high, *high, *high, 255],
-                ("rgb8", [r, g, b]) | ("bgr8", [b, g, r]) => [*r, *g, *b, 255],
-                ("rgba8", [r, g, b, a]) | ("bgra8", [b, g, r, a]) => [*r, *g, *b, *a],
-                _ => return None,
-            };
-            rgba.extend_from_slice(&[r, g, b, a]);
+        pixels.extend(line.chunks_exact(per_pixel).map(convert));
+    }
+    Some(ColorImage::new([width, height], pixels))
+}
+
+/// A point-cloud frame's points (x, y, z and, with `intensity`, a fourth f32 each, little-endian) for the
+/// GPU.
+fn cloud_of(intensity: bool, payload: &[u8], generation: u64) -> GpuCloud {
+    let stride = if intensity { 16 } else { 12 };
+    let mut points = Vec::with_capacity(payload.len() / stride);
+    let (mut low, mut high) = (f32::INFINITY, f32::NEG_INFINITY);
+    for chunk in payload.chunks_exact(stride) {
+        let value = |at: usize| {
+            chunk
+                .get(at..at + 4)
+                .and_then(|b| b.try_into().ok())
+                .map_or(0.0, f32::from_le_bytes)
+        };
+        let point = [
+            value(0),
+            value(4),
+            value(8),
+            if intensity { value(12) } else { 0.5 },
+        ];
+        low = low.min(point[2]);
+        high = high.max(point[2]);
+        points.push(point);
+    }
+    GpuCloud {
+        generation,
+        points,
+        z_range: if low <= high { (low, high) } else { (0.0, 1.0) },
+    }
+}
+
+/// A pose viewer's points: the path so far (intensity 0.3), and the body's axes now, a metre and a half long
+/// (forward 1.0, left 0.7, up 0.5 in intensity, so colouring by intensity tells them apart).
+fn pose_cloud(path: &VecDeque<glam::Vec3>, orientation: glam::Quat, generation: u64) -> GpuCloud {
+    let mut points: Vec<[f32; 4]> = path.iter().map(|p| [p.x, p.y, p.z, 0.3]).collect();
+    if let Some(now) = path.back() {
+        for (axis, intensity) in [(glam::Vec3::X, 1.0), (glam::Vec3::Y, 0.7), (glam::Vec3::Z, 0.5)] {
+            let direction = orientation * axis;
+            for step in 0..=30 {
+                let p = *now + direction * (step as f32 * 0.05);
+                points.push([p.x, p.y, p.z, intensity]);
+            }
         }
     }
-    Some(ColorImage::from_rgba_unmultiplied([width, height], &rgba))
+    let (low, high) = points
+        .iter()
+        .fold((f32::INFINITY, f32::NEG_INFINITY), |(l, h), p| {
+            (l.min(p[2]), h.max(p[2]))
+        });
+    GpuCloud {
+        generation,
+        points,
+        z_range: if low <= high { (low, high) } else { (0.0, 1.0) },
+    }
+}
+
+/// A time in nanoseconds since the UNIX epoch as the time of day in UTC, to the millisecond.
+fn time_of_day(nanos: i64) -> String {
+    let millis = nanos.div_euclid(1_000_000).rem_euclid(86_400_000);
+    format!(
+        "{:02}:{:02}:{:02}.{:03}",
+        millis / 3_600_000,
+        millis / 60_000 % 60,
+        millis / 1000 % 60,
+        millis % 1000
+    )
 }
 
 /// The numbers a plot draws from a sample's JSON value, with their series names.
@@ -214,6 +302,7 @@ impl Viewer {
             origin: None,
             rows: VecDeque::new(),
             cloud: Arc::new(GpuCloud::default()),
+            path: VecDeque::new(),
             camera: OrbitCamera::default(),
             color_by: ColorBy::Height,
             point_size: 2.0,
@@ -261,8 +350,6 @@ impl Viewer {
             self.first_timestamp_ns = None;
             self.series.clear();
         }
-        let first = *self.first_timestamp_ns.get_or_insert(header.timestamp_ns);
-        let t = (header.timestamp_ns - first) as f64 / 1e9;
         let value = header.value.clone().unwrap_or(serde_json::Value::Null);
         match self.kind {
             ViewerKind::Image => {
@@ -272,86 +359,96 @@ impl Viewer {
                     self.pending_image = Some((image, layout.original_width));
                 }
             }
-            ViewerKind::Plot => {
-                for (name, y) in plotted(&header.data_type, &value) {
-                    let index = self
-                        .series
-                        .iter()
-                        .position(|(n, _)| *n == name)
-                        .unwrap_or_else(|| {
-                            self.series.push((name, VecDeque::new()));
-                            self.series.len() - 1
-                        });
-                    if let Some((_, points)) = self.series.get_mut(index) {
-                        if points.len() == SERIES_POINTS {
-                            points.pop_front();
-                        }
-                        points.push_back([t, y]);
-                    }
-                }
-            }
-            ViewerKind::Track => {
-                let (Some(lat), Some(lon)) = (
-                    value.get("latitude_deg").and_then(serde_json::Value::as_f64),
-                    value.get("longitude_deg").and_then(serde_json::Value::as_f64),
-                ) else {
-                    return;
-                };
-                // Equirectangular around the first fix: metres east and north, exact enough over the
-                // few kilometres a test drive covers.
-                let (lat0, lon0) = *self.origin.get_or_insert((lat, lon));
-                let east = EARTH_RADIUS_M * (lon - lon0).to_radians() * lat0.to_radians().cos();
-                let north = EARTH_RADIUS_M * (lat - lat0).to_radians();
-                if self.track.len() == SERIES_POINTS {
-                    self.track.remove(0);
-                }
-                self.track.push([east, north]);
-            }
-            ViewerKind::Cloud => {
-                let stride = if header.intensity { 16 } else { 12 };
-                let mut points = Vec::with_capacity(payload.len() / stride);
-                let (mut low, mut high) = (f32::INFINITY, f32::NEG_INFINITY);
-                for chunk in payload.chunks_exact(stride) {
-                    let value = |at: usize| {
-                        chunk
-                            .get(at..at + 4)
-                            .and_then(|b| b.try_into().ok())
-                            .map_or(0.0, f32::from_le_bytes)
-                    };
-                    let point = [
-                        value(0),
-                        value(4),
-                        value(8),
-                        if header.intensity { value(12) } else { 0.5 },
-                    ];
-                    low = low.min(point[2]);
-                    high = high.max(point[2]);
-                    points.push(point);
-                }
-                self.cloud = Arc::new(GpuCloud {
-                    generation: self.received,
-                    points,
-                    z_range: if low <= high { (low, high) } else { (0.0, 1.0) },
-                });
-            }
-            ViewerKind::Table => {
-                let text = if value.is_null() {
-                    format!("{} bytes", payload.len())
-                } else {
-                    value.to_string()
-                };
-                if self.rows.len() == TABLE_ROWS {
-                    self.rows.pop_back();
-                }
-                self.rows.push_front((
-                    header.sequence,
-                    header.timestamp_ns,
-                    header.time_of_issue_ns - header.timestamp_ns,
-                    text,
-                ));
-            }
+            ViewerKind::Plot => self.plot_sample(header, &value),
+            ViewerKind::Track => self.track_sample(&value),
+            ViewerKind::Cloud => self.cloud = Arc::new(cloud_of(header.intensity, payload, self.received)),
+            ViewerKind::Trajectory => self.pose_sample(&value),
+            ViewerKind::Table => self.table_sample(header, &value, payload),
         }
         self.last = Some(header.clone());
+    }
+
+    fn plot_sample(&mut self, header: &SampleHeader, value: &serde_json::Value) {
+        let first = *self.first_timestamp_ns.get_or_insert(header.timestamp_ns);
+        let seconds = (header.timestamp_ns - first) as f64 / 1e9;
+        for (name, y) in plotted(&header.data_type, value) {
+            let index = self
+                .series
+                .iter()
+                .position(|(n, _)| *n == name)
+                .unwrap_or_else(|| {
+                    self.series.push((name, VecDeque::new()));
+                    self.series.len() - 1
+                });
+            if let Some((_, points)) = self.series.get_mut(index) {
+                if points.len() == SERIES_POINTS {
+                    points.pop_front();
+                }
+                points.push_back([seconds, y]);
+            }
+        }
+    }
+
+    fn track_sample(&mut self, value: &serde_json::Value) {
+        let (Some(lat), Some(lon)) = (
+            value.get("latitude_deg").and_then(serde_json::Value::as_f64),
+            value.get("longitude_deg").and_then(serde_json::Value::as_f64),
+        ) else {
+            return;
+        };
+        // Equirectangular around the first fix: metres east and north, exact enough over the
+        // few kilometres a test drive covers.
+        let (lat0, lon0) = *self.origin.get_or_insert((lat, lon));
+        let east = EARTH_RADIUS_M * (lon - lon0).to_radians() * lat0.to_radians().cos();
+        let north = EARTH_RADIUS_M * (lat - lat0).to_radians();
+        if self.track.len() == SERIES_POINTS {
+            self.track.remove(0);
+        }
+        self.track.push([east, north]);
+    }
+
+    fn pose_sample(&mut self, value: &serde_json::Value) {
+        let numbers = |v: Option<&serde_json::Value>| -> Vec<f32> {
+            #[allow(
+                clippy::cast_possible_truncation,
+                reason = "metres and unit quaternions, shown on screen"
+            )]
+            v.and_then(serde_json::Value::as_array)
+                .map(|a| {
+                    a.iter()
+                        .filter_map(serde_json::Value::as_f64)
+                        .map(|x| x as f32)
+                        .collect()
+                })
+                .unwrap_or_default()
+        };
+        let (position, rotation) = (numbers(value.get("position")), numbers(value.get("orientation")));
+        let (&[x, y, z], &[qx, qy, qz, qw]) = (position.as_slice(), rotation.as_slice()) else {
+            return;
+        };
+        if self.path.len() == SERIES_POINTS {
+            self.path.pop_front();
+        }
+        self.path.push_back(glam::Vec3::new(x, y, z));
+        let orientation = glam::Quat::from_xyzw(qx, qy, qz, qw);
+        self.cloud = Arc::new(pose_cloud(&self.path, orientation, self.received));
+    }
+
+    fn table_sample(&mut self, header: &SampleHeader, value: &serde_json::Value, payload: &[u8]) {
+        let text = if value.is_null() {
+            format!("{} bytes", payload.len())
+        } else {
+            value.to_string()
+        };
+        if self.rows.len() == TABLE_ROWS {
+            self.rows.pop_back();
+        }
+        self.rows.push_front((
+            header.sequence,
+            header.timestamp_ns,
+            header.time_of_issue_ns - header.timestamp_ns,
+            text,
+        ));
     }
 
     fn title(&self) -> String {
@@ -369,7 +466,7 @@ impl Viewer {
             ViewerKind::Image => self.image(ui),
             ViewerKind::Plot => self.plot(ui),
             ViewerKind::Track => self.track_view(ui),
-            ViewerKind::Cloud => self.cloud_view(ui),
+            ViewerKind::Cloud | ViewerKind::Trajectory => self.cloud_view(ui),
             ViewerKind::Table => self.table(ui),
         }
     }
@@ -442,14 +539,15 @@ impl Viewer {
 
     fn image(&mut self, ui: &mut egui::Ui) {
         if let Some((image, original_width)) = self.pending_image.take() {
+            let image = Arc::new(image);
             if let Some(frame) = &mut self.frame {
-                frame.texture.set(image.clone(), TextureOptions::NEAREST);
+                frame.texture.set(Arc::clone(&image), TextureOptions::NEAREST);
                 frame.pixels = image;
                 frame.original_width = original_width;
             } else {
                 let texture = ui.ctx().load_texture(
                     format!("viewer {}", self.id),
-                    image.clone(),
+                    Arc::clone(&image),
                     TextureOptions::NEAREST,
                 );
                 self.frame = Some(Frame {
@@ -482,6 +580,23 @@ impl Viewer {
         egui::ScrollArea::both().max_height(600.0).show(ui, |ui| {
             let response =
                 ui.add(egui::Image::new((frame.texture.id(), size * self.zoom)).sense(egui::Sense::hover()));
+            // The sample's time (UTC) and latency over the image's corner.
+            if let Some(last) = &self.last {
+                let text = format!(
+                    "{} UTC · latency {}",
+                    time_of_day(last.timestamp_ns),
+                    crate::monitor::milliseconds(last.time_of_issue_ns - last.timestamp_ns)
+                );
+                let painter = ui.painter_at(response.rect);
+                let at = response.rect.left_bottom() + Vec2::new(6.0, -6.0);
+                let galley = painter.layout_no_wrap(text, egui::FontId::monospace(12.0), Color32::WHITE);
+                let back = egui::Rect::from_min_size(
+                    at - Vec2::new(3.0, galley.size().y + 2.0),
+                    galley.size() + Vec2::new(6.0, 4.0),
+                );
+                painter.rect_filled(back, 3.0, Color32::from_black_alpha(170));
+                painter.galley(at - Vec2::new(0.0, galley.size().y), galley, Color32::WHITE);
+            }
             if let Some(pointer) = response.hover_pos() {
                 let at = (pointer - response.rect.min) / self.zoom;
                 let (x, y) = (at.x as usize, at.y as usize);
@@ -600,11 +715,15 @@ pub struct Viewers {
 }
 
 impl Viewers {
-    /// Opens a viewer of `output` (`component.port`) whose samples are of `data_type`.
+    /// Opens the usual viewer of `output` (`component.port`) for its `data_type`.
     pub fn open(&mut self, output: String, data_type: &str) {
+        self.open_kind(output, ViewerKind::for_type(data_type));
+    }
+
+    /// Opens a viewer of this kind on `output`.
+    pub fn open_kind(&mut self, output: String, kind: ViewerKind) {
         self.next_id += 1;
-        self.list
-            .push(Viewer::new(self.next_id, output, ViewerKind::for_type(data_type)));
+        self.list.push(Viewer::new(self.next_id, output, kind));
         self.changed = true;
     }
 

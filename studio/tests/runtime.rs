@@ -221,7 +221,13 @@ fn viewers_and_monitoring_show_a_running_diagram() {
         "output lidar.points (point_cloud)",
         "Open a viewer (3D point cloud)",
     );
-    assert_eq!(harness.state().viewers.list.len(), 5);
+    open_viewer(
+        &mut harness,
+        "output gnss.fix (gnss_fix)",
+        "Open a viewer (latest samples)",
+    );
+    open_viewer(&mut harness, "output imu.pose (pose)", "Open a viewer (3D poses)");
+    assert_eq!(harness.state().viewers.list.len(), 7);
     assert!(
         harness.state().uses_shared_memory(),
         "a local runtime hands viewer frames over in shared memory"
@@ -236,7 +242,15 @@ fn viewers_and_monitoring_show_a_running_diagram() {
             && list[2].track().len() >= 3
             && list[3].series().first().is_some_and(|(_, n)| *n >= 10)
             && list[4].cloud_points() > 1000
+            && list[5].rows().count() >= 3
+            && list[6].cloud_points() > 93
     });
+    let list = &harness.state().viewers.list;
+    assert!(
+        list[5].rows().all(|row| row.contains("latitude_deg")),
+        "the table shows the fixes: {:?}",
+        list[5].rows().next()
+    );
     let list = &harness.state().viewers.list;
     assert_eq!(
         list[0].texture_size(),
