@@ -102,10 +102,16 @@ fn wait_for_reply(client: &RuntimeClient, id: u64) -> Option<kairos_protocol::Re
 }
 
 /// One measurement: (runtime transport CPU share, studio CPU share, frames shown per second).
-fn measure(address: SocketAddr, transport: SampleTransport, window: Duration) -> Option<(f64, f64, f64)> {
+fn measure(
+    address: SocketAddr,
+    transport: SampleTransport,
+    window: Duration,
+    output: &str,
+    data_type: &str,
+) -> Option<(f64, f64, f64)> {
     let mut client = RuntimeClient::connect(&format!("ws://{address}"), None, || {});
     let subscribe = client.request(RequestBody::SubscribeSamples {
-        outputs: vec!["camera.image".to_owned()],
+        outputs: vec![output.to_owned()],
         max_rate_hz: RATE_HZ,
         max_image_width: None,
         transport,
@@ -116,7 +122,7 @@ fn measure(address: SocketAddr, transport: SampleTransport, window: Duration) ->
         client.receive_shared(services).ok()?;
     }
     let mut viewers = Viewers::default();
-    viewers.open("camera.image".to_owned(), "image");
+    viewers.open(output.to_owned(), data_type);
     let ctx = egui::Context::default();
     let frame = |ctx: &egui::Context, viewers: &mut Viewers| {
         let output = ctx.run_ui(egui::RawInput::default(), |ui| viewers.show_docked(ui));
@@ -182,8 +188,9 @@ fn main() {
     let diagram = format!(
         "Diagram(format: 1, packs: [Pack(name: \"sensors\", version: \"^0.1\")], components: [\
          Component(id: \"camera\", type: \"sensors.camera\", position: (x: 0.0, y: 0.0), \
-         properties: {{\"width\": {WIDTH}, \"height\": {HEIGHT}, \"rate\": {RATE_HZ:.1}, \"pattern\": \"color_bars\"}})], \
-         connections: [])"
+         properties: {{\"width\": {WIDTH}, \"height\": {HEIGHT}, \"rate\": {RATE_HZ:.1}, \"pattern\": \"color_bars\"}}), \
+         Component(id: \"lidar\", type: \"sensors.lidar\", position: (x: 0.0, y: 100.0), \
+         properties: {{\"channels\": 64, \"columns\": 1600, \"rate\": {RATE_HZ:.1}}})], connections: [])"
     );
     let deploy = control.request(RequestBody::Deploy { diagram });
     let deployed = wait_for_reply(&control, deploy).is_some();
@@ -203,7 +210,8 @@ fn main() {
         (Vec::new(), Vec::new(), Vec::new(), Vec::new());
     for rep in 0..kairos_benches::repetitions() {
         for transport in [SampleTransport::Socket, SampleTransport::SharedMemory] {
-            let Some((runtime, studio, shown)) = measure(address, transport, window) else {
+            let Some((runtime, studio, shown)) = measure(address, transport, window, "camera.image", "image")
+            else {
                 eprintln!("{transport:?}: no measurement");
                 continue;
             };
@@ -224,6 +232,25 @@ fn main() {
         }
     }
     table.print();
+    // A lidar of 64 × 1600 rays at 30 Hz (up to 102 400 points a scan) into the 3D viewer, over shared memory.
+    let mut clouds = Table::new(&["rep", "points per cloud", "studio CPU", "clouds shown/s"]);
+    for rep in 0..kairos_benches::repetitions() {
+        if let Some((_, studio, shown)) = measure(
+            address,
+            SampleTransport::SharedMemory,
+            window,
+            "lidar.points",
+            "point_cloud",
+        ) {
+            clouds.row(vec![
+                rep.to_string(),
+                "≤ 102 400".to_owned(),
+                format!("{:.1} %", studio * 100.0),
+                format!("{shown:.1}"),
+            ]);
+        }
+    }
+    clouds.print();
     let mut ratios = Ratios::new();
     ratios.add(
         "runtime CPU: socket / shared memory",
