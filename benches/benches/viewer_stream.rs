@@ -170,6 +170,28 @@ fn measure(
     Some((runtime, studio, shown as f64 / seconds))
 }
 
+/// A lidar of 64 × 1600 rays at 30 Hz (up to 102 400 points a scan) into the 3D viewer, over shared memory.
+fn clouds(address: SocketAddr, window: Duration) {
+    let mut clouds = Table::new(&["rep", "points per cloud", "studio CPU", "clouds shown/s"]);
+    for rep in 0..kairos_benches::repetitions() {
+        if let Some((_, studio, shown)) = measure(
+            address,
+            SampleTransport::SharedMemory,
+            window,
+            "lidar.points",
+            "point_cloud",
+        ) {
+            clouds.row(vec![
+                rep.to_string(),
+                "≤ 102 400".to_owned(),
+                format!("{:.1} %", studio * 100.0),
+                format!("{shown:.1}"),
+            ]);
+        }
+    }
+    clouds.print();
+}
+
 fn main() {
     let window = Duration::from_secs(size(2, 5));
     header(
@@ -232,25 +254,7 @@ fn main() {
         }
     }
     table.print();
-    // A lidar of 64 × 1600 rays at 30 Hz (up to 102 400 points a scan) into the 3D viewer, over shared memory.
-    let mut clouds = Table::new(&["rep", "points per cloud", "studio CPU", "clouds shown/s"]);
-    for rep in 0..kairos_benches::repetitions() {
-        if let Some((_, studio, shown)) = measure(
-            address,
-            SampleTransport::SharedMemory,
-            window,
-            "lidar.points",
-            "point_cloud",
-        ) {
-            clouds.row(vec![
-                rep.to_string(),
-                "≤ 102 400".to_owned(),
-                format!("{:.1} %", studio * 100.0),
-                format!("{shown:.1}"),
-            ]);
-        }
-    }
-    clouds.print();
+    clouds(address, window);
     let mut ratios = Ratios::new();
     ratios.add(
         "runtime CPU: socket / shared memory",

@@ -104,6 +104,58 @@ pub enum Command {
         /// Show only types containing this text.
         filter: Option<String>,
     },
+    /// Generate a pack or a component from the templates.
+    #[command(subcommand)]
+    New(NewCommand),
+}
+
+/// What `kairos new` generates.
+#[derive(Debug, Subcommand)]
+pub enum NewCommand {
+    /// A pack crate (built in or loaded at run time) with an example component and its unit test.
+    Pack {
+        /// The pack's name (lower case, digits and _): the prefix of its component types.
+        name: String,
+        /// The folder to create the pack in (it goes in PATH/NAME).
+        #[arg(long, default_value = ".")]
+        path: PathBuf,
+        /// The kairos-sdk to depend on (default: this installation's).
+        #[arg(long, value_name = "PATH")]
+        sdk: Option<PathBuf>,
+        /// The pack's language: a Rust crate, or C++ against the C header of the pack ABI.
+        #[arg(long, value_enum, default_value = "rust")]
+        lang: crate::wizard::Lang,
+        /// Overwrite files that exist.
+        #[arg(long)]
+        force: bool,
+    },
+    /// A component in a pack made by `kairos new pack`, registered in it. Without a name, it asks.
+    Component {
+        /// The component's name in the pack (lower case, digits and _); none: ask for every answer.
+        name: Option<String>,
+        /// The pack's folder.
+        #[arg(long, value_name = "DIR", default_value = ".")]
+        pack: PathBuf,
+        /// An input, NAME:TYPE (TYPE: f64, i64, bool, vector, matrix, text, bytes, image, `point_cloud`, imu,
+        /// `gnss_fix`, `can_frame`, pose or any); repeatable.
+        #[arg(long = "input", value_name = "NAME:TYPE")]
+        inputs: Vec<String>,
+        /// An output, NAME:TYPE; repeatable.
+        #[arg(long = "output", value_name = "NAME:TYPE")]
+        outputs: Vec<String>,
+        /// A property, NAME:TYPE=DEFAULT (TYPE: f64, i64, bool, text, path); repeatable.
+        #[arg(long = "property", value_name = "NAME:TYPE=DEFAULT")]
+        properties: Vec<String>,
+        /// An action (a button in the studio); repeatable.
+        #[arg(long = "action", value_name = "NAME")]
+        actions: Vec<String>,
+        /// How it runs.
+        #[arg(long, value_enum, default_value = "threaded")]
+        mode: crate::wizard::Mode,
+        /// Overwrite the component's file if it exists.
+        #[arg(long)]
+        force: bool,
+    },
 }
 
 /// Sets up logging to standard error.
@@ -137,6 +189,7 @@ pub fn execute(cli: Cli) -> anyhow::Result<ExitCode> {
         Command::Validate { diagrams } => diagrams.iter().map(PathBuf::as_path).collect(),
         Command::Packs { .. }
         | Command::Components { .. }
+        | Command::New(_)
         | Command::Inspect { .. }
         | Command::Recover { .. } => Vec::new(),
     };
@@ -231,6 +284,94 @@ pub fn execute(cli: Cli) -> anyhow::Result<ExitCode> {
         Command::Components { json, filter } => {
             components(&registry.library_info(), json, filter.as_deref())?;
             Ok(ExitCode::SUCCESS)
+        }
+        Command::New(what) => Ok(new(what, &registry)),
+    }
+}
+
+/// `kairos new`: prints what was made, or why nothing was.
+fn new(what: NewCommand, registry: &Registry) -> ExitCode {
+    let result = match what {
+        NewCommand::Pack {
+            name,
+            path,
+            sdk,
+            lang,
+            force,
+        } => {
+            let sdk = sdk.unwrap_or_else(crate::wizard::default_sdk_path);
+            crate::wizard::new_pack(&name, &path, &sdk, lang, force).map(|(folder, notes)| {
+                println!("made the pack '{name}' in {}", folder.display());
+                if lang == crate::wizard::Lang::Cpp {
+                    println!("  cd {} && make", folder.display());
+                    println!(
+                        "  kairos --pack-path {}/build components {name}.",
+                        folder.display()
+                    );
+                } else {
+                    println!("  cd {} && cargo test && cargo build --release", folder.display());
+                    println!(
+                        "  kairos --pack-path {}/target/release components {name}.",
+                        folder.display()
+                    );
+                }
+                notes
+            })
+        }
+        NewCommand::Component {
+            name,
+            pack,
+            inputs,
+            outputs,
+            properties,
+            actions,
+            mode,
+            force,
+        } => {
+            let (spec, pack) = match name {
+                Some(name) => (
+                    crate::wizard::ComponentSpec {
+                        name,
+                        inputs,
+                        outputs,
+                        properties,
+                        actions,
+                        mode,
+                    },
+                    pack,
+                ),
+                None => match crate::wizard::ask(&mut std::io::stdin().lock(), &mut std::io::stdout()) {
+                    Ok(answers) => answers,
+                    Err(error) => {
+                        eprintln!("error: {error}");
+                        return ExitCode::from(1);
+                    }
+                },
+            };
+            let name = spec.name.clone();
+            crate::wizard::new_component(&spec, &pack, &registry.library_info(), force).inspect(|_| {
+                let extension = if pack.join("src/pack.cpp").is_file() {
+                    "cpp"
+                } else {
+                    "rs"
+                };
+                println!(
+                    "made the component '{name}' in {}",
+                    pack.join("src").join(format!("{name}.{extension}")).display()
+                );
+            })
+        }
+    };
+    match result {
+        Ok(notes) => {
+            for note in notes {
+                eprintln!("note: {note}");
+            }
+            ExitCode::SUCCESS
+        }
+        Err(error) => {
+            eprintln!("error: {error}");
+            ExitCode::from(1)
         }
     }
 }

@@ -6,6 +6,7 @@ pub mod log_tap;
 pub mod packs;
 pub mod run;
 pub mod serve;
+pub mod wizard;
 
 use std::path::{Path, PathBuf};
 

@@ -1,0 +1,354 @@
+//! `kairos new` as a developer uses it: a pack with two components (one threaded, one reactive) generated,
+//! built with cargo, loaded by the runtime from its library and run in a diagram with the core pack; and
+//! answers that are refused before anything is written.
+#![allow(
+    clippy::unwrap_used,
+    clippy::expect_used,
+    reason = "a failed unwrap is a failed test"
+)]
+
+mod common;
+
+use std::path::Path;
+use std::process::Command;
+
+use common::{kairos, text};
+
+fn workspace() -> &'static Path {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .parent()
+        .unwrap()
+        .parent()
+        .unwrap()
+}
+
+/// A reactive image pass-through with a property and an action, a periodic text source, a sink of
+/// anything, a conversion with no algorithm yet, an empty component, and one asked for interactively: each
+/// must render into code that builds, is formatted and passes clippy.
+fn generate_components_of_every_shape(dir: &Path, pack: &Path) {
+    for args in [
+        &[
+            "blur",
+            "--input",
+            "image:image",
+            "--output",
+            "out:image",
+            "--property",
+            "radius:i64=3",
+            "--action",
+            "reset",
+            "--mode",
+            "reactive",
+        ][..],
+        &["ticker", "--output", "tick:text", "--mode", "periodic"],
+        &["sink", "--input", "in:any"],
+        &["convert", "--input", "in:i64", "--output", "out:bool"],
+        &["empty"],
+    ] {
+        let mut full = vec!["new", "component", "--pack", "lab"];
+        full.extend_from_slice(args);
+        let made = kairos(dir, &full);
+        assert!(made.status.success(), "{args:?}: {:?}", text(&made));
+    }
+    let mut asked = Command::new(env!("CARGO_BIN_EXE_kairos"))
+        .args(["new", "component"])
+        .current_dir(dir)
+        .stdin(std::process::Stdio::piped())
+        .stdout(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    {
+        use std::io::Write as _;
+        let mut answers = asked.stdin.take().unwrap();
+        // A refused name and a refused default are asked again, with the reason.
+        answers
+            .write_all(b"Smooth\nsmooth\nlab\nreactive\nin:f64\nout:f64\nwindow:i64=five\nwindow:i64=5\n\n")
+            .unwrap();
+    }
+    let asked = asked.wait_with_output().unwrap();
+    let (stdout, _) = text(&asked);
+    assert!(asked.status.success(), "{stdout}");
+    assert!(
+        stdout.contains("try 'smooth'") && stdout.contains("not a whole number"),
+        "{stdout}"
+    );
+    assert!(pack.join("src/smooth.rs").is_file());
+}
+
+/// Runs the generated pack's tests, clippy and rustfmt, and builds its library; returns the target folder.
+fn build_test_and_lint(pack: &Path) -> std::path::PathBuf {
+    // The workspace's lock pins the same dependency versions, so the build reuses what is compiled.
+    std::fs::copy(workspace().join("Cargo.lock"), pack.join("Cargo.lock")).unwrap();
+    let target = workspace().join("target").join("wizard");
+    let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".to_owned());
+    let built = Command::new(&cargo)
+        .args(["test", "--offline", "--quiet"])
+        .env("CARGO_TARGET_DIR", &target)
+        .current_dir(pack)
+        .output()
+        .unwrap();
+    assert!(
+        built.status.success(),
+        "the generated pack's tests: {:?}",
+        text(&built)
+    );
+    let linted = Command::new(&cargo)
+        .args([
+            "clippy",
+            "--offline",
+            "--quiet",
+            "--all-targets",
+            "--",
+            "-D",
+            "warnings",
+        ])
+        .env("CARGO_TARGET_DIR", &target)
+        .current_dir(pack)
+        .output()
+        .unwrap();
+    assert!(
+        linted.status.success(),
+        "clippy on the generated pack: {:?}",
+        text(&linted)
+    );
+    let formatted = Command::new("rustfmt")
+        .args(["--edition", "2024", "--check"])
+        .args(
+            std::fs::read_dir(pack.join("src"))
+                .unwrap()
+                .flatten()
+                .map(|e| e.path()),
+        )
+        .output();
+    if let Ok(formatted) = formatted {
+        assert!(
+            formatted.status.success(),
+            "rustfmt --check: {:?}",
+            text(&formatted)
+        );
+    }
+    let built = Command::new(&cargo)
+        .args(["build", "--offline", "--quiet"])
+        .env("CARGO_TARGET_DIR", &target)
+        .current_dir(pack)
+        .output()
+        .unwrap();
+    assert!(built.status.success(), "{:?}", text(&built));
+
+    target
+}
+
+#[test]
+fn a_generated_pack_builds_loads_and_runs() {
+    let dir = tempfile::tempdir().unwrap();
+    let made = kairos(dir.path(), &["new", "pack", "lab"]);
+    assert!(made.status.success(), "{:?}", text(&made));
+    let pack = dir.path().join("lab");
+    let made = kairos(
+        dir.path(),
+        &[
+            "new",
+            "component",
+            "amplify",
+            "--pack",
+            "lab",
+            "--input",
+            "in:f64",
+            "--output",
+            "out:f64",
+            "--property",
+            "gain:f64=10.0",
+            "--mode",
+            "reactive",
+        ],
+    );
+    assert!(made.status.success(), "{:?}", text(&made));
+    generate_components_of_every_shape(dir.path(), &pack);
+    let target = build_test_and_lint(&pack);
+
+    // The runtime loads the library and runs a constant 1.5 → lab.scale (× 2) → lab.amplify (× 10) → CSV: the
+    // generated components multiply by their first number property until their algorithm is written.
+    let libraries = dir.path().join("packs");
+    std::fs::create_dir_all(&libraries).unwrap();
+    let library = std::fs::read_dir(target.join("debug"))
+        .unwrap()
+        .flatten()
+        .map(|e| e.path())
+        .find(|p| p.file_name().is_some_and(|n| n == "libkairos_pack_lab.so"))
+        .expect("the pack's shared library");
+    std::fs::copy(&library, libraries.join("libkairos_pack_lab.so")).unwrap();
+    let diagram = dir.path().join("lab.ron");
+    std::fs::write(
+        &diagram,
+        r#"Diagram(
+    format: 1,
+    packs: [Pack(name: "core", version: "^0.1"), Pack(name: "lab", version: "^0.1")],
+    components: [
+        Component(id: "csv", type: "core.csv_writer", position: (x: 0.0, y: 0.0), properties: {"path": "lab.csv"}),
+        Component(id: "amplify", type: "lab.amplify", position: (x: 0.0, y: 0.0)),
+        Component(id: "scale", type: "lab.scale", position: (x: 0.0, y: 0.0)),
+        Component(id: "wave", type: "core.constant", position: (x: 0.0, y: 0.0), properties: {"value": 1.5, "rate": 50.0}),
+    ],
+    connections: [
+        Connection(from: "amplify.out", to: "csv.in1"),
+        Connection(from: "scale.out", to: "amplify.in"),
+        Connection(from: "wave.out", to: "scale.in"),
+    ],
+)
+"#,
+    )
+    .unwrap();
+    let pack_path = libraries.to_str().unwrap();
+    let components = kairos(dir.path(), &["--pack-path", pack_path, "components", "lab."]);
+    let (stdout, stderr) = text(&components);
+    assert!(
+        stdout.contains("lab.scale") && stdout.contains("lab.amplify"),
+        "{stdout}{stderr}"
+    );
+    let ran = kairos(
+        dir.path(),
+        &[
+            "--pack-path",
+            pack_path,
+            "run",
+            diagram.to_str().unwrap(),
+            "--for",
+            "1s",
+        ],
+    );
+    assert!(ran.status.success(), "{:?}", text(&ran));
+    let csv = std::fs::read_to_string(dir.path().join("lab.csv")).unwrap();
+    let values: Vec<f64> = csv
+        .lines()
+        .skip(1)
+        .filter_map(|l| l.split(',').next_back()?.trim().parse().ok())
+        .collect();
+    assert!(values.len() >= 10, "{csv}");
+    assert!(
+        values.iter().all(|v| (v - 30.0).abs() < 1e-9),
+        "1.5 × 2 × 10 = 30: {csv}"
+    );
+}
+
+#[test]
+fn bad_answers_are_refused_before_anything_is_written() {
+    let dir = tempfile::tempdir().unwrap();
+    for (args, expected) in [
+        (vec!["new", "pack", "core"], "built-in pack"),
+        (vec!["new", "pack", "My-Pack"], "try 'my_pack'"),
+    ] {
+        let refused = kairos(dir.path(), &args);
+        let (_, stderr) = text(&refused);
+        assert!(!refused.status.success());
+        assert!(stderr.contains(expected), "{args:?}: {stderr}");
+    }
+    assert_eq!(
+        std::fs::read_dir(dir.path()).unwrap().count(),
+        0,
+        "nothing written"
+    );
+    assert!(kairos(dir.path(), &["new", "pack", "lab"]).status.success());
+    let before = std::fs::read_to_string(dir.path().join("lab/src/lib.rs")).unwrap();
+    for (args, expected) in [
+        (vec!["--input", "in:f46"], "did you mean 'f64'?"),
+        (vec!["--property", "gain:f64=two"], "not a number"),
+        (vec!["--property", "gain=2"], "has no type"),
+        (
+            vec!["--input", "a:f64", "--output", "a:f64"],
+            "two ports are named 'a'",
+        ),
+        (vec!["--mode", "reactive"], "give it an --input"),
+    ] {
+        let mut full = vec!["new", "component", "thing", "--pack", "lab"];
+        full.extend(args.iter());
+        let refused = kairos(dir.path(), &full);
+        let (_, stderr) = text(&refused);
+        assert!(!refused.status.success());
+        assert!(stderr.contains(expected), "{args:?}: {stderr}");
+    }
+    let refused = kairos(dir.path(), &["new", "component", "match", "--pack", "lab"]);
+    assert!(text(&refused).1.contains("keyword"));
+    assert!(!dir.path().join("lab/src/thing.rs").exists());
+    assert_eq!(
+        std::fs::read_to_string(dir.path().join("lab/src/lib.rs")).unwrap(),
+        before
+    );
+    // The example exists: a second one is refused, and nothing is overwritten without --force.
+    let again = kairos(dir.path(), &["new", "component", "scale", "--pack", "lab"]);
+    assert!(text(&again).1.contains("already has a component 'scale'"));
+    let again = kairos(dir.path(), &["new", "pack", "lab"]);
+    assert!(text(&again).1.contains("--force"));
+}
+
+#[test]
+fn a_generated_cpp_pack_builds_with_make_and_runs() {
+    let dir = tempfile::tempdir().unwrap();
+    let made = kairos(dir.path(), &["new", "pack", "native", "--lang", "cpp"]);
+    assert!(made.status.success(), "{:?}", text(&made));
+    let made = kairos(
+        dir.path(),
+        &[
+            "new",
+            "component",
+            "ticks",
+            "--pack",
+            "native",
+            "--output",
+            "n:i64",
+            "--mode",
+            "periodic",
+        ],
+    );
+    assert!(made.status.success(), "{:?}", text(&made));
+    let built = Command::new("make")
+        .current_dir(dir.path().join("native"))
+        .output()
+        .expect("make (the C++ pack's build file)");
+    assert!(built.status.success(), "{:?}", text(&built));
+    let diagram = dir.path().join("native.ron");
+    std::fs::write(
+        &diagram,
+        r#"Diagram(
+    format: 1,
+    packs: [Pack(name: "core", version: "^0.1"), Pack(name: "native", version: "^0.1")],
+    components: [
+        Component(id: "csv", type: "core.csv_writer", position: (x: 0.0, y: 0.0), properties: {"path": "native.csv"}),
+        Component(id: "scale", type: "native.scale", position: (x: 0.0, y: 0.0)),
+        Component(id: "ticks", type: "native.ticks", position: (x: 0.0, y: 0.0)),
+        Component(id: "wave", type: "core.constant", position: (x: 0.0, y: 0.0), properties: {"value": 1.5, "rate": 50.0}),
+    ],
+    connections: [
+        Connection(from: "scale.out", to: "csv.in1"),
+        Connection(from: "ticks.n", to: "csv.in2"),
+        Connection(from: "wave.out", to: "scale.in"),
+    ],
+)
+"#,
+    )
+    .unwrap();
+    let pack_path = dir.path().join("native/build");
+    let ran = kairos(
+        dir.path(),
+        &[
+            "--pack-path",
+            pack_path.to_str().unwrap(),
+            "run",
+            diagram.to_str().unwrap(),
+            "--for",
+            "1s",
+        ],
+    );
+    assert!(ran.status.success(), "{:?}", text(&ran));
+    let csv = std::fs::read_to_string(dir.path().join("native.csv")).unwrap();
+    let scaled: Vec<f64> = csv
+        .lines()
+        .filter(|l| l.starts_with("in1,"))
+        .filter_map(|l| l.split(',').next_back()?.trim().parse().ok())
+        .collect();
+    let ticks = csv.lines().filter(|l| l.starts_with("in2,")).count();
+    assert!(
+        scaled.len() >= 10 && scaled.iter().all(|v| (v - 3.0).abs() < 1e-9),
+        "{csv}"
+    );
+    assert!(ticks >= 5, "the periodic C++ component ticks at 10 Hz: {csv}");
+}
