@@ -71,6 +71,12 @@ pub struct StudioApp {
     transport: Transport,
     /// Whether the runtime is on this machine and can hand viewer frames over in shared memory.
     shared_memory: bool,
+    /// The "New component…" dialog, while it is open.
+    new_component: Option<crate::wizard::NewComponentDialog>,
+    /// The `kairos` program, which generates components and runs the local runtime.
+    kairos: Option<PathBuf>,
+    /// Folders of pack libraries built from the studio, loaded into the local runtime.
+    pack_paths: Vec<PathBuf>,
     /// The instances (id, type, properties) last sent to be described, and whether an answer is awaited.
     described: (InstanceKey, bool),
     /// Outputs to open viewers on, and whether to run, once the runtime's library is known (command line).
@@ -89,7 +95,7 @@ pub struct StudioApp {
     /// The file chooser, while it is open.
     chooser: Option<FileChooser>,
     /// Kept alive as long as the studio: dropping it stops the local runtime.
-    _local: Option<crate::local::LocalRuntime>,
+    local_runtime: Option<crate::local::LocalRuntime>,
 }
 
 impl std::fmt::Debug for StudioApp {
@@ -192,6 +198,9 @@ impl StudioApp {
             viewers: Viewers::default(),
             transport: Transport::default(),
             shared_memory: false,
+            new_component: None,
+            kairos: crate::local::kairos_binary(),
+            pack_paths: Vec::new(),
             described: (Vec::new(), false),
             startup: (Vec::new(), false),
             search: String::new(),
@@ -203,7 +212,7 @@ impl StudioApp {
             local_address: local.as_ref().map(|l| (l.url.clone(), l.token.clone())),
             config_dir,
             chooser: None,
-            _local: local,
+            local_runtime: local,
         };
         let library = app.library.clone();
         app.canvas.fit(&app.document, &library);
@@ -580,43 +589,53 @@ impl StudioApp {
         self.chooser = Some(FileChooser::new(purpose, &current));
     }
 
+    fn file_menu(&mut self, ui: &mut egui::Ui) {
+        if ui.button("New").clicked() {
+            self.unless_unsaved(AfterDiscard::New);
+        }
+        if ui.button("Open…").clicked() {
+            self.choose_file(Purpose::OpenDiagram);
+        }
+        if ui.button("Save").clicked() {
+            self.save();
+        }
+        if ui.button("Save as…").clicked() {
+            self.choose_file(Purpose::SaveDiagram);
+        }
+        ui.menu_button("Recent", |ui| {
+            for path in self.recent.clone() {
+                if ui.button(path.display().to_string()).clicked() {
+                    self.unless_unsaved(AfterDiscard::Open(path));
+                }
+            }
+        });
+        ui.separator();
+        if ui
+            .button("New component…")
+            .on_hover_text("Generate a component, build its pack and load it into the local runtime")
+            .clicked()
+        {
+            self.new_component = Some(crate::wizard::NewComponentDialog::default());
+        }
+        ui.separator();
+        if ui.button("Connect to a runtime…").clicked() {
+            self.connect_prompt = Some(remembered_remote(self.config_dir.as_deref()));
+        }
+        if let Some((url, token)) = self.local_address.clone()
+            && ui.button("Use the local runtime").clicked()
+        {
+            let ctx = ui.ctx().clone();
+            self.connect(&ctx, &url, Some(token), format!("local runtime {url}"));
+        }
+        ui.separator();
+        if ui.button("Quit").clicked() {
+            self.unless_unsaved(AfterDiscard::Quit);
+        }
+    }
+
     fn menu_bar(&mut self, ui: &mut egui::Ui) {
         egui::MenuBar::new().ui(ui, |ui| {
-            ui.menu_button("File", |ui| {
-                if ui.button("New").clicked() {
-                    self.unless_unsaved(AfterDiscard::New);
-                }
-                if ui.button("Open…").clicked() {
-                    self.choose_file(Purpose::OpenDiagram);
-                }
-                if ui.button("Save").clicked() {
-                    self.save();
-                }
-                if ui.button("Save as…").clicked() {
-                    self.choose_file(Purpose::SaveDiagram);
-                }
-                ui.menu_button("Recent", |ui| {
-                    for path in self.recent.clone() {
-                        if ui.button(path.display().to_string()).clicked() {
-                            self.unless_unsaved(AfterDiscard::Open(path));
-                        }
-                    }
-                });
-                ui.separator();
-                if ui.button("Connect to a runtime…").clicked() {
-                    self.connect_prompt = Some(remembered_remote(self.config_dir.as_deref()));
-                }
-                if let Some((url, token)) = self.local_address.clone()
-                    && ui.button("Use the local runtime").clicked()
-                {
-                    let ctx = ui.ctx().clone();
-                    self.connect(&ctx, &url, Some(token), format!("local runtime {url}"));
-                }
-                ui.separator();
-                if ui.button("Quit").clicked() {
-                    self.unless_unsaved(AfterDiscard::Quit);
-                }
-            });
+            ui.menu_button("File", |ui| self.file_menu(ui));
             ui.menu_button("Edit", |ui| {
                 if ui.button("Undo").clicked() {
                     self.document.undo();
@@ -993,6 +1012,7 @@ impl StudioApp {
     }
 
     fn dialogs(&mut self, ctx: &egui::Context) {
+        self.new_component_dialog(ctx);
         self.chooser_dialog(ctx);
         self.connect_dialog(ctx);
         if let Some(after) = self.confirm.clone() {
@@ -1060,6 +1080,65 @@ impl StudioApp {
             },
             Pending::Describe,
         );
+    }
+
+    /// Uses this `kairos` program to generate components and to run the local runtime.
+    #[must_use]
+    pub fn with_kairos_binary(mut self, binary: PathBuf) -> Self {
+        self.kairos = Some(binary);
+        self
+    }
+
+    /// The "New component…" dialog; a built pack is loaded by restarting the local runtime with it.
+    fn new_component_dialog(&mut self, ctx: &egui::Context) {
+        let Some(mut dialog) = self.new_component.take() else {
+            return;
+        };
+        match dialog.show(ctx, self.kairos.as_deref()) {
+            crate::wizard::Outcome::Open => self.new_component = Some(dialog),
+            crate::wizard::Outcome::Closed => {}
+            crate::wizard::Outcome::Load(folder) => {
+                self.new_component = Some(dialog);
+                self.load_pack(ctx, &folder);
+            }
+        }
+        if matches!(
+            self.new_component.as_ref().map(|d| &d.stage),
+            Some(crate::wizard::Stage::Building(_))
+        ) {
+            ctx.request_repaint_after(std::time::Duration::from_millis(200));
+        }
+    }
+
+    /// Restarts the local runtime with the pack libraries in `folder` too, and reconnects to it.
+    fn load_pack(&mut self, ctx: &egui::Context, folder: &std::path::Path) {
+        if self.local_address.is_none() {
+            self.note(
+                WARN_COLOR,
+                format!(
+                    "built {}; the studio drives a remote runtime: copy the library to that machine's pack path",
+                    folder.display()
+                ),
+            );
+            return;
+        }
+        let Some(binary) = self.kairos.clone() else { return };
+        if !self.pack_paths.iter().any(|p| p == folder) {
+            self.pack_paths.push(folder.to_path_buf());
+        }
+        match crate::local::LocalRuntime::start_with_packs(&binary, &self.pack_paths) {
+            Ok(local) => {
+                let (url, token) = (local.url.clone(), local.token.clone());
+                self.local_address = Some((url.clone(), token.clone()));
+                self.local_runtime = Some(local);
+                self.connect(ctx, &url, Some(token), format!("local runtime {url}"));
+                self.note(
+                    Color32::LIGHT_GREEN,
+                    format!("loaded the packs in {}", folder.display()),
+                );
+            }
+            Err(error) => self.note(Color32::LIGHT_RED, error),
+        }
     }
 
     /// Opens viewers on `outputs` (`component.port`) and, with `run`, deploys and starts the diagram, as soon

@@ -13,6 +13,7 @@ pub mod monitor;
 pub mod shared;
 pub mod transport;
 pub mod viewers;
+pub mod wizard;
 
 pub use app::StudioApp;
 pub use document::Document;

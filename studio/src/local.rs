@@ -54,6 +54,11 @@ impl LocalRuntime {
 
     /// Starts `binary serve` (a `kairos` at a known place) and waits until it listens.
     pub fn start_binary(binary: &std::path::Path) -> Result<LocalRuntime, String> {
+        Self::start_with_packs(binary, &[])
+    }
+
+    /// Starts `binary serve` loading the pack libraries in `packs` too, and waits until it listens.
+    pub fn start_with_packs(binary: &std::path::Path, packs: &[PathBuf]) -> Result<LocalRuntime, String> {
         // One folder per runtime started, so two in one process never share a token file.
         static STARTED: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
         let serial = STARTED.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
@@ -61,7 +66,11 @@ impl LocalRuntime {
         std::fs::create_dir_all(&folder).map_err(|e| format!("cannot create {}: {e}", folder.display()))?;
         let token_file = folder.join("token");
         let _ = std::fs::remove_file(&token_file);
-        let mut child = Command::new(binary)
+        let mut command = Command::new(binary);
+        for pack in packs {
+            command.arg("--pack-path").arg(pack);
+        }
+        let mut child = command
             .args(["serve", "--listen", "127.0.0.1:0", "--token-file"])
             .arg(&token_file)
             .stdin(Stdio::null())

@@ -484,3 +484,73 @@ fn shared_memory_and_the_socket_deliver_identical_frames() {
         assert_eq!(pixels_a.len(), 320 * 240 * 3);
     }
 }
+
+fn type_into(harness: &mut Harness<'_, StudioApp>, label: &str, text: &str) {
+    harness
+        .get_by_role_and_label(egui::accesskit::Role::TextInput, label)
+        .focus();
+    harness.run_steps(1);
+    harness.key_press_modifiers(egui::Modifiers::COMMAND, egui::Key::A);
+    harness.run_steps(1);
+    harness
+        .get_by_role_and_label(egui::accesskit::Role::TextInput, label)
+        .type_text(text);
+    harness.run_steps(1);
+}
+
+#[test]
+fn a_component_made_in_the_studio_is_built_loaded_and_in_the_palette() {
+    let local = LocalRuntime::start_binary(&kairos_binary()).unwrap();
+    let client = RuntimeClient::connect(&local.url, Some(local.token.clone()), || {});
+    let app = StudioApp::new(
+        Document::default(),
+        kairos_diagram::LibraryInfo::default(),
+        Some(client),
+        "local runtime".to_owned(),
+        Some(local),
+    )
+    .with_kairos_binary(kairos_binary());
+    let mut harness = Harness::new_ui_state(|ui, app: &mut StudioApp| app.show(ui), app);
+    harness.set_size(Vec2::new(1400.0, 900.0));
+    run_until(&mut harness, "the connection", StudioApp::is_connected);
+    harness.get_by_label("File").click();
+    harness.run_steps(2);
+    harness.get_by_label("New component…").click();
+    harness.run_steps(2);
+
+    // Answers are checked by `kairos new` itself, and what it says shows in the dialog.
+    let dir = tempfile::tempdir().unwrap();
+    let pack = dir.path().join("lab");
+    type_into(&mut harness, "Pack folder", pack.to_str().unwrap());
+    type_into(&mut harness, "Name", "match");
+    harness.get_by_label("Check").click();
+    harness.run_steps(2);
+    assert!(harness.query_by_label_contains("is a Rust keyword").is_some());
+    type_into(&mut harness, "Name", "smoother");
+    type_into(&mut harness, "Inputs", "in:f46");
+    harness.get_by_label("Check").click();
+    harness.run_steps(2);
+    assert!(harness.query_by_label_contains("did you mean 'f64'?").is_some());
+    type_into(&mut harness, "Inputs", "in:f64");
+    type_into(&mut harness, "Properties", "gain:f64=3");
+    harness.get_by_label("Check").click();
+    harness.run_steps(2);
+    assert!(harness.query_by_label_contains("the answers are fine").is_some());
+    assert!(!pack.exists(), "checking writes nothing");
+
+    // Create: the pack and the component are generated, built, and loaded into a restarted local runtime.
+    harness.get_by_label("Create, build and load").click();
+    harness.run_steps(1);
+    assert!(pack.join("src/smoother.rs").is_file());
+    let started = Instant::now();
+    while harness.state().library.component("lab.smoother").is_none() {
+        assert!(
+            started.elapsed() < Duration::from_mins(5),
+            "the new component never reached the palette"
+        );
+        std::thread::sleep(Duration::from_millis(100));
+        harness.run_steps(1);
+    }
+    harness.run_steps(2);
+    assert!(harness.query_by_label("lab.smoother").is_some(), "in the palette");
+}

@@ -155,6 +155,9 @@ pub enum NewCommand {
         /// Overwrite the component's file if it exists.
         #[arg(long)]
         force: bool,
+        /// Check the answers and say what is wrong, writing nothing.
+        #[arg(long)]
+        dry_run: bool,
     },
 }
 
@@ -327,6 +330,7 @@ fn new(what: NewCommand, registry: &Registry) -> ExitCode {
             actions,
             mode,
             force,
+            dry_run,
         } => {
             let (spec, pack) = match name {
                 Some(name) => (
@@ -349,6 +353,18 @@ fn new(what: NewCommand, registry: &Registry) -> ExitCode {
                 },
             };
             let name = spec.name.clone();
+            if dry_run {
+                return match crate::wizard::check_component(&spec, &pack, &registry.library_info(), force) {
+                    Ok(()) => {
+                        println!("ok: {name} can be made in {}", pack.display());
+                        ExitCode::SUCCESS
+                    }
+                    Err(error) => {
+                        eprintln!("error: {error}");
+                        ExitCode::from(1)
+                    }
+                };
+            }
             crate::wizard::new_component(&spec, &pack, &registry.library_info(), force).inspect(|_| {
                 let extension = if pack.join("src/pack.cpp").is_file() {
                     "cpp"

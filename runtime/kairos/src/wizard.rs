@@ -958,6 +958,17 @@ fn write_cpp(spec: &ComponentSpec, target: &Target, plan: &Plan, force: bool) ->
     Ok(Vec::new())
 }
 
+/// Checks the answers for a component in the pack at `pack` as [`new_component`] would, writing nothing.
+pub fn check_component(
+    spec: &ComponentSpec,
+    pack: &Path,
+    library: &kairos_diagram::LibraryInfo,
+    force: bool,
+) -> Result<(), String> {
+    locate(spec, pack, library, force)?;
+    plan(spec).map(|_| ())
+}
+
 /// Generates a component in the pack at `pack` (Rust or C++, as the pack is) and registers it. Every answer
 /// is checked before anything is written. Returns notes (rustfmt missing).
 pub fn new_component(

@@ -1,0 +1,404 @@
+//! The "New component…" dialog: the answers `kairos new component` takes, checked by it (one source of
+//! truth for what is valid), then the component generated, its pack built (cargo or make) and loaded into
+//! the local runtime, so it appears in the palette. Build errors are listed with their file and line.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::sync::mpsc::{Receiver, channel};
+
+/// One compiler error or warning, where it is.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct BuildMessage {
+    /// `file:line:column` as the compiler wrote it.
+    pub place: String,
+    /// The message.
+    pub text: String,
+}
+
+/// Errors in a build's output (rustc's `--message-format short` and gcc both write
+/// `file:line:column: error: message`).
+pub fn build_errors(output: &str) -> Vec<BuildMessage> {
+    output
+        .lines()
+        .filter_map(|line| {
+            let (place, text) = line.split_once(": error")?;
+            let mut parts = place.rsplitn(3, ':');
+            let (column, row) = (parts.next()?, parts.next()?);
+            (column.parse::<u32>().is_ok() && row.parse::<u32>().is_ok()).then(|| BuildMessage {
+                place: place.to_owned(),
+                text: format!("error{text}"),
+            })
+        })
+        .collect()
+}
+
+/// Where the dialog is.
+#[derive(Debug)]
+pub enum Stage {
+    /// Taking answers.
+    Editing,
+    /// Building the pack in the background.
+    Building(Receiver<Result<PathBuf, (String, Vec<BuildMessage>)>>),
+    /// The build failed: the compiler's errors.
+    Failed(String, Vec<BuildMessage>),
+}
+
+/// The dialog's answers and state.
+#[derive(Debug)]
+pub struct NewComponentDialog {
+    /// The pack's folder; made with `kairos new pack` when it does not exist.
+    pub pack: String,
+    /// A new pack's language: `rust` or `cpp`.
+    pub lang: String,
+    /// The component's name.
+    pub name: String,
+    /// `threaded`, `reactive` or `periodic`.
+    pub mode: String,
+    /// Comma-separated `name:type`.
+    pub inputs: String,
+    /// Comma-separated `name:type`.
+    pub outputs: String,
+    /// Comma-separated `name:type=default`.
+    pub properties: String,
+    /// Comma-separated names.
+    pub actions: String,
+    /// What `kairos new` said about the answers, when it refused them, or that they are fine.
+    pub verdict: Option<Result<String, String>>,
+    /// Where the dialog is.
+    pub stage: Stage,
+}
+
+impl Default for NewComponentDialog {
+    fn default() -> Self {
+        NewComponentDialog {
+            pack: "my_pack".to_owned(),
+            lang: "rust".to_owned(),
+            name: String::new(),
+            mode: "threaded".to_owned(),
+            inputs: "in:f64".to_owned(),
+            outputs: "out:f64".to_owned(),
+            properties: String::new(),
+            actions: String::new(),
+            verdict: None,
+            stage: Stage::Editing,
+        }
+    }
+}
+
+/// What the dialog asks the studio to do.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Outcome {
+    /// Nothing yet.
+    Open,
+    /// Closed.
+    Closed,
+    /// Built: load the library in this folder into the local runtime.
+    Load(PathBuf),
+}
+
+fn list(text: &str) -> Vec<String> {
+    text.split(',')
+        .map(str::trim)
+        .filter(|t| !t.is_empty())
+        .map(str::to_owned)
+        .collect()
+}
+
+fn run(binary: &Path, args: &[String]) -> Result<String, String> {
+    let output = Command::new(binary)
+        .args(args)
+        .output()
+        .map_err(|e| format!("cannot run {}: {e}", binary.display()))?;
+    let stdout = String::from_utf8_lossy(&output.stdout).trim().to_owned();
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    if output.status.success() {
+        Ok(stdout)
+    } else {
+        let errors: Vec<&str> = stderr.lines().filter_map(|l| l.strip_prefix("error: ")).collect();
+        Err(if errors.is_empty() {
+            stderr.trim().to_owned()
+        } else {
+            errors.join("\n")
+        })
+    }
+}
+
+impl NewComponentDialog {
+    fn component_args(&self, dry_run: bool) -> Vec<String> {
+        let mut args = vec![
+            "new".to_owned(),
+            "component".to_owned(),
+            self.name.trim().to_owned(),
+            "--pack".to_owned(),
+            self.pack.trim().to_owned(),
+            "--mode".to_owned(),
+            self.mode.clone(),
+        ];
+        for (flag, values) in [
+            ("--input", &self.inputs),
+            ("--output", &self.outputs),
+            ("--property", &self.properties),
+            ("--action", &self.actions),
+        ] {
+            for value in list(values) {
+                args.push(flag.to_owned());
+                args.push(value);
+            }
+        }
+        if dry_run {
+            args.push("--dry-run".to_owned());
+        }
+        args
+    }
+
+    fn pack_exists(&self) -> bool {
+        let folder = Path::new(self.pack.trim());
+        folder.join("src/lib.rs").is_file() || folder.join("src/pack.cpp").is_file()
+    }
+
+    /// Asks `kairos new component --dry-run` about the answers. A pack that does not exist yet is checked
+    /// in a scratch copy made by `kairos new pack`.
+    pub fn check(&mut self, binary: &Path) {
+        if self.name.trim().is_empty() {
+            self.verdict = Some(Err("give the component a name".to_owned()));
+            return;
+        }
+        let mut args = self.component_args(true);
+        let scratch = std::env::temp_dir().join(format!("kairos-studio-check-{}", std::process::id()));
+        if !self.pack_exists() {
+            let _ = std::fs::remove_dir_all(&scratch);
+            let name = Path::new(self.pack.trim())
+                .file_name()
+                .map_or_else(String::new, |n| n.to_string_lossy().into_owned());
+            let made = run(
+                binary,
+                &[
+                    "new".to_owned(),
+                    "pack".to_owned(),
+                    name.clone(),
+                    "--path".to_owned(),
+                    scratch.display().to_string(),
+                    "--lang".to_owned(),
+                    self.lang.clone(),
+                ],
+            );
+            if let Err(problem) = made {
+                self.verdict = Some(Err(format!("the pack: {problem}")));
+                return;
+            }
+            if let Some(pack) = args.iter().position(|a| a == "--pack") {
+                args[pack + 1] = scratch.join(&name).display().to_string();
+            }
+        }
+        self.verdict = Some(run(binary, &args).map(|_| "the answers are fine".to_owned()));
+        let _ = std::fs::remove_dir_all(&scratch);
+    }
+
+    /// Generates the component (and its pack when new), then builds the pack in the background.
+    pub fn create(&mut self, binary: &Path) {
+        self.check(binary);
+        if !matches!(self.verdict, Some(Ok(_))) {
+            return;
+        }
+        if !self.pack_exists() {
+            let folder = Path::new(self.pack.trim());
+            let parent = folder
+                .parent()
+                .filter(|p| !p.as_os_str().is_empty())
+                .unwrap_or(Path::new("."));
+            let name = folder
+                .file_name()
+                .map_or_else(String::new, |n| n.to_string_lossy().into_owned());
+            if let Err(problem) = run(
+                binary,
+                &[
+                    "new".to_owned(),
+                    "pack".to_owned(),
+                    name,
+                    "--path".to_owned(),
+                    parent.display().to_string(),
+                    "--lang".to_owned(),
+                    self.lang.clone(),
+                ],
+            ) {
+                self.verdict = Some(Err(format!("the pack: {problem}")));
+                return;
+            }
+        }
+        if let Err(problem) = run(binary, &self.component_args(false)) {
+            self.verdict = Some(Err(problem));
+            return;
+        }
+        let pack = PathBuf::from(self.pack.trim());
+        let (sender, receiver) = channel();
+        std::thread::Builder::new()
+            .name("studio:build".to_owned())
+            .spawn(move || {
+                let _ = sender.send(build(&pack));
+            })
+            .ok();
+        self.stage = Stage::Building(receiver);
+    }
+
+    /// The answers, one field each.
+    fn answers(&mut self, ui: &mut egui::Ui) {
+        egui::Grid::new("new component").num_columns(2).show(ui, |ui| {
+            for (label, value, hint) in [
+                ("Pack folder", &mut self.pack, "made if it does not exist"),
+                ("Name", &mut self.name, "lower case, digits and _"),
+                ("Inputs", &mut self.inputs, "name:type, comma-separated"),
+                ("Outputs", &mut self.outputs, "name:type, comma-separated"),
+                (
+                    "Properties",
+                    &mut self.properties,
+                    "name:type=default, comma-separated",
+                ),
+                ("Actions", &mut self.actions, "names, comma-separated"),
+            ] {
+                let label = ui.label(label);
+                ui.add(
+                    egui::TextEdit::singleline(value)
+                        .hint_text(hint)
+                        .desired_width(280.0),
+                )
+                .labelled_by(label.id);
+                ui.end_row();
+            }
+            ui.label("Mode");
+            egui::ComboBox::new("new component mode", "")
+                .selected_text(&self.mode)
+                .show_ui(ui, |ui| {
+                    for mode in ["threaded", "reactive", "periodic"] {
+                        ui.selectable_value(&mut self.mode, mode.to_owned(), mode);
+                    }
+                });
+            ui.end_row();
+            ui.label("New pack in");
+            egui::ComboBox::new("new pack language", "")
+                .selected_text(if self.lang == "cpp" { "C++" } else { "Rust" })
+                .show_ui(ui, |ui| {
+                    ui.selectable_value(&mut self.lang, "rust".to_owned(), "Rust");
+                    ui.selectable_value(&mut self.lang, "cpp".to_owned(), "C++");
+                });
+            ui.end_row();
+        });
+    }
+
+    /// Shows the dialog; `binary` is the `kairos` that generates.
+    pub fn show(&mut self, ctx: &egui::Context, binary: Option<&Path>) -> Outcome {
+        let mut open = true;
+        let mut outcome = Outcome::Open;
+        if let Stage::Building(receiver) = &self.stage
+            && let Ok(result) = receiver.try_recv()
+        {
+            match result {
+                Ok(library_folder) => {
+                    self.stage = Stage::Editing;
+                    self.verdict = Some(Ok("built; loading it into the local runtime".to_owned()));
+                    outcome = Outcome::Load(library_folder);
+                }
+                Err((summary, errors)) => self.stage = Stage::Failed(summary, errors),
+            }
+        }
+        egui::Window::new("New component")
+            .collapsible(false)
+            .open(&mut open)
+            .show(ctx, |ui| {
+                let Some(binary) = binary else {
+                    ui.colored_label(
+                        egui::Color32::LIGHT_RED,
+                        "the `kairos` program is not beside the studio or on PATH: it generates the code",
+                    );
+                    return;
+                };
+                self.answers(ui);
+                ui.horizontal(|ui| {
+                    let idle = !matches!(self.stage, Stage::Building(_));
+                    if ui.add_enabled(idle, egui::Button::new("Check")).clicked() {
+                        self.check(binary);
+                    }
+                    if ui
+                        .add_enabled(idle, egui::Button::new("Create, build and load"))
+                        .clicked()
+                    {
+                        self.create(binary);
+                    }
+                    if !idle {
+                        ui.spinner();
+                        ui.label("building the pack…");
+                    }
+                });
+                match &self.verdict {
+                    Some(Ok(fine)) => {
+                        ui.colored_label(egui::Color32::LIGHT_GREEN, fine);
+                    }
+                    Some(Err(problem)) => {
+                        ui.colored_label(egui::Color32::LIGHT_RED, problem);
+                    }
+                    None => {}
+                }
+                if let Stage::Failed(summary, errors) = &self.stage {
+                    ui.colored_label(egui::Color32::LIGHT_RED, summary);
+                    egui::ScrollArea::vertical().max_height(200.0).show(ui, |ui| {
+                        for error in errors {
+                            ui.horizontal_wrapped(|ui| {
+                                ui.monospace(&error.place);
+                                ui.label(&error.text);
+                            });
+                        }
+                    });
+                }
+            });
+        if !open {
+            outcome = Outcome::Closed;
+        }
+        outcome
+    }
+}
+
+/// Builds the pack at `pack`: `cargo build --release` for a Rust pack, `make` for a C++ one. Returns the
+/// folder holding the library, or the errors with their places.
+fn build(pack: &Path) -> Result<PathBuf, (String, Vec<BuildMessage>)> {
+    let cpp = pack.join("Makefile").is_file();
+    let mut command = if cpp {
+        Command::new("make")
+    } else {
+        let mut cargo = Command::new(std::env::var("CARGO").unwrap_or_else(|_| "cargo".to_owned()));
+        cargo.args(["build", "--release", "--message-format", "short"]);
+        cargo
+    };
+    let output = command
+        .current_dir(pack)
+        .output()
+        .map_err(|e| (format!("cannot start the build: {e}"), Vec::new()))?;
+    if output.status.success() {
+        let target = std::env::var_os("CARGO_TARGET_DIR").map_or_else(|| pack.join("target"), PathBuf::from);
+        return Ok(if cpp {
+            pack.join("build")
+        } else {
+            target.join("release")
+        });
+    }
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    let errors = build_errors(&stderr);
+    let summary = if errors.is_empty() {
+        stderr.lines().last().unwrap_or("the build failed").to_owned()
+    } else {
+        format!("the build failed with {} errors", errors.len())
+    };
+    Err((summary, errors))
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn build_errors_keep_their_place() {
+        let output = "warning: unused\nsrc/blur.rs:12:5: error[E0425]: cannot find value `x`\n\
+                      src/pack.cpp:7:3: error: expected ';'\nerror: could not compile";
+        let errors = super::build_errors(output);
+        assert_eq!(errors.len(), 2);
+        assert_eq!(errors[0].place, "src/blur.rs:12:5");
+        assert!(errors[0].text.contains("cannot find value"));
+        assert_eq!(errors[1].place, "src/pack.cpp:7:3");
+    }
+}
