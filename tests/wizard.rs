@@ -300,6 +300,26 @@ fn a_generated_cpp_pack_builds_with_make_and_runs() {
         ],
     );
     assert!(made.status.success(), "{:?}", text(&made));
+    // The other shapes of the C++ template must build too: a pass-through with an action, a sink.
+    for args in [
+        &[
+            "frames",
+            "--input",
+            "in:image",
+            "--output",
+            "out:image",
+            "--action",
+            "reset",
+            "--mode",
+            "reactive",
+        ][..],
+        &["drain", "--input", "in:any"],
+    ] {
+        let mut full = vec!["new", "component", "--pack", "native"];
+        full.extend_from_slice(args);
+        let made = kairos(dir.path(), &full);
+        assert!(made.status.success(), "{args:?}: {:?}", text(&made));
+    }
     let built = Command::new("make")
         .current_dir(dir.path().join("native"))
         .output()
