@@ -138,6 +138,26 @@ fn build_test_and_lint(pack: &Path) -> std::path::PathBuf {
     target
 }
 
+/// Runs `diagram` (its text) for a second in `dir` with the pack libraries in `packs`, and returns the CSV
+/// file it wrote (`csv`, relative to `dir`).
+fn run_for_a_second(dir: &Path, packs: &Path, diagram: &str, csv: &str) -> String {
+    let file = dir.join("diagram.ron");
+    std::fs::write(&file, diagram).unwrap();
+    let ran = kairos(
+        dir,
+        &[
+            "--pack-path",
+            packs.to_str().unwrap(),
+            "run",
+            file.to_str().unwrap(),
+            "--for",
+            "1s",
+        ],
+    );
+    assert!(ran.status.success(), "{:?}", text(&ran));
+    std::fs::read_to_string(dir.join(csv)).unwrap()
+}
+
 #[test]
 fn a_generated_pack_builds_loads_and_runs() {
     let dir = tempfile::tempdir().unwrap();
@@ -177,9 +197,16 @@ fn a_generated_pack_builds_loads_and_runs() {
         .find(|p| p.file_name().is_some_and(|n| n == "libkairos_pack_lab.so"))
         .expect("the pack's shared library");
     std::fs::copy(&library, libraries.join("libkairos_pack_lab.so")).unwrap();
-    let diagram = dir.path().join("lab.ron");
-    std::fs::write(
-        &diagram,
+    let pack_path = libraries.to_str().unwrap();
+    let components = kairos(dir.path(), &["--pack-path", pack_path, "components", "lab."]);
+    let (stdout, stderr) = text(&components);
+    assert!(
+        stdout.contains("lab.scale") && stdout.contains("lab.amplify"),
+        "{stdout}{stderr}"
+    );
+    let csv = run_for_a_second(
+        dir.path(),
+        &libraries,
         r#"Diagram(
     format: 1,
     packs: [Pack(name: "core", version: "^0.1"), Pack(name: "lab", version: "^0.1")],
@@ -196,28 +223,8 @@ fn a_generated_pack_builds_loads_and_runs() {
     ],
 )
 "#,
-    )
-    .unwrap();
-    let pack_path = libraries.to_str().unwrap();
-    let components = kairos(dir.path(), &["--pack-path", pack_path, "components", "lab."]);
-    let (stdout, stderr) = text(&components);
-    assert!(
-        stdout.contains("lab.scale") && stdout.contains("lab.amplify"),
-        "{stdout}{stderr}"
+        "lab.csv",
     );
-    let ran = kairos(
-        dir.path(),
-        &[
-            "--pack-path",
-            pack_path,
-            "run",
-            diagram.to_str().unwrap(),
-            "--for",
-            "1s",
-        ],
-    );
-    assert!(ran.status.success(), "{:?}", text(&ran));
-    let csv = std::fs::read_to_string(dir.path().join("lab.csv")).unwrap();
     let values: Vec<f64> = csv
         .lines()
         .skip(1)
@@ -325,9 +332,9 @@ fn a_generated_cpp_pack_builds_with_make_and_runs() {
         .output()
         .expect("make (the C++ pack's build file)");
     assert!(built.status.success(), "{:?}", text(&built));
-    let diagram = dir.path().join("native.ron");
-    std::fs::write(
-        &diagram,
+    let csv = run_for_a_second(
+        dir.path(),
+        &dir.path().join("native/build"),
         r#"Diagram(
     format: 1,
     packs: [Pack(name: "core", version: "^0.1"), Pack(name: "native", version: "^0.1")],
@@ -344,22 +351,8 @@ fn a_generated_cpp_pack_builds_with_make_and_runs() {
     ],
 )
 "#,
-    )
-    .unwrap();
-    let pack_path = dir.path().join("native/build");
-    let ran = kairos(
-        dir.path(),
-        &[
-            "--pack-path",
-            pack_path.to_str().unwrap(),
-            "run",
-            diagram.to_str().unwrap(),
-            "--for",
-            "1s",
-        ],
+        "native.csv",
     );
-    assert!(ran.status.success(), "{:?}", text(&ran));
-    let csv = std::fs::read_to_string(dir.path().join("native.csv")).unwrap();
     let scaled: Vec<f64> = csv
         .lines()
         .filter(|l| l.starts_with("in1,"))

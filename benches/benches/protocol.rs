@@ -11,7 +11,6 @@
 use std::net::{SocketAddr, TcpStream};
 use std::time::{Duration, Instant};
 
-use kairos::serve::{ServeOptions, serve_with};
 use kairos_benches::{
     Goal, LatencySeries, Percentiles, Ratios, Table, header, nanos, print_latency, ratio_spread, size,
 };
@@ -20,24 +19,6 @@ use tungstenite::stream::MaybeTlsStream;
 use tungstenite::{Message, WebSocket};
 
 type Socket = WebSocket<MaybeTlsStream<TcpStream>>;
-
-fn start_server() -> Option<SocketAddr> {
-    let (tx, rx) = std::sync::mpsc::channel();
-    std::thread::spawn(move || {
-        let options = ServeOptions {
-            listen: "127.0.0.1:0".to_owned(),
-            token_file: None,
-            monitor_token_file: None,
-            diagram: None,
-            start: false,
-            max_connections: 16,
-        };
-        let _ = serve_with(kairos::builtin_registry(), &options, move |address| {
-            let _ = tx.send(address);
-        });
-    });
-    rx.recv_timeout(Duration::from_secs(10)).ok()
-}
 
 fn connect(address: SocketAddr) -> Option<Socket> {
     let (mut socket, _) = tungstenite::connect(format!("ws://{address}")).ok()?;
@@ -143,7 +124,7 @@ fn main() {
             window.as_secs()
         ),
     );
-    let Some(address) = start_server() else {
+    let Some(address) = kairos_benches::start_kairos_serve() else {
         println!("the server did not start");
         return;
     };

@@ -13,7 +13,6 @@
 use std::net::SocketAddr;
 use std::time::{Duration, Instant};
 
-use kairos::serve::{ServeOptions, serve_with};
 use kairos_benches::{Goal, Ratios, Spread, Table, header, size};
 use kairos_protocol::{RequestBody, SampleTransport};
 use kairos_studio::client::{ClientEvent, RuntimeClient};
@@ -22,24 +21,6 @@ use kairos_studio::viewers::Viewers;
 const WIDTH: u32 = 1920;
 const HEIGHT: u32 = 1080;
 const RATE_HZ: f64 = 30.0;
-
-fn start_server() -> Option<SocketAddr> {
-    let (tx, rx) = std::sync::mpsc::channel();
-    std::thread::spawn(move || {
-        let options = ServeOptions {
-            listen: "127.0.0.1:0".to_owned(),
-            token_file: None,
-            monitor_token_file: None,
-            diagram: None,
-            start: false,
-            max_connections: 16,
-        };
-        let _ = serve_with(kairos::builtin_registry(), &options, move |address| {
-            let _ = tx.send(address);
-        });
-    });
-    rx.recv_timeout(Duration::from_secs(10)).ok()
-}
 
 /// CPU time of this process's threads by group of names, from each thread's `schedstat` (nanoseconds on a
 /// CPU). Sampled often and summed per thread, so a thread that ends (tokio retires idle blocking threads)
@@ -202,7 +183,7 @@ fn main() {
             window.as_secs()
         ),
     );
-    let Some(address) = start_server() else {
+    let Some(address) = kairos_benches::start_kairos_serve() else {
         eprintln!("the server did not start");
         return;
     };

@@ -441,3 +441,23 @@ pub fn bare_mcap_rate<'p>(
     writer.into_inner().into_inner().ok()?.sync_all().ok()?;
     Some(bytes as f64 / started.elapsed().as_secs_f64())
 }
+
+/// Starts `kairos serve` with the built-in packs in this process, on a free loopback port, without a token;
+/// returns its address once it listens.
+pub fn start_kairos_serve() -> Option<std::net::SocketAddr> {
+    let (tx, rx) = std::sync::mpsc::channel();
+    std::thread::spawn(move || {
+        let options = kairos::serve::ServeOptions {
+            listen: "127.0.0.1:0".to_owned(),
+            token_file: None,
+            monitor_token_file: None,
+            diagram: None,
+            start: false,
+            max_connections: 16,
+        };
+        let _ = kairos::serve::serve_with(kairos::builtin_registry(), &options, move |address| {
+            let _ = tx.send(address);
+        });
+    });
+    rx.recv_timeout(Duration::from_secs(10)).ok()
+}

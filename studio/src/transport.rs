@@ -166,13 +166,11 @@ impl Transport {
         let tracks = status
             .get("tracks")
             .and_then(serde_json::Value::as_array)
-            .cloned()
-            .unwrap_or_default();
+            .map_or(&[][..], Vec::as_slice);
         let files = status
             .get("files")
             .and_then(serde_json::Value::as_array)
-            .cloned()
-            .unwrap_or_default();
+            .map_or(&[][..], Vec::as_slice);
         let lanes = tracks.len().min(LANES);
         let height = 18.0 + 12.0 * lanes as f32;
         let width = ui.available_width().max(100.0);

@@ -57,21 +57,28 @@ fn drag(harness: &mut Harness<'_, StudioApp>, from: Pos2, to: Pos2) {
     harness.run_steps(2);
 }
 
-#[test]
-fn a_diagram_built_in_the_studio_runs_on_a_real_runtime() {
+/// A studio on `document` driving a local runtime of this build, its window `size`, once connected.
+fn studio_on_local_runtime(document: Document, size: Vec2) -> Harness<'static, StudioApp> {
     let local = LocalRuntime::start_binary(&kairos_binary()).unwrap();
     let client = RuntimeClient::connect(&local.url, Some(local.token.clone()), || {});
     let label = format!("local runtime {}", local.url);
     let app = StudioApp::new(
-        Document::default(),
+        document,
         kairos_diagram::LibraryInfo::default(),
         Some(client),
         label,
         Some(local),
-    );
+    )
+    .with_kairos_binary(kairos_binary());
     let mut harness = Harness::new_ui_state(|ui, app: &mut StudioApp| app.show(ui), app);
-    harness.set_size(Vec2::new(1280.0, 800.0));
+    harness.set_size(size);
     run_until(&mut harness, "the connection", StudioApp::is_connected);
+    harness
+}
+
+#[test]
+fn a_diagram_built_in_the_studio_runs_on_a_real_runtime() {
+    let mut harness = studio_on_local_runtime(Document::default(), Vec2::new(1280.0, 800.0));
     run_until(&mut harness, "the library", |app| {
         app.library.component("core.counter").is_some()
     });
@@ -187,19 +194,8 @@ fn open_viewer(harness: &mut Harness<'_, StudioApp>, output: &str, menu_entry: &
 
 #[test]
 fn viewers_and_monitoring_show_a_running_diagram() {
-    let local = LocalRuntime::start_binary(&kairos_binary()).unwrap();
-    let client = RuntimeClient::connect(&local.url, Some(local.token.clone()), || {});
     let example = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../examples/sensors.ron");
-    let app = StudioApp::new(
-        Document::open(&example).unwrap(),
-        kairos_diagram::LibraryInfo::default(),
-        Some(client),
-        "local runtime".to_owned(),
-        Some(local),
-    );
-    let mut harness = Harness::new_ui_state(|ui, app: &mut StudioApp| app.show(ui), app);
-    harness.set_size(Vec2::new(1400.0, 900.0));
-    run_until(&mut harness, "the connection", StudioApp::is_connected);
+    let mut harness = studio_on_local_runtime(Document::open(&example).unwrap(), Vec2::new(1400.0, 900.0));
     run_until(&mut harness, "the library", |app| {
         app.library.component("sensors.camera").is_some()
     });
@@ -331,18 +327,7 @@ fn the_timeline_pauses_seeks_and_plays_a_recording() {
     )
     .unwrap();
 
-    let local = LocalRuntime::start_binary(&kairos_binary()).unwrap();
-    let client = RuntimeClient::connect(&local.url, Some(local.token.clone()), || {});
-    let app = StudioApp::new(
-        Document::open(&diagram).unwrap(),
-        kairos_diagram::LibraryInfo::default(),
-        Some(client),
-        "local runtime".to_owned(),
-        Some(local),
-    );
-    let mut harness = Harness::new_ui_state(|ui, app: &mut StudioApp| app.show(ui), app);
-    harness.set_size(Vec2::new(1400.0, 900.0));
-    run_until(&mut harness, "the connection", StudioApp::is_connected);
+    let mut harness = studio_on_local_runtime(Document::open(&diagram).unwrap(), Vec2::new(1400.0, 900.0));
     // The player's outputs come from its recording: the runtime describes them to the studio.
     run_until(&mut harness, "the player's outputs", |app| {
         app.library
@@ -500,19 +485,7 @@ fn type_into(harness: &mut Harness<'_, StudioApp>, label: &str, text: &str) {
 
 #[test]
 fn a_component_made_in_the_studio_is_built_loaded_and_in_the_palette() {
-    let local = LocalRuntime::start_binary(&kairos_binary()).unwrap();
-    let client = RuntimeClient::connect(&local.url, Some(local.token.clone()), || {});
-    let app = StudioApp::new(
-        Document::default(),
-        kairos_diagram::LibraryInfo::default(),
-        Some(client),
-        "local runtime".to_owned(),
-        Some(local),
-    )
-    .with_kairos_binary(kairos_binary());
-    let mut harness = Harness::new_ui_state(|ui, app: &mut StudioApp| app.show(ui), app);
-    harness.set_size(Vec2::new(1400.0, 900.0));
-    run_until(&mut harness, "the connection", StudioApp::is_connected);
+    let mut harness = studio_on_local_runtime(Document::default(), Vec2::new(1400.0, 900.0));
     harness.get_by_label("File").click();
     harness.run_steps(2);
     harness.get_by_label("New component…").click();

@@ -1,10 +1,62 @@
 //! Samples into binary frames for subscribed clients (see `kairos_protocol::frame`).
 
 use std::borrow::Cow;
+use std::sync::Arc;
 
 use kairos_protocol::frame::{self, ImageLayout, SampleHeader};
-use kairos_sdk::{FixStatus, Image, Payload, PixelFormat, Sample};
+use kairos_sdk::{
+    FixStatus, Image, Payload, PixelFormat, Reader, ReaderConfig, ReaderPolicy, RunSignal, Sample,
+};
 use serde_json::json;
+
+use super::runtime::Runtime;
+
+/// The newest samples of one output for one client, whatever transport carries them: a LastOrNext reader
+/// on the output's buffer (it never slows the writer; what the client does not take is skipped, not
+/// queued), attached again whenever a new diagram is deployed.
+pub struct LatestSamples {
+    runtime: Arc<Runtime>,
+    output: String,
+    /// Who reads, for the link's name in statistics (`client 127.0.0.1:5000`).
+    client: String,
+    reader: Option<(Reader, u64)>,
+    skipped_before: u64,
+}
+
+impl LatestSamples {
+    /// Follows `output` (`component.port`) of whatever `runtime` has deployed.
+    pub fn new(runtime: Arc<Runtime>, output: String, client: String) -> Self {
+        LatestSamples {
+            runtime,
+            output,
+            client,
+            reader: None,
+            skipped_before: 0,
+        }
+    }
+
+    /// The newest sample not taken yet, with how many samples were passed over since the previous one.
+    pub fn next(&mut self) -> Option<(Sample, u64)> {
+        let generation = self.runtime.generation();
+        if self.reader.as_ref().is_none_or(|(_, g)| *g != generation) {
+            self.reader = self.output.rsplit_once('.').and_then(|(component, port)| {
+                let (buffer, generation) = self.runtime.output(component, port)?;
+                let config = ReaderConfig::new(
+                    ReaderPolicy::LastOrNext,
+                    format!("{} -> {}", self.output, self.client),
+                );
+                Some((buffer.attach(config, Arc::new(RunSignal::new())), generation))
+            });
+            self.skipped_before = 0;
+        }
+        let (reader, _) = self.reader.as_mut()?;
+        let sample = reader.try_read()?;
+        let skipped_now = reader.counters().skipped;
+        let skipped = skipped_now.saturating_sub(self.skipped_before);
+        self.skipped_before = skipped_now;
+        Some((sample, skipped))
+    }
+}
 
 fn format_name(format: PixelFormat) -> &'static str {
     match format {

@@ -14,12 +14,14 @@ use kairos_protocol::{
     CLIENT_QUEUE, DiagramReply, ErrorCode, LogLevel, MAX_MESSAGE_BYTES, PROTOCOL_VERSION, ProtocolError,
     RequestBody, RequestKind, Role, SampleTransport, ServerMessage, Status, Welcome, decode_request,
 };
-use kairos_sdk::{ReaderConfig, ReaderPolicy, RunSignal, Value};
+use kairos_sdk::Value;
 use serde::Serialize;
 use tokio::net::TcpStream;
 use tokio::sync::mpsc;
 use tokio::sync::mpsc::error::TrySendError;
 use tokio::task::JoinHandle;
+
+use super::samples::LatestSamples;
 use tokio_tungstenite::tungstenite::protocol::WebSocketConfig;
 use tokio_tungstenite::tungstenite::{Error as WsError, Message};
 
@@ -568,28 +570,14 @@ fn sample_task(
     tokio::spawn(async move {
         let mut ticker = tokio::time::interval(Duration::from_secs_f64(1.0 / rate));
         ticker.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
-        let mut reader: Option<(kairos_sdk::Reader, u64)> = None;
-        let mut skipped_before = 0;
+        let mut latest = LatestSamples::new(runtime, output.clone(), format!("client {peer}"));
         let mut unsent = 0;
         loop {
             ticker.tick().await;
-            let generation = runtime.generation();
-            if reader.as_ref().is_none_or(|(_, g)| *g != generation) {
-                reader = output.rsplit_once('.').and_then(|(component, port)| {
-                    let (buffer, generation) = runtime.output(component, port)?;
-                    let config =
-                        ReaderConfig::new(ReaderPolicy::LastOrNext, format!("{output} -> client {peer}"));
-                    Some((buffer.attach(config, Arc::new(RunSignal::new())), generation))
-                });
-                skipped_before = 0;
-            }
-            let Some((active, _)) = reader.as_mut() else {
+            let Some((sample, skipped)) = latest.next() else {
                 continue;
             };
-            let Some(sample) = active.try_read() else { continue };
-            let skipped_now = active.counters().skipped;
-            let skipped = skipped_now.saturating_sub(skipped_before) + unsent;
-            skipped_before = skipped_now;
+            let skipped = skipped + unsent;
             let frame = super::samples::encode(&output, &sample, skipped, max_image_width);
             match out.try_send(Message::binary(frame)) {
                 Ok(()) => unsent = 0,

@@ -18,10 +18,9 @@ use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
 use iceoryx2::prelude::*;
-use kairos_diagram::ReaderPolicy;
-use kairos_sdk::{ReaderConfig, RunSignal};
 
 use super::runtime::Runtime;
+use super::samples::LatestSamples;
 
 /// Frames a client may hold unread before the oldest is dropped.
 const CLIENT_FRAMES: usize = 2;
@@ -112,8 +111,8 @@ pub fn publish(
             };
             let period = Duration::from_secs_f64(1.0 / rate);
             let mut next = Instant::now();
-            let mut reader: Option<(kairos_sdk::Reader, u64)> = None;
-            let mut skipped_before = 0;
+            let mut latest =
+                LatestSamples::new(runtime, output.clone(), format!("shared memory of {client}"));
             while !stopping.load(Ordering::Relaxed) {
                 next += period;
                 let now = Instant::now();
@@ -122,25 +121,9 @@ pub fn publish(
                 } else {
                     next = now;
                 }
-                let generation = runtime.generation();
-                if reader.as_ref().is_none_or(|(_, g)| *g != generation) {
-                    reader = output.rsplit_once('.').and_then(|(component, port)| {
-                        let (buffer, generation) = runtime.output(component, port)?;
-                        let config = ReaderConfig::new(
-                            ReaderPolicy::LastOrNext,
-                            format!("{output} -> shared memory of {client}"),
-                        );
-                        Some((buffer.attach(config, Arc::new(RunSignal::new())), generation))
-                    });
-                    skipped_before = 0;
-                }
-                let Some((active, _)) = reader.as_mut() else {
+                let Some((sample, skipped)) = latest.next() else {
                     continue;
                 };
-                let Some(sample) = active.try_read() else { continue };
-                let skipped_now = active.counters().skipped;
-                let skipped = skipped_now.saturating_sub(skipped_before);
-                skipped_before = skipped_now;
                 let (head, body) = super::samples::encode_parts(&output, &sample, skipped, max_image_width);
                 let length = head.len() + body.len();
                 let mut loaned = match publisher.loan_slice_uninit(length) {
