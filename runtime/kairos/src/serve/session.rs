@@ -20,13 +20,12 @@ use tokio::net::TcpStream;
 use tokio::sync::mpsc;
 use tokio::sync::mpsc::error::TrySendError;
 use tokio::task::JoinHandle;
-
-use super::samples::LatestSamples;
 use tokio_tungstenite::tungstenite::protocol::WebSocketConfig;
 use tokio_tungstenite::tungstenite::{Error as WsError, Message};
 
 use super::Shared;
 use super::runtime::Runtime;
+use super::samples::LatestSamples;
 
 /// The shortest telemetry period a client may ask for.
 const MIN_TELEMETRY_MS: u64 = 20;
