@@ -4,14 +4,18 @@ use std::fmt;
 use std::sync::OnceLock;
 use std::time::Duration;
 
-use crate::sync::{AtomicBool, Ordering, Thread, current_thread, park, park_timeout};
+use crate::sync::{
+    AtomicBool, Ordering, Thread, current_thread, heavy_fence, light_fence, park, park_timeout,
+};
 
 /// One per component: the thread that runs it and the flags the runtime raises to get its attention.
 ///
 /// Writers wake readers through it; the runtime wakes it to stop, pause, or deliver property changes and
-/// actions. Waking is a futex at most, and nothing at all when the thread is not asleep.
+/// actions. Waking is a futex at most, and nothing at all when the thread is not asleep: a thread arms
+/// `sleeping` before it parks (see [`Self::park`]) and writers unpark only an armed one.
 pub struct RunSignal {
     thread: OnceLock<Thread>,
+    sleeping: AtomicBool,
     stop: AtomicBool,
     paused: AtomicBool,
     control_pending: AtomicBool,
@@ -40,6 +44,7 @@ impl RunSignal {
     pub fn new() -> Self {
         RunSignal {
             thread: OnceLock::new(),
+            sleeping: AtomicBool::new(false),
             stop: AtomicBool::new(false),
             paused: AtomicBool::new(false),
             control_pending: AtomicBool::new(false),
@@ -65,14 +70,27 @@ impl RunSignal {
         self.reactive.is_some()
     }
 
-    /// New data arrived for the component: unpark its thread, or run it now if it is reactive.
+    /// New data arrived for the component: unpark its thread if it is going to sleep, or run it now if it
+    /// is reactive. Call it after the data is visible.
     pub fn notify_data(&self) {
         if let Some(on_data) = &self.reactive {
             if !self.stop.load(Ordering::Acquire) && !self.paused.load(Ordering::Acquire) {
                 on_data();
             }
-        } else {
+            return;
+        }
+        // Paired with the heavy fence in `park`: either the sleeper's re-check sees the data, or this
+        // sees it armed.
+        light_fence();
+        if self.sleeping.load(Ordering::Relaxed) {
             self.wake();
+        }
+    }
+
+    /// The component found what it waited for: writers need not wake it any more.
+    pub fn disarm(&self) {
+        if self.sleeping.load(Ordering::Relaxed) {
+            self.sleeping.store(false, Ordering::Relaxed);
         }
     }
 
@@ -123,9 +141,18 @@ impl RunSignal {
             || self.control_pending.load(Ordering::Acquire)
     }
 
-    /// Parks the calling thread until woken.
+    /// Waits to be woken. Like [`std::thread::park`] it may return early, and callers re-check their
+    /// condition in a loop: the first call after the thread was busy only arms the signal and returns, so
+    /// that data written before the writer could see it armed is found by that re-check; the next call
+    /// sleeps.
     pub fn park(&self) {
+        if !self.sleeping.load(Ordering::Relaxed) {
+            self.sleeping.store(true, Ordering::Relaxed);
+            heavy_fence();
+            return;
+        }
         park();
+        self.sleeping.store(false, Ordering::Relaxed);
     }
 
     /// Parks the calling thread until woken or `timeout` passes.

@@ -1,5 +1,8 @@
 //! Counters kept per link, and a small latency histogram.
 
+use std::sync::atomic::Ordering::Relaxed;
+use std::sync::atomic::{AtomicI64, AtomicU64};
+
 use serde::{Deserialize, Serialize};
 
 /// Latencies in a log-linear histogram: exact min, max and mean; p50 and p99 within one sub-bucket
@@ -94,6 +97,67 @@ impl LatencyHistogram {
             }
         }
         self.max_nanos
+    }
+}
+
+/// A [`LatencyHistogram`] one thread records into while others take snapshots: every field is an atomic
+/// that only the recording thread writes, so recording is a few plain stores, with no lock and no
+/// read-modify-write. A snapshot may miss the latency being recorded at that instant.
+pub(crate) struct SharedLatency {
+    sum_nanos: AtomicI64,
+    min_nanos: AtomicI64,
+    max_nanos: AtomicI64,
+    negative: AtomicU64,
+    buckets: Box<[AtomicU64]>,
+}
+
+impl Default for SharedLatency {
+    fn default() -> Self {
+        SharedLatency {
+            sum_nanos: AtomicI64::new(0),
+            min_nanos: AtomicI64::new(i64::MAX),
+            max_nanos: AtomicI64::new(i64::MIN),
+            negative: AtomicU64::new(0),
+            buckets: (0..BUCKETS).map(|_| AtomicU64::new(0)).collect(),
+        }
+    }
+}
+
+impl SharedLatency {
+    /// Adds one latency. Only one thread may record (the reader owning it).
+    pub(crate) fn record(&self, nanos: i64) {
+        let bump = |cell: &AtomicU64| cell.store(cell.load(Relaxed) + 1, Relaxed);
+        self.sum_nanos
+            .store(self.sum_nanos.load(Relaxed).wrapping_add(nanos), Relaxed);
+        if nanos < self.min_nanos.load(Relaxed) {
+            self.min_nanos.store(nanos, Relaxed);
+        }
+        if nanos > self.max_nanos.load(Relaxed) {
+            self.max_nanos.store(nanos, Relaxed);
+        }
+        if nanos < 0 {
+            bump(&self.negative);
+        }
+        if let Some(bucket) = self.buckets.get(bucket_of(u64::try_from(nanos).unwrap_or(0))) {
+            bump(bucket);
+        }
+    }
+
+    /// A copy to summarise.
+    pub(crate) fn snapshot(&self) -> LatencyHistogram {
+        let mut buckets = Box::new([0; BUCKETS]);
+        for (copy, bucket) in buckets.iter_mut().zip(self.buckets.iter()) {
+            *copy = bucket.load(Relaxed);
+        }
+        LatencyHistogram {
+            // The buckets decide the percentiles, so the count is theirs.
+            count: buckets.iter().sum(),
+            sum_nanos: i128::from(self.sum_nanos.load(Relaxed)),
+            min_nanos: self.min_nanos.load(Relaxed),
+            max_nanos: self.max_nanos.load(Relaxed),
+            negative: self.negative.load(Relaxed),
+            buckets,
+        }
     }
 }
 

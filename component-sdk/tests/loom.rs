@@ -25,7 +25,12 @@ fn sample(sequence: u64) -> Sample {
 
 /// A writer writes `count` samples then closes; the reader reads until the end of the stream.
 fn model(policy: ReaderPolicy, capacity: usize, count: u64, check: fn(&[u64])) {
-    loom::model(move || {
+    // The buffer's waits spin a little before they sleep: allow the longer paths that makes, and bound
+    // preemptions so the exploration stays within minutes (bugs of this kind show within two).
+    let mut builder = loom::model::Builder::new();
+    builder.max_branches = 100_000;
+    builder.preemption_bound = Some(3);
+    builder.check(move || {
         let buffer = OutputBuffer::new("w.out", capacity);
         let signal = Arc::new(RunSignal::new());
         let mut reader = buffer.attach(ReaderConfig::new(policy, "w.out -> r.in"), Arc::clone(&signal));

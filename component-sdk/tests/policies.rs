@@ -243,7 +243,7 @@ fn input_subsampling_keeps_one_in_n_and_counts_the_rest_as_skipped() {
 
 #[test]
 fn a_connection_may_have_a_larger_share_than_the_output_default() {
-    let buffer = OutputBuffer::new("p.out", 2);
+    let buffer = OutputBuffer::with_slots("p.out", 2, 8);
     let writer = Arc::new(RunSignal::new());
     let mut small = reader(&buffer, ReaderPolicy::Fifo);
     let mut config = ReaderConfig::new(ReaderPolicy::Fifo, "big");

@@ -337,7 +337,18 @@ impl Engine {
                 let size = settings
                     .and_then(|s| s.buffer_size)
                     .unwrap_or(output.default_buffer_size);
-                let buffer = OutputBuffer::new(format!("{}.{}", instance.id, output.name), size);
+                // Room for the largest share a connection from this output asks for.
+                let slots = diagram
+                    .connections
+                    .iter()
+                    .filter(|c| c.from.component == instance.id && c.from.port == output.name)
+                    .filter_map(|c| c.buffer_size)
+                    .fold(size, usize::max);
+                let buffer = OutputBuffer::with_slots(
+                    format!("{}.{}", instance.id, output.name),
+                    size,
+                    slots,
+                );
                 buffers.insert((instance.id.clone(), output.name.clone()), buffer.clone());
                 let subsampling = settings.and_then(|s| s.subsampling).unwrap_or(1);
                 let data_type = output.follows_input.is_none().then(|| output.data_type.clone());
