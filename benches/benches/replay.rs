@@ -56,7 +56,7 @@ fn replay_errors(path: &Path) -> Option<Percentiles> {
         .outputs
         .iter()
         .map(|o| {
-            let buffer = OutputBuffer::new(format!("player.{}", o.name), 16);
+            let buffer = OutputBuffer::with_slots(format!("player.{}", o.name), 16, 1 << 16);
             let mut config = ReaderConfig::new(ReaderPolicy::Fifo, format!("player.{} -> bench", o.name));
             config.capacity = Some(1 << 16);
             readers.push(buffer.attach(config, Arc::new(RunSignal::new())));

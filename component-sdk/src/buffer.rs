@@ -39,8 +39,8 @@ use crate::sample::Sample;
 use crate::signal::RunSignal;
 use crate::stats::{LinkCounters, SharedLatency};
 use crate::sync::{
-    AtomicBool, AtomicU64, Mutex, Ordering, SPINS, UnsafeCell, fence, heavy_fence, light_fence, lock,
-    spin, yield_now,
+    AtomicBool, AtomicU64, Mutex, Ordering, SPINS, UnsafeCell, fence, heavy_fence, light_fence, lock, spin,
+    yield_now,
 };
 
 /// Why a blocking read returned without a sample.
@@ -172,7 +172,7 @@ impl ReaderShared {
         let p = &self.progress;
         loop {
             let before = p.version.load(Ordering::Acquire);
-            if before % 2 == 1 {
+            if !before.is_multiple_of(2) {
                 yield_now();
                 continue;
             }
@@ -230,6 +230,9 @@ fn counters_of(
     }
 }
 
+/// The signals of reactive readers, run by the writer after each write.
+type ReactiveReaders = Arc<[Arc<RunSignal>]>;
+
 /// A reader as the writer follows it.
 struct Watched {
     reader: Arc<ReaderShared>,
@@ -246,7 +249,7 @@ struct WriterState {
     /// Readers' threads to unpark after each write.
     threads: Vec<Arc<RunSignal>>,
     /// Reactive readers, run after each write once the write is over (they may write themselves).
-    reactive: Option<Arc<[Arc<RunSignal>]>>,
+    reactive: Option<ReactiveReaders>,
 }
 
 impl WriterState {
@@ -254,15 +257,12 @@ impl WriterState {
     fn full_reader(&mut self, written: u64) -> Option<Arc<ReaderShared>> {
         for watched in &mut self.readers {
             let reader = &watched.reader;
-            if reader.policy != ReaderPolicy::NeverSkipping
-                || written - watched.seen_cursor < reader.capacity
+            if reader.policy != ReaderPolicy::NeverSkipping || written - watched.seen_cursor < reader.capacity
             {
                 continue;
             }
             watched.seen_cursor = reader.progress.cursor.load(Ordering::Acquire);
-            if written - watched.seen_cursor >= reader.capacity
-                && reader.attached.load(Ordering::Acquire)
-            {
+            if written - watched.seen_cursor >= reader.capacity && reader.attached.load(Ordering::Acquire) {
                 return Some(Arc::clone(reader));
             }
         }
@@ -335,7 +335,7 @@ impl Shared {
     /// Waits until no write is in progress; any write that starts later sees the current `version`.
     fn wait_for_writer_between_writes(&self) {
         let epoch = self.writer_epoch.load(Ordering::SeqCst);
-        if epoch % 2 == 0 {
+        if epoch.is_multiple_of(2) {
             return;
         }
         while self.writer_epoch.load(Ordering::SeqCst) == epoch {
@@ -373,7 +373,7 @@ impl<'a> WriteGuard<'a> {
     fn enter(shared: &'a Shared) -> Self {
         loop {
             let epoch = shared.writer_epoch.load(Ordering::Relaxed);
-            if epoch % 2 == 1
+            if !epoch.is_multiple_of(2)
                 || shared
                     .writer_epoch
                     .compare_exchange(epoch, epoch + 1, Ordering::SeqCst, Ordering::Relaxed)
@@ -427,7 +427,7 @@ impl<'a> WriteGuard<'a> {
     fn enter_without_refresh(shared: &'a Shared) -> Self {
         loop {
             let epoch = shared.writer_epoch.load(Ordering::Relaxed);
-            if epoch % 2 == 0
+            if epoch.is_multiple_of(2)
                 && shared
                     .writer_epoch
                     .compare_exchange(epoch, epoch + 1, Ordering::SeqCst, Ordering::Relaxed)
@@ -451,7 +451,7 @@ impl<'a> WriteGuard<'a> {
 
     /// Puts `sample` in the next slot, makes it visible and unparks the readers' threads. Returns the
     /// sample it replaced and the reactive readers to run.
-    fn publish(&mut self, sample: Sample) -> (Option<Sample>, Option<Arc<[Arc<RunSignal>]>>) {
+    fn publish(&mut self, sample: Sample) -> (Option<Sample>, Option<ReactiveReaders>) {
         let shared = self.shared;
         let sequence = shared.written.load(Ordering::Relaxed);
         let slot = shared.slot(sequence);
@@ -475,9 +475,7 @@ impl<'a> WriteGuard<'a> {
 
 impl Drop for WriteGuard<'_> {
     fn drop(&mut self) {
-        self.shared
-            .writer_epoch
-            .store(self.epoch + 1, Ordering::Release);
+        self.shared.writer_epoch.store(self.epoch + 1, Ordering::Release);
     }
 }
 
@@ -855,8 +853,8 @@ impl Reader {
 
     /// FIFO: the oldest sample still within this reader's share; what the writer lapped counts overwritten.
     fn next_fifo(&mut self) -> Option<Sample> {
+        let mut written = self.buffer.written();
         loop {
-            let written = self.buffer.written();
             let cursor = self.counts.cursor;
             if cursor >= written {
                 return None;
@@ -866,37 +864,40 @@ impl Reader {
                 self.counts.overwritten += lapped;
                 self.counts.cursor += lapped;
             }
-            if let Some(sample) = self.clone_announced(self.counts.cursor) {
-                self.counts.cursor += 1;
-                return Some(sample);
+            match self.clone_announced(self.counts.cursor) {
+                Ok(sample) => {
+                    self.counts.cursor += 1;
+                    return Some(sample);
+                }
+                // Lapped while we looked: the slot's new sample says by how much.
+                Err(newer) => written = self.buffer.written().max(newer.saturating_add(1)),
             }
-            // Replaced while we looked: the next `written` says by how much we were lapped, once the
-            // writer is through with the slot.
-            spin();
         }
     }
 
     /// LastOrNext and WaitForNext: the newest sample if it is unread; older unread ones are skipped.
     fn newest_unread(&mut self) -> Option<Sample> {
+        let mut written = self.buffer.written();
         loop {
-            let written = self.buffer.written();
             let cursor = self.counts.cursor;
             if cursor >= written {
                 return None;
             }
-            if let Some(sample) = self.clone_announced(written - 1) {
-                self.counts.skipped += written - 1 - cursor;
-                self.counts.cursor = written;
-                return Some(sample);
+            match self.clone_announced(written - 1) {
+                Ok(sample) => {
+                    self.counts.skipped += written - 1 - cursor;
+                    self.counts.cursor = written;
+                    return Some(sample);
+                }
+                Err(newer) => written = self.buffer.written().max(newer.saturating_add(1)),
             }
-            spin();
         }
     }
 
     /// Sampling: the newest sample, again if nothing newer came (unless the stream is closed).
     fn sampled(&mut self) -> Option<Sample> {
+        let mut written = self.buffer.written();
         loop {
-            let written = self.buffer.written();
             let cursor = self.counts.cursor;
             if written == 0 {
                 return None;
@@ -906,9 +907,12 @@ impl Reader {
                 // A closed stream has nothing new to give: end it rather than repeat forever.
                 return None;
             }
-            let Some(sample) = self.clone_announced(written - 1) else {
-                spin();
-                continue;
+            let sample = match self.clone_announced(written - 1) {
+                Ok(sample) => sample,
+                Err(newer) => {
+                    written = self.buffer.written().max(newer.saturating_add(1));
+                    continue;
+                }
             };
             if again {
                 self.counts.repeated += 1;
@@ -923,20 +927,30 @@ impl Reader {
         }
     }
 
-    /// Clones `sequence` unless the writer replaced it or is replacing it (rule 2).
-    fn clone_announced(&self, sequence: u64) -> Option<Sample> {
+    /// Clones `sequence` unless the writer replaced it or is replacing it (rule 2). Then it returns the
+    /// newer sequence the slot holds once the writer is through with it.
+    ///
+    /// After a miss the reader does not announce again until the slot holds its new sample: a reader
+    /// that kept announcing the sequence a writer is waiting out could keep that writer waiting.
+    fn clone_announced(&self, sequence: u64) -> Result<Sample, u64> {
         let cloning = &self.shared.progress.cloning;
         cloning.store(sequence, Ordering::Relaxed);
         // Paired with the fence in `WriterState::claim`: one of the two sees the other.
         fence(Ordering::SeqCst);
         let slot = self.buffer.shared.slot(sequence);
-        let sample = if slot.stamp.load(Ordering::Acquire) == sequence {
-            self.buffer.shared.clone_unchecked(sequence)
-        } else {
-            None
-        };
+        let stamp = slot.stamp.load(Ordering::Acquire);
+        let sample = (stamp == sequence).then(|| self.buffer.shared.clone_unchecked(sequence));
         cloning.store(IDLE, Ordering::Release);
-        sample
+        if let Some(sample) = sample {
+            // A slot stamped with a sequence holds its sample.
+            return sample.ok_or(stamp);
+        }
+        let mut stamp = stamp;
+        while stamp == REPLACING {
+            spin();
+            stamp = slot.stamp.load(Ordering::Acquire);
+        }
+        Err(stamp)
     }
 
     /// Publishes the counters under the reader's sequence lock.

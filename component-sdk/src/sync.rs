@@ -114,7 +114,10 @@ fn asymmetric_fences() -> bool {
 }
 
 #[cfg(all(not(loom), target_os = "linux"))]
-#[allow(unsafe_code, reason = "the membarrier system call has no safe wrapper; it takes no pointers")]
+#[allow(
+    unsafe_code,
+    reason = "the membarrier system call has no safe wrapper; it takes no pointers"
+)]
 fn membarrier(command: i32) -> bool {
     // SAFETY: membarrier(cmd, flags, cpu_id) reads no memory of ours; an unsupported command returns -1.
     unsafe { libc::syscall(libc::SYS_membarrier, command, 0, 0) == 0 }

@@ -27,9 +27,14 @@ fn sample(sequence: u64) -> Sample {
 fn model(policy: ReaderPolicy, capacity: usize, count: u64, check: fn(&[u64])) {
     // The buffer's waits spin a little before they sleep: allow the longer paths that makes, and bound
     // preemptions so the exploration stays within minutes (bugs of this kind show within two).
+    // `LOOM_MAX_BRANCHES` and `LOOM_MAX_PREEMPTIONS` still override these, to investigate a failure.
     let mut builder = loom::model::Builder::new();
-    builder.max_branches = 100_000;
-    builder.preemption_bound = Some(3);
+    if std::env::var_os("LOOM_MAX_BRANCHES").is_none() {
+        builder.max_branches = 100_000;
+    }
+    if std::env::var_os("LOOM_MAX_PREEMPTIONS").is_none() {
+        builder.preemption_bound = Some(3);
+    }
     builder.check(move || {
         let buffer = OutputBuffer::new("w.out", capacity);
         let signal = Arc::new(RunSignal::new());

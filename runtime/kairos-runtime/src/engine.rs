@@ -344,11 +344,8 @@ impl Engine {
                     .filter(|c| c.from.component == instance.id && c.from.port == output.name)
                     .filter_map(|c| c.buffer_size)
                     .fold(size, usize::max);
-                let buffer = OutputBuffer::with_slots(
-                    format!("{}.{}", instance.id, output.name),
-                    size,
-                    slots,
-                );
+                let buffer =
+                    OutputBuffer::with_slots(format!("{}.{}", instance.id, output.name), size, slots);
                 buffers.insert((instance.id.clone(), output.name.clone()), buffer.clone());
                 let subsampling = settings.and_then(|s| s.subsampling).unwrap_or(1);
                 let data_type = output.follows_input.is_none().then(|| output.data_type.clone());

@@ -185,14 +185,16 @@ fn live_property_changes_apply_and_bad_values_keep_the_old_one() {
 
 #[test]
 fn actions_reach_the_component() {
-    let d = diagram(
-        vec![component(
-            "counter",
-            "core.counter",
-            &[("rate", Value::F64(200.0))],
-        )],
-        vec![],
+    let mut counter = component("counter", "core.counter", &[("rate", Value::F64(200.0))]);
+    // Room for the tap below to hold the whole run: a ring is sized when the diagram is built.
+    counter.outputs.insert(
+        "out".into(),
+        kairos_diagram::OutputSettings {
+            buffer_size: Some(4096),
+            subsampling: None,
+        },
     );
+    let d = diagram(vec![counter], vec![]);
     let mut engine = Engine::build(&d, &registry(), RealTimeClock::shared()).unwrap();
     let mut tap_config = kairos_sdk::ReaderConfig::new(kairos_diagram::ReaderPolicy::Fifo, "tap");
     tap_config.capacity = Some(4096);
@@ -318,7 +320,8 @@ fn reactive_components_run_in_their_producer_and_output_subsampling_applies() {
     double.outputs.insert(
         "out".into(),
         kairos_diagram::OutputSettings {
-            buffer_size: Some(64),
+            // Room for the tap below to hold the whole run.
+            buffer_size: Some(4096),
             subsampling: Some(2),
         },
     );
