@@ -776,7 +776,7 @@ impl Reader {
                 spin();
                 continue;
             }
-            spins = 0;
+            // The first call only arms the signal: the loop re-checks once more, then sleeps.
             self.signal.park();
         }
     }

@@ -27,9 +27,11 @@ pub(crate) fn park_timeout(_timeout: std::time::Duration) {
 }
 
 /// How many times a waiting thread re-checks before it gives up its core or parks: about a microsecond
-/// of spinning, long enough to ride out another core's store, short enough not to matter when idle.
+/// of spinning (one `pause` measured 25 ns on an AMD EPYC, about 40 on recent Intel cores), long enough
+/// for a writer that keeps up to deliver the next sample, short enough that threads spinning in vain do
+/// not starve others when there are more threads than cores.
 #[cfg(not(loom))]
-pub(crate) const SPINS: u32 = 200;
+pub(crate) const SPINS: u32 = 40;
 #[cfg(loom)]
 pub(crate) const SPINS: u32 = 1;
 
