@@ -152,7 +152,8 @@ struct ReaderShared {
     /// `written` when the reader detached ([`EMPTY`] while attached): its counts freeze there.
     detached_at: AtomicU64,
     progress: Padded<Progress>,
-    latency: SharedLatency,
+    /// Written by the reader for every sample: kept off the lines the writer reads for every sample.
+    latency: Padded<SharedLatency>,
 }
 
 impl ReaderShared {
@@ -573,7 +574,7 @@ impl OutputBuffer {
                 repeated: AtomicU64::new(0),
                 cloning: AtomicU64::new(IDLE),
             }),
-            latency: SharedLatency::default(),
+            latency: Padded(SharedLatency::default()),
         });
         registry.readers.push(Arc::clone(&reader));
         drop(registry);
