@@ -388,6 +388,9 @@ impl<'a> WriteGuard<'a> {
                 shared,
                 epoch: epoch + 1,
             };
+            // Paired with the heavy fence in `attach`: either this sees the new version, or the attaching
+            // reader sees this write in progress and waits it out.
+            light_fence();
             let version = shared.version.load(Ordering::SeqCst);
             // SAFETY: inside a write (odd epoch taken by this thread): nobody else touches the state.
             if shared.writer_state.with(|state| unsafe { (*state).version }) == version {
@@ -555,6 +558,7 @@ impl OutputBuffer {
             capacity = slots;
         }
         shared.version.fetch_add(1, Ordering::SeqCst);
+        heavy_fence();
         shared.wait_for_writer_between_writes();
         let joined_at = shared.written.load(Ordering::SeqCst).saturating_sub(1);
         let reader = Arc::new(ReaderShared {

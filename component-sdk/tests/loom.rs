@@ -89,3 +89,81 @@ fn last_or_next_ends_on_the_newest() {
         assert_eq!(got.last(), Some(&2), "{got:?}");
     });
 }
+
+fn builder() -> loom::model::Builder {
+    let mut builder = loom::model::Builder::new();
+    if std::env::var_os("LOOM_MAX_BRANCHES").is_none() {
+        builder.max_branches = 100_000;
+    }
+    if std::env::var_os("LOOM_MAX_PREEMPTIONS").is_none() {
+        builder.preemption_bound = Some(3);
+    }
+    builder
+}
+
+/// A reader attaching while the writer writes: every later write sees it, and it ends on the newest sample.
+///
+/// The writer runs on the model's main thread: loom wakes a thread blocked in `join` when someone unparks
+/// it, which only the writer's last wake-up of the reader could do here.
+#[test]
+fn a_reader_attaching_mid_stream_sees_every_later_write() {
+    builder().check(|| {
+        // One slot: the second write replaces the sample the reader may be cloning.
+        let buffer = OutputBuffer::new("w.out", 1);
+        let reader = {
+            let buffer = buffer.clone();
+            loom::thread::spawn(move || {
+                let signal = Arc::new(RunSignal::new());
+                signal.bind_current_thread();
+                let mut reader = buffer.attach(
+                    ReaderConfig::new(ReaderPolicy::Fifo, "w.out -> late.in"),
+                    Arc::clone(&signal),
+                );
+                let mut got = Vec::new();
+                loop {
+                    match reader.read(false) {
+                        Ok(sample) => got.push(sample.sequence),
+                        Err(ReadError::EndOfStream) => break,
+                        Err(other) => panic!("unexpected {other:?}"),
+                    }
+                }
+                (got, reader.counters())
+            })
+        };
+        let signal = Arc::new(RunSignal::new());
+        signal.bind_current_thread();
+        for sequence in 0..2 {
+            buffer.write(sample(sequence), &signal).unwrap();
+        }
+        buffer.close();
+        let (got, counters) = reader.join().unwrap();
+        assert!(counters.balanced(), "{counters:?}");
+        assert_eq!(got.last(), Some(&1), "the newest always arrives: {got:?}");
+        assert!(got.windows(2).all(|w| w[0] < w[1]), "{got:?}");
+    });
+}
+
+/// A NeverSkipping reader that leaves while its writer waits for room releases the writer.
+#[test]
+fn a_reader_leaving_releases_a_waiting_writer() {
+    builder().check(|| {
+        let buffer = OutputBuffer::new("w.out", 1);
+        let reader = buffer.attach(
+            ReaderConfig::new(ReaderPolicy::NeverSkipping, "w.out -> slow.in"),
+            Arc::new(RunSignal::new()),
+        );
+        let writer = {
+            let buffer = buffer.clone();
+            loom::thread::spawn(move || {
+                let signal = Arc::new(RunSignal::new());
+                signal.bind_current_thread();
+                for sequence in 0..2 {
+                    buffer.write(sample(sequence), &signal).unwrap();
+                }
+            })
+        };
+        drop(reader);
+        writer.join().unwrap();
+        assert_eq!(buffer.written(), 2);
+    });
+}
