@@ -23,11 +23,10 @@ fn sample(sequence: u64) -> Sample {
     }
 }
 
-/// A writer writes `count` samples then closes; the reader reads until the end of the stream.
-fn model(policy: ReaderPolicy, capacity: usize, count: u64, check: fn(&[u64])) {
-    // The buffer's waits spin a little before they sleep: allow the longer paths that makes, and bound
-    // preemptions so the exploration stays within minutes (bugs of this kind show within two).
-    // `LOOM_MAX_BRANCHES` and `LOOM_MAX_PREEMPTIONS` still override these, to investigate a failure.
+/// Explores up to 100 000 branches per execution with at most 3 preemptions: the buffer's waits spin a
+/// little before they sleep, which makes paths long, and bugs of this kind show within two preemptions.
+/// `LOOM_MAX_BRANCHES` and `LOOM_MAX_PREEMPTIONS` override both, to investigate a failure.
+fn builder() -> loom::model::Builder {
     let mut builder = loom::model::Builder::new();
     if std::env::var_os("LOOM_MAX_BRANCHES").is_none() {
         builder.max_branches = 100_000;
@@ -35,7 +34,12 @@ fn model(policy: ReaderPolicy, capacity: usize, count: u64, check: fn(&[u64])) {
     if std::env::var_os("LOOM_MAX_PREEMPTIONS").is_none() {
         builder.preemption_bound = Some(3);
     }
-    builder.check(move || {
+    builder
+}
+
+/// A writer writes `count` samples then closes; the reader reads until the end of the stream.
+fn model(policy: ReaderPolicy, capacity: usize, count: u64, check: fn(&[u64])) {
+    builder().check(move || {
         let buffer = OutputBuffer::new("w.out", capacity);
         let signal = Arc::new(RunSignal::new());
         let mut reader = buffer.attach(ReaderConfig::new(policy, "w.out -> r.in"), Arc::clone(&signal));
@@ -78,7 +82,7 @@ fn fifo_never_loses_a_wake_up_and_keeps_order() {
 #[test]
 fn never_skipping_delivers_everything_in_order() {
     model(ReaderPolicy::NeverSkipping, 1, 3, |got| {
-        assert_eq!(got, [0, 1, 2])
+        assert_eq!(got, [0, 1, 2]);
     });
 }
 
@@ -88,17 +92,6 @@ fn last_or_next_ends_on_the_newest() {
         assert!(got.windows(2).all(|w| w[0] < w[1]), "{got:?}");
         assert_eq!(got.last(), Some(&2), "{got:?}");
     });
-}
-
-fn builder() -> loom::model::Builder {
-    let mut builder = loom::model::Builder::new();
-    if std::env::var_os("LOOM_MAX_BRANCHES").is_none() {
-        builder.max_branches = 100_000;
-    }
-    if std::env::var_os("LOOM_MAX_PREEMPTIONS").is_none() {
-        builder.preemption_bound = Some(3);
-    }
-    builder
 }
 
 /// A reader attaching while the writer writes: every later write sees it, and it ends on the newest sample.
