@@ -33,7 +33,7 @@ use std::fmt;
 use std::ops::Deref;
 use std::sync::Arc;
 
-use kairos_diagram::ReaderPolicy;
+use kairos_diagram::{MAX_BUFFER_SIZE, ReaderPolicy};
 
 use crate::sample::Sample;
 use crate::signal::RunSignal;
@@ -506,12 +506,22 @@ impl OutputBuffer {
 
     /// A buffer whose readers get `capacity` samples by default, with room for a reader that asks for up
     /// to `slots` (a connection with a larger buffer size than its output's).
+    ///
+    /// Both are cut to [`kairos_diagram::MAX_BUFFER_SIZE`] (with a warning): the slots are allocated here,
+    /// and a size from a pack or a program must not take the process down.
     pub fn with_slots(output: impl Into<String>, capacity: usize, slots: usize) -> Self {
-        let capacity = capacity.max(1);
-        let slots = slots.max(capacity).next_power_of_two();
+        let output = output.into();
+        if capacity.max(slots) > MAX_BUFFER_SIZE {
+            tracing::warn!(
+                "buffer of {output} asked for {} samples; it holds {MAX_BUFFER_SIZE}, the maximum",
+                capacity.max(slots)
+            );
+        }
+        let capacity = capacity.clamp(1, MAX_BUFFER_SIZE);
+        let slots = slots.clamp(capacity, MAX_BUFFER_SIZE).next_power_of_two();
         OutputBuffer {
             shared: Arc::new(Shared {
-                output: output.into(),
+                output,
                 mask: slots as u64 - 1,
                 slots: (0..slots)
                     .map(|_| Slot {

@@ -257,6 +257,27 @@ fn a_connection_may_have_a_larger_share_than_the_output_default() {
 }
 
 #[test]
+fn a_reader_asking_for_more_than_the_ring_gets_the_ring() {
+    let buffer = OutputBuffer::new("p.out", 4);
+    let writer = Arc::new(RunSignal::new());
+    let mut config = ReaderConfig::new(ReaderPolicy::Fifo, "greedy");
+    config.capacity = Some(100);
+    let mut greedy = buffer.attach(config, Arc::new(RunSignal::new()));
+    write_range(&buffer, &writer, 0..10);
+    assert_eq!(sequences(&mut greedy), vec![6, 7, 8, 9]);
+    assert_eq!(counts(greedy.counters()), [10, 4, 0, 6, 0]);
+}
+
+#[test]
+fn a_buffer_size_beyond_the_maximum_is_cut_to_it_instead_of_taking_the_process_down() {
+    let buffer = OutputBuffer::with_slots("p.out", usize::MAX, usize::MAX);
+    let writer = Arc::new(RunSignal::new());
+    let mut r = reader(&buffer, ReaderPolicy::Fifo);
+    write_range(&buffer, &writer, 0..3);
+    assert_eq!(sequences(&mut r), vec![0, 1, 2]);
+}
+
+#[test]
 fn a_late_reader_starts_from_the_newest_sample() {
     let buffer = OutputBuffer::new("p.out", 4);
     let writer = Arc::new(RunSignal::new());

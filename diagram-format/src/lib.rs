@@ -31,8 +31,8 @@ pub use library::{
     OutputInfo, PackInfo, PropertyInfo, PropertyKind, ReaderPolicy, TypeFilter, Value, ValueError,
 };
 pub use model::{
-    ComponentInstance, Connection, Diagram, FORMAT_VERSION, OutputSettings, PackRequirement, PortRef,
-    Position, ThreadSettings,
+    ComponentInstance, Connection, Diagram, FORMAT_VERSION, MAX_BUFFER_SIZE, OutputSettings, PackRequirement,
+    PortRef, Position, ThreadSettings,
 };
 pub use read::{
     ComponentLocations, ConnectionLocations, EntryLocations, LoadError, OutputLocations, PackLocations,

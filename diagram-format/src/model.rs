@@ -7,6 +7,11 @@ use serde::{Deserialize, Serialize};
 
 use crate::library::{ReaderPolicy, Value};
 
+/// The largest `buffer_size` a diagram may ask for: a ring's slots are allocated when the diagram is built
+/// (128 bytes each, so this many take 128 MiB), and about 17 minutes of a 1 kHz stream is more than any
+/// link needs to ride out a slow reader.
+pub const MAX_BUFFER_SIZE: usize = 1 << 20;
+
 /// The diagram format version this crate reads and writes.
 pub const FORMAT_VERSION: u32 = 1;
 

@@ -5,7 +5,7 @@ use std::collections::{BTreeMap, BTreeSet, HashMap};
 
 use crate::diagnostic::{Diagnostic, DiagnosticCode, Location, closest, did_you_mean};
 use crate::library::{ComponentInfo, DescribeError, ExecutionMode, InstanceInfos, LibraryInfo, Value};
-use crate::model::{ComponentInstance, Connection, Diagram, FORMAT_VERSION, PortRef};
+use crate::model::{ComponentInstance, Connection, Diagram, FORMAT_VERSION, MAX_BUFFER_SIZE, PortRef};
 use crate::read::{ComponentLocations, ConnectionLocations, PackLocations, SourceMap};
 
 /// Checks `diagram` against `library` and returns every problem found, in source order.
@@ -334,8 +334,8 @@ impl<'a> Validator<'a> {
         for (output, settings) in &component.outputs {
             let output_at = at.and_then(|l| l.outputs.get(output));
             let what = format!("output '{output}' of '{}'", component.id);
-            if settings.buffer_size == Some(0) {
-                self.report_zero("buffer_size", &what, output_at.and_then(|l| l.buffer_size));
+            if let Some(size) = settings.buffer_size {
+                self.check_buffer_size(size, &what, output_at.and_then(|l| l.buffer_size));
             }
             if settings.subsampling == Some(0) {
                 self.report_zero("subsampling", &what, output_at.and_then(|l| l.subsampling));
@@ -349,6 +349,20 @@ impl<'a> Validator<'a> {
             let diagnostic = Diagnostic::error(DiagnosticCode::InvalidSetting, message)
                 .at(at.and_then(|l| l.priority))
                 .with_suggestion(Some("leave priority out to keep the normal scheduler".to_owned()));
+            self.found.push(diagnostic);
+        }
+    }
+
+    fn check_buffer_size(&mut self, size: usize, what: &str, location: Option<Location>) {
+        if size == 0 {
+            self.report_zero("buffer_size", what, location);
+        } else if size > MAX_BUFFER_SIZE {
+            let message = format!("buffer_size {size} of {what} is above the maximum of {MAX_BUFFER_SIZE}");
+            let suggestion = "a ring's slots are allocated up front; subsample the link or read it with \
+                              LastOrNext if the reader cannot keep up";
+            let diagnostic = Diagnostic::error(DiagnosticCode::InvalidSetting, message)
+                .at(location)
+                .with_suggestion(Some(suggestion.to_owned()));
             self.found.push(diagnostic);
         }
     }
@@ -447,8 +461,8 @@ impl<'a> Validator<'a> {
                 self.found.push(diagnostic);
             }
             let what = format!("the connection from '{}' to '{}'", connection.from, connection.to);
-            if connection.buffer_size == Some(0) {
-                self.report_zero("buffer_size", &what, at.and_then(|l| l.buffer_size));
+            if let Some(size) = connection.buffer_size {
+                self.check_buffer_size(size, &what, at.and_then(|l| l.buffer_size));
             }
             if connection.subsampling == Some(0) {
                 self.report_zero("subsampling", &what, at.and_then(|l| l.subsampling));

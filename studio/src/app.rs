@@ -779,7 +779,7 @@ impl StudioApp {
             let mut buffer = connection.buffer_size.unwrap_or(0);
             ui.horizontal(|ui| {
                 ui.label("buffer size (0: the output's)");
-                ui.add(egui::DragValue::new(&mut buffer).range(0..=1_000_000));
+                ui.add(egui::DragValue::new(&mut buffer).range(0..=kairos_diagram::MAX_BUFFER_SIZE));
             });
             let mut subsampling = connection.subsampling.unwrap_or(1);
             ui.horizontal(|ui| {
