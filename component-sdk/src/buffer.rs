@@ -10,8 +10,10 @@
 //!   share is full, so such a reader clones without any check.
 //! - Any other reader may be lapped. Before cloning it announces the sequence it is cloning (`cloning`)
 //!   and then checks the slot's stamp; a writer about to replace a sample that some reader may still
-//!   reach marks the slot `REPLACING` first and then waits out a clone of that sequence. Both sides use
-//!   sequentially consistent operations, so at least one of them sees the other.
+//!   reach marks the slot `REPLACING` first and then waits out a clone of that sequence. Both sides put a
+//!   sequentially consistent fence between their store and their load, so at least one of them sees the
+//!   other. A reader that finds the slot replaced does not announce again until the slot holds its new
+//!   sample: announcing in a loop could keep the writer waiting.
 //! - The writer knows which samples a reader may still reach from the cursor the reader publishes; it
 //!   keeps the last value it saw and reloads it only when that value would stop it, so a reader that
 //!   keeps up costs the writer nothing per sample.
@@ -22,11 +24,12 @@
 //! whether the reader looked yet or not.
 //!
 //! The set of readers changes under a mutex that neither reads nor writes take. A reader attaching
-//! while the writer runs waits until the writer is between two writes; every later write sees it.
+//! while the writer runs waits until the writer is between two writes; every later write sees it (the
+//! same store-fence-load handshake, the heavy fence on the attaching side).
 #![allow(
     unsafe_code,
     reason = "the slots are shared between the writer and the readers without a lock; each access states \
-              the rule above that makes it race-free, and the loom model checks them"
+              the rule above that makes it race-free, and the loom models check them"
 )]
 
 use std::fmt;
@@ -247,7 +250,7 @@ struct WriterState {
     /// The `version` of the reader set this view was taken at.
     version: u64,
     readers: Vec<Watched>,
-    /// Readers' threads to unpark after each write.
+    /// Signals of the readers that have threads: each write notifies them (an unpark only if armed).
     threads: Vec<Arc<RunSignal>>,
     /// Reactive readers, run after each write once the write is over (they may write themselves).
     reactive: Option<ReactiveReaders>,
@@ -453,7 +456,7 @@ impl<'a> WriteGuard<'a> {
             .with_mut(|state| f(unsafe { &mut *state }))
     }
 
-    /// Puts `sample` in the next slot, makes it visible and unparks the readers' threads. Returns the
+    /// Puts `sample` in the next slot, makes it visible and notifies the readers' threads. Returns the
     /// sample it replaced and the reactive readers to run.
     fn publish(&mut self, sample: Sample) -> (Option<Sample>, Option<ReactiveReaders>) {
         let shared = self.shared;
