@@ -82,7 +82,7 @@ impl RunSignal {
         // Paired with the heavy fence in `park`: either the sleeper's re-check sees the data, or this
         // sees it armed.
         light_fence();
-        if self.sleeping.load(Ordering::Relaxed) {
+        if self.sleeping.load(Ordering::Acquire) {
             self.wake();
         }
     }
@@ -145,9 +145,14 @@ impl RunSignal {
     /// condition in a loop: the first call after the thread was busy only arms the signal and returns, so
     /// that data written before the writer could see it armed is found by that re-check; the next call
     /// sleeps.
+    ///
+    /// A signal not yet bound to a thread binds the caller here: a thread parked under a signal no writer
+    /// can unpark would sleep for ever.
     pub fn park(&self) {
         if !self.sleeping.load(Ordering::Relaxed) {
-            self.sleeping.store(true, Ordering::Relaxed);
+            self.thread.get_or_init(current_thread);
+            // Release: a writer that sees the signal armed also sees the thread bound just above.
+            self.sleeping.store(true, Ordering::Release);
             heavy_fence();
             return;
         }

@@ -336,3 +336,24 @@ fn a_stop_wakes_a_blocked_reader() {
     signal.request_stop();
     assert_eq!(waiting.join().unwrap(), Err(kairos_sdk::ReadError::Stopped));
 }
+
+#[test]
+fn a_reader_whose_signal_was_never_bound_is_still_woken() {
+    let buffer = OutputBuffer::new("p.out", 4);
+    let mut r = buffer.attach(
+        ReaderConfig::new(ReaderPolicy::Fifo, "unbound"),
+        Arc::new(RunSignal::new()),
+    );
+    let (done, finished) = std::sync::mpsc::channel();
+    thread::spawn(move || {
+        let _ = done.send(r.read(false).map(|s| s.sequence));
+    });
+    // Long enough for the reader to go to sleep.
+    thread::sleep(Duration::from_millis(50));
+    buffer.write(sample(7), &Arc::new(RunSignal::new())).unwrap();
+    assert_eq!(
+        finished.recv_timeout(Duration::from_secs(10)),
+        Ok(Ok(7)),
+        "the reader slept on although a sample arrived"
+    );
+}
