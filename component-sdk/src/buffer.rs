@@ -257,6 +257,30 @@ struct WriterState {
 }
 
 impl WriterState {
+    /// The writer's view of the readers attached now, from the registry.
+    fn of_attached_readers(shared: &Shared) -> Self {
+        let registry = lock(&shared.registry);
+        let readers: Vec<Watched> = registry
+            .readers
+            .iter()
+            .filter(|r| r.attached.load(Ordering::Acquire))
+            .map(|reader| Watched {
+                reader: Arc::clone(reader),
+                seen_cursor: reader.progress.cursor.load(Ordering::Acquire),
+            })
+            .collect();
+        let (reactive, threads): (Vec<_>, Vec<_>) = readers
+            .iter()
+            .map(|w| Arc::clone(&w.reader.signal))
+            .partition(|signal| signal.is_reactive());
+        WriterState {
+            version: shared.version.load(Ordering::SeqCst),
+            readers,
+            threads,
+            reactive: (!reactive.is_empty()).then(|| Arc::from(reactive)),
+        }
+    }
+
     /// A NeverSkipping reader with no room for one more sample, if any.
     fn full_reader(&mut self, written: u64) -> Option<Arc<ReaderShared>> {
         for watched in &mut self.readers {
@@ -376,21 +400,7 @@ impl<'a> WriteGuard<'a> {
     /// Enters a write, with a view of the readers as of now.
     fn enter(shared: &'a Shared) -> Self {
         loop {
-            let epoch = shared.writer_epoch.load(Ordering::Relaxed);
-            if !epoch.is_multiple_of(2)
-                || shared
-                    .writer_epoch
-                    .compare_exchange(epoch, epoch + 1, Ordering::SeqCst, Ordering::Relaxed)
-                    .is_err()
-            {
-                // Another thread writes to the same output; it is out within a write.
-                yield_now();
-                continue;
-            }
-            let guard = WriteGuard {
-                shared,
-                epoch: epoch + 1,
-            };
+            let guard = Self::take_turn(shared);
             // Paired with the heavy fence in `attach`: either this sees the new version, or the attaching
             // reader sees this write in progress and waits it out.
             light_fence();
@@ -402,36 +412,16 @@ impl<'a> WriteGuard<'a> {
             // Leave the write before taking the registry: an attaching reader holds it while it waits
             // for the writer to be between writes.
             drop(guard);
-            let fresh = {
-                let registry = lock(&shared.registry);
-                let readers: Vec<Watched> = registry
-                    .readers
-                    .iter()
-                    .filter(|r| r.attached.load(Ordering::Acquire))
-                    .map(|reader| Watched {
-                        reader: Arc::clone(reader),
-                        seen_cursor: reader.progress.cursor.load(Ordering::Acquire),
-                    })
-                    .collect();
-                let (reactive, threads): (Vec<_>, Vec<_>) = readers
-                    .iter()
-                    .map(|w| Arc::clone(&w.reader.signal))
-                    .partition(|signal| signal.is_reactive());
-                WriterState {
-                    version: shared.version.load(Ordering::SeqCst),
-                    readers,
-                    threads,
-                    reactive: (!reactive.is_empty()).then(|| Arc::from(reactive)),
-                }
-            };
-            let guard = Self::enter_without_refresh(shared);
+            let fresh = WriterState::of_attached_readers(shared);
+            let guard = Self::take_turn(shared);
             // SAFETY: inside a write, as above.
             shared.writer_state.with_mut(|state| unsafe { *state = fresh });
             drop(guard);
         }
     }
 
-    fn enter_without_refresh(shared: &'a Shared) -> Self {
+    /// Makes the epoch odd for this thread, waiting out another thread's write to the same output.
+    fn take_turn(shared: &'a Shared) -> Self {
         loop {
             let epoch = shared.writer_epoch.load(Ordering::Relaxed);
             if epoch.is_multiple_of(2)
@@ -912,8 +902,7 @@ impl Reader {
                     self.counts.cursor += 1;
                     return Some(sample);
                 }
-                // Lapped while we looked: the slot's new sample says by how much.
-                Err(newer) => written = self.buffer.written().max(newer.saturating_add(1)),
+                Err(written_at_least) => written = written_at_least,
             }
         }
     }
@@ -932,7 +921,7 @@ impl Reader {
                     self.counts.cursor = written;
                     return Some(sample);
                 }
-                Err(newer) => written = self.buffer.written().max(newer.saturating_add(1)),
+                Err(written_at_least) => written = written_at_least,
             }
         }
     }
@@ -952,26 +941,26 @@ impl Reader {
             }
             let sample = match self.clone_announced(written - 1) {
                 Ok(sample) => sample,
-                Err(newer) => {
-                    written = self.buffer.written().max(newer.saturating_add(1));
+                Err(written_at_least) => {
+                    written = written_at_least;
                     continue;
                 }
             };
             if again {
                 self.counts.repeated += 1;
+                self.publish();
             } else {
                 self.counts.skipped += written - 1 - cursor;
                 self.counts.cursor = written;
-                self.counts.read += 1;
-                self.shared.latency.record(sample.latency_nanos());
+                self.count_kept(&sample);
             }
-            self.publish();
             return Some(sample);
         }
     }
 
-    /// Clones `sequence` unless the writer replaced it or is replacing it (rule 2). Then it returns the
-    /// newer sequence the slot holds once the writer is through with it.
+    /// Clones `sequence` unless the writer replaced it or is replacing it (rule 2). On a miss it returns
+    /// how many samples were written at least, from the newer sample the slot holds once the writer is
+    /// through with it: a reader lapped while it looked learns by how much.
     ///
     /// After a miss the reader does not announce again until the slot holds its new sample: a reader
     /// that kept announcing the sequence a writer is waiting out could keep that writer waiting.
@@ -981,19 +970,18 @@ impl Reader {
         // Paired with the fence in `WriterState::claim`: one of the two sees the other.
         fence(Ordering::SeqCst);
         let slot = self.buffer.shared.slot(sequence);
-        let stamp = slot.stamp.load(Ordering::Acquire);
+        let mut stamp = slot.stamp.load(Ordering::Acquire);
         let sample = (stamp == sequence).then(|| self.buffer.shared.clone_unchecked(sequence));
         cloning.store(IDLE, Ordering::Release);
-        if let Some(sample) = sample {
-            // A slot stamped with a sequence holds its sample.
-            return sample.ok_or(stamp);
+        // A slot stamped with a sequence holds its sample, so `flatten` drops nothing real.
+        if let Some(sample) = sample.flatten() {
+            return Ok(sample);
         }
-        let mut stamp = stamp;
         while stamp == REPLACING {
             spin();
             stamp = slot.stamp.load(Ordering::Acquire);
         }
-        Err(stamp)
+        Err(self.buffer.written().max(stamp.saturating_add(1)))
     }
 
     /// Publishes the counters under the reader's sequence lock.

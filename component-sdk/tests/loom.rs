@@ -11,7 +11,7 @@
 use std::sync::Arc;
 
 use kairos_sdk::{
-    OutputBuffer, Payload, ReadError, ReaderConfig, ReaderPolicy, RunSignal, Sample, Timestamp,
+    OutputBuffer, Payload, ReadError, Reader, ReaderConfig, ReaderPolicy, RunSignal, Sample, Timestamp,
 };
 
 fn sample(sequence: u64) -> Sample {
@@ -37,6 +37,18 @@ fn builder() -> loom::model::Builder {
     builder
 }
 
+/// Reads with blocking reads until the end of the stream; the sequences read.
+fn read_to_end(reader: &mut Reader) -> Vec<u64> {
+    let mut got = Vec::new();
+    loop {
+        match reader.read(false) {
+            Ok(sample) => got.push(sample.sequence),
+            Err(ReadError::EndOfStream) => return got,
+            Err(other) => panic!("unexpected {other:?}"),
+        }
+    }
+}
+
 /// A writer writes `count` samples then closes; the reader reads until the end of the stream.
 fn model(policy: ReaderPolicy, capacity: usize, count: u64, check: fn(&[u64])) {
     builder().check(move || {
@@ -55,14 +67,7 @@ fn model(policy: ReaderPolicy, capacity: usize, count: u64, check: fn(&[u64])) {
             })
         };
         signal.bind_current_thread();
-        let mut got = Vec::new();
-        loop {
-            match reader.read(false) {
-                Ok(sample) => got.push(sample.sequence),
-                Err(ReadError::EndOfStream) => break,
-                Err(other) => panic!("unexpected {other:?}"),
-            }
-        }
+        let got = read_to_end(&mut reader);
         writer.join().unwrap();
         let counters = reader.counters();
         assert!(counters.balanced(), "{counters:?}");
@@ -112,14 +117,7 @@ fn a_reader_attaching_mid_stream_sees_every_later_write() {
                     ReaderConfig::new(ReaderPolicy::Fifo, "w.out -> late.in"),
                     Arc::clone(&signal),
                 );
-                let mut got = Vec::new();
-                loop {
-                    match reader.read(false) {
-                        Ok(sample) => got.push(sample.sequence),
-                        Err(ReadError::EndOfStream) => break,
-                        Err(other) => panic!("unexpected {other:?}"),
-                    }
-                }
+                let got = read_to_end(&mut reader);
                 (got, reader.counters())
             })
         };
