@@ -9,6 +9,10 @@
 //!   blocking pools; `k:shm`, the shared-memory publishers), as a share of one core; the camera's own thread
 //!   is not counted, it is the same either way;
 //! - the studio's cost: its network and shared-memory threads plus the viewer's thread.
+//!
+//! Three paths: the socket; shared memory with the pixels copied into each iceoryx2 sample; shared memory
+//! with the pixels left where the camera drew them (the frame names the camera's shared buffer), which is
+//! what the studio uses when it may map the runtime's buffers.
 
 use std::net::SocketAddr;
 use std::time::{Duration, Instant};
@@ -82,20 +86,48 @@ fn wait_for_reply(client: &RuntimeClient, id: u64) -> Option<kairos_protocol::Re
     None
 }
 
+/// How the frames reach the viewer.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Path {
+    /// Binary messages on the WebSocket.
+    Socket,
+    /// iceoryx2 samples holding the whole frame, pixels copied in by the publisher.
+    SharedCopied,
+    /// iceoryx2 samples holding the header and a reference to the camera's own shared pixel buffer (what
+    /// the studio asks for when it may map the runtime's buffers).
+    SharedInPlace,
+}
+
+impl Path {
+    fn name(self) -> &'static str {
+        match self {
+            Path::Socket => "socket",
+            Path::SharedCopied => "shared memory, pixels copied",
+            Path::SharedInPlace => "shared memory, pixels in place",
+        }
+    }
+}
+
 /// One measurement: (runtime transport CPU share, studio CPU share, frames shown per second).
 fn measure(
     address: SocketAddr,
-    transport: SampleTransport,
+    path: Path,
     window: Duration,
     output: &str,
     data_type: &str,
 ) -> Option<(f64, f64, f64)> {
     let mut client = RuntimeClient::connect(&format!("ws://{address}"), None, || {});
+    let transport = if path == Path::Socket {
+        SampleTransport::Socket
+    } else {
+        SampleTransport::SharedMemory
+    };
     let subscribe = client.request(RequestBody::SubscribeSamples {
         outputs: vec![output.to_owned()],
         max_rate_hz: RATE_HZ,
         max_image_width: None,
         transport,
+        shared_pixels: path == Path::SharedInPlace,
     });
     let reply = wait_for_reply(&client, subscribe)?;
     if transport == SampleTransport::SharedMemory {
@@ -157,7 +189,7 @@ fn clouds(address: SocketAddr, window: Duration) {
     for rep in 0..kairos_benches::repetitions() {
         if let Some((_, studio, shown)) = measure(
             address,
-            SampleTransport::SharedMemory,
+            Path::SharedInPlace,
             window,
             "lidar.points",
             "point_cloud",
@@ -209,47 +241,46 @@ fn main() {
         "studio CPU",
         "frames shown/s",
     ]);
-    let (mut socket_runtime, mut shared_runtime, mut socket_studio, mut shared_studio) =
-        (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+    let mut runtime_by_path: [Vec<f64>; 3] = Default::default();
+    let mut studio_by_path: [Vec<f64>; 3] = Default::default();
+    let paths = [Path::Socket, Path::SharedCopied, Path::SharedInPlace];
     for rep in 0..kairos_benches::repetitions() {
-        for transport in [SampleTransport::Socket, SampleTransport::SharedMemory] {
-            let Some((runtime, studio, shown)) = measure(address, transport, window, "camera.image", "image")
+        for (index, path) in paths.into_iter().enumerate() {
+            let Some((runtime, studio, shown)) = measure(address, path, window, "camera.image", "image")
             else {
-                eprintln!("{transport:?}: no measurement");
+                eprintln!("{}: no measurement", path.name());
                 continue;
             };
             table.row(vec![
                 rep.to_string(),
-                format!("{transport:?}"),
-                format!("{:.1} %", runtime * 100.0),
+                path.name().to_owned(),
+                format!("{:.2} %", runtime * 100.0),
                 format!("{:.1} %", studio * 100.0),
                 format!("{shown:.1}"),
             ]);
-            if transport == SampleTransport::Socket {
-                socket_runtime.push(runtime);
-                socket_studio.push(studio);
-            } else {
-                shared_runtime.push(runtime);
-                shared_studio.push(studio);
-            }
+            runtime_by_path[index].push(runtime);
+            studio_by_path[index].push(studio);
         }
     }
     table.print();
     clouds(address, window);
+    let [socket_runtime, copied_runtime, in_place_runtime] = &runtime_by_path;
+    let [socket_studio, _, in_place_studio] = &studio_by_path;
+    let per_rep = |over: &[f64]| Spread::of(socket_runtime.iter().zip(over).map(|(s, m)| s / m.max(1e-5)));
     let mut ratios = Ratios::new();
     ratios.add(
-        "runtime CPU: socket / shared memory",
-        Spread::of(
-            socket_runtime
-                .iter()
-                .zip(&shared_runtime)
-                .map(|(s, m)| s / m.max(1e-4)),
-        ),
+        "runtime CPU: socket / shared memory (pixels in place, the studio's path)",
+        per_rep(in_place_runtime),
         Some(Goal::AtLeast(5.0)),
     );
     ratios.add(
-        "studio CPU share, shared memory (of one core) / 25 %",
-        Spread::of(shared_studio.iter().map(|s| s / 0.25)),
+        "runtime CPU: socket / shared memory (pixels copied)",
+        per_rep(copied_runtime),
+        None,
+    );
+    ratios.add(
+        "studio CPU share, shared memory in place (of one core) / 25 %",
+        Spread::of(in_place_studio.iter().map(|s| s / 0.25)),
         Some(Goal::AtMost(1.0)),
     );
     ratios.add(

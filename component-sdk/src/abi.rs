@@ -525,8 +525,12 @@ pub unsafe fn sample_from_c(k: &KSample) -> Result<Sample, String> {
         kind::IMAGE => {
             let format = pixel_format_from(k.pixel_format)
                 .ok_or_else(|| format!("unknown pixel format {}", k.pixel_format))?;
+            // The one copy across the boundary goes into a buffer that local viewers can map as it is.
+            let mut pixels = crate::pixels::PixelsMut::new(data.len());
+            pixels.copy_from_slice(data);
             Payload::Image(
-                Image::with_stride(k.width, k.height, format, k.stride, data).map_err(|e| e.to_string())?,
+                Image::with_stride(k.width, k.height, format, k.stride, pixels.freeze())
+                    .map_err(|e| e.to_string())?,
             )
         }
         kind::POINT_CLOUD => {

@@ -16,6 +16,7 @@ pub mod component;
 pub mod descriptor;
 pub mod harness;
 pub mod payload;
+pub mod pixels;
 pub mod registry;
 pub mod rng;
 pub mod sample;
@@ -36,6 +37,7 @@ pub use kairos_diagram::{
 pub use payload::{
     CanFrame, CustomPayload, FixStatus, GnssFix, Image, Imu, Matrix, Payload, PixelFormat, PointCloud, Pose,
 };
+pub use pixels::{Pixels, PixelsMut};
 pub use registry::{Describe, Factory, PackRegistrar, RegisteredComponent, Registry};
 pub use sample::Sample;
 pub use signal::RunSignal;

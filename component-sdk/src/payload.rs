@@ -9,6 +9,8 @@ use std::sync::Arc;
 use glam::{DQuat, DVec3, Vec3};
 use kairos_diagram::DataType;
 
+use crate::pixels::Pixels;
+
 /// The data of one sample.
 #[derive(Clone, PartialEq)]
 pub enum Payload {
@@ -210,7 +212,7 @@ pub struct Image {
     /// Bytes from the start of one row to the start of the next.
     pub stride: u32,
     /// `stride * height` bytes.
-    pub pixels: Arc<[u8]>,
+    pub pixels: Pixels,
 }
 
 /// Why an image's fields do not fit together.
@@ -231,7 +233,7 @@ impl Image {
         width: u32,
         height: u32,
         format: PixelFormat,
-        pixels: impl Into<Arc<[u8]>>,
+        pixels: impl Into<Pixels>,
     ) -> Result<Self, ImageSizeError> {
         Self::with_stride(
             width,
@@ -248,7 +250,7 @@ impl Image {
         height: u32,
         format: PixelFormat,
         stride: u32,
-        pixels: impl Into<Arc<[u8]>>,
+        pixels: impl Into<Pixels>,
     ) -> Result<Self, ImageSizeError> {
         let pixels = pixels.into();
         let needed = u64::from(stride) * u64::from(height);

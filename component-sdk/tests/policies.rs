@@ -294,9 +294,9 @@ fn readers_share_the_payload_instead_of_copying_it() {
     let writer = Arc::new(RunSignal::new());
     let mut a = reader(&buffer, ReaderPolicy::Fifo);
     let mut b = reader(&buffer, ReaderPolicy::Fifo);
-    let pixels: Arc<[u8]> = Arc::from(vec![7_u8; 1 << 20]);
+    let pixels = kairos_sdk::Pixels::from(vec![7_u8; 1 << 20]);
     let image =
-        kairos_sdk::Image::packed(1024, 1024, kairos_sdk::PixelFormat::Gray8, Arc::clone(&pixels)).unwrap();
+        kairos_sdk::Image::packed(1024, 1024, kairos_sdk::PixelFormat::Gray8, pixels.clone()).unwrap();
     buffer
         .write(Sample::new(Payload::Image(image), Timestamp::ZERO), &writer)
         .unwrap();
@@ -304,7 +304,7 @@ fn readers_share_the_payload_instead_of_copying_it() {
         let Payload::Image(got) = r.try_read().unwrap().payload else {
             panic!("not an image")
         };
-        assert!(Arc::ptr_eq(&got.pixels, &pixels), "the pixel buffer was copied");
+        assert!(got.pixels.ptr_eq(&pixels), "the pixel buffer was copied");
     }
 }
 

@@ -71,6 +71,9 @@ pub struct StudioApp {
     transport: Transport,
     /// Whether the runtime is on this machine and can hand viewer frames over in shared memory.
     shared_memory: bool,
+    /// Whether, with shared memory, images come as references to the runtime's own pixel buffers, which
+    /// this process may map: no copy at all on the runtime's side.
+    shared_pixels: bool,
     /// The "New component…" dialog, while it is open.
     new_component: Option<crate::wizard::NewComponentDialog>,
     /// The `kairos` program, which generates components and runs the local runtime.
@@ -198,6 +201,7 @@ impl StudioApp {
             viewers: Viewers::default(),
             transport: Transport::default(),
             shared_memory: false,
+            shared_pixels: false,
             new_component: None,
             kairos: crate::local::kairos_binary(),
             pack_paths: Vec::new(),
@@ -271,6 +275,10 @@ impl StudioApp {
                     self.connected = true;
                     self.shared_memory = welcome.shared_memory_host.is_some()
                         && welcome.shared_memory_host == kairos_protocol::this_host();
+                    self.shared_pixels = self.shared_memory
+                        && welcome
+                            .pid
+                            .is_some_and(kairos_protocol::shared_pixels::can_map_buffers_of);
                     self.note(
                         Color32::LIGHT_GREEN,
                         format!("connected to {} ({:?})", welcome.server, welcome.role),
@@ -1196,6 +1204,7 @@ impl StudioApp {
                 max_rate_hz: VIEWER_RATE_HZ,
                 max_image_width: Some(VIEWER_IMAGE_WIDTH),
                 transport,
+                shared_pixels: self.shared_memory && self.shared_pixels,
             },
             Pending::Samples,
         );

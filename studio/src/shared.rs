@@ -1,6 +1,8 @@
 //! Sample frames from iceoryx2 shared memory: what a runtime on this machine publishes for the studio's
 //! viewers instead of sending it through the socket. The frames are the protocol's own bytes, so the
-//! viewers cannot tell the two paths apart.
+//! viewers cannot tell the two paths apart. A frame may name the runtime's pixel buffer instead of
+//! carrying the pixels (`shared_pixels`): they are copied out of that buffer here, so the viewers still
+//! get the same bytes.
 
 use std::collections::BTreeMap;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -8,8 +10,62 @@ use std::sync::mpsc::Sender;
 use std::time::Duration;
 
 use iceoryx2::prelude::*;
+use kairos_protocol::shared_pixels::{PixelsReference, SharedPixelsError, SharedPixelsReader};
+use kairos_protocol::{LogLevel, LogRecord};
 
 use crate::client::ClientEvent;
+
+/// Copies the pixels of frames that name a buffer of the runtime instead of carrying them.
+#[derive(Default)]
+struct PixelsFromRuntime {
+    reader: SharedPixelsReader,
+    /// Frames whose buffer was recycled before they were read, since the last report.
+    replaced: u64,
+    reported_unreachable: bool,
+}
+
+impl PixelsFromRuntime {
+    /// The pixels, or `None` (the frame is skipped, as a frame lost on the way would be) with the reason
+    /// in the studio's log: once for a buffer that cannot be mapped, at 1, 2, 4, 8 ... for frames the
+    /// runtime recycled before they were read.
+    fn read(&mut self, reference: &PixelsReference, events: &Sender<ClientEvent>) -> Option<Vec<u8>> {
+        let error = match self.reader.read(reference) {
+            Ok(bytes) => return Some(bytes),
+            Err(error) => error,
+        };
+        let (level, message) = match error {
+            SharedPixelsError::Replaced => {
+                self.replaced += 1;
+                if !self.replaced.is_power_of_two() {
+                    return None;
+                }
+                (
+                    LogLevel::Debug,
+                    format!(
+                        "viewer: {} image frames were recycled by the runtime before they could be read",
+                        self.replaced
+                    ),
+                )
+            }
+            error => {
+                if std::mem::replace(&mut self.reported_unreachable, true) {
+                    return None;
+                }
+                (LogLevel::Warn, format!("viewer: {error}"))
+            }
+        };
+        let at_ns = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(0, |d| i64::try_from(d.as_nanos()).unwrap_or(i64::MAX));
+        let _ = events.send(ClientEvent::Log(LogRecord {
+            at_ns,
+            level,
+            component: None,
+            message,
+        }));
+        None
+    }
+}
 
 /// How often the reader looks for new frames.
 const POLL: Duration = Duration::from_millis(3);
@@ -56,20 +112,26 @@ pub fn read_frames(
             return;
         }
     };
+    let mut pixels = PixelsFromRuntime::default();
     while !stop.load(Ordering::Relaxed) {
         let mut any = false;
         for (_, subscriber) in &subscribers {
             while let Ok(Some(sample)) = subscriber.receive() {
                 // A frame that does not decode is skipped, as on the socket.
-                if let Ok((header, payload)) = kairos_protocol::frame::decode(sample.payload()) {
-                    if events
-                        .send(ClientEvent::Sample(header, payload.to_vec()))
-                        .is_err()
-                    {
-                        return;
-                    }
-                    any = true;
+                let Ok((mut header, payload)) = kairos_protocol::frame::decode(sample.payload()) else {
+                    continue;
+                };
+                let payload = match header.image.as_mut().and_then(|layout| layout.shared.take()) {
+                    Some(reference) => match pixels.read(&reference, events) {
+                        Some(bytes) => bytes,
+                        None => continue,
+                    },
+                    None => payload.to_vec(),
+                };
+                if events.send(ClientEvent::Sample(header, payload)).is_err() {
+                    return;
                 }
+                any = true;
             }
         }
         if any {

@@ -830,6 +830,7 @@ mod tests {
             format: format.to_owned(),
             stride,
             original_width: None,
+            shared: None,
         };
         let bgr = color_image(&layout("bgr8", 6), &[1, 2, 3, 4, 5, 6]);
         assert_eq!(

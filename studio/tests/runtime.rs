@@ -416,8 +416,9 @@ fn wait_for_reply(client: &RuntimeClient, id: u64) -> kairos_protocol::Reply {
     }
 }
 
-#[test]
-fn shared_memory_and_the_socket_deliver_identical_frames() {
+/// Subscribes to a camera through the socket and through shared memory, with pixels in the frames or
+/// (`shared_pixels`) named in the runtime's memory, and compares the frames both deliver.
+fn frames_compare_by_socket_and_shared_memory(shared_pixels: bool) {
     use kairos_protocol::{RequestBody, SampleTransport};
     let local = LocalRuntime::start_binary(&kairos_binary()).unwrap();
     let mut socket = RuntimeClient::connect(&local.url, Some(local.token.clone()), || {});
@@ -425,23 +426,26 @@ fn shared_memory_and_the_socket_deliver_identical_frames() {
     let deploy = socket.request(RequestBody::Deploy {
         diagram: "Diagram(format: 1, packs: [Pack(name: \"sensors\", version: \"^0.1\")], components: [\
                   Component(id: \"camera\", type: \"sensors.camera\", position: (x: 0.0, y: 0.0), \
-                  properties: {\"width\": 320, \"height\": 240, \"rate\": 20.0})], connections: [])"
+                  properties: {\"width\": 640, \"height\": 480, \"rate\": 20.0})], connections: [])"
             .to_owned(),
     });
     wait_for_reply(&socket, deploy);
     let start = socket.request(RequestBody::Start);
     wait_for_reply(&socket, start);
-    let subscribe = |client: &mut RuntimeClient, transport| {
+    let subscribe = |client: &mut RuntimeClient, transport, shared_pixels| {
         client.request(RequestBody::SubscribeSamples {
             outputs: vec!["camera.image".to_owned()],
             max_rate_hz: 100.0,
             max_image_width: None,
             transport,
+            shared_pixels,
         })
     };
-    let id = subscribe(&mut socket, SampleTransport::Socket);
+    let id = subscribe(&mut socket, SampleTransport::Socket, false);
     wait_for_reply(&socket, id);
-    let id = subscribe(&mut shared, SampleTransport::SharedMemory);
+    // The camera's frames lie in shared memory and the runtime is another process of this user: the
+    // frames name the camera's buffers, which this process maps, as the studio does.
+    let id = subscribe(&mut shared, SampleTransport::SharedMemory, shared_pixels);
     let reply = wait_for_reply(&shared, id);
     let services = serde_json::from_value(reply.result.unwrap()["services"].clone()).unwrap();
     shared.receive_shared(services).unwrap();
@@ -466,8 +470,18 @@ fn shared_memory_and_the_socket_deliver_identical_frames() {
         (a.skipped, b.skipped) = (0, 0);
         assert_eq!(a, b, "frame {sequence}");
         assert!(pixels_a == pixels_b, "frame {sequence}: the pixels differ");
-        assert_eq!(pixels_a.len(), 320 * 240 * 3);
+        assert_eq!(pixels_a.len(), 640 * 480 * 3);
     }
+}
+
+#[test]
+fn shared_memory_and_the_socket_deliver_identical_frames() {
+    frames_compare_by_socket_and_shared_memory(false);
+}
+
+#[test]
+fn frames_naming_the_runtimes_pixel_buffers_deliver_the_same_pixels_as_the_socket() {
+    frames_compare_by_socket_and_shared_memory(true);
 }
 
 fn type_into(harness: &mut Harness<'_, StudioApp>, label: &str, text: &str) {

@@ -5,7 +5,7 @@ use std::time::Instant;
 use kairos_sdk::descriptor::{Descriptor, Property};
 use kairos_sdk::{
     Component, ComponentError, ComponentInfo, ComponentResult, Context, DataType, ExecutionMode, Image,
-    Payload, PixelFormat, Value,
+    Payload, PixelFormat, PixelsMut, Value,
 };
 
 use crate::render::{Canvas, Pattern, Scene, read_barcode, render};
@@ -106,13 +106,14 @@ fn render_image(width: u32, height: u32, pattern: Pattern, scene: &Scene) -> Res
         .checked_mul(h)
         .and_then(|n| n.checked_mul(3))
         .ok_or_else(|| ComponentError::failed("image too large"))?;
-    // A zeroed allocation costs nothing up front; every pixel is drawn over.
-    let mut pixels = vec![0_u8; len];
+    // A recycled buffer (shared memory for a large frame) still holds an earlier frame: every pixel is
+    // drawn over.
+    let mut pixels = PixelsMut::new(len);
     let mut canvas =
         Canvas::new(&mut pixels, w, h).ok_or_else(|| ComponentError::failed("pixel buffer size"))?;
     render(&mut canvas, pattern, scene);
-    // The one move into the shared buffer; from here on samples share it and nothing copies pixels.
-    Image::packed(width, height, PixelFormat::Rgb8, pixels).map_err(ComponentError::failed)
+    // From here on samples share the buffer and nothing copies pixels.
+    Image::packed(width, height, PixelFormat::Rgb8, pixels.freeze()).map_err(ComponentError::failed)
 }
 
 impl Component for CameraSensor {

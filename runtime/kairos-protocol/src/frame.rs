@@ -25,6 +25,10 @@ pub struct ImageLayout {
     /// The width the runtime produced, when the image was downscaled to fit the subscription.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub original_width: Option<u32>,
+    /// Set instead of pixel bytes after the header, in frames published through shared memory for a
+    /// subscription with `shared_pixels`: where the pixels lie in the runtime's memory.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub shared: Option<crate::shared_pixels::PixelsReference>,
 }
 
 /// What describes the payload in a frame.
@@ -113,6 +117,13 @@ mod tests {
                 format: "rgb8".to_owned(),
                 stride: 6,
                 original_width: Some(4),
+                shared: Some(crate::shared_pixels::PixelsReference {
+                    pid: 4711,
+                    fd: 23,
+                    id: 5,
+                    generation: 8,
+                    len: 6,
+                }),
             }),
             intensity: false,
         };

@@ -19,6 +19,7 @@
 
 pub mod frame;
 mod messages;
+pub mod shared_pixels;
 
 pub use messages::{
     ComponentTelemetry, DeployResult, Described, DiagramReply, ErrorCode, LatencyTelemetry, LinkTelemetry,

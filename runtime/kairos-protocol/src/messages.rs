@@ -126,6 +126,12 @@ pub enum RequestBody {
         /// the server's own machine (see [`Welcome::shared_memory_host`]).
         #[serde(default)]
         transport: SampleTransport,
+        /// With shared memory: send images whose pixels already lie in the runtime's shared memory as a
+        /// reference to them ([`crate::shared_pixels::PixelsReference`] in the frame's image layout), which
+        /// the client maps, instead of copying the pixels into the frame. Ask for it only when
+        /// [`crate::shared_pixels::can_map_buffers_of`] the server's [`Welcome::pid`] holds.
+        #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+        shared_pixels: bool,
     },
     /// Stops sample frames from these outputs (all, when empty).
     UnsubscribeSamples {
@@ -508,6 +514,10 @@ pub struct Welcome {
     /// whose machine has the same id may subscribe with [`SampleTransport::SharedMemory`].
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub shared_memory_host: Option<String>,
+    /// The server's process id, given with `shared_memory_host`: a client maps the pixel buffers of
+    /// `shared_pixels` frames through `/proc/PID/fd`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub pid: Option<u32>,
 }
 
 /// This machine's boot id (Linux), which tells whether a client and a server share a machine.

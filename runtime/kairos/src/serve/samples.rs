@@ -72,6 +72,7 @@ fn format_name(format: PixelFormat) -> &'static str {
 /// The image's pixels, packed, keeping one pixel in `factor` along both axes.
 fn downscale(image: &Image, factor: u32) -> (u32, u32, Vec<u8>) {
     let pixel = image.format.bytes_per_pixel() as usize;
+    let source = &image.pixels[..];
     let width = image.width.div_ceil(factor);
     let height = image.height.div_ceil(factor);
     let mut pixels = Vec::with_capacity(width as usize * height as usize * pixel);
@@ -79,7 +80,7 @@ fn downscale(image: &Image, factor: u32) -> (u32, u32, Vec<u8>) {
         let row = y as usize * image.stride as usize;
         for x in (0..image.width).step_by(factor as usize) {
             let at = row + x as usize * pixel;
-            pixels.extend_from_slice(image.pixels.get(at..at + pixel).unwrap_or(&[0; 8][..pixel]));
+            pixels.extend_from_slice(source.get(at..at + pixel).unwrap_or(&[0; 8][..pixel]));
         }
     }
     (width, height, pixels)
@@ -130,20 +131,32 @@ fn value_of(payload: &Payload) -> Option<serde_json::Value> {
 
 /// Encodes `sample` of `output` as a frame; images wider than `max_image_width` are downscaled.
 pub fn encode(output: &str, sample: &Sample, skipped: u64, max_image_width: Option<u32>) -> Vec<u8> {
-    let (head, body) = encode_parts(output, sample, skipped, max_image_width);
+    let (head, body) = encode_parts(output, sample, skipped, max_image_width, PixelsIn::Frame);
     let mut frame = Vec::with_capacity(head.len() + body.len());
     frame.extend_from_slice(&head);
     frame.extend_from_slice(&body);
     frame
 }
 
+/// How a frame carries an image's pixels.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum PixelsIn {
+    /// After the header, always.
+    Frame,
+    /// As a reference in the header when they lie in shared memory (and are not downscaled), for a client
+    /// on this machine that maps the runtime's buffers; after the header otherwise.
+    SharedMemory,
+}
+
 /// A frame in two parts: its start (magic, header length, header) and its payload bytes, borrowed from the
-/// sample where they can be (an image's pixels), so a transport copies them once, where they go.
+/// sample where they can be (an image's pixels), so a transport copies them once, where they go; with
+/// [`PixelsIn::SharedMemory`], pixels already in shared memory are not copied at all.
 pub fn encode_parts<'s>(
     output: &str,
     sample: &'s Sample,
     skipped: u64,
     max_image_width: Option<u32>,
+    pixels_in: PixelsIn,
 ) -> (Vec<u8>, Cow<'s, [u8]>) {
     let mut header = SampleHeader {
         output: output.to_owned(),
@@ -161,9 +174,14 @@ pub fn encode_parts<'s>(
             let factor = max_image_width
                 .filter(|max| *max > 0 && image.width > *max)
                 .map_or(1, |max| image.width.div_ceil(max));
+            let shared = (factor == 1 && pixels_in == PixelsIn::SharedMemory)
+                .then(|| image.pixels.shared_reference())
+                .flatten();
             let (width, height, pixels) = if factor > 1 {
                 let (width, height, pixels) = downscale(image, factor);
                 (width, height, Cow::Owned(pixels))
+            } else if shared.is_some() {
+                (image.width, image.height, Cow::Borrowed(&[][..]))
             } else {
                 (image.width, image.height, Cow::Borrowed(&image.pixels[..]))
             };
@@ -177,6 +195,7 @@ pub fn encode_parts<'s>(
                     image.stride
                 },
                 original_width: (factor > 1).then_some(image.width),
+                shared,
             });
             pixels
         }
@@ -207,7 +226,7 @@ mod tests {
     use kairos_protocol::frame;
     use kairos_sdk::{Image, Payload, PixelFormat, Sample, Timestamp};
 
-    use super::encode;
+    use super::{PixelsIn, encode, encode_parts};
 
     #[test]
     fn wide_images_are_downscaled_by_a_whole_factor() {
@@ -222,6 +241,28 @@ mod tests {
         assert_eq!(body.len(), 4 * 2 * 3);
         // Row 0, pixel 2 of the downscaled image is pixel 4 of row 0 of the original.
         assert_eq!(&body[6..9], &[12, 13, 14]);
+    }
+
+    #[test]
+    fn shared_pixels_travel_as_a_reference_only_when_asked_and_not_downscaled() {
+        let len = 640 * 480 * 3;
+        let mut pixels = kairos_sdk::PixelsMut::new(len);
+        pixels.fill(4);
+        let image = Image::packed(640, 480, PixelFormat::Rgb8, pixels.freeze()).unwrap();
+        let Some(reference) = image.pixels.shared_reference() else {
+            return; // no shared memory on this system
+        };
+        let sample = Sample::new(Payload::Image(image), Timestamp(9));
+        let (head, body) = encode_parts("camera.image", &sample, 0, None, PixelsIn::SharedMemory);
+        let (header, _) = frame::decode(&head).unwrap();
+        assert_eq!(header.image.unwrap().shared, Some(reference));
+        assert!(body.is_empty());
+        let (head, body) = encode_parts("camera.image", &sample, 0, None, PixelsIn::Frame);
+        assert!(frame::decode(&head).unwrap().0.image.unwrap().shared.is_none());
+        assert_eq!(body.len(), len);
+        let (head, body) = encode_parts("camera.image", &sample, 0, Some(320), PixelsIn::SharedMemory);
+        assert!(frame::decode(&head).unwrap().0.image.unwrap().shared.is_none());
+        assert_eq!(body.len(), len / 4);
     }
 
     #[test]

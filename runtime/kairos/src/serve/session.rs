@@ -25,7 +25,7 @@ use tokio_tungstenite::tungstenite::{Error as WsError, Message};
 
 use super::Shared;
 use super::runtime::Runtime;
-use super::samples::LatestSamples;
+use super::samples::{LatestSamples, PixelsIn};
 
 /// The shortest telemetry period a client may ask for.
 const MIN_TELEMETRY_MS: u64 = 20;
@@ -235,6 +235,7 @@ impl Session {
                             server: self.shared.server_name.clone(),
                             role,
                             shared_memory_host: kairos_protocol::this_host(),
+                            pid: Some(std::process::id()),
                         }),
                     )
                 }
@@ -329,7 +330,15 @@ impl Session {
                 max_rate_hz,
                 max_image_width,
                 transport,
-            } => self.subscribe_samples(id, outputs, max_rate_hz, max_image_width, transport),
+                shared_pixels,
+            } => {
+                let pixels_in = if shared_pixels {
+                    PixelsIn::SharedMemory
+                } else {
+                    PixelsIn::Frame
+                };
+                self.subscribe_samples(id, outputs, max_rate_hz, max_image_width, transport, pixels_in)
+            }
             RequestBody::UnsubscribeSamples { outputs } => {
                 let names: Vec<String> = if outputs.is_empty() {
                     self.samples
@@ -434,6 +443,7 @@ impl Session {
         max_rate_hz: f64,
         max_image_width: Option<u32>,
         transport: SampleTransport,
+        pixels_in: PixelsIn,
     ) -> bool {
         let runtime = self.runtime();
         let mut unknown = Vec::new();
@@ -463,7 +473,7 @@ impl Session {
             10.0
         };
         if transport == SampleTransport::SharedMemory {
-            return self.subscribe_shared(id, outputs, rate, max_image_width);
+            return self.subscribe_shared(id, outputs, rate, max_image_width, pixels_in);
         }
         for output in outputs {
             self.shared_samples.remove(&output);
@@ -489,6 +499,7 @@ impl Session {
         outputs: Vec<String>,
         rate: f64,
         max_image_width: Option<u32>,
+        pixels_in: PixelsIn,
     ) -> bool {
         if !self.peer.ip().is_loopback() {
             return self.refuse(
@@ -515,6 +526,7 @@ impl Session {
                     service.clone(),
                     rate,
                     max_image_width,
+                    pixels_in,
                     self.peer.to_string(),
                 )
             });

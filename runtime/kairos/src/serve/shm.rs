@@ -4,6 +4,11 @@
 //! output's latest sample, as the socket path does, and writes the frame (the same bytes as a binary message:
 //! magic, header, payload) straight into a shared-memory sample that the client maps; nothing goes through
 //! the socket or the kernel. Publishers never wait for a slow client: its oldest unread frame is dropped.
+//!
+//! For a client that asked for `shared_pixels`, an image whose pixels already lie in shared memory (a
+//! camera's frames, `kairos_sdk::pixels`) is published as its header alone, naming the runtime's buffer:
+//! the pixels are not copied at all. The publisher holds the sample until it publishes the next one, so
+//! the buffer is not recycled while a client that keeps up is reading it.
 
 #![allow(
     unsafe_code,
@@ -20,7 +25,7 @@ use std::time::{Duration, Instant};
 use iceoryx2::prelude::*;
 
 use super::runtime::Runtime;
-use super::samples::LatestSamples;
+use super::samples::{LatestSamples, PixelsIn};
 
 /// Frames a client may hold unread before the oldest is dropped.
 const CLIENT_FRAMES: usize = 2;
@@ -65,6 +70,7 @@ pub fn publish(
     service: String,
     rate: f64,
     max_image_width: Option<u32>,
+    pixels_in: PixelsIn,
     client: String,
 ) -> Result<ShmPublication, String> {
     let stop = Arc::new(AtomicBool::new(false));
@@ -124,7 +130,8 @@ pub fn publish(
                 let Some((sample, skipped)) = latest.next() else {
                     continue;
                 };
-                let (head, body) = super::samples::encode_parts(&output, &sample, skipped, max_image_width);
+                let (head, body) =
+                    super::samples::encode_parts(&output, &sample, skipped, max_image_width, pixels_in);
                 let length = head.len() + body.len();
                 let mut loaned = match publisher.loan_slice_uninit(length) {
                     Ok(loaned) => loaned,
