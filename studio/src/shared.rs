@@ -19,8 +19,9 @@ use crate::client::ClientEvent;
 #[derive(Default)]
 struct PixelsFromRuntime {
     reader: SharedPixelsReader,
-    /// Frames whose buffer was recycled before they were read, since the last report.
+    /// Frames whose buffer was recycled before they were read, in all.
     replaced: u64,
+    /// Whether a buffer that cannot be mapped was reported (once is enough: the next ones fail alike).
     reported_unreachable: bool,
 }
 

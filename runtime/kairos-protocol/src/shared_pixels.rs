@@ -241,17 +241,6 @@ impl SharedBuffer {
         self.len == 0
     }
 
-    /// Whether the owner is writing (between [`begin_write`](Self::begin_write) and
-    /// [`end_write`](Self::end_write)); a new buffer is.
-    pub fn is_writing(&self) -> bool {
-        !self
-            .mapping
-            .header()
-            .generation
-            .load(Ordering::Relaxed)
-            .is_multiple_of(2)
-    }
-
     /// Starts rewriting a buffer whose earlier pixels may still be referenced: readers of an earlier
     /// generation will see [`SharedPixelsError::Replaced`].
     pub fn begin_write(&mut self) {
