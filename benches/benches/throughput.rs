@@ -6,6 +6,10 @@
 //! (`Reader::try_read`). For context, a FIFO reader, where the writer never waits and overwrites what the
 //! reader has not taken. Baselines, moving the same `Sample` struct: `crossbeam-channel` bounded(1024)
 //! with blocking send/recv, and an `rtrb` ring of 1024 with spinning push/pop.
+//!
+//! The writer normally runs on the main thread. Ours and rtrb run once more with the roles swapped (the
+//! writer spawned, the reader on the main thread; still writer on CPU 0, reader on CPU 1): a ratio that
+//! holds only one way round is not one to quote.
 
 use std::hint::{black_box, spin_loop};
 use std::sync::{Arc, Barrier};
@@ -33,9 +37,23 @@ fn sample(i: u64) -> Sample {
     }
 }
 
-/// Starts `reader` on its own thread, runs `writer` on this one once both are ready, and times from the
-/// writer's start to the reader's end. The reader returns how many samples it got.
-fn timed(writer: impl FnOnce(), reader: impl FnOnce() -> u64 + Send + 'static) -> Run {
+/// Which side of the link runs on the main thread.
+#[derive(Clone, Copy, PartialEq)]
+enum Roles {
+    WriterOnMain,
+    ReaderOnMain,
+}
+
+/// Runs `writer` and `reader` on two threads once both are ready, and times from the writer's start to
+/// the reader's end. The reader returns how many samples it got.
+fn timed(
+    roles: Roles,
+    writer: impl FnOnce() + Send + 'static,
+    reader: impl FnOnce() -> u64 + Send + 'static,
+) -> Run {
+    if roles == Roles::ReaderOnMain {
+        return timed_reader_on_main(writer, reader);
+    }
     let ready = Arc::new(Barrier::new(2));
     let reader_thread = {
         let ready = Arc::clone(&ready);
@@ -56,28 +74,57 @@ fn timed(writer: impl FnOnce(), reader: impl FnOnce() -> u64 + Send + 'static) -
     }
 }
 
+/// As [`timed`], with the writer spawned and the reader on the main thread (moved to the reader's CPU
+/// for the run).
+fn timed_reader_on_main(
+    writer: impl FnOnce() + Send + 'static,
+    reader: impl FnOnce() -> u64 + Send + 'static,
+) -> Run {
+    let ready = Arc::new(Barrier::new(2));
+    let writer_thread = {
+        let ready = Arc::clone(&ready);
+        thread::spawn(move || {
+            kairos_benches::pin_current_thread(false);
+            ready.wait();
+            let start = Instant::now();
+            writer();
+            start
+        })
+    };
+    kairos_benches::pin_current_thread(true);
+    ready.wait();
+    let delivered = reader();
+    let end = Instant::now();
+    let start = writer_thread.join().expect("writer thread panicked");
+    kairos_benches::pin_current_thread(false);
+    Run {
+        per_second: delivered as f64 / (end - start).as_secs_f64(),
+        delivered,
+    }
+}
+
 #[derive(Clone, Copy, PartialEq)]
 enum ReadMode {
     Blocking,
     Spinning,
 }
 
-fn run_ours(count: u64, policy: ReaderPolicy, mode: ReadMode) -> Run {
+fn run_ours(count: u64, policy: ReaderPolicy, mode: ReadMode, roles: Roles) -> Run {
     let buffer = OutputBuffer::new("source.out", CAPACITY);
-    let writer_signal = Arc::new(RunSignal::new());
-    writer_signal.bind_current_thread();
     let reader_signal = Arc::new(RunSignal::new());
     let mut reader = buffer.attach(
         ReaderConfig::new(policy, "source.out -> sink.in"),
         Arc::clone(&reader_signal),
     );
-    let writer = || {
+    let writer = move || {
+        let writer_signal = Arc::new(RunSignal::new());
+        writer_signal.bind_current_thread();
         for i in 0..count {
             let _ = buffer.write(sample(i), &writer_signal);
         }
         buffer.close();
     };
-    timed(writer, move || {
+    timed(roles, writer, move || {
         reader_signal.bind_current_thread();
         let mut delivered = 0;
         match mode {
@@ -112,7 +159,7 @@ fn run_crossbeam(count: u64) -> Run {
             }
         }
     };
-    timed(writer, move || {
+    timed(Roles::WriterOnMain, writer, move || {
         let mut delivered = 0;
         while let Ok(sample) = receiver.recv() {
             black_box(&sample);
@@ -122,7 +169,7 @@ fn run_crossbeam(count: u64) -> Run {
     })
 }
 
-fn run_rtrb(count: u64) -> Run {
+fn run_rtrb(count: u64, roles: Roles) -> Run {
     let (mut producer, mut consumer) = rtrb::RingBuffer::<Sample>::new(CAPACITY);
     let writer = move || {
         for i in 0..count {
@@ -133,7 +180,7 @@ fn run_rtrb(count: u64) -> Run {
             }
         }
     };
-    timed(writer, move || {
+    timed(roles, writer, move || {
         let mut delivered = 0;
         while delivered < count {
             if let Ok(sample) = consumer.pop() {
@@ -165,19 +212,44 @@ fn main() {
         "ours: FIFO, Reader::read (lossy, context only)",
         "baseline: crossbeam-channel bounded(1024)",
         "baseline: rtrb RingBuffer(1024), spinning",
+        "roles swapped, ours: NeverSkipping, Reader::read",
+        "roles swapped, baseline: rtrb",
     ];
     let mut runs: Vec<Vec<Run>> = vec![Vec::new(); names.len()];
     // Warm-up: one short run of each.
-    let _ = run_ours(count / 10, ReaderPolicy::NeverSkipping, ReadMode::Blocking);
+    let (writer_on_main, reader_on_main) = (Roles::WriterOnMain, Roles::ReaderOnMain);
+    let _ = run_ours(
+        count / 10,
+        ReaderPolicy::NeverSkipping,
+        ReadMode::Blocking,
+        writer_on_main,
+    );
     let _ = run_crossbeam(count / 10);
-    let _ = run_rtrb(count / 10);
+    let _ = run_rtrb(count / 10, writer_on_main);
     for _ in 0..kairos_benches::repetitions() {
         let rep = [
-            run_ours(count, ReaderPolicy::NeverSkipping, ReadMode::Blocking),
-            run_ours(count, ReaderPolicy::NeverSkipping, ReadMode::Spinning),
-            run_ours(count, ReaderPolicy::Fifo, ReadMode::Blocking),
+            run_ours(
+                count,
+                ReaderPolicy::NeverSkipping,
+                ReadMode::Blocking,
+                writer_on_main,
+            ),
+            run_ours(
+                count,
+                ReaderPolicy::NeverSkipping,
+                ReadMode::Spinning,
+                writer_on_main,
+            ),
+            run_ours(count, ReaderPolicy::Fifo, ReadMode::Blocking, writer_on_main),
             run_crossbeam(count),
-            run_rtrb(count),
+            run_rtrb(count, writer_on_main),
+            run_ours(
+                count,
+                ReaderPolicy::NeverSkipping,
+                ReadMode::Blocking,
+                reader_on_main,
+            ),
+            run_rtrb(count, reader_on_main),
         ];
         for (series, run) in runs.iter_mut().zip(rep) {
             series.push(run);
@@ -211,5 +283,10 @@ fn main() {
     ratios.add("blocking ours / rtrb", ratio(0, 4), Some(Goal::AtLeast(0.8)));
     ratios.add("spinning ours / crossbeam", ratio(1, 3), Some(Goal::AtLeast(1.5)));
     ratios.add("spinning ours / rtrb", ratio(1, 4), Some(Goal::AtLeast(0.8)));
+    ratios.add(
+        "roles swapped: blocking ours / rtrb",
+        ratio(5, 6),
+        Some(Goal::AtLeast(0.8)),
+    );
     ratios.print();
 }

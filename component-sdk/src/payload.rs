@@ -45,6 +45,29 @@ pub enum Payload {
 }
 
 impl Payload {
+    /// Whether the payload holds shared data (an `Arc`). Every other variant is plain `Copy` data, so a
+    /// copy of its bytes is a clone of it, and writing over it loses nothing: output buffers rely on both.
+    #[inline]
+    pub fn owns_shared_data(&self) -> bool {
+        const fn plain<T: Copy>() {}
+        const {
+            plain::<Imu>();
+            plain::<GnssFix>();
+            plain::<CanFrame>();
+            plain::<Pose>();
+        }
+        !matches!(
+            self,
+            Payload::F64(_)
+                | Payload::I64(_)
+                | Payload::Bool(_)
+                | Payload::Imu(_)
+                | Payload::GnssFix(_)
+                | Payload::CanFrame(_)
+                | Payload::Pose(_)
+        )
+    }
+
     /// The payload's data type, as output ports and input filters name it.
     pub fn data_type(&self) -> DataType {
         match self {

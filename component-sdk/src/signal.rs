@@ -72,6 +72,7 @@ impl RunSignal {
 
     /// New data arrived for the component: unpark its thread if it is going to sleep, or run it now if it
     /// is reactive. Call it after the data is visible.
+    #[inline]
     pub fn notify_data(&self) {
         if let Some(on_data) = &self.reactive {
             if !self.stop.load(Ordering::Acquire) && !self.paused.load(Ordering::Acquire) {

@@ -65,6 +65,7 @@ pub(crate) fn yield_now() {
 /// that at least one of them sees the other. `membarrier` lets the rare side pay for both: it makes
 /// every running thread of the process execute a full barrier, so the frequent side needs none.
 #[cfg(not(loom))]
+#[inline]
 pub(crate) fn light_fence() {
     if asymmetric_fences() {
         std::sync::atomic::compiler_fence(Ordering::SeqCst);
@@ -99,20 +100,27 @@ const MEMBARRIER_CMD_REGISTER_PRIVATE_EXPEDITED: i32 = 1 << 4;
 /// Whether this process may use expedited `membarrier` (Linux 4.14 and later): decided once, on first use,
 /// by registering for it. Until it is decided both sides fence, and after it both agree.
 #[cfg(not(loom))]
+#[inline]
 fn asymmetric_fences() -> bool {
-    use std::sync::atomic::AtomicU8;
-    static STATE: AtomicU8 = AtomicU8::new(0);
-    match STATE.load(Ordering::Acquire) {
+    match ASYMMETRIC_FENCES.load(Ordering::Acquire) {
         1 => true,
         2 => false,
-        _ => {
-            let usable = membarrier(MEMBARRIER_CMD_REGISTER_PRIVATE_EXPEDITED);
-            STATE.store(if usable { 1 } else { 2 }, Ordering::Release);
-            // Threads that fenced before the decision keep working: a full fence on both sides is
-            // always correct, and from here on the heavy side also reaches them.
-            usable
-        }
+        _ => decide_asymmetric_fences(),
     }
+}
+
+/// 0 until decided, then 1 where expedited `membarrier` is usable and 2 where it is not.
+#[cfg(not(loom))]
+static ASYMMETRIC_FENCES: std::sync::atomic::AtomicU8 = std::sync::atomic::AtomicU8::new(0);
+
+#[cfg(not(loom))]
+#[cold]
+fn decide_asymmetric_fences() -> bool {
+    let usable = membarrier(MEMBARRIER_CMD_REGISTER_PRIVATE_EXPEDITED);
+    ASYMMETRIC_FENCES.store(if usable { 1 } else { 2 }, Ordering::Release);
+    // Threads that fenced before the decision keep working: a full fence on both sides is always
+    // correct, and from here on the heavy side also reaches them.
+    usable
 }
 
 #[cfg(all(not(loom), target_os = "linux"))]

@@ -309,6 +309,37 @@ fn readers_share_the_payload_instead_of_copying_it() {
 }
 
 #[test]
+fn shared_payloads_are_released_when_replaced_and_when_the_buffer_goes() {
+    // Plain and shared samples take turns over a ring of 2 slots: the writer reads a replaced sample
+    // only when it owns shared data, so every reference must still come back.
+    let bytes: Arc<[u8]> = Arc::from(vec![1_u8; 64]);
+    let buffer = OutputBuffer::new("p.out", 2);
+    let writer = Arc::new(RunSignal::new());
+    let mut r = reader(&buffer, ReaderPolicy::NeverSkipping);
+    for sequence in 0..7_u64 {
+        let payload = if sequence % 3 == 0 {
+            Payload::Bytes(Arc::clone(&bytes))
+        } else {
+            Payload::I64(sequence as i64)
+        };
+        buffer
+            .write(Sample::new(payload, Timestamp::ZERO), &writer)
+            .unwrap();
+        let got = r.try_read().unwrap();
+        assert_eq!(got.payload.owns_shared_data(), sequence % 3 == 0);
+    }
+    // Sequences 5 (plain) and 6 (shared) are still held by the ring.
+    assert_eq!(Arc::strong_count(&bytes), 2);
+    drop(r);
+    drop(buffer);
+    assert_eq!(
+        Arc::strong_count(&bytes),
+        1,
+        "a sample left in the ring was not dropped"
+    );
+}
+
+#[test]
 fn closing_ends_the_stream_after_what_is_left() {
     let buffer = OutputBuffer::new("p.out", 4);
     let writer = Arc::new(RunSignal::new());
