@@ -289,4 +289,39 @@ fn main() {
         Some(Goal::AtLeast(0.8)),
     );
     ratios.print();
+    print_fast_phase(&runs);
 }
+
+/// This VM has a fast phase in which rtrb moves 50-75 M/s (BENCHMARKS.md §3): prints the ratios of the
+/// repetitions that fell in it apart from the others. `runs` are in the order of `main`'s names.
+fn print_fast_phase(runs: &[Vec<Run>]) {
+    let (Some(rtrb), Some(blocking), Some(spinning)) = (runs.get(4), runs.first(), runs.get(1)) else {
+        return;
+    };
+    let fast: Vec<usize> = rtrb
+        .iter()
+        .enumerate()
+        .filter(|(_, run)| run.per_second > FAST_PHASE_RTRB)
+        .map(|(rep, _)| rep)
+        .collect();
+    if fast.is_empty() {
+        return;
+    }
+    let against_rtrb = |ours: &[Run]| {
+        Spread::of(
+            fast.iter()
+                .map(|&rep| ours[rep].per_second / rtrb[rep].per_second),
+        )
+        .show(kairos_benches::ratio)
+    };
+    println!(
+        "fast phase ({} of the repetitions had rtrb above {:.0} M/s): blocking ours / rtrb {}, spinning {}",
+        fast.len(),
+        FAST_PHASE_RTRB / 1e6,
+        against_rtrb(blocking),
+        against_rtrb(spinning),
+    );
+}
+
+/// rtrb's rate above which a repetition is taken to fall in the machine's fast phase.
+const FAST_PHASE_RTRB: f64 = 40e6;
