@@ -51,56 +51,51 @@ fn timed(
     writer: impl FnOnce() + Send + 'static,
     reader: impl FnOnce() -> u64 + Send + 'static,
 ) -> Run {
-    if roles == Roles::ReaderOnMain {
-        return timed_reader_on_main(writer, reader);
-    }
-    let ready = Arc::new(Barrier::new(2));
-    let reader_thread = {
-        let ready = Arc::clone(&ready);
-        thread::spawn(move || {
-            kairos_benches::pin_current_thread(true);
-            ready.wait();
-            let delivered = reader();
-            (delivered, Instant::now())
-        })
+    let writer = move || {
+        let start = Instant::now();
+        writer();
+        start
     };
-    ready.wait();
-    let start = Instant::now();
-    writer();
-    let (delivered, end) = reader_thread.join().expect("reader thread panicked");
+    let reader = move || {
+        let delivered = reader();
+        (delivered, Instant::now())
+    };
+    let (start, (delivered, end)) = match roles {
+        Roles::WriterOnMain => on_both_cores(false, writer, reader),
+        Roles::ReaderOnMain => {
+            let (reader_side, writer_side) = on_both_cores(true, reader, writer);
+            (writer_side, reader_side)
+        }
+    };
     Run {
         per_second: delivered as f64 / (end - start).as_secs_f64(),
         delivered,
     }
 }
 
-/// As [`timed`], with the writer spawned and the reader on the main thread (moved to the reader's CPU
-/// for the run).
-fn timed_reader_on_main(
-    writer: impl FnOnce() + Send + 'static,
-    reader: impl FnOnce() -> u64 + Send + 'static,
-) -> Run {
+/// Runs `here` on this thread and `spawned` on a new one, both starting once both are ready. The writer's
+/// side is pinned to CPU 0 and the reader's to CPU 1; `here_reads` says which side `here` is. This thread
+/// goes back to the writer's CPU afterwards.
+fn on_both_cores<H, S: Send + 'static>(
+    here_reads: bool,
+    here: impl FnOnce() -> H,
+    spawned: impl FnOnce() -> S + Send + 'static,
+) -> (H, S) {
     let ready = Arc::new(Barrier::new(2));
-    let writer_thread = {
+    let spawned = {
         let ready = Arc::clone(&ready);
         thread::spawn(move || {
-            kairos_benches::pin_current_thread(false);
+            kairos_benches::pin_current_thread(!here_reads);
             ready.wait();
-            let start = Instant::now();
-            writer();
-            start
+            spawned()
         })
     };
-    kairos_benches::pin_current_thread(true);
+    kairos_benches::pin_current_thread(here_reads);
     ready.wait();
-    let delivered = reader();
-    let end = Instant::now();
-    let start = writer_thread.join().expect("writer thread panicked");
+    let here = here();
+    let spawned = spawned.join().expect("benchmark thread panicked");
     kairos_benches::pin_current_thread(false);
-    Run {
-        per_second: delivered as f64 / (end - start).as_secs_f64(),
-        delivered,
-    }
+    (here, spawned)
 }
 
 #[derive(Clone, Copy, PartialEq)]

@@ -424,18 +424,27 @@ impl Shared {
     /// holds (rules 1 and 2); `sample` is a valid sample the caller forgets afterwards.
     #[inline]
     unsafe fn put(&self, sequence: u64, sample: *const Sample) -> Option<Sample> {
-        let index = (sequence & self.mask) as usize;
-        let slot = &self.slots[index];
         // SAFETY: inside a write, as the caller guarantees: nobody else touches the flags or the slot.
-        let replaced = self.slot_needs_drop.with_mut(|flags| unsafe {
-            let owns_shared = (*sample).payload.owns_shared_data();
-            let replaced_owns_shared = mem::replace(&mut (*flags)[index], owns_shared);
-            replaced_owns_shared.then(|| slot.sample.with(|held| (*held).assume_init_read()))
+        let replaced = unsafe { self.holds_sample_to_drop(sequence) }.then(|| {
+            let slot = self.slot(sequence);
+            // SAFETY: as above; a raised flag means the slot holds a sample.
+            slot.sample.with(|held| unsafe { (*held).assume_init_read() })
         });
-        // SAFETY: the sample it held, if one needed dropping, was read out just above.
-        unsafe { move_into(slot, sample) };
-        slot.stamp.store(sequence, Ordering::Release);
+        // SAFETY: the sample the slot held, if one needed dropping, was read out just above.
+        unsafe { self.put_over_plain(sequence, sample) };
         replaced
+    }
+
+    /// Whether the slot of `sequence` holds a sample that owns shared data (its `slot_needs_drop` flag).
+    ///
+    /// # Safety
+    ///
+    /// Inside a write: only the writer touches the flags.
+    #[inline]
+    unsafe fn holds_sample_to_drop(&self, sequence: u64) -> bool {
+        let index = (sequence & self.mask) as usize;
+        // SAFETY: as the caller guarantees.
+        self.slot_needs_drop.with(|flags| unsafe { (*flags)[index] })
     }
 
     /// Puts the sample at `sample` over the plain sample (or none) in the slot of `sequence`, and stamps
@@ -594,9 +603,7 @@ impl<'a> WriteGuard<'a> {
             .writer_state
             .with(|state| unsafe { (*state).version == version && written < (*state).unobstructed_until });
         // SAFETY: inside a write, as above.
-        let replaces_plain = shared
-            .slot_needs_drop
-            .with(|flags| unsafe { !(*flags)[(written & shared.mask) as usize] });
+        let replaces_plain = !unsafe { shared.holds_sample_to_drop(written) };
         unobstructed && replaces_plain && !shared.closed.load(Ordering::Acquire)
     }
 
