@@ -135,7 +135,6 @@ struct Progress {
     /// Sequence lock over the fields below: odd while the reader updates them.
     version: AtomicU64,
     cursor: AtomicU64,
-    read: AtomicU64,
     skipped: AtomicU64,
     overwritten: AtomicU64,
     repeated: AtomicU64,
@@ -144,10 +143,13 @@ struct Progress {
 }
 
 /// Counters as the reader last published them.
+///
+/// How many samples were read is not among them: every sequence from the reader's join to its cursor
+/// was read, skipped or overwritten, so it follows from the others (see [`Published::read`]). A read
+/// on the straight path then changes the cursor alone, which needs no sequence lock.
 #[derive(Clone, Copy)]
 struct Published {
     cursor: u64,
-    read: u64,
     skipped: u64,
     overwritten: u64,
     repeated: u64,
@@ -165,6 +167,14 @@ struct ReaderShared {
     progress: Padded<Progress>,
     /// Written by the reader for every sample: kept off the lines the writer reads for every sample.
     latency: Padded<SharedLatency>,
+}
+
+impl Published {
+    /// How many samples the reader got: those from its join (`joined_at`) to its cursor that it neither
+    /// skipped nor lost to the writer.
+    fn read(&self, joined_at: u64) -> u64 {
+        (self.cursor - joined_at).saturating_sub(self.skipped + self.overwritten)
+    }
 }
 
 impl ReaderShared {
@@ -190,7 +200,6 @@ impl ReaderShared {
             }
             let copy = Published {
                 cursor: p.cursor.load(Ordering::Relaxed),
-                read: p.read.load(Ordering::Relaxed),
                 skipped: p.skipped.load(Ordering::Relaxed),
                 overwritten: p.overwritten.load(Ordering::Relaxed),
                 repeated: p.repeated.load(Ordering::Relaxed),
@@ -233,7 +242,7 @@ fn counters_of(
     }
     LinkCounters {
         written: written - joined_at,
-        read: counts.read,
+        read: counts.read(joined_at),
         skipped: counts.skipped,
         overwritten,
         queued,
@@ -308,7 +317,13 @@ impl WriterState {
             threads,
             reactive: (!reactive.is_empty()).then(|| Arc::from(reactive)),
         };
-        state.unobstructed_until = state.first_obstructed_write(shared.slots.len() as u64);
+        // After `version`: `close` raises the flag before it bumps the version, so a view taken at the
+        // new version sees the stream closed, and one at the old version is replaced at the next write.
+        state.unobstructed_until = if shared.closed.load(Ordering::Acquire) {
+            0
+        } else {
+            state.first_obstructed_write(shared.slots.len() as u64)
+        };
         state
     }
 
@@ -374,6 +389,10 @@ impl WriterState {
     }
 }
 
+/// An index below `Shared::mask + 1`, the length of `Shared::slots` and `Shared::slot_needs_drop`.
+#[derive(Clone, Copy)]
+struct SlotIndex(usize);
+
 struct Registry {
     default_capacity: u64,
     /// Every reader that ever attached, detached ones included (their counts stay visible).
@@ -395,7 +414,8 @@ struct Shared {
     /// Per slot, whether its sample owns shared data (an `Arc`) and must be dropped when replaced.
     /// Touched only inside a write, like `writer_state`.
     slot_needs_drop: UnsafeCell<Box<[bool]>>,
-    /// Bumped whenever a reader attaches or detaches.
+    /// Bumped whenever a reader attaches or detaches and when the stream is closed: the straight path
+    /// of a write looks at this alone.
     version: Padded<AtomicU64>,
     closed: AtomicBool,
     /// Set while the writer sleeps waiting for a NeverSkipping reader.
@@ -411,8 +431,18 @@ unsafe impl Sync for Shared {}
 unsafe impl Send for Shared {}
 
 impl Shared {
+    /// The index of the slot of `sequence`, in `slots` and in `slot_needs_drop`: both are `mask + 1`
+    /// long, so it needs no bounds check on the way of a sample.
+    #[inline]
+    fn slot_index(&self, sequence: u64) -> SlotIndex {
+        SlotIndex((sequence & self.mask) as usize)
+    }
+
+    #[inline]
     fn slot(&self, sequence: u64) -> &Slot {
-        &self.slots[(sequence & self.mask) as usize]
+        let SlotIndex(index) = self.slot_index(sequence);
+        // SAFETY: `slot_index` is below `slots.len()`.
+        unsafe { self.slots.get_unchecked(index) }
     }
 
     /// Puts the sample at `sample` in the slot of `sequence` and stamps it. Returns the sample it
@@ -426,9 +456,17 @@ impl Shared {
     unsafe fn put(&self, sequence: u64, sample: *const Sample) -> Option<Sample> {
         // SAFETY: inside a write, as the caller guarantees: nobody else touches the flags or the slot.
         let replaced = unsafe { self.holds_sample_to_drop(sequence) }.then(|| {
-            let slot = self.slot(sequence);
-            // SAFETY: as above; a raised flag means the slot holds a sample.
-            slot.sample.with(|held| unsafe { (*held).assume_init_read() })
+            let SlotIndex(index) = self.slot_index(sequence);
+            // SAFETY: as above; a raised flag means the slot holds a sample, which is read out here
+            // and so no longer needs a drop there. `slot_index` is in bounds of both.
+            unsafe {
+                self.slot_needs_drop
+                    .with_mut(|flags| *(&mut *flags).get_unchecked_mut(index) = false);
+                self.slots
+                    .get_unchecked(index)
+                    .sample
+                    .with(|held| (*held).assume_init_read())
+            }
         });
         // SAFETY: the sample the slot held, if one needed dropping, was read out just above.
         unsafe { self.put_over_plain(sequence, sample) };
@@ -442,9 +480,10 @@ impl Shared {
     /// Inside a write: only the writer touches the flags.
     #[inline]
     unsafe fn holds_sample_to_drop(&self, sequence: u64) -> bool {
-        let index = (sequence & self.mask) as usize;
-        // SAFETY: as the caller guarantees.
-        self.slot_needs_drop.with(|flags| unsafe { (*flags)[index] })
+        let SlotIndex(index) = self.slot_index(sequence);
+        // SAFETY: as the caller guarantees; `slot_index` is in bounds.
+        self.slot_needs_drop
+            .with(|flags| unsafe { *(&*flags).get_unchecked(index) })
     }
 
     /// Puts the sample at `sample` over the plain sample (or none) in the slot of `sequence`, and stamps
@@ -458,13 +497,17 @@ impl Shared {
     /// As [`Self::put`], and the slot's sample owns no shared data (its `slot_needs_drop` flag is down).
     #[inline]
     unsafe fn put_over_plain(&self, sequence: u64, sample: *const Sample) {
-        let index = (sequence & self.mask) as usize;
-        let slot = &self.slots[index];
-        // SAFETY: as the caller guarantees; writing over a plain sample loses nothing.
+        let SlotIndex(index) = self.slot_index(sequence);
+        let slot = self.slot(sequence);
+        // SAFETY: as the caller guarantees; writing over a plain sample loses nothing; `slot_index` is
+        // in bounds.
         unsafe {
-            let owns_shared = (*sample).payload.owns_shared_data();
-            self.slot_needs_drop
-                .with_mut(|flags| (*flags)[index] = owns_shared);
+            // The flag is down (a plain sample or none): raised only for a sample that owns shared
+            // data, so a plain one is put without a store to the flags.
+            if (*sample).payload.owns_shared_data() {
+                self.slot_needs_drop
+                    .with_mut(|flags| *(&mut *flags).get_unchecked_mut(index) = true);
+            }
             move_into(slot, sample);
         }
         slot.stamp.store(sequence, Ordering::Release);
@@ -483,6 +526,7 @@ impl Shared {
 
     /// A clone of sample `sequence`, which the caller saw stamped in its slot: rule 1 or 2 guarantees
     /// the slot holds it unchanged while this runs.
+    #[inline]
     fn clone_unchecked(&self, sequence: u64) -> Sample {
         // No check of the stamp here: a writer may mark the slot REPLACING meanwhile, and then waits for
         // this clone to end.
@@ -494,7 +538,7 @@ impl Shared {
             // SAFETY: as above.
             let sample = unsafe { (*sample).assume_init_ref() };
             if sample.payload.owns_shared_data() {
-                sample.clone()
+                clone_shared(sample)
             } else {
                 // SAFETY: a plain sample owns nothing, so a copy of its bytes is a clone of it; taken
                 // whole, without the field-by-field build of `clone` that the caller's move then
@@ -504,12 +548,20 @@ impl Shared {
         })
     }
 
+    #[cold]
     fn wake_blocked_writer(&self) {
         let writer = lock(&self.registry).blocked_writer.take();
         if let Some(writer) = writer {
             writer.wake();
         }
     }
+}
+
+/// A clone of a sample that owns shared data: kept out of the readers' straight path, where samples are
+/// mostly plain.
+#[inline(never)]
+fn clone_shared(sample: &Sample) -> Sample {
+    sample.clone()
 }
 
 impl Drop for Shared {
@@ -589,10 +641,11 @@ impl<'a> WriteGuard<'a> {
         }
     }
 
-    /// Whether this write may take the straight path: the reader set is the one the writer's view was
-    /// taken at, the stream is open, and the next sequence is below `unobstructed_until`.
+    /// The sequence this write puts, if it may take the straight path: the reader set is the one the
+    /// writer's view was taken at (and the stream is still open), the sequence is below
+    /// `unobstructed_until`, and the slot holds a plain sample or none.
     #[inline]
-    fn is_unobstructed(&self) -> bool {
+    fn unobstructed_sequence(&self) -> Option<u64> {
         let shared = self.shared;
         // Paired with the heavy fence in `attach`, as in `enter`.
         light_fence();
@@ -603,8 +656,7 @@ impl<'a> WriteGuard<'a> {
             .writer_state
             .with(|state| unsafe { (*state).version == version && written < (*state).unobstructed_until });
         // SAFETY: inside a write, as above.
-        let replaces_plain = !unsafe { shared.holds_sample_to_drop(written) };
-        unobstructed && replaces_plain && !shared.closed.load(Ordering::Acquire)
+        (unobstructed && !unsafe { shared.holds_sample_to_drop(written) }).then_some(written)
     }
 
     /// Makes the epoch odd for this thread, waiting out another thread's write to the same output.
@@ -760,7 +812,6 @@ impl OutputBuffer {
             progress: Padded(Progress {
                 version: AtomicU64::new(0),
                 cursor: AtomicU64::new(joined_at),
-                read: AtomicU64::new(0),
                 skipped: AtomicU64::new(0),
                 overwritten: AtomicU64::new(0),
                 repeated: AtomicU64::new(0),
@@ -779,30 +830,35 @@ impl OutputBuffer {
             subsample_countdown: 0,
             counts: Published {
                 cursor: joined_at,
-                read: 0,
                 skipped: 0,
                 overwritten: 0,
                 repeated: 0,
             },
             signal,
+            straight: config.policy == ReaderPolicy::NeverSkipping && config.subsampling <= 1,
         }
     }
 
     /// Writes a sample, waking every reader. Blocks only while a NeverSkipping reader's share is full;
     /// `writer` is the writing component's signal, through which the runtime can stop that wait.
-    #[inline]
+    #[inline(always)]
+    #[expect(
+        clippy::inline_always,
+        reason = "left to itself the compiler calls it, and a sample moved through a call costs a copy: \
+                  benchmark 3 measured 1.4 ns a write"
+    )]
     pub fn write(&self, sample: Sample, writer: &Arc<RunSignal>) -> Result<(), WriteError> {
         // The straight path, taken by almost every write while the readers keep up: no loop over the
         // readers, and small enough to inline, so the sample is not copied once more on its way in.
-        let turn = WriteGuard::try_take_turn(&self.shared);
-        let mut guard = match turn {
-            Some(guard) if guard.is_unobstructed() => guard,
-            turn => return self.write_with_checks(sample, turn, writer),
+        let Some(mut guard) = WriteGuard::try_take_turn(&self.shared) else {
+            return self.write_with_checks(sample, None, writer);
+        };
+        let Some(sequence) = guard.unobstructed_sequence() else {
+            return self.write_with_checks(sample, Some(guard), writer);
         };
         let shared = &*self.shared;
-        let sequence = shared.written.load(Ordering::Relaxed);
         // SAFETY: inside a write, below `unobstructed_until`: no reader can still reach the sample this
-        // slot held, and it is a plain one (`is_unobstructed`); `sample` is forgotten right after.
+        // slot held, and it is a plain one (`unobstructed_sequence`); `sample` is forgotten right after.
         unsafe { shared.put_over_plain(sequence, &raw const sample) };
         mem::forget(sample);
         let reactive = guard.announce(sequence);
@@ -907,6 +963,8 @@ impl OutputBuffer {
     /// Closes the stream: readers get what is left, then [`ReadError::EndOfStream`]; later writes are dropped.
     pub fn close(&self) {
         self.shared.closed.store(true, Ordering::SeqCst);
+        // Sends the next write off the straight path, to the check of `closed`.
+        self.shared.version.fetch_add(1, Ordering::SeqCst);
         let signals: Vec<Arc<RunSignal>> = lock(&self.shared.registry)
             .readers
             .iter()
@@ -951,6 +1009,8 @@ pub struct Reader {
     /// The counters, cursor included, as this reader knows them (published after each change).
     counts: Published,
     signal: Arc<RunSignal>,
+    /// NeverSkipping without subsampling: reads take the straight path of [`Self::try_read`].
+    straight: bool,
 }
 
 impl fmt::Debug for Reader {
@@ -975,19 +1035,53 @@ impl Reader {
 
     /// The next sample under the reader's policy, without blocking. WaitForNext behaves as LastOrNext
     /// here: without waiting there is no "next", so the newest unread sample is the closest answer.
+    #[inline(always)]
+    #[expect(
+        clippy::inline_always,
+        reason = "as for `OutputBuffer::write`: the straight path is small, and a call costs the sample a copy"
+    )]
     pub fn try_read(&mut self) -> Option<Sample> {
-        if self.policy == ReaderPolicy::NeverSkipping && self.subsampling == 1 {
-            // The usual lossless link gets a straight path: no policy loop, and one move of the 112-byte
-            // sample fewer (measured: 18 ns a read instead of 26).
-            // `next_never_skipping` inlined by hand: returning the sample through it costs a move.
-            let cursor = self.never_skipping_ready()?;
-            let sample = self.buffer.shared.clone_unchecked(cursor);
-            self.counts.cursor = cursor + 1;
-            self.count_kept(&sample);
-            self.signal.disarm();
-            self.make_room_for_writer();
-            return Some(sample);
+        if !self.straight {
+            return self.try_read_by_policy();
         }
+        let cursor = self.straight_ready()?;
+        Some(self.take_straight(cursor))
+    }
+
+    /// On the straight path (NeverSkipping, no subsampling): the cursor, if its sample was written.
+    ///
+    /// That is read from the slot's stamp, not from `written`: the slot's cache line comes to this core
+    /// anyway, and leaving `written` alone spares both cores a transfer per sample.
+    #[inline]
+    fn straight_ready(&self) -> Option<u64> {
+        let cursor = self.counts.cursor;
+        (self.buffer.shared.slot(cursor).stamp.load(Ordering::Acquire) == cursor).then_some(cursor)
+    }
+
+    /// The straight path's read of the sample at `cursor`, which [`Self::straight_ready`] found written.
+    ///
+    /// The usual lossless link: small enough to inline, so that the sample goes from its slot to the
+    /// caller in one move; no policy loop; only the cursor is published.
+    #[inline(always)]
+    #[expect(
+        clippy::inline_always,
+        reason = "called from the inlined `read` and `try_read`; a call here would cost the sample a copy"
+    )]
+    fn take_straight(&mut self, cursor: u64) -> Sample {
+        let sample = self.buffer.shared.clone_unchecked(cursor);
+        self.counts.cursor = cursor + 1;
+        self.shared.latency.record(sample.latency_nanos());
+        // Only the cursor changed (the read count follows from it), so no sequence lock. Release: the
+        // writer that sees this cursor may replace the sample cloned above.
+        self.shared.progress.cursor.store(cursor + 1, Ordering::Release);
+        self.signal.disarm();
+        self.make_room_for_writer();
+        sample
+    }
+
+    /// [`Self::try_read`] for every policy and subsampling.
+    #[inline(never)]
+    fn try_read_by_policy(&mut self) -> Option<Sample> {
         let cursor_before = self.counts.cursor;
         let sample = self.take();
         if sample.is_some() {
@@ -1000,6 +1094,7 @@ impl Reader {
     }
 
     /// After a NeverSkipping reader moved its cursor: wakes a writer waiting for room.
+    #[inline]
     fn make_room_for_writer(&self) {
         // Paired with the writer raising `writer_waiting` before it looks at the cursor again.
         light_fence();
@@ -1010,7 +1105,6 @@ impl Reader {
 
     /// Counts a sample handed to the component and publishes the counters.
     fn count_kept(&mut self, sample: &Sample) {
-        self.counts.read += 1;
         self.shared.latency.record(sample.latency_nanos());
         self.publish();
     }
@@ -1019,7 +1113,25 @@ impl Reader {
     ///
     /// Returns early with [`ReadError::Stopped`] when the component is stopped, and with
     /// [`ReadError::Interrupted`] when `interruptible` and the runtime wants the component's attention.
+    #[inline(always)]
+    #[expect(
+        clippy::inline_always,
+        reason = "as for `OutputBuffer::write`: the straight path is small, and a call costs the sample a copy"
+    )]
     pub fn read(&mut self, interruptible: bool) -> Result<Sample, ReadError> {
+        // A sample already waiting on the straight path: no call, and one move to the caller (not two
+        // through an `Option`).
+        if self.straight
+            && let Some(cursor) = self.straight_ready()
+        {
+            return Ok(self.take_straight(cursor));
+        }
+        self.read_waiting(interruptible)
+    }
+
+    /// [`Self::read`] past its straight path: under any policy, sleeping until a sample arrives.
+    #[inline(never)]
+    fn read_waiting(&mut self, interruptible: bool) -> Result<Sample, ReadError> {
         if self.policy == ReaderPolicy::WaitForNext {
             self.skip_pending();
         }
@@ -1225,7 +1337,6 @@ impl Reader {
         let version = p.version.load(Ordering::Relaxed);
         p.version.store(version + 1, Ordering::Relaxed);
         fence(Ordering::Release);
-        p.read.store(self.counts.read, Ordering::Relaxed);
         p.skipped.store(self.counts.skipped, Ordering::Relaxed);
         p.overwritten.store(self.counts.overwritten, Ordering::Relaxed);
         p.repeated.store(self.counts.repeated, Ordering::Relaxed);

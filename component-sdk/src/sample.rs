@@ -30,6 +30,7 @@ impl Sample {
     }
 
     /// Time of issue minus timestamp, in nanoseconds.
+    #[inline]
     pub fn latency_nanos(&self) -> i64 {
         self.time_of_issue.nanos_since(self.timestamp)
     }

@@ -89,6 +89,7 @@ impl RunSignal {
     }
 
     /// The component found what it waited for: writers need not wake it any more.
+    #[inline]
     pub fn disarm(&self) {
         if self.sleeping.load(Ordering::Relaxed) {
             self.sleeping.store(false, Ordering::Relaxed);

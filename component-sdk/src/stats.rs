@@ -34,6 +34,7 @@ impl Default for LatencyHistogram {
     }
 }
 
+#[inline]
 fn bucket_of(value: u64) -> usize {
     if value < SUB as u64 {
         return value as usize;
@@ -125,6 +126,7 @@ impl Default for SharedLatency {
 
 impl SharedLatency {
     /// Adds one latency. Only one thread may record (the reader owning it).
+    #[inline]
     pub(crate) fn record(&self, nanos: i64) {
         let bump = |cell: &AtomicU64| cell.store(cell.load(Relaxed) + 1, Relaxed);
         self.sum_nanos

@@ -52,6 +52,7 @@ impl Timestamp {
     }
 
     /// `self - earlier` in nanoseconds (negative when `earlier` is later).
+    #[inline]
     pub const fn nanos_since(self, earlier: Timestamp) -> i64 {
         self.0.saturating_sub(earlier.0)
     }
