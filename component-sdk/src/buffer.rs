@@ -393,6 +393,42 @@ impl WriterState {
 #[derive(Clone, Copy)]
 struct SlotIndex(usize);
 
+/// One flag per slot: whether its sample owns shared data (and so must be dropped when replaced). The
+/// writer reads one per write, so they lie on cache lines of their own: a neighbour in the heap that
+/// another thread writes (a reader's latency counts, say) would take the line away at every write.
+struct DropFlags(Box<[FlagLine]>);
+
+#[repr(align(128))]
+#[derive(Clone, Copy)]
+struct FlagLine([bool; FLAGS_PER_LINE]);
+
+const FLAGS_PER_LINE: usize = 128;
+
+impl DropFlags {
+    /// All down, for `slots` slots.
+    fn new(slots: usize) -> Self {
+        DropFlags(vec![FlagLine([false; FLAGS_PER_LINE]); slots.div_ceil(FLAGS_PER_LINE)].into_boxed_slice())
+    }
+
+    /// # Safety
+    ///
+    /// `index` is below the slot count given to [`Self::new`].
+    #[inline]
+    unsafe fn get(&self, SlotIndex(index): SlotIndex) -> bool {
+        // SAFETY: as the caller guarantees, the line exists.
+        unsafe { self.0.get_unchecked(index / FLAGS_PER_LINE).0[index % FLAGS_PER_LINE] }
+    }
+
+    /// # Safety
+    ///
+    /// As [`Self::get`].
+    #[inline]
+    unsafe fn set(&mut self, SlotIndex(index): SlotIndex, value: bool) {
+        // SAFETY: as the caller guarantees, the line exists.
+        unsafe { self.0.get_unchecked_mut(index / FLAGS_PER_LINE).0[index % FLAGS_PER_LINE] = value };
+    }
+}
+
 struct Registry {
     default_capacity: u64,
     /// Every reader that ever attached, detached ones included (their counts stay visible).
@@ -413,7 +449,7 @@ struct Shared {
     writer_state: UnsafeCell<WriterState>,
     /// Per slot, whether its sample owns shared data (an `Arc`) and must be dropped when replaced.
     /// Touched only inside a write, like `writer_state`.
-    slot_needs_drop: UnsafeCell<Box<[bool]>>,
+    slot_needs_drop: UnsafeCell<DropFlags>,
     /// Bumped whenever a reader attaches or detaches and when the stream is closed: the straight path
     /// of a write looks at this alone.
     version: Padded<AtomicU64>,
@@ -461,7 +497,7 @@ impl Shared {
             // and so no longer needs a drop there. `slot_index` is in bounds of both.
             unsafe {
                 self.slot_needs_drop
-                    .with_mut(|flags| *(&mut *flags).get_unchecked_mut(index) = false);
+                    .with_mut(|flags| (*flags).set(SlotIndex(index), false));
                 self.slots
                     .get_unchecked(index)
                     .sample
@@ -480,10 +516,9 @@ impl Shared {
     /// Inside a write: only the writer touches the flags.
     #[inline]
     unsafe fn holds_sample_to_drop(&self, sequence: u64) -> bool {
-        let SlotIndex(index) = self.slot_index(sequence);
+        let index = self.slot_index(sequence);
         // SAFETY: as the caller guarantees; `slot_index` is in bounds.
-        self.slot_needs_drop
-            .with(|flags| unsafe { *(&*flags).get_unchecked(index) })
+        self.slot_needs_drop.with(|flags| unsafe { (*flags).get(index) })
     }
 
     /// Puts the sample at `sample` over the plain sample (or none) in the slot of `sequence`, and stamps
@@ -497,7 +532,7 @@ impl Shared {
     /// As [`Self::put`], and the slot's sample owns no shared data (its `slot_needs_drop` flag is down).
     #[inline]
     unsafe fn put_over_plain(&self, sequence: u64, sample: *const Sample) {
-        let SlotIndex(index) = self.slot_index(sequence);
+        let index = self.slot_index(sequence);
         let slot = self.slot(sequence);
         // SAFETY: as the caller guarantees; writing over a plain sample loses nothing; `slot_index` is
         // in bounds.
@@ -505,8 +540,7 @@ impl Shared {
             // The flag is down (a plain sample or none): raised only for a sample that owns shared
             // data, so a plain one is put without a store to the flags.
             if (*sample).payload.owns_shared_data() {
-                self.slot_needs_drop
-                    .with_mut(|flags| *(&mut *flags).get_unchecked_mut(index) = true);
+                self.slot_needs_drop.with_mut(|flags| (*flags).set(index, true));
             }
             move_into(slot, sample);
         }
@@ -569,10 +603,11 @@ impl Drop for Shared {
         // Plain samples own nothing; the flags name the slots whose samples do.
         let slots = &self.slots;
         self.slot_needs_drop.with_mut(|flags| {
-            // SAFETY: `&mut self`: no write or clone is in progress; a raised flag means the slot holds
-            // a sample, initialised when the flag was raised.
-            for (slot, &owns_shared) in slots.iter().zip(unsafe { &*flags }.iter()) {
-                if owns_shared {
+            for (index, slot) in slots.iter().enumerate() {
+                // SAFETY: `&mut self`: no write or clone is in progress; `index` is below the slot
+                // count; a raised flag means the slot holds a sample, initialised when the flag was
+                // raised.
+                if unsafe { (*flags).get(SlotIndex(index)) } {
                     slot.sample
                         .with_mut(|sample| unsafe { (*sample).assume_init_drop() });
                 }
@@ -761,7 +796,7 @@ impl OutputBuffer {
                 written: Padded(AtomicU64::new(0)),
                 writer_epoch: Padded(AtomicU64::new(0)),
                 writer_state: UnsafeCell::new(WriterState::default()),
-                slot_needs_drop: UnsafeCell::new(vec![false; slots].into_boxed_slice()),
+                slot_needs_drop: UnsafeCell::new(DropFlags::new(slots)),
                 version: Padded(AtomicU64::new(1)),
                 closed: AtomicBool::new(false),
                 writer_waiting: Padded(AtomicBool::new(false)),

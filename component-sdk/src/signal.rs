@@ -13,6 +13,10 @@ use crate::sync::{
 /// Writers wake readers through it; the runtime wakes it to stop, pause, or deliver property changes and
 /// actions. Waking is a futex at most, and nothing at all when the thread is not asleep: a thread arms
 /// `sleeping` before it parks (see [`Self::park`]) and writers unpark only an armed one.
+///
+/// Every write to an output this component reads looks at `sleeping`, so the signal keeps cache lines of
+/// its own: a neighbour in the heap that some thread writes often would take the line from the writer.
+#[repr(align(128))]
 pub struct RunSignal {
     thread: OnceLock<Thread>,
     sleeping: AtomicBool,
