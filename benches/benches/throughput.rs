@@ -7,6 +7,10 @@
 //! reader has not taken. Baselines, moving the same `Sample` struct: `crossbeam-channel` bounded(1024)
 //! with blocking send/recv, and an `rtrb` ring of 1024 with spinning push/pop.
 //!
+//! Last, both on one thread: 1024 samples written, then 1024 read, over and over. No cache line crosses
+//! cores, so this is the work each side does per sample. It bounds the link wherever writer and reader
+//! share one core's resources, which this VM's fast phase looks like (BENCHMARKS.md §3).
+//!
 //! The writer normally runs on the main thread. Ours and rtrb run once more with the roles swapped (the
 //! writer spawned, the reader on the main thread; still writer on CPU 0, reader on CPU 1): a ratio that
 //! holds only one way round is not one to quote.
@@ -189,6 +193,50 @@ fn run_rtrb(count: u64, roles: Roles) -> Run {
     })
 }
 
+/// One thread writes a buffer's worth of samples, then reads them back, `count` in all: samples per second
+/// through our link when nothing crosses cores.
+fn one_thread_ours(count: u64) -> f64 {
+    let buffer = OutputBuffer::new("source.out", CAPACITY);
+    let mut reader = buffer.attach(
+        ReaderConfig::new(ReaderPolicy::NeverSkipping, "source.out -> sink.in"),
+        Arc::new(RunSignal::new()),
+    );
+    let writer_signal = Arc::new(RunSignal::new());
+    let start = Instant::now();
+    let mut sequence = 0;
+    while sequence < count {
+        for _ in 0..CAPACITY {
+            let _ = buffer.write(sample(sequence), &writer_signal);
+            sequence += 1;
+        }
+        for _ in 0..CAPACITY {
+            if let Ok(sample) = reader.read(false) {
+                black_box(&sample);
+            }
+        }
+    }
+    sequence as f64 / start.elapsed().as_secs_f64()
+}
+
+/// As [`one_thread_ours`], through an rtrb ring.
+fn one_thread_rtrb(count: u64) -> f64 {
+    let (mut producer, mut consumer) = rtrb::RingBuffer::<Sample>::new(CAPACITY);
+    let start = Instant::now();
+    let mut sequence = 0;
+    while sequence < count {
+        for _ in 0..CAPACITY {
+            let _ = producer.push(sample(sequence));
+            sequence += 1;
+        }
+        for _ in 0..CAPACITY {
+            if let Ok(sample) = consumer.pop() {
+                black_box(&sample);
+            }
+        }
+    }
+    sequence as f64 / start.elapsed().as_secs_f64()
+}
+
 fn main() {
     kairos_benches::pin_current_thread(false);
     let count: u64 = size(200_000, 2_000_000);
@@ -285,6 +333,43 @@ fn main() {
     );
     ratios.print();
     print_fast_phase(&runs);
+    one_thread(count);
+}
+
+/// Both sides on one thread ([`one_thread_ours`]): the work per sample, and the ratio that bounds a link
+/// whose two sides share a core.
+fn one_thread(count: u64) {
+    println!("\nboth sides on one thread (CPU 0): {CAPACITY} written, then {CAPACITY} read, {count} in all");
+    let _ = (one_thread_ours(count / 10), one_thread_rtrb(count / 10));
+    let (mut ours, mut rtrb) = (Vec::new(), Vec::new());
+    for _ in 0..kairos_benches::repetitions() {
+        ours.push(one_thread_ours(count));
+        rtrb.push(one_thread_rtrb(count));
+    }
+    let mut table = Table::new(&[
+        "variant",
+        "samples/s, median [min–max]",
+        "ns per sample (write + read)",
+    ]);
+    for (name, series) in [
+        ("ours: write, then Reader::read", &ours),
+        ("baseline: rtrb push, then pop", &rtrb),
+    ] {
+        let spread = Spread::of(series.iter().copied());
+        table.row(vec![
+            name.to_owned(),
+            spread.show(rate),
+            format!("{:.1}", 1e9 / spread.median),
+        ]);
+    }
+    table.print();
+    let mut ratios = Ratios::new();
+    ratios.add(
+        "one thread: ours / rtrb (bounds a link sharing a core)",
+        Spread::of(ours.iter().zip(&rtrb).map(|(o, b)| o / b)),
+        Some(Goal::AtLeast(0.8)),
+    );
+    ratios.print();
 }
 
 /// This VM has a fast phase in which rtrb moves 50-75 M/s (BENCHMARKS.md §3): prints the ratios of the
