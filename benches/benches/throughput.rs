@@ -270,22 +270,27 @@ fn main() {
     let _ = run_crossbeam(count / 10);
     let _ = run_rtrb(count / 10, writer_on_main);
     for _ in 0..kairos_benches::repetitions() {
+        // rtrb runs between our two NeverSkipping runs: the VM's fast phase (see `print_fast_phase`)
+        // starts and ends at any moment, and a neighbour in time is the likeliest to share it.
+        let blocking = run_ours(
+            count,
+            ReaderPolicy::NeverSkipping,
+            ReadMode::Blocking,
+            writer_on_main,
+        );
+        let rtrb = run_rtrb(count, writer_on_main);
+        let spinning = run_ours(
+            count,
+            ReaderPolicy::NeverSkipping,
+            ReadMode::Spinning,
+            writer_on_main,
+        );
         let rep = [
-            run_ours(
-                count,
-                ReaderPolicy::NeverSkipping,
-                ReadMode::Blocking,
-                writer_on_main,
-            ),
-            run_ours(
-                count,
-                ReaderPolicy::NeverSkipping,
-                ReadMode::Spinning,
-                writer_on_main,
-            ),
+            blocking,
+            spinning,
             run_ours(count, ReaderPolicy::Fifo, ReadMode::Blocking, writer_on_main),
             run_crossbeam(count),
-            run_rtrb(count, writer_on_main),
+            rtrb,
             run_ours(
                 count,
                 ReaderPolicy::NeverSkipping,
