@@ -396,7 +396,11 @@ struct SlotIndex(usize);
 /// One flag per slot: whether its sample owns shared data (and so must be dropped when replaced). The
 /// writer reads one per write, so they lie on cache lines of their own: a neighbour in the heap that
 /// another thread writes (a reader's latency counts, say) would take the line away at every write.
-struct DropFlags(Box<[FlagLine]>);
+struct DropFlags {
+    lines: Box<[FlagLine]>,
+    /// How many flags are up: while none is, a write need not look at its slot's.
+    raised: usize,
+}
 
 #[repr(align(128))]
 #[derive(Clone, Copy)]
@@ -407,7 +411,10 @@ const FLAGS_PER_LINE: usize = 128;
 impl DropFlags {
     /// All down, for `slots` slots.
     fn new(slots: usize) -> Self {
-        DropFlags(vec![FlagLine([false; FLAGS_PER_LINE]); slots.div_ceil(FLAGS_PER_LINE)].into_boxed_slice())
+        DropFlags {
+            lines: vec![FlagLine([false; FLAGS_PER_LINE]); slots.div_ceil(FLAGS_PER_LINE)].into_boxed_slice(),
+            raised: 0,
+        }
     }
 
     /// # Safety
@@ -416,7 +423,9 @@ impl DropFlags {
     #[inline]
     unsafe fn get(&self, SlotIndex(index): SlotIndex) -> bool {
         // SAFETY: as the caller guarantees, the line exists.
-        unsafe { self.0.get_unchecked(index / FLAGS_PER_LINE).0[index % FLAGS_PER_LINE] }
+        self.raised != 0
+            // SAFETY: as the caller guarantees, the line exists.
+            && unsafe { self.lines.get_unchecked(index / FLAGS_PER_LINE).0[index % FLAGS_PER_LINE] }
     }
 
     /// # Safety
@@ -425,7 +434,16 @@ impl DropFlags {
     #[inline]
     unsafe fn set(&mut self, SlotIndex(index): SlotIndex, value: bool) {
         // SAFETY: as the caller guarantees, the line exists.
-        unsafe { self.0.get_unchecked_mut(index / FLAGS_PER_LINE).0[index % FLAGS_PER_LINE] = value };
+        let flag =
+            unsafe { &mut self.lines.get_unchecked_mut(index / FLAGS_PER_LINE).0[index % FLAGS_PER_LINE] };
+        if *flag != value {
+            *flag = value;
+            if value {
+                self.raised += 1;
+            } else {
+                self.raised -= 1;
+            }
+        }
     }
 }
 
@@ -450,6 +468,9 @@ struct Shared {
     /// Per slot, whether its sample owns shared data (an `Arc`) and must be dropped when replaced.
     /// Touched only inside a write, like `writer_state`.
     slot_needs_drop: UnsafeCell<DropFlags>,
+    /// Raised (for good) before the first sample that owns shared data is stamped: until then a reader
+    /// copies samples without looking at their payload.
+    carries_shared_data: AtomicBool,
     /// Bumped whenever a reader attaches or detaches and when the stream is closed: the straight path
     /// of a write looks at this alone.
     version: Padded<AtomicU64>,
@@ -541,6 +562,10 @@ impl Shared {
             // data, so a plain one is put without a store to the flags.
             if (*sample).payload.owns_shared_data() {
                 self.slot_needs_drop.with_mut(|flags| (*flags).set(index, true));
+                // Before the stamp (release), which readers acquire before they look at this.
+                if !self.carries_shared_data.load(Ordering::Relaxed) {
+                    self.carries_shared_data.store(true, Ordering::Relaxed);
+                }
             }
             move_into(slot, sample);
         }
@@ -571,7 +596,9 @@ impl Shared {
         slot.sample.with(|sample| {
             // SAFETY: as above.
             let sample = unsafe { (*sample).assume_init_ref() };
-            if sample.payload.owns_shared_data() {
+            // The stamp the caller acquired follows the raising of `carries_shared_data` for a sample that
+            // needs it.
+            if self.carries_shared_data.load(Ordering::Relaxed) && sample.payload.owns_shared_data() {
                 clone_shared(sample)
             } else {
                 // SAFETY: a plain sample owns nothing, so a copy of its bytes is a clone of it; taken
@@ -733,7 +760,7 @@ impl<'a> WriteGuard<'a> {
         self.shared.written.store(sequence + 1, Ordering::Release);
         self.with_state(|state| {
             for signal in &state.threads {
-                signal.notify_data();
+                signal.notify_thread();
             }
             state.reactive.clone()
         })
@@ -797,6 +824,7 @@ impl OutputBuffer {
                 writer_epoch: Padded(AtomicU64::new(0)),
                 writer_state: UnsafeCell::new(WriterState::default()),
                 slot_needs_drop: UnsafeCell::new(DropFlags::new(slots)),
+                carries_shared_data: AtomicBool::new(false),
                 version: Padded(AtomicU64::new(1)),
                 closed: AtomicBool::new(false),
                 writer_waiting: Padded(AtomicBool::new(false)),

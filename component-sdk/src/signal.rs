@@ -84,6 +84,13 @@ impl RunSignal {
             }
             return;
         }
+        self.notify_thread();
+    }
+
+    /// [`Self::notify_data`] for a component known to have a thread of its own (not reactive): an output
+    /// buffer sorts its readers' signals once, not at every write.
+    #[inline]
+    pub(crate) fn notify_thread(&self) {
         // Paired with the heavy fence in `park`: either the sleeper's re-check sees the data, or this
         // sees it armed.
         light_fence();

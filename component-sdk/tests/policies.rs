@@ -310,14 +310,16 @@ fn readers_share_the_payload_instead_of_copying_it() {
 
 #[test]
 fn shared_payloads_are_released_when_replaced_and_when_the_buffer_goes() {
-    // Plain and shared samples take turns over a ring of 2 slots: the writer reads a replaced sample
-    // only when it owns shared data, so every reference must still come back.
+    // Plain and shared samples take turns over a ring of 2 slots, starting plain: the writer reads a
+    // replaced sample only when it owns shared data, and readers look at payloads only once the stream
+    // has carried one that does, so every reference taken must be counted and must come back.
     let bytes: Arc<[u8]> = Arc::from(vec![1_u8; 64]);
     let buffer = OutputBuffer::new("p.out", 2);
     let writer = Arc::new(RunSignal::new());
     let mut r = reader(&buffer, ReaderPolicy::NeverSkipping);
-    for sequence in 0..7_u64 {
-        let payload = if sequence % 3 == 0 {
+    let mut kept = Vec::new();
+    for sequence in 0..8_u64 {
+        let payload = if sequence % 3 == 1 {
             Payload::Bytes(Arc::clone(&bytes))
         } else {
             Payload::I64(sequence as i64)
@@ -326,9 +328,12 @@ fn shared_payloads_are_released_when_replaced_and_when_the_buffer_goes() {
             .write(Sample::new(payload, Timestamp::ZERO), &writer)
             .unwrap();
         let got = r.try_read().unwrap();
-        assert_eq!(got.payload.owns_shared_data(), sequence % 3 == 0);
+        assert_eq!(got.payload.owns_shared_data(), sequence % 3 == 1);
+        kept.push(got);
     }
-    // Sequences 5 (plain) and 6 (shared) are still held by the ring.
+    // Shared: sequences 1, 4 and 7, all read; the ring still holds 6 (plain) and 7.
+    assert_eq!(Arc::strong_count(&bytes), 1 + 3 + 1);
+    drop(kept);
     assert_eq!(Arc::strong_count(&bytes), 2);
     drop(r);
     drop(buffer);
