@@ -21,10 +21,14 @@
 //! From the cursors it last saw the writer also knows how many writes no rule can stop
 //! (`unobstructed_until`). Those take a straight path that looks at no reader and does not read the slot
 //! it fills, unless the sample there owns shared data that must be dropped; the sample is moved in eight
-//! bytes at a time (see `move_into` for why).
+//! bytes at a time (see `move_into` for why). A NeverSkipping reader without subsampling has a straight
+//! path too: the stamp says the sample is there, its bytes are copied (unless the stream has ever carried
+//! shared data, when the payload is looked at), and only the cursor is published. Both paths are inlined
+//! into their callers; everything else is out of line.
 //!
 //! Each reader publishes its counters under a sequence lock of its own, so a snapshot from another
-//! thread always satisfies `written = read + skipped + overwritten + queued` exactly. A FIFO reader's
+//! thread always satisfies `written = read + skipped + overwritten + queued` exactly. The read count is
+//! not published: it follows from the cursor and the others. A FIFO reader's
 //! lapping is accounted lazily: samples beyond its share count as overwritten the moment they are,
 //! whether the reader looked yet or not.
 //!
