@@ -52,8 +52,8 @@ use crate::sample::Sample;
 use crate::signal::RunSignal;
 use crate::stats::{LinkCounters, SharedLatency};
 use crate::sync::{
-    AtomicBool, AtomicU64, Mutex, Ordering, SPINS, UnsafeCell, fence, heavy_fence, light_fence, lock, spin,
-    yield_now,
+    AtomicBool, AtomicU64, LightFence, Mutex, Ordering, SPINS, UnsafeCell, fence, heavy_fence, light_fence,
+    lock, spin, yield_now,
 };
 
 /// Why a blocking read returned without a sample.
@@ -295,6 +295,8 @@ struct WriterState {
     threads: Vec<Arc<RunSignal>>,
     /// Reactive readers, run after each write once the write is over (they may write themselves).
     reactive: Option<ReactiveReaders>,
+    /// The fence of the writer's side of its handshakes, looked up once (a full one until then).
+    light_fence: LightFence,
 }
 
 impl WriterState {
@@ -320,6 +322,7 @@ impl WriterState {
             readers,
             threads,
             reactive: (!reactive.is_empty()).then(|| Arc::from(reactive)),
+            light_fence: LightFence::decided(),
         };
         // After `version`: `close` raises the flag before it bumps the version, so a view taken at the
         // new version sees the stream closed, and one at the old version is replaced at the next write.
@@ -713,14 +716,19 @@ impl<'a> WriteGuard<'a> {
     #[inline]
     fn unobstructed_sequence(&self) -> Option<u64> {
         let shared = self.shared;
-        // Paired with the heavy fence in `attach`, as in `enter`.
-        light_fence();
+        // SAFETY: inside a write (odd epoch taken by this thread): nobody else touches the state.
+        let (state_version, unobstructed_until, light_fence) = shared.writer_state.with(|state| unsafe {
+            (
+                (*state).version,
+                (*state).unobstructed_until,
+                (*state).light_fence,
+            )
+        });
+        // Paired with the heavy fence in `attach`, as in `enter`. A view not yet taken fences fully.
+        light_fence.run();
         let version = shared.version.load(Ordering::SeqCst);
         let written = shared.written.load(Ordering::Relaxed);
-        // SAFETY: inside a write (odd epoch taken by this thread): nobody else touches the state.
-        let unobstructed = shared
-            .writer_state
-            .with(|state| unsafe { (*state).version == version && written < (*state).unobstructed_until });
+        let unobstructed = state_version == version && written < unobstructed_until;
         // SAFETY: inside a write, as above.
         (unobstructed && !unsafe { shared.holds_sample_to_drop(written) }).then_some(written)
     }
@@ -764,7 +772,7 @@ impl<'a> WriteGuard<'a> {
         self.shared.written.store(sequence + 1, Ordering::Release);
         self.with_state(|state| {
             for signal in &state.threads {
-                signal.notify_thread();
+                signal.notify_thread(state.light_fence);
             }
             state.reactive.clone()
         })
@@ -903,6 +911,7 @@ impl OutputBuffer {
             },
             signal,
             straight: config.policy == ReaderPolicy::NeverSkipping && config.subsampling <= 1,
+            light_fence: LightFence::decided(),
         }
     }
 
@@ -1078,6 +1087,8 @@ pub struct Reader {
     signal: Arc<RunSignal>,
     /// NeverSkipping without subsampling: reads take the straight path of [`Self::try_read`].
     straight: bool,
+    /// The fence of this reader's side of its handshake with the writer, looked up once.
+    light_fence: LightFence,
 }
 
 impl fmt::Debug for Reader {
@@ -1164,7 +1175,7 @@ impl Reader {
     #[inline]
     fn make_room_for_writer(&self) {
         // Paired with the writer raising `writer_waiting` before it looks at the cursor again.
-        light_fence();
+        self.light_fence.run();
         if self.buffer.shared.writer_waiting.load(Ordering::Relaxed) {
             self.buffer.shared.wake_blocked_writer();
         }

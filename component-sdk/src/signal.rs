@@ -5,7 +5,7 @@ use std::sync::OnceLock;
 use std::time::Duration;
 
 use crate::sync::{
-    AtomicBool, Ordering, Thread, current_thread, heavy_fence, light_fence, park, park_timeout,
+    AtomicBool, LightFence, Ordering, Thread, current_thread, heavy_fence, park, park_timeout,
 };
 
 /// One per component: the thread that runs it and the flags the runtime raises to get its attention.
@@ -84,16 +84,16 @@ impl RunSignal {
             }
             return;
         }
-        self.notify_thread();
+        self.notify_thread(LightFence::decided());
     }
 
     /// [`Self::notify_data`] for a component known to have a thread of its own (not reactive): an output
-    /// buffer sorts its readers' signals once, not at every write.
+    /// buffer sorts its readers' signals once, not at every write, and looks its fence up once too.
     #[inline]
-    pub(crate) fn notify_thread(&self) {
+    pub(crate) fn notify_thread(&self, light_fence: LightFence) {
         // Paired with the heavy fence in `park`: either the sleeper's re-check sees the data, or this
         // sees it armed.
-        light_fence();
+        light_fence.run();
         if self.sleeping.load(Ordering::Acquire) {
             self.wake();
         }

@@ -74,6 +74,36 @@ pub(crate) fn light_fence() {
     }
 }
 
+/// [`light_fence`] with the process's choice looked up once, by code that fences for every sample: the
+/// lookup would otherwise be most of the cost of a fence that compiles to nothing.
+#[derive(Clone, Copy, Debug, Default)]
+pub(crate) struct LightFence {
+    /// Whether a compiler fence is enough ([`heavy_fence`] reaches into other threads). `false`, a full
+    /// fence, is always right.
+    compiler_only: bool,
+}
+
+impl LightFence {
+    /// The process's choice, deciding it if nobody has yet: it never changes afterwards.
+    pub(crate) fn decided() -> Self {
+        #[cfg(not(loom))]
+        let compiler_only = asymmetric_fences();
+        #[cfg(loom)]
+        let compiler_only = false;
+        LightFence { compiler_only }
+    }
+
+    /// Runs the fence.
+    #[inline]
+    pub(crate) fn run(self) {
+        if self.compiler_only {
+            std::sync::atomic::compiler_fence(Ordering::SeqCst);
+        } else {
+            fence(Ordering::SeqCst);
+        }
+    }
+}
+
 /// The fence of the side of a handshake that runs rarely (a thread about to sleep, a reader attaching).
 #[cfg(not(loom))]
 pub(crate) fn heavy_fence() {
