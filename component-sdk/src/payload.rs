@@ -12,6 +12,9 @@ use kairos_diagram::DataType;
 use crate::pixels::Pixels;
 
 /// The data of one sample.
+///
+/// The plain variants, `Copy` data, come first and the shared ones after: telling them apart is then one
+/// comparison, which output buffers make for every sample.
 #[derive(Clone, PartialEq)]
 pub enum Payload {
     /// One float.
@@ -20,6 +23,14 @@ pub enum Payload {
     I64(i64),
     /// One boolean.
     Bool(bool),
+    /// An inertial measurement.
+    Imu(Imu),
+    /// A satellite navigation fix.
+    GnssFix(GnssFix),
+    /// A CAN bus frame.
+    CanFrame(CanFrame),
+    /// A position and orientation.
+    Pose(Pose),
     /// A vector of floats.
     Vector(Arc<[f64]>),
     /// A row-major matrix of floats.
@@ -32,14 +43,6 @@ pub enum Payload {
     Image(Image),
     /// 3D points, shared.
     PointCloud(Arc<PointCloud>),
-    /// An inertial measurement.
-    Imu(Imu),
-    /// A satellite navigation fix.
-    GnssFix(GnssFix),
-    /// A CAN bus frame.
-    CanFrame(CanFrame),
-    /// A position and orientation.
-    Pose(Pose),
     /// A pack-defined type, carried as bytes in the pack's own encoding.
     Custom(CustomPayload),
 }
