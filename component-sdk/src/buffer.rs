@@ -429,7 +429,6 @@ impl DropFlags {
     /// `index` is below the slot count given to [`Self::new`].
     #[inline]
     unsafe fn get(&self, SlotIndex(index): SlotIndex) -> bool {
-        // SAFETY: as the caller guarantees, the line exists.
         self.raised != 0
             // SAFETY: as the caller guarantees, the line exists.
             && unsafe { self.lines.get_unchecked(index / FLAGS_PER_LINE).0[index % FLAGS_PER_LINE] }
@@ -520,16 +519,12 @@ impl Shared {
     unsafe fn put(&self, sequence: u64, sample: *const Sample) -> Option<Sample> {
         // SAFETY: inside a write, as the caller guarantees: nobody else touches the flags or the slot.
         let replaced = unsafe { self.holds_sample_to_drop(sequence) }.then(|| {
-            let SlotIndex(index) = self.slot_index(sequence);
             // SAFETY: as above; a raised flag means the slot holds a sample, which is read out here
-            // and so no longer needs a drop there. `slot_index` is in bounds of both.
+            // and so no longer needs a drop there. `slot_index` is in bounds.
             unsafe {
                 self.slot_needs_drop
-                    .with_mut(|flags| (*flags).set(SlotIndex(index), false));
-                self.slots
-                    .get_unchecked(index)
-                    .sample
-                    .with(|held| (*held).assume_init_read())
+                    .with_mut(|flags| (*flags).set(self.slot_index(sequence), false));
+                self.slot(sequence).sample.with(|held| (*held).assume_init_read())
             }
         });
         // SAFETY: the sample the slot held, if one needed dropping, was read out just above.
@@ -1122,21 +1117,11 @@ impl Reader {
         if !self.straight {
             return self.try_read_by_policy();
         }
-        let cursor = self.straight_ready()?;
+        let cursor = self.never_skipping_ready()?;
         Some(self.take_straight(cursor))
     }
 
-    /// On the straight path (NeverSkipping, no subsampling): the cursor, if its sample was written.
-    ///
-    /// That is read from the slot's stamp, not from `written`: the slot's cache line comes to this core
-    /// anyway, and leaving `written` alone spares both cores a transfer per sample.
-    #[inline]
-    fn straight_ready(&self) -> Option<u64> {
-        let cursor = self.counts.cursor;
-        (self.buffer.shared.slot(cursor).stamp.load(Ordering::Acquire) == cursor).then_some(cursor)
-    }
-
-    /// The straight path's read of the sample at `cursor`, which [`Self::straight_ready`] found written.
+    /// The straight path's read of the sample at `cursor`, which [`Self::never_skipping_ready`] found written.
     ///
     /// The usual lossless link: small enough to inline, so that the sample goes from its slot to the
     /// caller in one move; no policy loop; only the cursor is published.
@@ -1200,7 +1185,7 @@ impl Reader {
         // A sample already waiting on the straight path: no call, and one move to the caller (not two
         // through an `Option`).
         if self.straight
-            && let Some(cursor) = self.straight_ready()
+            && let Some(cursor) = self.never_skipping_ready()
         {
             return Ok(self.take_straight(cursor));
         }
@@ -1305,6 +1290,7 @@ impl Reader {
     ///
     /// That is read from the slot's stamp, not from `written`: the slot's cache line comes to this core
     /// anyway, and leaving `written` alone spares both cores a transfer per sample.
+    #[inline]
     fn never_skipping_ready(&self) -> Option<u64> {
         let cursor = self.counts.cursor;
         (self.buffer.shared.slot(cursor).stamp.load(Ordering::Acquire) == cursor).then_some(cursor)

@@ -64,14 +64,9 @@ pub(crate) fn yield_now() {
 /// other side does the reverse; a full fence between the store and the load on both sides guarantees
 /// that at least one of them sees the other. `membarrier` lets the rare side pay for both: it makes
 /// every running thread of the process execute a full barrier, so the frequent side needs none.
-#[cfg(not(loom))]
 #[inline]
 pub(crate) fn light_fence() {
-    if asymmetric_fences() {
-        std::sync::atomic::compiler_fence(Ordering::SeqCst);
-    } else {
-        fence(Ordering::SeqCst);
-    }
+    LightFence::decided().run();
 }
 
 /// [`light_fence`] with the process's choice looked up once, by code that fences for every sample: the
@@ -85,6 +80,7 @@ pub(crate) struct LightFence {
 
 impl LightFence {
     /// The process's choice, deciding it if nobody has yet: it never changes afterwards.
+    #[inline]
     pub(crate) fn decided() -> Self {
         #[cfg(not(loom))]
         let compiler_only = asymmetric_fences();
@@ -110,11 +106,6 @@ pub(crate) fn heavy_fence() {
     if !asymmetric_fences() || !membarrier(MEMBARRIER_CMD_PRIVATE_EXPEDITED) {
         fence(Ordering::SeqCst);
     }
-}
-
-#[cfg(loom)]
-pub(crate) fn light_fence() {
-    fence(Ordering::SeqCst);
 }
 
 #[cfg(loom)]
