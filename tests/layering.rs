@@ -1,5 +1,6 @@
-//! Architecture invariant: no GUI crate in the dependency tree of the SDK, the diagram format, the
-//! runtime, the CLI or the packs.
+//! Architecture invariants on dependencies: which crate of ours may depend on which (a rule table that
+//! names every crate of the workspace), no GUI crate in the dependency tree of the SDK, the diagram
+//! format, the runtime, the CLI or the packs, and packs that use the pack-author API alone.
 #![allow(
     clippy::unwrap_used,
     clippy::expect_used,
@@ -9,7 +10,9 @@
 use std::process::Command;
 
 const GUI_CRATES: [&str; 5] = ["egui", "eframe", "wgpu", "winit", "glutin"];
-const HEADLESS: [&str; 9] = [
+const HEADLESS: [&str; 11] = [
+    "kairos-shm",
+    "kairos-test-pack-faulty",
     "kairos-sdk",
     "kairos-diagram",
     "kairos-runtime",
@@ -54,4 +57,189 @@ fn headless_crates_depend_on_no_gui_crate() {
             );
         }
     }
+}
+
+/// The floors, bottom up, and what each crate of ours may depend on (normal and build dependencies).
+/// A crate missing from the table fails the test: a new crate takes its place here first.
+const RULES: [(&str, &[&str]); 13] = [
+    // Bottom floor: plain data, and the shared-memory layout both the runtime side and clients need.
+    ("kairos-diagram", &[]),
+    ("kairos-shm", &[]),
+    // What pack authors and protocol clients program against.
+    ("kairos-sdk", &["kairos-diagram", "kairos-shm"]),
+    ("kairos-protocol", &["kairos-diagram", "kairos-shm"]),
+    // Packs see the SDK alone.
+    ("kairos-pack-core", &["kairos-sdk"]),
+    ("kairos-pack-sensors", &["kairos-sdk"]),
+    ("kairos-pack-recording", &["kairos-sdk"]),
+    ("kairos-pack-filters", &["kairos-sdk"]),
+    ("kairos-test-pack-faulty", &["kairos-sdk"]),
+    // The engine.
+    ("kairos-runtime", &["kairos-sdk", "kairos-diagram"]),
+    // The binary links the engine, the built-in packs and the protocol server.
+    (
+        "kairos",
+        &[
+            "kairos-runtime",
+            "kairos-sdk",
+            "kairos-diagram",
+            "kairos-protocol",
+            "kairos-pack-core",
+            "kairos-pack-sensors",
+            "kairos-pack-recording",
+        ],
+    ),
+    // The studio speaks the protocol and edits diagrams; it never links the engine or a pack.
+    ("kairos-studio", &["kairos-protocol", "kairos-diagram"]),
+    // Benchmarks measure everything against everything.
+    (
+        "kairos-benches",
+        &[
+            "kairos",
+            "kairos-runtime",
+            "kairos-sdk",
+            "kairos-diagram",
+            "kairos-protocol",
+            "kairos-studio",
+            "kairos-pack-core",
+            "kairos-pack-sensors",
+            "kairos-pack-recording",
+            "kairos-pack-filters",
+        ],
+    ),
+];
+
+fn workspace_metadata() -> serde_json::Value {
+    let output = Command::new(env!("CARGO"))
+        .args(["metadata", "--format-version", "1", "--no-deps", "--offline"])
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .output()
+        .expect("running cargo metadata");
+    assert!(
+        output.status.success(),
+        "{}",
+        String::from_utf8_lossy(&output.stderr)
+    );
+    serde_json::from_slice(&output.stdout).expect("cargo metadata prints JSON")
+}
+
+#[test]
+fn every_crate_depends_only_on_the_crates_its_floor_allows() {
+    let metadata = workspace_metadata();
+    let ours: Vec<&str> = metadata["packages"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|p| p["name"].as_str().unwrap())
+        .collect();
+    let mut broken = Vec::new();
+    for package in metadata["packages"].as_array().unwrap() {
+        let name = package["name"].as_str().unwrap();
+        let Some((_, allowed)) = RULES.iter().find(|(crate_name, _)| *crate_name == name) else {
+            broken.push(format!("{name} is not in the rule table of tests/layering.rs"));
+            continue;
+        };
+        for dependency in package["dependencies"].as_array().unwrap() {
+            let target = dependency["name"].as_str().unwrap();
+            let development = dependency["kind"].as_str() == Some("dev");
+            if development || !ours.contains(&target) {
+                continue;
+            }
+            if !allowed.contains(&target) {
+                broken.push(format!(
+                    "{name} depends on {target}, which its floor does not allow"
+                ));
+            }
+        }
+    }
+    assert!(broken.is_empty(), "{}", broken.join("\n"));
+}
+
+#[test]
+fn packs_use_the_pack_author_api_alone() {
+    // The runtime's half of the SDK is its `host` feature; a pack that enabled it, or named its module,
+    // would build only inside this workspace, where the runtime turns the feature on.
+    let metadata = workspace_metadata();
+    for package in metadata["packages"].as_array().unwrap() {
+        let name = package["name"].as_str().unwrap();
+        if !(name.starts_with("kairos-pack-") || name.starts_with("kairos-test-pack-")) {
+            continue;
+        }
+        for dependency in package["dependencies"].as_array().unwrap() {
+            let features = dependency["features"].as_array().unwrap();
+            assert!(
+                !(dependency["name"] == "kairos-sdk" && features.iter().any(|f| f == "host")),
+                "{name} enables kairos-sdk's host feature"
+            );
+        }
+        let manifest = std::path::Path::new(package["manifest_path"].as_str().unwrap());
+        let sources = manifest.parent().unwrap();
+        let mut folders = vec![sources.join("src")];
+        while let Some(folder) = folders.pop() {
+            for entry in std::fs::read_dir(&folder).unwrap() {
+                let path = entry.unwrap().path();
+                if path.is_dir() {
+                    folders.push(path);
+                } else if path.extension().is_some_and(|e| e == "rs") {
+                    let text = std::fs::read_to_string(&path).unwrap();
+                    assert!(
+                        !text.contains("kairos_sdk::host"),
+                        "{} uses the runtime's half of the SDK",
+                        path.display()
+                    );
+                }
+            }
+        }
+    }
+}
+
+/// The modules allowed `unsafe` (ARCHITECTURE.md names each and why); the lint denies it everywhere else.
+const UNSAFE_MODULES: [&str; 10] = [
+    "component-sdk/src/abi/types.rs",
+    "component-sdk/src/abi/convert.rs",
+    "component-sdk/src/abi/pack_side.rs",
+    "component-sdk/src/buffer.rs",
+    "component-sdk/src/sync.rs",
+    "runtime/kairos-runtime/src/pack_host/loader.rs",
+    "runtime/kairos-runtime/src/pack_host/functions.rs",
+    "runtime/kairos-runtime/src/pack_host/dynamic.rs",
+    "runtime/kairos/src/serve/shm.rs",
+    "runtime/kairos-shm/src/lib.rs",
+];
+
+#[test]
+fn unsafe_code_is_allowed_only_in_the_modules_architecture_md_names() {
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
+    let mut allowing = Vec::new();
+    let mut folders = ["component-sdk", "component-packs", "diagram-format", "runtime", "studio", "tests"]
+        .map(|folder| root.join(folder))
+        .to_vec();
+    while let Some(folder) = folders.pop() {
+        for entry in std::fs::read_dir(&folder).unwrap() {
+            let path = entry.unwrap().path();
+            if path.is_dir() {
+                if !path.ends_with("target") {
+                    folders.push(path);
+                }
+                continue;
+            }
+            let text = std::fs::read_to_string(&path).unwrap_or_default();
+            // The `export_pack!` macro allows it on the entry point it generates, in the pack's crate.
+            let is_macro_definition = path.ends_with("component-sdk/src/abi/mod.rs");
+            if path.extension().is_some_and(|e| e == "rs")
+                && text
+                    .split_whitespace()
+                    .collect::<String>()
+                    .contains("allow(unsafe_code")
+                && !is_macro_definition
+            {
+                let relative = path.strip_prefix(&root).unwrap().to_string_lossy().into_owned();
+                allowing.push(relative);
+            }
+        }
+    }
+    allowing.sort();
+    let mut expected = UNSAFE_MODULES.map(str::to_owned).to_vec();
+    expected.sort();
+    assert_eq!(allowing, expected);
 }

@@ -84,6 +84,32 @@ fn cpp_pack(dir: &Path) -> PathBuf {
     output
 }
 
+/// A C pack linked against a library that is not there when it is loaded.
+fn needs_a_missing_library(packs: &Path, scratch: &Path) {
+    let dependency = scratch.join("libkairos_missing_dependency.so");
+    std::fs::write(
+        scratch.join("dependency.c"),
+        "int kairos_missing_dependency(void) { return 1; }\n",
+    )
+    .unwrap();
+    compile("cc", &[scratch.join("dependency.c")], &[], &dependency);
+    let output = packs.join(library_name("needs_missing"));
+    let status = Command::new("cc")
+        .args(["-shared", "-fPIC"])
+        .arg("-I")
+        .arg(repo_root().join("component-sdk/include"))
+        .arg(repo_root().join("tests/packs/c/broken.c"))
+        .arg("-DPACK_NAME=\"needs_missing\"")
+        .arg("-L")
+        .arg(scratch)
+        .args(["-Wl,--no-as-needed", "-lkairos_missing_dependency", "-o"])
+        .arg(&output)
+        .status()
+        .unwrap();
+    assert!(status.success());
+    std::fs::remove_file(&dependency).unwrap();
+}
+
 fn broken_pack(dir: &Path, name: &str, defines: &[&str]) -> PathBuf {
     let output = dir.join(library_name(name));
     compile(
@@ -93,6 +119,37 @@ fn broken_pack(dir: &Path, name: &str, defines: &[&str]) -> PathBuf {
         &output,
     );
     output
+}
+
+/// Every kind of broken C pack the loader must refuse, each in a library of its own in `packs`.
+fn broken_packs(packs: &Path, scratch: &Path) {
+    broken_pack(packs, "bad_magic", &["PACK_MAGIC=0x1234ULL"]);
+    broken_pack(packs, "abi_too_new", &["PACK_ABI=99u"]);
+    broken_pack(packs, "abi_too_old", &["PACK_ABI=0u"]);
+    broken_pack(packs, "bad_layout", &["PACK_SAMPLE_SIZE=8"]);
+    for function in ["DEATH_FN", "PROPERTY_FN", "ACTION_FN"] {
+        let name = format!("null_{}", function.to_lowercase());
+        let pack_name = format!("PACK_NAME=\"{name}\"");
+        let type_name = format!("TYPE_NAME=\"{name}.idle\"");
+        let null = format!("{function}=0");
+        broken_pack(packs, &name, &["WITH_COMPONENT", &pack_name, &type_name, &null]);
+    }
+    broken_pack(
+        packs,
+        "foreign",
+        &[
+            "WITH_COMPONENT",
+            "PACK_NAME=\"foreign\"",
+            "TYPE_NAME=\"other.thing\"",
+        ],
+    );
+    needs_a_missing_library(packs, scratch);
+    compile(
+        "cc",
+        &[repo_root().join("tests/packs/c/no_entry.c")],
+        &[],
+        &packs.join(library_name("no_entry")),
+    );
 }
 
 #[test]
@@ -110,16 +167,7 @@ fn packs_lists_loaded_packs_and_every_refused_library_with_its_reason() {
     .unwrap();
     let whole = std::fs::read(&filters).unwrap();
     std::fs::write(packs.join(library_name("truncated")), &whole[..whole.len() / 3]).unwrap();
-    broken_pack(&packs, "bad_magic", &["PACK_MAGIC=0x1234ULL"]);
-    broken_pack(&packs, "abi_too_new", &["PACK_ABI=99u"]);
-    broken_pack(&packs, "abi_too_old", &["PACK_ABI=0u"]);
-    broken_pack(&packs, "bad_layout", &["PACK_SAMPLE_SIZE=8"]);
-    compile(
-        "cc",
-        &[repo_root().join("tests/packs/c/no_entry.c")],
-        &[],
-        &packs.join(library_name("no_entry")),
-    );
+    broken_packs(&packs, dir.path());
 
     let output = kairos(
         dir.path(),
@@ -167,14 +215,30 @@ fn packs_lists_loaded_packs_and_every_refused_library_with_its_reason() {
     assert!(refused("abi_too_old").contains("version 0 is older"));
     assert!(refused("bad_layout").contains("layout mismatch: the sample struct is 8 bytes"));
     assert!(refused("no_entry").contains("kairos_pack_entry"));
-    let clash = &json["duplicates"][0];
+    assert!(refused("null_death_fn").contains("has no `death` function"));
+    assert!(refused("null_property_fn").contains("has no `property_changed` function"));
+    assert!(refused("null_action_fn").contains("has no `action` function"));
+    assert!(
+        refused("needs_missing").contains("libkairos_missing_dependency.so"),
+        "the dynamic loader's cause is kept: {}",
+        refused("needs_missing")
+    );
+    // A type outside the pack's own name is refused alone; the rest of its pack loads.
+    assert!(
+        refused("foreign").contains("pack 'foreign' may register only types named 'foreign.…'"),
+        "{}",
+        refused("foreign")
+    );
+    assert!(
+        refused("kairos_test_pack_faulty").contains("'core.gain' is refused (name it 'faulty.gain')"),
+        "{}",
+        refused("kairos_test_pack_faulty")
+    );
+    assert!(loaded.contains(&"foreign"), "{loaded:?}");
     assert_eq!(
-        (
-            clash["type_name"].as_str(),
-            clash["kept_from"].as_str(),
-            clash["refused_from"].as_str()
-        ),
-        (Some("core.gain"), Some("core"), Some("faulty"))
+        json["duplicates"],
+        serde_json::json!([]),
+        "no pack can take a built-in type"
     );
 
     // Loaded components are listed exactly like built-in ones.
@@ -198,6 +262,25 @@ fn write_diagram(dir: &Path, name: &str, body: &str) -> PathBuf {
     let path = dir.join(name);
     std::fs::write(&path, body).unwrap();
     path
+}
+
+#[test]
+fn a_pack_that_aborts_in_its_entry_point_is_named_by_the_last_line_of_the_log() {
+    let dir = tempfile::tempdir().unwrap();
+    let packs = dir.path().join("packs");
+    std::fs::create_dir(&packs).unwrap();
+    let library = broken_pack(&packs, "aborts", &["ABORT_IN_ENTRY"]);
+    let output = kairos(
+        dir.path(),
+        &["--pack-path", packs.to_str().unwrap(), "packs"],
+    );
+    let (_, stderr) = text(&output);
+    assert!(!output.status.success(), "the process cannot survive an abort");
+    let last = stderr.lines().last().unwrap_or_default();
+    assert!(
+        last.contains("loading pack library") && last.contains(library.to_str().unwrap()),
+        "{stderr}"
+    );
 }
 
 #[test]
@@ -360,7 +443,7 @@ fn the_c_header_matches_the_rust_abi() {
     let output = Command::new(&program).output().unwrap();
     let printed = String::from_utf8(output.stdout).unwrap();
     let expected = format!(
-        "magic {:x}\nabi {}\nsdk {}\nstr {}\nsample {}\nvalue {}\nerror {}\nhost {}\nvtable {}\ndescriptor {}\n",
+        "magic {:x}\nabi {}\nsdk {}\nstr {}\nsample {}\nvalue {}\nerror {}\nhost {}\ncounters {}\nvtable {}\ndescriptor {}\n",
         abi::ABI_MAGIC,
         abi::ABI_VERSION,
         kairos_sdk::SDK_VERSION,
@@ -369,8 +452,96 @@ fn the_c_header_matches_the_rust_abi() {
         size_of::<abi::KValue>(),
         size_of::<abi::KError>(),
         size_of::<abi::KHost>(),
+        size_of::<abi::KLinkCounters>(),
         size_of::<abi::KComponentVTable>(),
         size_of::<abi::KPackDescriptor>(),
     );
     assert_eq!(printed, expected);
+}
+
+/// Runs `sine → probe` on an engine built from `registry` and returns the first reports the probe
+/// writes, and its last published status.
+fn probe_reports(registry: &kairos_sdk::Registry) -> (Vec<String>, Option<serde_json::Value>) {
+    use kairos_diagram::{ComponentInstance, Connection, Diagram, PackRequirement, PortRef, ReaderPolicy};
+    use kairos_sdk::host::ReaderConfig;
+    use kairos_sdk::{Payload, RealTimeClock, RunSignal};
+
+    let mut sine = ComponentInstance::new("sine", "core.sine");
+    sine.properties
+        .insert("rate".to_owned(), kairos_diagram::Value::F64(200.0));
+    let mut link = Connection::new(
+        PortRef::parse("sine.out").unwrap(),
+        PortRef::parse("probe.in").unwrap(),
+    );
+    link.policy = Some(ReaderPolicy::NeverSkipping);
+    let diagram = Diagram {
+        packs: ["core", "faulty"]
+            .map(|name| PackRequirement {
+                name: name.to_owned(),
+                version: "^0.1".to_owned(),
+            })
+            .to_vec(),
+        components: vec![ComponentInstance::new("probe", "faulty.context_probe"), sine],
+        connections: vec![link],
+        ..Diagram::default()
+    };
+    let mut engine = kairos_runtime::Engine::build(&diagram, registry, RealTimeClock::shared()).unwrap();
+    let mut reader = engine.output_buffer("probe", "out").unwrap().attach(
+        ReaderConfig::new(ReaderPolicy::NeverSkipping, "probe.out -> test"),
+        std::sync::Arc::new(RunSignal::new()),
+    );
+    engine.start().unwrap();
+    let mut reports = Vec::new();
+    while reports.len() < 20 {
+        let sample = reader.read(false).unwrap();
+        let Payload::Text(text) = &sample.payload else {
+            panic!("a report is text");
+        };
+        reports.push(text.to_string());
+    }
+    let status = engine
+        .snapshot()
+        .components
+        .iter()
+        .find(|c| c.id == "probe")
+        .and_then(|c| c.status.clone());
+    engine.stop();
+    (reports, status)
+}
+
+#[test]
+fn a_component_sees_the_same_context_built_in_and_loaded_from_its_library() {
+    let mut built_in = kairos_sdk::Registry::new();
+    kairos_pack_core::register(&mut built_in);
+    kairos_test_pack_faulty::register(&mut built_in);
+
+    let dir = tempfile::tempdir().unwrap();
+    copy_rust_pack("kairos_test_pack_faulty", dir.path());
+    let mut loaded = kairos_sdk::Registry::new();
+    kairos_pack_core::register(&mut loaded);
+    let scan = kairos_runtime::load_packs(&mut loaded, &[dir.path().to_owned()]);
+    assert!(scan.refused.is_empty(), "{:?}", scan.refused);
+    assert!(
+        loaded
+            .packs()
+            .any(|p| p.name == "faulty" && p.origin.ends_with(&library_name("kairos_test_pack_faulty")))
+    );
+
+    let (expected, expected_status) = probe_reports(&built_in);
+    let (reports, status) = probe_reports(&loaded);
+    assert!(
+        expected[0].starts_with("probe reads sine.out: 1 read; diagram of ")
+            && expected[0].ends_with("bytes; clock real time"),
+        "{}",
+        expected[0]
+    );
+    assert!(!expected[0].contains("diagram of 0 bytes"), "{}", expected[0]);
+    assert_eq!(
+        reports, expected,
+        "loaded from its library, the probe says the same"
+    );
+    assert!(
+        expected_status.is_some() && status.is_some(),
+        "both publish a status"
+    );
 }

@@ -36,7 +36,7 @@ fn registries(library: &std::path::Path) -> Result<(Registry, Registry), String>
     kairos_pack_filters::register(&mut built_in);
     let mut loaded = Registry::new();
     kairos_pack_core::register(&mut loaded);
-    kairos_sdk::abi::load_pack(library)
+    kairos_runtime::pack_host::load_pack(library)
         .map_err(|e| e.to_string())?
         .register(&mut loaded);
     Ok((built_in, loaded))

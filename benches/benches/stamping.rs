@@ -13,10 +13,8 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use kairos_benches::{Goal, LatencySeries, Percentiles, Ratios, header, nanos, print_latency, size};
-use kairos_sdk::{
-    Clock, Context, ContextParts, DataType, OutputBuffer, OutputPort, Payload, RealTimeClock, RunSignal,
-    Sample,
-};
+use kairos_sdk::host::{ContextParts, OutputBuffer};
+use kairos_sdk::{Clock, Context, DataType, Payload, RealTimeClock, RunSignal, Sample};
 
 const BATCH: u32 = 1_000;
 
@@ -36,8 +34,9 @@ fn per_call(batches: usize, mut op: impl FnMut(u64)) -> Percentiles {
 }
 
 fn context(clock: Arc<dyn Clock>) -> Context {
-    let output = OutputPort::new("out", Some(DataType::F64), OutputBuffer::new("bench.out", 16), 1);
-    Context::new(ContextParts {
+    let output =
+        kairos_sdk::host::output_port("out", Some(DataType::F64), OutputBuffer::new("bench.out", 16), 1);
+    kairos_sdk::host::context(ContextParts {
         id: "bench".to_owned(),
         inputs: Vec::new(),
         outputs: vec![output],

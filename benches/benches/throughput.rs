@@ -21,7 +21,8 @@ use std::thread;
 use std::time::Instant;
 
 use kairos_benches::{Goal, Ratios, Spread, Table, header, rate, size};
-use kairos_sdk::{OutputBuffer, Payload, ReaderConfig, ReaderPolicy, RunSignal, Sample, Timestamp};
+use kairos_sdk::host::{OutputBuffer, ReaderConfig};
+use kairos_sdk::{Payload, ReaderPolicy, RunSignal, Sample, Timestamp};
 
 const CAPACITY: usize = 1024;
 

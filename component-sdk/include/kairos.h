@@ -27,7 +27,7 @@ extern "C" {
 #endif
 
 #define KAIROS_ABI_MAGIC 0x4B4149524F53504BULL /* "KAIROSPK" */
-#define KAIROS_ABI_VERSION 1u
+#define KAIROS_ABI_VERSION 2u
 #define KAIROS_SDK_VERSION "0.1.0"
 
 /* Status codes returned by host and pack functions. */
@@ -105,6 +105,23 @@ typedef struct kairos_error {
     size_t len;
 } kairos_error;
 
+/* The counters of the link feeding an input (input_counters()). written = read + skipped + overwritten +
+ * queued holds exactly; latencies (time of issue - timestamp) are in nanoseconds. */
+typedef struct kairos_link_counters {
+    uint64_t written;
+    uint64_t read;
+    uint64_t skipped;
+    uint64_t overwritten;
+    uint64_t queued;
+    uint64_t repeated; /* times a Sampling reader was given a sample again */
+    uint64_t latency_count;
+    int64_t latency_min_ns;
+    int64_t latency_mean_ns;
+    int64_t latency_p50_ns;
+    int64_t latency_p99_ns;
+    int64_t latency_max_ns;
+} kairos_link_counters;
+
 /* What the host offers a component. `frame` is the handle passed to the current call. */
 typedef struct kairos_host {
     uint32_t struct_size;
@@ -125,13 +142,23 @@ typedef struct kairos_host {
     int32_t (*property)(void *frame, kairos_str name, kairos_value *out);
     /* level: 0 error, 1 warning, 2 info, 3 debug. */
     void (*log)(void *frame, uint32_t level, kairos_str message);
+    /* The instance as JSON, valid for the instance's life: {"id": "cam", "input_sources": ["a.out", null],
+     * "clock": "real time ...", "diagram": "Diagram(...)"}. Unknown keys may be added; ignore them. */
+    kairos_str (*instance_info)(void *frame);
+    /* KAIROS_NO_DATA when the input is unconnected. */
+    int32_t (*input_counters)(void *frame, uint32_t input, kairos_link_counters *out);
+    /* Publishes the component's status, a JSON document the studio shows (a few times a second at most). */
+    int32_t (*set_status)(void *frame, kairos_str json);
+    /* Sleeps timeout_ns of real time or until woken: KAIROS_OK, KAIROS_STOPPED or KAIROS_INTERRUPTED. */
+    int32_t (*sleep_ns)(void *frame, int64_t timeout_ns);
 } kairos_host;
 
 typedef int32_t (*kairos_lifecycle_fn)(void *instance, void *frame, const kairos_host *host, kairos_error *error);
 typedef int32_t (*kairos_named_fn)(void *instance, void *frame, const kairos_host *host, kairos_str name, kairos_error *error);
 
 /* One component type. descriptor_json is the component's descriptor as `kairos components --json` prints
- * one (type_name, category, doc, mode, inputs, outputs, properties, actions). */
+ * one (type_name, category, doc, mode, inputs, outputs, properties, actions); type_name must start with the
+ * pack's name and a dot. Every function must be given: a table with a NULL one is refused at load. */
 typedef struct kairos_component_vtable {
     kairos_str type_name;
     kairos_str descriptor_json;

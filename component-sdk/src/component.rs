@@ -12,6 +12,7 @@ use crate::buffer::{OutputBuffer, ReadError, Reader, WriteError};
 use crate::payload::Payload;
 use crate::sample::Sample;
 use crate::signal::RunSignal;
+use crate::stats::LinkCounters;
 use crate::time::{Clock, Timestamp};
 
 /// Why a component call ended without doing its work.
@@ -20,6 +21,7 @@ use crate::time::{Clock, Timestamp};
 /// thing (stop, apply a control request, finish, wait for data). [`ComponentError::Failed`] marks the
 /// component failed; the rest of the diagram keeps running.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[non_exhaustive]
 pub enum ComponentError {
     /// The runtime is stopping the component.
     #[error("stopped")]
@@ -129,15 +131,28 @@ impl PortKey for &str {
 #[derive(Debug)]
 pub struct InputPort {
     name: String,
+    /// The output feeding it, as `component.output`.
+    source: Option<String>,
+    /// In the process that runs the component: the reader of the source's buffer.
     reader: Option<Reader>,
 }
 
 impl InputPort {
-    /// An input, connected when `reader` is given.
-    pub fn new(name: impl Into<String>, reader: Option<Reader>) -> Self {
+    /// An input read through `reader`, unconnected without one.
+    pub(crate) fn new(name: impl Into<String>, reader: Option<Reader>) -> Self {
         InputPort {
             name: name.into(),
+            source: reader.as_ref().map(|r| r.output().to_owned()),
             reader,
+        }
+    }
+
+    /// An input of a component in a pack library: the host reads it; this side knows its source.
+    pub(crate) fn remote(name: impl Into<String>, source: Option<String>) -> Self {
+        InputPort {
+            name: name.into(),
+            source,
+            reader: None,
         }
     }
 
@@ -148,13 +163,44 @@ impl InputPort {
 
     /// Whether a connection feeds it.
     pub fn is_connected(&self) -> bool {
-        self.reader.is_some()
+        self.source.is_some()
     }
 
-    /// The reader behind it, if connected.
-    pub fn reader(&self) -> Option<&Reader> {
+    /// The output that feeds it, as `component.output` (what a recorder names its track), if connected.
+    pub fn source(&self) -> Option<&str> {
+        self.source.as_deref()
+    }
+
+    pub(crate) fn reader(&self) -> Option<&Reader> {
         self.reader.as_ref()
     }
+}
+
+/// Whether an input is connected, and whether its stream ended with everything read.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum InputState {
+    Unconnected,
+    Connected,
+    Exhausted,
+}
+
+/// How a context reaches its ports when its component lives in a pack library: the host's half of the
+/// ABI, behind the pack-side shim, so that the context itself never sees the ABI. Each method does what
+/// the [`Context`] method of the same name does for a component in the runtime's own process.
+pub(crate) trait HostPorts: Send + fmt::Debug {
+    fn is_reactive(&self) -> bool;
+    fn read(&self, input: usize, interruptible: bool) -> Result<Sample, ComponentError>;
+    fn try_read(&self, input: usize) -> Option<Sample>;
+    fn wait(&self, interruptible: bool) -> ComponentResult;
+    fn input_state(&self, input: usize) -> InputState;
+    /// `timestamp` `None` stamps the sample now, in the host; the host sets the time of issue.
+    fn write(&self, output: usize, payload: &Payload, timestamp: Option<Timestamp>) -> ComponentResult;
+    fn stop_requested(&self) -> bool;
+    fn set_period(&self, period: Duration);
+    fn input_counters(&self, input: usize) -> Option<LinkCounters>;
+    fn set_status(&self, status: &serde_json::Value);
+    fn wait_until(&self, deadline: Timestamp) -> ComponentResult;
+    fn sleep(&self, timeout: Duration) -> ComponentResult;
 }
 
 /// An output port as a component sees it.
@@ -171,7 +217,7 @@ pub struct OutputPort {
 impl OutputPort {
     /// An output writing into `buffer`, keeping one sample in `subsampling`. Writes are checked against
     /// `data_type`; `None` accepts any type (an output that follows an input).
-    pub fn new(
+    pub(crate) fn new(
         name: impl Into<String>,
         data_type: Option<DataType>,
         buffer: OutputBuffer,
@@ -193,7 +239,7 @@ impl OutputPort {
     }
 
     /// The output's buffer.
-    pub fn buffer(&self) -> &OutputBuffer {
+    pub(crate) fn buffer(&self) -> &OutputBuffer {
         &self.buffer
     }
 }
@@ -228,7 +274,7 @@ pub struct Context {
     samples_read_this_cycle: u32,
     any_rotation: usize,
     /// Set in a component loaded from a shared library: ports live in the host, reached through the ABI.
-    remote: Option<crate::abi::RemoteHost>,
+    remote: Option<Box<dyn HostPorts>>,
     /// The diagram this component runs in, as its file text, when the runtime provides it.
     diagram_text: Option<Arc<str>>,
     /// What the component last said about itself (see [`Context::set_status`]).
@@ -247,7 +293,7 @@ impl StatusCell {
             .map_or_else(|p| p.into_inner().clone(), |s| s.clone())
     }
 
-    fn set(&self, status: serde_json::Value) {
+    pub(crate) fn set(&self, status: serde_json::Value) {
         match self.0.lock() {
             Ok(mut slot) => *slot = Some(status),
             Err(poisoned) => *poisoned.into_inner() = Some(status),
@@ -257,7 +303,7 @@ impl StatusCell {
 
 impl Context {
     /// Builds a context (the runtime and the harness do this).
-    pub fn new(parts: ContextParts) -> Self {
+    pub(crate) fn new(parts: ContextParts) -> Self {
         Context {
             id: parts.id,
             inputs: parts.inputs,
@@ -275,21 +321,16 @@ impl Context {
     }
 
     /// A context whose ports live in the host across the pack ABI (built by the pack-side shim).
-    pub(crate) fn new_remote(parts: ContextParts, remote: crate::abi::RemoteHost) -> Self {
+    pub(crate) fn new_remote(parts: ContextParts, remote: Box<dyn HostPorts>) -> Self {
         let mut ctx = Self::new(parts);
         ctx.remote = Some(remote);
         ctx
     }
 
-    /// The host link of a pack-side context, to refresh its call-scoped pointer.
-    pub(crate) fn remote_mut(&mut self) -> Option<&mut crate::abi::RemoteHost> {
-        self.remote.as_mut()
-    }
-
     fn is_reactive(&self) -> bool {
         self.remote
             .as_ref()
-            .map_or_else(|| self.signal.is_reactive(), crate::abi::RemoteHost::is_reactive)
+            .map_or_else(|| self.signal.is_reactive(), |remote| remote.is_reactive())
     }
 
     /// Takes the next sample of input `index` without blocking.
@@ -309,15 +350,12 @@ impl Context {
     }
 
     fn input_connected(&self, index: usize) -> bool {
-        match &self.remote {
-            Some(remote) => remote.input_state(index) != crate::abi::INPUT_UNCONNECTED,
-            None => self.inputs.get(index).is_some_and(InputPort::is_connected),
-        }
+        self.inputs.get(index).is_some_and(InputPort::is_connected)
     }
 
     fn input_exhausted(&self, index: usize) -> bool {
         match &self.remote {
-            Some(remote) => remote.input_state(index) == crate::abi::INPUT_EXHAUSTED,
+            Some(remote) => remote.input_state(index) == InputState::Exhausted,
             None => self
                 .inputs
                 .get(index)
@@ -330,11 +368,14 @@ impl Context {
     /// recorder's file and size), as JSON; the runtime sends the latest with its telemetry and the studio
     /// shows it. Cheap, but meant for a few updates a second, not one per sample.
     pub fn set_status(&self, status: serde_json::Value) {
-        self.status.set(status);
+        match &self.remote {
+            Some(remote) => remote.set_status(&status),
+            None => self.status.set(status),
+        }
     }
 
     /// The cell the runtime reads the status from.
-    pub fn status_cell(&self) -> StatusCell {
+    pub(crate) fn status_cell(&self) -> StatusCell {
         self.status.clone()
     }
 
@@ -349,7 +390,7 @@ impl Context {
     }
 
     /// Gives the component the text of its diagram (the runtime does this).
-    pub fn set_diagram_text(&mut self, text: Arc<str>) {
+    pub(crate) fn set_diagram_text(&mut self, text: Arc<str>) {
         self.diagram_text = Some(text);
     }
 
@@ -358,13 +399,55 @@ impl Context {
         self.clock.now()
     }
 
+    /// What the runtime clock is, in one line (`real time, epoch …`), for logs and recordings.
+    pub fn clock_description(&self) -> String {
+        self.clock.describe()
+    }
+
+    /// Sleeps until `deadline` on the runtime clock. A stop cuts the sleep short with
+    /// [`ComponentError::Stopped`], a pause, property change or action with
+    /// [`ComponentError::Interrupted`]: return either from `core` with `?`.
+    pub fn wait_until(&self, deadline: Timestamp) -> ComponentResult {
+        if let Some(remote) = &self.remote {
+            return remote.wait_until(deadline);
+        }
+        if self.clock.wait_until(deadline, &self.signal) {
+            return Ok(());
+        }
+        self.attention()?;
+        Err(ComponentError::Interrupted)
+    }
+
+    /// Sleeps for `timeout` of real time (whatever the clock: a paused replay waiting for the user), or
+    /// less when woken; ends with [`ComponentError::Stopped`] or [`ComponentError::Interrupted`] as
+    /// [`Context::wait_until`] does when a stop or a control request is waiting.
+    pub fn sleep(&self, timeout: Duration) -> ComponentResult {
+        if let Some(remote) = &self.remote {
+            return remote.sleep(timeout);
+        }
+        self.attention()?;
+        self.signal.park_timeout(timeout);
+        self.attention()
+    }
+
+    /// `Err` when a stop or a control request waits for the component.
+    fn attention(&self) -> ComponentResult {
+        if self.signal.stop_requested() {
+            Err(ComponentError::Stopped)
+        } else if self.signal.wants_attention() {
+            Err(ComponentError::Interrupted)
+        } else {
+            Ok(())
+        }
+    }
+
     /// The runtime clock.
-    pub fn clock(&self) -> &Arc<dyn Clock> {
+    pub(crate) fn clock(&self) -> &Arc<dyn Clock> {
         &self.clock
     }
 
     /// The component's signal (stop, pause, control, wake-ups).
-    pub fn signal(&self) -> &Arc<RunSignal> {
+    pub(crate) fn signal(&self) -> &Arc<RunSignal> {
         &self.signal
     }
 
@@ -389,7 +472,7 @@ impl Context {
     }
 
     /// Replaces a property's value (the runtime does this before calling `property_changed`).
-    pub fn set_property(&mut self, name: &str, value: Value) -> Option<Value> {
+    pub(crate) fn set_property(&mut self, name: &str, value: Value) -> Option<Value> {
         self.properties.insert(name.to_owned(), value)
     }
 
@@ -456,7 +539,7 @@ impl Context {
     }
 
     /// Marks the start of a `core` call (the runtime does this).
-    pub fn begin_cycle(&mut self) {
+    pub(crate) fn begin_cycle(&mut self) {
         self.samples_read_this_cycle = 0;
     }
 
@@ -475,6 +558,16 @@ impl Context {
     /// Whether the input is connected.
     pub fn is_connected(&self, input: impl PortKey) -> bool {
         self.input_index(input).is_ok_and(|i| self.input_connected(i))
+    }
+
+    /// The counters of the link feeding `input` (written, read, skipped, overwritten, queued, latency),
+    /// `None` when it is unconnected.
+    pub fn input_counters(&self, input: impl PortKey) -> Option<LinkCounters> {
+        let index = self.input_index(input).ok()?;
+        match &self.remote {
+            Some(remote) => remote.input_counters(index),
+            None => self.inputs.get(index)?.reader.as_ref().map(Reader::counters),
+        }
     }
 
     /// Reads one sample from `input` under its reader policy, sleeping until one is there.

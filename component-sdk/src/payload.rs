@@ -16,6 +16,7 @@ use crate::pixels::Pixels;
 /// The plain variants, `Copy` data, come first and the shared ones after: telling them apart is then one
 /// comparison, which output buffers make for every sample.
 #[derive(Clone, PartialEq)]
+#[non_exhaustive]
 pub enum Payload {
     /// One float.
     F64(f64),

@@ -4,7 +4,7 @@
 //! Large buffers live in shared memory (on Linux) and are recycled: a camera that asks for a frame gets
 //! back a buffer of an earlier frame that nothing holds any more, so it neither faults in fresh pages nor
 //! zeroes them, and a studio on the same machine reads the pixels where the camera wrote them
-//! (`kairos_protocol::shared_pixels`). Small buffers, and any buffer where shared memory cannot be had,
+//! (`kairos_shm`). Small buffers, and any buffer where shared memory cannot be had,
 //! are ordinary heap memory; nothing but [`Pixels::shared_reference`] tells them apart.
 
 use std::collections::VecDeque;
@@ -12,7 +12,7 @@ use std::fmt;
 use std::ops::{Deref, DerefMut};
 use std::sync::{Arc, Mutex, PoisonError};
 
-use kairos_protocol::shared_pixels::{PixelsReference, SharedBuffer};
+use kairos_shm::{PixelsReference, SharedBuffer};
 
 /// Buffers from this many bytes on are put in shared memory: below it, a copy costs less than a mapping.
 pub const SHARED_FROM_BYTES: usize = 256 * 1024;
@@ -271,7 +271,7 @@ mod tests {
         if new.id == old.id {
             assert!(new.generation > old.generation);
         }
-        let mut reader = kairos_protocol::shared_pixels::SharedPixelsReader::new();
+        let mut reader = kairos_shm::SharedPixelsReader::new();
         assert!(reader.read(&old).is_err() || new.id != old.id);
         assert_eq!(reader.read(&new).expect("readable"), vec![2; len]);
     }

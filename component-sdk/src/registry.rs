@@ -48,6 +48,20 @@ pub struct DuplicateComponent {
     pub refused_from: String,
 }
 
+/// A component type a pack may not register: its name is not under the pack's own (`faulty` may register
+/// `faulty.probe`, never `core.gain`), so it could take another pack's place.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct RefusedComponent {
+    /// The type name the pack tried to register.
+    pub type_name: String,
+    /// The pack.
+    pub pack: String,
+    /// Where the pack came from (`built-in` or its library's path).
+    pub origin: String,
+    /// Why, and the fix.
+    pub reason: String,
+}
+
 /// Every pack and component the runtime knows.
 #[derive(Debug, Default)]
 pub struct Registry {
@@ -55,6 +69,10 @@ pub struct Registry {
     components: BTreeMap<String, RegisteredComponent>,
     custom_types: BTreeSet<String>,
     duplicates: Vec<DuplicateComponent>,
+    refused: Vec<RefusedComponent>,
+    /// What was refused, kept whole: a pack library exports these too, so that the runtime loading it
+    /// refuses them where it can say so, with the library's path.
+    refused_registrations: Vec<RegisteredComponent>,
 }
 
 impl Registry {
@@ -97,6 +115,16 @@ impl Registry {
     /// Component types offered twice, and which pack won.
     pub fn duplicates(&self) -> &[DuplicateComponent] {
         &self.duplicates
+    }
+
+    /// Component types refused because their name is not under their pack's.
+    pub fn refused(&self) -> &[RefusedComponent] {
+        &self.refused
+    }
+
+    /// Every registration, refused ones included, in the order a pack library exports them.
+    pub(crate) fn exported(&self) -> impl Iterator<Item = &RegisteredComponent> {
+        self.components.values().chain(&self.refused_registrations)
     }
 
     /// The descriptors of the diagram's instances whose ports depend on their properties, by id.
@@ -197,6 +225,35 @@ impl PackRegistrar<'_> {
 
     fn insert(&mut self, mut info: ComponentInfo, factory: Factory, describe: Option<Describe>) -> &mut Self {
         info.pack.clone_from(&self.pack);
+        let under_pack = info
+            .type_name
+            .strip_prefix(self.pack.as_str())
+            .and_then(|rest| rest.strip_prefix('.'))
+            .is_some_and(|rest| !rest.is_empty());
+        if !under_pack {
+            let short_name = info.type_name.rsplit('.').next().unwrap_or_default();
+            let origin = self
+                .registry
+                .packs
+                .get(&self.pack)
+                .map_or_else(String::new, |p| p.origin.clone());
+            self.registry.refused_registrations.push(RegisteredComponent {
+                info: info.clone(),
+                factory,
+                describe,
+            });
+            self.registry.refused.push(RefusedComponent {
+                reason: format!(
+                    "pack '{pack}' may register only types named '{pack}.…': '{}' is refused (name it '{pack}.{short_name}')",
+                    info.type_name,
+                    pack = self.pack
+                ),
+                type_name: info.type_name,
+                pack: self.pack.clone(),
+                origin,
+            });
+            return self;
+        }
         if let Some(existing) = self.registry.components.get(&info.type_name) {
             self.registry.duplicates.push(DuplicateComponent {
                 type_name: info.type_name.clone(),

@@ -10,7 +10,8 @@ use std::sync::Arc;
 use std::thread;
 use std::time::Duration;
 
-use kairos_sdk::{OutputBuffer, Payload, ReaderConfig, ReaderPolicy, RunSignal, Sample, Timestamp};
+use kairos_sdk::host::{OutputBuffer, ReaderConfig};
+use kairos_sdk::{Payload, ReaderPolicy, RunSignal, Sample, Timestamp};
 use proptest::prelude::*;
 
 fn policy() -> impl Strategy<Value = ReaderPolicy> {

@@ -10,9 +10,8 @@ use std::sync::Arc;
 use std::thread;
 use std::time::Duration;
 
-use kairos_sdk::{
-    LinkCounters, OutputBuffer, Payload, ReaderConfig, ReaderPolicy, RunSignal, Sample, Timestamp,
-};
+use kairos_sdk::host::{OutputBuffer, ReaderConfig};
+use kairos_sdk::{LinkCounters, Payload, ReaderPolicy, RunSignal, Sample, Timestamp};
 
 fn sample(sequence: u64) -> Sample {
     Sample {
@@ -29,7 +28,7 @@ fn write_range(buffer: &OutputBuffer, writer: &Arc<RunSignal>, range: std::ops::
     }
 }
 
-fn reader(buffer: &OutputBuffer, policy: ReaderPolicy) -> kairos_sdk::Reader {
+fn reader(buffer: &OutputBuffer, policy: ReaderPolicy) -> kairos_sdk::host::Reader {
     buffer.attach(ReaderConfig::new(policy, "test"), Arc::new(RunSignal::new()))
 }
 
@@ -38,7 +37,7 @@ fn counts(c: LinkCounters) -> [u64; 5] {
     [c.written, c.read, c.skipped, c.overwritten, c.queued]
 }
 
-fn sequences(reader: &mut kairos_sdk::Reader) -> Vec<u64> {
+fn sequences(reader: &mut kairos_sdk::host::Reader) -> Vec<u64> {
     std::iter::from_fn(|| reader.try_read())
         .map(|s| s.sequence)
         .collect()
@@ -152,7 +151,7 @@ fn a_stop_releases_a_writer_blocked_by_never_skipping() {
     thread::sleep(Duration::from_millis(50));
     writer.request_stop();
     let failure = producer.join().unwrap();
-    assert_eq!(failure, Some(Err(kairos_sdk::WriteError::Stopped)));
+    assert_eq!(failure, Some(Err(kairos_sdk::host::WriteError::Stopped)));
     assert_eq!(buffer.written(), 2);
 }
 
@@ -353,7 +352,7 @@ fn closing_ends_the_stream_after_what_is_left() {
     buffer.close();
     assert_eq!(r.read(false).unwrap().sequence, 0);
     assert_eq!(r.read(false).unwrap().sequence, 1);
-    assert_eq!(r.read(false), Err(kairos_sdk::ReadError::EndOfStream));
+    assert_eq!(r.read(false), Err(kairos_sdk::host::ReadError::EndOfStream));
 }
 
 #[test]
@@ -370,7 +369,7 @@ fn a_stop_wakes_a_blocked_reader() {
     };
     thread::sleep(Duration::from_millis(30));
     signal.request_stop();
-    assert_eq!(waiting.join().unwrap(), Err(kairos_sdk::ReadError::Stopped));
+    assert_eq!(waiting.join().unwrap(), Err(kairos_sdk::host::ReadError::Stopped));
 }
 
 #[test]

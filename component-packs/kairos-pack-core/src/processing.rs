@@ -397,15 +397,13 @@ impl Component for Delay {
         let deadline = ctx
             .now()
             .after(Duration::from_secs_f64(ctx.f64_property("delay_ms")? / 1000.0));
-        let clock = std::sync::Arc::clone(ctx.clock());
         // Interrupted early only by a stop: then the sample is dropped with the component.
-        while !clock.wait_until(deadline, ctx.signal()) {
-            if ctx.stop_requested() {
-                return Err(ComponentError::Stopped);
-            }
-            if ctx.signal().wants_attention() {
+        loop {
+            match ctx.wait_until(deadline) {
+                Ok(()) => break,
                 // A pause or control request is applied after this sample; wait without being woken again.
-                std::thread::sleep(Duration::from_millis(1));
+                Err(ComponentError::Interrupted) => std::thread::sleep(Duration::from_millis(1)),
+                Err(other) => return Err(other),
             }
         }
         ctx.forward("out", &sample)

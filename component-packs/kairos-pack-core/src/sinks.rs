@@ -161,6 +161,8 @@ pub fn payload_fields(payload: &Payload) -> Vec<(String, String)> {
             ["type", "size_bytes"],
             [c.type_name.to_string(), c.data.len().to_string()],
         ),
+        // A payload type newer than this pack: its type at least.
+        other => named(["type"], [other.data_type().to_string()]),
     }
 }
 

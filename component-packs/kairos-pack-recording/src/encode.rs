@@ -87,6 +87,8 @@ pub fn schema_for(payload: &Payload) -> SchemaSpec {
             &format!("kairos.Custom.{}", custom.type_name),
             &json!({"type_name": {"type": "string"}, "base64": {"type": "string", "contentEncoding": "base64"}}),
         ),
+        // A payload type newer than this recorder: `encode` refuses its samples, naming the type.
+        other => json_schema(&format!("kairos.{}", other.data_type()), &json!({})),
     }
 }
 
@@ -296,6 +298,12 @@ pub fn encode(
         }
         Payload::Custom(custom) => {
             json!({"type_name": &custom.type_name[..], "base64": base64(&custom.data)})
+        }
+        other => {
+            return Err(format!(
+                "this recorder has no encoding for {} samples: update the recording pack",
+                other.data_type()
+            ));
         }
     };
     serde_json::to_writer(out, &json_value).map_err(|e| e.to_string())

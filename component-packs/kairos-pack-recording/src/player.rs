@@ -425,17 +425,6 @@ impl Player {
         }
     }
 
-    /// Sleeps until `deadline` on the runtime clock; a property change, an action or a stop cuts it short.
-    fn wait_until(ctx: &Context, deadline: Timestamp) -> ComponentResult {
-        if ctx.clock().wait_until(deadline, ctx.signal()) {
-            Ok(())
-        } else if ctx.stop_requested() {
-            Err(ComponentError::Stopped)
-        } else {
-            Err(ComponentError::Interrupted)
-        }
-    }
-
     /// Publishes where the replay stands (for the studio's timeline): at most ten times a second, or at once
     /// with `now`.
     fn publish_status(&mut self, ctx: &Context, now: bool) {
@@ -613,9 +602,7 @@ impl Player {
     fn cycle(&mut self, ctx: &mut Context) -> ComponentResult {
         if self.transport == Transport::Paused {
             // Not a wait on the clock: a manual clock (the offline harness) would jump to the deadline.
-            if !ctx.signal().wants_attention() {
-                ctx.signal().park_timeout(PAUSED_RECHECK);
-            }
+            ctx.sleep(PAUSED_RECHECK)?;
             return Err(ComponentError::NoData);
         }
         let stepping = self.transport == Transport::Stepping;
@@ -657,7 +644,7 @@ impl Player {
                     wall: now,
                 });
             } else {
-                Self::wait_until(ctx, deadline)?;
+                ctx.wait_until(deadline)?;
             }
         }
         let Some(message) = self.sources.get_mut(source).and_then(|s| s.pending.pop_front()) else {

@@ -173,7 +173,7 @@ impl Recorder {
             .map_err(|e| failed(&path, "cannot start", with_causes(&e)))?;
         let about = BTreeMap::from([
             ("recorder".to_owned(), ctx.id().to_owned()),
-            ("clock".to_owned(), ctx.clock().describe()),
+            ("clock".to_owned(), ctx.clock_description()),
             ("opened_at_ns".to_owned(), ctx.now().as_nanos().to_string()),
             (
                 "publish_time".to_owned(),
@@ -221,13 +221,15 @@ impl Recorder {
         self.closed_files += 1;
         let mut drops = BTreeMap::new();
         for index in &self.connected {
-            let Some(reader) = ctx.inputs().get(*index).and_then(kairos_sdk::InputPort::reader) else {
+            let (Some(source), Some(counters)) = (
+                ctx.inputs().get(*index).and_then(kairos_sdk::InputPort::source),
+                ctx.input_counters(*index),
+            ) else {
                 continue;
             };
-            let counters = reader.counters();
             let name = INPUT_NAMES.get(*index).copied().unwrap_or("in");
             drops.insert(
-                format!("{name} {}", reader.output()),
+                format!("{name} {source}"),
                 format!(
                     "written={} recorded={} overwritten={} skipped={} queued={}",
                     counters.written, counters.read, counters.overwritten, counters.skipped, counters.queued
@@ -279,10 +281,10 @@ impl Recorder {
                 file.schemas.insert(spec.name.clone(), id);
                 id
             };
-            let reader = ctx.inputs().get(input).and_then(kairos_sdk::InputPort::reader);
-            let topic = reader.map_or_else(
+            let source = ctx.inputs().get(input).and_then(kairos_sdk::InputPort::source);
+            let topic = source.map_or_else(
                 || INPUT_NAMES.get(input).copied().unwrap_or("in").to_owned(),
-                |r| r.output().to_owned(),
+                str::to_owned,
             );
             let metadata = BTreeMap::from([
                 (
@@ -301,8 +303,8 @@ impl Recorder {
         let frame_id = ctx
             .inputs()
             .get(input)
-            .and_then(kairos_sdk::InputPort::reader)
-            .map_or("", |r| r.output());
+            .and_then(kairos_sdk::InputPort::source)
+            .unwrap_or("");
         encode(&sample.payload, sample.timestamp, frame_id, &mut self.scratch)
             .map_err(|e| failed(&path, "cannot encode a sample for", e))?;
         let header = MessageHeader {

@@ -19,7 +19,10 @@
 
 pub mod frame;
 mod messages;
-pub mod shared_pixels;
+
+/// Pixel buffers in shared memory (the `kairos-shm` crate, which the runtime side shares without linking the
+/// protocol): frames name them instead of carrying the pixels.
+pub use kairos_shm as shared_pixels;
 
 pub use messages::{
     ComponentTelemetry, DeployResult, Described, DiagramReply, ErrorCode, LatencyTelemetry, LinkTelemetry,

@@ -8,10 +8,8 @@ use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
 use kairos_diagram::{ComponentInfo, Diagram, ExecutionMode, ThreadSettings, Value};
-use kairos_sdk::{
-    Clock, Component, ComponentError, Context, ContextParts, InputPort, OutputBuffer, OutputPort,
-    ReaderConfig, Registry, RunSignal,
-};
+use kairos_sdk::host::{ContextHost as _, ContextParts, OutputBuffer, ReaderConfig};
+use kairos_sdk::{Clock, Component, ComponentError, ComponentResult, Context, Registry, RunSignal};
 
 use crate::scheduling;
 use crate::stats::{ComponentState, ComponentStats, LinkStats, StatsSnapshot};
@@ -108,7 +106,7 @@ struct Monitor {
     cycles: AtomicU64,
     busy_nanos: AtomicU64,
     controls: Mutex<VecDeque<ControlRequest>>,
-    status: kairos_sdk::StatusCell,
+    status: kairos_sdk::host::StatusCell,
 }
 
 fn lock<T>(mutex: &Mutex<T>) -> MutexGuard<'_, T> {
@@ -119,7 +117,7 @@ fn lock<T>(mutex: &Mutex<T>) -> MutexGuard<'_, T> {
 }
 
 impl Monitor {
-    fn new(status: kairos_sdk::StatusCell) -> Self {
+    fn new(status: kairos_sdk::host::StatusCell) -> Self {
         Monitor {
             state: Mutex::new(ComponentState::Idle),
             cycles: AtomicU64::new(0),
@@ -151,6 +149,38 @@ impl Monitor {
             );
             *current = ComponentState::Failed(format!("{stage}: {message}"));
         }
+    }
+}
+
+/// Makes a component with its type's factory. A constructor that panics fails that component alone: it
+/// is replaced by one whose `birth` reports the panic, so the diagram still builds and the rest runs.
+fn construct(id: &str, factory: &kairos_sdk::Factory) -> Box<dyn Component> {
+    match std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| factory())) {
+        Ok(component) => component,
+        Err(panic) => {
+            let message = format!(
+                "its constructor panicked: {}",
+                kairos_sdk::panic_message(panic.as_ref())
+            );
+            tracing::debug!(component = %id, "{message}");
+            Box::new(FailedConstruction { message })
+        }
+    }
+}
+
+/// Stands in for a component whose constructor panicked, and fails at birth with the panic's message.
+#[derive(Debug)]
+struct FailedConstruction {
+    message: String,
+}
+
+impl Component for FailedConstruction {
+    fn birth(&mut self, _ctx: &mut Context) -> ComponentResult {
+        Err(ComponentError::Failed(self.message.clone()))
+    }
+
+    fn core(&mut self, _ctx: &mut Context) -> ComponentResult {
+        Err(ComponentError::Failed(self.message.clone()))
     }
 }
 
@@ -262,8 +292,8 @@ struct Pending {
     component: Box<dyn Component>,
     signal: Arc<RunSignal>,
     reactive: Option<Arc<OnceLock<Weak<ReactiveCell>>>>,
-    inputs: Vec<InputPort>,
-    outputs: Vec<OutputPort>,
+    inputs: Vec<kairos_sdk::InputPort>,
+    outputs: Vec<kairos_sdk::OutputPort>,
     properties: BTreeMap<String, Value>,
     thread: ThreadSettings,
 }
@@ -349,7 +379,7 @@ impl Engine {
                 buffers.insert((instance.id.clone(), output.name.clone()), buffer.clone());
                 let subsampling = settings.and_then(|s| s.subsampling).unwrap_or(1);
                 let data_type = output.follows_input.is_none().then(|| output.data_type.clone());
-                outputs.push(OutputPort::new(
+                outputs.push(kairos_sdk::host::output_port(
                     output.name.clone(),
                     data_type,
                     buffer,
@@ -359,7 +389,7 @@ impl Engine {
             pending.push(Pending {
                 id: instance.id.clone(),
                 properties: kairos_diagram::resolved_properties(instance, &info),
-                component: (registered.factory)(),
+                component: construct(&instance.id, &registered.factory),
                 info,
                 signal,
                 reactive,
@@ -370,7 +400,7 @@ impl Engine {
         }
 
         let mut policies = BTreeMap::new();
-        let mut readers: BTreeMap<(String, String), kairos_sdk::Reader> = BTreeMap::new();
+        let mut readers: BTreeMap<(String, String), kairos_sdk::host::Reader> = BTreeMap::new();
         for connection in &diagram.connections {
             let key = (connection.from.component.clone(), connection.from.port.clone());
             let Some(buffer) = buffers.get(&key) else { continue };
@@ -403,7 +433,7 @@ impl Engine {
                 .inputs
                 .iter()
                 .map(|input| {
-                    InputPort::new(
+                    kairos_sdk::host::input_port(
                         input.name.clone(),
                         readers.remove(&(component.id.clone(), input.name.clone())),
                     )
@@ -414,7 +444,7 @@ impl Engine {
         let diagram_text: Arc<str> = Arc::from(diagram.to_ron());
         let mut slots = Vec::new();
         for component in pending {
-            let mut ctx = Context::new(ContextParts {
+            let mut ctx = kairos_sdk::host::context(ContextParts {
                 id: component.id.clone(),
                 inputs: component.inputs,
                 outputs: component.outputs,
@@ -885,8 +915,9 @@ impl Worker {
                 Err(ComponentError::Stopped) => outcome = Some(ComponentState::Stopped),
                 Err(ComponentError::EndOfStream) => outcome = Some(ComponentState::Finished),
                 Err(ComponentError::Interrupted | ComponentError::NoData) => {}
-                Err(ComponentError::Failed(message)) => {
-                    self.monitor.fail(&self.id, "core", &message);
+                // A failure, or a kind of error newer than this engine: failed, with what it says.
+                Err(failure) => {
+                    self.monitor.fail(&self.id, "core", &failure.to_string());
                     outcome = Some(self.monitor.state());
                 }
             }
@@ -911,8 +942,8 @@ impl Worker {
         }
         if matches!(outcome, Some(ComponentState::Finished)) {
             // Its streams ended: readers drain what is left, then finish in turn.
-            for output in ctx.outputs() {
-                output.buffer().close();
+            for buffer in ctx.output_buffers() {
+                buffer.close();
             }
         }
         self.monitor.busy_nanos.store(

@@ -3,6 +3,7 @@
 //! per-link and per-component statistics.
 
 pub mod engine;
+pub mod pack_host;
 pub mod packs;
 pub mod scheduling;
 pub mod stats;

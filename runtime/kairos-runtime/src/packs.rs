@@ -2,8 +2,8 @@
 
 use std::path::{Path, PathBuf};
 
+use crate::pack_host::{LoadedPack, load_pack};
 use kairos_sdk::Registry;
-use kairos_sdk::abi::{LoadedPack, load_pack};
 
 /// A library on the pack path that was not loaded, and why.
 #[derive(Debug, Clone, serde::Serialize)]

@@ -31,11 +31,29 @@ impl Component for PanicsOnThird {
     }
 }
 
+/// Panics when made.
+struct PanicsWhenMade;
+
+impl Default for PanicsWhenMade {
+    fn default() -> Self {
+        panic!("no instance today");
+    }
+}
+
+impl Component for PanicsWhenMade {
+    fn core(&mut self, _ctx: &mut Context) -> ComponentResult {
+        Ok(())
+    }
+}
+
 fn registry() -> Registry {
     let mut registry = Registry::new();
     kairos_pack_core::register(&mut registry);
     registry
         .pack("faulty", "1.0.0", "test")
+        .component::<PanicsWhenMade>(
+            Descriptor::new("faulty.panics_when_made", "test", "Panics when made").build(),
+        )
         .component::<PanicsOnThird>(
             Descriptor::new("faulty.panics_on_third", "test", "Panics on its third sample")
                 .input("in", TypeFilter::Any, "")
@@ -87,6 +105,32 @@ fn written(snapshot: &StatsSnapshot, link: &str) -> u64 {
         .unwrap()
         .counters
         .written
+}
+
+#[test]
+fn a_panicking_constructor_fails_its_component_alone() {
+    let d = diagram(
+        vec![
+            component("unmade", "faulty.panics_when_made", &[]),
+            component("source", "core.sine", &[("rate", Value::F64(200.0))]),
+            component("gain", "core.gain", &[]),
+        ],
+        vec![connect("source.out", "gain.in")],
+    );
+    let mut engine = Engine::build(&d, &registry(), RealTimeClock::shared()).unwrap();
+    engine.start().unwrap();
+    sleep(Duration::from_millis(200));
+    let snapshot = engine.snapshot();
+    match state_of(&snapshot, "unmade") {
+        ComponentState::Failed(message) => assert!(
+            message.contains("its constructor panicked: no instance today"),
+            "{message}"
+        ),
+        other => panic!("expected failed, got {other:?}"),
+    }
+    assert_eq!(state_of(&snapshot, "gain"), ComponentState::Running);
+    assert!(written(&snapshot, "source.out -> gain.in") > 10);
+    engine.stop();
 }
 
 #[test]
@@ -150,7 +194,7 @@ fn live_property_changes_apply_and_bad_values_keep_the_old_one() {
     );
     let mut engine = Engine::build(&d, &registry(), RealTimeClock::shared()).unwrap();
     let mut tap = engine.output_buffer("gain", "out").unwrap().attach(
-        kairos_sdk::ReaderConfig::new(kairos_diagram::ReaderPolicy::Sampling, "tap"),
+        kairos_sdk::host::ReaderConfig::new(kairos_diagram::ReaderPolicy::Sampling, "tap"),
         Arc::new(kairos_sdk::RunSignal::new()),
     );
     engine.start().unwrap();
@@ -196,7 +240,7 @@ fn actions_reach_the_component() {
     );
     let d = diagram(vec![counter], vec![]);
     let mut engine = Engine::build(&d, &registry(), RealTimeClock::shared()).unwrap();
-    let mut tap_config = kairos_sdk::ReaderConfig::new(kairos_diagram::ReaderPolicy::Fifo, "tap");
+    let mut tap_config = kairos_sdk::host::ReaderConfig::new(kairos_diagram::ReaderPolicy::Fifo, "tap");
     tap_config.capacity = Some(4096);
     let mut tap = engine
         .output_buffer("counter", "out")
@@ -337,7 +381,7 @@ fn reactive_components_run_in_their_producer_and_output_subsampling_applies() {
         ],
     );
     let mut engine = Engine::build(&d, &registry, RealTimeClock::shared()).unwrap();
-    let mut tap_config = kairos_sdk::ReaderConfig::new(kairos_diagram::ReaderPolicy::Fifo, "tap");
+    let mut tap_config = kairos_sdk::host::ReaderConfig::new(kairos_diagram::ReaderPolicy::Fifo, "tap");
     tap_config.capacity = Some(4096);
     let mut tap = engine
         .output_buffer("double", "out")

@@ -34,8 +34,19 @@ pub fn list(registry: &Registry, scan: &PackScan, json: bool) -> anyhow::Result<
             .iter()
             .map(|d| serde_json::json!({"type_name": d.type_name, "kept_from": d.kept_from, "refused_from": d.refused_from}))
             .collect();
+        let mut refused: Vec<_> = scan
+            .refused
+            .iter()
+            .map(|r| serde_json::json!({"path": r.path, "reason": r.reason}))
+            .collect();
+        refused.extend(
+            registry
+                .refused()
+                .iter()
+                .map(|r| serde_json::json!({"path": r.origin, "type_name": r.type_name, "reason": r.reason})),
+        );
         let document = serde_json::json!({
-            "searched": scan.searched, "packs": packs, "refused": scan.refused, "duplicates": duplicates,
+            "searched": scan.searched, "packs": packs, "refused": refused, "duplicates": duplicates,
         });
         println!(
             "{}",
@@ -62,6 +73,9 @@ pub fn list(registry: &Registry, scan: &PackScan, json: bool) -> anyhow::Result<
     );
     for refused in &scan.refused {
         let _ = writeln!(out, "refused: {}: {}", refused.path.display(), refused.reason);
+    }
+    for refused in registry.refused() {
+        let _ = writeln!(out, "refused: {}: {}", refused.origin, refused.reason);
     }
     for duplicate in registry.duplicates() {
         let _ = writeln!(

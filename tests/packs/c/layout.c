@@ -11,6 +11,7 @@ int main(void) {
     printf("value %zu\n", sizeof(kairos_value));
     printf("error %zu\n", sizeof(kairos_error));
     printf("host %zu\n", sizeof(kairos_host));
+    printf("counters %zu\n", sizeof(kairos_link_counters));
     printf("vtable %zu\n", sizeof(kairos_component_vtable));
     printf("descriptor %zu\n", sizeof(kairos_pack_descriptor));
     return 0;

@@ -12,7 +12,8 @@ use kairos_protocol::{
     RuntimeState, Telemetry,
 };
 use kairos_runtime::{ComponentState, ControlError, Engine, EngineState, StatsSnapshot};
-use kairos_sdk::{OutputBuffer, RealTimeClock, Registry};
+use kairos_sdk::host::OutputBuffer;
+use kairos_sdk::{RealTimeClock, Registry};
 
 /// The deployed diagram, its text as deployed, and the engine built from it.
 #[derive(Default)]

@@ -4,9 +4,8 @@ use std::borrow::Cow;
 use std::sync::Arc;
 
 use kairos_protocol::frame::{self, ImageLayout, SampleHeader};
-use kairos_sdk::{
-    FixStatus, Image, Payload, PixelFormat, Reader, ReaderConfig, ReaderPolicy, RunSignal, Sample,
-};
+use kairos_sdk::host::{Reader, ReaderConfig};
+use kairos_sdk::{FixStatus, Image, Payload, PixelFormat, ReaderPolicy, RunSignal, Sample};
 use serde_json::json;
 
 use super::runtime::Runtime;
@@ -125,7 +124,8 @@ fn value_of(payload: &Payload) -> Option<serde_json::Value> {
             let q = pose.orientation;
             json!({"position": xyz!(pose.position), "orientation": [q.x, q.y, q.z, q.w]})
         }
-        Payload::Image(_) | Payload::PointCloud(_) | Payload::Bytes(_) | Payload::Custom(_) => return None,
+        // Large payloads travel as bytes; a type newer than this server has its data type in the header.
+        _ => return None,
     })
 }
 

@@ -1,8 +1,12 @@
-//! A pack that misbehaves on purpose: a constructor that panics, a component that panics on its third
-//! sample, and a component type that another pack already offers.
+//! A pack for the loader's tests, built both into a test runtime and as a library: components that
+//! misbehave on purpose (a constructor that panics, a component that panics on its third sample, a type
+//! registered under another pack's name) and one that reports what its context tells it, so the same
+//! component can be compared built in and loaded.
+
+use std::sync::Arc;
 
 use kairos_sdk::descriptor::Descriptor;
-use kairos_sdk::{Component, ComponentResult, Context, DataType, Registry, TypeFilter};
+use kairos_sdk::{Component, ComponentResult, Context, DataType, Payload, Registry, TypeFilter};
 
 /// Panics when constructed.
 #[derive(Debug)]
@@ -45,6 +49,29 @@ impl Component for FakeGain {
     }
 }
 
+/// For every sample it reads, writes what its context says: its id, its input's source and link
+/// counters, whether it knows its diagram and the clock; and publishes a count as its status.
+#[derive(Debug, Default)]
+pub struct ContextProbe;
+
+impl Component for ContextProbe {
+    fn core(&mut self, ctx: &mut Context) -> ComponentResult {
+        let sample = ctx.read("in")?;
+        let source = ctx.inputs().first().and_then(|i| i.source()).unwrap_or("nothing");
+        let read = ctx.input_counters("in").map_or(0, |c| c.read);
+        let diagram = ctx.diagram_text().map_or(0, |text| text.len());
+        let clock = ctx.clock_description();
+        let report = format!(
+            "{} reads {source}: {read} read; diagram of {diagram} bytes; clock {}",
+            ctx.id(),
+            clock.split(" (").next().unwrap_or_default(),
+        );
+        tracing::info!("{report}");
+        ctx.set_status(serde_json::json!({ "read": read }));
+        ctx.write_processed("out", &sample, Payload::Text(Arc::from(report)))
+    }
+}
+
 /// Registers the pack "faulty".
 pub fn register(registry: &mut Registry) {
     registry
@@ -57,6 +84,16 @@ pub fn register(registry: &mut Registry) {
                 .input("in", TypeFilter::Any, "Any stream")
                 .output("out", DataType::F64, "The input, until it panics")
                 .build(),
+        )
+        .component::<ContextProbe>(
+            Descriptor::new(
+                "faulty.context_probe",
+                "test",
+                "Writes what its context says of it for every sample it reads",
+            )
+            .input("in", TypeFilter::Any, "Any stream")
+            .output("out", DataType::Text, "One report per sample read")
+            .build(),
         )
         .component::<FakeGain>(
             Descriptor::new(
