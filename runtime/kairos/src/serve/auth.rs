@@ -18,7 +18,12 @@ pub struct Access {
 /// exist. Returns the token and whether it was created.
 pub fn load_or_create_token(path: &Path) -> anyhow::Result<(Token, bool)> {
     let shown = path.display();
-    if path.exists() {
+    // `exists` would read "cannot tell" (a folder that may not be searched) as "missing", and a fresh
+    // token would be written, or fail to be, in place of one that may well be there.
+    let exists = path
+        .try_exists()
+        .with_context(|| format!("cannot reach the token file {shown}"))?;
+    if exists {
         let mut text = String::new();
         std::fs::File::open(path)
             .and_then(|mut f| f.read_to_string(&mut text))
