@@ -437,6 +437,85 @@ fn serve_refuses_a_network_address_without_a_token_and_says_how_to_make_one() {
 }
 
 #[test]
+fn an_unreadable_token_file_is_named_with_its_cause_and_nothing_listens() {
+    let dir = tempfile::tempdir().unwrap();
+    let folder = dir.path().join("a folder");
+    std::fs::create_dir(&folder).unwrap();
+    let garbled = dir.path().join("garbled");
+    std::fs::write(&garbled, b"\xff\xfe not text\n").unwrap();
+    let under_a_file = garbled.join("token");
+    for (option, path, what, cause) in [
+        ("--token-file", &folder, "cannot read", "Is a directory"),
+        (
+            "--monitor-token-file",
+            &garbled,
+            "cannot read",
+            "did not contain valid UTF-8",
+        ),
+        // Whether it exists cannot be told: it is not taken for missing (to be made afresh).
+        ("--token-file", &under_a_file, "cannot reach", "Not a directory"),
+    ] {
+        let output = Command::new(env!("CARGO_BIN_EXE_kairos"))
+            .args(["serve", "--listen", "127.0.0.1:0", option])
+            .arg(path)
+            .current_dir(dir.path())
+            .output()
+            .unwrap();
+        let (stdout, stderr) = text(&output);
+        assert_eq!(
+            output.status.code(),
+            Some(1),
+            "{option} {}: {stderr}",
+            path.display()
+        );
+        assert!(!stdout.contains("listening"), "{stdout}");
+        assert!(
+            stderr.contains(&format!("{what} the token file {}", path.display())) && stderr.contains(cause),
+            "{option} {}: {stderr}",
+            path.display()
+        );
+    }
+}
+
+#[test]
+fn every_thread_of_a_busy_server_is_named() {
+    let dir = tempfile::tempdir().unwrap();
+    let server = serve(dir.path(), &[]);
+    let mut admin = operator(&server);
+    let hello_text = std::fs::read_to_string(example("hello")).unwrap();
+    deploy_and_start(&mut admin, &hello_text);
+    for request in [
+        json!({"id": 20, "type": "subscribe_telemetry", "interval_ms": 20}),
+        json!({"id": 21, "type": "subscribe_log", "level": "trace"}),
+        json!({"id": 22, "type": "subscribe_samples", "outputs": ["sine1.out"], "max_rate_hz": 50}),
+        json!({"id": 23, "type": "subscribe_samples", "outputs": ["gain1.out"], "transport": "shared_memory"}),
+        json!({"id": 24, "type": "stop"}),
+        json!({"id": 25, "type": "start"}),
+        json!({"id": 26, "type": "status"}),
+    ] {
+        let reply = call(&mut admin, &request);
+        // Shared memory may be missing here; the other threads are still there to check.
+        assert!(reply["ok"] == true || request["id"] == 23, "{request}: {reply}");
+    }
+    std::thread::sleep(Duration::from_millis(300));
+    // A thread without a name of its own carries the program's: only the main thread may.
+    let tasks = Path::new("/proc")
+        .join(server.child.id().to_string())
+        .join("task");
+    let names: Vec<String> = std::fs::read_dir(tasks)
+        .unwrap()
+        .map(|task| {
+            std::fs::read_to_string(task.unwrap().path().join("comm"))
+                .unwrap()
+                .trim()
+                .to_owned()
+        })
+        .collect();
+    assert!(names.iter().any(|n| n == "k:net"), "{names:?}");
+    assert_eq!(names.iter().filter(|n| *n == "kairos").count(), 1, "{names:?}");
+}
+
+#[test]
 fn the_python_example_client_drives_a_real_server() {
     let dir = tempfile::tempdir().unwrap();
     let server = serve(dir.path(), &[]);

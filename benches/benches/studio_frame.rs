@@ -106,7 +106,7 @@ fn telemetry(diagram: &Diagram, tick: u64) -> kairos_protocol::Telemetry {
             .map(|c| kairos_protocol::ComponentTelemetry {
                 id: c.id.clone(),
                 type_name: c.type_name.clone(),
-                state: "running".to_owned(),
+                state: kairos_protocol::ComponentState::Running,
                 error: None,
                 cycles: tick * 10,
                 cycle_rate_hz: 100.0,

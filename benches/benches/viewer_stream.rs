@@ -71,14 +71,14 @@ fn this_thread_cpu_nanos() -> f64 {
         .map_or(0.0, |t| t.tv_sec() as f64 * 1e9 + t.tv_nsec() as f64)
 }
 
-fn wait_for_reply(client: &RuntimeClient, id: u64) -> Option<kairos_protocol::Reply> {
+fn wait_for_reply(client: &RuntimeClient, id: u64) -> Option<kairos_protocol::ReplyBody> {
     let started = Instant::now();
     while started.elapsed() < Duration::from_secs(20) {
         for event in client.poll() {
-            if let ClientEvent::Reply(reply) = event
-                && reply.id == Some(id)
+            if let ClientEvent::Reply(answer) = event
+                && answer.id == Some(id)
             {
-                return reply.ok.then_some(reply);
+                return answer.outcome.ok();
             }
         }
         std::thread::sleep(Duration::from_millis(5));
@@ -129,10 +129,11 @@ fn measure(
         transport,
         shared_pixels: path == Path::SharedInPlace,
     });
-    let reply = wait_for_reply(&client, subscribe)?;
+    let kairos_protocol::ReplyBody::SubscribeSamples(subscribed) = wait_for_reply(&client, subscribe)? else {
+        return None;
+    };
     if transport == SampleTransport::SharedMemory {
-        let services = serde_json::from_value(reply.result?.get("services")?.clone()).ok()?;
-        client.receive_shared(services).ok()?;
+        client.receive_shared(subscribed.services?).ok()?;
     }
     let mut viewers = Viewers::default();
     viewers.open(output.to_owned(), data_type);

@@ -334,7 +334,7 @@ impl<'s> LineIndex<'s> {
 }
 
 /// The candidate closest to `target`, when one is close enough to be a plausible typo.
-pub(crate) fn closest<'c>(target: &str, candidates: impl IntoIterator<Item = &'c str>) -> Option<&'c str> {
+pub fn closest<'c>(target: &str, candidates: impl IntoIterator<Item = &'c str>) -> Option<&'c str> {
     let target_len = target.chars().count();
     candidates
         .into_iter()
@@ -354,10 +354,7 @@ pub(crate) fn closest<'c>(target: &str, candidates: impl IntoIterator<Item = &'c
 }
 
 /// `did you mean 'x'?` when a candidate is close to `target`.
-pub(crate) fn did_you_mean<'c>(
-    target: &str,
-    candidates: impl IntoIterator<Item = &'c str>,
-) -> Option<String> {
+pub fn did_you_mean<'c>(target: &str, candidates: impl IntoIterator<Item = &'c str>) -> Option<String> {
     closest(target, candidates).map(|c| format!("did you mean '{c}'?"))
 }
 

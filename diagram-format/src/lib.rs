@@ -25,7 +25,9 @@ mod ron_syntax;
 pub mod validate;
 pub mod write;
 
-pub use diagnostic::{Diagnostic, DiagnosticCode, Location, Note, Severity, render_all};
+pub use diagnostic::{
+    Diagnostic, DiagnosticCode, Location, Note, Severity, closest, did_you_mean, render_all,
+};
 pub use library::{
     ActionInfo, ComponentInfo, DataType, DescribeError, ExecutionMode, InputInfo, InstanceInfos, LibraryInfo,
     OutputInfo, PackInfo, PropertyInfo, PropertyKind, ReaderPolicy, TypeFilter, Value, ValueError,

@@ -6,11 +6,11 @@ use std::path::PathBuf;
 
 use egui::{Color32, RichText};
 use kairos_diagram::{ComponentInstance, LibraryInfo, PropertyKind, ReaderPolicy, Value};
-use kairos_protocol::{LogLevel, RequestBody, RuntimeState};
+use kairos_protocol::{ComponentState, LogLevel, ProtocolError, ReplyBody, RequestBody, RuntimeState, Token};
 
 use crate::canvas::{Canvas, NewComponent, NewViewer, NodeState, auto_layout};
 use crate::chooser::{self, Choice, FileChooser, Purpose};
-use crate::client::{ClientEvent, RuntimeClient};
+use crate::client::{Answer, ClientEvent, RuntimeClient};
 use crate::document::Document;
 use crate::monitor::Monitor;
 use crate::transport::Transport;
@@ -92,7 +92,7 @@ pub struct StudioApp {
     /// The connect dialog's address and token file, while it is open.
     connect_prompt: Option<(String, String)>,
     /// The local runtime's address and token, to go back to it.
-    local_address: Option<(String, String)>,
+    local_address: Option<(String, Token)>,
     /// Where recent files and the last remote runtime are remembered.
     config_dir: Option<PathBuf>,
     /// The file chooser, while it is open.
@@ -295,7 +295,7 @@ impl StudioApp {
                         Pending::Other,
                     );
                 }
-                ClientEvent::Reply(reply) => self.take_reply(reply),
+                ClientEvent::Reply(answer) => self.take_reply(answer),
                 ClientEvent::Telemetry(telemetry) => self.take_telemetry(&telemetry),
                 ClientEvent::Log(record) => {
                     let color = match record.level {
@@ -324,66 +324,70 @@ impl StudioApp {
     }
 
     /// The answer to one of our requests.
-    fn take_reply(&mut self, reply: kairos_protocol::Reply) {
-        let what = reply.id.and_then(|id| self.pending.remove(&id));
-        if let Some(error) = reply.error {
-            if what == Some(Pending::Deploy) && !error.diagnostics.is_empty() {
-                let by_component =
-                    crate::document::diagnostics_by_component(&self.deployed_text, &error.diagnostics);
-                for (id, problems) in by_component {
-                    self.states.insert(id, NodeState::Invalid(problems.join("\n")));
-                }
-                self.canvas.port_problems =
-                    crate::document::diagnostics_by_port(&self.deployed_text, &error.diagnostics)
-                        .into_iter()
-                        .map(|(port, problems)| (port, problems.join("\n")))
-                        .collect();
+    fn take_reply(&mut self, answer: Answer) {
+        let what = answer.id.and_then(|id| self.pending.remove(&id));
+        match answer.outcome {
+            Ok(result) => self.take_result(what, result),
+            Err(error) => self.take_error(what, error),
+        }
+    }
+
+    /// A request of ours that failed.
+    fn take_error(&mut self, what: Option<Pending>, error: ProtocolError) {
+        if what == Some(Pending::Deploy) && !error.diagnostics.is_empty() {
+            let by_component =
+                crate::document::diagnostics_by_component(&self.deployed_text, &error.diagnostics);
+            for (id, problems) in by_component {
+                self.states.insert(id, NodeState::Invalid(problems.join("\n")));
             }
-            if what == Some(Pending::Samples) && self.shared_memory {
-                self.note(
-                    WARN_COLOR,
-                    format!("{}; viewers use the socket instead", error.message),
-                );
-                self.shared_memory = false;
-                self.subscribe_viewers();
-                return;
-            }
-            if what == Some(Pending::Describe) {
-                // A diagram the runtime cannot parse yet: the editor keeps the type's ports.
-                self.described.1 = false;
-                self.start_up();
-                return;
-            }
-            self.note(Color32::LIGHT_RED, error.message);
-            self.start_after_deploy = false;
+            self.canvas.port_problems =
+                crate::document::diagnostics_by_port(&self.deployed_text, &error.diagnostics)
+                    .into_iter()
+                    .map(|(port, problems)| (port, problems.join("\n")))
+                    .collect();
+        }
+        if what == Some(Pending::Samples) && self.shared_memory {
+            self.note(
+                WARN_COLOR,
+                format!("{}; viewers use the socket instead", error.message),
+            );
+            self.shared_memory = false;
+            self.subscribe_viewers();
             return;
         }
-        match what {
-            Some(Pending::Library) => {
-                if let Some(library) = reply.result.and_then(|r| serde_json::from_value(r).ok()) {
-                    self.library = library;
-                }
+        if what == Some(Pending::Describe) {
+            // A diagram the runtime cannot parse yet: the editor keeps the type's ports.
+            self.described.1 = false;
+            self.start_up();
+            return;
+        }
+        self.note(Color32::LIGHT_RED, error.message);
+        self.start_after_deploy = false;
+    }
+
+    /// The result of a request of ours, of that request's type.
+    fn take_result(&mut self, what: Option<Pending>, result: ReplyBody) {
+        match (what, result) {
+            (Some(Pending::Library), ReplyBody::Library(library)) => {
+                self.library = library;
                 self.described = (Vec::new(), false);
                 self.describe_instances();
                 if !self.described.1 {
                     self.start_up();
                 }
             }
-            Some(Pending::Samples) => self.samples_subscribed(reply.result.as_ref()),
-            Some(Pending::Describe) => {
+            (Some(Pending::Samples), ReplyBody::SubscribeSamples(subscribed)) => {
+                self.samples_subscribed(subscribed.services);
+            }
+            (Some(Pending::Describe), ReplyBody::DescribeInstances(described)) => {
                 self.described.1 = false;
-                if let Some(described) = reply
-                    .result
-                    .and_then(|r| serde_json::from_value::<kairos_protocol::Described>(r).ok())
-                {
-                    self.library.instances = described.instances;
-                    for (id, problem) in described.problems {
-                        self.note(Color32::LIGHT_RED, format!("{id}: {}", problem.message));
-                    }
+                self.library.instances = described.instances;
+                for (id, problem) in described.problems {
+                    self.note(Color32::LIGHT_RED, format!("{id}: {}", problem.message));
                 }
                 self.start_up();
             }
-            Some(Pending::Deploy) => {
+            (Some(Pending::Deploy), ReplyBody::Deploy(_)) => {
                 self.states.clear();
                 self.monitor.clear();
                 self.run_state = RuntimeState::Ready;
@@ -394,7 +398,7 @@ impl StudioApp {
                     self.request(RequestBody::Start, Pending::Other);
                 }
             }
-            Some(Pending::Other) | None => {}
+            _ => {}
         }
     }
 
@@ -413,11 +417,11 @@ impl StudioApp {
             .iter()
             .cloned()
             .map(|c| {
-                let state = match (c.state.as_str(), c.error) {
-                    ("running", _) => NodeState::Running,
-                    ("finished", _) => NodeState::Finished,
+                let state = match (c.state, c.error) {
+                    (ComponentState::Running, _) => NodeState::Running,
+                    (ComponentState::Finished, _) => NodeState::Finished,
                     (_, Some(error)) => NodeState::Failed(error),
-                    (other, None) => NodeState::Waiting(other.to_owned()),
+                    (other, None) => NodeState::Waiting(other.word().to_owned()),
                 };
                 (c.id, state)
             })
@@ -429,7 +433,7 @@ impl StudioApp {
     }
 
     /// Drops the current connection and connects to `url`.
-    fn connect(&mut self, ctx: &egui::Context, url: &str, token: Option<String>, label: String) {
+    fn connect(&mut self, ctx: &egui::Context, url: &str, token: Option<Token>, label: String) {
         let waker = ctx.clone();
         self.client = Some(RuntimeClient::connect(url, token, move || {
             waker.request_repaint();
@@ -967,7 +971,7 @@ impl StudioApp {
                 Ok(None)
             } else {
                 std::fs::read_to_string(token_file.trim())
-                    .map(|t| Some(t.lines().next().unwrap_or("").trim().to_owned()))
+                    .map(|t| Some(Token::new(t.lines().next().unwrap_or("").trim())))
                     .map_err(|e| format!("cannot read the token file {}: {e}", token_file.trim()))
             };
             match token {
@@ -1212,10 +1216,7 @@ impl StudioApp {
 
     /// A subscription was accepted: with shared memory, start reading its services (or fall back to the
     /// socket when they cannot be read).
-    fn samples_subscribed(&mut self, result: Option<&serde_json::Value>) {
-        let services: Option<BTreeMap<String, String>> = result
-            .and_then(|r| r.get("services"))
-            .and_then(|s| serde_json::from_value(s.clone()).ok());
+    fn samples_subscribed(&mut self, services: Option<BTreeMap<String, String>>) {
         let Some(services) = services else {
             return;
         };

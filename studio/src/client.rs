@@ -9,7 +9,8 @@ use std::sync::mpsc::{Receiver, Sender, TryRecvError, channel};
 use std::time::Duration;
 
 use kairos_protocol::{
-    LogRecord, PROTOCOL_VERSION, Reply, Request, RequestBody, Role, ServerMessage, Telemetry, Welcome,
+    ErrorCode, LogRecord, PROTOCOL_VERSION, ProtocolError, Reply, ReplyBody, Request, RequestBody,
+    RequestKind, Role, ServerMessage, Telemetry, Token, Welcome,
 };
 use tungstenite::stream::MaybeTlsStream;
 use tungstenite::{Message, WebSocket};
@@ -20,7 +21,7 @@ pub enum ClientEvent {
     /// The runtime accepted the session.
     Connected(Welcome),
     /// The answer to a request.
-    Reply(Reply),
+    Reply(Answer),
     /// Statistics.
     Telemetry(Telemetry),
     /// A log record.
@@ -31,13 +32,41 @@ pub enum ClientEvent {
     Disconnected(String),
 }
 
+/// A reply, read as the answer to the request it belongs to.
+#[derive(Debug, Clone)]
+pub struct Answer {
+    /// The request's id, as [`RuntimeClient::request`] returned it (`None` when the runtime could not read
+    /// one).
+    pub id: Option<u64>,
+    /// The result, of the request's own type, or why the request failed.
+    pub outcome: Result<ReplyBody, ProtocolError>,
+}
+
+impl Answer {
+    /// Reads `reply` as the answer to the request of type `kind` (`None`: a request this client did not
+    /// send, whose result it cannot read; only its error is of use).
+    fn of(reply: Reply, kind: Option<RequestKind>) -> Answer {
+        let id = reply.id;
+        let outcome = match kind {
+            Some(kind) => reply.decode(kind),
+            None => Err(reply.error.unwrap_or_else(|| {
+                ProtocolError::new(
+                    ErrorCode::Internal,
+                    format!("a reply to request {id:?}, which this client did not send"),
+                )
+            })),
+        };
+        Answer { id, outcome }
+    }
+}
+
 /// Calls that repaint the interface when something arrived.
 type Wake = Arc<dyn Fn() + Send + Sync>;
 
 /// A connection to a runtime.
 pub struct RuntimeClient {
     url: String,
-    outgoing: Sender<String>,
+    outgoing: Sender<Request>,
     incoming: Receiver<ClientEvent>,
     next_id: u64,
     /// Where sample frames from shared memory join the other events.
@@ -72,10 +101,10 @@ impl RuntimeClient {
     /// repaint the interface).
     pub fn connect(
         url: &str,
-        token: Option<String>,
+        token: Option<Token>,
         wake: impl Fn() + Send + Sync + 'static,
     ) -> RuntimeClient {
-        let (outgoing, requests) = channel::<String>();
+        let (outgoing, requests) = channel::<Request>();
         let (events, incoming) = channel();
         let address = url.to_owned();
         let wake: Wake = Arc::new(wake);
@@ -138,9 +167,7 @@ impl RuntimeClient {
             id: self.next_id,
             body,
         };
-        let _ = self
-            .outgoing
-            .send(serde_json::to_string(&request).unwrap_or_default());
+        let _ = self.outgoing.send(request);
         self.next_id
     }
 
@@ -156,10 +183,20 @@ impl RuntimeClient {
     }
 }
 
+/// Writes `request` on the socket.
+fn send(socket: &mut WebSocket<MaybeTlsStream<TcpStream>>, request: &Request) -> Result<(), String> {
+    let text = serde_json::to_string(request)
+        .map_err(|e| format!("cannot write a '{}' request: {e}", request.body.kind().name()))?;
+    socket.send(Message::text(text)).map_err(|e| e.to_string())
+}
+
+/// The id of the `hello` request; [`RuntimeClient::request`] numbers the others from 2.
+const HELLO_ID: u64 = 1;
+
 fn run(
     url: &str,
-    token: Option<String>,
-    requests: &Receiver<String>,
+    token: Option<Token>,
+    requests: &Receiver<Request>,
     events: &Sender<ClientEvent>,
     wake: &dyn Fn(),
 ) -> String {
@@ -172,7 +209,7 @@ fn run(
         let _ = stream.set_nodelay(true);
     }
     let hello = Request {
-        id: 1,
+        id: HELLO_ID,
         body: RequestBody::Hello {
             protocol: PROTOCOL_VERSION,
             client: format!("kairos-studio {}", env!("CARGO_PKG_VERSION")),
@@ -180,14 +217,17 @@ fn run(
             role: Some(Role::Operator),
         },
     };
-    if let Err(e) = socket.send(Message::text(serde_json::to_string(&hello).unwrap_or_default())) {
+    if let Err(e) = send(&mut socket, &hello) {
         return format!("cannot talk to {url}: {e}");
     }
+    // What each request awaiting its reply asked, to read the reply as that request's result.
+    let mut awaiting: BTreeMap<u64, RequestKind> = BTreeMap::new();
     loop {
         loop {
             match requests.try_recv() {
-                Ok(text) => {
-                    if let Err(e) = socket.send(Message::text(text)) {
+                Ok(request) => {
+                    awaiting.insert(request.id, request.body.kind());
+                    if let Err(e) = send(&mut socket, &request) {
                         return format!("lost the runtime at {url}: {e}");
                     }
                 }
@@ -201,17 +241,26 @@ fn run(
                     continue;
                 };
                 let event = match message {
-                    ServerMessage::Reply(reply) if reply.id == Some(1) => {
-                        if !reply.ok {
-                            let why = reply.error.map_or_else(String::new, |e| e.message);
-                            return format!("the runtime at {url} refused the studio: {why}");
-                        }
-                        match reply.result.and_then(|r| serde_json::from_value(r).ok()) {
-                            Some(welcome) => ClientEvent::Connected(welcome),
-                            None => return format!("the runtime at {url} answered hello strangely"),
+                    ServerMessage::Reply(reply) if reply.id == Some(HELLO_ID) => {
+                        let refused = !reply.ok;
+                        match reply.decode(RequestKind::Hello) {
+                            Ok(ReplyBody::Hello(welcome)) => ClientEvent::Connected(welcome),
+                            Err(error) if refused => {
+                                return format!("the runtime at {url} refused the studio: {}", error.message);
+                            }
+                            Err(error) => {
+                                return format!(
+                                    "the runtime at {url} answered hello strangely: {}",
+                                    error.message
+                                );
+                            }
+                            Ok(_) => return format!("the runtime at {url} answered hello strangely"),
                         }
                     }
-                    ServerMessage::Reply(reply) => ClientEvent::Reply(reply),
+                    ServerMessage::Reply(reply) => {
+                        let kind = reply.id.and_then(|id| awaiting.remove(&id));
+                        ClientEvent::Reply(Answer::of(reply, kind))
+                    }
                     ServerMessage::Telemetry(telemetry) => ClientEvent::Telemetry(telemetry),
                     ServerMessage::Log(record) => ClientEvent::Log(record),
                 };

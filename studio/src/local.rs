@@ -11,8 +11,8 @@ pub struct LocalRuntime {
     child: Child,
     /// Its address (`ws://127.0.0.1:PORT`).
     pub url: String,
-    /// Its token.
-    pub token: String,
+    /// Its token (whose `Debug` does not show it).
+    pub token: kairos_protocol::Token,
     folder: PathBuf,
 }
 
@@ -95,10 +95,11 @@ impl LocalRuntime {
                 println!("{line}");
             }
         });
-        let token = std::fs::read_to_string(&token_file)
-            .map_err(|e| format!("cannot read the runtime's token: {e}"))?
-            .trim()
-            .to_owned();
+        let token = kairos_protocol::Token::new(
+            std::fs::read_to_string(&token_file)
+                .map_err(|e| format!("cannot read the runtime's token: {e}"))?
+                .trim(),
+        );
         Ok(LocalRuntime {
             child,
             url,

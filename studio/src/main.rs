@@ -109,7 +109,7 @@ fn main() -> ExitCode {
                 .token_file
                 .as_ref()
                 .and_then(|f| std::fs::read_to_string(f).ok())
-                .map(|t| t.lines().next().unwrap_or("").trim().to_owned());
+                .map(|t| kairos_protocol::Token::new(t.lines().next().unwrap_or("").trim()));
             (None, Some(url.clone()), token)
         }
         None => match LocalRuntime::start() {

@@ -7,7 +7,7 @@ use std::collections::{BTreeMap, VecDeque};
 use std::time::{Duration, Instant};
 
 use egui::{Color32, RichText, Sense, Stroke, Vec2};
-use kairos_protocol::{ComponentTelemetry, LinkTelemetry, Telemetry};
+use kairos_protocol::{ComponentState, ComponentTelemetry, LinkTelemetry, Telemetry};
 
 /// How many telemetry periods a sparkline shows (a minute at the studio's 4 Hz).
 const HISTORY: usize = 240;
@@ -141,8 +141,8 @@ impl Monitor {
                     rates: VecDeque::new(),
                     cpu: VecDeque::new(),
                 });
-            let newly_failed =
-                component.state == "failed" && (entry.latest.state != "failed" || entry.rates.is_empty());
+            let newly_failed = component.state == ComponentState::Failed
+                && (entry.latest.state != ComponentState::Failed || entry.rates.is_empty());
             if newly_failed {
                 raised.push(format!(
                     "{} failed: {}",
@@ -241,7 +241,7 @@ impl Monitor {
                 SortBy::Name => a.id.cmp(&b.id),
                 SortBy::Rate => a.cycle_rate_hz.total_cmp(&b.cycle_rate_hz),
                 SortBy::Cost => a.cpu_share.total_cmp(&b.cpu_share),
-                SortBy::Trouble => a.state.cmp(&b.state),
+                SortBy::Trouble => a.state.word().cmp(b.state.word()),
             }
         });
         if self.descending {
@@ -306,8 +306,8 @@ impl Monitor {
                     for component in self.sorted_components() {
                         let t = &component.latest;
                         ui.label(&t.id);
-                        let state = RichText::new(&t.state);
-                        let state = if t.state == "failed" {
+                        let state = RichText::new(t.state.word());
+                        let state = if t.state == ComponentState::Failed {
                             state.color(Color32::LIGHT_RED)
                         } else {
                             state

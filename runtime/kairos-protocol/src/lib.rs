@@ -7,15 +7,20 @@
 //! lists every message with an example.
 //!
 //! ```
-//! use kairos_protocol::{Request, RequestBody, ServerMessage};
+//! use kairos_protocol::{Done, ReplyBody, Request, RequestBody, ServerMessage};
 //!
 //! let request: Request = serde_json::from_str(r#"{"id": 1, "type": "start"}"#).unwrap();
 //! assert_eq!(request.body, RequestBody::Start);
-//! let reply = ServerMessage::ok(1, serde_json::json!({}));
+//! let reply = ServerMessage::ok(1, &ReplyBody::Start(Done {}));
 //! assert_eq!(serde_json::to_string(&reply).unwrap(), r#"{"type":"reply","id":1,"ok":true,"result":{}}"#);
 //! ```
+//!
+//! Every request type is declared once, with its reply's type and its role (`requests!` in
+//! `messages.rs`): [`RequestBody`], [`RequestKind`], [`ReplyBody`] and the role table follow from it.
 
 #![warn(missing_docs)]
+
+use serde::{Deserialize, Serialize};
 
 pub mod frame;
 mod messages;
@@ -25,9 +30,10 @@ mod messages;
 pub use kairos_shm as shared_pixels;
 
 pub use messages::{
-    ComponentTelemetry, DeployResult, Described, DiagramReply, ErrorCode, LatencyTelemetry, LinkTelemetry,
-    LogLevel, LogRecord, ProtocolError, Reply, Request, RequestBody, RequestKind, Role, RuntimeState,
-    SampleTransport, ServerMessage, Status, Telemetry, Welcome, decode_request, this_host,
+    ComponentState, ComponentTelemetry, DeployResult, Described, DiagramReply, Done, ErrorCode,
+    LatencyTelemetry, LinkTelemetry, LogLevel, LogRecord, ProtocolError, Reply, ReplyBody, Request,
+    RequestBody, RequestKind, Role, RuntimeState, SampleTransport, SamplesSubscribed, ServerMessage, Status,
+    Telemetry, TelemetrySubscribed, Welcome, decode_request, this_host,
 };
 
 /// The protocol version this crate speaks. A client with another version is refused at `hello`, with
@@ -47,6 +53,39 @@ pub const DEFAULT_MAX_CONNECTIONS: usize = 32;
 /// The shortest token a server accepts.
 pub const MIN_TOKEN_CHARS: usize = 32;
 
+/// A token that grants a role: sent in `hello`, read from a token file. Its `Debug` never shows it and
+/// it has no `Display`, so it cannot reach a log by accident; [`Token::reveal`] is the one way to its
+/// text. Equality is [`tokens_match`], in constant time.
+#[derive(Clone, Serialize, Deserialize)]
+#[serde(transparent)]
+pub struct Token(String);
+
+impl Token {
+    /// A token of this text.
+    pub fn new(text: impl Into<String>) -> Self {
+        Token(text.into())
+    }
+
+    /// The token's text, for the one place that must send or check it.
+    pub fn reveal(&self) -> &str {
+        &self.0
+    }
+}
+
+impl std::fmt::Debug for Token {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("Token(***)")
+    }
+}
+
+impl PartialEq for Token {
+    fn eq(&self, other: &Token) -> bool {
+        tokens_match(&self.0, &other.0)
+    }
+}
+
+impl Eq for Token {}
+
 /// Compares two tokens in time that depends only on their lengths, so a client cannot find a token's
 /// prefix by timing refusals.
 pub fn tokens_match(given: &str, expected: &str) -> bool {
@@ -60,7 +99,28 @@ pub fn tokens_match(given: &str, expected: &str) -> bool {
 
 #[cfg(test)]
 mod tests {
-    use super::tokens_match;
+    use super::{PROTOCOL_VERSION, Request, RequestBody, Token, tokens_match};
+
+    #[test]
+    fn a_token_is_never_printed() {
+        let secret = "3f9c0a61d2b84e7f95c3a0d6e1b27f48";
+        let hello = Request {
+            id: 1,
+            body: RequestBody::Hello {
+                protocol: PROTOCOL_VERSION,
+                client: "test".to_owned(),
+                token: Some(Token::new(secret)),
+                role: None,
+            },
+        };
+        let printed = format!("{hello:?} {hello:#?}");
+        assert!(!printed.contains(secret), "{printed}");
+        assert!(printed.contains("Token(***)"), "{printed}");
+        // On the wire it is the plain text the server reads.
+        let wire = serde_json::to_value(&hello).unwrap();
+        assert_eq!(wire["token"], secret);
+        assert_eq!(serde_json::from_value::<Request>(wire).unwrap(), hello);
+    }
 
     #[test]
     fn tokens_match_only_when_equal() {

@@ -2,8 +2,10 @@
 
 use std::collections::BTreeMap;
 
-use kairos_diagram::{Diagnostic, ReaderPolicy, Value};
+use kairos_diagram::{Diagnostic, LibraryInfo, ReaderPolicy, Value};
 use serde::{Deserialize, Serialize};
+
+use crate::Token;
 
 /// What a session may do: `monitor` only looks, `operator` also changes things.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
@@ -46,74 +48,159 @@ pub struct Request {
     pub body: RequestBody,
 }
 
-/// Every request, by its `type`.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(tag = "type", rename_all = "snake_case")]
-pub enum RequestBody {
+/// Declares every request once: its variant in [`RequestBody`] (with its fields), its `type` on the wire,
+/// the type of its reply's result (its variant in [`ReplyBody`]) and the least role allowed to make it.
+/// [`RequestKind`], its list, its names and the role table all come from this one table, so a request
+/// cannot be added to one and forgotten in another.
+macro_rules! requests {
+    ($(
+        $(#[$doc:meta])*
+        $variant:ident = $name:literal $({ $($fields:tt)* })? => $reply:ty, $role:ident;
+    )*) => {
+        /// Every request, by its `type`.
+        #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+        #[serde(tag = "type")]
+        pub enum RequestBody {
+            $(
+                $(#[$doc])*
+                #[serde(rename = $name)]
+                $variant $({ $($fields)* })?,
+            )*
+        }
+
+        /// A request's type without its fields: what the role table is keyed by.
+        #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
+        pub enum RequestKind {
+            $(
+                $(#[$doc])*
+                #[serde(rename = $name)]
+                $variant,
+            )*
+        }
+
+        impl RequestKind {
+            /// Every request type, in the order the protocol lists them.
+            pub const ALL: [RequestKind; [$($name),*].len()] = [$(RequestKind::$variant),*];
+
+            /// The role table: the least role allowed to make this request.
+            pub fn required_role(self) -> Role {
+                match self {
+                    $(RequestKind::$variant => Role::$role,)*
+                }
+            }
+
+            /// The `type` of the request on the wire (`set_property`).
+            pub fn name(self) -> &'static str {
+                match self {
+                    $(RequestKind::$variant => $name,)*
+                }
+            }
+        }
+
+        impl RequestBody {
+            /// The request's type.
+            pub fn kind(&self) -> RequestKind {
+                match self {
+                    $(RequestBody::$variant { .. } => RequestKind::$variant,)*
+                }
+            }
+        }
+
+        /// A successful reply's `result`, by the request it answers: one variant per request type, holding
+        /// that request's result type. On the wire it is the result alone (no tag): a client knows which
+        /// request an `id` was and decodes with [`ReplyBody::decode`] (or [`Reply::decode`]).
+        #[derive(Debug, Clone, PartialEq, Serialize)]
+        #[serde(untagged)]
+        pub enum ReplyBody {
+            $(
+                #[doc = concat!("The result of `", $name, "`.")]
+                $variant($reply),
+            )*
+        }
+
+        impl ReplyBody {
+            /// The type of the request this answers.
+            pub fn kind(&self) -> RequestKind {
+                match self {
+                    $(ReplyBody::$variant(_) => RequestKind::$variant,)*
+                }
+            }
+
+            /// Reads `result` as the result of a request of type `kind`.
+            pub fn decode(kind: RequestKind, result: serde_json::Value) -> Result<ReplyBody, serde_json::Error> {
+                match kind {
+                    $(RequestKind::$variant => serde_json::from_value(result).map(ReplyBody::$variant),)*
+                }
+            }
+        }
+    };
+}
+
+requests! {
     /// The first message of a session: the protocol version, who is calling, the token, the role wanted.
-    Hello {
+    Hello = "hello" {
         /// The client's protocol version; must equal the server's.
         protocol: u32,
         /// A name for logs (`kairos-studio 0.1.0`, `demo.py`).
         client: String,
         /// The server's token, when it has one.
         #[serde(default)]
-        token: Option<String>,
+        token: Option<Token>,
         /// The role wanted (default: operator).
         #[serde(default)]
         role: Option<Role>,
-    },
+    } => Welcome, Monitor;
     /// The component library: packs, component types, ports, properties, actions, docs.
-    Library,
+    Library = "library" => LibraryInfo, Monitor;
     /// The ports of the instances of a diagram (RON text, not deployed) whose ports depend on their
-    /// properties (a player's outputs follow its recordings). Replies a [`Described`].
-    DescribeInstances {
+    /// properties (a player's outputs follow its recordings).
+    DescribeInstances = "describe_instances" {
         /// The diagram file's text.
         diagram: String,
-    },
+    } => Described, Monitor;
     /// The deployed diagram's text.
-    GetDiagram,
+    GetDiagram = "get_diagram" => DiagramReply, Monitor;
     /// Validates a diagram (RON text) and, if valid, makes it the runtime's diagram, stopping the old one.
-    Deploy {
+    Deploy = "deploy" {
         /// The diagram file's text.
         diagram: String,
-    },
+    } => DeployResult, Operator;
     /// Starts the deployed diagram.
-    Start,
+    Start = "start" => Done, Operator;
     /// Pauses it.
-    Pause,
+    Pause = "pause" => Done, Operator;
     /// Resumes it after a pause.
-    Resume,
+    Resume = "resume" => Done, Operator;
     /// Stops it (it can be started again).
-    Stop,
+    Stop = "stop" => Done, Operator;
     /// Changes a property, validated; a refused value keeps the old one and the error says why.
-    SetProperty {
+    SetProperty = "set_property" {
         /// The component's id.
         component: String,
         /// The property.
         property: String,
         /// The new value.
         value: Value,
-    },
+    } => Done, Operator;
     /// Triggers a component's action.
-    TriggerAction {
+    TriggerAction = "trigger_action" {
         /// The component's id.
         component: String,
         /// The action.
         action: String,
-    },
+    } => Done, Operator;
     /// The runtime's state and each component's.
-    Status,
+    Status = "status" => Status, Monitor;
     /// Telemetry events every `interval_ms` (at least 20).
-    SubscribeTelemetry {
+    SubscribeTelemetry = "subscribe_telemetry" {
         /// The period.
         interval_ms: u64,
-    },
+    } => TelemetrySubscribed, Monitor;
     /// No more telemetry.
-    UnsubscribeTelemetry,
+    UnsubscribeTelemetry = "unsubscribe_telemetry" => Done, Monitor;
     /// Binary sample frames from these outputs (`camera.image`), at most `max_rate_hz` per output, the
     /// latest sample each time (a slow client gets fewer, never older ones).
-    SubscribeSamples {
+    SubscribeSamples = "subscribe_samples" {
         /// The outputs.
         outputs: Vec<String>,
         /// The most frames per second per output (default 10).
@@ -132,65 +219,65 @@ pub enum RequestBody {
         /// [`crate::shared_pixels::can_map_buffers_of`] the server's [`Welcome::pid`] holds.
         #[serde(default, skip_serializing_if = "std::ops::Not::not")]
         shared_pixels: bool,
-    },
+    } => SamplesSubscribed, Monitor;
     /// Stops sample frames from these outputs (all, when empty).
-    UnsubscribeSamples {
+    UnsubscribeSamples = "unsubscribe_samples" {
         /// The outputs.
         #[serde(default)]
         outputs: Vec<String>,
-    },
+    } => Done, Monitor;
     /// Log events at `level` and above.
-    SubscribeLog {
+    SubscribeLog = "subscribe_log" {
         /// The least important level sent.
         #[serde(default)]
         level: LogLevel,
-    },
+    } => Done, Monitor;
     /// No more log events.
-    UnsubscribeLog,
+    UnsubscribeLog = "unsubscribe_log" => Done, Monitor;
     /// Starts a recorder (its `start` action).
-    RecordStart {
+    RecordStart = "record_start" {
         /// The recorder's id.
         component: String,
-    },
+    } => Done, Operator;
     /// Stops a recorder and closes its file.
-    RecordStop {
+    RecordStop = "record_stop" {
         /// The recorder's id.
         component: String,
-    },
+    } => Done, Operator;
     /// Closes a recorder's file and goes on in a new one.
-    RecordSplit {
+    RecordSplit = "record_split" {
         /// The recorder's id.
         component: String,
-    },
+    } => Done, Operator;
     /// Plays (resumes) a player.
-    PlayerPlay {
+    PlayerPlay = "player_play" {
         /// The player's id.
         component: String,
-    },
+    } => Done, Operator;
     /// Pauses a player.
-    PlayerPause {
+    PlayerPause = "player_pause" {
         /// The player's id.
         component: String,
-    },
+    } => Done, Operator;
     /// Makes a paused player emit one sample.
-    PlayerStep {
+    PlayerStep = "player_step" {
         /// The player's id.
         component: String,
-    },
+    } => Done, Operator;
     /// Jumps to a time, in seconds from the recording's first message.
-    PlayerSeek {
+    PlayerSeek = "player_seek" {
         /// The player's id.
         component: String,
         /// Where to.
         seconds: f64,
-    },
+    } => Done, Operator;
     /// Sets the replay speed (0.1 to 100).
-    PlayerSpeed {
+    PlayerSpeed = "player_speed" {
         /// The player's id.
         component: String,
         /// The factor.
         factor: f64,
-    },
+    } => Done, Operator;
 }
 
 /// How sample frames reach a client.
@@ -203,145 +290,6 @@ pub enum SampleTransport {
     /// Published through iceoryx2 shared memory, one service per output, named in the reply
     /// (`{"services": {"camera.image": "kairos/..."}}`); only for clients on the server's machine.
     SharedMemory,
-}
-
-/// A request's type without its fields: what the role table is keyed by.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-#[allow(missing_docs, reason = "one per request; RequestBody documents each")]
-pub enum RequestKind {
-    Hello,
-    Library,
-    DescribeInstances,
-    GetDiagram,
-    Deploy,
-    Start,
-    Pause,
-    Resume,
-    Stop,
-    SetProperty,
-    TriggerAction,
-    Status,
-    SubscribeTelemetry,
-    UnsubscribeTelemetry,
-    SubscribeSamples,
-    UnsubscribeSamples,
-    SubscribeLog,
-    UnsubscribeLog,
-    RecordStart,
-    RecordStop,
-    RecordSplit,
-    PlayerPlay,
-    PlayerPause,
-    PlayerStep,
-    PlayerSeek,
-    PlayerSpeed,
-}
-
-impl RequestKind {
-    /// Every request type.
-    pub const ALL: [RequestKind; 26] = [
-        RequestKind::Hello,
-        RequestKind::Library,
-        RequestKind::DescribeInstances,
-        RequestKind::GetDiagram,
-        RequestKind::Deploy,
-        RequestKind::Start,
-        RequestKind::Pause,
-        RequestKind::Resume,
-        RequestKind::Stop,
-        RequestKind::SetProperty,
-        RequestKind::TriggerAction,
-        RequestKind::Status,
-        RequestKind::SubscribeTelemetry,
-        RequestKind::UnsubscribeTelemetry,
-        RequestKind::SubscribeSamples,
-        RequestKind::UnsubscribeSamples,
-        RequestKind::SubscribeLog,
-        RequestKind::UnsubscribeLog,
-        RequestKind::RecordStart,
-        RequestKind::RecordStop,
-        RequestKind::RecordSplit,
-        RequestKind::PlayerPlay,
-        RequestKind::PlayerPause,
-        RequestKind::PlayerStep,
-        RequestKind::PlayerSeek,
-        RequestKind::PlayerSpeed,
-    ];
-
-    /// The role table: the least role allowed to make this request.
-    pub fn required_role(self) -> Role {
-        match self {
-            RequestKind::Hello
-            | RequestKind::Library
-            | RequestKind::DescribeInstances
-            | RequestKind::GetDiagram
-            | RequestKind::Status
-            | RequestKind::SubscribeTelemetry
-            | RequestKind::UnsubscribeTelemetry
-            | RequestKind::SubscribeSamples
-            | RequestKind::UnsubscribeSamples
-            | RequestKind::SubscribeLog
-            | RequestKind::UnsubscribeLog => Role::Monitor,
-            RequestKind::Deploy
-            | RequestKind::Start
-            | RequestKind::Pause
-            | RequestKind::Resume
-            | RequestKind::Stop
-            | RequestKind::SetProperty
-            | RequestKind::TriggerAction
-            | RequestKind::RecordStart
-            | RequestKind::RecordStop
-            | RequestKind::RecordSplit
-            | RequestKind::PlayerPlay
-            | RequestKind::PlayerPause
-            | RequestKind::PlayerStep
-            | RequestKind::PlayerSeek
-            | RequestKind::PlayerSpeed => Role::Operator,
-        }
-    }
-
-    /// The `type` string of the request.
-    pub fn name(self) -> String {
-        serde_json::to_value(self)
-            .ok()
-            .and_then(|v| v.as_str().map(str::to_owned))
-            .unwrap_or_default()
-    }
-}
-
-impl RequestBody {
-    /// The request's type.
-    pub fn kind(&self) -> RequestKind {
-        match self {
-            RequestBody::Hello { .. } => RequestKind::Hello,
-            RequestBody::Library => RequestKind::Library,
-            RequestBody::DescribeInstances { .. } => RequestKind::DescribeInstances,
-            RequestBody::GetDiagram => RequestKind::GetDiagram,
-            RequestBody::Deploy { .. } => RequestKind::Deploy,
-            RequestBody::Start => RequestKind::Start,
-            RequestBody::Pause => RequestKind::Pause,
-            RequestBody::Resume => RequestKind::Resume,
-            RequestBody::Stop => RequestKind::Stop,
-            RequestBody::SetProperty { .. } => RequestKind::SetProperty,
-            RequestBody::TriggerAction { .. } => RequestKind::TriggerAction,
-            RequestBody::Status => RequestKind::Status,
-            RequestBody::SubscribeTelemetry { .. } => RequestKind::SubscribeTelemetry,
-            RequestBody::UnsubscribeTelemetry => RequestKind::UnsubscribeTelemetry,
-            RequestBody::SubscribeSamples { .. } => RequestKind::SubscribeSamples,
-            RequestBody::UnsubscribeSamples { .. } => RequestKind::UnsubscribeSamples,
-            RequestBody::SubscribeLog { .. } => RequestKind::SubscribeLog,
-            RequestBody::UnsubscribeLog => RequestKind::UnsubscribeLog,
-            RequestBody::RecordStart { .. } => RequestKind::RecordStart,
-            RequestBody::RecordStop { .. } => RequestKind::RecordStop,
-            RequestBody::RecordSplit { .. } => RequestKind::RecordSplit,
-            RequestBody::PlayerPlay { .. } => RequestKind::PlayerPlay,
-            RequestBody::PlayerPause { .. } => RequestKind::PlayerPause,
-            RequestBody::PlayerStep { .. } => RequestKind::PlayerStep,
-            RequestBody::PlayerSeek { .. } => RequestKind::PlayerSeek,
-            RequestBody::PlayerSpeed { .. } => RequestKind::PlayerSpeed,
-        }
-    }
 }
 
 /// Why a request failed, for programs.
@@ -395,19 +343,81 @@ impl ProtocolError {
     }
 }
 
-/// The answer to one request.
+/// The answer to one request, as it travels: its result is read with [`Reply::decode`], knowing which
+/// request the `id` was.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Reply {
     /// The request's id; `null` when the request was too broken to have one.
     pub id: Option<u64>,
     /// Whether it succeeded.
     pub ok: bool,
-    /// What it returned, when it succeeded (its shape depends on the request: see the docs).
+    /// What it returned, when it succeeded: a [`ReplyBody`] of the request's type.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub result: Option<serde_json::Value>,
     /// Why it failed, when it did.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub error: Option<ProtocolError>,
+}
+
+impl Reply {
+    /// A successful reply carrying `body`. A body that cannot be written as JSON makes an `internal` error
+    /// reply naming the request and the cause, never a reply with a missing or `null` result.
+    pub fn success(id: u64, body: &ReplyBody) -> Reply {
+        match encode_result(body.kind(), body) {
+            Ok(result) => Reply {
+                id: Some(id),
+                ok: true,
+                result: Some(result),
+                error: None,
+            },
+            Err(error) => Reply::failure(Some(id), error),
+        }
+    }
+
+    /// A failed reply.
+    pub fn failure(id: Option<u64>, error: ProtocolError) -> Reply {
+        Reply {
+            id,
+            ok: false,
+            result: None,
+            error: Some(error),
+        }
+    }
+
+    /// Reads this reply as the answer to a request of type `kind`: its result, or the server's error. A
+    /// result this client cannot read (from a server of another version) is an `internal` error that says
+    /// what did not match.
+    pub fn decode(self, kind: RequestKind) -> Result<ReplyBody, ProtocolError> {
+        match (self.ok, self.error) {
+            (false, Some(error)) => Err(error),
+            (false, None) => Err(ProtocolError::new(
+                ErrorCode::Internal,
+                format!("the server refused '{}' without saying why", kind.name()),
+            )),
+            (true, _) => {
+                let result = self.result.unwrap_or(serde_json::Value::Null);
+                ReplyBody::decode(kind, result).map_err(|e| {
+                    ProtocolError::new(
+                        ErrorCode::Internal,
+                        format!(
+                            "the result of '{}' is not what this client reads: {e}",
+                            kind.name()
+                        ),
+                    )
+                })
+            }
+        }
+    }
+}
+
+/// `result` as JSON, or an `internal` error naming the request and the cause.
+fn encode_result(kind: RequestKind, result: &impl Serialize) -> Result<serde_json::Value, ProtocolError> {
+    serde_json::to_value(result).map_err(|e| {
+        ProtocolError::new(
+            ErrorCode::Internal,
+            format!("the result of '{}' cannot be written as JSON: {e}", kind.name()),
+        )
+    })
 }
 
 /// Every text message a server sends, by its `type`.
@@ -423,24 +433,14 @@ pub enum ServerMessage {
 }
 
 impl ServerMessage {
-    /// A successful reply.
-    pub fn ok(id: u64, result: serde_json::Value) -> Self {
-        ServerMessage::Reply(Reply {
-            id: Some(id),
-            ok: true,
-            result: Some(result),
-            error: None,
-        })
+    /// A successful reply (see [`Reply::success`]).
+    pub fn ok(id: u64, body: &ReplyBody) -> Self {
+        ServerMessage::Reply(Reply::success(id, body))
     }
 
     /// A failed reply.
     pub fn error(id: Option<u64>, error: ProtocolError) -> Self {
-        ServerMessage::Reply(Reply {
-            id,
-            ok: false,
-            result: None,
-            error: Some(error),
-        })
+        ServerMessage::Reply(Reply::failure(id, error))
     }
 }
 
@@ -482,9 +482,8 @@ pub fn decode_request(text: &str) -> Result<Request, (Option<u64>, ProtocolError
             ProtocolError::new(ErrorCode::BadRequest, "a request needs \"type\": a string"),
         ));
     };
-    let known = RequestKind::ALL.iter().any(|k| k.name() == kind);
-    if !known {
-        let names: Vec<String> = RequestKind::ALL.iter().map(|k| k.name()).collect();
+    if !RequestKind::ALL.iter().any(|k| k.name() == kind) {
+        let names: Vec<&str> = RequestKind::ALL.iter().map(|k| k.name()).collect();
         return Err((
             id,
             ProtocolError::new(
@@ -542,6 +541,27 @@ pub struct DeployResult {
     pub diagnostics: Vec<Diagnostic>,
     /// How many components the diagram has.
     pub components: usize,
+}
+
+/// The result of a request that returns nothing but its success (`start`, `set_property`, ...): `{}`.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Done {}
+
+/// The result of `subscribe_telemetry`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub struct TelemetrySubscribed {
+    /// The period granted (the one asked for, raised to the shortest the server allows).
+    pub interval_ms: u64,
+}
+
+/// The result of `subscribe_samples`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SamplesSubscribed {
+    /// The most frames per second per output granted.
+    pub max_rate_hz: f64,
+    /// With [`SampleTransport::SharedMemory`]: the iceoryx2 service publishing each output's frames.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub services: Option<BTreeMap<String, String>>,
 }
 
 /// Where the runtime is.
@@ -613,6 +633,49 @@ pub struct LinkTelemetry {
     pub latency: LatencyTelemetry,
 }
 
+/// Where a component is in its life, as telemetry reports it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ComponentState {
+    /// Built, not started.
+    Idle,
+    /// Running its cycles.
+    Running,
+    /// Paused by the user.
+    Paused,
+    /// Its stream ended and it finished on its own.
+    Finished,
+    /// Stopped by the runtime.
+    Stopped,
+    /// It returned an error or panicked; [`ComponentTelemetry::error`] says which and why.
+    Failed,
+    /// A state this client does not know, from a newer server. Telemetry keeps flowing to an older client
+    /// instead of failing to decode as a whole over one word; a server never sends it.
+    #[serde(other)]
+    Unknown,
+}
+
+impl ComponentState {
+    /// The word on the wire (`running`), for tables.
+    pub fn word(self) -> &'static str {
+        match self {
+            ComponentState::Idle => "idle",
+            ComponentState::Running => "running",
+            ComponentState::Paused => "paused",
+            ComponentState::Finished => "finished",
+            ComponentState::Stopped => "stopped",
+            ComponentState::Failed => "failed",
+            ComponentState::Unknown => "unknown",
+        }
+    }
+}
+
+impl std::fmt::Display for ComponentState {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.word())
+    }
+}
+
 /// One component's statistics.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct ComponentTelemetry {
@@ -620,8 +683,8 @@ pub struct ComponentTelemetry {
     pub id: String,
     /// The component type.
     pub type_name: String,
-    /// `idle`, `running`, `paused`, `finished`, `stopped` or `failed`.
-    pub state: String,
+    /// Where it is in its life.
+    pub state: ComponentState,
     /// Why it failed, when it did.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub error: Option<String>,
@@ -666,12 +729,19 @@ pub struct LogRecord {
 
 #[cfg(test)]
 mod tests {
-    use super::{ErrorCode, RequestBody, RequestKind, Role, decode_request};
+    use std::collections::BTreeMap;
+
+    use super::{
+        ComponentState, ComponentTelemetry, Done, ErrorCode, Reply, ReplyBody, RequestBody, RequestKind,
+        Role, SamplesSubscribed, ServerMessage, decode_request, encode_result,
+    };
 
     #[test]
     fn every_request_type_has_a_name_and_a_role() {
+        let mut names = std::collections::BTreeSet::new();
         for kind in RequestKind::ALL {
-            assert!(!kind.name().is_empty(), "{kind:?}");
+            assert!(names.insert(kind.name()), "two requests named {}", kind.name());
+            assert_eq!(serde_json::to_value(kind).unwrap(), kind.name());
             let _ = kind.required_role();
         }
         assert_eq!(RequestKind::SetProperty.name(), "set_property");
@@ -726,5 +796,111 @@ mod tests {
             assert_eq!(error.code, ErrorCode::BadRequest);
             assert!(error.message.contains(needle), "{text}: {}", error.message);
         }
+    }
+
+    /// The reply as a client reads it off the wire.
+    fn over_the_wire(message: &ServerMessage) -> Reply {
+        let text = serde_json::to_string(message).unwrap();
+        let ServerMessage::Reply(reply) = serde_json::from_str(&text).unwrap() else {
+            panic!("not a reply: {text}");
+        };
+        reply
+    }
+
+    #[test]
+    fn replies_are_written_as_before_and_read_back_as_their_request_type() {
+        let done = ServerMessage::ok(7, &ReplyBody::Start(Done {}));
+        assert_eq!(
+            serde_json::to_string(&done).unwrap(),
+            r#"{"type":"reply","id":7,"ok":true,"result":{}}"#
+        );
+        assert_eq!(
+            over_the_wire(&done).decode(RequestKind::Start),
+            Ok(ReplyBody::Start(Done {}))
+        );
+        let subscribed = ReplyBody::SubscribeSamples(SamplesSubscribed {
+            max_rate_hz: 15.0,
+            services: None,
+        });
+        let message = ServerMessage::ok(9, &subscribed);
+        assert_eq!(
+            serde_json::to_value(&message).unwrap()["result"],
+            serde_json::json!({"max_rate_hz": 15.0})
+        );
+        assert_eq!(
+            over_the_wire(&message).decode(RequestKind::SubscribeSamples),
+            Ok(subscribed)
+        );
+        let shared = ReplyBody::SubscribeSamples(SamplesSubscribed {
+            max_rate_hz: 30.0,
+            services: Some(BTreeMap::from([(
+                "camera.image".to_owned(),
+                "kairos/1/2/3/camera.image".to_owned(),
+            )])),
+        });
+        assert_eq!(
+            over_the_wire(&ServerMessage::ok(9, &shared)).decode(RequestKind::SubscribeSamples),
+            Ok(shared)
+        );
+    }
+
+    #[test]
+    fn a_reply_that_does_not_fit_its_request_or_was_refused_is_an_error_for_the_client() {
+        let status = over_the_wire(&ServerMessage::ok(3, &ReplyBody::Start(Done {})));
+        let error = status.decode(RequestKind::Status).unwrap_err();
+        assert_eq!(error.code, ErrorCode::Internal);
+        assert!(
+            error.message.contains("'status'") && error.message.contains("missing field"),
+            "{}",
+            error.message
+        );
+        let refused = over_the_wire(&ServerMessage::error(
+            Some(3),
+            super::ProtocolError::new(ErrorCode::WrongState, "nothing is running"),
+        ));
+        assert_eq!(
+            refused.decode(RequestKind::Pause).unwrap_err().code,
+            ErrorCode::WrongState
+        );
+    }
+
+    #[test]
+    fn a_result_that_cannot_be_written_is_an_error_naming_the_request_and_the_cause() {
+        // JSON object keys must be text: a map keyed by pairs cannot be written.
+        let unwritable = BTreeMap::from([((1_u8, 2_u8), 3_u8)]);
+        let error = encode_result(RequestKind::Status, &unwritable).unwrap_err();
+        assert_eq!(error.code, ErrorCode::Internal);
+        assert!(
+            error.message.contains("'status'") && error.message.contains("key must be a string"),
+            "{}",
+            error.message
+        );
+    }
+
+    #[test]
+    fn component_states_travel_as_words_and_unknown_ones_do_not_break_telemetry() {
+        let states = [
+            (ComponentState::Idle, "idle"),
+            (ComponentState::Running, "running"),
+            (ComponentState::Paused, "paused"),
+            (ComponentState::Finished, "finished"),
+            (ComponentState::Stopped, "stopped"),
+            (ComponentState::Failed, "failed"),
+        ];
+        for (state, word) in states {
+            assert_eq!(serde_json::to_value(state).unwrap(), word);
+            assert_eq!(state.word(), word);
+            assert_eq!(
+                serde_json::from_value::<ComponentState>(word.into()).unwrap(),
+                state
+            );
+        }
+        // A newer server's state: the rest of the component's figures still arrive.
+        let component: ComponentTelemetry = serde_json::from_value(serde_json::json!({
+            "id": "gain1", "type_name": "core.gain", "state": "hibernating",
+            "cycles": 3, "cycle_rate_hz": 1.0, "cpu_share": 0.0,
+        }))
+        .unwrap();
+        assert_eq!((component.state, component.cycles), (ComponentState::Unknown, 3));
     }
 }

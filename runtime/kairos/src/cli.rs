@@ -303,7 +303,8 @@ fn new(what: NewCommand, registry: &Registry) -> ExitCode {
             force,
         } => {
             let sdk = sdk.unwrap_or_else(crate::wizard::default_sdk_path);
-            crate::wizard::new_pack(&name, &path, &sdk, lang, force).map(|(folder, notes)| {
+            let library = registry.library_info();
+            crate::wizard::new_pack(&name, &path, &sdk, &library, lang, force).map(|(folder, notes)| {
                 println!("made the pack '{name}' in {}", folder.display());
                 if lang == crate::wizard::Lang::Cpp {
                     println!("  cd {} && make", folder.display());

@@ -242,42 +242,23 @@ pub fn check_name(what: &str, name: &str) -> Result<(), Refusal> {
     Ok(())
 }
 
-/// The type names `--input` and `--output` take.
-const TYPES: &[&str] = &[
-    "f64",
-    "i64",
-    "bool",
-    "vector",
-    "matrix",
-    "text",
-    "bytes",
-    "image",
-    "point_cloud",
-    "imu",
-    "gnss_fix",
-    "can_frame",
-    "pose",
-];
-
+/// A built-in data type (what `--input` and `--output` take: `DataType::BUILT_IN`'s names), or `any` for an
+/// input when `any_allowed`.
 fn parse_type(what: &str, text: &str, any_allowed: bool) -> Result<Option<DataType>, Refusal> {
     if any_allowed && text == "any" {
         return Ok(None);
     }
-    if TYPES.contains(&text) {
-        return Ok(Some(DataType::from_name(text)));
+    if let Some(data_type) = DataType::BUILT_IN.iter().find(|t| t.name() == text) {
+        return Ok(Some(data_type.clone()));
     }
-    let closest = TYPES
+    let names: Vec<&str> = DataType::BUILT_IN
         .iter()
-        .chain(any_allowed.then_some(&"any"))
-        .min_by_key(|t| strsim::levenshtein(t, text))
-        .filter(|t| strsim::levenshtein(t, text) <= 3);
+        .map(DataType::name)
+        .chain(any_allowed.then_some("any"))
+        .collect();
     Err(refuse(
-        format!(
-            "unknown type '{text}' for {what} (one of {}{})",
-            TYPES.join(", "),
-            if any_allowed { ", any" } else { "" }
-        ),
-        closest.map(|t| format!("did you mean '{t}'?")),
+        format!("unknown type '{text}' for {what} (one of {})", names.join(", ")),
+        kairos_diagram::did_you_mean(text, names.iter().copied()),
     ))
 }
 
@@ -417,10 +398,7 @@ fn property_view(text: &str) -> Result<PropertyView, Refusal> {
         other => {
             return Err(refuse(
                 format!("unknown property type '{other}' for '{name}' (f64, i64, bool, text or path)"),
-                ["f64", "i64", "bool", "text", "path"]
-                    .iter()
-                    .min_by_key(|t| strsim::levenshtein(t, other))
-                    .map(|t| format!("did you mean '{t}'?")),
+                kairos_diagram::did_you_mean(other, ["f64", "i64", "bool", "text", "path"]),
             ));
         }
     };
@@ -458,9 +436,6 @@ fn render(template: &str, values: minijinja::Value) -> Result<String, String> {
         .map_err(|e| format!("cannot render {template}: {e}"))
 }
 
-/// The built-in packs' names: a new pack may not take one.
-const BUILT_IN_PACKS: &[&str] = &["core", "sensors", "recording", "filters"];
-
 /// Where this installation's SDK is: beside the `kairos` sources it was built from.
 pub fn default_sdk_path() -> PathBuf {
     let sources = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../component-sdk");
@@ -487,19 +462,33 @@ fn format(files: &[PathBuf]) -> Option<String> {
     }
 }
 
-/// Generates a pack named `name` in `parent/name`, with an example component `scale`. Returns the pack's
-/// folder and any note (rustfmt missing).
+/// Refuses a new pack's name that a pack of `library` (the built-in ones and those on the pack path)
+/// already has: both could not be loaded together.
+fn check_pack_name_free(name: &str, library: &kairos_diagram::LibraryInfo) -> Result<(), String> {
+    match library.packs.get(name) {
+        None => Ok(()),
+        Some(pack) if pack.origin == "built-in" => {
+            Err(format!("'{name}' is the name of a built-in pack; choose another"))
+        }
+        Some(pack) => Err(format!(
+            "'{name}' is the name of a pack on the pack path ({}); choose another",
+            pack.origin
+        )),
+    }
+}
+
+/// Generates a pack named `name` in `parent/name`, with an example component `scale`; `library` holds
+/// the packs whose names are taken. Returns the pack's folder and any note (rustfmt missing).
 pub fn new_pack(
     name: &str,
     parent: &Path,
     sdk: &Path,
+    library: &kairos_diagram::LibraryInfo,
     lang: Lang,
     force: bool,
 ) -> Result<(PathBuf, Vec<String>), String> {
     check_name("pack", name).map_err(|r| r.to_string())?;
-    if BUILT_IN_PACKS.contains(&name) {
-        return Err(format!("'{name}' is a built-in pack's name; choose another"));
-    }
+    check_pack_name_free(name, library)?;
     if !sdk.join("Cargo.toml").is_file() {
         return Err(format!(
             "no kairos-sdk at {} (it is found beside the sources kairos was built from); give --sdk PATH",
@@ -1001,5 +990,69 @@ mod tests {
         assert_eq!(typo.suggestion.as_deref(), Some("did you mean 'f64'?"));
         let default = property_view("gain:f64=two").unwrap_err();
         assert!(default.problem.contains("not a number"), "{default}");
+        // Far from every kind: no guess.
+        let stranger = property_view("gain:colour=red").unwrap_err();
+        assert_eq!(stranger.suggestion, None, "{stranger}");
+    }
+
+    #[test]
+    fn types_offered_are_the_built_in_data_types() {
+        for data_type in DataType::BUILT_IN {
+            assert_eq!(
+                parse_type("input 'in'", data_type.name(), false),
+                Ok(Some(data_type.clone()))
+            );
+        }
+        let refused = parse_type("output 'out'", "float", false).unwrap_err();
+        let listed = DataType::BUILT_IN
+            .iter()
+            .map(DataType::name)
+            .collect::<Vec<_>>()
+            .join(", ");
+        assert!(refused.problem.contains(&listed), "{refused}");
+    }
+
+    #[test]
+    fn a_new_pack_may_not_take_the_name_of_a_pack_the_runtime_has() {
+        let mut library = crate::builtin_registry().library_info();
+        let error = new_pack(
+            "sensors",
+            Path::new("/nowhere"),
+            Path::new("/nowhere"),
+            &library,
+            Lang::Rust,
+            false,
+        )
+        .unwrap_err();
+        assert!(error.contains("built-in pack"), "{error}");
+        // `filters` is a loadable pack, not a built-in one: the name is free unless it is on the pack path.
+        let error = new_pack(
+            "filters",
+            Path::new("/nowhere"),
+            Path::new("/nowhere"),
+            &library,
+            Lang::Rust,
+            false,
+        )
+        .unwrap_err();
+        assert!(error.contains("no kairos-sdk"), "{error}");
+        library.packs.insert(
+            "filters".to_owned(),
+            kairos_diagram::PackInfo {
+                name: "filters".to_owned(),
+                version: "0.1.0".to_owned(),
+                origin: "/opt/packs/libkairos_pack_filters.so".to_owned(),
+            },
+        );
+        let error = new_pack(
+            "filters",
+            Path::new("/nowhere"),
+            Path::new("/nowhere"),
+            &library,
+            Lang::Rust,
+            false,
+        )
+        .unwrap_err();
+        assert!(error.contains("/opt/packs/libkairos_pack_filters.so"), "{error}");
     }
 }

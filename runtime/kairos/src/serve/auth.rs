@@ -4,30 +4,26 @@ use std::io::{Read as _, Write as _};
 use std::path::Path;
 
 use anyhow::{Context as _, bail};
-use kairos_protocol::{ErrorCode, MIN_TOKEN_CHARS, PROTOCOL_VERSION, ProtocolError, Role, tokens_match};
+use kairos_protocol::{ErrorCode, MIN_TOKEN_CHARS, PROTOCOL_VERSION, ProtocolError, Role, Token};
 
-/// The tokens a server accepts. With none, every client is let in (loopback only).
-#[derive(Default)]
+/// The tokens a server accepts. With none, every client is let in (loopback only). Its `Debug` shows
+/// which tokens there are, never what they are ([`Token`]'s own `Debug`).
+#[derive(Debug, Default)]
 pub struct Access {
-    operator: Option<String>,
-    monitor: Option<String>,
-}
-
-impl std::fmt::Debug for Access {
-    // Never print a token.
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("Access")
-            .field("operator_token", &self.operator.is_some())
-            .field("monitor_token", &self.monitor.is_some())
-            .finish()
-    }
+    operator: Option<Token>,
+    monitor: Option<Token>,
 }
 
 /// Reads the token in `path`, or writes a fresh one there (readable only by its owner) if the file does not
 /// exist. Returns the token and whether it was created.
-pub fn load_or_create_token(path: &Path) -> anyhow::Result<(String, bool)> {
+pub fn load_or_create_token(path: &Path) -> anyhow::Result<(Token, bool)> {
     let shown = path.display();
-    if path.exists() {
+    // `exists` would read "cannot tell" (a folder that may not be searched) as "missing", and a fresh
+    // token would be written, or fail to be, in place of one that may well be there.
+    let exists = path
+        .try_exists()
+        .with_context(|| format!("cannot reach the token file {shown}"))?;
+    if exists {
         let mut text = String::new();
         std::fs::File::open(path)
             .and_then(|mut f| f.read_to_string(&mut text))
@@ -40,7 +36,7 @@ pub fn load_or_create_token(path: &Path) -> anyhow::Result<(String, bool)> {
                  (e.g. `openssl rand -hex 32 > {shown}`, or delete the file to have one made)"
             );
         }
-        return Ok((token, false));
+        return Ok((Token::new(token), false));
     }
     let mut random = [0_u8; 32];
     std::fs::File::open("/dev/urandom")
@@ -61,12 +57,12 @@ pub fn load_or_create_token(path: &Path) -> anyhow::Result<(String, bool)> {
             .with_context(|| format!("cannot create the token file {shown}"))?
     };
     writeln!(file, "{token}").with_context(|| format!("cannot write the token file {shown}"))?;
-    Ok((token, true))
+    Ok((Token::new(token), true))
 }
 
 impl Access {
     /// Accepts `operator` (both roles) and `monitor` (monitor only) tokens.
-    pub fn new(operator: Option<String>, monitor: Option<String>) -> Self {
+    pub fn new(operator: Option<Token>, monitor: Option<Token>) -> Self {
         Access { operator, monitor }
     }
 
@@ -79,7 +75,7 @@ impl Access {
     pub fn grant(
         &self,
         protocol: u32,
-        token: Option<&str>,
+        token: Option<&Token>,
         wanted: Option<Role>,
     ) -> Result<Role, ProtocolError> {
         if protocol != PROTOCOL_VERSION {
@@ -101,8 +97,9 @@ impl Access {
                 "this runtime requires a token: send it in hello's \"token\" field",
             ));
         };
-        let is_operator = self.operator.as_deref().is_some_and(|t| tokens_match(token, t));
-        let is_monitor = self.monitor.as_deref().is_some_and(|t| tokens_match(token, t));
+        // `Token`'s equality is `tokens_match`: constant time.
+        let is_operator = self.operator.as_ref() == Some(token);
+        let is_monitor = self.monitor.as_ref() == Some(token);
         match (is_operator, is_monitor, wanted) {
             (true, _, role) | (false, true, role @ Role::Monitor) => Ok(role),
             (false, true, Role::Operator) => Err(ProtocolError::new(
@@ -116,15 +113,19 @@ impl Access {
 
 #[cfg(test)]
 mod tests {
-    use kairos_protocol::{ErrorCode, Role};
+    use kairos_protocol::{ErrorCode, Role, Token};
 
     use super::{Access, load_or_create_token};
 
     #[test]
     fn tokens_grant_their_roles_and_nothing_more() {
-        let operator = "o".repeat(40);
-        let monitor = "m".repeat(40);
+        let operator = Token::new("o".repeat(40));
+        let monitor = Token::new("m".repeat(40));
         let access = Access::new(Some(operator.clone()), Some(monitor.clone()));
+        assert_eq!(
+            format!("{access:?}"),
+            "Access { operator: Some(Token(***)), monitor: Some(Token(***)) }"
+        );
         assert_eq!(access.grant(1, Some(&operator), None), Ok(Role::Operator));
         assert_eq!(
             access.grant(1, Some(&operator), Some(Role::Monitor)),
@@ -136,7 +137,10 @@ mod tests {
         );
         let code = |r: Result<Role, kairos_protocol::ProtocolError>| r.unwrap_err().code;
         assert_eq!(code(access.grant(1, Some(&monitor), None)), ErrorCode::Forbidden);
-        assert_eq!(code(access.grant(1, Some("nope"), None)), ErrorCode::Unauthorized);
+        assert_eq!(
+            code(access.grant(1, Some(&Token::new("nope")), None)),
+            ErrorCode::Unauthorized
+        );
         assert_eq!(code(access.grant(1, None, None)), ErrorCode::Unauthorized);
         assert_eq!(
             code(access.grant(2, Some(&operator), None)),
@@ -151,7 +155,7 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("token");
         let (token, created) = load_or_create_token(&path).unwrap();
-        assert!(created && token.len() == 64);
+        assert!(created && token.reveal().len() == 64);
         let mode = std::fs::metadata(&path).unwrap().permissions().mode() & 0o777;
         assert_eq!(mode, 0o600);
         assert_eq!(load_or_create_token(&path).unwrap(), (token, false));

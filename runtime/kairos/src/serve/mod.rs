@@ -16,7 +16,7 @@ use std::process::ExitCode;
 use std::sync::Arc;
 
 use anyhow::{Context as _, bail};
-use kairos_protocol::{ErrorCode, ProtocolError, ServerMessage};
+use kairos_protocol::{ErrorCode, ProtocolError, ServerMessage, Token};
 use kairos_sdk::Registry;
 use tokio_tungstenite::tungstenite::Message;
 
@@ -50,7 +50,7 @@ pub(crate) struct Shared {
     server_name: String,
 }
 
-fn token(path: Option<&PathBuf>, what: &str) -> anyhow::Result<Option<String>> {
+fn token(path: Option<&PathBuf>, what: &str) -> anyhow::Result<Option<Token>> {
     let Some(path) = path else { return Ok(None) };
     let (token, created) = load_or_create_token(path)?;
     if created {
@@ -189,7 +189,8 @@ async fn refuse_busy(stream: tokio::net::TcpStream, limit: usize) {
             format!("this runtime already serves {limit} clients; try again later"),
         ),
     );
-    let text = serde_json::to_string(&refusal).unwrap_or_default();
-    let _ = websocket.send(Message::text(text)).await;
+    if let Some(text) = session::text_of(&refusal) {
+        let _ = websocket.send(Message::text(text)).await;
+    }
     let _ = websocket.close(None).await;
 }

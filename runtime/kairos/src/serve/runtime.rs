@@ -62,6 +62,19 @@ fn state_of(deployment: &Deployment) -> RuntimeState {
     }
 }
 
+/// A component's state as the protocol says it (the reason of a failure travels apart, in `error`).
+fn wire_state(state: &ComponentState) -> kairos_protocol::ComponentState {
+    use kairos_protocol::ComponentState as Wire;
+    match state {
+        ComponentState::Idle => Wire::Idle,
+        ComponentState::Running => Wire::Running,
+        ComponentState::Paused => Wire::Paused,
+        ComponentState::Finished => Wire::Finished,
+        ComponentState::Stopped => Wire::Stopped,
+        ComponentState::Failed(_) => Wire::Failed,
+    }
+}
+
 fn telemetry(snapshot: &StatsSnapshot, state: RuntimeState) -> Telemetry {
     Telemetry {
         at_ns: snapshot.at.as_nanos(),
@@ -95,7 +108,7 @@ fn telemetry(snapshot: &StatsSnapshot, state: RuntimeState) -> Telemetry {
             .map(|c| ComponentTelemetry {
                 id: c.id.clone(),
                 type_name: c.type_name.clone(),
-                state: c.state.word().to_lowercase(),
+                state: wire_state(&c.state),
                 error: match &c.state {
                     ComponentState::Failed(why) => Some(why.clone()),
                     _ => None,

@@ -11,11 +11,11 @@ use std::time::Duration;
 
 use futures_util::{SinkExt as _, StreamExt as _};
 use kairos_protocol::{
-    CLIENT_QUEUE, DiagramReply, ErrorCode, LogLevel, MAX_MESSAGE_BYTES, PROTOCOL_VERSION, ProtocolError,
-    RequestBody, RequestKind, Role, SampleTransport, ServerMessage, Status, Welcome, decode_request,
+    CLIENT_QUEUE, DiagramReply, Done, ErrorCode, LogLevel, MAX_MESSAGE_BYTES, PROTOCOL_VERSION,
+    ProtocolError, ReplyBody, RequestBody, RequestKind, Role, SampleTransport, SamplesSubscribed,
+    ServerMessage, Status, TelemetrySubscribed, Token, Welcome, decode_request,
 };
 use kairos_sdk::Value;
-use serde::Serialize;
 use tokio::net::TcpStream;
 use tokio::sync::mpsc;
 use tokio::sync::mpsc::error::TrySendError;
@@ -118,14 +118,18 @@ struct Session {
     shared_samples: BTreeMap<String, super::shm::ShmPublication>,
 }
 
-fn to_json(value: &impl Serialize) -> serde_json::Value {
-    serde_json::to_value(value).unwrap_or(serde_json::Value::Null)
+/// `message` as JSON text. A reply holds its result as a JSON value already (`Reply::success` made a result
+/// that cannot be written an `internal` error reply), and JSON values always write: this can fail only for
+/// an event, which is then dropped and logged.
+pub(super) fn text_of(message: &ServerMessage) -> Option<String> {
+    serde_json::to_string(message)
+        .inspect_err(|e| tracing::error!("cannot write a message for a client as JSON: {e}"))
+        .ok()
 }
 
 /// Queues a text message; `false` when the client has stopped reading (its queue is full) or is gone.
 fn send(out: &mpsc::Sender<Message>, message: &ServerMessage) -> bool {
-    let text = serde_json::to_string(message).unwrap_or_default();
-    out.try_send(Message::text(text)).is_ok()
+    text_of(message).is_none_or(|text| out.try_send(Message::text(text)).is_ok())
 }
 
 impl Session {
@@ -133,7 +137,7 @@ impl Session {
         Arc::clone(&self.shared.runtime)
     }
 
-    fn reply(&self, id: u64, result: serde_json::Value) -> bool {
+    fn reply(&self, id: u64, result: &ReplyBody) -> bool {
         let delivered = send(&self.out, &ServerMessage::ok(id, result));
         if !delivered {
             tracing::warn!(
@@ -148,9 +152,9 @@ impl Session {
         send(&self.out, &ServerMessage::error(id, error))
     }
 
-    fn answer(&self, id: u64, outcome: Result<serde_json::Value, ProtocolError>) -> bool {
+    fn answer(&self, id: u64, outcome: Result<ReplyBody, ProtocolError>) -> bool {
         match outcome {
-            Ok(result) => self.reply(id, result),
+            Ok(result) => self.reply(id, &result),
             Err(error) => self.refuse(Some(id), error),
         }
     }
@@ -159,12 +163,12 @@ impl Session {
     /// the network runtime moves its other tasks to another thread meanwhile. No hop to a blocking pool,
     /// which would add two thread hand-overs to every request's round trip.
     #[allow(clippy::unused_async, reason = "callers await it like any other operation")]
-    async fn blocking<T: Serialize>(
+    async fn blocking<T>(
         &self,
         operation: impl FnOnce(&Runtime) -> Result<T, ProtocolError>,
-    ) -> Result<serde_json::Value, ProtocolError> {
+    ) -> Result<T, ProtocolError> {
         let runtime = self.runtime();
-        tokio::task::block_in_place(|| operation(&runtime).map(|v| to_json(&v)))
+        tokio::task::block_in_place(|| operation(&runtime))
     }
 
     /// Handles one text message; `false` ends the session.
@@ -207,123 +211,129 @@ impl Session {
             }
             (Some(_), _) => {}
         }
-        self.dispatch(id, request.body).await
+        let outcome = self.dispatch(request.body).await;
+        let delivered = self.answer(id, outcome);
+        // A refused hello ends the session: one try per connection, so guessing tokens costs a connection
+        // each.
+        delivered && self.role.is_some()
     }
 
+    /// Checks a `hello`; the session takes the role it grants.
+    fn hello(
+        &mut self,
+        protocol: u32,
+        client: &str,
+        token: Option<&Token>,
+        role: Option<Role>,
+    ) -> Result<Welcome, ProtocolError> {
+        let role = self
+            .shared
+            .access
+            .grant(protocol, token, role)
+            .inspect_err(|error| tracing::warn!("{}: refused: {}", self.peer, error.message))?;
+        self.role = Some(role);
+        tracing::info!("{}: {client} connected as {role:?}", self.peer);
+        Ok(Welcome {
+            protocol: PROTOCOL_VERSION,
+            server: self.shared.server_name.clone(),
+            role,
+            shared_memory_host: kairos_protocol::this_host(),
+            pid: Some(std::process::id()),
+        })
+    }
+
+    /// Does what `body` asks; the result is the reply of the request's own type.
     #[allow(
         clippy::too_many_lines,
         reason = "one arm per request type: the protocol in one place"
     )]
-    async fn dispatch(&mut self, id: u64, body: RequestBody) -> bool {
-        fn empty() -> serde_json::Value {
-            serde_json::json!({})
-        }
-        match body {
+    async fn dispatch(&mut self, body: RequestBody) -> Result<ReplyBody, ProtocolError> {
+        Ok(match body {
             RequestBody::Hello {
                 protocol,
                 client,
                 token,
                 role,
-            } => match self.shared.access.grant(protocol, token.as_deref(), role) {
-                Ok(role) => {
-                    self.role = Some(role);
-                    tracing::info!("{}: {client} connected as {role:?}", self.peer);
-                    self.reply(
-                        id,
-                        to_json(&Welcome {
-                            protocol: PROTOCOL_VERSION,
-                            server: self.shared.server_name.clone(),
-                            role,
-                            shared_memory_host: kairos_protocol::this_host(),
-                            pid: Some(std::process::id()),
-                        }),
-                    )
-                }
-                Err(error) => {
-                    tracing::warn!("{}: refused: {}", self.peer, error.message);
-                    // One try per connection: guessing tokens costs a connection each.
-                    self.refuse(Some(id), error);
-                    false
-                }
-            },
-            RequestBody::Library => self.reply(id, to_json(&self.shared.runtime.library())),
+            } => ReplyBody::Hello(self.hello(protocol, &client, token.as_ref(), role)?),
+            RequestBody::Library => ReplyBody::Library(self.shared.runtime.library()),
             RequestBody::DescribeInstances { diagram } => {
-                match tokio::task::block_in_place(|| self.shared.runtime.describe_instances(&diagram)) {
-                    Ok(described) => self.reply(id, to_json(&described)),
-                    Err(error) => self.refuse(Some(id), error),
-                }
+                ReplyBody::DescribeInstances(tokio::task::block_in_place(|| {
+                    self.shared.runtime.describe_instances(&diagram)
+                })?)
             }
-            RequestBody::GetDiagram => {
-                let diagram = self
-                    .blocking(|r| {
-                        Ok(DiagramReply {
-                            diagram: r.diagram_text(),
-                        })
+            RequestBody::GetDiagram => ReplyBody::GetDiagram(
+                self.blocking(|r| {
+                    Ok(DiagramReply {
+                        diagram: r.diagram_text(),
                     })
-                    .await;
-                self.answer(id, diagram)
-            }
+                })
+                .await?,
+            ),
             RequestBody::Deploy { diagram } => {
-                let outcome = self.blocking(move |r| r.deploy(&diagram)).await;
-                self.answer(id, outcome)
+                ReplyBody::Deploy(self.blocking(move |r| r.deploy(&diagram)).await?)
             }
             RequestBody::Start => {
-                let outcome = self.blocking(|r| r.start().map(|()| empty())).await;
-                self.answer(id, outcome)
+                self.blocking(Runtime::start).await?;
+                ReplyBody::Start(Done {})
             }
             RequestBody::Pause => {
-                let outcome = self.blocking(|r| r.pause().map(|()| empty())).await;
-                self.answer(id, outcome)
+                self.blocking(Runtime::pause).await?;
+                ReplyBody::Pause(Done {})
             }
             RequestBody::Resume => {
-                let outcome = self.blocking(|r| r.resume().map(|()| empty())).await;
-                self.answer(id, outcome)
+                self.blocking(Runtime::resume).await?;
+                ReplyBody::Resume(Done {})
             }
             RequestBody::Stop => {
-                let outcome = self.blocking(|r| r.stop().map(|()| empty())).await;
-                self.answer(id, outcome)
+                self.blocking(Runtime::stop).await?;
+                ReplyBody::Stop(Done {})
             }
             RequestBody::SetProperty {
                 component,
                 property,
                 value,
-            } => self.set_property(id, component, property, value).await,
-            RequestBody::TriggerAction { component, action } => self.action(id, component, action).await,
-            RequestBody::Status => {
-                let outcome = self
-                    .blocking(|r| {
-                        Ok(Status {
-                            state: r.state(),
-                            telemetry: r.telemetry(),
-                        })
-                    })
-                    .await;
-                self.answer(id, outcome)
+            } => {
+                self.set_property(component, property, value).await?;
+                ReplyBody::SetProperty(Done {})
             }
+            RequestBody::TriggerAction { component, action } => {
+                self.action(component, action).await?;
+                ReplyBody::TriggerAction(Done {})
+            }
+            RequestBody::Status => ReplyBody::Status(
+                self.blocking(|r| {
+                    Ok(Status {
+                        state: r.state(),
+                        telemetry: r.telemetry(),
+                    })
+                })
+                .await?,
+            ),
             RequestBody::SubscribeTelemetry { interval_ms } => {
-                let period = Duration::from_millis(interval_ms.max(MIN_TELEMETRY_MS));
+                let interval_ms = interval_ms.max(MIN_TELEMETRY_MS);
+                let period = Duration::from_millis(interval_ms);
                 if let Some(old) = self.telemetry.replace(self.telemetry_task(period)) {
                     old.abort();
                 }
-                self.reply(id, serde_json::json!({"interval_ms": period.as_millis()}))
+                ReplyBody::SubscribeTelemetry(TelemetrySubscribed { interval_ms })
             }
             RequestBody::UnsubscribeTelemetry => {
                 if let Some(task) = self.telemetry.take() {
                     task.abort();
                 }
-                self.reply(id, empty())
+                ReplyBody::UnsubscribeTelemetry(Done {})
             }
             RequestBody::SubscribeLog { level } => {
                 if let Some(old) = self.log.replace(self.log_task(level)) {
                     old.abort();
                 }
-                self.reply(id, empty())
+                ReplyBody::SubscribeLog(Done {})
             }
             RequestBody::UnsubscribeLog => {
                 if let Some(task) = self.log.take() {
                     task.abort();
                 }
-                self.reply(id, empty())
+                ReplyBody::UnsubscribeLog(Done {})
             }
             RequestBody::SubscribeSamples {
                 outputs,
@@ -337,7 +347,13 @@ impl Session {
                 } else {
                     PixelsIn::Frame
                 };
-                self.subscribe_samples(id, outputs, max_rate_hz, max_image_width, transport, pixels_in)
+                ReplyBody::SubscribeSamples(self.subscribe_samples(
+                    outputs,
+                    max_rate_hz,
+                    max_image_width,
+                    transport,
+                    pixels_in,
+                )?)
             }
             RequestBody::UnsubscribeSamples { outputs } => {
                 let names: Vec<String> = if outputs.is_empty() {
@@ -355,43 +371,58 @@ impl Session {
                     }
                     self.shared_samples.remove(&name);
                 }
-                self.reply(id, empty())
+                ReplyBody::UnsubscribeSamples(Done {})
             }
-            RequestBody::RecordStart { component } => self.action(id, component, "start".to_owned()).await,
-            RequestBody::RecordStop { component } => self.action(id, component, "stop".to_owned()).await,
-            RequestBody::RecordSplit { component } => self.action(id, component, "split".to_owned()).await,
-            RequestBody::PlayerPlay { component } => self.action(id, component, "play".to_owned()).await,
-            RequestBody::PlayerPause { component } => self.action(id, component, "pause".to_owned()).await,
-            RequestBody::PlayerStep { component } => self.action(id, component, "step".to_owned()).await,
+            RequestBody::RecordStart { component } => {
+                self.action(component, "start".to_owned()).await?;
+                ReplyBody::RecordStart(Done {})
+            }
+            RequestBody::RecordStop { component } => {
+                self.action(component, "stop".to_owned()).await?;
+                ReplyBody::RecordStop(Done {})
+            }
+            RequestBody::RecordSplit { component } => {
+                self.action(component, "split".to_owned()).await?;
+                ReplyBody::RecordSplit(Done {})
+            }
+            RequestBody::PlayerPlay { component } => {
+                self.action(component, "play".to_owned()).await?;
+                ReplyBody::PlayerPlay(Done {})
+            }
+            RequestBody::PlayerPause { component } => {
+                self.action(component, "pause".to_owned()).await?;
+                ReplyBody::PlayerPause(Done {})
+            }
+            RequestBody::PlayerStep { component } => {
+                self.action(component, "step".to_owned()).await?;
+                ReplyBody::PlayerStep(Done {})
+            }
             RequestBody::PlayerSeek { component, seconds } => {
-                self.set_property(id, component, "seek_s".to_owned(), Value::F64(seconds))
-                    .await
+                self.set_property(component, "seek_s".to_owned(), Value::F64(seconds))
+                    .await?;
+                ReplyBody::PlayerSeek(Done {})
             }
             RequestBody::PlayerSpeed { component, factor } => {
-                self.set_property(id, component, "speed".to_owned(), Value::F64(factor))
-                    .await
+                self.set_property(component, "speed".to_owned(), Value::F64(factor))
+                    .await?;
+                ReplyBody::PlayerSpeed(Done {})
             }
-        }
+        })
     }
 
-    async fn set_property(&self, id: u64, component: String, property: String, value: Value) -> bool {
-        let outcome = self
-            .blocking(move |r| {
-                r.set_property(&component, &property, &value)
-                    .map(|()| serde_json::json!({}))
-            })
-            .await;
-        self.answer(id, outcome)
+    async fn set_property(
+        &self,
+        component: String,
+        property: String,
+        value: Value,
+    ) -> Result<(), ProtocolError> {
+        self.blocking(move |r| r.set_property(&component, &property, &value))
+            .await
     }
 
-    async fn action(&self, id: u64, component: String, action: String) -> bool {
-        let outcome = self
-            .blocking(move |r| {
-                r.trigger_action(&component, &action)
-                    .map(|()| serde_json::json!({}))
-            })
-            .await;
-        self.answer(id, outcome)
+    async fn action(&self, component: String, action: String) -> Result<(), ProtocolError> {
+        self.blocking(move |r| r.trigger_action(&component, &action))
+            .await
     }
 
     fn telemetry_task(&self, period: Duration) -> JoinHandle<()> {
@@ -407,7 +438,9 @@ impl Session {
                 else {
                     continue;
                 };
-                let text = serde_json::to_string(&ServerMessage::Telemetry(telemetry)).unwrap_or_default();
+                let Some(text) = text_of(&ServerMessage::Telemetry(telemetry)) else {
+                    continue;
+                };
                 if let Err(TrySendError::Closed(_)) = out.try_send(Message::text(text)) {
                     return;
                 }
@@ -428,7 +461,9 @@ impl Session {
                 if record.level < level {
                     continue;
                 }
-                let text = serde_json::to_string(&ServerMessage::Log(record)).unwrap_or_default();
+                let Some(text) = text_of(&ServerMessage::Log(record)) else {
+                    continue;
+                };
                 if let Err(TrySendError::Closed(_)) = out.try_send(Message::text(text)) {
                     return;
                 }
@@ -438,13 +473,12 @@ impl Session {
 
     fn subscribe_samples(
         &mut self,
-        id: u64,
         outputs: Vec<String>,
         max_rate_hz: f64,
         max_image_width: Option<u32>,
         transport: SampleTransport,
         pixels_in: PixelsIn,
-    ) -> bool {
+    ) -> Result<SamplesSubscribed, ProtocolError> {
         let runtime = self.runtime();
         let mut unknown = Vec::new();
         for output in &outputs {
@@ -456,16 +490,13 @@ impl Session {
             }
         }
         if !unknown.is_empty() {
-            return self.refuse(
-                Some(id),
-                ProtocolError::new(
-                    ErrorCode::NotFound,
-                    format!(
-                        "no output {} in the deployed diagram (outputs are named component.port)",
-                        unknown.join(", ")
-                    ),
+            return Err(ProtocolError::new(
+                ErrorCode::NotFound,
+                format!(
+                    "no output {} in the deployed diagram (outputs are named component.port)",
+                    unknown.join(", ")
                 ),
-            );
+            ));
         }
         let rate = if max_rate_hz.is_finite() && max_rate_hz > 0.0 {
             max_rate_hz.min(MAX_SAMPLE_RATE_HZ)
@@ -473,7 +504,7 @@ impl Session {
             10.0
         };
         if transport == SampleTransport::SharedMemory {
-            return self.subscribe_shared(id, outputs, rate, max_image_width, pixels_in);
+            return self.subscribe_shared(outputs, rate, max_image_width, pixels_in);
         }
         for output in outputs {
             self.shared_samples.remove(&output);
@@ -489,26 +520,25 @@ impl Session {
                 old.abort();
             }
         }
-        self.reply(id, serde_json::json!({"max_rate_hz": rate}))
+        Ok(SamplesSubscribed {
+            max_rate_hz: rate,
+            services: None,
+        })
     }
 
     /// Publishes `outputs` in shared memory, one iceoryx2 service each, named in the reply.
     fn subscribe_shared(
         &mut self,
-        id: u64,
         outputs: Vec<String>,
         rate: f64,
         max_image_width: Option<u32>,
         pixels_in: PixelsIn,
-    ) -> bool {
+    ) -> Result<SamplesSubscribed, ProtocolError> {
         if !self.peer.ip().is_loopback() {
-            return self.refuse(
-                Some(id),
-                ProtocolError::new(
-                    ErrorCode::BadRequest,
-                    "shared memory is only for clients on the server's machine; use the socket transport",
-                ),
-            );
+            return Err(ProtocolError::new(
+                ErrorCode::BadRequest,
+                "shared memory is only for clients on the server's machine; use the socket transport",
+            ));
         }
         let mut services = BTreeMap::new();
         for output in outputs {
@@ -539,19 +569,19 @@ impl Session {
                     services.insert(output, service);
                 }
                 Err(error) => {
-                    return self.refuse(
-                        Some(id),
-                        ProtocolError::new(
-                            ErrorCode::Internal,
-                            format!(
-                                "cannot publish {output} in shared memory: {error}; use the socket transport"
-                            ),
+                    return Err(ProtocolError::new(
+                        ErrorCode::Internal,
+                        format!(
+                            "cannot publish {output} in shared memory: {error}; use the socket transport"
                         ),
-                    );
+                    ));
                 }
             }
         }
-        self.reply(id, serde_json::json!({"max_rate_hz": rate, "services": services}))
+        Ok(SamplesSubscribed {
+            max_rate_hz: rate,
+            services: Some(services),
+        })
     }
 
     fn end(&mut self) {
