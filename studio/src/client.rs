@@ -1,11 +1,18 @@
 //! The studio's side of the control protocol: one connection to a runtime, on a thread of its own, so the
 //! interface never waits for the network.
+//!
+//! Events reach the interface through one bounded channel ([`EVENT_QUEUE`] events). When the interface
+//! falls that far behind, what the runtime sends again anyway (telemetry every 250 ms, sample frames up to
+//! 30 a second per output, log records) is dropped and counted ([`DroppedEvents`], which the studio reports
+//! in its log); what answers the studio (replies, the session's start and end, the shared-memory reader's
+//! start) is never dropped: the connection's thread waits for room instead, which the interface makes at
+//! its next frame.
 
 use std::collections::BTreeMap;
 use std::net::TcpStream;
 use std::sync::Arc;
-use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::mpsc::{Receiver, Sender, TryRecvError, channel};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::mpsc::{Receiver, Sender, SyncSender, TryRecvError, TrySendError, channel, sync_channel};
 use std::time::Duration;
 
 use kairos_protocol::{
@@ -13,6 +20,11 @@ use kairos_protocol::{
 };
 use tungstenite::stream::MaybeTlsStream;
 use tungstenite::{Message, WebSocket};
+
+/// How many events wait for the interface at most. A frame of the interface takes them all; 256 covers
+/// several seconds of a stalled interface at the rates the studio subscribes to (4 telemetry events a
+/// second, 30 frames a second per viewed output), while bounding the memory held by queued image frames.
+pub const EVENT_QUEUE: usize = 256;
 
 /// What the connection reports.
 #[derive(Debug, Clone)]
@@ -27,12 +39,81 @@ pub enum ClientEvent {
     Log(LogRecord),
     /// A sample of a subscribed output: its header and payload bytes.
     Sample(kairos_protocol::frame::SampleHeader, Vec<u8>),
+    /// Whether the shared-memory reader asked for with [`RuntimeClient::receive_shared`] could open its
+    /// services; on an error, no frames come from it.
+    SharedMemory(Result<(), String>),
     /// The connection failed or ended, and why.
     Disconnected(String),
 }
 
+/// Events dropped because the interface fell [`EVENT_QUEUE`] events behind, by kind, since the
+/// connection began.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct DroppedEvents {
+    /// Sample frames (viewers show the next one).
+    pub samples: u64,
+    /// Telemetry events (the next comes within a second).
+    pub telemetry: u64,
+    /// Log records.
+    pub log: u64,
+}
+
+/// The counters behind [`DroppedEvents`], shared by the threads that send events.
+#[derive(Debug, Default)]
+struct DropCounters {
+    samples: AtomicU64,
+    telemetry: AtomicU64,
+    log: AtomicU64,
+}
+
 /// Calls that repaint the interface when something arrived.
 type Wake = Arc<dyn Fn() + Send + Sync>;
+
+/// The sending end of the interface's event channel: bounded, dropping (and counting) only events that
+/// the runtime sends again anyway, waking the interface after each event.
+#[derive(Clone)]
+pub struct EventSender {
+    sender: SyncSender<ClientEvent>,
+    dropped: Arc<DropCounters>,
+    wake: Wake,
+}
+
+impl std::fmt::Debug for EventSender {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("EventSender").finish_non_exhaustive()
+    }
+}
+
+impl EventSender {
+    /// Hands `event` to the interface and wakes it. Telemetry, samples and log records are dropped and
+    /// counted when the queue is full; other events wait for room. False once the interface is gone.
+    pub fn send(&self, event: ClientEvent) -> bool {
+        let counter = match &event {
+            ClientEvent::Sample(..) => Some(&self.dropped.samples),
+            ClientEvent::Telemetry(_) => Some(&self.dropped.telemetry),
+            ClientEvent::Log(_) => Some(&self.dropped.log),
+            ClientEvent::Connected(_)
+            | ClientEvent::Reply(_)
+            | ClientEvent::SharedMemory(_)
+            | ClientEvent::Disconnected(_) => None,
+        };
+        let sent = match counter {
+            Some(counter) => match self.sender.try_send(event) {
+                Ok(()) => true,
+                Err(TrySendError::Full(_)) => {
+                    counter.fetch_add(1, Ordering::Relaxed);
+                    return true;
+                }
+                Err(TrySendError::Disconnected(_)) => false,
+            },
+            None => self.sender.send(event).is_ok(),
+        };
+        if sent {
+            (self.wake)();
+        }
+        sent
+    }
+}
 
 /// A connection to a runtime.
 pub struct RuntimeClient {
@@ -41,9 +122,8 @@ pub struct RuntimeClient {
     incoming: Receiver<ClientEvent>,
     next_id: u64,
     /// Where sample frames from shared memory join the other events.
-    events: Sender<ClientEvent>,
-    wake: Wake,
-    /// The thread reading shared-memory frames, stopped by dropping its flag's other end.
+    events: EventSender,
+    /// The thread reading shared-memory frames, stopped by setting its flag.
     shared: Option<Arc<AtomicBool>>,
 }
 
@@ -68,7 +148,8 @@ impl Drop for RuntimeClient {
 const POLL: Duration = Duration::from_millis(15);
 
 impl RuntimeClient {
-    /// Connects to `url` with `token` on a background thread; `wake` is called after every event (to
+    /// Connects to `url` with `token` on a background thread and returns at once: the outcome arrives as
+    /// [`ClientEvent::Connected`] or [`ClientEvent::Disconnected`]. `wake` is called after every event (to
     /// repaint the interface).
     pub fn connect(
         url: &str,
@@ -76,32 +157,41 @@ impl RuntimeClient {
         wake: impl Fn() + Send + Sync + 'static,
     ) -> RuntimeClient {
         let (outgoing, requests) = channel::<String>();
-        let (events, incoming) = channel();
+        let (sender, incoming) = sync_channel(EVENT_QUEUE);
+        let events = EventSender {
+            sender,
+            dropped: Arc::new(DropCounters::default()),
+            wake: Arc::new(wake),
+        };
         let address = url.to_owned();
-        let wake: Wake = Arc::new(wake);
-        let (thread_events, thread_wake) = (events.clone(), Arc::clone(&wake));
-        std::thread::Builder::new()
+        let thread_events = events.clone();
+        let spawned = std::thread::Builder::new()
             .name("studio:net".to_owned())
             .spawn(move || {
-                let reason = run(&address, token, &requests, &thread_events, &*thread_wake);
-                let _ = thread_events.send(ClientEvent::Disconnected(reason));
-                thread_wake();
-            })
-            .ok();
+                let reason = run(&address, token, &requests, &thread_events);
+                thread_events.send(ClientEvent::Disconnected(reason));
+            });
+        if let Err(error) = spawned {
+            // The queue is empty yet, so this does not wait.
+            events.send(ClientEvent::Disconnected(format!(
+                "cannot start the connection's thread: {error}"
+            )));
+        }
         RuntimeClient {
             url: url.to_owned(),
             outgoing,
             incoming,
             next_id: 1,
             events,
-            wake,
             shared: None,
         }
     }
 
     /// Reads sample frames from these iceoryx2 services (output → service, as a shared-memory subscription
     /// named them), in place of any read before; they arrive as [`ClientEvent::Sample`] like socket frames.
-    /// An error says why the services cannot be read (the caller then subscribes through the socket).
+    /// Returns at once: whether the services could be opened arrives as [`ClientEvent::SharedMemory`] (on
+    /// an error the caller subscribes through the socket). An empty map only stops the reading. An error
+    /// here says the reader's thread could not be started.
     pub fn receive_shared(&mut self, services: BTreeMap<String, String>) -> Result<(), String> {
         if let Some(stop) = self.shared.take() {
             stop.store(true, Ordering::Relaxed);
@@ -110,20 +200,13 @@ impl RuntimeClient {
             return Ok(());
         }
         let stop = Arc::new(AtomicBool::new(false));
-        let (ready_tx, ready_rx) = channel::<Result<(), String>>();
-        let (events, wake, stopping) = (self.events.clone(), Arc::clone(&self.wake), Arc::clone(&stop));
+        let (events, stopping) = (self.events.clone(), Arc::clone(&stop));
         std::thread::Builder::new()
             .name("studio:shm".to_owned())
-            .spawn(move || crate::shared::read_frames(&services, &stopping, &ready_tx, &events, &*wake))
-            .map_err(|e| format!("cannot start a thread: {e}"))?;
-        match ready_rx.recv_timeout(Duration::from_secs(10)) {
-            Ok(Ok(())) => {
-                self.shared = Some(stop);
-                Ok(())
-            }
-            Ok(Err(error)) => Err(error),
-            Err(_) => Err("the shared-memory reader did not start in 10 s".to_owned()),
-        }
+            .spawn(move || crate::shared::read_frames(&services, &stopping, &events))
+            .map_err(|e| format!("cannot start the shared-memory reader's thread: {e}"))?;
+        self.shared = Some(stop);
+        Ok(())
     }
 
     /// The runtime's address.
@@ -131,17 +214,34 @@ impl RuntimeClient {
         &self.url
     }
 
-    /// Sends a request; returns its id, which its reply carries.
+    /// Sends a request with an id of the client's choosing; returns that id, which its reply carries.
+    /// (A caller that chooses ids itself uses [`RuntimeClient::send`] instead, never both.)
     pub fn request(&mut self, body: RequestBody) -> u64 {
         self.next_id += 1;
         let request = Request {
             id: self.next_id,
             body,
         };
-        let _ = self
-            .outgoing
-            .send(serde_json::to_string(&request).unwrap_or_default());
+        self.send(&request);
         self.next_id
+    }
+
+    /// Sends a request as it is. Ids above 1 are the caller's (1 is the connection's `hello`). Once the
+    /// connection has ended nothing is sent; the ending was reported as [`ClientEvent::Disconnected`].
+    pub fn send(&self, request: &Request) {
+        match serde_json::to_string(request) {
+            Ok(text) => {
+                // An error means the connection's thread has ended, which it reported itself.
+                let _ = self.outgoing.send(text);
+            }
+            Err(error) => {
+                // A log record is dropped rather than waited for: this runs on the interface's thread.
+                self.events.send(ClientEvent::Log(studio_record(
+                    kairos_protocol::LogLevel::Error,
+                    format!("a request was not sent: it cannot be encoded: {error}"),
+                )));
+            }
+        }
     }
 
     /// Everything that arrived since the last call.
@@ -154,21 +254,31 @@ impl RuntimeClient {
             }
         }
     }
+
+    /// How many events were dropped so far because the interface fell behind.
+    pub fn dropped(&self) -> DroppedEvents {
+        let counters = &self.events.dropped;
+        DroppedEvents {
+            samples: counters.samples.load(Ordering::Relaxed),
+            telemetry: counters.telemetry.load(Ordering::Relaxed),
+            log: counters.log.load(Ordering::Relaxed),
+        }
+    }
 }
 
-fn run(
-    url: &str,
-    token: Option<String>,
-    requests: &Receiver<String>,
-    events: &Sender<ClientEvent>,
-    wake: &dyn Fn(),
-) -> String {
+/// The connection's thread: connects, says hello, then sends requests and hands on what arrives until the
+/// connection ends; returns why it ended.
+fn run(url: &str, token: Option<String>, requests: &Receiver<String>, events: &EventSender) -> String {
     let mut socket: WebSocket<MaybeTlsStream<TcpStream>> = match tungstenite::connect(url) {
         Ok((socket, _)) => socket,
         Err(e) => return format!("cannot connect to {url}: {e}"),
     };
     if let MaybeTlsStream::Plain(stream) = socket.get_ref() {
-        let _ = stream.set_read_timeout(Some(POLL));
+        // Without the timeout the thread would wait on reads and never send requests.
+        if let Err(e) = stream.set_read_timeout(Some(POLL)) {
+            return format!("cannot set up the connection to {url}: {e}");
+        }
+        // Nagle's delay only slows small requests down; without it everything still works.
         let _ = stream.set_nodelay(true);
     }
     let hello = Request {
@@ -180,9 +290,15 @@ fn run(
             role: Some(Role::Operator),
         },
     };
-    if let Err(e) = socket.send(Message::text(serde_json::to_string(&hello).unwrap_or_default())) {
+    let hello = match serde_json::to_string(&hello) {
+        Ok(text) => text,
+        Err(e) => return format!("cannot encode hello: {e}"),
+    };
+    if let Err(e) = socket.send(Message::text(hello)) {
         return format!("cannot talk to {url}: {e}");
     }
+    let closed = "the studio closed the connection".to_owned();
+    let mut not_understood: u64 = 0;
     loop {
         loop {
             match requests.try_recv() {
@@ -192,13 +308,30 @@ fn run(
                     }
                 }
                 Err(TryRecvError::Empty) => break,
-                Err(TryRecvError::Disconnected) => return "the studio closed the connection".to_owned(),
+                Err(TryRecvError::Disconnected) => return closed,
             }
         }
         match socket.read() {
             Ok(Message::Text(text)) => {
-                let Ok(message) = serde_json::from_str::<ServerMessage>(text.as_str()) else {
-                    continue;
+                let message = match serde_json::from_str::<ServerMessage>(text.as_str()) {
+                    Ok(message) => message,
+                    Err(e) => {
+                        // A message this studio does not understand must not end the session: it is said
+                        // in the log, at the 1st, 2nd, 4th, 8th ... such message.
+                        not_understood += 1;
+                        if not_understood.is_power_of_two()
+                            && !events.send(ClientEvent::Log(studio_record(
+                                kairos_protocol::LogLevel::Warn,
+                                format!(
+                                    "{not_understood} message(s) from the runtime the studio does not \
+                                     understand, the last: {e}"
+                                ),
+                            )))
+                        {
+                            return closed;
+                        }
+                        continue;
+                    }
                 };
                 let event = match message {
                     ServerMessage::Reply(reply) if reply.id == Some(1) => {
@@ -215,21 +348,17 @@ fn run(
                     ServerMessage::Telemetry(telemetry) => ClientEvent::Telemetry(telemetry),
                     ServerMessage::Log(record) => ClientEvent::Log(record),
                 };
-                if events.send(event).is_err() {
-                    return "the studio closed the connection".to_owned();
+                if !events.send(event) {
+                    return closed;
                 }
-                wake();
             }
             Ok(Message::Binary(frame)) => {
-                // A frame that does not decode is skipped: one bad sample must not end the session.
-                if let Ok((header, payload)) = kairos_protocol::frame::decode(&frame) {
-                    if events
-                        .send(ClientEvent::Sample(header, payload.to_vec()))
-                        .is_err()
-                    {
-                        return "the studio closed the connection".to_owned();
-                    }
-                    wake();
+                // A frame that does not decode is skipped, as a lost one would be: one bad sample must not
+                // end the session.
+                if let Ok((header, payload)) = kairos_protocol::frame::decode(&frame)
+                    && !events.send(ClientEvent::Sample(header, payload.to_vec()))
+                {
+                    return closed;
                 }
             }
             Ok(Message::Close(_)) => return format!("the runtime at {url} closed the connection"),
@@ -241,5 +370,18 @@ fn run(
                 ) => {}
             Err(e) => return format!("lost the runtime at {url}: {e}"),
         }
+    }
+}
+
+/// A log record of the studio's own, for what its threads have to say.
+pub fn studio_record(level: kairos_protocol::LogLevel, message: String) -> LogRecord {
+    let at_ns = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| i64::try_from(d.as_nanos()).unwrap_or(i64::MAX));
+    LogRecord {
+        at_ns,
+        level,
+        component: None,
+        message,
     }
 }

@@ -89,12 +89,19 @@ impl LocalRuntime {
                 break url.to_owned();
             }
         };
-        // Its console output (core.console) keeps flowing; let it go to ours.
-        std::thread::spawn(move || {
-            for line in lines.map_while(Result::ok) {
-                println!("{line}");
-            }
-        });
+        // Its console output (core.console) keeps flowing; let it go to ours. Without the thread the output
+        // would fill the pipe and stall the runtime, so failing to start it fails the start.
+        if let Err(error) = std::thread::Builder::new()
+            .name("studio:runtime-out".to_owned())
+            .spawn(move || {
+                for line in lines.map_while(Result::ok) {
+                    println!("{line}");
+                }
+            })
+        {
+            let _ = child.kill();
+            return Err(format!("cannot start a thread for the runtime's output: {error}"));
+        }
         let token = std::fs::read_to_string(&token_file)
             .map_err(|e| format!("cannot read the runtime's token: {e}"))?
             .trim()
