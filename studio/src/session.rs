@@ -66,7 +66,7 @@ enum Pending {
     Describe,
     /// A subscription to the viewers' sample frames.
     Samples,
-    /// A deploy of [`Deploy::text`].
+    /// A deploy (of the text kept in `Deploy`).
     Deploy,
     /// Anything whose answer only matters when it is an error.
     Other,

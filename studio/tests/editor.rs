@@ -267,3 +267,56 @@ fn a_viewer_dropped_on_an_output_opens_for_its_type() {
         )]
     );
 }
+
+#[test]
+fn an_unreadable_token_file_is_said_in_the_log_and_the_dialog_stays() {
+    let config = tempfile::tempdir().unwrap();
+    let app = StudioApp::new(
+        Document::default(),
+        library(),
+        None,
+        "no runtime (test)".to_owned(),
+        None,
+    )
+    .with_config_dir(config.path().to_owned());
+    let mut harness = Harness::new_ui_state(|ui, app: &mut StudioApp| app.show(ui), app);
+    harness.set_size(Vec2::new(1280.0, 800.0));
+    harness.run_steps(2);
+    harness.get_by_label("File").click();
+    harness.run_steps(2);
+    harness.get_by_label("Connect to a runtime…").click();
+    harness.run_steps(2);
+    let token_label = "File holding its token (empty when it needs none):";
+    harness
+        .get_by_role_and_label(Role::TextInput, token_label)
+        .focus();
+    harness.run_steps(1);
+    let missing = config.path().join("no-such.token");
+    harness
+        .get_by_role_and_label(Role::TextInput, token_label)
+        .type_text(missing.to_str().unwrap());
+    harness.run_steps(1);
+    harness.get_by_label("Connect").click();
+    harness.run_steps(2);
+    let said: Vec<String> = harness
+        .state()
+        .session
+        .log
+        .lines()
+        .map(|l| l.text.clone())
+        .collect();
+    assert!(
+        said.iter()
+            .any(|l| l.starts_with("cannot read the token file") && l.contains("no-such.token")),
+        "{said:?}"
+    );
+    assert!(!harness.state().is_connected());
+    assert!(
+        harness.query_by_label("Connect").is_some(),
+        "the dialog stays open to correct the file"
+    );
+    assert!(
+        !config.path().join("studio-remote.txt").exists(),
+        "nothing is remembered"
+    );
+}
