@@ -18,6 +18,8 @@ pub struct LocalRuntime {
 
 impl Drop for LocalRuntime {
     fn drop(&mut self) {
+        // Best effort, with nobody left to tell: the runtime may have ended already, and a folder left in
+        // the temporary directory holds only a token that no runtime accepts any more.
         let _ = self.child.kill();
         let _ = self.child.wait();
         let _ = std::fs::remove_dir_all(&self.folder);
@@ -65,6 +67,7 @@ impl LocalRuntime {
         let folder = std::env::temp_dir().join(format!("kairos-studio-{}-{serial}", std::process::id()));
         std::fs::create_dir_all(&folder).map_err(|e| format!("cannot create {}: {e}", folder.display()))?;
         let token_file = folder.join("token");
+        // A token file from an earlier runtime of the same process id; none is the usual case.
         let _ = std::fs::remove_file(&token_file);
         let mut command = Command::new(binary);
         for pack in packs {
