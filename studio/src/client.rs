@@ -385,3 +385,57 @@ pub fn studio_record(level: kairos_protocol::LogLevel, message: String) -> LogRe
         message,
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use std::sync::Arc;
+    use std::sync::mpsc::sync_channel;
+    use std::time::Duration;
+
+    use super::{ClientEvent, DropCounters, EventSender};
+
+    fn telemetry() -> ClientEvent {
+        let telemetry = serde_json::json!({"at_ns": 1, "state": "running", "links": [], "components": []});
+        ClientEvent::Telemetry(serde_json::from_value(telemetry).unwrap())
+    }
+
+    fn reply(id: u64) -> ClientEvent {
+        let reply = serde_json::json!({"id": id, "ok": true});
+        ClientEvent::Reply(serde_json::from_value(reply).unwrap())
+    }
+
+    #[test]
+    fn a_full_queue_drops_and_counts_telemetry_but_waits_to_deliver_replies() {
+        let (sender, receiver) = sync_channel(2);
+        let events = EventSender {
+            sender,
+            dropped: Arc::new(DropCounters::default()),
+            wake: Arc::new(|| {}),
+        };
+        for _ in 0..3 {
+            assert!(events.send(telemetry()));
+        }
+        assert_eq!(
+            events
+                .dropped
+                .telemetry
+                .load(std::sync::atomic::Ordering::Relaxed),
+            1,
+            "the third did not fit"
+        );
+        // A reply waits for room: it arrives once the interface takes what is queued.
+        let replying = events.clone();
+        let thread = std::thread::Builder::new()
+            .name("test:reply".to_owned())
+            .spawn(move || replying.send(reply(7)))
+            .unwrap();
+        std::thread::sleep(Duration::from_millis(50));
+        assert!(!thread.is_finished(), "the reply waits while the queue is full");
+        for _ in 0..2 {
+            assert!(matches!(receiver.try_recv(), Ok(ClientEvent::Telemetry(_))));
+        }
+        assert!(thread.join().unwrap());
+        let next = receiver.recv_timeout(Duration::from_secs(5)).unwrap();
+        assert!(matches!(next, ClientEvent::Reply(r) if r.id == Some(7)));
+    }
+}
