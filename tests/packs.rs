@@ -270,10 +270,7 @@ fn a_pack_that_aborts_in_its_entry_point_is_named_by_the_last_line_of_the_log() 
     let packs = dir.path().join("packs");
     std::fs::create_dir(&packs).unwrap();
     let library = broken_pack(&packs, "aborts", &["ABORT_IN_ENTRY"]);
-    let output = kairos(
-        dir.path(),
-        &["--pack-path", packs.to_str().unwrap(), "packs"],
-    );
+    let output = kairos(dir.path(), &["--pack-path", packs.to_str().unwrap(), "packs"]);
     let (_, stderr) = text(&output);
     assert!(!output.status.success(), "the process cannot survive an abort");
     let last = stderr.lines().last().unwrap_or_default();

@@ -229,10 +229,10 @@ fn main() {
         "benchmark".to_owned(),
         None,
     );
-    studio.canvas.fit(&studio.document, &library);
+    studio.canvas.fit(&studio.session.document, &library);
     // The same diagram with telemetry arriving: its own studio, so the figures it shows stay out of `ours`.
     let mut live_studio = StudioApp::new(document, library.clone(), None, "benchmark".to_owned(), None);
-    live_studio.canvas.fit(&live_studio.document, &library);
+    live_studio.canvas.fit(&live_studio.session.document, &library);
     let live_ctx = egui::Context::default();
     let mut empty = StudioApp::new(Document::default(), library, None, "benchmark".to_owned(), None);
     let ours_ctx = egui::Context::default();
@@ -241,7 +241,7 @@ fn main() {
 
     // Warm-up: fonts, galley caches, the scene's fit; and the canvas transform the bare painter reuses.
     let _ = frames(&ours_ctx, 20, |ui| studio.show(ui));
-    let _ = live_studio.monitor.update(&telemetry(&diagram, 0));
+    let _ = live_studio.session.monitor.update(&telemetry(&diagram, 0));
     let _ = frames(&live_ctx, 20, |ui| live_studio.show(ui));
     let _ = frames(&empty_ctx, 20, |ui| empty.show(ui));
     let to_screen = {
@@ -270,7 +270,7 @@ fn main() {
             frame_number += 1;
             if frame_number.is_multiple_of(6) {
                 tick += 1;
-                let _ = live_studio.monitor.update(&telemetry(&diagram, tick));
+                let _ = live_studio.session.monitor.update(&telemetry(&diagram, tick));
             }
             live_studio.show(ui);
         }));

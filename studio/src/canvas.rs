@@ -2,39 +2,111 @@
 //! and zoom, selection, moving, connecting by dragging from an output to an input, dropping components from
 //! the palette. Every node, port and connection carries an accessible label (`component gain1 (core.gain)`,
 //! `output sine1.out (f64)`, `connection sine1.out -> gain1.in`), so tests and screen readers find them.
+//!
+//! Each frame is one pass in paint order: connections, then each node with its ports, then what is being
+//! dragged. Per part, `interact_*` makes its widget (area, id, accessible label), the `*_ui` method turns
+//! the response into selection or edits, and a `paint_*` function of [`paint`] draws it; where things are
+//! and what lies under the pointer is [`hit_test`]'s, which needs no window.
+
+pub mod hit_test;
+pub mod paint;
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::fmt::Write as _;
 use std::time::{Duration, Instant};
 
-use egui::{Align2, Color32, FontId, Pos2, Rect, Sense, Stroke, StrokeKind, Vec2, WidgetInfo};
-use kairos_diagram::{ComponentInfo, Diagram, LibraryInfo, PortRef, Position};
+use egui::{Color32, Pos2, Rect, Sense, Stroke, Vec2, WidgetInfo};
+use kairos_diagram::{
+    ComponentInstance, Connection, Diagram, InputInfo, LibraryInfo, PortRef, Position, ReaderPolicy,
+};
+use kairos_protocol::LinkTelemetry;
 
 use crate::document::Document;
 use crate::monitor::{Monitor, milliseconds};
+use crate::session::NodeState;
+use crate::viewers::ViewerKind;
+use hit_test::{Layout, NODE_WIDTH, PolicyLabel, PortSpot, Side, port_hit_rect};
+pub use paint::type_color;
+use paint::{ConnectionLook, NodeLook, PortLook};
 
-const NODE_WIDTH: f32 = 180.0;
-const HEADER: f32 = 38.0;
-const ROW: f32 = 20.0;
-const PORT_RADIUS: f32 = 5.5;
 /// Below this zoom the canvas leaves out port names, type names, policies and live figures.
 const DETAIL_SCALE: f32 = 0.45;
-/// The colour of lost samples.
-const DROP_COLOR: Color32 = Color32::from_rgb(240, 110, 60);
+/// How long a refusal stays on the canvas.
+const NOTICE_SHOWN: Duration = Duration::from_secs(4);
 
-/// How a component is doing, as the runtime reports it.
+/// A connection, by its ends.
 #[derive(Debug, Clone, PartialEq, Eq)]
-pub enum NodeState {
-    /// Running its cycles.
-    Running,
-    /// Waiting (paused, idle, not started).
-    Waiting(String),
-    /// Its stream ended.
-    Finished,
-    /// Failed, with the error.
-    Failed(String),
-    /// The runtime refused the diagram because of this component; the problems, one per line.
-    Invalid(String),
+pub struct ConnectionRef {
+    /// The output it reads.
+    pub from: PortRef,
+    /// The input it feeds.
+    pub to: PortRef,
+}
+
+impl ConnectionRef {
+    /// Whether this is `connection`.
+    pub fn is(&self, connection: &Connection) -> bool {
+        self.from == connection.from && self.to == connection.to
+    }
+}
+
+/// A box being dragged out on the background to select what it touches (scene coordinates).
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct RubberBand {
+    /// Where the drag began.
+    start: Pos2,
+    /// Where the pointer is.
+    end: Pos2,
+    /// Whether it adds to the selection (Shift or Ctrl held when it began) rather than replacing it.
+    adds: bool,
+}
+
+impl RubberBand {
+    fn rect(&self) -> Rect {
+        Rect::from_two_pos(self.start, self.end)
+    }
+}
+
+/// A refusal shown on the canvas for a while.
+#[derive(Debug, Clone)]
+struct Notice {
+    text: String,
+    /// Where it happened (scene coordinates).
+    at: Pos2,
+    since: Instant,
+}
+
+/// An output the user asked to watch, with the viewer's kind.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct ViewerRequest {
+    /// The output.
+    pub output: PortRef,
+    /// How to show it.
+    pub kind: ViewerKind,
+}
+
+/// What the canvas shows besides the document.
+#[derive(Debug, Clone, Copy)]
+pub struct Shown<'a> {
+    /// The component library (ports, types, default policies).
+    pub library: &'a LibraryInfo,
+    /// Each component's state, as the runtime reported it.
+    pub states: &'a BTreeMap<String, NodeState>,
+    /// Live figures.
+    pub monitor: &'a Monitor,
+    /// Problems the runtime found with ports.
+    pub port_problems: &'a BTreeMap<PortRef, String>,
+}
+
+/// What one frame of the scene works from: the diagram as the frame began, where its parts are, and
+/// what else is shown.
+struct Frame<'a> {
+    diagram: &'a Diagram,
+    layout: &'a Layout,
+    shown: &'a Shown<'a>,
+    painter: &'a egui::Painter,
+    /// Whether there is room for small text.
+    detail: bool,
 }
 
 /// The canvas's own state between frames.
@@ -44,19 +116,17 @@ pub struct Canvas {
     /// Selected components.
     pub selected: BTreeSet<String>,
     /// The selected connection, if any.
-    pub selected_connection: Option<(PortRef, PortRef)>,
+    pub selected_connection: Option<ConnectionRef>,
+    /// The output a connection is being dragged from.
     pending_link: Option<PortRef>,
+    /// The diagram before nodes began to be dragged: one undoable step when the drag ends.
     drag_origin: Option<Diagram>,
-    notice: Option<(String, Pos2, Instant)>,
+    notice: Option<Notice>,
     /// Scene to screen, as of the last frame.
     to_screen: egui::emath::TSTransform,
-    /// Problems the runtime found with ports (a refused deploy), shown on them until the next deploy.
-    pub port_problems: BTreeMap<PortRef, String>,
-    /// A box being dragged out on the background to select what it touches (scene coordinates), and
-    /// whether it adds to the selection (Shift or Ctrl held when it started).
-    rubber_band: Option<(Pos2, Pos2, bool)>,
-    /// An output the user asked to watch (its context menu), with its data type, until the studio takes it.
-    viewer_request: Option<(PortRef, crate::viewers::ViewerKind)>,
+    rubber_band: Option<RubberBand>,
+    /// An output the user asked to watch, until the studio takes it.
+    viewer_request: Option<ViewerRequest>,
 }
 
 impl Default for Canvas {
@@ -69,7 +139,6 @@ impl Default for Canvas {
             drag_origin: None,
             notice: None,
             to_screen: egui::emath::TSTransform::IDENTITY,
-            port_problems: BTreeMap::new(),
             rubber_band: None,
             viewer_request: None,
         }
@@ -84,92 +153,128 @@ pub struct NewComponent(pub String);
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct NewViewer;
 
-/// Where a node's parts are, in scene coordinates.
-struct Geometry {
-    rect: Rect,
-    inputs: Vec<(String, Pos2)>,
-    outputs: Vec<(String, Pos2)>,
+/// A clickable area with an accessible label (the canvas's parts are buttons to screen readers and tests).
+fn interact_labelled(ui: &egui::Ui, rect: Rect, id: egui::Id, sense: Sense, label: &str) -> egui::Response {
+    let response = ui.interact(rect, id, sense);
+    response.widget_info(|| WidgetInfo::labeled(egui::Role::Button, true, label));
+    response
 }
 
-fn geometry(position: Position, info: Option<&ComponentInfo>) -> Geometry {
-    let rows = info.map_or(0, |i| i.inputs.len().max(i.outputs.len()));
-    let min = Pos2::new(position.x, position.y);
-    let rect = Rect::from_min_size(min, Vec2::new(NODE_WIDTH, HEADER + ROW * rows as f32 + 6.0));
-    let row_y = |index: usize| min.y + HEADER + ROW * (index as f32 + 0.5);
-    Geometry {
+/// A connection's label, which selects it.
+fn interact_connection(ui: &egui::Ui, connection: &Connection, label: Rect) -> egui::Response {
+    let id = ui.make_persistent_id(("connection", &connection.from, &connection.to));
+    interact_labelled(
+        ui,
+        label,
+        id,
+        Sense::click(),
+        &format!("connection {} -> {}", connection.from, connection.to),
+    )
+}
+
+/// A node's box, which selects and moves it.
+fn interact_node(ui: &egui::Ui, component: &ComponentInstance, rect: Rect) -> egui::Response {
+    let id = ui.make_persistent_id(("node", &component.id));
+    interact_labelled(
+        ui,
         rect,
-        inputs: info.map_or_else(Vec::new, |i| {
-            i.inputs
-                .iter()
-                .enumerate()
-                .map(|(n, p)| (p.name.clone(), Pos2::new(rect.left(), row_y(n))))
-                .collect()
-        }),
-        outputs: info.map_or_else(Vec::new, |i| {
-            i.outputs
-                .iter()
-                .enumerate()
-                .map(|(n, p)| (p.name.clone(), Pos2::new(rect.right(), row_y(n))))
-                .collect()
-        }),
-    }
+        id,
+        Sense::click_and_drag(),
+        &format!("component {} ({})", component.id, component.type_name),
+    )
 }
 
-/// A reader policy in a few letters, for connections too short for its name.
-fn short_policy(policy: kairos_diagram::ReaderPolicy) -> &'static str {
-    match policy {
-        kairos_diagram::ReaderPolicy::Fifo => "FIFO",
-        kairos_diagram::ReaderPolicy::LastOrNext => "LoN",
-        kairos_diagram::ReaderPolicy::WaitForNext => "WfN",
-        kairos_diagram::ReaderPolicy::Sampling => "Smp",
-        kairos_diagram::ReaderPolicy::NeverSkipping => "NS",
-    }
+/// A port's dot: an input's takes hovers, an output's starts connections and opens viewers.
+fn interact_port(ui: &egui::Ui, port: &PortRef, at: Pos2, side: Side, label: &str) -> egui::Response {
+    let (salt, sense) = match side {
+        Side::Input => ("input", Sense::click()),
+        Side::Output => ("output", Sense::click_and_drag()),
+    };
+    interact_labelled(
+        ui,
+        port_hit_rect(at),
+        ui.make_persistent_id((salt, port)),
+        sense,
+        label,
+    )
 }
 
-/// A stable colour per data type name, so a port's colour says what flows through it.
-pub fn type_color(name: &str) -> Color32 {
-    let hash = name.bytes().fold(2_166_136_261_u32, |h, b| {
-        (h ^ u32::from(b)).wrapping_mul(16_777_619)
-    });
-    let hue = (hash % 360) as f32 / 360.0;
-    egui::ecolor::Hsva::new(hue, 0.55, 0.85, 1.0).into()
+/// The policy a connection reads with: its own, else its input's default.
+fn policy_of(connection: &Connection, diagram: &Diagram, library: &LibraryInfo) -> Option<ReaderPolicy> {
+    connection.policy.or_else(|| {
+        diagram
+            .component(&connection.to.component)
+            .and_then(|c| library.component_of(c))
+            .and_then(|i| i.input(&connection.to.port))
+            .map(|i| i.default_policy)
+    })
 }
 
-fn state_color(state: Option<&NodeState>) -> Color32 {
-    match state {
-        Some(NodeState::Running) => Color32::from_rgb(70, 170, 90),
-        Some(NodeState::Finished) => Color32::from_rgb(90, 120, 200),
-        Some(NodeState::Failed(_) | NodeState::Invalid(_)) => Color32::from_rgb(210, 60, 60),
-        Some(NodeState::Waiting(_)) => Color32::from_rgb(200, 170, 60),
-        None => Color32::from_gray(110),
-    }
-}
-
-fn edge(painter: &egui::Painter, from: Pos2, to: Pos2, stroke: Stroke) {
-    let bend = ((to.x - from.x).abs() * 0.5).max(40.0);
-    let shape = egui::epaint::CubicBezierShape::from_points_stroke(
-        [from, from + Vec2::new(bend, 0.0), to - Vec2::new(bend, 0.0), to],
-        false,
-        Color32::TRANSPARENT,
-        stroke,
+/// An input: what it accepts on hover, or the runtime's problem with it.
+fn input_ui(ui: &egui::Ui, frame: &Frame<'_>, component: &str, spot: &PortSpot, input: &InputInfo) {
+    let port = PortRef::new(component, &spot.name);
+    let accepts = input.filter.to_string();
+    let response = interact_port(
+        ui,
+        &port,
+        spot.at,
+        Side::Input,
+        &format!("input {port} ({accepts})"),
     );
-    painter.add(shape);
+    let problem = frame.shown.port_problems.get(&port);
+    if let Some(problem) = problem {
+        response.on_hover_text(problem);
+    } else if response.hovered() {
+        response.on_hover_text(format!("{}: {} ({accepts})", spot.name, input.doc));
+    }
+    let look = PortLook {
+        name: &spot.name,
+        color: paint::filter_color(&input.filter),
+        problem: problem.is_some(),
+        viewer_hover: false,
+        detail: frame.detail,
+    };
+    paint::paint_port(frame.painter, ui.visuals(), spot.at, Side::Input, &look);
+}
+
+/// What hovering a connection says: its ends, its policy, its figures.
+fn connection_hover(
+    connection: &Connection,
+    policy: Option<ReaderPolicy>,
+    figures: Option<&LinkTelemetry>,
+) -> String {
+    let mut hover = format!(
+        "{} -> {}\nreader policy: {}{}",
+        connection.from,
+        connection.to,
+        policy.map_or("?", ReaderPolicy::name),
+        if connection.policy.is_none() {
+            " (the input's default)"
+        } else {
+            ""
+        }
+    );
+    if let Some(t) = figures {
+        let _ = write!(
+            hover,
+            "\n{:.1} samples/s; latency p50 {}, p99 {}\nwritten {}, read {}, skipped {}, lost \
+             (overwritten unread) {}, queued {}",
+            t.rate_hz,
+            milliseconds(t.latency.p50_ns),
+            milliseconds(t.latency.p99_ns),
+            t.written,
+            t.read,
+            t.skipped,
+            t.overwritten,
+            t.queued
+        );
+    }
+    hover
 }
 
 impl Canvas {
     /// Shows the canvas; edits go through `document`, each an undoable step.
-    #[allow(
-        clippy::too_many_lines,
-        reason = "one pass over nodes, ports and edges, in paint order"
-    )]
-    pub fn show(
-        &mut self,
-        ui: &mut egui::Ui,
-        document: &mut Document,
-        library: &LibraryInfo,
-        states: &BTreeMap<String, NodeState>,
-        monitor: &Monitor,
-    ) {
+    pub fn show(&mut self, ui: &mut egui::Ui, document: &mut Document, shown: &Shown<'_>) {
         // A primary drag on the background selects with a box; the middle or secondary button (or scrolling)
         // pans, as in most node editors.
         let scene = egui::Scene::new().zoom_range(0.2..=3.0).drag_pan_buttons(
@@ -179,394 +284,300 @@ impl Canvas {
         // Zoomed far out, small text is unreadable and costly: only ids, boxes, curves and losses are drawn.
         let detail = self.to_screen.scaling >= DETAIL_SCALE;
         let response = scene.show(ui, &mut scene_rect, |ui| {
-            let painter = ui.painter().clone();
-            let to_scene = ui.ctx().layer_transform_from_global(ui.layer_id());
-            if let Some(to_screen) = ui.ctx().layer_transform_to_global(ui.layer_id()) {
-                self.to_screen = to_screen;
-            }
-            let cursor = ui
-                .ctx()
-                .pointer_latest_pos()
-                .map(|p| to_scene.map_or(p, |t| t * p));
-            let diagram = document.diagram().clone();
-            let geometries: BTreeMap<&str, Geometry> = diagram
-                .components
-                .iter()
-                .map(|c| (c.id.as_str(), geometry(c.position, library.component_of(c))))
-                .collect();
-            let port_at = |port: &PortRef, output: bool| -> Option<Pos2> {
-                let g = geometries.get(port.component.as_str())?;
-                let ports = if output { &g.outputs } else { &g.inputs };
-                ports.iter().find(|(name, _)| *name == port.port).map(|(_, p)| *p)
-            };
-
-            // Connections under the nodes.
-            for connection in &diagram.connections {
-                let (Some(from), Some(to)) =
-                    (port_at(&connection.from, true), port_at(&connection.to, false))
-                else {
-                    continue;
-                };
-                let selected = self
-                    .selected_connection
-                    .as_ref()
-                    .is_some_and(|(f, t)| f == &connection.from && t == &connection.to);
-                let color = document
-                    .output_type(&connection.from, library)
-                    .map_or(Color32::GRAY, |t| type_color(t.name()));
-                let figures = monitor.link(&connection.from, &connection.to);
-                // A connection that lost samples lately turns to the warning colour and thickens.
-                let dropping = figures.is_some_and(crate::monitor::LinkHistory::dropping);
-                let stroke = match (dropping, selected) {
-                    (true, _) => Stroke::new(4.0, DROP_COLOR),
-                    (false, true) => Stroke::new(4.0, color),
-                    (false, false) => Stroke::new(2.0, color),
-                };
-                edge(&painter, from, to, stroke);
-                let policy = connection.policy.or_else(|| {
-                    diagram
-                        .component(&connection.to.component)
-                        .and_then(|c| library.component_of(c))
-                        .and_then(|i| i.input(&connection.to.port))
-                        .map(|i| i.default_policy)
-                });
-                let middle = from + (to - from) * 0.5;
-                // The policy's full name where there is room for it, its short form on short connections.
-                let roomy = (to - from).length() > 130.0 || selected;
-                let (text, width) = if roomy {
-                    (policy.map_or("?", kairos_diagram::ReaderPolicy::name), 86.0)
-                } else {
-                    (policy.map_or("?", short_policy), 34.0)
-                };
-                let label_rect = Rect::from_center_size(middle, Vec2::new(width, 16.0));
-                let label = format!("connection {} -> {}", connection.from, connection.to);
-                let id = ui.make_persistent_id(("connection", &connection.from, &connection.to));
-                let clicked = ui.interact(label_rect, id, Sense::click());
-                clicked.widget_info(|| WidgetInfo::labeled(egui::Role::Button, true, &label));
-                if clicked.clicked() {
-                    self.selected_connection = Some((connection.from.clone(), connection.to.clone()));
-                    self.selected.clear();
-                }
-                painter.rect_filled(label_rect, 4.0, ui.visuals().extreme_bg_color);
-                if detail {
-                    painter.text(
-                        middle,
-                        Align2::CENTER_CENTER,
-                        text,
-                        FontId::proportional(11.0),
-                        color,
-                    );
-                }
-                let hovered = clicked.hovered();
-                let mut hover = String::new();
-                if hovered {
-                    hover = format!(
-                    "{} -> {}\nreader policy: {}{}",
-                    connection.from,
-                    connection.to,
-                    policy.map_or("?", kairos_diagram::ReaderPolicy::name),
-                    if connection.policy.is_none() {
-                        " (the input's default)"
-                    } else {
-                        ""
-                    }
-                    );
-                }
-                if let Some(figures) = figures {
-                    let t = &figures.latest;
-                    if detail {
-                        let live = format!("{:.0} Hz · {}", t.rate_hz, milliseconds(t.latency.p50_ns));
-                        painter.text(
-                            label_rect.center_bottom() + Vec2::new(0.0, 2.0),
-                            Align2::CENTER_TOP,
-                            &live,
-                            FontId::proportional(10.0),
-                            ui.visuals().weak_text_color(),
-                        );
-                    }
-                    if t.overwritten > 0 {
-                        painter.text(
-                            label_rect.center_bottom() + Vec2::new(0.0, 14.0),
-                            Align2::CENTER_TOP,
-                            format!("{} lost", t.overwritten),
-                            FontId::proportional(10.5),
-                            DROP_COLOR,
-                        );
-                    }
-                    if hovered {
-                        let _ = write!(
-                        hover,
-                        "\n{:.1} samples/s; latency p50 {}, p99 {}\nwritten {}, read {}, skipped {}, lost \
-                         (overwritten unread) {}, queued {}",
-                        t.rate_hz,
-                        milliseconds(t.latency.p50_ns),
-                        milliseconds(t.latency.p99_ns),
-                        t.written,
-                        t.read,
-                        t.skipped,
-                        t.overwritten,
-                        t.queued
-                    );
-                    }
-                }
-                if hovered {
-                    clicked.on_hover_text(hover);
-                }
-            }
-
-            // Nodes and ports.
-            let mut link_target: Option<PortRef> = None;
-            let mut link_released = false;
-            for component in &diagram.components {
-                let Some(g) = geometries.get(component.id.as_str()) else {
-                    continue;
-                };
-                let info = library.component_of(component);
-                let node = ui.interact(
-                    g.rect,
-                    ui.make_persistent_id(("node", &component.id)),
-                    Sense::click_and_drag(),
-                );
-                let label = format!("component {} ({})", component.id, component.type_name);
-                node.widget_info(|| WidgetInfo::labeled(egui::Role::Button, true, &label));
-                if node.clicked() {
-                    if !ui.input(|i| i.modifiers.shift || i.modifiers.command) {
-                        self.selected.clear();
-                    }
-                    self.selected.insert(component.id.clone());
-                    self.selected_connection = None;
-                }
-                if node.drag_started() {
-                    self.drag_origin = Some(diagram.clone());
-                    if !self.selected.contains(&component.id) {
-                        self.selected = BTreeSet::from([component.id.clone()]);
-                    }
-                }
-                if node.dragged() {
-                    let delta = node.drag_delta();
-                    for id in &self.selected {
-                        if let Some(c) = document.diagram().component(id) {
-                            let p = c.position;
-                            document.move_component(
-                                id,
-                                Position {
-                                    x: p.x + delta.x,
-                                    y: p.y + delta.y,
-                                },
-                            );
-                        }
-                    }
-                }
-                if node.drag_stopped()
-                    && let Some(before) = self.drag_origin.take()
-                {
-                    document.record(before);
-                }
-                let selected = self.selected.contains(&component.id);
-                let state = states.get(&component.id);
-                let visuals = ui.visuals();
-                painter.rect_filled(g.rect, 6.0, visuals.faint_bg_color);
-                painter.rect_stroke(
-                    g.rect,
-                    6.0,
-                    if selected {
-                        Stroke::new(2.5, visuals.selection.stroke.color)
-                    } else {
-                        Stroke::new(1.0, visuals.widgets.noninteractive.bg_stroke.color)
-                    },
-                    StrokeKind::Inside,
-                );
-                let stripe = Rect::from_min_size(g.rect.min, Vec2::new(6.0, g.rect.height()));
-                painter.rect_filled(stripe, 3.0, state_color(state));
-                let text = visuals.text_color();
-                painter.text(
-                    g.rect.min + Vec2::new(12.0, 5.0),
-                    Align2::LEFT_TOP,
-                    &component.id,
-                    FontId::proportional(14.0),
-                    text,
-                );
-                if detail {
-                    painter.text(
-                        g.rect.min + Vec2::new(12.0, 22.0),
-                        Align2::LEFT_TOP,
-                        &component.type_name,
-                        FontId::proportional(10.5),
-                        visuals.weak_text_color(),
-                    );
-                }
-                if detail && let Some(figures) = monitor.components.get(&component.id) {
-                    let t = &figures.latest;
-                    painter.text(
-                        g.rect.right_top() + Vec2::new(-8.0, 5.0),
-                        Align2::RIGHT_TOP,
-                        format!("{:.0}/s · {:.0} % CPU", t.cycle_rate_hz, t.cpu_share * 100.0),
-                        FontId::proportional(10.0),
-                        visuals.weak_text_color(),
-                    );
-                }
-                if let Some(NodeState::Failed(error)) = state {
-                    node.clone().on_hover_text(format!("failed: {error}"));
-                } else if let Some(info) = info {
-                    node.clone().on_hover_text(&info.doc);
-                } else {
-                    node.clone()
-                        .on_hover_text(format!("unknown component type {}", component.type_name));
-                }
-                let Some(info) = info else { continue };
-                for (index, (name, at)) in g.inputs.iter().enumerate() {
-                    let Some(input) = info.inputs.get(index) else {
-                        continue;
-                    };
-                    let port = PortRef::new(&component.id, name);
-                    let accepts = input.filter.to_string();
-                    let hit = Rect::from_center_size(*at, Vec2::splat(PORT_RADIUS * 3.0));
-                    let response = ui.interact(hit, ui.make_persistent_id(("input", &port)), Sense::click());
-                    let label = format!("input {port} ({accepts})");
-                    response.widget_info(|| WidgetInfo::labeled(egui::Role::Button, true, &label));
-                    if let Some(problem) = self.port_problems.get(&port) {
-                        let ring = Stroke::new(2.0, Color32::from_rgb(230, 90, 80));
-                        painter.circle_stroke(*at, PORT_RADIUS + 3.0, ring);
-                        response.on_hover_text(problem);
-                    } else if response.hovered() {
-                        response.on_hover_text(format!("{}: {} ({accepts})", name, input.doc));
-                    }
-                    let color = match &input.filter {
-                        kairos_diagram::TypeFilter::OneOf(types) if types.len() == 1 => {
-                            type_color(types[0].name())
-                        }
-                        _ => Color32::LIGHT_GRAY,
-                    };
-                    painter.circle_filled(*at, PORT_RADIUS, color);
-                    if detail {
-                        painter.text(
-                            *at + Vec2::new(9.0, 0.0),
-                            Align2::LEFT_CENTER,
-                            name,
-                            FontId::proportional(11.5),
-                            text,
-                        );
-                    }
-                    if cursor.is_some_and(|p| hit.contains(p)) {
-                        link_target = Some(port);
-                    }
-                }
-                for (name, at) in &g.outputs {
-                    let port = PortRef::new(&component.id, name);
-                    let data_type = document.output_type(&port, library);
-                    let type_name = data_type.as_ref().map_or("?", |t| t.name()).to_owned();
-                    let hit = Rect::from_center_size(*at, Vec2::splat(PORT_RADIUS * 3.0));
-                    let response = ui.interact(
-                        hit,
-                        ui.make_persistent_id(("output", &port)),
-                        Sense::click_and_drag(),
-                    );
-                    let label = format!("output {port} ({type_name})");
-                    response.widget_info(|| WidgetInfo::labeled(egui::Role::Button, true, &label));
-                    if response.drag_started() {
-                        self.pending_link = Some(port.clone());
-                    }
-                    if let Some(problem) = self.port_problems.get(&port) {
-                        let ring = Stroke::new(2.0, Color32::from_rgb(230, 90, 80));
-                        painter.circle_stroke(*at, PORT_RADIUS + 3.0, ring);
-                        response.clone().on_hover_text(problem);
-                    }
-
-                    if response.drag_stopped() {
-                        link_released = true;
-                    }
-                    if response.dnd_hover_payload::<NewViewer>().is_some() {
-                        let ring = Stroke::new(2.5, ui.visuals().selection.stroke.color);
-                        painter.circle_stroke(*at, PORT_RADIUS + 4.0, ring);
-                    }
-                    if response.dnd_release_payload::<NewViewer>().is_some() {
-                        self.viewer_request =
-                            Some((port.clone(), crate::viewers::ViewerKind::for_type(&type_name)));
-                    }
-                    response.context_menu(|ui| {
-                        for kind in crate::viewers::ViewerKind::choices(&type_name) {
-                            if ui.button(format!("Open a viewer ({})", kind.name())).clicked() {
-                                self.viewer_request = Some((port.clone(), kind));
-                                ui.close();
-                            }
-                        }
-                    });
-                    painter.circle_filled(*at, PORT_RADIUS, type_color(&type_name));
-                    if detail {
-                        painter.text(
-                            *at - Vec2::new(9.0, 0.0),
-                            Align2::RIGHT_CENTER,
-                            name,
-                            FontId::proportional(11.5),
-                            text,
-                        );
-                    }
-                }
-            }
-
-            if let Some((start, end, _)) = self.rubber_band {
-                let band = Rect::from_two_pos(start, end);
-                let selection = ui.visuals().selection;
-                painter.rect_filled(band, 0.0, selection.bg_fill.gamma_multiply(0.25));
-                painter.rect_stroke(
-                    band,
-                    0.0,
-                    Stroke::new(1.0, selection.stroke.color),
-                    StrokeKind::Inside,
-                );
-            }
-
-            // A connection being dragged out of an output.
-            if let (Some(from), Some(to)) = (&self.pending_link, cursor)
-                && let Some(start) = port_at(from, true)
-            {
-                edge(
-                    &painter,
-                    start,
-                    to,
-                    Stroke::new(2.0, ui.visuals().selection.stroke.color),
-                );
-            }
-            if link_released
-                && let Some(from) = self.pending_link.take()
-                && let Some(to) = link_target
-                && let Err(refusal) = document.connect(&from, &to, library)
-            {
-                self.notice = Some((refusal.0, cursor.unwrap_or_default(), Instant::now()));
-            }
-            if let Some((text, at, since)) = &self.notice {
-                if since.elapsed() < Duration::from_secs(4) {
-                    let rect = painter.text(
-                        *at + Vec2::new(12.0, 12.0),
-                        Align2::LEFT_TOP,
-                        text,
-                        FontId::proportional(12.0),
-                        Color32::from_rgb(230, 90, 80),
-                    );
-                    painter.rect_stroke(
-                        rect.expand(4.0),
-                        4.0,
-                        Stroke::new(1.0, Color32::from_rgb(230, 90, 80)),
-                        StrokeKind::Outside,
-                    );
-                    ui.ctx().request_repaint_after(Duration::from_millis(250));
-                } else {
-                    self.notice = None;
-                }
-            }
-            cursor
+            self.scene_ui(ui, document, shown, detail)
         });
         self.scene_rect = scene_rect;
-        let background = response.response;
+        self.background_ui(ui, &response.response, response.inner, document, shown.library);
+    }
+
+    /// Everything inside the zoomable scene; returns where the pointer is, in scene coordinates.
+    fn scene_ui(
+        &mut self,
+        ui: &mut egui::Ui,
+        document: &mut Document,
+        shown: &Shown<'_>,
+        detail: bool,
+    ) -> Option<Pos2> {
+        let painter = ui.painter().clone();
+        let to_scene = ui.ctx().layer_transform_from_global(ui.layer_id());
+        if let Some(to_screen) = ui.ctx().layer_transform_to_global(ui.layer_id()) {
+            self.to_screen = to_screen;
+        }
+        let cursor = ui
+            .ctx()
+            .pointer_latest_pos()
+            .map(|p| to_scene.map_or(p, |t| t * p));
+        let diagram = document.diagram().clone();
+        let layout = Layout::of(&diagram, shown.library);
+        let frame = Frame {
+            diagram: &diagram,
+            layout: &layout,
+            shown,
+            painter: &painter,
+            detail,
+        };
+        // Connections under the nodes.
+        for connection in &diagram.connections {
+            self.connection_ui(ui, &frame, document, connection);
+        }
+        let mut link_released = false;
+        for component in &diagram.components {
+            link_released |= self.node_ui(ui, &frame, document, component);
+        }
+        if let Some(band) = self.rubber_band {
+            paint::paint_rubber_band(&painter, ui.visuals(), band.rect());
+        }
+        // A connection being dragged out of an output.
+        if let (Some(from), Some(to)) = (&self.pending_link, cursor)
+            && let Some(start) = layout.port(from, Side::Output)
+        {
+            paint::paint_edge(
+                &painter,
+                start,
+                to,
+                Stroke::new(2.0, ui.visuals().selection.stroke.color),
+            );
+        }
+        if link_released
+            && let Some(from) = self.pending_link.take()
+            && let Some(to) = cursor.and_then(|p| layout.input_at(p))
+            && let Err(refusal) = document.connect(&from, &to, shown.library)
+        {
+            self.notice = Some(Notice {
+                text: refusal.0,
+                at: cursor.unwrap_or_default(),
+                since: Instant::now(),
+            });
+        }
+        self.notice_ui(ui, &painter);
+        cursor
+    }
+
+    /// One connection: selected by a click on its label, described on hover, drawn with its figures.
+    fn connection_ui(
+        &mut self,
+        ui: &egui::Ui,
+        frame: &Frame<'_>,
+        document: &Document,
+        connection: &Connection,
+    ) {
+        let (Some(from), Some(to)) = (
+            frame.layout.port(&connection.from, Side::Output),
+            frame.layout.port(&connection.to, Side::Input),
+        ) else {
+            return;
+        };
+        let library = frame.shown.library;
+        let selected = self
+            .selected_connection
+            .as_ref()
+            .is_some_and(|s| s.is(connection));
+        let label = PolicyLabel::between(from, to, selected);
+        let response = interact_connection(ui, connection, label.rect);
+        if response.clicked() {
+            self.selected_connection = Some(ConnectionRef {
+                from: connection.from.clone(),
+                to: connection.to.clone(),
+            });
+            self.selected.clear();
+        }
+        let figures = frame.shown.monitor.link(&connection.from, &connection.to);
+        let policy = policy_of(connection, frame.diagram, library);
+        let look = ConnectionLook {
+            color: document
+                .output_type(&connection.from, library)
+                .map_or(Color32::GRAY, |t| type_color(t.name())),
+            selected,
+            label,
+            policy,
+            figures: figures.map(|f| &f.latest),
+            dropping: figures.is_some_and(crate::monitor::LinkHistory::dropping),
+            detail: frame.detail,
+        };
+        paint::paint_connection(frame.painter, ui.visuals(), from, to, &look);
+        if response.hovered() {
+            response.on_hover_text(connection_hover(connection, policy, look.figures));
+        }
+    }
+
+    /// One node and its ports; returns whether a connection being dragged from one of its outputs was let
+    /// go this frame.
+    fn node_ui(
+        &mut self,
+        ui: &egui::Ui,
+        frame: &Frame<'_>,
+        document: &mut Document,
+        component: &ComponentInstance,
+    ) -> bool {
+        let Some(node) = frame.layout.node(&component.id) else {
+            return false;
+        };
+        let info = frame.shown.library.component_of(component);
+        let response = interact_node(ui, component, node.rect);
+        self.select_or_move(ui, &response, &component.id, frame.diagram, document);
+        let state = frame.shown.states.get(&component.id);
+        let look = NodeLook {
+            id: &component.id,
+            type_name: &component.type_name,
+            selected: self.selected.contains(&component.id),
+            state,
+            figures: frame
+                .shown
+                .monitor
+                .components
+                .get(&component.id)
+                .map(|f| &f.latest),
+            detail: frame.detail,
+        };
+        paint::paint_node(frame.painter, ui.visuals(), node.rect, &look);
+        match (state, info) {
+            (Some(NodeState::Failed(error)), _) => response.on_hover_text(format!("failed: {error}")),
+            (_, Some(info)) => response.on_hover_text(&info.doc),
+            (_, None) => response.on_hover_text(format!("unknown component type {}", component.type_name)),
+        };
+        let Some(info) = info else { return false };
+        for (spot, input) in node.inputs.iter().zip(&info.inputs) {
+            input_ui(ui, frame, &component.id, spot, input);
+        }
+        let mut released = false;
+        for spot in &node.outputs {
+            released |= self.output_ui(ui, frame, document, &component.id, spot);
+        }
+        released
+    }
+
+    /// A click selects the node (Shift or Ctrl adds it to the selection); a drag moves the selection, one
+    /// undoable step when it ends.
+    fn select_or_move(
+        &mut self,
+        ui: &egui::Ui,
+        response: &egui::Response,
+        id: &str,
+        diagram: &Diagram,
+        document: &mut Document,
+    ) {
+        if response.clicked() {
+            if !ui.input(|i| i.modifiers.shift || i.modifiers.command) {
+                self.selected.clear();
+            }
+            self.selected.insert(id.to_owned());
+            self.selected_connection = None;
+        }
+        if response.drag_started() {
+            self.drag_origin = Some(diagram.clone());
+            if !self.selected.contains(id) {
+                self.selected = BTreeSet::from([id.to_owned()]);
+            }
+        }
+        if response.dragged() {
+            let delta = response.drag_delta();
+            for id in &self.selected {
+                if let Some(c) = document.diagram().component(id) {
+                    let p = c.position;
+                    document.move_component(
+                        id,
+                        Position {
+                            x: p.x + delta.x,
+                            y: p.y + delta.y,
+                        },
+                    );
+                }
+            }
+        }
+        if response.drag_stopped()
+            && let Some(before) = self.drag_origin.take()
+        {
+            document.record(before);
+        }
+    }
+
+    /// An output: a drag starts a connection, a viewer dropped on it or its context menu opens a viewer.
+    /// Returns whether a connection dragged from it was let go.
+    fn output_ui(
+        &mut self,
+        ui: &egui::Ui,
+        frame: &Frame<'_>,
+        document: &Document,
+        component: &str,
+        spot: &PortSpot,
+    ) -> bool {
+        let port = PortRef::new(component, &spot.name);
+        let data_type = document.output_type(&port, frame.shown.library);
+        let type_name = data_type.as_ref().map_or("?", |t| t.name()).to_owned();
+        let response = interact_port(
+            ui,
+            &port,
+            spot.at,
+            Side::Output,
+            &format!("output {port} ({type_name})"),
+        );
+        if response.drag_started() {
+            self.pending_link = Some(port.clone());
+        }
+        let problem = frame.shown.port_problems.get(&port);
+        if let Some(problem) = problem {
+            response.clone().on_hover_text(problem);
+        }
+        let released = response.drag_stopped();
+        let viewer_hover = response.dnd_hover_payload::<NewViewer>().is_some();
+        if response.dnd_release_payload::<NewViewer>().is_some() {
+            self.viewer_request = Some(ViewerRequest {
+                output: port.clone(),
+                kind: ViewerKind::for_type(&type_name),
+            });
+        }
+        response.context_menu(|ui| {
+            for kind in ViewerKind::choices(&type_name) {
+                if ui.button(format!("Open a viewer ({})", kind.name())).clicked() {
+                    self.viewer_request = Some(ViewerRequest {
+                        output: port.clone(),
+                        kind,
+                    });
+                    ui.close();
+                }
+            }
+        });
+        let look = PortLook {
+            name: &spot.name,
+            color: type_color(&type_name),
+            problem: problem.is_some(),
+            viewer_hover,
+            detail: frame.detail,
+        };
+        paint::paint_port(frame.painter, ui.visuals(), spot.at, Side::Output, &look);
+        released
+    }
+
+    /// The last refusal, for a few seconds.
+    fn notice_ui(&mut self, ui: &egui::Ui, painter: &egui::Painter) {
+        let Some(notice) = &self.notice else { return };
+        if notice.since.elapsed() < NOTICE_SHOWN {
+            paint::paint_notice(painter, notice.at, &notice.text);
+            ui.ctx().request_repaint_after(Duration::from_millis(250));
+        } else {
+            self.notice = None;
+        }
+    }
+
+    /// The background: a click clears the selection, a primary drag selects with a box, a palette entry
+    /// dropped adds its component where it is let go (`cursor`, in scene coordinates).
+    fn background_ui(
+        &mut self,
+        ui: &egui::Ui,
+        background: &egui::Response,
+        cursor: Option<Pos2>,
+        document: &mut Document,
+        library: &LibraryInfo,
+    ) {
         if background.clicked() {
             self.selected.clear();
             self.selected_connection = None;
         }
-        self.rubber_band_select(ui, &background, document, library);
+        self.rubber_band_select(ui, background, document, library);
         if let Some(payload) = background.dnd_release_payload::<NewComponent>()
             && let Some(info) = library.component(&payload.0)
         {
-            let at = response.inner.unwrap_or_default();
+            let at = cursor.unwrap_or_default();
             let id = document.add_component(
                 info,
                 library,
@@ -591,34 +602,32 @@ impl Canvas {
         if background.drag_started_by(egui::PointerButton::Primary)
             && let Some(origin) = ui.input(|i| i.pointer.press_origin())
         {
-            let adds = ui.input(|i| i.modifiers.shift || i.modifiers.command);
             let start = to_scene * origin;
-            self.rubber_band = Some((start, start, adds));
+            self.rubber_band = Some(RubberBand {
+                start,
+                end: start,
+                adds: ui.input(|i| i.modifiers.shift || i.modifiers.command),
+            });
         }
-        if let Some((start, _, adds)) = self.rubber_band
+        if let Some(band) = &mut self.rubber_band
             && let Some(pointer) = ui.input(|i| i.pointer.latest_pos())
         {
-            self.rubber_band = Some((start, to_scene * pointer, adds));
+            band.end = to_scene * pointer;
         }
         if background.drag_stopped()
-            && let Some((start, end, adds)) = self.rubber_band.take()
+            && let Some(band) = self.rubber_band.take()
         {
-            let band = Rect::from_two_pos(start, end);
-            if !adds {
+            if !band.adds {
                 self.selected.clear();
             }
             self.selected_connection = None;
-            for component in &document.diagram().components {
-                let rect = geometry(component.position, library.component_of(component)).rect;
-                if band.intersects(rect) {
-                    self.selected.insert(component.id.clone());
-                }
-            }
+            self.selected
+                .extend(Layout::of(document.diagram(), library).touching(band.rect()));
         }
     }
 
     /// The output the user asked to open a viewer on, with the viewer's kind, if any since the last call.
-    pub fn take_viewer_request(&mut self) -> Option<(PortRef, crate::viewers::ViewerKind)> {
+    pub fn take_viewer_request(&mut self) -> Option<ViewerRequest> {
         self.viewer_request.take()
     }
 
@@ -630,15 +639,12 @@ impl Canvas {
 
     /// The last refusal shown (a connection the input's filter refused), while it is shown.
     pub fn notice(&self) -> Option<&str> {
-        self.notice.as_ref().map(|(text, _, _)| text.as_str())
+        self.notice.as_ref().map(|n| n.text.as_str())
     }
 
     /// Frames the whole diagram in view.
     pub fn fit(&mut self, document: &Document, library: &LibraryInfo) {
-        let mut bounds = Rect::NOTHING;
-        for component in &document.diagram().components {
-            bounds = bounds.union(geometry(component.position, library.component_of(component)).rect);
-        }
+        let bounds = Layout::of(document.diagram(), library).bounds();
         if bounds.is_positive() {
             self.scene_rect = bounds.expand(60.0);
         }

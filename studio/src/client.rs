@@ -1,11 +1,18 @@
 //! The studio's side of the control protocol: one connection to a runtime, on a thread of its own, so the
 //! interface never waits for the network.
+//!
+//! Events reach the interface through one bounded channel ([`EVENT_QUEUE`] events). When the interface
+//! falls that far behind, what the runtime sends again anyway (telemetry every 250 ms, sample frames up to
+//! 30 a second per output, log records) is dropped and counted ([`DroppedEvents`], which the studio reports
+//! in its log); what answers the studio (replies, the session's start and end, the shared-memory reader's
+//! start) is never dropped: the connection's thread waits for room instead, which the interface makes at
+//! its next frame.
 
 use std::collections::BTreeMap;
 use std::net::TcpStream;
 use std::sync::Arc;
-use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::mpsc::{Receiver, Sender, TryRecvError, channel};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::mpsc::{Receiver, Sender, SyncSender, TryRecvError, TrySendError, channel, sync_channel};
 use std::time::Duration;
 
 use kairos_protocol::{
@@ -14,6 +21,11 @@ use kairos_protocol::{
 };
 use tungstenite::stream::MaybeTlsStream;
 use tungstenite::{Message, WebSocket};
+
+/// How many events wait for the interface at most. A frame of the interface takes them all; 256 covers
+/// several seconds of a stalled interface at the rates the studio subscribes to (4 telemetry events a
+/// second, 30 frames a second per viewed output), while bounding the memory held by queued image frames.
+pub const EVENT_QUEUE: usize = 256;
 
 /// What the connection reports.
 #[derive(Debug, Clone)]
@@ -28,6 +40,9 @@ pub enum ClientEvent {
     Log(LogRecord),
     /// A sample of a subscribed output: its header and payload bytes.
     Sample(kairos_protocol::frame::SampleHeader, Vec<u8>),
+    /// Whether the shared-memory reader asked for with [`RuntimeClient::receive_shared`] could open its
+    /// services; on an error, no frames come from it.
+    SharedMemory(Result<(), String>),
     /// The connection failed or ended, and why.
     Disconnected(String),
 }
@@ -45,7 +60,7 @@ pub struct Answer {
 impl Answer {
     /// Reads `reply` as the answer to the request of type `kind` (`None`: a request this client did not
     /// send, whose result it cannot read; only its error is of use).
-    fn of(reply: Reply, kind: Option<RequestKind>) -> Answer {
+    pub(crate) fn of(reply: Reply, kind: Option<RequestKind>) -> Answer {
         let id = reply.id;
         let outcome = match kind {
             Some(kind) => reply.decode(kind),
@@ -60,8 +75,74 @@ impl Answer {
     }
 }
 
+/// Events dropped because the interface fell [`EVENT_QUEUE`] events behind, by kind, since the
+/// connection began.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct DroppedEvents {
+    /// Sample frames (viewers show the next one).
+    pub samples: u64,
+    /// Telemetry events (the next comes within a second).
+    pub telemetry: u64,
+    /// Log records.
+    pub log: u64,
+}
+
+/// The counters behind [`DroppedEvents`], shared by the threads that send events.
+#[derive(Debug, Default)]
+struct DropCounters {
+    samples: AtomicU64,
+    telemetry: AtomicU64,
+    log: AtomicU64,
+}
+
 /// Calls that repaint the interface when something arrived.
 type Wake = Arc<dyn Fn() + Send + Sync>;
+
+/// The sending end of the interface's event channel: bounded, dropping (and counting) only events that
+/// the runtime sends again anyway, waking the interface after each event.
+#[derive(Clone)]
+pub struct EventSender {
+    sender: SyncSender<ClientEvent>,
+    dropped: Arc<DropCounters>,
+    wake: Wake,
+}
+
+impl std::fmt::Debug for EventSender {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("EventSender").finish_non_exhaustive()
+    }
+}
+
+impl EventSender {
+    /// Hands `event` to the interface and wakes it. Telemetry, samples and log records are dropped and
+    /// counted when the queue is full; other events wait for room. False once the interface is gone.
+    pub fn send(&self, event: ClientEvent) -> bool {
+        let counter = match &event {
+            ClientEvent::Sample(..) => Some(&self.dropped.samples),
+            ClientEvent::Telemetry(_) => Some(&self.dropped.telemetry),
+            ClientEvent::Log(_) => Some(&self.dropped.log),
+            ClientEvent::Connected(_)
+            | ClientEvent::Reply(_)
+            | ClientEvent::SharedMemory(_)
+            | ClientEvent::Disconnected(_) => None,
+        };
+        let sent = match counter {
+            Some(counter) => match self.sender.try_send(event) {
+                Ok(()) => true,
+                Err(TrySendError::Full(_)) => {
+                    counter.fetch_add(1, Ordering::Relaxed);
+                    return true;
+                }
+                Err(TrySendError::Disconnected(_)) => false,
+            },
+            None => self.sender.send(event).is_ok(),
+        };
+        if sent {
+            (self.wake)();
+        }
+        sent
+    }
+}
 
 /// A connection to a runtime.
 pub struct RuntimeClient {
@@ -70,9 +151,8 @@ pub struct RuntimeClient {
     incoming: Receiver<ClientEvent>,
     next_id: u64,
     /// Where sample frames from shared memory join the other events.
-    events: Sender<ClientEvent>,
-    wake: Wake,
-    /// The thread reading shared-memory frames, stopped by dropping its flag's other end.
+    events: EventSender,
+    /// The thread reading shared-memory frames, stopped by setting its flag.
     shared: Option<Arc<AtomicBool>>,
 }
 
@@ -97,7 +177,8 @@ impl Drop for RuntimeClient {
 const POLL: Duration = Duration::from_millis(15);
 
 impl RuntimeClient {
-    /// Connects to `url` with `token` on a background thread; `wake` is called after every event (to
+    /// Connects to `url` with `token` on a background thread and returns at once: the outcome arrives as
+    /// [`ClientEvent::Connected`] or [`ClientEvent::Disconnected`]. `wake` is called after every event (to
     /// repaint the interface).
     pub fn connect(
         url: &str,
@@ -105,32 +186,41 @@ impl RuntimeClient {
         wake: impl Fn() + Send + Sync + 'static,
     ) -> RuntimeClient {
         let (outgoing, requests) = channel::<Request>();
-        let (events, incoming) = channel();
+        let (sender, incoming) = sync_channel(EVENT_QUEUE);
+        let events = EventSender {
+            sender,
+            dropped: Arc::new(DropCounters::default()),
+            wake: Arc::new(wake),
+        };
         let address = url.to_owned();
-        let wake: Wake = Arc::new(wake);
-        let (thread_events, thread_wake) = (events.clone(), Arc::clone(&wake));
-        std::thread::Builder::new()
+        let thread_events = events.clone();
+        let spawned = std::thread::Builder::new()
             .name("studio:net".to_owned())
             .spawn(move || {
-                let reason = run(&address, token, &requests, &thread_events, &*thread_wake);
-                let _ = thread_events.send(ClientEvent::Disconnected(reason));
-                thread_wake();
-            })
-            .ok();
+                let reason = run(&address, token, &requests, &thread_events);
+                thread_events.send(ClientEvent::Disconnected(reason));
+            });
+        if let Err(error) = spawned {
+            // The queue is empty yet, so this does not wait.
+            events.send(ClientEvent::Disconnected(format!(
+                "cannot start the connection's thread: {error}"
+            )));
+        }
         RuntimeClient {
             url: url.to_owned(),
             outgoing,
             incoming,
             next_id: 1,
             events,
-            wake,
             shared: None,
         }
     }
 
     /// Reads sample frames from these iceoryx2 services (output → service, as a shared-memory subscription
     /// named them), in place of any read before; they arrive as [`ClientEvent::Sample`] like socket frames.
-    /// An error says why the services cannot be read (the caller then subscribes through the socket).
+    /// Returns at once: whether the services could be opened arrives as [`ClientEvent::SharedMemory`] (on
+    /// an error the caller subscribes through the socket). An empty map only stops the reading. An error
+    /// here says the reader's thread could not be started.
     pub fn receive_shared(&mut self, services: BTreeMap<String, String>) -> Result<(), String> {
         if let Some(stop) = self.shared.take() {
             stop.store(true, Ordering::Relaxed);
@@ -139,20 +229,13 @@ impl RuntimeClient {
             return Ok(());
         }
         let stop = Arc::new(AtomicBool::new(false));
-        let (ready_tx, ready_rx) = channel::<Result<(), String>>();
-        let (events, wake, stopping) = (self.events.clone(), Arc::clone(&self.wake), Arc::clone(&stop));
+        let (events, stopping) = (self.events.clone(), Arc::clone(&stop));
         std::thread::Builder::new()
             .name("studio:shm".to_owned())
-            .spawn(move || crate::shared::read_frames(&services, &stopping, &ready_tx, &events, &*wake))
-            .map_err(|e| format!("cannot start a thread: {e}"))?;
-        match ready_rx.recv_timeout(Duration::from_secs(10)) {
-            Ok(Ok(())) => {
-                self.shared = Some(stop);
-                Ok(())
-            }
-            Ok(Err(error)) => Err(error),
-            Err(_) => Err("the shared-memory reader did not start in 10 s".to_owned()),
-        }
+            .spawn(move || crate::shared::read_frames(&services, &stopping, &events))
+            .map_err(|e| format!("cannot start the shared-memory reader's thread: {e}"))?;
+        self.shared = Some(stop);
+        Ok(())
     }
 
     /// The runtime's address.
@@ -160,15 +243,24 @@ impl RuntimeClient {
         &self.url
     }
 
-    /// Sends a request; returns its id, which its reply carries.
+    /// Sends a request with an id of the client's choosing; returns that id, which its reply carries.
+    /// (A caller that chooses ids itself uses [`RuntimeClient::send`] instead, never both.)
     pub fn request(&mut self, body: RequestBody) -> u64 {
         self.next_id += 1;
         let request = Request {
             id: self.next_id,
             body,
         };
-        let _ = self.outgoing.send(request);
+        self.send(&request);
         self.next_id
+    }
+
+    /// Sends a request as it is. Ids above 1 are the caller's (1 is the connection's `hello`). Once the
+    /// connection has ended nothing is sent; the ending was reported as [`ClientEvent::Disconnected`].
+    pub fn send(&self, request: &Request) {
+        // An error means the connection's thread has ended, which it reported itself. A request that
+        // cannot be encoded is said there, in the log.
+        let _ = self.outgoing.send(request.clone());
     }
 
     /// Everything that arrived since the last call.
@@ -181,31 +273,93 @@ impl RuntimeClient {
             }
         }
     }
+
+    /// How many events were dropped so far because the interface fell behind.
+    pub fn dropped(&self) -> DroppedEvents {
+        let counters = &self.events.dropped;
+        DroppedEvents {
+            samples: counters.samples.load(Ordering::Relaxed),
+            telemetry: counters.telemetry.load(Ordering::Relaxed),
+            log: counters.log.load(Ordering::Relaxed),
+        }
+    }
 }
 
-/// Writes `request` on the socket.
-fn send(socket: &mut WebSocket<MaybeTlsStream<TcpStream>>, request: &Request) -> Result<(), String> {
-    let text = serde_json::to_string(request)
-        .map_err(|e| format!("cannot write a '{}' request: {e}", request.body.kind().name()))?;
-    socket.send(Message::text(text)).map_err(|e| e.to_string())
+/// A request as the text message that carries it; an error says which request could not be encoded.
+fn encode(request: &Request) -> Result<String, String> {
+    serde_json::to_string(request).map_err(|e| {
+        format!(
+            "a '{}' request was not sent: it cannot be encoded: {e}",
+            request.body.kind().name()
+        )
+    })
 }
 
 /// The id of the `hello` request; [`RuntimeClient::request`] numbers the others from 2.
 const HELLO_ID: u64 = 1;
 
-fn run(
-    url: &str,
-    token: Option<Token>,
+/// What the runtime's answer to `hello` means: the session's start, or why it ends.
+fn answer_to_hello(reply: Reply, url: &str) -> Result<ClientEvent, String> {
+    let refused = !reply.ok;
+    match reply.decode(RequestKind::Hello) {
+        Ok(ReplyBody::Hello(welcome)) => Ok(ClientEvent::Connected(welcome)),
+        Err(error) if refused => Err(format!(
+            "the runtime at {url} refused the studio: {}",
+            error.message
+        )),
+        Err(error) => Err(format!(
+            "the runtime at {url} answered hello strangely: {}",
+            error.message
+        )),
+        Ok(_) => Err(format!("the runtime at {url} answered hello strangely")),
+    }
+}
+
+/// Sends every request the interface queued, remembering what each asked so that its reply can be read
+/// as that request's result; `Err` says why the session ends.
+fn send_requests(
+    socket: &mut WebSocket<MaybeTlsStream<TcpStream>>,
     requests: &Receiver<Request>,
-    events: &Sender<ClientEvent>,
-    wake: &dyn Fn(),
-) -> String {
+    awaiting: &mut BTreeMap<u64, RequestKind>,
+    events: &EventSender,
+    url: &str,
+) -> Result<(), String> {
+    let closed = || "the studio closed the connection".to_owned();
+    loop {
+        match requests.try_recv() {
+            Ok(request) => match encode(&request) {
+                Ok(text) => {
+                    awaiting.insert(request.id, request.body.kind());
+                    socket
+                        .send(Message::text(text))
+                        .map_err(|e| format!("lost the runtime at {url}: {e}"))?;
+                }
+                Err(error) => {
+                    let record = studio_record(kairos_protocol::LogLevel::Error, error);
+                    if !events.send(ClientEvent::Log(record)) {
+                        return Err(closed());
+                    }
+                }
+            },
+            Err(TryRecvError::Empty) => return Ok(()),
+            Err(TryRecvError::Disconnected) => return Err(closed()),
+        }
+    }
+}
+
+/// The connection's thread: connects, says hello, then sends requests and hands on what arrives until the
+/// connection ends; returns why it ended.
+fn run(url: &str, token: Option<Token>, requests: &Receiver<Request>, events: &EventSender) -> String {
     let mut socket: WebSocket<MaybeTlsStream<TcpStream>> = match tungstenite::connect(url) {
         Ok((socket, _)) => socket,
         Err(e) => return format!("cannot connect to {url}: {e}"),
     };
     if let MaybeTlsStream::Plain(stream) = socket.get_ref() {
-        let _ = stream.set_read_timeout(Some(POLL));
+        // Without the timeout the thread would wait on reads and never send requests.
+        if let Err(e) = stream.set_read_timeout(Some(POLL)) {
+            return format!("cannot set up the connection to {url}: {e}");
+        }
+        // Nagle's delay only slows small requests down; without it everything still works.
         let _ = stream.set_nodelay(true);
     }
     let hello = Request {
@@ -217,44 +371,49 @@ fn run(
             role: Some(Role::Operator),
         },
     };
-    if let Err(e) = send(&mut socket, &hello) {
-        return format!("cannot talk to {url}: {e}");
+    match encode(&hello) {
+        Ok(text) => {
+            if let Err(e) = socket.send(Message::text(text)) {
+                return format!("cannot talk to {url}: {e}");
+            }
+        }
+        Err(e) => return e,
     }
+    let closed = "the studio closed the connection".to_owned();
+    let mut not_understood: u64 = 0;
     // What each request awaiting its reply asked, to read the reply as that request's result.
     let mut awaiting: BTreeMap<u64, RequestKind> = BTreeMap::new();
     loop {
-        loop {
-            match requests.try_recv() {
-                Ok(request) => {
-                    awaiting.insert(request.id, request.body.kind());
-                    if let Err(e) = send(&mut socket, &request) {
-                        return format!("lost the runtime at {url}: {e}");
-                    }
-                }
-                Err(TryRecvError::Empty) => break,
-                Err(TryRecvError::Disconnected) => return "the studio closed the connection".to_owned(),
-            }
+        if let Err(why) = send_requests(&mut socket, requests, &mut awaiting, events, url) {
+            return why;
         }
         match socket.read() {
             Ok(Message::Text(text)) => {
-                let Ok(message) = serde_json::from_str::<ServerMessage>(text.as_str()) else {
-                    continue;
+                let message = match serde_json::from_str::<ServerMessage>(text.as_str()) {
+                    Ok(message) => message,
+                    Err(e) => {
+                        // A message this studio does not understand must not end the session: it is said
+                        // in the log, at the 1st, 2nd, 4th, 8th ... such message.
+                        not_understood += 1;
+                        if not_understood.is_power_of_two()
+                            && !events.send(ClientEvent::Log(studio_record(
+                                kairos_protocol::LogLevel::Warn,
+                                format!(
+                                    "{not_understood} message(s) from the runtime the studio does not \
+                                     understand, the last: {e}"
+                                ),
+                            )))
+                        {
+                            return closed;
+                        }
+                        continue;
+                    }
                 };
                 let event = match message {
                     ServerMessage::Reply(reply) if reply.id == Some(HELLO_ID) => {
-                        let refused = !reply.ok;
-                        match reply.decode(RequestKind::Hello) {
-                            Ok(ReplyBody::Hello(welcome)) => ClientEvent::Connected(welcome),
-                            Err(error) if refused => {
-                                return format!("the runtime at {url} refused the studio: {}", error.message);
-                            }
-                            Err(error) => {
-                                return format!(
-                                    "the runtime at {url} answered hello strangely: {}",
-                                    error.message
-                                );
-                            }
-                            Ok(_) => return format!("the runtime at {url} answered hello strangely"),
+                        match answer_to_hello(reply, url) {
+                            Ok(event) => event,
+                            Err(why) => return why,
                         }
                     }
                     ServerMessage::Reply(reply) => {
@@ -264,21 +423,17 @@ fn run(
                     ServerMessage::Telemetry(telemetry) => ClientEvent::Telemetry(telemetry),
                     ServerMessage::Log(record) => ClientEvent::Log(record),
                 };
-                if events.send(event).is_err() {
-                    return "the studio closed the connection".to_owned();
+                if !events.send(event) {
+                    return closed;
                 }
-                wake();
             }
             Ok(Message::Binary(frame)) => {
-                // A frame that does not decode is skipped: one bad sample must not end the session.
-                if let Ok((header, payload)) = kairos_protocol::frame::decode(&frame) {
-                    if events
-                        .send(ClientEvent::Sample(header, payload.to_vec()))
-                        .is_err()
-                    {
-                        return "the studio closed the connection".to_owned();
-                    }
-                    wake();
+                // A frame that does not decode is skipped, as a lost one would be: one bad sample must not
+                // end the session.
+                if let Ok((header, payload)) = kairos_protocol::frame::decode(&frame)
+                    && !events.send(ClientEvent::Sample(header, payload.to_vec()))
+                {
+                    return closed;
                 }
             }
             Ok(Message::Close(_)) => return format!("the runtime at {url} closed the connection"),
@@ -290,5 +445,76 @@ fn run(
                 ) => {}
             Err(e) => return format!("lost the runtime at {url}: {e}"),
         }
+    }
+}
+
+/// A log record of the studio's own, for what its threads have to say.
+pub fn studio_record(level: kairos_protocol::LogLevel, message: String) -> LogRecord {
+    let at_ns = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| i64::try_from(d.as_nanos()).unwrap_or(i64::MAX));
+    LogRecord {
+        at_ns,
+        level,
+        component: None,
+        message,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use std::sync::Arc;
+    use std::sync::mpsc::sync_channel;
+    use std::time::Duration;
+
+    use super::{ClientEvent, DropCounters, EventSender};
+
+    fn telemetry() -> ClientEvent {
+        let telemetry = serde_json::json!({"at_ns": 1, "state": "running", "links": [], "components": []});
+        ClientEvent::Telemetry(serde_json::from_value(telemetry).unwrap())
+    }
+
+    fn reply(id: u64) -> ClientEvent {
+        let reply = serde_json::json!({"id": id, "ok": true, "result": {}});
+        let reply = serde_json::from_value(reply).unwrap();
+        ClientEvent::Reply(super::Answer::of(
+            reply,
+            Some(kairos_protocol::RequestKind::Start),
+        ))
+    }
+
+    #[test]
+    fn a_full_queue_drops_and_counts_telemetry_but_waits_to_deliver_replies() {
+        let (sender, receiver) = sync_channel(2);
+        let events = EventSender {
+            sender,
+            dropped: Arc::new(DropCounters::default()),
+            wake: Arc::new(|| {}),
+        };
+        for _ in 0..3 {
+            assert!(events.send(telemetry()));
+        }
+        assert_eq!(
+            events
+                .dropped
+                .telemetry
+                .load(std::sync::atomic::Ordering::Relaxed),
+            1,
+            "the third did not fit"
+        );
+        // A reply waits for room: it arrives once the interface takes what is queued.
+        let replying = events.clone();
+        let thread = std::thread::Builder::new()
+            .name("test:reply".to_owned())
+            .spawn(move || replying.send(reply(7)))
+            .unwrap();
+        std::thread::sleep(Duration::from_millis(50));
+        assert!(!thread.is_finished(), "the reply waits while the queue is full");
+        for _ in 0..2 {
+            assert!(matches!(receiver.try_recv(), Ok(ClientEvent::Telemetry(_))));
+        }
+        assert!(thread.join().unwrap());
+        let next = receiver.recv_timeout(Duration::from_secs(5)).unwrap();
+        assert!(matches!(next, ClientEvent::Reply(r) if r.id == Some(7)));
     }
 }

@@ -313,7 +313,7 @@ mod tests {
 
     /// The built-in library as `kairos components --json` prints it (and the protocol's `library` sends).
     fn library() -> LibraryInfo {
-        serde_json::from_str(include_str!("../tests/library.json")).unwrap()
+        crate::library_from_components_json(include_str!("../tests/library.json")).unwrap()
     }
 
     #[test]

@@ -18,6 +18,8 @@ pub struct LocalRuntime {
 
 impl Drop for LocalRuntime {
     fn drop(&mut self) {
+        // Best effort, with nobody left to tell: the runtime may have ended already, and a folder left in
+        // the temporary directory holds only a token that no runtime accepts any more.
         let _ = self.child.kill();
         let _ = self.child.wait();
         let _ = std::fs::remove_dir_all(&self.folder);
@@ -65,6 +67,7 @@ impl LocalRuntime {
         let folder = std::env::temp_dir().join(format!("kairos-studio-{}-{serial}", std::process::id()));
         std::fs::create_dir_all(&folder).map_err(|e| format!("cannot create {}: {e}", folder.display()))?;
         let token_file = folder.join("token");
+        // A token file from an earlier runtime of the same process id; none is the usual case.
         let _ = std::fs::remove_file(&token_file);
         let mut command = Command::new(binary);
         for pack in packs {
@@ -89,12 +92,19 @@ impl LocalRuntime {
                 break url.to_owned();
             }
         };
-        // Its console output (core.console) keeps flowing; let it go to ours.
-        std::thread::spawn(move || {
-            for line in lines.map_while(Result::ok) {
-                println!("{line}");
-            }
-        });
+        // Its console output (core.console) keeps flowing; let it go to ours. Without the thread the output
+        // would fill the pipe and stall the runtime, so failing to start it fails the start.
+        if let Err(error) = std::thread::Builder::new()
+            .name("studio:runtime-out".to_owned())
+            .spawn(move || {
+                for line in lines.map_while(Result::ok) {
+                    println!("{line}");
+                }
+            })
+        {
+            let _ = child.kill();
+            return Err(format!("cannot start a thread for the runtime's output: {error}"));
+        }
         let token = kairos_protocol::Token::new(
             std::fs::read_to_string(&token_file)
                 .map_err(|e| format!("cannot read the runtime's token: {e}"))?

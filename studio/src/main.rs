@@ -105,11 +105,13 @@ fn main() -> ExitCode {
     };
     let (local, url, token) = match &arguments.connect {
         Some(url) => {
-            let token = arguments
-                .token_file
-                .as_ref()
-                .and_then(|f| std::fs::read_to_string(f).ok())
-                .map(|t| kairos_protocol::Token::new(t.lines().next().unwrap_or("").trim()));
+            // An unreadable token file is said in the log; the connection is tried without a token (a
+            // runtime that needs one refuses it, and says so too).
+            let token = arguments.token_file.as_ref().and_then(|f| {
+                kairos_studio::settings::read_token(f)
+                    .map_err(|e| notes.push(e))
+                    .ok()
+            });
             (None, Some(url.clone()), token)
         }
         None => match LocalRuntime::start() {
@@ -142,7 +144,7 @@ fn main() -> ExitCode {
             }
             let ctx = creation.egui_ctx.clone();
             let client = url.map(|url| RuntimeClient::connect(&url, token, move || ctx.request_repaint()));
-            let app = StudioApp::new(
+            let mut app = StudioApp::new(
                 document,
                 kairos_diagram::LibraryInfo::default(),
                 client,
@@ -151,7 +153,7 @@ fn main() -> ExitCode {
             )
             .with_startup(views, run);
             for note in notes {
-                eprintln!("{note}");
+                app.session.note(kairos_protocol::LogLevel::Error, note);
             }
             Ok(Box::new(app))
         }),

@@ -6,14 +6,13 @@
 
 use std::collections::BTreeMap;
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::mpsc::Sender;
 use std::time::Duration;
 
 use iceoryx2::prelude::*;
+use kairos_protocol::LogLevel;
 use kairos_protocol::shared_pixels::{PixelsReference, SharedPixelsError, SharedPixelsReader};
-use kairos_protocol::{LogLevel, LogRecord};
 
-use crate::client::ClientEvent;
+use crate::client::{ClientEvent, EventSender, studio_record};
 
 /// Copies the pixels of frames that name a buffer of the runtime instead of carrying them.
 #[derive(Default)]
@@ -29,7 +28,7 @@ impl PixelsFromRuntime {
     /// The pixels, or `None` (the frame is skipped, as a frame lost on the way would be) with the reason
     /// in the studio's log: once for a buffer that cannot be mapped, at 1, 2, 4, 8 ... for frames the
     /// runtime recycled before they were read.
-    fn read(&mut self, reference: &PixelsReference, events: &Sender<ClientEvent>) -> Option<Vec<u8>> {
+    fn read(&mut self, reference: &PixelsReference, events: &EventSender) -> Option<Vec<u8>> {
         let error = match self.reader.read(reference) {
             Ok(bytes) => return Some(bytes),
             Err(error) => error,
@@ -55,15 +54,8 @@ impl PixelsFromRuntime {
                 (LogLevel::Warn, format!("viewer: {error}"))
             }
         };
-        let at_ns = std::time::SystemTime::now()
-            .duration_since(std::time::UNIX_EPOCH)
-            .map_or(0, |d| i64::try_from(d.as_nanos()).unwrap_or(i64::MAX));
-        let _ = events.send(ClientEvent::Log(LogRecord {
-            at_ns,
-            level,
-            component: None,
-            message,
-        }));
+        // A studio that is gone needs no message; the frame loop ends at its next send.
+        events.send(ClientEvent::Log(studio_record(level, message)));
         None
     }
 }
@@ -71,15 +63,10 @@ impl PixelsFromRuntime {
 /// How often the reader looks for new frames.
 const POLL: Duration = Duration::from_millis(3);
 
-/// Opens the services (output → service name), reports on `ready` whether it could, then forwards every
-/// frame as a [`ClientEvent::Sample`] until `stop` is set or the studio goes.
-pub fn read_frames(
-    services: &BTreeMap<String, String>,
-    stop: &AtomicBool,
-    ready: &Sender<Result<(), String>>,
-    events: &Sender<ClientEvent>,
-    wake: &dyn Fn(),
-) {
+/// Opens the services (output → service name), reports whether it could as a
+/// [`ClientEvent::SharedMemory`], then forwards every frame as a [`ClientEvent::Sample`] until `stop` is set
+/// or the studio goes.
+pub fn read_frames(services: &BTreeMap<String, String>, stop: &AtomicBool, events: &EventSender) {
     let opened = (|| -> Result<_, String> {
         let node = NodeBuilder::new()
             .create::<ipc::Service>()
@@ -105,17 +92,18 @@ pub fn read_frames(
     })();
     let (_node, subscribers) = match opened {
         Ok(parts) => {
-            let _ = ready.send(Ok(()));
+            if !events.send(ClientEvent::SharedMemory(Ok(()))) {
+                return;
+            }
             parts
         }
         Err(error) => {
-            let _ = ready.send(Err(error));
+            events.send(ClientEvent::SharedMemory(Err(error)));
             return;
         }
     };
     let mut pixels = PixelsFromRuntime::default();
     while !stop.load(Ordering::Relaxed) {
-        let mut any = false;
         for (_, subscriber) in &subscribers {
             while let Ok(Some(sample)) = subscriber.receive() {
                 // A frame that does not decode is skipped, as on the socket.
@@ -129,14 +117,10 @@ pub fn read_frames(
                     },
                     None => payload.to_vec(),
                 };
-                if events.send(ClientEvent::Sample(header, payload)).is_err() {
+                if !events.send(ClientEvent::Sample(header, payload)) {
                     return;
                 }
-                any = true;
             }
-        }
-        if any {
-            wake();
         }
         std::thread::sleep(POLL);
     }

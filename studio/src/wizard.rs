@@ -166,6 +166,7 @@ impl NewComponentDialog {
         let mut args = self.component_args(true);
         let scratch = std::env::temp_dir().join(format!("kairos-studio-check-{}", std::process::id()));
         if !self.pack_exists() {
+            // A scratch copy left by an earlier check, if any; `kairos new pack` says if one is in the way.
             let _ = std::fs::remove_dir_all(&scratch);
             let name = Path::new(self.pack.trim())
                 .file_name()
@@ -191,6 +192,7 @@ impl NewComponentDialog {
             }
         }
         self.verdict = Some(run(binary, &args).map(|_| "the answers are fine".to_owned()));
+        // Scratch space in the temporary directory; the next check removes it again.
         let _ = std::fs::remove_dir_all(&scratch);
     }
 

@@ -15,7 +15,7 @@ use kairos_diagram::{LibraryInfo, PortRef};
 use kairos_studio::{Document, StudioApp};
 
 fn library() -> LibraryInfo {
-    serde_json::from_str(include_str!("library.json")).unwrap()
+    kairos_studio::library_from_components_json(include_str!("library.json")).unwrap()
 }
 
 fn studio() -> Harness<'static, StudioApp> {
@@ -84,6 +84,7 @@ fn a_diagram_is_built_through_the_interface_and_saved() {
     add_from_palette(&mut harness, "core.console", Pos2::new(800.0, 250.0));
     let ids: Vec<String> = harness
         .state()
+        .session
         .document
         .diagram()
         .components
@@ -95,7 +96,7 @@ fn a_diagram_is_built_through_the_interface_and_saved() {
     let from = on_canvas(&harness, "output sine1.out (f64)");
     let to = on_canvas(&harness, "input console1.in (any)");
     drag(&mut harness, from, to);
-    let connections = &harness.state().document.diagram().connections;
+    let connections = &harness.state().session.document.diagram().connections;
     assert_eq!(
         connections.len(),
         1,
@@ -115,6 +116,7 @@ fn a_diagram_is_built_through_the_interface_and_saved() {
     harness.run_steps(2);
     let console = harness
         .state()
+        .session
         .document
         .diagram()
         .component("console1")
@@ -126,11 +128,12 @@ fn a_diagram_is_built_through_the_interface_and_saved() {
     );
 
     // Undo takes the typing back; the connection stays.
-    harness.state_mut().document.undo();
+    harness.state_mut().session.document.undo();
     harness.run_steps(1);
     assert!(
         harness
             .state()
+            .session
             .document
             .diagram()
             .component("console1")
@@ -139,7 +142,7 @@ fn a_diagram_is_built_through_the_interface_and_saved() {
             .get("prefix")
             .is_none_or(|v| v != &kairos_diagram::Value::Text("wave: ".to_owned()))
     );
-    assert_eq!(harness.state().document.diagram().connections.len(), 1);
+    assert_eq!(harness.state().session.document.diagram().connections.len(), 1);
 
     // File > Save as…, a typed path, Save.
     let dir = tempfile::tempdir().unwrap();
@@ -160,13 +163,16 @@ fn a_diagram_is_built_through_the_interface_and_saved() {
     harness.get_by_label("Save").click();
     harness.run_steps(2);
     assert_eq!(
-        harness.state().document.path(),
+        harness.state().session.document.path(),
         Some(path.as_path()),
         "saved with .ron added"
     );
-    assert!(!harness.state().document.is_dirty());
+    assert!(!harness.state().session.document.is_dirty());
     let saved = kairos_diagram::load(&path).unwrap().1.diagram;
-    assert_eq!(saved.to_ron(), harness.state().document.diagram().to_ron());
+    assert_eq!(
+        saved.to_ron(),
+        harness.state().session.document.diagram().to_ron()
+    );
     assert!(
         std::fs::read_to_string(&path)
             .unwrap()
@@ -182,7 +188,7 @@ fn a_connection_the_input_refuses_is_not_made_and_the_canvas_says_why() {
     let from = on_canvas(&harness, "output camera1.image (image)");
     let to = on_canvas(&harness, "input gain1.in (f64 | i64 | bool)");
     drag(&mut harness, from, to);
-    assert!(harness.state().document.diagram().connections.is_empty());
+    assert!(harness.state().session.document.diagram().connections.is_empty());
     let notice = harness.state().canvas.notice().unwrap_or_default().to_owned();
     assert!(notice.contains("not image"), "{notice}");
 }
@@ -199,6 +205,7 @@ fn a_path_property_is_chosen_in_the_file_chooser() {
     harness.run_steps(2);
     let recorder = harness
         .state()
+        .session
         .document
         .diagram()
         .component("recorder1")
@@ -216,7 +223,7 @@ fn a_box_dragged_on_the_background_selects_what_it_touches() {
     add_from_palette(&mut harness, "core.sine", Pos2::new(450.0, 250.0));
     add_from_palette(&mut harness, "core.gain", Pos2::new(800.0, 250.0));
     add_from_palette(&mut harness, "core.console", Pos2::new(800.0, 600.0));
-    let before = harness.state().document.diagram().clone();
+    let before = harness.state().session.document.diagram().clone();
     let sine = on_canvas(&harness, "component sine1 (core.sine)");
     let gain = on_canvas(&harness, "component gain1 (core.gain)");
     // From empty canvas above and left of the sine to below the gain's middle: not the console.
@@ -234,7 +241,7 @@ fn a_box_dragged_on_the_background_selects_what_it_touches() {
         .collect();
     assert_eq!(selected, ["gain1", "sine1"]);
     // Nothing moved: the drag selected instead of panning or dragging a node.
-    assert_eq!(harness.state().document.diagram(), &before);
+    assert_eq!(harness.state().session.document.diagram(), &before);
 }
 
 #[test]
@@ -246,6 +253,7 @@ fn a_viewer_dropped_on_an_output_opens_for_its_type() {
     drag(&mut harness, from, to);
     let viewers: Vec<(String, kairos_studio::viewers::ViewerKind)> = harness
         .state()
+        .session
         .viewers
         .list
         .iter()
@@ -257,5 +265,58 @@ fn a_viewer_dropped_on_an_output_opens_for_its_type() {
             "camera1.image".to_owned(),
             kairos_studio::viewers::ViewerKind::Image
         )]
+    );
+}
+
+#[test]
+fn an_unreadable_token_file_is_said_in_the_log_and_the_dialog_stays() {
+    let config = tempfile::tempdir().unwrap();
+    let app = StudioApp::new(
+        Document::default(),
+        library(),
+        None,
+        "no runtime (test)".to_owned(),
+        None,
+    )
+    .with_config_dir(config.path().to_owned());
+    let mut harness = Harness::new_ui_state(|ui, app: &mut StudioApp| app.show(ui), app);
+    harness.set_size(Vec2::new(1280.0, 800.0));
+    harness.run_steps(2);
+    harness.get_by_label("File").click();
+    harness.run_steps(2);
+    harness.get_by_label("Connect to a runtime…").click();
+    harness.run_steps(2);
+    let token_label = "File holding its token (empty when it needs none):";
+    harness
+        .get_by_role_and_label(Role::TextInput, token_label)
+        .focus();
+    harness.run_steps(1);
+    let missing = config.path().join("no-such.token");
+    harness
+        .get_by_role_and_label(Role::TextInput, token_label)
+        .type_text(missing.to_str().unwrap());
+    harness.run_steps(1);
+    harness.get_by_label("Connect").click();
+    harness.run_steps(2);
+    let said: Vec<String> = harness
+        .state()
+        .session
+        .log
+        .lines()
+        .map(|l| l.text.clone())
+        .collect();
+    assert!(
+        said.iter()
+            .any(|l| l.starts_with("cannot read the token file") && l.contains("no-such.token")),
+        "{said:?}"
+    );
+    assert!(!harness.state().is_connected());
+    assert!(
+        harness.query_by_label("Connect").is_some(),
+        "the dialog stays open to correct the file"
+    );
+    assert!(
+        !config.path().join("studio-remote.txt").exists(),
+        "nothing is remembered"
     );
 }

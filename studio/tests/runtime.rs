@@ -11,9 +11,9 @@ use std::time::{Duration, Instant};
 use egui::{Pos2, Vec2};
 use egui_kittest::Harness;
 use egui_kittest::kittest::Queryable as _;
-use kairos_studio::canvas::NodeState;
 use kairos_studio::client::RuntimeClient;
 use kairos_studio::local::LocalRuntime;
+use kairos_studio::session::NodeState;
 use kairos_studio::{Document, StudioApp};
 
 /// The `kairos` binary of this build (`cargo test` in the workspace builds it before running tests).
@@ -80,7 +80,7 @@ fn studio_on_local_runtime(document: Document, size: Vec2) -> Harness<'static, S
 fn a_diagram_built_in_the_studio_runs_on_a_real_runtime() {
     let mut harness = studio_on_local_runtime(Document::default(), Vec2::new(1280.0, 800.0));
     run_until(&mut harness, "the library", |app| {
-        app.library.component("core.counter").is_some()
+        app.session.library.component("core.counter").is_some()
     });
     harness.run_steps(2);
 
@@ -95,7 +95,7 @@ fn a_diagram_built_in_the_studio_runs_on_a_real_runtime() {
         harness.state().canvas.to_screen(input),
     );
     drag(&mut harness, output, input);
-    assert_eq!(harness.state().document.diagram().connections.len(), 1);
+    assert_eq!(harness.state().session.document.diagram().connections.len(), 1);
 
     harness.get_by_label("Run").click();
     harness.run_steps(1);
@@ -197,7 +197,7 @@ fn viewers_and_monitoring_show_a_running_diagram() {
     let example = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../examples/sensors.ron");
     let mut harness = studio_on_local_runtime(Document::open(&example).unwrap(), Vec2::new(1400.0, 900.0));
     run_until(&mut harness, "the library", |app| {
-        app.library.component("sensors.camera").is_some()
+        app.session.library.component("sensors.camera").is_some()
     });
     harness.run_steps(2);
     open_viewer(
@@ -223,7 +223,7 @@ fn viewers_and_monitoring_show_a_running_diagram() {
         "Open a viewer (latest samples)",
     );
     open_viewer(&mut harness, "output imu.pose (pose)", "Open a viewer (3D poses)");
-    assert_eq!(harness.state().viewers.list.len(), 7);
+    assert_eq!(harness.state().session.viewers.list.len(), 7);
     assert!(
         harness.state().uses_shared_memory(),
         "a local runtime hands viewer frames over in shared memory"
@@ -232,7 +232,7 @@ fn viewers_and_monitoring_show_a_running_diagram() {
     harness.get_by_label("Run").click();
     harness.run_steps(1);
     run_until(&mut harness, "every viewer's first samples", |app| {
-        let list = &app.viewers.list;
+        let list = &app.session.viewers.list;
         list[0].texture_size().is_some()
             && list[1].series().len() == 6
             && list[2].track().len() >= 3
@@ -241,13 +241,13 @@ fn viewers_and_monitoring_show_a_running_diagram() {
             && list[5].rows().count() >= 3
             && list[6].cloud_points() > 93
     });
-    let list = &harness.state().viewers.list;
+    let list = &harness.state().session.viewers.list;
     assert!(
         list[5].rows().all(|row| row.contains("latitude_deg")),
         "the table shows the fixes: {:?}",
         list[5].rows().next()
     );
-    let list = &harness.state().viewers.list;
+    let list = &harness.state().session.viewers.list;
     assert_eq!(
         list[0].texture_size(),
         Some([320, 240]),
@@ -270,18 +270,20 @@ fn viewers_and_monitoring_show_a_running_diagram() {
     // The slow consumer's 4-sample FIFO overflows: the monitor counts the losses and raises a notice that
     // names the link.
     run_until(&mut harness, "the overflow on the canvas", |app| {
-        app.monitor
+        app.session
+            .monitor
             .links
             .get("counter.out -> slow.in")
             .is_some_and(|l| l.latest.overwritten > 0 && l.dropping())
     });
     run_until(&mut harness, "the overflow notice", |app| {
-        app.monitor
+        app.session
+            .monitor
             .recent_notices()
             .any(|n| n.starts_with("counter.out -> slow.in:") && n.contains("lost"))
     });
     run_until(&mut harness, "the camera's cycle rate", |app| {
-        app.monitor.components.get("camera").is_some_and(|c| {
+        app.session.monitor.components.get("camera").is_some_and(|c| {
             c.latest.state == kairos_protocol::ComponentState::Running && c.latest.cycle_rate_hz > 5.0
         })
     });
@@ -292,7 +294,8 @@ fn viewers_and_monitoring_show_a_running_diagram() {
 
 /// The status a component publishes, from the latest telemetry.
 fn status(app: &StudioApp, id: &str, key: &str) -> Option<serde_json::Value> {
-    app.monitor
+    app.session
+        .monitor
         .components
         .get(id)?
         .latest
@@ -329,7 +332,8 @@ fn the_timeline_pauses_seeks_and_plays_a_recording() {
     let mut harness = studio_on_local_runtime(Document::open(&diagram).unwrap(), Vec2::new(1400.0, 900.0));
     // The player's outputs come from its recording: the runtime describes them to the studio.
     run_until(&mut harness, "the player's outputs", |app| {
-        app.library
+        app.session
+            .library
             .instances
             .get("player")
             .is_some_and(|info| info.outputs.len() >= 3)
@@ -386,8 +390,14 @@ fn frames_by_sequence(a: &RuntimeClient, b: &RuntimeClient, within: Duration) ->
     while started.elapsed() < within {
         for (client, frames) in [(a, &mut frames_a), (b, &mut frames_b)] {
             for event in client.poll() {
-                if let kairos_studio::client::ClientEvent::Sample(header, payload) = event {
-                    frames.insert(header.sequence, (header, payload));
+                match event {
+                    kairos_studio::client::ClientEvent::Sample(header, payload) => {
+                        frames.insert(header.sequence, (header, payload));
+                    }
+                    kairos_studio::client::ClientEvent::SharedMemory(Err(error)) => {
+                        panic!("shared memory: {error}")
+                    }
+                    _ => {}
                 }
             }
         }
@@ -529,7 +539,13 @@ fn a_component_made_in_the_studio_is_built_loaded_and_in_the_palette() {
     harness.run_steps(1);
     assert!(pack.join("src/smoother.rs").is_file());
     let started = Instant::now();
-    while harness.state().library.component("lab.smoother").is_none() {
+    while harness
+        .state()
+        .session
+        .library
+        .component("lab.smoother")
+        .is_none()
+    {
         assert!(
             started.elapsed() < Duration::from_mins(5),
             "the new component never reached the palette"

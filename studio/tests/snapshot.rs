@@ -13,7 +13,7 @@ use kairos_studio::{Document, StudioApp};
 
 #[test]
 fn the_main_window_with_the_fusion_example() {
-    let library = serde_json::from_str(include_str!("library.json")).unwrap();
+    let library = kairos_studio::library_from_components_json(include_str!("library.json")).unwrap();
     let example = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../examples/fusion.ron");
     let document = Document::open(&example).unwrap();
     let app = StudioApp::new(document, library, None, "no runtime".to_owned(), None);

@@ -1,0 +1,288 @@
+//! How the canvas draws: connections as curves with their policy and live figures, nodes with their state
+//! stripe and figures, ports as type-coloured dots, the selection box, a refusal notice. Painting decides
+//! nothing: what to draw comes in as arguments.
+
+use egui::{Align2, Color32, FontId, Painter, Pos2, Rect, Stroke, StrokeKind, Vec2};
+use kairos_diagram::{ReaderPolicy, TypeFilter};
+use kairos_protocol::{ComponentTelemetry, LinkTelemetry};
+
+use super::hit_test::{PORT_RADIUS, PolicyLabel};
+use crate::monitor::milliseconds;
+use crate::session::NodeState;
+
+/// The colour of lost samples.
+pub const DROP_COLOR: Color32 = Color32::from_rgb(240, 110, 60);
+/// The colour of a problem the runtime found with a port.
+const PROBLEM_COLOR: Color32 = Color32::from_rgb(230, 90, 80);
+
+/// A reader policy in a few letters, for connections too short for its name.
+pub fn short_policy(policy: ReaderPolicy) -> &'static str {
+    match policy {
+        ReaderPolicy::Fifo => "FIFO",
+        ReaderPolicy::LastOrNext => "LoN",
+        ReaderPolicy::WaitForNext => "WfN",
+        ReaderPolicy::Sampling => "Smp",
+        ReaderPolicy::NeverSkipping => "NS",
+    }
+}
+
+/// A stable colour per data type name, so a port's colour says what flows through it.
+pub fn type_color(name: &str) -> Color32 {
+    let hash = name.bytes().fold(2_166_136_261_u32, |h, b| {
+        (h ^ u32::from(b)).wrapping_mul(16_777_619)
+    });
+    let hue = (hash % 360) as f32 / 360.0;
+    egui::ecolor::Hsva::new(hue, 0.55, 0.85, 1.0).into()
+}
+
+/// An input's colour: its type's when it accepts one type only.
+pub fn filter_color(filter: &TypeFilter) -> Color32 {
+    match filter {
+        TypeFilter::OneOf(types) => match types.as_slice() {
+            [only] => type_color(only.name()),
+            _ => Color32::LIGHT_GRAY,
+        },
+        TypeFilter::Any => Color32::LIGHT_GRAY,
+    }
+}
+
+fn state_color(state: Option<&NodeState>) -> Color32 {
+    match state {
+        Some(NodeState::Running) => Color32::from_rgb(70, 170, 90),
+        Some(NodeState::Finished) => Color32::from_rgb(90, 120, 200),
+        Some(NodeState::Failed(_) | NodeState::Invalid(_)) => Color32::from_rgb(210, 60, 60),
+        Some(NodeState::Waiting(_)) => Color32::from_rgb(200, 170, 60),
+        None => Color32::from_gray(110),
+    }
+}
+
+/// A connection's curve from an output to an input.
+pub fn paint_edge(painter: &Painter, from: Pos2, to: Pos2, stroke: Stroke) {
+    let bend = ((to.x - from.x).abs() * 0.5).max(40.0);
+    let shape = egui::epaint::CubicBezierShape::from_points_stroke(
+        [from, from + Vec2::new(bend, 0.0), to - Vec2::new(bend, 0.0), to],
+        false,
+        Color32::TRANSPARENT,
+        stroke,
+    );
+    painter.add(shape);
+}
+
+/// How a connection looks this frame.
+#[derive(Debug, Clone, Copy)]
+pub struct ConnectionLook<'a> {
+    /// Its data type's colour.
+    pub color: Color32,
+    /// Whether it is selected.
+    pub selected: bool,
+    /// Its label's place and form.
+    pub label: PolicyLabel,
+    /// Its policy (the connection's own or the input's default), if known.
+    pub policy: Option<ReaderPolicy>,
+    /// Its latest figures, when the diagram runs.
+    pub figures: Option<&'a LinkTelemetry>,
+    /// Whether it lost samples lately.
+    pub dropping: bool,
+    /// Whether there is room for small text (zoomed in enough).
+    pub detail: bool,
+}
+
+/// A connection: its curve, its policy's label, its rate, latency and losses.
+pub fn paint_connection(
+    painter: &Painter,
+    visuals: &egui::Visuals,
+    from: Pos2,
+    to: Pos2,
+    look: &ConnectionLook<'_>,
+) {
+    // A connection that lost samples lately turns to the warning colour and thickens.
+    let stroke = match (look.dropping, look.selected) {
+        (true, _) => Stroke::new(4.0, DROP_COLOR),
+        (false, true) => Stroke::new(4.0, look.color),
+        (false, false) => Stroke::new(2.0, look.color),
+    };
+    paint_edge(painter, from, to, stroke);
+    let label = look.label.rect;
+    painter.rect_filled(label, 4.0, visuals.extreme_bg_color);
+    if look.detail {
+        // The policy's full name where there is room for it, its short form on short connections.
+        let text = match (look.policy, look.label.full_name) {
+            (None, _) => "?",
+            (Some(policy), true) => policy.name(),
+            (Some(policy), false) => short_policy(policy),
+        };
+        painter.text(
+            label.center(),
+            Align2::CENTER_CENTER,
+            text,
+            FontId::proportional(11.0),
+            look.color,
+        );
+    }
+    let Some(figures) = look.figures else { return };
+    if look.detail {
+        let live = format!(
+            "{:.0} Hz · {}",
+            figures.rate_hz,
+            milliseconds(figures.latency.p50_ns)
+        );
+        painter.text(
+            label.center_bottom() + Vec2::new(0.0, 2.0),
+            Align2::CENTER_TOP,
+            &live,
+            FontId::proportional(10.0),
+            visuals.weak_text_color(),
+        );
+    }
+    if figures.overwritten > 0 {
+        painter.text(
+            label.center_bottom() + Vec2::new(0.0, 14.0),
+            Align2::CENTER_TOP,
+            format!("{} lost", figures.overwritten),
+            FontId::proportional(10.5),
+            DROP_COLOR,
+        );
+    }
+}
+
+/// How a node looks this frame.
+#[derive(Debug, Clone, Copy)]
+pub struct NodeLook<'a> {
+    /// The component's id.
+    pub id: &'a str,
+    /// Its type's name.
+    pub type_name: &'a str,
+    /// Whether it is selected.
+    pub selected: bool,
+    /// Its state, when the runtime reported one.
+    pub state: Option<&'a NodeState>,
+    /// Its latest figures, when the diagram runs.
+    pub figures: Option<&'a ComponentTelemetry>,
+    /// Whether there is room for small text.
+    pub detail: bool,
+}
+
+/// A node's box, state stripe, id, type and figures (its ports are painted on their own).
+pub fn paint_node(painter: &Painter, visuals: &egui::Visuals, rect: Rect, look: &NodeLook<'_>) {
+    painter.rect_filled(rect, 6.0, visuals.faint_bg_color);
+    painter.rect_stroke(
+        rect,
+        6.0,
+        if look.selected {
+            Stroke::new(2.5, visuals.selection.stroke.color)
+        } else {
+            Stroke::new(1.0, visuals.widgets.noninteractive.bg_stroke.color)
+        },
+        StrokeKind::Inside,
+    );
+    let stripe = Rect::from_min_size(rect.min, Vec2::new(6.0, rect.height()));
+    painter.rect_filled(stripe, 3.0, state_color(look.state));
+    painter.text(
+        rect.min + Vec2::new(12.0, 5.0),
+        Align2::LEFT_TOP,
+        look.id,
+        FontId::proportional(14.0),
+        visuals.text_color(),
+    );
+    if !look.detail {
+        return;
+    }
+    painter.text(
+        rect.min + Vec2::new(12.0, 22.0),
+        Align2::LEFT_TOP,
+        look.type_name,
+        FontId::proportional(10.5),
+        visuals.weak_text_color(),
+    );
+    if let Some(figures) = look.figures {
+        painter.text(
+            rect.right_top() + Vec2::new(-8.0, 5.0),
+            Align2::RIGHT_TOP,
+            format!(
+                "{:.0}/s · {:.0} % CPU",
+                figures.cycle_rate_hz,
+                figures.cpu_share * 100.0
+            ),
+            FontId::proportional(10.0),
+            visuals.weak_text_color(),
+        );
+    }
+}
+
+/// How a port looks this frame.
+#[derive(Debug, Clone, Copy)]
+pub struct PortLook<'a> {
+    /// Its name.
+    pub name: &'a str,
+    /// Its dot's colour.
+    pub color: Color32,
+    /// Whether the runtime found a problem with it.
+    pub problem: bool,
+    /// Whether a viewer being dragged from the palette hovers it.
+    pub viewer_hover: bool,
+    /// Whether there is room for its name.
+    pub detail: bool,
+}
+
+/// A port's dot, its name inside the node (right of an input, left of an output) and its rings.
+pub fn paint_port(
+    painter: &Painter,
+    visuals: &egui::Visuals,
+    at: Pos2,
+    side: super::hit_test::Side,
+    look: &PortLook<'_>,
+) {
+    if look.problem {
+        painter.circle_stroke(at, PORT_RADIUS + 3.0, Stroke::new(2.0, PROBLEM_COLOR));
+    }
+    if look.viewer_hover {
+        painter.circle_stroke(
+            at,
+            PORT_RADIUS + 4.0,
+            Stroke::new(2.5, visuals.selection.stroke.color),
+        );
+    }
+    painter.circle_filled(at, PORT_RADIUS, look.color);
+    if look.detail {
+        let (offset, align) = match side {
+            super::hit_test::Side::Input => (Vec2::new(9.0, 0.0), Align2::LEFT_CENTER),
+            super::hit_test::Side::Output => (Vec2::new(-9.0, 0.0), Align2::RIGHT_CENTER),
+        };
+        painter.text(
+            at + offset,
+            align,
+            look.name,
+            FontId::proportional(11.5),
+            visuals.text_color(),
+        );
+    }
+}
+
+/// The selection box being dragged out.
+pub fn paint_rubber_band(painter: &Painter, visuals: &egui::Visuals, band: Rect) {
+    let selection = visuals.selection;
+    painter.rect_filled(band, 0.0, selection.bg_fill.gamma_multiply(0.25));
+    painter.rect_stroke(
+        band,
+        0.0,
+        Stroke::new(1.0, selection.stroke.color),
+        StrokeKind::Inside,
+    );
+}
+
+/// A refusal (a connection the input's filter refused), beside where it happened.
+pub fn paint_notice(painter: &Painter, at: Pos2, text: &str) {
+    let rect = painter.text(
+        at + Vec2::new(12.0, 12.0),
+        Align2::LEFT_TOP,
+        text,
+        FontId::proportional(12.0),
+        PROBLEM_COLOR,
+    );
+    painter.rect_stroke(
+        rect.expand(4.0),
+        4.0,
+        Stroke::new(1.0, PROBLEM_COLOR),
+        StrokeKind::Outside,
+    );
+}

@@ -1,0 +1,103 @@
+//! What the user asks of the studio through menus, shortcuts, the inspector and dialogs. Panels push
+//! commands while they draw; the app carries them out once the frame's panels are drawn, so no panel
+//! changes state that another panel of the same frame has already shown.
+
+use std::path::PathBuf;
+
+use kairos_diagram::{PortRef, Value};
+use kairos_protocol::RequestBody;
+
+use crate::session::ReaderSettings;
+use crate::settings::RemoteAddress;
+
+/// What to do once unsaved changes are saved or discarded.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum AfterDiscard {
+    /// Start a new, empty diagram.
+    New,
+    /// Open this file.
+    Open(PathBuf),
+    /// Close the studio.
+    Quit,
+}
+
+/// One thing the user asked for.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Command {
+    /// A new diagram (asking first about unsaved changes).
+    NewDiagram,
+    /// The file chooser, to open a diagram.
+    OpenDiagram,
+    /// Open this file (asking first about unsaved changes).
+    OpenFile(PathBuf),
+    /// Save the diagram (asking for a file when it has none).
+    Save,
+    /// The file chooser, to save the diagram under another name.
+    SaveAs,
+    /// Close the studio (asking first about unsaved changes).
+    Quit,
+    /// Save, then do this if the save succeeded.
+    SaveThen(AfterDiscard),
+    /// Do this, dropping unsaved changes.
+    Discard(AfterDiscard),
+    /// Open the "New component…" dialog.
+    NewComponentDialog,
+    /// Open the connect dialog, filled with the last remote runtime.
+    ConnectDialog,
+    /// Connect to this remote runtime, and remember it.
+    Connect(RemoteAddress),
+    /// Go back to the local runtime.
+    UseLocalRuntime,
+    /// Undo the last edit.
+    Undo,
+    /// Redo the last undone edit.
+    Redo,
+    /// Copy the selected components.
+    Copy,
+    /// Paste the copied components, beside the originals.
+    Paste,
+    /// Copy and paste the selected components.
+    Duplicate,
+    /// Delete the selected components or connection.
+    Delete,
+    /// Lay the diagram out in columns.
+    TidyLayout,
+    /// Deploy the diagram and start it.
+    Run,
+    /// Send this request to the runtime (pause, resume, stop, the transport strip's controls).
+    Request(RequestBody),
+    /// Set a component's property.
+    SetProperty {
+        /// The component's id.
+        component: String,
+        /// The property's name.
+        property: String,
+        /// Its new value.
+        value: Value,
+    },
+    /// Change how a connection reads.
+    SetReader {
+        /// The output it reads.
+        from: PortRef,
+        /// The input it feeds.
+        to: PortRef,
+        /// The new settings.
+        settings: ReaderSettings,
+    },
+    /// Trigger a component's action.
+    TriggerAction {
+        /// The component's id.
+        component: String,
+        /// The action's name.
+        action: String,
+    },
+    /// The file chooser, for a path property.
+    ChoosePath {
+        /// The component's id.
+        component: String,
+        /// The property's name.
+        property: String,
+        /// The path typed so far.
+        current: String,
+    },
+}

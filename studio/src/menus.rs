@@ -1,0 +1,153 @@
+//! The menu bar (File, Edit, the run controls, the connection's state) and the keyboard shortcuts. Both
+//! only push [`Command`]s.
+
+use std::path::PathBuf;
+
+use egui::{Color32, RichText};
+use kairos_protocol::{RequestBody, RuntimeState};
+
+use crate::commands::Command;
+use crate::session::Session;
+
+/// What the menus need to know beyond the session.
+#[derive(Debug, Clone, Copy)]
+pub struct MenuContext<'a> {
+    /// The recent files, the latest first.
+    pub recent: &'a [PathBuf],
+    /// Whether the studio started a local runtime it can go back to.
+    pub has_local_runtime: bool,
+}
+
+/// The menu bar.
+pub fn menu_bar_ui(
+    ui: &mut egui::Ui,
+    session: &Session,
+    menus: MenuContext<'_>,
+    commands: &mut Vec<Command>,
+) {
+    egui::MenuBar::new().ui(ui, |ui| {
+        ui.menu_button("File", |ui| file_menu_ui(ui, menus, commands));
+        ui.menu_button("Edit", |ui| {
+            for (label, command) in [
+                ("Undo", Command::Undo),
+                ("Redo", Command::Redo),
+                ("Delete", Command::Delete),
+                ("Tidy the layout", Command::TidyLayout),
+            ] {
+                if ui.button(label).clicked() {
+                    commands.push(command);
+                }
+            }
+        });
+        ui.separator();
+        run_controls_ui(ui, session.run_state(), commands);
+        ui.separator();
+        connection_state_ui(ui, session);
+    });
+}
+
+fn file_menu_ui(ui: &mut egui::Ui, menus: MenuContext<'_>, commands: &mut Vec<Command>) {
+    for (label, command) in [
+        ("New", Command::NewDiagram),
+        ("Open…", Command::OpenDiagram),
+        ("Save", Command::Save),
+        ("Save as…", Command::SaveAs),
+    ] {
+        if ui.button(label).clicked() {
+            commands.push(command);
+        }
+    }
+    ui.menu_button("Recent", |ui| {
+        for path in menus.recent {
+            if ui.button(path.display().to_string()).clicked() {
+                commands.push(Command::OpenFile(path.clone()));
+            }
+        }
+    });
+    ui.separator();
+    if ui
+        .button("New component…")
+        .on_hover_text("Generate a component, build its pack and load it into the local runtime")
+        .clicked()
+    {
+        commands.push(Command::NewComponentDialog);
+    }
+    ui.separator();
+    if ui.button("Connect to a runtime…").clicked() {
+        commands.push(Command::ConnectDialog);
+    }
+    if menus.has_local_runtime && ui.button("Use the local runtime").clicked() {
+        commands.push(Command::UseLocalRuntime);
+    }
+    ui.separator();
+    if ui.button("Quit").clicked() {
+        commands.push(Command::Quit);
+    }
+}
+
+/// Run, Pause, Resume and Stop, each enabled when the runtime's state allows it.
+pub fn run_controls_ui(ui: &mut egui::Ui, state: RuntimeState, commands: &mut Vec<Command>) {
+    let running = state == RuntimeState::Running;
+    let paused = state == RuntimeState::Paused;
+    if ui
+        .button("Run")
+        .on_hover_text("Deploy this diagram to the runtime and start it")
+        .clicked()
+    {
+        commands.push(Command::Run);
+    }
+    for (label, enabled, request) in [
+        ("Pause", running, RequestBody::Pause),
+        ("Resume", paused, RequestBody::Resume),
+        ("Stop", running || paused, RequestBody::Stop),
+    ] {
+        if ui.add_enabled(enabled, egui::Button::new(label)).clicked() {
+            commands.push(Command::Request(request));
+        }
+    }
+}
+
+/// Whom the studio drives, whether it is connected, and the runtime's state.
+fn connection_state_ui(ui: &mut egui::Ui, session: &Session) {
+    let (text, color) = match session.runtime() {
+        None => ("no runtime: editing only".to_owned(), Color32::GRAY),
+        Some(runtime) if runtime.connected => {
+            (format!("connected to {}", runtime.label), Color32::LIGHT_GREEN)
+        }
+        Some(runtime) => (format!("not connected to {}", runtime.label), Color32::LIGHT_RED),
+    };
+    ui.label(RichText::new(text).color(color));
+    ui.label(format!("— {:?}", session.run_state()).to_lowercase());
+}
+
+/// The keyboard shortcuts; Save works while typing, the others only when no text field has the keyboard.
+pub fn shortcuts(ctx: &egui::Context, commands: &mut Vec<Command>) {
+    use egui::{Key, KeyboardShortcut, Modifiers};
+    let typing = ctx.egui_wants_keyboard_input();
+    let pressed =
+        |modifiers, key| ctx.input_mut(|i| i.consume_shortcut(&KeyboardShortcut::new(modifiers, key)));
+    if pressed(Modifiers::COMMAND, Key::S) {
+        commands.push(Command::Save);
+    }
+    if typing {
+        return;
+    }
+    if pressed(Modifiers::COMMAND | Modifiers::SHIFT, Key::Z) || pressed(Modifiers::COMMAND, Key::Y) {
+        commands.push(Command::Redo);
+    }
+    if pressed(Modifiers::COMMAND, Key::Z) {
+        commands.push(Command::Undo);
+    }
+    if pressed(Modifiers::COMMAND, Key::C) {
+        commands.push(Command::Copy);
+    }
+    if pressed(Modifiers::COMMAND, Key::V) {
+        commands.push(Command::Paste);
+    }
+    if pressed(Modifiers::COMMAND, Key::D) {
+        commands.push(Command::Duplicate);
+    }
+    if pressed(Modifiers::NONE, Key::Delete) || pressed(Modifiers::NONE, Key::Backspace) {
+        commands.push(Command::Delete);
+    }
+}

@@ -1,0 +1,1063 @@
+//! The studio's state without a window: the edited document, the runtime's library, the session with the
+//! runtime (connection, run state, each component's state, requests in flight, deploy bookkeeping), live
+//! figures, viewers' data, the log and the remembered settings. Its methods take the runtime's events and
+//! the user's commands and update the state; what must go to the runtime comes out as [`Effect`]s, which
+//! the app hands to the connection (and tests read). Nothing here draws, so all of it is tested without a
+//! window.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+use kairos_diagram::{LibraryInfo, PortRef, ReaderPolicy, Value};
+use kairos_protocol::{
+    ComponentState, ComponentTelemetry, LogLevel, ProtocolError, ReplyBody, Request, RequestBody,
+    RuntimeState, SampleTransport, Telemetry, Welcome,
+};
+
+use crate::client::{Answer, ClientEvent, DroppedEvents};
+use crate::document::Document;
+use crate::log::{Log, Tone};
+use crate::monitor::Monitor;
+use crate::settings::Settings;
+use crate::viewers::Viewers;
+
+/// Viewers get at most this many samples a second per output, always the latest.
+const VIEWER_RATE_HZ: f64 = 30.0;
+/// Wider images are sent scaled down by a whole factor.
+const VIEWER_IMAGE_WIDTH: u32 = 1920;
+/// How often telemetry comes (4 Hz).
+const TELEMETRY_INTERVAL_MS: u64 = 250;
+/// The first id of the session's requests; 1 is the connection's `hello`.
+const FIRST_REQUEST_ID: u64 = 2;
+
+/// How a component is doing, as the runtime reports it.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum NodeState {
+    /// Running its cycles.
+    Running,
+    /// Waiting (paused, idle, not started, stopped): the runtime's word for it.
+    Waiting(String),
+    /// Its stream ended.
+    Finished,
+    /// Failed, with the error.
+    Failed(String),
+    /// The runtime refused the diagram because of this component; the problems, one per line.
+    Invalid(String),
+}
+
+impl NodeState {
+    /// The state one telemetry entry reports.
+    fn of(component: &ComponentTelemetry) -> NodeState {
+        match (component.state, &component.error) {
+            (ComponentState::Running, _) => NodeState::Running,
+            (ComponentState::Finished, _) => NodeState::Finished,
+            (_, Some(error)) => NodeState::Failed(error.clone()),
+            (other, None) => NodeState::Waiting(other.word().to_owned()),
+        }
+    }
+}
+
+/// What a request in flight was for.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Pending {
+    /// The runtime's component library.
+    Library,
+    /// A description of the instances whose ports depend on their properties.
+    Describe,
+    /// A subscription to the viewers' sample frames.
+    Samples,
+    /// A deploy (of the text kept in `Deploy`).
+    Deploy,
+    /// Anything whose answer only matters when it is an error.
+    Other,
+}
+
+/// What the session asks of the connection to the runtime.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Effect {
+    /// Send this request.
+    Send(Request),
+    /// Read viewer frames from these shared-memory services (output → service), in place of any read
+    /// before; none: stop reading.
+    ReadShared(BTreeMap<String, String>),
+}
+
+/// The runtime the session drives.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct RuntimeLink {
+    /// How the studio names it (`local runtime ws://127.0.0.1:PORT`).
+    pub label: String,
+    /// Whether it accepted the session.
+    pub connected: bool,
+}
+
+/// How viewer frames come from the runtime.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum FramePath {
+    /// Through the socket (a remote runtime, or shared memory failed).
+    Socket,
+    /// In shared memory: the runtime is on this machine.
+    SharedMemory,
+    /// In shared memory, images as references to the runtime's own pixel buffers, which this process may
+    /// map: no copy at all on the runtime's side.
+    SharedPixels,
+}
+
+/// The last deploy.
+#[derive(Debug, Clone, Default)]
+struct Deploy {
+    /// The text deployed, to place the runtime's diagnostics on the nodes they concern.
+    text: String,
+    /// Whether to start once the deploy is accepted.
+    start_after: bool,
+}
+
+/// One instance as its description depends on it.
+#[derive(Debug, Clone, PartialEq)]
+struct InstanceKey {
+    id: String,
+    type_name: String,
+    properties: BTreeMap<String, Value>,
+}
+
+/// The instances last sent to be described, and whether the answer is awaited.
+#[derive(Debug, Clone, Default)]
+struct Described {
+    instances: Vec<InstanceKey>,
+    awaiting: bool,
+}
+
+/// What the command line asked for once the runtime's library is known.
+#[derive(Debug, Clone, Default)]
+struct Startup {
+    /// Outputs (`component.port`) to open viewers on.
+    views: Vec<String>,
+    /// Whether to deploy and start the diagram.
+    run: bool,
+}
+
+/// A connection's reader settings as the inspector edits them.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ReaderSettings {
+    /// Its policy; `None`: the input's default.
+    pub policy: Option<ReaderPolicy>,
+    /// Its share of the output's buffer; `None`: the output's.
+    pub buffer_size: Option<usize>,
+    /// Keeps one sample in this many; `None`: every sample.
+    pub subsampling: Option<u32>,
+}
+
+/// What a save did.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Saved {
+    /// Written (or failed, which the log says).
+    Done,
+    /// The document has no file yet: ask for one.
+    NeedsPath,
+}
+
+/// The studio's state; see the module's documentation.
+#[derive(Debug)]
+pub struct Session {
+    /// The diagram being edited.
+    pub document: Document,
+    /// The connected runtime's component library (the palette).
+    pub library: LibraryInfo,
+    /// Live figures from telemetry.
+    pub monitor: Monitor,
+    /// The open data viewers.
+    pub viewers: Viewers,
+    /// The log panel's lines.
+    pub log: Log,
+    /// What is remembered between launches.
+    pub settings: Settings,
+    /// Problems the runtime found with ports (a refused deploy), shown on them until the next deploy.
+    pub port_problems: BTreeMap<PortRef, String>,
+    runtime: Option<RuntimeLink>,
+    run_state: RuntimeState,
+    states: BTreeMap<String, NodeState>,
+    next_request: u64,
+    pending: BTreeMap<u64, Pending>,
+    deploy: Deploy,
+    described: Described,
+    startup: Startup,
+    frames: FramePath,
+    effects: Vec<Effect>,
+    /// Dropped events as last reported.
+    dropped: DroppedEvents,
+}
+
+/// Whether a count going from `before` to `now` passed 1, 2, 4, 8 ...: when a growing count is worth a
+/// line in the log.
+fn passed_power_of_two(before: u64, now: u64) -> bool {
+    now > before && (before == 0 || now.ilog2() > before.ilog2())
+}
+
+impl Session {
+    /// A session editing `document`, with `library` as the palette until a runtime sends its own; no
+    /// runtime yet.
+    pub fn new(document: Document, library: LibraryInfo, settings: Settings) -> Session {
+        Session {
+            document,
+            library,
+            monitor: Monitor::default(),
+            viewers: Viewers::default(),
+            log: Log::default(),
+            settings,
+            port_problems: BTreeMap::new(),
+            runtime: None,
+            run_state: RuntimeState::Empty,
+            states: BTreeMap::new(),
+            next_request: FIRST_REQUEST_ID,
+            pending: BTreeMap::new(),
+            deploy: Deploy::default(),
+            described: Described::default(),
+            startup: Startup::default(),
+            frames: FramePath::Socket,
+            effects: Vec::new(),
+            dropped: DroppedEvents::default(),
+        }
+    }
+
+    /// A line of the studio's own in the log.
+    pub fn note(&mut self, level: LogLevel, text: impl Into<String>) {
+        self.log.studio(level, Tone::Plain, text);
+    }
+
+    /// A success of the studio's own in the log.
+    pub fn succeeded(&mut self, text: impl Into<String>) {
+        self.log.studio(LogLevel::Info, Tone::Success, text);
+    }
+
+    /// The runtime the session drives, if any.
+    pub fn runtime(&self) -> Option<&RuntimeLink> {
+        self.runtime.as_ref()
+    }
+
+    /// Whether the runtime accepted the session.
+    pub fn is_connected(&self) -> bool {
+        self.runtime.as_ref().is_some_and(|r| r.connected)
+    }
+
+    /// Where the runtime is, as its telemetry last said.
+    pub fn run_state(&self) -> RuntimeState {
+        self.run_state
+    }
+
+    /// A component's state as the runtime last reported it.
+    pub fn node_state(&self, id: &str) -> Option<&NodeState> {
+        self.states.get(id)
+    }
+
+    /// Every component's state as the runtime last reported it.
+    pub fn node_states(&self) -> &BTreeMap<String, NodeState> {
+        &self.states
+    }
+
+    /// The document for the canvas to edit, and what the canvas shows besides it.
+    pub fn canvas_view(&mut self) -> (&mut Document, crate::canvas::Shown<'_>) {
+        (
+            &mut self.document,
+            crate::canvas::Shown {
+                library: &self.library,
+                states: &self.states,
+                monitor: &self.monitor,
+                port_problems: &self.port_problems,
+            },
+        )
+    }
+
+    /// Whether viewer frames come through shared memory (a runtime on this machine) rather than the socket.
+    pub fn uses_shared_memory(&self) -> bool {
+        self.frames != FramePath::Socket
+    }
+
+    /// What the connection must do, in order, since the last call.
+    pub fn take_effects(&mut self) -> Vec<Effect> {
+        std::mem::take(&mut self.effects)
+    }
+
+    /// A new connection to the runtime `label` at `url` is being made: everything known of the previous
+    /// one is forgotten.
+    pub fn connecting(&mut self, label: String, url: &str) {
+        self.runtime = Some(RuntimeLink {
+            label,
+            connected: false,
+        });
+        self.pending.clear();
+        self.states.clear();
+        self.run_state = RuntimeState::Empty;
+        self.frames = FramePath::Socket;
+        self.dropped = DroppedEvents::default();
+        self.note(LogLevel::Info, format!("connecting to {url}"));
+    }
+
+    /// Opens viewers on `views` (`component.port`) and, with `run`, deploys and starts the diagram, as soon
+    /// as the runtime's library is known.
+    pub fn set_startup(&mut self, views: Vec<String>, run: bool) {
+        self.startup = Startup { views, run };
+    }
+
+    /// Sends a request whose answer matters only when it is an error.
+    pub fn request(&mut self, body: RequestBody) {
+        self.request_for(body, Pending::Other);
+    }
+
+    fn request_for(&mut self, body: RequestBody, pending: Pending) {
+        if self.runtime.is_none() {
+            self.note(LogLevel::Error, "no runtime connected");
+            return;
+        }
+        let id = self.next_request;
+        self.next_request += 1;
+        self.pending.insert(id, pending);
+        self.effects.push(Effect::Send(Request { id, body }));
+    }
+
+    /// Takes in one event of the connection.
+    pub fn handle(&mut self, event: ClientEvent) {
+        match event {
+            ClientEvent::Connected(welcome) => self.connected(&welcome),
+            ClientEvent::Reply(reply) => self.take_reply(reply),
+            ClientEvent::Telemetry(telemetry) => self.take_telemetry(&telemetry),
+            ClientEvent::Log(record) => self.log.record(record),
+            ClientEvent::Sample(header, payload) => self.viewers.receive(&header, &payload),
+            ClientEvent::SharedMemory(Ok(())) => {}
+            ClientEvent::SharedMemory(Err(error)) => self.socket_instead(&error),
+            ClientEvent::Disconnected(reason) => {
+                if let Some(runtime) = &mut self.runtime {
+                    runtime.connected = false;
+                }
+                self.note(LogLevel::Error, reason);
+            }
+        }
+    }
+
+    /// Says in the log when the connection dropped events because the studio fell behind: each time log
+    /// records were lost, and at the 1st, 2nd, 4th ... lost sample frame or telemetry event.
+    pub fn report_dropped(&mut self, now: DroppedEvents) {
+        let before = std::mem::replace(&mut self.dropped, now);
+        if now.log > before.log {
+            self.note(
+                LogLevel::Warn,
+                format!(
+                    "the studio fell behind: {} of the runtime's log records were dropped",
+                    now.log - before.log
+                ),
+            );
+        }
+        if passed_power_of_two(before.samples, now.samples) {
+            self.note(
+                LogLevel::Debug,
+                format!(
+                    "the studio fell behind: {} sample frames were dropped so far (viewers show the next)",
+                    now.samples
+                ),
+            );
+        }
+        if passed_power_of_two(before.telemetry, now.telemetry) {
+            self.note(
+                LogLevel::Debug,
+                format!(
+                    "the studio fell behind: {} telemetry events were dropped so far",
+                    now.telemetry
+                ),
+            );
+        }
+    }
+
+    fn connected(&mut self, welcome: &Welcome) {
+        if let Some(runtime) = &mut self.runtime {
+            runtime.connected = true;
+        }
+        let same_host = welcome.shared_memory_host.is_some()
+            && welcome.shared_memory_host == kairos_protocol::this_host();
+        let pixels = welcome
+            .pid
+            .is_some_and(kairos_protocol::shared_pixels::can_map_buffers_of);
+        self.frames = match (same_host, pixels) {
+            (false, _) => FramePath::Socket,
+            (true, false) => FramePath::SharedMemory,
+            (true, true) => FramePath::SharedPixels,
+        };
+        self.succeeded(format!("connected to {} ({:?})", welcome.server, welcome.role));
+        self.request_for(RequestBody::Library, Pending::Library);
+        self.request(RequestBody::SubscribeTelemetry {
+            interval_ms: TELEMETRY_INTERVAL_MS,
+        });
+        self.request(RequestBody::SubscribeLog {
+            level: LogLevel::Info,
+        });
+    }
+
+    /// The answer to one of our requests.
+    fn take_reply(&mut self, answer: Answer) {
+        let what = answer.id.and_then(|id| self.pending.remove(&id));
+        match answer.outcome {
+            Ok(result) => self.take_result(what, result),
+            Err(error) => self.take_error(what, error),
+        }
+    }
+
+    /// A request of ours that failed.
+    fn take_error(&mut self, what: Option<Pending>, error: ProtocolError) {
+        match what {
+            Some(Pending::Deploy) if !error.diagnostics.is_empty() => {
+                let by_component =
+                    crate::document::diagnostics_by_component(&self.deploy.text, &error.diagnostics);
+                for (id, problems) in by_component {
+                    self.states.insert(id, NodeState::Invalid(problems.join("\n")));
+                }
+                self.port_problems =
+                    crate::document::diagnostics_by_port(&self.deploy.text, &error.diagnostics)
+                        .into_iter()
+                        .map(|(port, problems)| (port, problems.join("\n")))
+                        .collect();
+            }
+            Some(Pending::Samples) if self.uses_shared_memory() => {
+                self.socket_instead(&error.message);
+                return;
+            }
+            Some(Pending::Describe) => {
+                // A diagram the runtime cannot parse yet: the editor keeps the type's ports.
+                self.described.awaiting = false;
+                self.start_up();
+                return;
+            }
+            _ => {}
+        }
+        self.note(LogLevel::Error, error.message);
+        self.deploy.start_after = false;
+    }
+
+    /// The result of a request of ours, of that request's type.
+    fn take_result(&mut self, what: Option<Pending>, result: ReplyBody) {
+        match (what, result) {
+            (Some(Pending::Library), ReplyBody::Library(library)) => {
+                self.library = library;
+                self.described = Described::default();
+                self.describe_instances();
+                if !self.described.awaiting {
+                    self.start_up();
+                }
+            }
+            (Some(Pending::Samples), ReplyBody::SubscribeSamples(subscribed)) => {
+                // A subscription through the socket names no services.
+                if let Some(services) = subscribed.services {
+                    self.effects.push(Effect::ReadShared(services));
+                }
+            }
+            (Some(Pending::Describe), ReplyBody::DescribeInstances(described)) => {
+                self.described.awaiting = false;
+                self.library.instances = described.instances;
+                for (id, problem) in described.problems {
+                    self.note(LogLevel::Error, format!("{id}: {}", problem.message));
+                }
+                self.start_up();
+            }
+            (Some(Pending::Deploy), ReplyBody::Deploy(_)) => {
+                self.states.clear();
+                self.monitor.clear();
+                self.run_state = RuntimeState::Ready;
+                self.subscribe_viewers();
+                self.port_problems.clear();
+                self.succeeded("deployed");
+                if std::mem::take(&mut self.deploy.start_after) {
+                    self.request(RequestBody::Start);
+                }
+            }
+            _ => {}
+        }
+    }
+
+    /// Node states and live figures from one telemetry event.
+    fn take_telemetry(&mut self, telemetry: &Telemetry) {
+        self.run_state = telemetry.state;
+        // A refused deploy's marks stay until the next deploy, whatever runs meanwhile.
+        let refused: Vec<(String, NodeState)> = self
+            .states
+            .iter()
+            .filter(|(_, s)| matches!(s, NodeState::Invalid(_)))
+            .map(|(id, s)| (id.clone(), s.clone()))
+            .collect();
+        self.states = telemetry
+            .components
+            .iter()
+            .map(|c| (c.id.clone(), NodeState::of(c)))
+            .collect();
+        self.states.extend(refused);
+        for notice in self.monitor.update(telemetry) {
+            self.note(LogLevel::Warn, notice);
+        }
+    }
+
+    /// Deploys the document and starts it once the runtime accepts it.
+    pub fn deploy_and_start(&mut self) {
+        self.deploy = Deploy {
+            text: self.document.diagram().to_ron(),
+            start_after: true,
+        };
+        self.request_for(
+            RequestBody::Deploy {
+                diagram: self.deploy.text.clone(),
+            },
+            Pending::Deploy,
+        );
+    }
+
+    /// Asks the runtime to describe the instances whose ports depend on their properties (a player's
+    /// outputs), whenever components or their properties changed since the last answer.
+    pub fn describe_instances(&mut self) {
+        if !self.is_connected() || self.described.awaiting {
+            return;
+        }
+        let instances: Vec<InstanceKey> = self
+            .document
+            .diagram()
+            .components
+            .iter()
+            .map(|c| InstanceKey {
+                id: c.id.clone(),
+                type_name: c.type_name.clone(),
+                properties: c.properties.clone(),
+            })
+            .collect();
+        if instances == self.described.instances {
+            return;
+        }
+        self.described = Described {
+            instances,
+            awaiting: true,
+        };
+        self.request_for(
+            RequestBody::DescribeInstances {
+                diagram: self.document.diagram().to_ron(),
+            },
+            Pending::Describe,
+        );
+    }
+
+    /// What the command line asked for, once the library is known: viewers, and a run.
+    fn start_up(&mut self) {
+        let Startup { views, run } = std::mem::take(&mut self.startup);
+        for output in views {
+            let port = PortRef::parse(&output);
+            match port.and_then(|p| self.document.output_type(&p, &self.library)) {
+                Some(data_type) => self.viewers.open(output, data_type.name()),
+                None => self.note(
+                    LogLevel::Error,
+                    format!(
+                        "--view {output}: no such output in the diagram (outputs are named component.port)"
+                    ),
+                ),
+            }
+        }
+        if run {
+            self.deploy_and_start();
+        }
+    }
+
+    /// Asks the runtime for the samples of every output a viewer shows (and no others). Before a deployment
+    /// there is nothing to subscribe to; deploying subscribes again.
+    pub fn subscribe_viewers(&mut self) {
+        if !self.is_connected() || self.run_state == RuntimeState::Empty {
+            return;
+        }
+        self.request(RequestBody::UnsubscribeSamples { outputs: Vec::new() });
+        let outputs = self.viewers.outputs();
+        if outputs.is_empty() {
+            self.effects.push(Effect::ReadShared(BTreeMap::new()));
+            return;
+        }
+        let transport = match self.frames {
+            FramePath::Socket => SampleTransport::Socket,
+            FramePath::SharedMemory | FramePath::SharedPixels => SampleTransport::SharedMemory,
+        };
+        self.request_for(
+            RequestBody::SubscribeSamples {
+                outputs,
+                max_rate_hz: VIEWER_RATE_HZ,
+                max_image_width: Some(VIEWER_IMAGE_WIDTH),
+                transport,
+                shared_pixels: self.frames == FramePath::SharedPixels,
+            },
+            Pending::Samples,
+        );
+    }
+
+    /// Shared memory failed (`why`): viewers subscribe through the socket from now on.
+    fn socket_instead(&mut self, why: &str) {
+        if self.frames == FramePath::Socket {
+            return;
+        }
+        self.note(LogLevel::Warn, format!("{why}; viewers use the socket instead"));
+        self.frames = FramePath::Socket;
+        self.subscribe_viewers();
+    }
+
+    /// Sets a component's property (one undoable edit); while the diagram runs, a live property whose value
+    /// is valid changes in the runtime at once too.
+    pub fn set_property(&mut self, component: &str, property: &str, value: Value) {
+        self.document.edit(|d| {
+            if let Some(c) = d.component_mut(component) {
+                c.properties.insert(property.to_owned(), value.clone());
+            }
+        });
+        let running = matches!(self.run_state, RuntimeState::Running | RuntimeState::Paused);
+        let live = self
+            .document
+            .diagram()
+            .component(component)
+            .and_then(|c| self.library.component_of(c))
+            .and_then(|info| info.properties.iter().find(|p| p.name == property))
+            .is_some_and(|p| p.live && p.kind.check(&value).is_ok());
+        if running && live {
+            self.request(RequestBody::SetProperty {
+                component: component.to_owned(),
+                property: property.to_owned(),
+                value,
+            });
+        }
+    }
+
+    /// Changes how the connection `from` → `to` reads (one undoable edit).
+    pub fn set_reader(&mut self, from: &PortRef, to: &PortRef, settings: ReaderSettings) {
+        self.document.edit(|d| {
+            if let Some(c) = d.connections.iter_mut().find(|c| &c.from == from && &c.to == to) {
+                c.policy = settings.policy;
+                c.buffer_size = settings.buffer_size;
+                c.subsampling = settings.subsampling;
+            }
+        });
+    }
+
+    /// Opens the diagram in `path` in place of the document; false (with the reason in the log) when it
+    /// cannot be read.
+    pub fn open(&mut self, path: &Path) -> bool {
+        match Document::open(path) {
+            Ok(document) => {
+                self.document = document;
+                self.note(LogLevel::Info, format!("opened {}", path.display()));
+                self.remember_recent(path.to_owned());
+                true
+            }
+            Err(error) => {
+                self.note(LogLevel::Error, error);
+                false
+            }
+        }
+    }
+
+    /// Writes the document to its file.
+    pub fn save(&mut self) -> Saved {
+        let Some(path) = self.document.path().map(Path::to_path_buf) else {
+            return Saved::NeedsPath;
+        };
+        match self.document.save() {
+            Ok(()) => {
+                self.note(LogLevel::Info, format!("saved {}", path.display()));
+                self.remember_recent(path);
+            }
+            Err(error) => self.note(LogLevel::Error, error),
+        }
+        Saved::Done
+    }
+
+    /// Writes the document to `path`, which becomes its file.
+    pub fn save_as(&mut self, path: &Path) {
+        match self.document.save_as(path) {
+            Ok(()) => {
+                self.note(LogLevel::Info, format!("saved {}", path.display()));
+                self.remember_recent(path.to_owned());
+            }
+            Err(error) => self.note(LogLevel::Error, error),
+        }
+    }
+
+    fn remember_recent(&mut self, path: PathBuf) {
+        if let Err(error) = self.settings.remember_recent(path) {
+            self.note(
+                LogLevel::Warn,
+                format!("the recent files are not remembered: {error}"),
+            );
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use kairos_diagram::{Diagram, LibraryInfo, PortRef};
+    use kairos_protocol::{LogLevel, Request, RequestBody, RuntimeState, ServerMessage};
+    use serde_json::json;
+
+    use super::{Effect, NodeState, Session};
+    use crate::client::{Answer, ClientEvent, DroppedEvents};
+    use crate::document::Document;
+    use crate::settings::Settings;
+
+    /// The library the studio's interface tests use (generated by the `kairos` binary).
+    fn library() -> LibraryInfo {
+        crate::library_from_components_json(include_str!("../tests/library.json")).unwrap()
+    }
+
+    const DIAGRAM: &str = "Diagram(format: 1, packs: [Pack(name: \"core\", version: \"^0.1\")], components: [\
+        Component(id: \"counter1\", type: \"core.counter\", position: (x: 0.0, y: 0.0)), \
+        Component(id: \"console1\", type: \"core.console\", position: (x: 300.0, y: 0.0))], \
+        connections: [Connection(from: \"counter1.out\", to: \"console1.in\")])";
+
+    fn document() -> Document {
+        let diagram: Diagram = kairos_diagram::parse(DIAGRAM).unwrap().diagram;
+        let mut document = Document::default();
+        document.edit(|d| *d = diagram);
+        document
+    }
+
+    /// A message as the runtime sends it on the wire.
+    fn from_runtime(message: serde_json::Value) -> ClientEvent {
+        match serde_json::from_value::<ServerMessage>(message).unwrap() {
+            // The result of an unknown request cannot be read: only refusals come this way.
+            ServerMessage::Reply(reply) => ClientEvent::Reply(Answer::of(reply, None)),
+            ServerMessage::Telemetry(telemetry) => ClientEvent::Telemetry(telemetry),
+            ServerMessage::Log(record) => ClientEvent::Log(record),
+        }
+    }
+
+    /// The runtime's reply to `request`, as the client reads it.
+    fn ok(request: &Request, result: serde_json::Value) -> ClientEvent {
+        let mut reply = json!({"id": request.id, "ok": true});
+        reply["result"] = result;
+        let reply = serde_json::from_value(reply).unwrap();
+        ClientEvent::Reply(Answer::of(reply, Some(request.body.kind())))
+    }
+
+    fn component(id: &str, state: &str, error: Option<&str>) -> serde_json::Value {
+        json!({"id": id, "type_name": "core.counter", "state": state, "error": error, "cycles": 1,
+               "cycle_rate_hz": 1.0, "cpu_share": 0.0})
+    }
+
+    fn telemetry(state: &str, components: &[serde_json::Value]) -> ClientEvent {
+        from_runtime(
+            json!({"type": "telemetry", "at_ns": 1, "state": state, "links": [],
+                            "components": components}),
+        )
+    }
+
+    /// The requests sent since the last call.
+    fn sent(session: &mut Session) -> Vec<Request> {
+        session
+            .take_effects()
+            .into_iter()
+            .filter_map(|e| match e {
+                Effect::Send(request) => Some(request),
+                Effect::ReadShared(_) => None,
+            })
+            .collect()
+    }
+
+    /// A session connected to a runtime on another machine (no shared memory), its library known.
+    fn connected() -> Session {
+        let mut session = Session::new(document(), LibraryInfo::default(), Settings::default());
+        session.connecting("runtime ws://robot:7400".to_owned(), "ws://robot:7400");
+        let welcome = json!({"protocol": 1, "server": "kairos 0.1.0", "role": "operator"});
+        session.handle(ClientEvent::Connected(serde_json::from_value(welcome).unwrap()));
+        assert!(session.is_connected());
+        let requests = sent(&mut session);
+        let kinds: Vec<&RequestBody> = requests.iter().map(|r| &r.body).collect();
+        assert!(matches!(
+            kinds.as_slice(),
+            [
+                RequestBody::Library,
+                RequestBody::SubscribeTelemetry { interval_ms: 250 },
+                RequestBody::SubscribeLog {
+                    level: LogLevel::Info
+                }
+            ]
+        ));
+        let library = serde_json::to_value(library()).unwrap();
+        session.handle(ok(&requests[0], library));
+        assert!(session.library.component("core.counter").is_some());
+        // The diagram's instances are described once the library is known.
+        let describe = sent(&mut session);
+        assert!(matches!(describe[0].body, RequestBody::DescribeInstances { .. }));
+        session.handle(ok(&describe[0], json!({"instances": {}, "problems": {}})));
+        session
+    }
+
+    #[test]
+    fn telemetry_sets_each_components_state_and_the_run_state() {
+        let mut session = connected();
+        session.handle(telemetry(
+            "running",
+            &[
+                component("counter1", "running", None),
+                component("console1", "failed", Some("stdout closed")),
+            ],
+        ));
+        assert_eq!(session.run_state(), RuntimeState::Running);
+        assert_eq!(session.node_state("counter1"), Some(&NodeState::Running));
+        assert_eq!(
+            session.node_state("console1"),
+            Some(&NodeState::Failed("stdout closed".to_owned()))
+        );
+        session.handle(telemetry(
+            "ready",
+            &[
+                component("counter1", "stopped", None),
+                component("console1", "finished", None),
+            ],
+        ));
+        assert_eq!(session.run_state(), RuntimeState::Ready);
+        assert_eq!(
+            session.node_state("counter1"),
+            Some(&NodeState::Waiting("stopped".to_owned()))
+        );
+        assert_eq!(session.node_state("console1"), Some(&NodeState::Finished));
+    }
+
+    #[test]
+    fn an_accepted_deploy_is_followed_by_start() {
+        let mut session = connected();
+        session.deploy_and_start();
+        let deploy = sent(&mut session);
+        let [
+            Request {
+                body: RequestBody::Deploy { diagram },
+                ..
+            },
+        ] = deploy.as_slice()
+        else {
+            panic!("one deploy: {deploy:?}");
+        };
+        assert_eq!(diagram, &session.document.diagram().to_ron());
+        assert!(
+            sent(&mut session).is_empty(),
+            "no start before the deploy is accepted"
+        );
+        session.handle(ok(&deploy[0], json!({"diagnostics": [], "components": 2})));
+        assert_eq!(session.run_state(), RuntimeState::Ready);
+        let after: Vec<RequestBody> = sent(&mut session).into_iter().map(|r| r.body).collect();
+        // The viewers' subscriptions are renewed for the new deployment (none open here), then it starts.
+        assert_eq!(
+            after,
+            [
+                RequestBody::UnsubscribeSamples { outputs: Vec::new() },
+                RequestBody::Start
+            ]
+        );
+        assert!(
+            session
+                .log
+                .lines()
+                .any(|l| l.text == "deployed" && l.tone == crate::log::Tone::Success)
+        );
+    }
+
+    #[test]
+    fn a_refused_deploy_marks_its_components_and_is_not_started() {
+        let mut session = connected();
+        session.deploy_and_start();
+        let deploy = sent(&mut session);
+        let text = session.document.diagram().to_ron();
+        // The runtime's diagnostic points into the text deployed: at the second component.
+        let offset = text.find("console1").unwrap();
+        let diagnostic = kairos_diagram::Diagnostic::error(
+            kairos_diagram::DiagnosticCode::UnknownComponentType,
+            "no console today",
+        )
+        .at(Some(kairos_diagram::Location {
+            line: 1,
+            column: 1,
+            offset,
+            len: 8,
+        }));
+        session.handle(from_runtime(
+            json!({"type": "reply", "id": deploy[0].id, "ok": false, "error": {
+            "code": "invalid_diagram", "message": "the diagram has 1 error",
+            "diagnostics": [diagnostic]}}),
+        ));
+        assert!(sent(&mut session).is_empty(), "nothing is started");
+        assert_eq!(
+            session.node_state("console1"),
+            Some(&NodeState::Invalid("no console today".to_owned()))
+        );
+        assert!(session.log.lines().any(|l| l.text == "the diagram has 1 error"));
+        // The marks stay through telemetry until the next deploy.
+        session.handle(telemetry("empty", &[]));
+        assert!(matches!(
+            session.node_state("console1"),
+            Some(NodeState::Invalid(_))
+        ));
+    }
+
+    #[test]
+    fn a_live_property_changes_in_the_running_diagram_too() {
+        let mut session = connected();
+        session.handle(telemetry("running", &[component("counter1", "running", None)]));
+        let live = library()
+            .component("core.counter")
+            .and_then(|c| c.properties.iter().find(|p| p.live).cloned());
+        let Some(property) = live else {
+            panic!("core.counter has a live property");
+        };
+        session.set_property("counter1", &property.name, property.default.clone());
+        let requests: Vec<RequestBody> = sent(&mut session).into_iter().map(|r| r.body).collect();
+        assert!(
+            matches!(requests.as_slice(), [RequestBody::SetProperty { component, .. }] if component == "counter1"),
+            "{requests:?}"
+        );
+        assert!(
+            session
+                .document
+                .diagram()
+                .component("counter1")
+                .unwrap()
+                .properties
+                .contains_key(&property.name)
+        );
+    }
+
+    #[test]
+    fn viewers_fall_back_to_the_socket_when_shared_memory_fails() {
+        let mut session = connected();
+        // As a runtime on this machine would be.
+        session.frames = super::FramePath::SharedMemory;
+        session.viewers.open("counter1.out".to_owned(), "i64");
+        session.deploy_and_start();
+        let deploy = sent(&mut session);
+        session.handle(ok(&deploy[0], json!({"diagnostics": [], "components": 2})));
+        let requests = sent(&mut session);
+        let subscribe = requests
+            .iter()
+            .find(|r| matches!(r.body, RequestBody::SubscribeSamples { .. }))
+            .unwrap();
+        assert!(matches!(
+            subscribe.body,
+            RequestBody::SubscribeSamples {
+                transport: kairos_protocol::SampleTransport::SharedMemory,
+                ..
+            }
+        ));
+        session.handle(ok(
+            subscribe,
+            json!({"services": {"counter1.out": "kairos/1/counter1.out"}}),
+        ));
+        assert!(matches!(session.take_effects().as_slice(), [Effect::ReadShared(s)] if s.len() == 1));
+        // The reader thread could not open the services: the socket takes over.
+        session.handle(ClientEvent::SharedMemory(Err("no /dev/shm".to_owned())));
+        assert!(!session.uses_shared_memory());
+        let again = sent(&mut session);
+        assert!(again.iter().any(|r| matches!(
+            r.body,
+            RequestBody::SubscribeSamples {
+                transport: kairos_protocol::SampleTransport::Socket,
+                ..
+            }
+        )));
+        assert!(
+            session
+                .log
+                .lines()
+                .any(|l| l.text == "no /dev/shm; viewers use the socket instead")
+        );
+    }
+
+    #[test]
+    fn the_command_lines_viewers_open_once_the_library_is_known() {
+        let mut session = Session::new(document(), LibraryInfo::default(), Settings::default());
+        session.set_startup(vec!["counter1.out".to_owned(), "nobody.out".to_owned()], false);
+        session.connecting("runtime".to_owned(), "ws://robot:7400");
+        assert!(session.viewers.list.is_empty());
+        let welcome = json!({"protocol": 1, "server": "kairos 0.1.0", "role": "operator"});
+        session.handle(ClientEvent::Connected(serde_json::from_value(welcome).unwrap()));
+        let requests = sent(&mut session);
+        session.handle(ok(&requests[0], serde_json::to_value(library()).unwrap()));
+        let describe = sent(&mut session);
+        session.handle(ok(&describe[0], json!({"instances": {}, "problems": {}})));
+        let opened: Vec<&str> = session.viewers.list.iter().map(|v| v.output.as_str()).collect();
+        assert_eq!(opened, ["counter1.out"]);
+        assert!(
+            session
+                .log
+                .lines()
+                .any(|l| l.level == LogLevel::Error && l.text.starts_with("--view nobody.out"))
+        );
+    }
+
+    #[test]
+    fn without_a_runtime_a_request_is_an_error_in_the_log() {
+        let mut session = Session::new(document(), library(), Settings::default());
+        session.request(RequestBody::Start);
+        assert!(session.take_effects().is_empty());
+        assert!(
+            session
+                .log
+                .lines()
+                .any(|l| l.level == LogLevel::Error && l.text == "no runtime connected")
+        );
+    }
+
+    #[test]
+    fn dropped_events_are_said_in_the_log() {
+        let mut session = connected();
+        let before = session.log.lines().count();
+        for samples in 1..=5 {
+            session.report_dropped(DroppedEvents {
+                samples,
+                telemetry: 0,
+                log: 0,
+            });
+        }
+        session.report_dropped(DroppedEvents {
+            samples: 5,
+            telemetry: 0,
+            log: 3,
+        });
+        let said: Vec<&str> = session
+            .log
+            .lines()
+            .skip(before)
+            .map(|l| l.text.as_str())
+            .collect();
+        assert_eq!(
+            said.len(),
+            4,
+            "at 1, 2 and 4 frames, and the log records: {said:?}"
+        );
+        assert!(said[3].contains("3 of the runtime's log records"));
+    }
+
+    #[test]
+    fn a_recent_file_that_cannot_be_remembered_is_said_in_the_log() {
+        let dir = tempfile::tempdir().unwrap();
+        let blocked = dir.path().join("blocked");
+        std::fs::write(&blocked, "").unwrap();
+        let (settings, _) = Settings::load(Some(blocked.join("kairos")));
+        let mut session = Session::new(document(), library(), settings);
+        session.save_as(&dir.path().join("saved.ron"));
+        assert!(dir.path().join("saved.ron").is_file());
+        assert!(
+            session
+                .log
+                .lines()
+                .any(|l| l.level == LogLevel::Warn
+                    && l.text.starts_with("the recent files are not remembered"))
+        );
+    }
+
+    #[test]
+    fn a_reader_policy_edit_is_one_undoable_step() {
+        let mut session = Session::new(document(), library(), Settings::default());
+        let (from, to) = (PortRef::new("counter1", "out"), PortRef::new("console1", "in"));
+        let settings = super::ReaderSettings {
+            policy: Some(kairos_diagram::ReaderPolicy::LastOrNext),
+            buffer_size: Some(4),
+            subsampling: None,
+        };
+        session.set_reader(&from, &to, settings);
+        let connection = session.document.diagram().connections[0].clone();
+        assert_eq!(connection.policy, Some(kairos_diagram::ReaderPolicy::LastOrNext));
+        assert_eq!(connection.buffer_size, Some(4));
+        assert!(session.document.undo());
+        assert_eq!(session.document.diagram().connections[0].policy, None);
+    }
+}

@@ -1,0 +1,169 @@
+//! What the studio remembers between launches, in `$XDG_CONFIG_HOME/kairos` (or `~/.config/kairos`): the
+//! recent files and the last remote runtime's address and token file, never a token. Reading and writing
+//! return their errors, which the studio shows in its log.
+
+use std::path::{Path, PathBuf};
+
+/// How many recent files are remembered.
+const RECENT_FILES: usize = 10;
+const RECENT_FILE_NAME: &str = "studio-recent.txt";
+const REMOTE_FILE_NAME: &str = "studio-remote.txt";
+
+/// A remote runtime as the connect dialog asks for it: its address and the file holding its token.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct RemoteAddress {
+    /// `ws://HOST:PORT`.
+    pub url: String,
+    /// The file holding its token; empty when it needs none.
+    pub token_file: String,
+}
+
+impl Default for RemoteAddress {
+    fn default() -> Self {
+        RemoteAddress {
+            url: "ws://HOST:7400".to_owned(),
+            token_file: String::new(),
+        }
+    }
+}
+
+/// The remembered settings and where they live.
+#[derive(Debug, Clone, Default)]
+pub struct Settings {
+    folder: Option<PathBuf>,
+    /// Recent diagram files, the latest first.
+    pub recent: Vec<PathBuf>,
+}
+
+/// Where the studio keeps what it remembers: `$XDG_CONFIG_HOME/kairos` or `~/.config/kairos`.
+pub fn default_folder() -> Option<PathBuf> {
+    let base = std::env::var_os("XDG_CONFIG_HOME")
+        .map(PathBuf::from)
+        .or_else(|| std::env::var_os("HOME").map(|h| PathBuf::from(h).join(".config")))?;
+    Some(base.join("kairos"))
+}
+
+/// The text of `file`, `None` when it does not exist yet.
+fn read_if_any(file: &Path) -> Result<Option<String>, String> {
+    match std::fs::read_to_string(file) {
+        Ok(text) => Ok(Some(text)),
+        Err(error) if error.kind() == std::io::ErrorKind::NotFound => Ok(None),
+        Err(error) => Err(format!("cannot read {}: {error}", file.display())),
+    }
+}
+
+impl Settings {
+    /// The settings kept in `folder` (none: nothing is remembered), with an error when what is there cannot
+    /// be read (the settings then start empty).
+    pub fn load(folder: Option<PathBuf>) -> (Settings, Option<String>) {
+        let mut settings = Settings {
+            folder,
+            recent: Vec::new(),
+        };
+        let Some(folder) = &settings.folder else {
+            return (settings, None);
+        };
+        match read_if_any(&folder.join(RECENT_FILE_NAME)) {
+            Ok(text) => {
+                settings.recent = text
+                    .unwrap_or_default()
+                    .lines()
+                    .filter(|l| !l.is_empty())
+                    .map(PathBuf::from)
+                    .collect();
+                (settings, None)
+            }
+            Err(error) => (settings, Some(format!("recent files: {error}"))),
+        }
+    }
+
+    /// The folder the settings live in.
+    pub fn folder(&self) -> Option<&Path> {
+        self.folder.as_deref()
+    }
+
+    fn write(&self, name: &str, text: &str) -> Result<(), String> {
+        let Some(folder) = &self.folder else {
+            return Ok(());
+        };
+        std::fs::create_dir_all(folder).map_err(|e| format!("cannot create {}: {e}", folder.display()))?;
+        let file = folder.join(name);
+        std::fs::write(&file, text).map_err(|e| format!("cannot write {}: {e}", file.display()))
+    }
+
+    /// Puts `path` first among the recent files and writes them.
+    pub fn remember_recent(&mut self, path: PathBuf) -> Result<(), String> {
+        self.recent.retain(|p| p != &path);
+        self.recent.insert(0, path);
+        self.recent.truncate(RECENT_FILES);
+        let lines: Vec<String> = self.recent.iter().map(|p| p.display().to_string()).collect();
+        self.write(RECENT_FILE_NAME, &lines.join("\n"))
+    }
+
+    /// The last remote runtime connected to, or a placeholder to fill in.
+    pub fn remembered_remote(&self) -> Result<RemoteAddress, String> {
+        let Some(folder) = &self.folder else {
+            return Ok(RemoteAddress::default());
+        };
+        let Some(text) = read_if_any(&folder.join(REMOTE_FILE_NAME))? else {
+            return Ok(RemoteAddress::default());
+        };
+        let mut lines = text.lines();
+        let default = RemoteAddress::default();
+        Ok(RemoteAddress {
+            url: lines.next().map_or(default.url, str::to_owned),
+            token_file: lines.next().unwrap_or_default().to_owned(),
+        })
+    }
+
+    /// Remembers `remote` (its address and token file; the token itself is never written).
+    pub fn remember_remote(&self, remote: &RemoteAddress) -> Result<(), String> {
+        self.write(
+            REMOTE_FILE_NAME,
+            &format!("{}\n{}\n", remote.url, remote.token_file),
+        )
+    }
+}
+
+/// Reads a token from the first line of `file`.
+pub fn read_token(file: &Path) -> Result<kairos_protocol::Token, String> {
+    std::fs::read_to_string(file)
+        .map(|text| kairos_protocol::Token::new(text.lines().next().unwrap_or_default().trim()))
+        .map_err(|e| format!("cannot read the token file {}: {e}", file.display()))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::{RemoteAddress, Settings};
+
+    #[test]
+    fn recent_files_and_the_remote_are_written_and_read_back() {
+        let dir = tempfile::tempdir().unwrap();
+        let (mut settings, error) = Settings::load(Some(dir.path().to_owned()));
+        assert_eq!(error, None, "a folder with nothing yet is no error");
+        for name in ["a.ron", "b.ron", "a.ron"] {
+            settings.remember_recent(name.into()).unwrap();
+        }
+        let remote = RemoteAddress {
+            url: "ws://robot:7400".to_owned(),
+            token_file: "/home/me/robot.token".to_owned(),
+        };
+        settings.remember_remote(&remote).unwrap();
+        let (again, error) = Settings::load(Some(dir.path().to_owned()));
+        assert_eq!(error, None);
+        assert_eq!(again.recent, [std::path::PathBuf::from("a.ron"), "b.ron".into()]);
+        assert_eq!(again.remembered_remote().unwrap(), remote);
+    }
+
+    #[test]
+    fn a_folder_that_cannot_be_written_is_an_error() {
+        let dir = tempfile::tempdir().unwrap();
+        // A file where the folder should be: nothing can be created under it.
+        let blocked = dir.path().join("blocked");
+        std::fs::write(&blocked, "").unwrap();
+        let (mut settings, _) = Settings::load(Some(blocked.join("kairos")));
+        let error = settings.remember_recent("a.ron".into()).unwrap_err();
+        assert!(error.contains("cannot create"), "{error}");
+        assert!(settings.remember_remote(&RemoteAddress::default()).is_err());
+    }
+}
