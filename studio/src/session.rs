@@ -939,7 +939,7 @@ mod tests {
         ));
         session.handle(ok(
             subscribe,
-            json!({"services": {"counter1.out": "kairos/1/counter1.out"}}),
+            json!({"max_rate_hz": 30.0, "services": {"counter1.out": "kairos/1/counter1.out"}}),
         ));
         assert!(matches!(session.take_effects().as_slice(), [Effect::ReadShared(s)] if s.len() == 1));
         // The reader thread could not open the services: the socket takes over.
