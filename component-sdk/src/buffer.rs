@@ -637,6 +637,8 @@ impl Drop for Shared {
                 // count; a raised flag means the slot holds a sample, initialised when the flag was
                 // raised.
                 if unsafe { (*flags).get(SlotIndex(index)) } {
+                    // SAFETY: as above: the raised flag says the sample is initialised, and it is
+                    // dropped once, here, as the buffer goes.
                     slot.sample
                         .with_mut(|sample| unsafe { (*sample).assume_init_drop() });
                 }

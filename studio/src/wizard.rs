@@ -187,8 +187,12 @@ impl NewComponentDialog {
                 self.verdict = Some(Err(format!("the pack: {problem}")));
                 return;
             }
-            if let Some(pack) = args.iter().position(|a| a == "--pack") {
-                args[pack + 1] = scratch.join(&name).display().to_string();
+            if let Some(value) = args
+                .iter()
+                .position(|a| a == "--pack")
+                .and_then(|flag| args.get_mut(flag + 1))
+            {
+                *value = scratch.join(&name).display().to_string();
             }
         }
         self.verdict = Some(run(binary, &args).map(|_| "the answers are fine".to_owned()));

@@ -397,8 +397,8 @@ unsafe extern "C" fn pack_create(data: *const c_void) -> *mut c_void {
 
 unsafe extern "C" fn pack_destroy(instance: *mut c_void) {
     if !instance.is_null() {
-        // SAFETY: `instance` came from `pack_create` and the host destroys it once.
         let _ = catch_unwind(AssertUnwindSafe(|| {
+            // SAFETY: `instance` came from `pack_create` and the host destroys it once.
             drop(unsafe { Box::from_raw(instance.cast::<PackInstance>()) });
         }));
     }

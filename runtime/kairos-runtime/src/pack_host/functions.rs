@@ -175,8 +175,8 @@ unsafe extern "C" fn host_write(
 }
 
 unsafe extern "C" fn host_now_ns(frame: *mut c_void) -> i64 {
-    // SAFETY: called by a pack within a host call, with the frame it was given.
     catch_unwind(AssertUnwindSafe(|| {
+        // SAFETY: called by a pack within a host call, with the frame it was given.
         unsafe { frame_mut(frame) }.map_or(0, |(_, ctx)| ctx.now().as_nanos())
     }))
     .unwrap_or(0)

@@ -209,8 +209,8 @@ pub fn load_pack(path: &Path) -> Result<LoadedPack, PackLoadError> {
     let descriptor: &'static KPackDescriptor =
         unsafe { descriptor.as_ref() }.ok_or(PackLoadError::NullDescriptor)?;
     check_descriptor(descriptor)?;
-    // SAFETY: the layout check passed, so the string fields are KStr pointing into the library's data.
     let text = |field: KStr, what: &'static str| {
+        // SAFETY: the layout check passed, so the string fields are KStr pointing into the library's data.
         unsafe { field.as_str() }
             .map(str::to_owned)
             .ok_or(PackLoadError::BadField(what))
