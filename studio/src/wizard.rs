@@ -37,6 +37,10 @@ pub fn build_errors(output: &str) -> Vec<BuildMessage> {
 pub enum Stage {
     /// Taking answers.
     Editing,
+    /// `kairos new --dry-run` checks the answers, on a thread of its own.
+    Checking(Receiver<Result<String, String>>),
+    /// `kairos new` generates the pack and the component, on a thread of its own; then the pack is built.
+    Generating(Receiver<Result<PathBuf, String>>),
     /// Building the pack in the background.
     Building(Receiver<Result<PathBuf, (String, Vec<BuildMessage>)>>),
     /// The build failed: the compiler's errors.
@@ -104,6 +108,50 @@ fn list(text: &str) -> Vec<String> {
         .collect()
 }
 
+/// What checking the answers runs (see [`NewComponentDialog::check_plan`]).
+#[derive(Debug)]
+struct CheckPlan {
+    args: Vec<String>,
+    new_pack: Option<(String, String)>,
+}
+
+/// Runs `kairos new component --dry-run`; a pack that does not exist yet is made in a scratch folder
+/// first, so that the component is checked against a real one, and removed again after.
+fn check_answers(binary: &Path, plan: CheckPlan) -> Result<String, String> {
+    let CheckPlan { mut args, new_pack } = plan;
+    let scratch = std::env::temp_dir().join(format!("kairos-studio-check-{}", std::process::id()));
+    if let Some((name, lang)) = new_pack {
+        // A scratch copy left by an earlier check, if any; `kairos new pack` says if one is in the way.
+        let _ = std::fs::remove_dir_all(&scratch);
+        let made = run(
+            binary,
+            &[
+                "new".to_owned(),
+                "pack".to_owned(),
+                name.clone(),
+                "--path".to_owned(),
+                scratch.display().to_string(),
+                "--lang".to_owned(),
+                lang,
+            ],
+        );
+        if let Err(problem) = made {
+            return Err(format!("the pack: {problem}"));
+        }
+        if let Some(value) = args
+            .iter()
+            .position(|a| a == "--pack")
+            .and_then(|flag| args.get_mut(flag + 1))
+        {
+            *value = scratch.join(&name).display().to_string();
+        }
+    }
+    let verdict = run(binary, &args).map(|_| "the answers are fine".to_owned());
+    // Scratch space in the temporary directory; the next check removes it again.
+    let _ = std::fs::remove_dir_all(&scratch);
+    verdict
+}
+
 fn run(binary: &Path, args: &[String]) -> Result<String, String> {
     let output = Command::new(binary)
         .args(args)
@@ -156,86 +204,91 @@ impl NewComponentDialog {
         folder.join("src/lib.rs").is_file() || folder.join("src/pack.cpp").is_file()
     }
 
-    /// Asks `kairos new component --dry-run` about the answers. A pack that does not exist yet is checked
-    /// in a scratch copy made by `kairos new pack`.
-    pub fn check(&mut self, binary: &Path) {
+    /// What checking the answers runs: the dry-run arguments, and the pack to make in a scratch folder
+    /// first when it does not exist yet (its name and language).
+    fn check_plan(&self) -> CheckPlan {
+        let pack = (!self.pack_exists()).then(|| {
+            let name = Path::new(self.pack.trim())
+                .file_name()
+                .map_or_else(String::new, |n| n.to_string_lossy().into_owned());
+            (name, self.lang.clone())
+        });
+        CheckPlan {
+            args: self.component_args(true),
+            new_pack: pack,
+        }
+    }
+
+    /// Asks `kairos new component --dry-run` about the answers, on a thread of its own: the verdict
+    /// shows when it comes. A pack that does not exist yet is checked in a scratch copy.
+    pub fn check(&mut self, binary: &Path, ctx: &egui::Context) {
         if self.name.trim().is_empty() {
             self.verdict = Some(Err("give the component a name".to_owned()));
             return;
         }
-        let mut args = self.component_args(true);
-        let scratch = std::env::temp_dir().join(format!("kairos-studio-check-{}", std::process::id()));
-        if !self.pack_exists() {
-            // A scratch copy left by an earlier check, if any; `kairos new pack` says if one is in the way.
-            let _ = std::fs::remove_dir_all(&scratch);
-            let name = Path::new(self.pack.trim())
-                .file_name()
-                .map_or_else(String::new, |n| n.to_string_lossy().into_owned());
-            let made = run(
-                binary,
-                &[
-                    "new".to_owned(),
-                    "pack".to_owned(),
-                    name.clone(),
-                    "--path".to_owned(),
-                    scratch.display().to_string(),
-                    "--lang".to_owned(),
-                    self.lang.clone(),
-                ],
-            );
-            if let Err(problem) = made {
-                self.verdict = Some(Err(format!("the pack: {problem}")));
-                return;
-            }
-            if let Some(value) = args
-                .iter()
-                .position(|a| a == "--pack")
-                .and_then(|flag| args.get_mut(flag + 1))
-            {
-                *value = scratch.join(&name).display().to_string();
-            }
-        }
-        self.verdict = Some(run(binary, &args).map(|_| "the answers are fine".to_owned()));
-        // Scratch space in the temporary directory; the next check removes it again.
-        let _ = std::fs::remove_dir_all(&scratch);
+        let (plan, binary, ctx) = (self.check_plan(), binary.to_owned(), ctx.clone());
+        let (sender, receiver) = channel();
+        self.start("studio:check", move || {
+            let _ = sender.send(check_answers(&binary, plan));
+            ctx.request_repaint();
+        });
+        self.stage = Stage::Checking(receiver);
     }
 
-    /// Generates the component (and its pack when new), then builds the pack in the background.
-    pub fn create(&mut self, binary: &Path) {
-        self.check(binary);
-        if !matches!(self.verdict, Some(Ok(_))) {
+    /// Checks the answers, then generates the component (and its pack when new), on a thread of its
+    /// own; the pack is built once that is done.
+    pub fn create(&mut self, binary: &Path, ctx: &egui::Context) {
+        if self.name.trim().is_empty() {
+            self.verdict = Some(Err("give the component a name".to_owned()));
             return;
         }
-        if !self.pack_exists() {
-            let folder = Path::new(self.pack.trim());
+        let check = self.check_plan();
+        let folder = PathBuf::from(self.pack.trim());
+        let new_pack = (!self.pack_exists()).then(|| {
             let parent = folder
                 .parent()
                 .filter(|p| !p.as_os_str().is_empty())
-                .unwrap_or(Path::new("."));
+                .unwrap_or(Path::new("."))
+                .to_owned();
             let name = folder
                 .file_name()
                 .map_or_else(String::new, |n| n.to_string_lossy().into_owned());
-            if let Err(problem) = run(
-                binary,
-                &[
-                    "new".to_owned(),
-                    "pack".to_owned(),
-                    name,
-                    "--path".to_owned(),
-                    parent.display().to_string(),
-                    "--lang".to_owned(),
-                    self.lang.clone(),
-                ],
-            ) {
-                self.verdict = Some(Err(format!("the pack: {problem}")));
-                return;
-            }
+            vec![
+                "new".to_owned(),
+                "pack".to_owned(),
+                name,
+                "--path".to_owned(),
+                parent.display().to_string(),
+                "--lang".to_owned(),
+                self.lang.clone(),
+            ]
+        });
+        let component = self.component_args(false);
+        let (binary, ctx) = (binary.to_owned(), ctx.clone());
+        let (sender, receiver) = channel();
+        self.start("studio:generate", move || {
+            let generated = check_answers(&binary, check).and_then(|_| {
+                if let Some(args) = new_pack {
+                    run(&binary, &args).map_err(|problem| format!("the pack: {problem}"))?;
+                }
+                run(&binary, &component)?;
+                Ok(folder)
+            });
+            let _ = sender.send(generated);
+            ctx.request_repaint();
+        });
+        self.stage = Stage::Generating(receiver);
+    }
+
+    /// Runs `work` on a thread named `name`; a thread that cannot be started is said as the verdict.
+    fn start(&mut self, name: &str, work: impl FnOnce() + Send + 'static) {
+        if let Err(error) = std::thread::Builder::new().name(name.to_owned()).spawn(work) {
+            self.verdict = Some(Err(format!("cannot start a thread for it: {error}")));
         }
-        if let Err(problem) = run(binary, &self.component_args(false)) {
-            self.verdict = Some(Err(problem));
-            return;
-        }
-        let pack = PathBuf::from(self.pack.trim());
+    }
+
+    /// Builds the generated pack in the background.
+    fn build_in_background(&mut self, pack: PathBuf) {
         let (sender, receiver) = channel();
         std::thread::Builder::new()
             .name("studio:build".to_owned())
@@ -244,6 +297,40 @@ impl NewComponentDialog {
             })
             .ok();
         self.stage = Stage::Building(receiver);
+    }
+
+    /// Takes what a thread of the dialog finished with, if anything; a load to do is returned.
+    fn poll(&mut self) -> Option<PathBuf> {
+        match &self.stage {
+            Stage::Checking(receiver) => {
+                if let Ok(verdict) = receiver.try_recv() {
+                    self.verdict = Some(verdict);
+                    self.stage = Stage::Editing;
+                }
+            }
+            Stage::Generating(receiver) => match receiver.try_recv() {
+                Ok(Ok(pack)) => {
+                    self.verdict = Some(Ok("generated; building the pack".to_owned()));
+                    self.build_in_background(pack);
+                }
+                Ok(Err(problem)) => {
+                    self.verdict = Some(Err(problem));
+                    self.stage = Stage::Editing;
+                }
+                Err(_) => {}
+            },
+            Stage::Building(receiver) => match receiver.try_recv() {
+                Ok(Ok(library_folder)) => {
+                    self.stage = Stage::Editing;
+                    self.verdict = Some(Ok("built; loading it into the local runtime".to_owned()));
+                    return Some(library_folder);
+                }
+                Ok(Err((summary, errors))) => self.stage = Stage::Failed(summary, errors),
+                Err(_) => {}
+            },
+            Stage::Editing | Stage::Failed(..) => {}
+        }
+        None
     }
 
     /// The answers, one field each.
@@ -293,19 +380,7 @@ impl NewComponentDialog {
     /// Shows the dialog; `binary` is the `kairos` that generates.
     pub fn show(&mut self, ctx: &egui::Context, binary: Option<&Path>) -> Outcome {
         let mut open = true;
-        let mut outcome = Outcome::Open;
-        if let Stage::Building(receiver) = &self.stage
-            && let Ok(result) = receiver.try_recv()
-        {
-            match result {
-                Ok(library_folder) => {
-                    self.stage = Stage::Editing;
-                    self.verdict = Some(Ok("built; loading it into the local runtime".to_owned()));
-                    outcome = Outcome::Load(library_folder);
-                }
-                Err((summary, errors)) => self.stage = Stage::Failed(summary, errors),
-            }
-        }
+        let mut outcome = self.poll().map_or(Outcome::Open, Outcome::Load);
         egui::Window::new("New component")
             .collapsible(false)
             .open(&mut open)
@@ -319,19 +394,27 @@ impl NewComponentDialog {
                 };
                 self.answers(ui);
                 ui.horizontal(|ui| {
-                    let idle = !matches!(self.stage, Stage::Building(_));
-                    if ui.add_enabled(idle, egui::Button::new("Check")).clicked() {
-                        self.check(binary);
-                    }
+                    let working = match self.stage {
+                        Stage::Checking(_) => Some("checking the answers…"),
+                        Stage::Generating(_) => Some("generating the code…"),
+                        Stage::Building(_) => Some("building the pack…"),
+                        Stage::Editing | Stage::Failed(..) => None,
+                    };
                     if ui
-                        .add_enabled(idle, egui::Button::new("Create, build and load"))
+                        .add_enabled(working.is_none(), egui::Button::new("Check"))
                         .clicked()
                     {
-                        self.create(binary);
+                        self.check(binary, ctx);
                     }
-                    if !idle {
+                    if ui
+                        .add_enabled(working.is_none(), egui::Button::new("Create, build and load"))
+                        .clicked()
+                    {
+                        self.create(binary, ctx);
+                    }
+                    if let Some(working) = working {
                         ui.spinner();
-                        ui.label("building the pack…");
+                        ui.label(working);
                     }
                 });
                 match &self.verdict {

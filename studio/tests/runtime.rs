@@ -493,6 +493,19 @@ fn frames_naming_the_runtimes_pixel_buffers_deliver_the_same_pixels_as_the_socke
     frames_compare_by_socket_and_shared_memory(true);
 }
 
+/// Runs frames until a label containing `text` shows: the dialog's checks run off the interface's thread.
+fn wait_for_text(harness: &mut Harness<'_, StudioApp>, text: &str) {
+    let started = Instant::now();
+    while harness.query_by_label_contains(text).is_none() {
+        assert!(
+            started.elapsed() < Duration::from_mins(1),
+            "timed out waiting for '{text}'"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+        harness.run_steps(1);
+    }
+}
+
 fn type_into(harness: &mut Harness<'_, StudioApp>, label: &str, text: &str) {
     harness
         .get_by_role_and_label(egui::accesskit::Role::TextInput, label)
@@ -520,24 +533,28 @@ fn a_component_made_in_the_studio_is_built_loaded_and_in_the_palette() {
     type_into(&mut harness, "Pack folder", pack.to_str().unwrap());
     type_into(&mut harness, "Name", "match");
     harness.get_by_label("Check").click();
-    harness.run_steps(2);
-    assert!(harness.query_by_label_contains("is a Rust keyword").is_some());
+    wait_for_text(&mut harness, "is a Rust keyword");
     type_into(&mut harness, "Name", "smoother");
     type_into(&mut harness, "Inputs", "in:f46");
     harness.get_by_label("Check").click();
-    harness.run_steps(2);
-    assert!(harness.query_by_label_contains("did you mean 'f64'?").is_some());
+    wait_for_text(&mut harness, "did you mean 'f64'?");
     type_into(&mut harness, "Inputs", "in:f64");
     type_into(&mut harness, "Properties", "gain:f64=3");
     harness.get_by_label("Check").click();
-    harness.run_steps(2);
-    assert!(harness.query_by_label_contains("the answers are fine").is_some());
+    wait_for_text(&mut harness, "the answers are fine");
     assert!(!pack.exists(), "checking writes nothing");
 
     // Create: the pack and the component are generated, built, and loaded into a restarted local runtime.
     harness.get_by_label("Create, build and load").click();
-    harness.run_steps(1);
-    assert!(pack.join("src/smoother.rs").is_file());
+    let generating = Instant::now();
+    while !pack.join("src/smoother.rs").is_file() {
+        assert!(
+            generating.elapsed() < Duration::from_mins(1),
+            "the component was never generated"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+        harness.run_steps(1);
+    }
     let started = Instant::now();
     while harness
         .state()
