@@ -51,6 +51,9 @@ pub struct StudioApp {
     /// What the panels asked for this frame.
     commands: Vec<Command>,
     quitting: bool,
+    /// The window title last sent: egui repaints after every viewport command, so sending the title each
+    /// frame would keep the studio drawing for ever.
+    window_title: String,
 }
 
 impl StudioApp {
@@ -85,6 +88,7 @@ impl StudioApp {
             clipboard: Vec::new(),
             commands: Vec::new(),
             quitting: false,
+            window_title: String::new(),
         }
     }
 
@@ -144,7 +148,11 @@ impl StudioApp {
         if self.quitting {
             ctx.send_viewport_cmd(egui::ViewportCommand::Close);
         }
-        ctx.send_viewport_cmd(egui::ViewportCommand::Title(self.title()));
+        let title = self.title();
+        if title != self.window_title {
+            ctx.send_viewport_cmd(egui::ViewportCommand::Title(title.clone()));
+            self.window_title = title;
+        }
         self.panels_ui(ui);
         // The panels' commands first, so that a dialog they open shows in this frame already; then the
         // dialogs' own.

@@ -60,14 +60,16 @@ pub fn bottom_panel_ui(ui: &mut egui::Ui, panel: &mut BottomPanel, log: &Log, mo
 
 /// The least level and the component shown.
 fn log_filter_ui(ui: &mut egui::Ui, filter: &mut LogFilter, log: &Log) {
-    egui::ComboBox::from_id_salt("log level")
+    let _ = egui::ComboBox::from_id_salt("log level")
         .selected_text(format!("{:?} and above", filter.least))
         .show_ui(ui, |ui| {
             for level in LEVELS {
                 ui.selectable_value(&mut filter.least, level, format!("{level:?} and above"));
             }
-        });
-    egui::ComboBox::from_id_salt("log component")
+        })
+        .response
+        .accessible_name("log level");
+    let _ = egui::ComboBox::from_id_salt("log component")
         .selected_text(filter.component.as_deref().unwrap_or("all components"))
         .show_ui(ui, |ui| {
             ui.selectable_value(&mut filter.component, None, "all components");
@@ -75,7 +77,9 @@ fn log_filter_ui(ui: &mut egui::Ui, filter: &mut LogFilter, log: &Log) {
                 let label = component.clone();
                 ui.selectable_value(&mut filter.component, Some(component), label);
             }
-        });
+        })
+        .response
+        .accessible_name("log component");
 }
 
 /// The lines `filter` shows, the latest in view.

@@ -357,22 +357,26 @@ impl NewComponentDialog {
                 .labelled_by(label.id);
                 ui.end_row();
             }
-            ui.label("Mode");
-            egui::ComboBox::new("new component mode", "")
+            let mode_label = ui.label("Mode");
+            let _ = egui::ComboBox::new("new component mode", "")
                 .selected_text(&self.mode)
                 .show_ui(ui, |ui| {
                     for mode in ["threaded", "reactive", "periodic"] {
                         ui.selectable_value(&mut self.mode, mode.to_owned(), mode);
                     }
-                });
+                })
+                .response
+                .labelled_by(mode_label.id);
             ui.end_row();
-            ui.label("New pack in");
-            egui::ComboBox::new("new pack language", "")
+            let language_label = ui.label("New pack in");
+            let _ = egui::ComboBox::new("new pack language", "")
                 .selected_text(if self.lang == "cpp" { "C++" } else { "Rust" })
                 .show_ui(ui, |ui| {
                     ui.selectable_value(&mut self.lang, "rust".to_owned(), "Rust");
                     ui.selectable_value(&mut self.lang, "cpp".to_owned(), "C++");
-                });
+                })
+                .response
+                .labelled_by(language_label.id);
             ui.end_row();
         });
     }
