@@ -12,6 +12,7 @@ use std::io::{BufRead as _, BufReader};
 use std::net::TcpStream;
 use std::path::Path;
 use std::process::{Child, Command, Stdio};
+use std::sync::{RwLock, RwLockReadGuard, RwLockWriteGuard};
 use std::time::{Duration, Instant};
 
 use common::{example, repo_root, text};
@@ -152,8 +153,23 @@ fn sample_request(kind: RequestKind, id: u64) -> Value {
     request
 }
 
+/// Tests that time a running diagram take the machine alone: on two cores, servers started by the other
+/// tests of this file in parallel took enough CPU to make a 1 kHz diagram miss a third of its ticks.
+static MACHINE: RwLock<()> = RwLock::new(());
+
+/// Shares the machine with the other tests.
+fn shared_machine() -> RwLockReadGuard<'static, ()> {
+    MACHINE.read().unwrap_or_else(std::sync::PoisonError::into_inner)
+}
+
+/// Has the machine alone while timing.
+fn whole_machine() -> RwLockWriteGuard<'static, ()> {
+    MACHINE.write().unwrap_or_else(std::sync::PoisonError::into_inner)
+}
+
 #[test]
 fn every_request_type_is_checked_against_the_role_table() {
+    let _machine = shared_machine();
     let dir = tempfile::tempdir().unwrap();
     let server = serve(dir.path(), &[]);
     let mut admin = operator(&server);
@@ -205,6 +221,7 @@ fn every_request_type_is_checked_against_the_role_table() {
 
 #[test]
 fn wrong_or_missing_tokens_and_versions_are_refused() {
+    let _machine = shared_machine();
     let dir = tempfile::tempdir().unwrap();
     let server = serve(dir.path(), &[]);
     for (hello_request, code) in [
@@ -237,6 +254,7 @@ fn wrong_or_missing_tokens_and_versions_are_refused() {
 
 #[test]
 fn bad_messages_get_error_replies_and_the_server_carries_on() {
+    let _machine = shared_machine();
     let dir = tempfile::tempdir().unwrap();
     let server = serve(dir.path(), &[]);
     let mut socket = operator(&server);
@@ -316,6 +334,7 @@ fn longest_gap_ms(csv: &Path) -> (f64, usize) {
 
 #[test]
 fn clients_that_flood_vanish_or_never_read_do_not_disturb_a_running_diagram() {
+    let _machine = whole_machine();
     let dir = tempfile::tempdir().unwrap();
     let server = serve(dir.path(), &[]);
     let mut admin = operator(&server);
@@ -389,6 +408,7 @@ fn clients_that_flood_vanish_or_never_read_do_not_disturb_a_running_diagram() {
 
 #[test]
 fn a_sample_subscription_gets_the_latest_frames_at_the_asked_rate() {
+    let _machine = shared_machine();
     let dir = tempfile::tempdir().unwrap();
     let server = serve(dir.path(), &[]);
     let mut socket = operator(&server);
@@ -422,6 +442,7 @@ fn a_sample_subscription_gets_the_latest_frames_at_the_asked_rate() {
 
 #[test]
 fn serve_refuses_a_network_address_without_a_token_and_says_how_to_make_one() {
+    let _machine = shared_machine();
     let dir = tempfile::tempdir().unwrap();
     let output = Command::new(env!("CARGO_BIN_EXE_kairos"))
         .args(["serve", "--listen", "0.0.0.0:0"])
@@ -438,6 +459,7 @@ fn serve_refuses_a_network_address_without_a_token_and_says_how_to_make_one() {
 
 #[test]
 fn an_unreadable_token_file_is_named_with_its_cause_and_nothing_listens() {
+    let _machine = shared_machine();
     let dir = tempfile::tempdir().unwrap();
     let folder = dir.path().join("a folder");
     std::fs::create_dir(&folder).unwrap();
@@ -479,6 +501,7 @@ fn an_unreadable_token_file_is_named_with_its_cause_and_nothing_listens() {
 
 #[test]
 fn every_thread_of_a_busy_server_is_named() {
+    let _machine = shared_machine();
     let dir = tempfile::tempdir().unwrap();
     let server = serve(dir.path(), &[]);
     let mut admin = operator(&server);
@@ -517,6 +540,7 @@ fn every_thread_of_a_busy_server_is_named() {
 
 #[test]
 fn the_python_example_client_drives_a_real_server() {
+    let _machine = shared_machine();
     let dir = tempfile::tempdir().unwrap();
     let server = serve(dir.path(), &[]);
     let output = Command::new("python3")
@@ -539,6 +563,7 @@ fn the_python_example_client_drives_a_real_server() {
 
 #[test]
 fn the_log_stream_and_the_connection_limit() {
+    let _machine = shared_machine();
     let dir = tempfile::tempdir().unwrap();
     let server = serve(dir.path(), &["--max-connections", "2"]);
     let mut first = operator(&server);
@@ -586,6 +611,7 @@ fn the_log_stream_and_the_connection_limit() {
 
 #[test]
 fn recorders_and_players_are_driven_over_the_protocol() {
+    let _machine = shared_machine();
     let dir = tempfile::tempdir().unwrap();
     let server = serve(dir.path(), &[]);
     let mut socket = operator(&server);
