@@ -4,7 +4,6 @@
 //! their own.
 
 use std::sync::Arc;
-use std::time::Duration;
 
 use kairos_diagram::{DataType, Value};
 
@@ -58,8 +57,6 @@ pub trait ContextHost {
     fn is_input_exhausted(&self, index: usize) -> bool;
     /// Every output's buffer, in descriptor order.
     fn output_buffers(&self) -> Vec<&OutputBuffer>;
-    /// Sleeps for `timeout` of real time unless a stop or a control request waits.
-    fn sleep_for(&self, timeout: Duration) -> Result<(), ComponentError>;
 }
 
 impl ContextHost for Context {
@@ -97,9 +94,5 @@ impl ContextHost for Context {
 
     fn output_buffers(&self) -> Vec<&OutputBuffer> {
         self.outputs().iter().map(OutputPort::buffer).collect()
-    }
-
-    fn sleep_for(&self, timeout: Duration) -> Result<(), ComponentError> {
-        self.sleep(timeout)
     }
 }

@@ -100,7 +100,7 @@ impl Settings {
         self.write(RECENT_FILE_NAME, &lines.join("\n"))
     }
 
-    /// The last remote runtime connected to, or a placeholder to fill in.
+    /// The last remote runtime connected to; the connect dialog's default address when none was.
     pub fn remembered_remote(&self) -> Result<RemoteAddress, String> {
         let Some(folder) = &self.folder else {
             return Ok(RemoteAddress::default());

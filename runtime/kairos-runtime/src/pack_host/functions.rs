@@ -319,7 +319,7 @@ unsafe extern "C" fn host_sleep_ns(frame: *mut c_void, timeout_ns: i64) -> i32 {
             return status::FAILED;
         };
         let timeout = Duration::from_nanos(u64::try_from(timeout_ns).unwrap_or(0));
-        match ctx.sleep_for(timeout) {
+        match ctx.sleep(timeout) {
             Ok(()) => status::OK,
             Err(error) => error_status(&error),
         }
