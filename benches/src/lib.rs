@@ -454,6 +454,8 @@ pub fn start_kairos_serve() -> Option<std::net::SocketAddr> {
             diagram: None,
             start: false,
             max_connections: 16,
+            stop_with_stdin: false,
+            temporary_token: false,
         };
         let _ = kairos::serve::serve_with(kairos::builtin_registry(), &options, move |address| {
             let _ = tx.send(address);

@@ -147,6 +147,7 @@ impl Property {
                 default,
                 live: false,
                 doc: String::new(),
+                unit: String::new(),
             },
         }
     }
@@ -224,6 +225,12 @@ impl Property {
     /// Sets the one-line documentation.
     pub fn doc(mut self, doc: &str) -> Self {
         doc.clone_into(&mut self.info.doc);
+        self
+    }
+
+    /// Sets the unit of a number (`Hz`, `m`, `ms`), shown beside its value in the studio.
+    pub fn unit(mut self, unit: &str) -> Self {
+        unit.clone_into(&mut self.info.unit);
         self
     }
 }

@@ -462,6 +462,9 @@ pub struct PropertyInfo {
     pub live: bool,
     /// One line of documentation.
     pub doc: String,
+    /// The unit of a number (`Hz`, `m`, `ms`); empty when it has none.
+    #[serde(default, skip_serializing_if = "String::is_empty")]
+    pub unit: String,
 }
 
 /// One action: a button a user may press at any time.

@@ -54,6 +54,9 @@ pub struct StudioApp {
     /// The window title last sent: egui repaints after every viewport command, so sending the title each
     /// frame would keep the studio drawing for ever.
     window_title: String,
+    /// With `KAIROS_STUDIO_TRACE_FRAMES` set, each frame drawn is said on standard error with its time since
+    /// this instant: how the window tests (and anyone chasing a busy studio) count frames.
+    frame_trace: Option<(std::time::Instant, u64)>,
 }
 
 impl StudioApp {
@@ -89,6 +92,8 @@ impl StudioApp {
             commands: Vec::new(),
             quitting: false,
             window_title: String::new(),
+            frame_trace: std::env::var_os("KAIROS_STUDIO_TRACE_FRAMES")
+                .map(|_| (std::time::Instant::now(), 0)),
         }
     }
 
@@ -214,12 +219,21 @@ impl StudioApp {
                 .inner;
             self.commands.extend(requests.into_iter().map(Command::Request));
         }
+        let not_applied = self.session.not_applied();
+        if !not_applied.is_empty() {
+            egui::Panel::top("not applied").show(ui, |ui| {
+                not_applied_ui(ui, &not_applied, &mut self.commands);
+            });
+        }
         let session = &mut self.session;
         let canvas = &mut self.canvas;
         let canvas_rect = egui::CentralPanel::default()
             .show(ui, |ui| {
                 let (document, shown) = session.canvas_view();
                 canvas.show(ui, document, &shown);
+                if let Some(refusal) = canvas.take_refusal() {
+                    session.note(LogLevel::Warn, refusal);
+                }
                 if let Some(request) = canvas.take_viewer_request() {
                     session
                         .viewers
@@ -341,6 +355,11 @@ impl StudioApp {
                 property,
                 value,
             } => self.session.set_property(&component, &property, value),
+            Command::FieldRefused {
+                component,
+                property,
+                why,
+            } => self.session.field_refused(&component, &property, why),
             Command::SetReader { from, to, settings } => self.session.set_reader(&from, &to, settings),
             Command::TriggerAction { component, action } => {
                 self.session
@@ -474,8 +493,34 @@ impl StudioApp {
     }
 }
 
+/// The bar over the canvas while the running diagram lacks some edits: which, and Restart.
+fn not_applied_ui(ui: &mut egui::Ui, edits: &[String], commands: &mut Vec<Command>) {
+    ui.horizontal_wrapped(|ui| {
+        if ui
+            .button("Restart now")
+            .on_hover_text("Deploy the edited diagram and start it again")
+            .clicked()
+        {
+            commands.push(Command::Run);
+        }
+        let shown: Vec<&str> = edits.iter().take(4).map(String::as_str).collect();
+        let more = edits.len().saturating_sub(shown.len());
+        let text = if more > 0 {
+            format!("Applies at the next run: {} and {more} more", shown.join("; "))
+        } else {
+            format!("Applies at the next run: {}", shown.join("; "))
+        };
+        ui.label(egui::RichText::new(text).color(crate::log_panel::WARN_COLOR))
+            .on_hover_text(edits.join("\n"));
+    });
+}
+
 impl eframe::App for StudioApp {
     fn ui(&mut self, ui: &mut egui::Ui, _frame: &mut eframe::Frame) {
+        if let Some((since, frames)) = &mut self.frame_trace {
+            *frames += 1;
+            eprintln!("studio frame {frames} at {} ms", since.elapsed().as_millis());
+        }
         self.show(ui);
     }
 }

@@ -17,7 +17,7 @@ use std::time::{Duration, Instant};
 
 use egui::{Color32, Pos2, Rect, Sense, Stroke, Vec2, WidgetInfo};
 use kairos_diagram::{
-    ComponentInstance, Connection, Diagram, InputInfo, LibraryInfo, PortRef, Position, ReaderPolicy,
+    ComponentInstance, Connection, DataType, Diagram, InputInfo, LibraryInfo, PortRef, Position, ReaderPolicy,
 };
 use kairos_protocol::LinkTelemetry;
 
@@ -107,6 +107,8 @@ struct Frame<'a> {
     painter: &'a egui::Painter,
     /// Whether there is room for small text.
     detail: bool,
+    /// A connection being dragged: the output it starts from and what that output carries.
+    dragging: Option<(&'a PortRef, Option<DataType>)>,
 }
 
 /// The canvas's own state between frames.
@@ -122,6 +124,8 @@ pub struct Canvas {
     /// The diagram before nodes began to be dragged: one undoable step when the drag ends.
     drag_origin: Option<Diagram>,
     notice: Option<Notice>,
+    /// A refusal for the log, until the studio takes it.
+    refusal_to_log: Option<String>,
     /// Scene to screen, as of the last frame.
     to_screen: egui::emath::TSTransform,
     rubber_band: Option<RubberBand>,
@@ -138,6 +142,7 @@ impl Default for Canvas {
             pending_link: None,
             drag_origin: None,
             notice: None,
+            refusal_to_log: None,
             to_screen: egui::emath::TSTransform::IDENTITY,
             rubber_band: None,
             viewer_request: None,
@@ -227,11 +232,16 @@ fn input_ui(ui: &egui::Ui, frame: &Frame<'_>, component: &str, spot: &PortSpot, 
     } else if response.hovered() {
         response.on_hover_text(format!("{}: {} ({accepts})", spot.name, input.doc));
     }
+    // While a connection is dragged, each input says whether it would take it.
+    let fit = frame.dragging.as_ref().map(|(from, data_type)| {
+        from.component != component && data_type.as_ref().is_none_or(|t| input.filter.accepts(t))
+    });
     let look = PortLook {
         name: &spot.name,
         color: paint::filter_color(&input.filter),
         problem: problem.is_some(),
         viewer_hover: false,
+        fit,
         detail: frame.detail,
     };
     paint::paint_port(frame.painter, ui.visuals(), spot.at, Side::Input, &look);
@@ -288,6 +298,7 @@ impl Canvas {
         });
         self.scene_rect = scene_rect;
         self.background_ui(ui, &response.response, response.inner, document, shown.library);
+        self.notice_ui(ui);
     }
 
     /// Everything inside the zoomable scene; returns where the pointer is, in scene coordinates.
@@ -309,12 +320,16 @@ impl Canvas {
             .map(|p| to_scene.map_or(p, |t| t * p));
         let diagram = document.diagram().clone();
         let layout = Layout::of(&diagram, shown.library);
+        let pending_link = self.pending_link.clone();
         let frame = Frame {
             diagram: &diagram,
             layout: &layout,
             shown,
             painter: &painter,
             detail,
+            dragging: pending_link
+                .as_ref()
+                .map(|from| (from, document.output_type(from, shown.library))),
         };
         // Connections under the nodes.
         for connection in &diagram.connections {
@@ -343,13 +358,13 @@ impl Canvas {
             && let Some(to) = cursor.and_then(|p| layout.input_at(p))
             && let Err(refusal) = document.connect(&from, &to, shown.library)
         {
+            self.refusal_to_log = Some(refusal.0.clone());
             self.notice = Some(Notice {
                 text: refusal.0,
                 at: cursor.unwrap_or_default(),
                 since: Instant::now(),
             });
         }
-        self.notice_ui(ui, &painter);
         cursor
     }
 
@@ -542,21 +557,43 @@ impl Canvas {
             color: type_color(&type_name),
             problem: problem.is_some(),
             viewer_hover,
+            fit: None,
             detail: frame.detail,
         };
         paint::paint_port(frame.painter, ui.visuals(), spot.at, Side::Output, &look);
         released
     }
 
-    /// The last refusal, for a few seconds.
-    fn notice_ui(&mut self, ui: &egui::Ui, painter: &egui::Painter) {
+    /// The last refusal, for a few seconds, where it happened but at the size of the interface's text
+    /// whatever the zoom (the scene's painter would scale it with the nodes).
+    fn notice_ui(&mut self, ui: &egui::Ui) {
         let Some(notice) = &self.notice else { return };
-        if notice.since.elapsed() < NOTICE_SHOWN {
-            paint::paint_notice(painter, notice.at, &notice.text);
-            ui.ctx().request_repaint_after(Duration::from_millis(250));
-        } else {
+        let shown_for = notice.since.elapsed();
+        if shown_for >= NOTICE_SHOWN {
             self.notice = None;
+            return;
         }
+        let at = self.to_screen * notice.at + Vec2::new(14.0, 14.0);
+        egui::Area::new(egui::Id::unique("canvas refusal"))
+            .order(egui::Order::Foreground)
+            .fixed_pos(at)
+            .constrain_to(ui.clip_rect())
+            .interactable(false)
+            .show(ui.ctx(), |ui| {
+                egui::Frame::popup(ui.style())
+                    .stroke(Stroke::new(1.0, paint::PROBLEM_COLOR))
+                    .show(ui, |ui| {
+                        ui.set_max_width(360.0);
+                        ui.label(egui::RichText::new(&notice.text).color(paint::PROBLEM_COLOR));
+                    });
+            });
+        ui.ctx()
+            .request_repaint_after(NOTICE_SHOWN.saturating_sub(shown_for) + Duration::from_millis(20));
+    }
+
+    /// A refusal made since the last call, for the log.
+    pub fn take_refusal(&mut self) -> Option<String> {
+        self.refusal_to_log.take()
     }
 
     /// The background: a click clears the selection, a primary drag selects with a box, a palette entry

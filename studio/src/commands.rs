@@ -75,6 +75,15 @@ pub enum Command {
         /// Its new value.
         value: Value,
     },
+    /// A value typed into a property's field was refused or clamped: say why there and in the log.
+    FieldRefused {
+        /// The component's id.
+        component: String,
+        /// The property's name.
+        property: String,
+        /// Why, in words.
+        why: String,
+    },
     /// Change how a connection reads.
     SetReader {
         /// The output it reads.

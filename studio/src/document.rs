@@ -5,7 +5,7 @@ use std::path::{Path, PathBuf};
 
 use kairos_diagram::{
     ComponentInfo, ComponentInstance, Connection, DataType, Diagram, LibraryInfo, PackRequirement, PortRef,
-    Position,
+    Position, TypeFilter,
 };
 
 /// How many edits can be undone.
@@ -183,18 +183,25 @@ impl Document {
             return Err(Refusal(format!("{to} is not an input")));
         };
         if from.component == to.component {
-            return Err(Refusal("a component cannot feed itself".to_owned()));
+            return Err(Refusal(format!(
+                "{} cannot feed itself: connect it to another component",
+                from.component
+            )));
         }
         if let Some(data_type) = &output_type
             && !input.filter.accepts(data_type)
         {
             return Err(Refusal(format!(
-                "{to} accepts {}, not {data_type} from {from}",
-                input.filter
+                "{to} needs {}, not {} ({from} gives {data_type})",
+                filter_in_words(&input.filter),
+                type_in_words(data_type)
             )));
         }
         if let Some(existing) = self.diagram.connections.iter().find(|c| &c.to == to) {
-            return Err(Refusal(format!("{to} is already fed by {}", existing.from)));
+            return Err(Refusal(format!(
+                "{to} is already fed by {}: an input takes one connection (delete that one first)",
+                existing.from
+            )));
         }
         self.edit(|diagram| {
             diagram
@@ -207,6 +214,42 @@ impl Document {
     /// The type an output carries, following pass-through outputs to what feeds them.
     pub fn output_type(&self, port: &PortRef, library: &LibraryInfo) -> Option<DataType> {
         kairos_diagram::output_type(&self.diagram, port, |c| library.component_of(c))
+    }
+}
+
+/// A type as people who do not program say it ("a number", "an image").
+pub fn type_in_words(data_type: &DataType) -> String {
+    match data_type {
+        DataType::F64 => "a number",
+        DataType::I64 => "a whole number",
+        DataType::Bool => "a yes/no value",
+        DataType::Vector => "a list of numbers",
+        DataType::Matrix => "a table of numbers",
+        DataType::Text => "text",
+        DataType::Bytes => "raw bytes",
+        DataType::Image => "an image",
+        DataType::PointCloud => "a point cloud",
+        DataType::Imu => "IMU readings",
+        DataType::GnssFix => "a GNSS position",
+        DataType::CanFrame => "a CAN frame",
+        DataType::Pose => "a pose",
+        DataType::Custom(name) => return format!("a {name}"),
+    }
+    .to_owned()
+}
+
+/// What an input takes, in words ("a number or a whole number", "anything").
+pub fn filter_in_words(filter: &TypeFilter) -> String {
+    match filter {
+        TypeFilter::Any => "anything".to_owned(),
+        TypeFilter::OneOf(types) => {
+            let words: Vec<String> = types.iter().map(type_in_words).collect();
+            match words.split_last() {
+                None => "nothing".to_owned(),
+                Some((last, [])) => last.clone(),
+                Some((last, rest)) => format!("{} or {last}", rest.join(", ")),
+            }
+        }
     }
 }
 
@@ -408,7 +451,11 @@ mod tests {
                 &library,
             )
             .unwrap_err();
-        assert!(refusal.0.contains("not image"), "{}", refusal.0);
+        assert!(
+            refusal.0.contains("needs a number") && refusal.0.contains("not an image"),
+            "{}",
+            refusal.0
+        );
         assert!(document.diagram().connections.is_empty());
     }
 }

@@ -103,7 +103,7 @@ fn component_ui(
     ui.label(&info.doc);
     ui.separator();
     for property in &info.properties {
-        property_ui(ui, instance, property, commands);
+        property_ui(ui, session, instance, property, commands);
     }
     actions_ui(ui, &instance.id, info, commands);
     if let Some(NodeState::Failed(error)) = session.node_state(&instance.id) {
@@ -112,10 +112,11 @@ fn component_ui(
     }
 }
 
-/// One property: its name (hover: its description), a widget for its kind, `live` when it changes in a
-/// running diagram, and what is wrong with its value.
+/// One property: its name (hover: its description), a widget for its kind with its unit and range,
+/// `live` when it changes in a running diagram, and what is wrong with its value or was refused lately.
 fn property_ui(
     ui: &mut egui::Ui,
+    session: &Session,
     instance: &ComponentInstance,
     property: &PropertyInfo,
     commands: &mut Vec<Command>,
@@ -126,14 +127,20 @@ fn property_ui(
         .cloned()
         .unwrap_or_else(|| property.default.clone());
     let mut edited = current.clone();
+    let mut refused = None;
     ui.horizontal(|ui| {
         let name_label = ui.label(&property.name).on_hover_text(&property.doc).id;
-        if let Some(current) = value_ui(ui, property, name_label, &mut edited) {
-            commands.push(Command::ChoosePath {
+        match value_ui(ui, property, name_label, &mut edited) {
+            FieldEvent::None => {}
+            FieldEvent::ChooseFile(current) => commands.push(Command::ChoosePath {
                 component: instance.id.clone(),
                 property: property.name.clone(),
                 current,
-            });
+            }),
+            FieldEvent::Refused(why) => refused = Some(why),
+        }
+        if let Some(bounds) = bounds_in_words(property) {
+            ui.label(RichText::new(bounds).small().weak());
         }
         if property.live {
             ui.label(RichText::new("live").small().weak())
@@ -142,6 +149,8 @@ fn property_ui(
     });
     if let Err(error) = property.kind.check(&edited) {
         ui.colored_label(Color32::LIGHT_RED, error.to_string());
+    } else if let Some(note) = session.field_note(&instance.id, &property.name) {
+        ui.colored_label(crate::log_panel::WARN_COLOR, note);
     }
     if edited != current {
         commands.push(Command::SetProperty {
@@ -150,36 +159,83 @@ fn property_ui(
             value: edited,
         });
     }
+    if let Some(why) = refused {
+        commands.push(Command::FieldRefused {
+            component: instance.id.clone(),
+            property: property.name.clone(),
+            why,
+        });
+    }
 }
 
-/// The widget editing `value` for the property's kind, labelled by `name_label`; returns the path typed
-/// so far when the file chooser was asked for (a path property's "…").
+/// A number's unit and range, in words ("Hz, 0.001 to 100000"); none when it has neither.
+fn bounds_in_words(property: &PropertyInfo) -> Option<String> {
+    let range = match &property.kind {
+        PropertyKind::F64 { min, max } => range_in_words(*min, *max),
+        PropertyKind::I64 { min, max } => range_in_words(min.map(|v| v as f64), max.map(|v| v as f64)),
+        _ => None,
+    };
+    match (property.unit.is_empty(), range) {
+        (true, None) => None,
+        (false, None) => Some(property.unit.clone()),
+        (true, Some(range)) => Some(range),
+        (false, Some(range)) => Some(format!("{}, {range}", property.unit)),
+    }
+}
+
+fn range_in_words(min: Option<f64>, max: Option<f64>) -> Option<String> {
+    match (min, max) {
+        (Some(min), Some(max)) => Some(format!("{min} to {max}")),
+        (Some(min), None) => Some(format!("at least {min}")),
+        (None, Some(max)) => Some(format!("at most {max}")),
+        (None, None) => None,
+    }
+}
+
+/// What a property's widget asks for besides a new value.
+enum FieldEvent {
+    None,
+    /// The file chooser, on the path typed so far (a path property's "…").
+    ChooseFile(String),
+    /// What was typed was refused or clamped: why, to say at the field and in the log.
+    Refused(String),
+}
+
+/// The widget editing `value` for the property's kind, labelled by `name_label`.
 fn value_ui(
     ui: &mut egui::Ui,
     property: &PropertyInfo,
     name_label: egui::Id,
     value: &mut Value,
-) -> Option<String> {
+) -> FieldEvent {
     match &property.kind {
         PropertyKind::F64 { min, max } => {
             let mut number = value.as_f64().unwrap_or(0.0);
-            let mut drag = egui::DragValue::new(&mut number).speed(0.1);
-            if let (Some(min), Some(max)) = (min, max) {
-                drag = drag.range(*min..=*max);
-            }
-            if ui.add(drag).labelled_by(name_label).changed() {
+            let bounds = NumberBounds {
+                min: *min,
+                max: *max,
+                whole: false,
+                unit: &property.unit,
+            };
+            let (changed, event) = number_ui(ui, name_label, &mut number, &bounds);
+            if changed {
                 *value = Value::F64(number);
             }
+            return event;
         }
         PropertyKind::I64 { min, max } => {
-            let mut number = value.as_i64().unwrap_or(0);
-            let mut drag = egui::DragValue::new(&mut number);
-            if let (Some(min), Some(max)) = (min, max) {
-                drag = drag.range(*min..=*max);
+            let mut number = value.as_i64().unwrap_or(0) as f64;
+            let bounds = NumberBounds {
+                min: min.map(|v| v as f64),
+                max: max.map(|v| v as f64),
+                whole: true,
+                unit: &property.unit,
+            };
+            let (changed, event) = number_ui(ui, name_label, &mut number, &bounds);
+            if changed {
+                *value = Value::I64(number as i64);
             }
-            if ui.add(drag).labelled_by(name_label).changed() {
-                *value = Value::I64(number);
-            }
+            return event;
         }
         PropertyKind::Bool => {
             let mut flag = value.as_bool().unwrap_or(false);
@@ -207,11 +263,98 @@ fn value_ui(
                 *value = Value::Text(text.clone());
             }
             if *kind == PropertyKind::Path && ui.button("…").on_hover_text("Choose a file").clicked() {
-                return Some(text);
+                return FieldEvent::ChooseFile(text);
             }
         }
     }
-    None
+    FieldEvent::None
+}
+
+/// What a number may be.
+struct NumberBounds<'a> {
+    min: Option<f64>,
+    max: Option<f64>,
+    /// Whole numbers only.
+    whole: bool,
+    unit: &'a str,
+}
+
+impl NumberBounds<'_> {
+    /// `value` with its unit (`0.001 Hz`).
+    fn with_unit(&self, value: f64) -> String {
+        if self.unit.is_empty() {
+            value.to_string()
+        } else {
+            format!("{value} {}", self.unit)
+        }
+    }
+
+    /// Why a typed text is refused or changed once editing ends, if it is.
+    fn judge(&self, text: &str, parsed: Option<f64>, kept: f64) -> Option<String> {
+        let text = text.trim();
+        let Some(typed) = parsed else {
+            let what = if self.whole { "a whole number" } else { "a number" };
+            return Some(format!("\"{text}\" is not {what}: kept {}", self.with_unit(kept)));
+        };
+        if let Some(min) = self.min.filter(|min| typed < *min) {
+            return Some(format!(
+                "{typed} is below the least value, {}: set to {min}",
+                self.with_unit(min)
+            ));
+        }
+        if let Some(max) = self.max.filter(|max| typed > *max) {
+            return Some(format!(
+                "{typed} is above the largest value, {}: set to {max}",
+                self.with_unit(max)
+            ));
+        }
+        None
+    }
+}
+
+/// A number field that clamps to the bounds as the user types, and says so (or that the text is no
+/// number) when editing ends, instead of changing or reverting the value silently. Returns whether the
+/// value changed and what to say.
+fn number_ui(
+    ui: &mut egui::Ui,
+    name_label: egui::Id,
+    number: &mut f64,
+    bounds: &NumberBounds<'_>,
+) -> (bool, FieldEvent) {
+    // The text typed last, and what it parsed to, kept across frames until editing ends.
+    let typed_id = name_label.with("typed");
+    let whole = bounds.whole;
+    let ctx = ui.ctx().clone();
+    let parse = move |text: &str| {
+        let parsed = text
+            .trim()
+            .parse::<f64>()
+            .ok()
+            .filter(|v| v.is_finite() && (!whole || v.fract() == 0.0));
+        ctx.data_mut(|d| d.insert_temp(typed_id, (text.to_owned(), parsed)));
+        parsed
+    };
+    let mut drag = egui::DragValue::new(number)
+        .range(bounds.min.unwrap_or(f64::MIN)..=bounds.max.unwrap_or(f64::MAX))
+        .custom_parser(parse);
+    drag = if whole {
+        drag.speed(1.0).max_decimals(0)
+    } else {
+        drag.speed(0.1)
+    };
+    let response = ui.add(drag).labelled_by(name_label);
+    let mut event = FieldEvent::None;
+    let escaped = ui.input(|i| i.key_pressed(egui::Key::Escape));
+    if response.gained_focus() || (response.lost_focus() && escaped) {
+        // A new edit, or one given up: nothing typed before counts.
+        ui.data_mut(|d| d.remove_temp::<(String, Option<f64>)>(typed_id));
+    } else if response.lost_focus()
+        && let Some((text, parsed)) = ui.data_mut(|d| d.remove_temp::<(String, Option<f64>)>(typed_id))
+        && let Some(why) = bounds.judge(&text, parsed, *number)
+    {
+        event = FieldEvent::Refused(why);
+    }
+    (response.changed(), event)
 }
 
 /// A button per action.

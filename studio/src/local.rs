@@ -9,6 +9,9 @@ use std::process::{Child, Command, Stdio};
 #[derive(Debug)]
 pub struct LocalRuntime {
     child: Child,
+    /// The write end of the runtime's standard input: it closes however the studio ends (even SIGKILL),
+    /// and the runtime, started with `--stop-with-stdin`, stops then and removes its token.
+    _lifeline: std::process::ChildStdin,
     /// Its address (`ws://127.0.0.1:PORT`).
     pub url: String,
     /// Its token (whose `Debug` does not show it).
@@ -74,13 +77,21 @@ impl LocalRuntime {
             command.arg("--pack-path").arg(pack);
         }
         let mut child = command
-            .args(["serve", "--listen", "127.0.0.1:0", "--token-file"])
+            .args([
+                "serve",
+                "--listen",
+                "127.0.0.1:0",
+                "--stop-with-stdin",
+                "--temporary-token",
+                "--token-file",
+            ])
             .arg(&token_file)
-            .stdin(Stdio::null())
+            .stdin(Stdio::piped())
             .stdout(Stdio::piped())
             .stderr(Stdio::inherit())
             .spawn()
             .map_err(|e| format!("cannot start {}: {e}", binary.display()))?;
+        let lifeline = child.stdin.take().ok_or("no input to the runtime")?;
         let stdout = child.stdout.take().ok_or("no output from the runtime")?;
         let mut lines = BufReader::new(stdout).lines();
         let url = loop {
@@ -112,6 +123,7 @@ impl LocalRuntime {
         );
         Ok(LocalRuntime {
             child,
+            _lifeline: lifeline,
             url,
             token,
             folder,

@@ -82,11 +82,17 @@ fn log_filter_ui(ui: &mut egui::Ui, filter: &mut LogFilter, log: &Log) {
         .accessible_name("log component");
 }
 
-/// The lines `filter` shows, the latest in view.
+/// The lines `filter` shows, following the newest until the user scrolls up (and again once scrolled back
+/// to the bottom); long lines scroll sideways. Only the rows in view are laid out.
 pub fn log_ui(ui: &mut egui::Ui, log: &Log, filter: &LogFilter) {
-    egui::ScrollArea::vertical().stick_to_bottom(true).show(ui, |ui| {
-        for line in log.visible(filter) {
-            ui.colored_label(color(line), &line.text);
-        }
-    });
+    let lines: Vec<&LogLine> = log.visible(filter).collect();
+    let row_height = ui.text_style_height(&egui::TextStyle::Body);
+    egui::ScrollArea::both()
+        .auto_shrink([false, false])
+        .stick_to_bottom(true)
+        .show_rows(ui, row_height, lines.len(), |ui, rows| {
+            for line in &lines[rows] {
+                ui.add(egui::Label::new(egui::RichText::new(&line.text).color(color(line))).extend());
+            }
+        });
 }

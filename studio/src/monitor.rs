@@ -9,13 +9,13 @@ use std::time::{Duration, Instant};
 use egui::{Color32, RichText, Sense, Stroke, Vec2};
 use kairos_protocol::{ComponentState, ComponentTelemetry, LinkTelemetry, Telemetry};
 
+use crate::notices::{Notices, Problem};
+
 /// How many telemetry periods a sparkline shows (a minute at the studio's 4 Hz).
 const HISTORY: usize = 240;
 /// How long a connection stays marked after it lost samples.
 pub const DROP_MARK: Duration = Duration::from_secs(3);
-/// How long a notice stays on the canvas.
-const NOTICE_SHOWN: Duration = Duration::from_secs(8);
-/// The least time between two notices about the same link.
+/// The least time between two log lines about the same link's losses.
 const NOTICE_EVERY: Duration = Duration::from_secs(5);
 
 /// One link's latest figures and recent history.
@@ -70,7 +70,10 @@ pub struct Monitor {
     pub links: BTreeMap<String, LinkHistory>,
     /// Per component id.
     pub components: BTreeMap<String, ComponentHistory>,
-    notices: VecDeque<(String, Instant)>,
+    /// The problems over the canvas.
+    pub notices: Notices,
+    /// How many times each component failed in this deployment.
+    failures: BTreeMap<String, u64>,
     sort: SortBy,
     descending: bool,
 }
@@ -80,7 +83,8 @@ impl Default for Monitor {
         Monitor {
             links: BTreeMap::new(),
             components: BTreeMap::new(),
-            notices: VecDeque::new(),
+            notices: Notices::default(),
+            failures: BTreeMap::new(),
             sort: SortBy::Name,
             descending: false,
         }
@@ -99,9 +103,13 @@ impl Monitor {
     pub fn clear(&mut self) {
         self.links.clear();
         self.components.clear();
+        self.notices.clear();
+        self.failures.clear();
     }
 
-    /// Takes in one telemetry event; returns the notices it raised (samples lost, a component failed).
+    /// Takes in one telemetry event, raising or updating the notices of its problems (samples lost, a
+    /// component failed); returns what to add to the log: each new problem, and a link's losses again at
+    /// most every few seconds.
     pub fn update(&mut self, telemetry: &Telemetry) -> Vec<String> {
         let now = Instant::now();
         let mut raised = Vec::new();
@@ -119,13 +127,16 @@ impl Monitor {
             let lost = link.overwritten.saturating_sub(entry.latest.overwritten);
             if lost > 0 || (entry.rates.is_empty() && link.overwritten > 0) {
                 entry.last_drop = Some(now);
+                let text = format!(
+                    "{} loses samples: its reader is slower than its writer and the {} buffer overflows; \
+                     a larger buffer, subsampling or LastOrNext helps",
+                    link.link, link.policy
+                );
+                self.notices
+                    .raise(Problem::Losses(link.link.clone()), text.clone(), link.overwritten);
                 if entry.last_notice.is_none_or(|at| now - at >= NOTICE_EVERY) {
                     entry.last_notice = Some(now);
-                    raised.push(format!(
-                        "{}: {} samples lost so far (the reader is slower than the writer and its {} \
-                         buffer overflowed; a larger buffer, subsampling or LastOrNext helps)",
-                        link.link, link.overwritten, link.policy
-                    ));
+                    raised.push(format!("{text} ({} lost so far)", link.overwritten));
                 }
             }
             push(&mut entry.rates, link.rate_hz as f32);
@@ -143,22 +154,23 @@ impl Monitor {
                 });
             let newly_failed = component.state == ComponentState::Failed
                 && (entry.latest.state != ComponentState::Failed || entry.rates.is_empty());
+            let problem = Problem::Failed(component.id.clone());
             if newly_failed {
-                raised.push(format!(
+                let times = self.failures.entry(component.id.clone()).or_insert(0);
+                *times += 1;
+                let text = format!(
                     "{} failed: {}",
                     component.id,
                     component.error.as_deref().unwrap_or("no reason given")
-                ));
+                );
+                self.notices.raise(problem, text.clone(), *times);
+                raised.push(text);
+            } else if component.state == ComponentState::Running {
+                self.notices.resolve(&problem);
             }
             push(&mut entry.rates, component.cycle_rate_hz as f32);
             push(&mut entry.cpu, (component.cpu_share * 100.0) as f32);
             entry.latest = component.clone();
-        }
-        for notice in &raised {
-            self.notices.push_back((notice.clone(), now));
-        }
-        while self.notices.len() > 8 {
-            self.notices.pop_front();
         }
         raised
     }
@@ -168,31 +180,14 @@ impl Monitor {
         self.links.get(&format!("{from} -> {to}"))
     }
 
-    /// The notices raised lately, newest last.
-    pub fn recent_notices(&self) -> impl Iterator<Item = &str> {
-        self.notices
-            .iter()
-            .filter(|(_, at)| at.elapsed() < NOTICE_SHOWN)
-            .map(|(text, _)| text.as_str())
+    /// The notices shown now, as they read, oldest first.
+    pub fn recent_notices(&self) -> impl Iterator<Item = String> {
+        self.notices.shown().map(crate::notices::Notice::line)
     }
 
-    /// Shows the recent notices over the canvas, top right.
-    pub fn show_notices(&self, ctx: &egui::Context, over: egui::Rect) {
-        let recent: Vec<&str> = self.recent_notices().collect();
-        if recent.is_empty() {
-            return;
-        }
-        egui::Area::new(egui::Id::unique("monitor notices"))
-            .fixed_pos(over.right_top() + Vec2::new(-430.0, 8.0))
-            .show(ctx, |ui| {
-                egui::Frame::popup(ui.style()).show(ui, |ui| {
-                    ui.set_max_width(410.0);
-                    for text in recent {
-                        ui.label(RichText::new(format!("! {text}")).color(Color32::from_rgb(240, 140, 60)));
-                    }
-                });
-            });
-        ctx.request_repaint_after(Duration::from_millis(500));
+    /// Shows the notices inside the canvas (`over`), top right.
+    pub fn show_notices(&mut self, ctx: &egui::Context, over: egui::Rect) {
+        self.notices.show(ctx, over);
     }
 
     fn sort_header(&mut self, ui: &mut egui::Ui, label: &str, by: SortBy) {
@@ -257,73 +252,78 @@ impl Monitor {
             ui.weak("Nothing deployed: run a diagram to see its links and components here.");
             return;
         }
-        egui::ScrollArea::vertical().show(ui, |ui| {
-            egui::Grid::new("links")
-                .striped(true)
-                .num_columns(7)
-                .show(ui, |ui| {
-                    self.sort_header(ui, "link", SortBy::Name);
-                    ui.strong("policy");
-                    self.sort_header(ui, "rate", SortBy::Rate);
-                    ui.strong("last minute");
-                    self.sort_header(ui, "latency p50 / p99", SortBy::Cost);
-                    self.sort_header(ui, "lost", SortBy::Trouble);
-                    ui.strong("queued / skipped");
-                    ui.end_row();
-                    for link in self.sorted_links() {
-                        let t = &link.latest;
-                        ui.label(&t.link);
-                        ui.label(t.policy.name());
-                        ui.label(format!("{:.1} Hz", t.rate_hz));
-                        sparkline(ui, &link.rates, Color32::LIGHT_BLUE);
-                        ui.label(format!(
-                            "{} / {}",
-                            milliseconds(t.latency.p50_ns),
-                            milliseconds(t.latency.p99_ns)
-                        ));
-                        let lost = RichText::new(t.overwritten.to_string());
-                        ui.label(if link.dropping() {
-                            lost.color(Color32::from_rgb(240, 110, 60)).strong()
-                        } else {
-                            lost
-                        });
-                        ui.label(format!("{} / {}", t.queued, t.skipped));
+        // Both ways: a narrow panel scrolls rather than cutting the last columns.
+        egui::ScrollArea::both()
+            .auto_shrink([false, true])
+            .show(ui, |ui| {
+                // Losses first: what the panel is most often opened for.
+                egui::Grid::new("links")
+                    .striped(true)
+                    .num_columns(7)
+                    .show(ui, |ui| {
+                        self.sort_header(ui, "link", SortBy::Name);
+                        self.sort_header(ui, "lost", SortBy::Trouble);
+                        ui.strong("queued / skipped");
+                        ui.strong("policy");
+                        self.sort_header(ui, "rate", SortBy::Rate);
+                        ui.strong("last minute");
+                        self.sort_header(ui, "latency p50 / p99", SortBy::Cost);
                         ui.end_row();
-                    }
-                });
-            ui.separator();
-            egui::Grid::new("components")
-                .striped(true)
-                .num_columns(6)
-                .show(ui, |ui| {
-                    self.sort_header(ui, "component", SortBy::Name);
-                    self.sort_header(ui, "state", SortBy::Trouble);
-                    self.sort_header(ui, "cycles/s", SortBy::Rate);
-                    ui.strong("last minute");
-                    self.sort_header(ui, "CPU", SortBy::Cost);
-                    ui.strong("last minute");
-                    ui.end_row();
-                    for component in self.sorted_components() {
-                        let t = &component.latest;
-                        ui.label(&t.id);
-                        let state = RichText::new(t.state.word());
-                        let state = if t.state == ComponentState::Failed {
-                            state.color(Color32::LIGHT_RED)
-                        } else {
-                            state
-                        };
-                        let response = ui.label(state);
-                        if let Some(error) = &t.error {
-                            response.on_hover_text(error);
+                        for link in self.sorted_links() {
+                            let t = &link.latest;
+                            ui.label(&t.link);
+                            let lost = RichText::new(t.overwritten.to_string());
+                            ui.label(if link.dropping() {
+                                lost.color(Color32::from_rgb(240, 110, 60)).strong()
+                            } else {
+                                lost
+                            })
+                            .on_hover_text("samples overwritten before this reader read them");
+                            ui.label(format!("{} / {}", t.queued, t.skipped));
+                            ui.label(t.policy.name());
+                            ui.label(format!("{:.1} Hz", t.rate_hz));
+                            sparkline(ui, &link.rates, Color32::LIGHT_BLUE);
+                            ui.label(format!(
+                                "{} / {}",
+                                milliseconds(t.latency.p50_ns),
+                                milliseconds(t.latency.p99_ns)
+                            ));
+                            ui.end_row();
                         }
-                        ui.label(format!("{:.1}", t.cycle_rate_hz));
-                        sparkline(ui, &component.rates, Color32::LIGHT_GREEN);
-                        ui.label(format!("{:.1} %", t.cpu_share * 100.0));
-                        sparkline(ui, &component.cpu, Color32::GOLD);
+                    });
+                ui.separator();
+                egui::Grid::new("components")
+                    .striped(true)
+                    .num_columns(6)
+                    .show(ui, |ui| {
+                        self.sort_header(ui, "component", SortBy::Name);
+                        self.sort_header(ui, "state", SortBy::Trouble);
+                        self.sort_header(ui, "cycles/s", SortBy::Rate);
+                        ui.strong("last minute");
+                        self.sort_header(ui, "CPU", SortBy::Cost);
+                        ui.strong("last minute");
                         ui.end_row();
-                    }
-                });
-        });
+                        for component in self.sorted_components() {
+                            let t = &component.latest;
+                            ui.label(&t.id);
+                            let state = RichText::new(t.state.word());
+                            let state = if t.state == ComponentState::Failed {
+                                state.color(Color32::LIGHT_RED)
+                            } else {
+                                state
+                            };
+                            let response = ui.label(state);
+                            if let Some(error) = &t.error {
+                                response.on_hover_text(error);
+                            }
+                            ui.label(format!("{:.1}", t.cycle_rate_hz));
+                            sparkline(ui, &component.rates, Color32::LIGHT_GREEN);
+                            ui.label(format!("{:.1} %", t.cpu_share * 100.0));
+                            sparkline(ui, &component.cpu, Color32::GOLD);
+                            ui.end_row();
+                        }
+                    });
+            });
     }
 }
 

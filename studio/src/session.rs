@@ -173,12 +173,17 @@ pub struct Session {
     pub settings: Settings,
     /// Problems the runtime found with ports (a refused deploy), shown on them until the next deploy.
     pub port_problems: BTreeMap<PortRef, String>,
+    /// What the inspector says under a property's field (a value typed and refused or clamped), by
+    /// component and property, until the property is set again.
+    field_notes: BTreeMap<(String, String), String>,
     runtime: Option<RuntimeLink>,
     run_state: RuntimeState,
     states: BTreeMap<String, NodeState>,
     next_request: u64,
     pending: BTreeMap<u64, Pending>,
     deploy: Deploy,
+    /// The diagram the runtime holds, as deployed and changed live since.
+    deployed: Option<kairos_diagram::Diagram>,
     described: Described,
     startup: Startup,
     frames: FramePath,
@@ -205,12 +210,14 @@ impl Session {
             log: Log::default(),
             settings,
             port_problems: BTreeMap::new(),
+            field_notes: BTreeMap::new(),
             runtime: None,
             run_state: RuntimeState::Empty,
             states: BTreeMap::new(),
             next_request: FIRST_REQUEST_ID,
             pending: BTreeMap::new(),
             deploy: Deploy::default(),
+            deployed: None,
             described: Described::default(),
             startup: Startup::default(),
             frames: FramePath::Socket,
@@ -456,6 +463,7 @@ impl Session {
                 self.start_up();
             }
             (Some(Pending::Deploy), ReplyBody::Deploy(_)) => {
+                self.deployed = kairos_diagram::parse(&self.deploy.text).ok().map(|p| p.diagram);
                 self.states.clear();
                 self.monitor.clear();
                 self.run_state = RuntimeState::Ready;
@@ -598,6 +606,8 @@ impl Session {
     /// Sets a component's property (one undoable edit); while the diagram runs, a live property whose value
     /// is valid changes in the runtime at once too.
     pub fn set_property(&mut self, component: &str, property: &str, value: Value) {
+        self.field_notes
+            .remove(&(component.to_owned(), property.to_owned()));
         self.document.edit(|d| {
             if let Some(c) = d.component_mut(component) {
                 c.properties.insert(property.to_owned(), value.clone());
@@ -612,15 +622,57 @@ impl Session {
             .and_then(|info| info.properties.iter().find(|p| p.name == property))
             .is_some_and(|p| p.live && p.kind.check(&value).is_ok());
         if running && live {
+            if let Some(c) = self.deployed.as_mut().and_then(|d| d.component_mut(component)) {
+                c.properties.insert(property.to_owned(), value.clone());
+            }
             self.request(RequestBody::SetProperty {
                 component: component.to_owned(),
                 property: property.to_owned(),
                 value,
             });
+        } else if running {
+            self.note(
+                LogLevel::Info,
+                format!(
+                    "{component}.{property} applies at the next run: it is not a live property \
+                     (Restart applies it now)"
+                ),
+            );
+        }
+    }
+
+    /// A value typed for a property was refused or clamped: the inspector says `why` at the field, and the
+    /// log keeps it.
+    pub fn field_refused(&mut self, component: &str, property: &str, why: String) {
+        let key = (component.to_owned(), property.to_owned());
+        // The field reports once per edit, but a frame laid out twice reports twice.
+        if self.field_notes.get(&key) == Some(&why) {
+            return;
+        }
+        self.note(LogLevel::Warn, format!("{component}.{property}: {why}"));
+        self.field_notes.insert(key, why);
+    }
+
+    /// What the inspector says under a property's field, if anything.
+    pub fn field_note(&self, component: &str, property: &str) -> Option<&str> {
+        self.field_notes
+            .get(&(component.to_owned(), property.to_owned()))
+            .map(String::as_str)
+    }
+
+    /// The edits the running (or paused) diagram does not have yet, in words; none when nothing runs.
+    pub fn not_applied(&self) -> Vec<String> {
+        match (&self.deployed, self.run_state) {
+            (Some(deployed), RuntimeState::Running | RuntimeState::Paused) => {
+                crate::pending::not_applied(deployed, self.document.diagram())
+            }
+            _ => Vec::new(),
         }
     }
 
     /// Changes how the connection `from` → `to` reads (one undoable edit).
+    /// While the diagram runs the runtime keeps the old reader until the next run, which the log says at
+    /// once (and the canvas's bar until then, with Restart).
     pub fn set_reader(&mut self, from: &PortRef, to: &PortRef, settings: ReaderSettings) {
         self.document.edit(|d| {
             if let Some(c) = d.connections.iter_mut().find(|c| &c.from == from && &c.to == to) {
@@ -629,6 +681,15 @@ impl Session {
                 c.subsampling = settings.subsampling;
             }
         });
+        if matches!(self.run_state, RuntimeState::Running | RuntimeState::Paused) {
+            self.note(
+                LogLevel::Info,
+                format!(
+                    "{from} -> {to}: the new reader settings apply at the next run; the running diagram \
+                     keeps the old ones (Restart applies them now)"
+                ),
+            );
+        }
     }
 
     /// Opens the diagram in `path` in place of the document; false (with the reason in the log) when it
@@ -1059,5 +1120,39 @@ mod tests {
         assert_eq!(connection.buffer_size, Some(4));
         assert!(session.document.undo());
         assert_eq!(session.document.diagram().connections[0].policy, None);
+    }
+
+    #[test]
+    fn edits_the_running_diagram_lacks_are_told_until_the_next_deploy() {
+        let mut session = connected();
+        session.deploy_and_start();
+        let deploy = sent(&mut session);
+        session.handle(ok(&deploy[0], json!({"diagnostics": [], "components": 2})));
+        let _start = sent(&mut session);
+        session.handle(telemetry("running", &[component("counter1", "running", None)]));
+        assert!(session.not_applied().is_empty());
+        let (from, to) = (PortRef::new("counter1", "out"), PortRef::new("console1", "in"));
+        session.set_reader(
+            &from,
+            &to,
+            super::ReaderSettings {
+                policy: Some(kairos_diagram::ReaderPolicy::LastOrNext),
+                buffer_size: None,
+                subsampling: None,
+            },
+        );
+        assert_eq!(
+            session.not_applied(),
+            ["counter1.out -> console1.in: reader LastOrNext"]
+        );
+        assert!(session.log.lines().any(|l| {
+            l.text
+                .starts_with("counter1.out -> console1.in: the new reader settings apply at the next run")
+        }));
+        // Restart deploys the edited diagram: nothing is left to apply.
+        session.deploy_and_start();
+        let deploy = sent(&mut session);
+        session.handle(ok(&deploy[0], json!({"diagnostics": [], "components": 2})));
+        assert!(session.not_applied().is_empty());
     }
 }

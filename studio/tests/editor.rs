@@ -190,7 +190,19 @@ fn a_connection_the_input_refuses_is_not_made_and_the_canvas_says_why() {
     drag(&mut harness, from, to);
     assert!(harness.state().session.document.diagram().connections.is_empty());
     let notice = harness.state().canvas.notice().unwrap_or_default().to_owned();
-    assert!(notice.contains("not image"), "{notice}");
+    assert_eq!(
+        notice,
+        "gain1.in needs a number, a whole number or a yes/no value, not an image (camera1.image gives image)"
+    );
+    // Said in the log too, where it stays.
+    assert!(
+        harness
+            .state()
+            .session
+            .log
+            .lines()
+            .any(|l| l.text == notice && l.level == kairos_protocol::LogLevel::Warn)
+    );
 }
 
 #[test]
@@ -318,5 +330,71 @@ fn an_unreadable_token_file_is_said_in_the_log_and_the_dialog_stays() {
     assert!(
         !config.path().join("studio-remote.txt").exists(),
         "nothing is remembered"
+    );
+}
+
+/// Types `text` into the number field labelled `label` and presses Enter.
+fn type_number(harness: &mut Harness<'_, StudioApp>, label: &str, text: &str) {
+    harness.get_by_label(label).focus();
+    harness.run_steps(2);
+    harness.key_press_modifiers(egui::Modifiers::COMMAND, egui::Key::A);
+    harness.run_steps(1);
+    harness.get_by_label(label).type_text(text);
+    harness.run_steps(1);
+    harness.key_press(egui::Key::Enter);
+    harness.run_steps(2);
+}
+
+#[test]
+fn a_number_refused_or_clamped_is_said_at_the_field_and_in_the_log() {
+    let mut harness = studio();
+    add_from_palette(&mut harness, "core.sine", Pos2::new(600.0, 300.0));
+    click_on_canvas(&mut harness, "component sine1 (core.sine)");
+    // The range and unit are shown beside the field.
+    harness.get_by_label("Hz, 0.001 to 100000");
+    let rate = |harness: &Harness<'_, StudioApp>| {
+        harness
+            .state()
+            .session
+            .document
+            .diagram()
+            .component("sine1")
+            .unwrap()
+            .properties
+            .get("rate")
+            .cloned()
+    };
+
+    type_number(&mut harness, "rate", "-5");
+    assert_eq!(rate(&harness), Some(kairos_diagram::Value::F64(0.001)));
+    let said = "-5 is below the least value, 0.001 Hz: set to 0.001";
+    harness.get_by_label(said);
+    assert!(
+        harness
+            .state()
+            .session
+            .log
+            .lines()
+            .any(|l| l.text == format!("sine1.rate: {said}"))
+    );
+
+    type_number(&mut harness, "rate", "abc");
+    assert_eq!(rate(&harness), Some(kairos_diagram::Value::F64(0.001)), "kept");
+    harness.get_by_label("\"abc\" is not a number: kept 0.001 Hz");
+
+    // A valid value clears what the field said.
+    type_number(&mut harness, "rate", "25");
+    assert_eq!(rate(&harness), Some(kairos_diagram::Value::F64(25.0)));
+    assert_eq!(
+        harness.query_all_by_label_contains("is not a number").count(),
+        1,
+        "only the log's line is left: {:?}",
+        harness
+            .state()
+            .session
+            .log
+            .lines()
+            .map(|l| l.text.clone())
+            .collect::<Vec<_>>()
     );
 }

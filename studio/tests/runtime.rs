@@ -280,7 +280,7 @@ fn viewers_and_monitoring_show_a_running_diagram() {
         app.session
             .monitor
             .recent_notices()
-            .any(|n| n.starts_with("counter.out -> slow.in:") && n.contains("lost"))
+            .any(|n| n.starts_with("counter.out -> slow.in loses samples") && n.contains("lost so far"))
     });
     run_until(&mut harness, "the camera's cycle rate", |app| {
         app.session.monitor.components.get("camera").is_some_and(|c| {

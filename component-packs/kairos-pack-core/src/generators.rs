@@ -15,6 +15,7 @@ use kairos_sdk::{
 /// The sample-rate property every generator has.
 fn rate_property(default_hz: f64) -> Property {
     Property::f64("rate", default_hz)
+        .unit("Hz")
         .range(0.001, 100_000.0)
         .live()
         .doc("Samples per second (Hz)")
@@ -32,6 +33,7 @@ fn wave(type_name: &str, doc: &str) -> Descriptor {
         .output("out", DataType::F64, "The wave")
         .property(
             Property::f64("frequency", 1.0)
+                .unit("Hz")
                 .range(0.0, 50_000.0)
                 .live()
                 .doc("Wave frequency (Hz)"),
@@ -107,6 +109,7 @@ impl Sine {
         )
         .property(
             Property::f64("phase_deg", 0.0)
+                .unit("deg")
                 .range(-360.0, 360.0)
                 .live()
                 .doc("Phase at t = 0 (degrees)"),

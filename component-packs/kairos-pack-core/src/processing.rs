@@ -71,7 +71,7 @@ impl Add {
             Property::choice("mode", &["latest", "synchronized"], "latest")
                 .doc("latest: add to the other input's latest value; synchronized: add samples whose timestamps match"),
         )
-        .property(Property::f64("tolerance_ms", 1.0).range(0.0, 60_000.0).doc("synchronized: largest timestamp gap"))
+        .property(Property::f64("tolerance_ms", 1.0).unit("ms").range(0.0, 60_000.0).doc("synchronized: largest timestamp gap"))
         .build()
     }
 }
@@ -128,6 +128,7 @@ impl MovingAverage {
         .output("out", DataType::F64, "The running mean")
         .property(
             Property::i64("window", 10)
+                .unit("samples")
                 .int_range(1, 1_000_000)
                 .live()
                 .doc("Number of samples averaged"),
@@ -270,6 +271,7 @@ impl SynchronizerComponent {
         descriptor
             .property(
                 Property::f64("tolerance_ms", 5.0)
+                    .unit("ms")
                     .range(0.0, 60_000.0)
                     .live()
                     .doc("Largest timestamp gap within a matched set"),
@@ -386,7 +388,7 @@ impl Delay {
         )
         .input("in", TypeFilter::Any, "Any stream")
         .output_following("out", "in", "The input, later; timestamps kept")
-        .property(Property::f64("delay_ms", 10.0).range(0.0, 60_000.0).live().doc("Time spent on each sample"))
+        .property(Property::f64("delay_ms", 10.0).unit("ms").range(0.0, 60_000.0).live().doc("Time spent on each sample"))
         .build()
     }
 }

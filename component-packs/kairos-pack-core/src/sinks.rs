@@ -208,6 +208,7 @@ impl CsvWriter {
             ))
             .property(
                 Property::f64("tolerance_ms", 5.0)
+                    .unit("ms")
                     .range(0.0, 60_000.0)
                     .doc("synchronize: largest timestamp gap in a set"),
             )

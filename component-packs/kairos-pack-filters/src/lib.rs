@@ -48,6 +48,7 @@ impl LowPass {
         .output("out", DataType::F64, "The smoothed signal, same timestamps")
         .property(
             Property::f64("time_constant_s", 0.1)
+                .unit("s")
                 .range(0.0, 3600.0)
                 .live()
                 .doc("τ in seconds; 0 passes the input through"),

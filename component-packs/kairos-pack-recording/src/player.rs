@@ -257,19 +257,19 @@ impl Player {
             ),
         )
         .property(
-            Property::f64("speed", 1.0)
+            Property::f64("speed", 1.0).unit("x real time")
                 .range(0.1, 100.0)
                 .live()
                 .doc("Replay speed in real time: 2 replays twice as fast"),
         )
         .property(Property::bool("loop", false).live().doc("Start again at the end"))
         .property(
-            Property::f64("start_s", 0.0)
+            Property::f64("start_s", 0.0).unit("s")
                 .range(0.0, 1e9)
                 .doc("Start this long after the first message"),
         )
         .property(
-            Property::f64("end_s", 0.0)
+            Property::f64("end_s", 0.0).unit("s")
                 .range(0.0, 1e9)
                 .doc("End this long after the first message (0: at the last message)"),
         )
@@ -280,7 +280,7 @@ impl Player {
         )
         .property(Property::bool("start_paused", false).doc("Wait for the play action before the first sample"))
         .property(
-            Property::f64("seek_s", -1.0)
+            Property::f64("seek_s", -1.0).unit("s")
                 .range(-1.0, 1e9)
                 .live()
                 .doc("Setting it jumps to this time after the first message; every output first re-emits its last sample before it (-1: no jump)"),

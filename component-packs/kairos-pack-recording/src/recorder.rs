@@ -98,28 +98,33 @@ impl Recorder {
             )
             .property(
                 Property::i64("chunk_size_kb", 1024)
+                    .unit("KiB")
                     .int_range(16, 1_048_576)
                     .doc("A chunk closes at this size..."),
             )
             .property(
                 Property::f64("chunk_period_s", 1.0)
+                    .unit("s")
                     .range(0.05, 60.0)
                     .doc("...or this long after it opened: a crash loses at most the open chunk"),
             )
             .property(
                 Property::f64("split_size_mb", 0.0)
+                    .unit("MB")
                     .range(0.0, 1e9)
                     .live()
                     .doc("Start a new file past this size (0: never)"),
             )
             .property(
                 Property::f64("split_duration_s", 0.0)
+                    .unit("s")
                     .range(0.0, 1e9)
                     .live()
                     .doc("Start a new file after this long (0: never)"),
             )
             .property(
                 Property::f64("min_free_mb", 256.0)
+                    .unit("MB")
                     .range(0.0, 1e9)
                     .live()
                     .doc("Stop recording cleanly when the disk has less free space than this"),

@@ -29,11 +29,13 @@ pub fn descriptor() -> ComponentInfo {
     .property(rate_property(30.0, 240.0, "frames"))
     .property(
         Property::i64("width", 640)
+            .unit("px")
             .int_range(80, 4096)
             .doc("Image width, pixels"),
     )
     .property(
         Property::i64("height", 480)
+            .unit("px")
             .int_range(60, 4096)
             .doc("Image height, pixels"),
     )

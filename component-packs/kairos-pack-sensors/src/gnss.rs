@@ -37,12 +37,12 @@ pub fn descriptor() -> ComponentInfo {
     )
     .property(rate_property(10.0, 100.0, "fixes"))
     .property(
-        Property::f64("noise_m", 0.5).range(0.0, 100.0).live().doc(
+        Property::f64("noise_m", 0.5).unit("m").range(0.0, 100.0).live().doc(
             "Standard deviation of the horizontal position error per axis, m (vertical: 1.5 times as much)",
         ),
     )
     .property(
-        Property::f64("noise_correlation_s", 5.0)
+        Property::f64("noise_correlation_s", 5.0).unit("s")
             .range(0.0, 3600.0)
             .live()
             .doc("Time constant of the position error (first-order Gauss-Markov), s; 0 gives white noise"),
@@ -51,17 +51,17 @@ pub fn descriptor() -> ComponentInfo {
         Property::i64("seed", 2).doc("Seed of the noise generator: the same seed gives the same output"),
     )
     .property(
-        Property::f64("latitude", 48.7167)
+        Property::f64("latitude", 48.7167).unit("deg N")
             .range(-89.0, 89.0)
             .doc("Latitude of the reference point (the start of the trajectory), degrees north"),
     )
     .property(
-        Property::f64("longitude", 2.2333)
+        Property::f64("longitude", 2.2333).unit("deg E")
             .range(-180.0, 180.0)
             .doc("Longitude of the reference point, degrees east"),
     )
     .property(
-        Property::f64("altitude", 150.0)
+        Property::f64("altitude", 150.0).unit("m")
             .range(-500.0, 9000.0)
             .doc("Height of the reference point above the WGS84 ellipsoid, m"),
     )

@@ -39,12 +39,14 @@ pub fn descriptor() -> ComponentInfo {
     .property(rate_property(100.0, 2000.0, "measurements"))
     .property(
         Property::f64("gyro_noise", 0.002)
+            .unit("rad/s")
             .range(0.0, 1.0)
             .live()
             .doc("Standard deviation of the white noise on each gyroscope axis, rad/s"),
     )
     .property(
         Property::f64("accel_noise", 0.02)
+            .unit("m/s²")
             .range(0.0, 10.0)
             .live()
             .doc("Standard deviation of the white noise on each accelerometer axis, m/s²"),

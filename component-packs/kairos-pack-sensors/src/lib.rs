@@ -52,6 +52,7 @@ pub fn register(registry: &mut Registry) {
 /// The live `rate` property every sensor has, in hertz.
 fn rate_property(default: f64, max: f64, what: &str) -> Property {
     Property::f64("rate", default)
+        .unit("Hz")
         .range(0.1, max)
         .live()
         .doc(&format!("How many {what} per second (Hz)"))

@@ -66,22 +66,26 @@ pub fn descriptor() -> ComponentInfo {
     )
     .property(
         Property::f64("fov_up_deg", 15.0)
+            .unit("deg")
             .range(-90.0, 90.0)
             .doc("Elevation of the highest channel, degrees"),
     )
     .property(
         Property::f64("fov_down_deg", -25.0)
+            .unit("deg")
             .range(-90.0, 90.0)
             .doc("Elevation of the lowest channel, degrees"),
     )
     .property(
         Property::f64("max_range_m", 80.0)
+            .unit("m")
             .range(1.0, 1000.0)
             .live()
             .doc("Farther hits are not returned, metres"),
     )
     .property(
         Property::f64("range_noise_m", 0.02)
+            .unit("m")
             .range(0.0, 5.0)
             .live()
             .doc("Standard deviation of the noise on each range, metres"),

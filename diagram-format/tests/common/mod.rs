@@ -31,6 +31,7 @@ fn property(name: &str, kind: PropertyKind, default: Value) -> PropertyInfo {
         default,
         live: true,
         doc: String::new(),
+        unit: String::new(),
     }
 }
 

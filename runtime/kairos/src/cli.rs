@@ -68,6 +68,14 @@ pub enum Command {
         /// The most clients served at once.
         #[arg(long, default_value_t = kairos_protocol::DEFAULT_MAX_CONNECTIONS)]
         max_connections: usize,
+        /// Stop when standard input closes: the program that started this runtime (the studio) ended,
+        /// even if it was killed.
+        #[arg(long)]
+        stop_with_stdin: bool,
+        /// Remove the --token-file at exit, and its folder when that leaves it empty (a token made for this
+        /// run alone).
+        #[arg(long, requires = "token_file")]
+        temporary_token: bool,
     },
     /// Check diagrams against the component library; exit 0 when all are valid.
     Validate {
@@ -240,6 +248,8 @@ pub fn execute(cli: Cli) -> anyhow::Result<ExitCode> {
             diagram,
             start,
             max_connections,
+            stop_with_stdin,
+            temporary_token,
         } => crate::serve::serve(
             registry,
             &crate::serve::ServeOptions {
@@ -249,6 +259,8 @@ pub fn execute(cli: Cli) -> anyhow::Result<ExitCode> {
                 diagram,
                 start,
                 max_connections,
+                stop_with_stdin,
+                temporary_token,
             },
         ),
         Command::Inspect { file, json } => {

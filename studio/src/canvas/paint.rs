@@ -13,7 +13,9 @@ use crate::session::NodeState;
 /// The colour of lost samples.
 pub const DROP_COLOR: Color32 = Color32::from_rgb(240, 110, 60);
 /// The colour of a problem the runtime found with a port.
-const PROBLEM_COLOR: Color32 = Color32::from_rgb(230, 90, 80);
+pub const PROBLEM_COLOR: Color32 = Color32::from_rgb(230, 90, 80);
+/// The ring of an input that would take the connection being dragged.
+const FIT_COLOR: Color32 = Color32::from_rgb(110, 210, 120);
 
 /// A reader policy in a few letters, for connections too short for its name.
 pub fn short_policy(policy: ReaderPolicy) -> &'static str {
@@ -220,6 +222,8 @@ pub struct PortLook<'a> {
     pub problem: bool,
     /// Whether a viewer being dragged from the palette hovers it.
     pub viewer_hover: bool,
+    /// While a connection is dragged: whether this input would take it (highlighted) or not (dimmed).
+    pub fit: Option<bool>,
     /// Whether there is room for its name.
     pub detail: bool,
 }
@@ -242,7 +246,15 @@ pub fn paint_port(
             Stroke::new(2.5, visuals.selection.stroke.color),
         );
     }
-    painter.circle_filled(at, PORT_RADIUS, look.color);
+    let color = match look.fit {
+        Some(true) => {
+            painter.circle_stroke(at, PORT_RADIUS + 4.0, Stroke::new(2.5, FIT_COLOR));
+            look.color
+        }
+        Some(false) => look.color.gamma_multiply(0.25),
+        None => look.color,
+    };
+    painter.circle_filled(at, PORT_RADIUS, color);
     if look.detail {
         let (offset, align) = match side {
             super::hit_test::Side::Input => (Vec2::new(9.0, 0.0), Align2::LEFT_CENTER),
@@ -253,7 +265,11 @@ pub fn paint_port(
             align,
             look.name,
             FontId::proportional(11.5),
-            visuals.text_color(),
+            if look.fit == Some(false) {
+                visuals.weak_text_color().gamma_multiply(0.5)
+            } else {
+                visuals.text_color()
+            },
         );
     }
 }
@@ -267,22 +283,5 @@ pub fn paint_rubber_band(painter: &Painter, visuals: &egui::Visuals, band: Rect)
         0.0,
         Stroke::new(1.0, selection.stroke.color),
         StrokeKind::Inside,
-    );
-}
-
-/// A refusal (a connection the input's filter refused), beside where it happened.
-pub fn paint_notice(painter: &Painter, at: Pos2, text: &str) {
-    let rect = painter.text(
-        at + Vec2::new(12.0, 12.0),
-        Align2::LEFT_TOP,
-        text,
-        FontId::proportional(12.0),
-        PROBLEM_COLOR,
-    );
-    painter.rect_stroke(
-        rect.expand(4.0),
-        4.0,
-        Stroke::new(1.0, PROBLEM_COLOR),
-        StrokeKind::Outside,
     );
 }

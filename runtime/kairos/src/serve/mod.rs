@@ -41,6 +41,10 @@ pub struct ServeOptions {
     pub start: bool,
     /// The most clients at once.
     pub max_connections: usize,
+    /// Stop when standard input closes (the program that started the runtime ended).
+    pub stop_with_stdin: bool,
+    /// Remove the token file at exit, and its folder when empty.
+    pub temporary_token: bool,
 }
 
 /// What every session shares.
@@ -62,7 +66,7 @@ fn token(path: Option<&PathBuf>, what: &str) -> anyhow::Result<Option<Token>> {
     Ok(Some(token))
 }
 
-/// Runs `kairos serve` until Ctrl-C or SIGTERM.
+/// Runs `kairos serve` until Ctrl-C or SIGTERM (or, with `stop_with_stdin`, until standard input closes).
 pub fn serve(registry: Registry, options: &ServeOptions) -> anyhow::Result<ExitCode> {
     serve_with(registry, options, |bound| {
         use std::io::Write as _;
@@ -126,11 +130,7 @@ pub fn serve_with(
         .enable_all()
         .build()
         .context("cannot start the network threads")?;
-    let (stop_tx, mut stop_rx) = tokio::sync::watch::channel(false);
-    ctrlc::set_handler(move || {
-        let _ = stop_tx.send(true);
-    })
-    .context("cannot install the Ctrl-C handler")?;
+    let mut stop_rx = stop_signal(options.stop_with_stdin)?;
     let max_connections = options.max_connections.max(1);
     let result: anyhow::Result<()> = network.block_on(async move {
         let listener = tokio::net::TcpListener::bind(address)
@@ -172,8 +172,56 @@ pub fn serve_with(
     });
     network.shutdown_timeout(std::time::Duration::from_secs(1));
     runtime.shutdown();
+    if options.temporary_token
+        && let Some(path) = &options.token_file
+    {
+        remove_temporary_token(path);
+    }
     tracing::info!("stopped");
     result.map(|()| ExitCode::SUCCESS)
+}
+
+/// What turns true when the server is to stop: Ctrl-C or SIGTERM, and the end of standard input when
+/// `with_stdin`.
+fn stop_signal(with_stdin: bool) -> anyhow::Result<tokio::sync::watch::Receiver<bool>> {
+    let (stop_tx, stop_rx) = tokio::sync::watch::channel(false);
+    if with_stdin {
+        stop_when_stdin_closes(stop_tx.clone())?;
+    }
+    ctrlc::set_handler(move || {
+        let _ = stop_tx.send(true);
+    })
+    .context("cannot install the Ctrl-C handler")?;
+    Ok(stop_rx)
+}
+
+/// Sends `stop` once standard input reaches its end. A parent that holds the other end of the pipe closes
+/// it however it ends (even SIGKILL), so a runtime started by the studio never outlives it.
+fn stop_when_stdin_closes(stop: tokio::sync::watch::Sender<bool>) -> anyhow::Result<()> {
+    std::thread::Builder::new()
+        .name("k:stdin".to_owned())
+        .spawn(move || {
+            // Whatever arrives is ignored: only the end matters. A read error ends the wait too, as an
+            // input that cannot be read cannot tell when the parent ends.
+            let _ = std::io::copy(&mut std::io::stdin().lock(), &mut std::io::sink());
+            tracing::info!("standard input closed: stopping");
+            let _ = stop.send(true);
+        })
+        .context("cannot start the thread that watches standard input")?;
+    Ok(())
+}
+
+/// Removes a token made for one run, and its folder when nothing else is in it.
+fn remove_temporary_token(path: &std::path::Path) {
+    if let Err(error) = std::fs::remove_file(path)
+        && error.kind() != std::io::ErrorKind::NotFound
+    {
+        tracing::warn!("cannot remove the token file {}: {error}", path.display());
+    }
+    // Only succeeds when empty, which is the point: a folder holding anything else is the user's.
+    if let Some(folder) = path.parent() {
+        let _ = std::fs::remove_dir(folder);
+    }
 }
 
 /// Tells a client over the connection limit why it is turned away.
