@@ -519,7 +519,11 @@ impl eframe::App for StudioApp {
     fn ui(&mut self, ui: &mut egui::Ui, _frame: &mut eframe::Frame) {
         if let Some((since, frames)) = &mut self.frame_trace {
             *frames += 1;
-            eprintln!("studio frame {frames} at {} ms", since.elapsed().as_millis());
+            eprintln!(
+                "studio frame {frames} at {} ms ({:?})",
+                since.elapsed().as_millis(),
+                ui.ctx().repaint_causes()
+            );
         }
         self.show(ui);
     }

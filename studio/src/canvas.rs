@@ -232,9 +232,12 @@ fn input_ui(ui: &egui::Ui, frame: &Frame<'_>, component: &str, spot: &PortSpot, 
     } else if response.hovered() {
         response.on_hover_text(format!("{}: {} ({accepts})", spot.name, input.doc));
     }
-    // While a connection is dragged, each input says whether it would take it.
+    // While a connection is dragged, each input says whether it would take it: another component's, of
+    // a type it accepts, and not fed already.
     let fit = frame.dragging.as_ref().map(|(from, data_type)| {
-        from.component != component && data_type.as_ref().is_none_or(|t| input.filter.accepts(t))
+        from.component != component
+            && data_type.as_ref().is_none_or(|t| input.filter.accepts(t))
+            && !frame.diagram.connections.iter().any(|c| c.to == port)
     });
     let look = PortLook {
         name: &spot.name,
@@ -573,9 +576,11 @@ impl Canvas {
             self.notice = None;
             return;
         }
-        let at = self.to_screen * notice.at + Vec2::new(14.0, 14.0);
+        // Above the pointer, where the port's own tooltip (below it) does not cover it.
+        let at = self.to_screen * notice.at + Vec2::new(14.0, -14.0);
         egui::Area::new(egui::Id::unique("canvas refusal"))
             .order(egui::Order::Foreground)
+            .pivot(egui::Align2::LEFT_BOTTOM)
             .fixed_pos(at)
             .constrain_to(ui.clip_rect())
             .interactable(false)

@@ -17,7 +17,7 @@ use std::time::Duration;
 
 use kairos_protocol::{
     ErrorCode, LogRecord, PROTOCOL_VERSION, ProtocolError, Reply, ReplyBody, Request, RequestBody,
-    RequestKind, Role, ServerMessage, Telemetry, Token, Welcome,
+    RequestKind, Role, RuntimeState, ServerMessage, Telemetry, Token, Welcome,
 };
 use tungstenite::stream::MaybeTlsStream;
 use tungstenite::{Message, WebSocket};
@@ -105,6 +105,8 @@ pub struct EventSender {
     sender: SyncSender<ClientEvent>,
     dropped: Arc<DropCounters>,
     wake: Wake,
+    /// The last telemetry passed on while nothing ran, its time left out.
+    resting: Arc<std::sync::Mutex<Option<Telemetry>>>,
 }
 
 impl std::fmt::Debug for EventSender {
@@ -117,6 +119,11 @@ impl EventSender {
     /// Hands `event` to the interface and wakes it. Telemetry, samples and log records are dropped and
     /// counted when the queue is full; other events wait for room. False once the interface is gone.
     pub fn send(&self, event: ClientEvent) -> bool {
+        if let ClientEvent::Telemetry(telemetry) = &event
+            && self.unchanged_at_rest(telemetry)
+        {
+            return true;
+        }
         let counter = match &event {
             ClientEvent::Sample(..) => Some(&self.dropped.samples),
             ClientEvent::Telemetry(_) => Some(&self.dropped.telemetry),
@@ -141,6 +148,38 @@ impl EventSender {
             (self.wake)();
         }
         sent
+    }
+}
+
+impl EventSender {
+    fn new(sender: SyncSender<ClientEvent>, wake: Wake) -> EventSender {
+        EventSender {
+            sender,
+            dropped: Arc::new(DropCounters::default()),
+            wake,
+            resting: Arc::new(std::sync::Mutex::new(None)),
+        }
+    }
+
+    /// Whether `telemetry` says what the last one said while nothing runs: then it changes nothing on the
+    /// screen and is not passed on, so a studio at rest draws nothing.
+    fn unchanged_at_rest(&self, telemetry: &Telemetry) -> bool {
+        let Ok(mut resting) = self.resting.lock() else {
+            return false;
+        };
+        if matches!(telemetry.state, RuntimeState::Running | RuntimeState::Paused) {
+            *resting = None;
+            return false;
+        }
+        let timeless = Telemetry {
+            at_ns: 0,
+            ..telemetry.clone()
+        };
+        if resting.as_ref() == Some(&timeless) {
+            return true;
+        }
+        *resting = Some(timeless);
+        false
     }
 }
 
@@ -187,11 +226,7 @@ impl RuntimeClient {
     ) -> RuntimeClient {
         let (outgoing, requests) = channel::<Request>();
         let (sender, incoming) = sync_channel(EVENT_QUEUE);
-        let events = EventSender {
-            sender,
-            dropped: Arc::new(DropCounters::default()),
-            wake: Arc::new(wake),
-        };
+        let events = EventSender::new(sender, Arc::new(wake));
         let address = url.to_owned();
         let thread_events = events.clone();
         let spawned = std::thread::Builder::new()
@@ -467,7 +502,7 @@ mod tests {
     use std::sync::mpsc::sync_channel;
     use std::time::Duration;
 
-    use super::{ClientEvent, DropCounters, EventSender};
+    use super::{ClientEvent, EventSender};
 
     fn telemetry() -> ClientEvent {
         let telemetry = serde_json::json!({"at_ns": 1, "state": "running", "links": [], "components": []});
@@ -486,11 +521,7 @@ mod tests {
     #[test]
     fn a_full_queue_drops_and_counts_telemetry_but_waits_to_deliver_replies() {
         let (sender, receiver) = sync_channel(2);
-        let events = EventSender {
-            sender,
-            dropped: Arc::new(DropCounters::default()),
-            wake: Arc::new(|| {}),
-        };
+        let events = EventSender::new(sender, Arc::new(|| {}));
         for _ in 0..3 {
             assert!(events.send(telemetry()));
         }
@@ -516,5 +547,38 @@ mod tests {
         assert!(thread.join().unwrap());
         let next = receiver.recv_timeout(Duration::from_secs(5)).unwrap();
         assert!(matches!(next, ClientEvent::Reply(r) if r.id == Some(7)));
+    }
+
+    #[test]
+    fn telemetry_that_changes_nothing_while_nothing_runs_is_not_passed_on() {
+        let (sender, receiver) = sync_channel(16);
+        let events = EventSender::new(sender, Arc::new(|| {}));
+        let at = |at_ns: i64, state: &str| {
+            let telemetry =
+                serde_json::json!({"at_ns": at_ns, "state": state, "links": [], "components": []});
+            ClientEvent::Telemetry(serde_json::from_value(telemetry).unwrap())
+        };
+        for (at_ns, state) in [
+            (1, "running"),
+            (2, "running"),
+            (3, "ready"),
+            (4, "ready"),
+            (5, "ready"),
+        ] {
+            assert!(events.send(at(at_ns, state)));
+        }
+        assert!(events.send(at(6, "running")));
+        let passed: Vec<i64> = receiver
+            .try_iter()
+            .map(|e| match e {
+                ClientEvent::Telemetry(t) => t.at_ns,
+                _ => unreachable!(),
+            })
+            .collect();
+        assert_eq!(
+            passed,
+            [1, 2, 3, 6],
+            "the same figures again at rest are left out"
+        );
     }
 }

@@ -43,6 +43,14 @@ pub struct Connection {
     restart: Option<Restart>,
 }
 
+/// What the connection calls when an event arrives: one repaint. egui answers an immediate request with two
+/// frames (to let things settle) but a delayed one with a single frame, and a millisecond is nothing to a
+/// person: half the frames while a diagram runs.
+pub fn repaint_once(ctx: &egui::Context) -> impl Fn() + Send + Sync + 'static {
+    let ctx = ctx.clone();
+    move || ctx.request_repaint_after(std::time::Duration::from_millis(1))
+}
+
 impl Connection {
     /// A connection through `client` (none: editing only), to `local` when the studio started it.
     pub fn new(client: Option<RuntimeClient>, local: Option<LocalRuntime>) -> Connection {
@@ -78,10 +86,7 @@ impl Connection {
         token: Option<Token>,
         label: String,
     ) {
-        let waker = ctx.clone();
-        self.client = Some(RuntimeClient::connect(url, token, move || {
-            waker.request_repaint();
-        }));
+        self.client = Some(RuntimeClient::connect(url, token, repaint_once(ctx)));
         session.connecting(label, url);
     }
 

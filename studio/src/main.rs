@@ -143,7 +143,9 @@ fn main() -> ExitCode {
                 kairos_studio::cloud3d::install(render_state);
             }
             let ctx = creation.egui_ctx.clone();
-            let client = url.map(|url| RuntimeClient::connect(&url, token, move || ctx.request_repaint()));
+            let client = url.map(|url| {
+                RuntimeClient::connect(&url, token, kairos_studio::connection::repaint_once(&ctx))
+            });
             let mut app = StudioApp::new(
                 document,
                 kairos_diagram::LibraryInfo::default(),
