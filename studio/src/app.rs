@@ -207,7 +207,9 @@ impl StudioApp {
                 .size_range(300.0..=900.0)
                 .show(ui, |ui| self.session.viewers.show_docked(ui));
         }
+        // Top and bottom panels are fixed unless asked: the log is the one people make taller.
         egui::Panel::bottom("log")
+            .resizable(true)
             .default_size(150.0)
             .size_range(60.0..=500.0)
             .show(ui, |ui| {

@@ -398,3 +398,19 @@ fn a_number_refused_or_clamped_is_said_at_the_field_and_in_the_log() {
             .collect::<Vec<_>>()
     );
 }
+
+#[test]
+fn the_log_panel_is_made_taller_by_dragging_its_edge() {
+    let mut harness = studio();
+    let tab =
+        |harness: &Harness<'_, StudioApp>| harness.get_by_role_and_label(Role::Button, "Log").rect().top();
+    let before = tab(&harness);
+    // The panel's edge is a few points above its first row.
+    let edge = Pos2::new(600.0, before - 8.0);
+    drag(&mut harness, edge, edge - Vec2::new(0.0, 200.0));
+    let after = tab(&harness);
+    assert!(
+        before - after > 150.0,
+        "the log's tabs moved from {before} to {after}"
+    );
+}
