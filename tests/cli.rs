@@ -217,3 +217,17 @@ fn an_overflowing_link_is_named_at_most_once_a_second() {
         "the warning says how to fix it: {stderr}"
     );
 }
+
+#[test]
+fn logs_written_to_a_file_carry_no_colour_codes() {
+    let dir = tempfile::tempdir().unwrap();
+    let hello = example("hello");
+    let output = kairos(dir.path(), &["run", hello.to_str().unwrap(), "--for", "300ms"]);
+    let (_, stderr) = text(&output);
+    assert!(output.status.success(), "{stderr}");
+    assert!(stderr.contains("INFO"), "there are log lines: {stderr}");
+    assert!(
+        !stderr.contains('\u{1b}'),
+        "standard error is a pipe here, as a file or journald would be: {stderr:?}"
+    );
+}

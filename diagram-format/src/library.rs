@@ -334,6 +334,19 @@ pub enum ValueError {
     },
 }
 
+/// A number as people read it: short even when huge or tiny (-1e308, not 309 digits).
+struct Readable(f64);
+
+impl fmt::Display for Readable {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        if self.0.abs() >= 1e15 || (self.0 != 0.0 && self.0.abs() < 1e-6) {
+            write!(f, "{:e}", self.0)
+        } else {
+            write!(f, "{}", self.0)
+        }
+    }
+}
+
 impl PropertyKind {
     /// A short description for messages and listings (`f64 in [0, 100]`).
     pub fn describe(&self) -> String {
@@ -346,7 +359,10 @@ impl PropertyKind {
             }
         }
         match self {
-            PropertyKind::F64 { min, max } => format!("f64{}", range(min.as_ref(), max.as_ref())),
+            PropertyKind::F64 { min, max } => format!(
+                "f64{}",
+                range(min.map(Readable).as_ref(), max.map(Readable).as_ref())
+            ),
             PropertyKind::I64 { min, max } => format!("i64{}", range(min.as_ref(), max.as_ref())),
             PropertyKind::Bool => "bool".to_owned(),
             PropertyKind::Text => "text".to_owned(),
@@ -369,7 +385,7 @@ impl PropertyKind {
                 let above = max.is_some_and(|hi| v > hi);
                 if below || above || v.is_nan() {
                     return Err(ValueError::OutOfRange {
-                        value: v.to_string(),
+                        value: Readable(v).to_string(),
                         range: self.describe(),
                     });
                 }
@@ -595,5 +611,27 @@ impl LibraryInfo {
             .get(&instance.id)
             .filter(|info| info.type_name == instance.type_name)
             .or_else(|| self.component(&instance.type_name))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::{PropertyKind, Value, ValueError};
+
+    #[test]
+    fn numbers_in_range_errors_stay_short() {
+        let kind = PropertyKind::F64 {
+            min: Some(0.0),
+            max: Some(1e300),
+        };
+        let error = kind.check(&Value::F64(-1e308)).unwrap_err();
+        assert_eq!(
+            error,
+            ValueError::OutOfRange {
+                value: "-1e308".to_owned(),
+                range: "f64 in [0, 1e300]".to_owned(),
+            }
+        );
+        assert_eq!(error.to_string(), "-1e308 is out of range f64 in [0, 1e300]");
     }
 }

@@ -201,10 +201,14 @@ fn summarize(path: &Path, diagnostics: &[Diagnostic]) -> String {
 
 /// Reads and parses a diagram file; returns its text (for rendering later diagnostics) with the result.
 pub fn load(path: &Path) -> Result<(String, ParsedDiagram), LoadError> {
-    let text = std::fs::read_to_string(path).map_err(|source| LoadError::Io {
+    let bytes = std::fs::read(path).map_err(|source| LoadError::Io {
         path: path.to_owned(),
         source,
     })?;
+    let text = match String::from_utf8(bytes) {
+        Ok(text) => text,
+        Err(error) => return Err(not_utf8(path, &error)),
+    };
     match parse(&text) {
         Ok(parsed) => Ok((text, parsed)),
         Err(diagnostics) => Err(LoadError::Invalid {
@@ -212,6 +216,33 @@ pub fn load(path: &Path) -> Result<(String, ParsedDiagram), LoadError> {
             text,
             diagnostics,
         }),
+    }
+}
+
+/// A file that is not UTF-8 text, located at its first bad byte (rendered over the text up to there).
+fn not_utf8(path: &Path, error: &std::string::FromUtf8Error) -> LoadError {
+    let good = error.utf8_error().valid_up_to();
+    let bytes = error.as_bytes();
+    let bad = bytes.get(good).copied().unwrap_or_default();
+    // The valid part, and the bad byte shown as the replacement character, so the location renders.
+    let text = format!(
+        "{}\u{fffd}",
+        String::from_utf8_lossy(bytes.get(..good).unwrap_or_default())
+    );
+    let location = LineIndex::new(&text).location(good, good + '\u{fffd}'.len_utf8());
+    LoadError::Invalid {
+        path: path.to_owned(),
+        diagnostics: vec![
+            Diagnostic::error(
+                DiagnosticCode::Syntax,
+                format!(
+                    "the file is not UTF-8 text: byte 0x{bad:02x} here cannot be read; save the file as \
+                     UTF-8 (most editors offer it under Save as or Encoding)"
+                ),
+            )
+            .at(Some(location)),
+        ],
+        text,
     }
 }
 
@@ -703,6 +734,32 @@ mod tests {
         let parsed = parse("Diagram(format: 1)").unwrap();
         assert_eq!(parsed.diagram, Diagram::default());
         assert_eq!(parsed.source_map.format.column, 17);
+    }
+
+    #[test]
+    fn a_byte_order_mark_at_the_start_is_accepted_and_anywhere_else_refused() {
+        let parsed = parse("\u{feff}// saved by an editor that marks UTF-8\nDiagram(format: 1)").unwrap();
+        assert_eq!(parsed.diagram, Diagram::default());
+        assert_eq!(parsed.source_map.format.line, 2);
+        assert!(parse("Diagram(\u{feff}format: 1)").is_err());
+    }
+
+    #[test]
+    fn a_file_that_is_not_utf8_is_refused_at_its_first_bad_byte() {
+        let dir = std::env::temp_dir().join(format!("kairos-utf8-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("latin1.ron");
+        // "é" written in Latin-1 on the third line, after two characters.
+        std::fs::write(&path, b"Diagram(\n  format: 1,\n  /* \xe9 */\n)").unwrap();
+        let error = load(&path).unwrap_err();
+        let LoadError::Invalid { diagnostics, .. } = &error else {
+            panic!("{error}");
+        };
+        let location = diagnostics[0].location.unwrap();
+        assert_eq!((location.line, location.column), (3, 6));
+        assert!(error.to_string().contains("not UTF-8 text: byte 0xe9"), "{error}");
+        assert!(error.render().contains("latin1.ron:3:6"), "{}", error.render());
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 
     #[test]

@@ -199,6 +199,10 @@ impl Parser<'_> {
                 (Some(c), _) if c.is_whitespace() => {
                     self.bump();
                 }
+                // A byte-order mark, which some editors write at the start of a UTF-8 file.
+                (Some('\u{feff}'), _) if self.pos == 0 => {
+                    self.bump();
+                }
                 (Some('/'), Some('/')) => {
                     while let Some(c) = self.bump() {
                         if c == '\n' {

@@ -166,8 +166,8 @@ impl<'a> Validator<'a> {
                 Ok(wanted) => wanted,
                 Err(error) => {
                     let message = format!(
-                        "invalid version requirement '{}' for pack '{}': {error}",
-                        requirement.version, requirement.name
+                        "the `version` of pack '{}' is {:?}, not a version requirement: {error}",
+                        requirement.name, requirement.version
                     );
                     let diagnostic = Diagnostic::error(DiagnosticCode::InvalidVersionRequirement, message)
                         .at(at.map(|l| l.version))

@@ -169,6 +169,14 @@ pub enum NewCommand {
     },
 }
 
+/// Whether log lines may carry colour codes: only to a terminal, and not when `NO_COLOR` is set to anything
+/// but the empty text (<https://no-color.org>). A file or journald gets plain text.
+fn colour_logs() -> bool {
+    use std::io::IsTerminal as _;
+    let no_color = std::env::var_os("NO_COLOR").is_some_and(|v| !v.is_empty());
+    std::io::stderr().is_terminal() && !no_color
+}
+
 /// Sets up logging to standard error.
 pub fn init_logging(verbose: u8) {
     use tracing_subscriber::layer::SubscriberExt as _;
@@ -185,6 +193,7 @@ pub fn init_logging(verbose: u8) {
         .with(
             tracing_subscriber::fmt::layer()
                 .with_writer(std::io::stderr)
+                .with_ansi(colour_logs())
                 .with_target(false),
         )
         .with(crate::log_tap::LogTap)

@@ -55,6 +55,17 @@ pub enum PackLoadError {
     /// A string field is not UTF-8 or the name is empty.
     #[error("invalid {0} in the pack descriptor")]
     BadField(&'static str),
+    /// The pack's version is not a semantic version.
+    #[error(
+        "the pack descriptor's `version` field is {value:?}, not a semantic version ({reason}); write \
+         MAJOR.MINOR.PATCH, e.g. \"0.1.0\", in the pack's Cargo.toml or export_pack! call"
+    )]
+    BadVersion {
+        /// The version text found.
+        value: String,
+        /// Why it does not read.
+        reason: String,
+    },
     /// A component descriptor could not be read.
     #[error("component {index}: descriptor is not valid JSON for this SDK: {reason}")]
     BadComponent {
@@ -186,6 +197,19 @@ fn check_elf(_path: &Path) -> Result<(), PackLoadError> {
     Ok(())
 }
 
+/// A pack names itself and gives a semantic version.
+fn check_identity(name: &str, version: &str) -> Result<(), PackLoadError> {
+    if name.is_empty() {
+        return Err(PackLoadError::BadField("pack name (it is empty)"));
+    }
+    semver::Version::parse(version)
+        .map(|_| ())
+        .map_err(|error| PackLoadError::BadVersion {
+            value: version.to_owned(),
+            reason: error.to_string(),
+        })
+}
+
 /// Opens `path`, checks its descriptor entirely, and keeps the library loaded for good.
 pub fn load_pack(path: &Path) -> Result<LoadedPack, PackLoadError> {
     check_elf(path)?;
@@ -218,9 +242,7 @@ pub fn load_pack(path: &Path) -> Result<LoadedPack, PackLoadError> {
     let name = text(descriptor.name, "pack name")?;
     let version = text(descriptor.version, "pack version")?;
     let sdk_version = text(descriptor.sdk_version, "SDK version")?;
-    if name.is_empty() || semver::Version::parse(&version).is_err() {
-        return Err(PackLoadError::BadField("pack name or semantic version"));
-    }
+    check_identity(&name, &version)?;
     if !sdk_compatible(&sdk_version) {
         return Err(PackLoadError::SdkVersion {
             found: sdk_version,
@@ -307,4 +329,25 @@ fn cause_of(error: &libloading::Error) -> String {
         source = cause.source();
     }
     text
+}
+
+#[cfg(test)]
+mod tests {
+    use super::check_identity;
+
+    #[test]
+    fn a_bad_pack_version_is_named_with_its_field_and_value() {
+        assert!(check_identity("vision", "0.1.0").is_ok());
+        let error = check_identity("vision", "v1").unwrap_err().to_string();
+        assert!(
+            error.starts_with("the pack descriptor's `version` field is \"v1\", not a semantic version"),
+            "{error}"
+        );
+        assert!(
+            check_identity("", "0.1.0")
+                .unwrap_err()
+                .to_string()
+                .contains("pack name")
+        );
+    }
 }
