@@ -224,6 +224,17 @@ fn wrong_or_missing_tokens_and_versions_are_refused() {
     let _machine = shared_machine();
     let dir = tempfile::tempdir().unwrap();
     let server = serve(dir.path(), &[]);
+    let monitor = std::fs::read_to_string(dir.path().join("monitor.txt"))
+        .unwrap()
+        .trim()
+        .to_owned();
+    // The monitor token grants monitor whether or not the client asks for it.
+    let mut socket = connect(&server);
+    let reply = call(
+        &mut socket,
+        &json!({"id": 1, "type": "hello", "protocol": 1, "client": "t", "token": monitor}),
+    );
+    assert_eq!(reply["result"]["role"], "monitor", "{reply}");
     for (hello_request, code) in [
         (
             json!({"id": 1, "type": "hello", "protocol": 1, "client": "t", "token": "x".repeat(64)}),
@@ -238,6 +249,10 @@ fn wrong_or_missing_tokens_and_versions_are_refused() {
             "unsupported_version",
         ),
         (json!({"id": 1, "type": "status"}), "unauthorized"),
+        (
+            json!({"id": 1, "type": "hello", "protocol": 1, "client": "t", "token": monitor, "role": "operator"}),
+            "forbidden",
+        ),
     ] {
         let mut socket = connect(&server);
         let reply = call(&mut socket, &hello_request);
@@ -271,6 +286,18 @@ fn bad_messages_get_error_replies_and_the_server_carries_on() {
             "unknown component type",
         ),
         (r#"{"id": 9, "type": "start"}"#, "deploy a diagram first"),
+        (
+            r#"{"id": 12, "type": "set_property", "component": "a", "property": "p", "value": null}"#,
+            "\"value\" must be a boolean, a number or a text, not null",
+        ),
+        (
+            r#"{"id": 13, "type": "subscribe_samples", "outputs": [], "max_rate_hz": 500}"#,
+            "at most 120",
+        ),
+        (
+            r#"{"id": 14, "type": "subscribe_samples", "outputs": [], "max_rate_hz": 0}"#,
+            "must be above 0",
+        ),
     ] {
         socket.send(Message::text(message)).unwrap();
         let reply = next_reply(&mut socket);
@@ -298,24 +325,26 @@ fn bad_messages_get_error_replies_and_the_server_carries_on() {
         .count();
     assert_eq!(errors, 2, "{reply}");
 
-    // Too large: refused, the connection closes, and the server still serves others.
-    let huge = format!(
-        r#"{{"id": 11, "type": "deploy", "diagram": "{}"}}"#,
-        "x".repeat(5 << 20)
-    );
-    let _ = socket.send(Message::text(huge));
-    let mut closed = false;
-    for _ in 0..10 {
-        match socket.read() {
-            Ok(Message::Text(text)) if text.as_str().contains("too_large") => {}
-            Ok(Message::Close(_)) | Err(_) => {
-                closed = true;
-                break;
+    // Too large: the reply, then close code 1009, every time; and the server still serves others.
+    for size in [(4 << 20) + 1, 10 << 20, 4 << 20, 10 << 20, 5 << 20] {
+        let mut socket = operator(&server);
+        let huge = format!(
+            r#"{{"id": 11, "type": "deploy", "diagram": "{}"}}"#,
+            "x".repeat(size)
+        );
+        socket.send(Message::text(huge)).unwrap();
+        let reply = next_reply(&mut socket);
+        assert_eq!(reply["error"]["code"], "too_large", "{size} bytes: {reply}");
+        let close = loop {
+            match socket.read() {
+                Ok(Message::Close(frame)) => break frame,
+                Ok(_) => {}
+                Err(error) => panic!("{size} bytes: no close frame after the reply: {error}"),
             }
-            Ok(_) => {}
-        }
+        };
+        let code = close.map(|f| u16::from(f.code));
+        assert_eq!(code, Some(1009), "{size} bytes");
     }
-    assert!(closed, "an oversized message ends the connection");
     let mut again = operator(&server);
     assert_eq!(state(&mut again), "empty");
 }

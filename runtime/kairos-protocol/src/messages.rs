@@ -444,6 +444,21 @@ impl ServerMessage {
     }
 }
 
+/// What is wrong with a `set_property`'s `value`, in words naming the field; none when it can be a value.
+fn property_value_problem(value: Option<&serde_json::Value>) -> Option<String> {
+    let found = match value? {
+        serde_json::Value::Bool(_) | serde_json::Value::Number(_) | serde_json::Value::String(_) => {
+            return None;
+        }
+        serde_json::Value::Null => "null",
+        serde_json::Value::Array(_) => "a list",
+        serde_json::Value::Object(_) => "an object",
+    };
+    Some(format!(
+        "\"value\" must be a boolean, a number or a text, not {found}"
+    ))
+}
+
 /// Decodes a client's text message. On failure, the error names what is wrong and carries the request's
 /// `id` when one could be read, so the reply can still be matched.
 pub fn decode_request(text: &str) -> Result<Request, (Option<u64>, ProtocolError)> {
@@ -490,6 +505,14 @@ pub fn decode_request(text: &str) -> Result<Request, (Option<u64>, ProtocolError
                 ErrorCode::BadRequest,
                 format!("unknown request type '{kind}'; known: {}", names.join(", ")),
             ),
+        ));
+    }
+    if kind == "set_property"
+        && let Some(problem) = property_value_problem(object.get("value"))
+    {
+        return Err((
+            id,
+            ProtocolError::new(ErrorCode::BadRequest, format!("'set_property': {problem}")),
         ));
     }
     serde_json::from_value(value).map_err(|e| {

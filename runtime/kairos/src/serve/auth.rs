@@ -87,9 +87,9 @@ impl Access {
                 ),
             ));
         }
-        let wanted = wanted.unwrap_or(Role::Operator);
+        let asked = wanted;
         if !self.requires_token() {
-            return Ok(wanted);
+            return Ok(asked.unwrap_or(Role::Operator));
         }
         let Some(token) = token else {
             return Err(ProtocolError::new(
@@ -100,11 +100,13 @@ impl Access {
         // `Token`'s equality is `tokens_match`: constant time.
         let is_operator = self.operator.as_ref() == Some(token);
         let is_monitor = self.monitor.as_ref() == Some(token);
-        match (is_operator, is_monitor, wanted) {
-            (true, _, role) | (false, true, role @ Role::Monitor) => Ok(role),
-            (false, true, Role::Operator) => Err(ProtocolError::new(
+        match (is_operator, is_monitor, asked) {
+            (true, _, role) => Ok(role.unwrap_or(Role::Operator)),
+            // A monitor token grants monitor, whether or not the client said so.
+            (false, true, None | Some(Role::Monitor)) => Ok(Role::Monitor),
+            (false, true, Some(Role::Operator)) => Err(ProtocolError::new(
                 ErrorCode::Forbidden,
-                "this token grants the monitor role only: ask for \"role\": \"monitor\"",
+                "this token grants the monitor role only: ask for \"role\": \"monitor\", or leave role out",
             )),
             (false, false, _) => Err(ProtocolError::new(ErrorCode::Unauthorized, "wrong token")),
         }
@@ -136,7 +138,11 @@ mod tests {
             Ok(Role::Monitor)
         );
         let code = |r: Result<Role, kairos_protocol::ProtocolError>| r.unwrap_err().code;
-        assert_eq!(code(access.grant(1, Some(&monitor), None)), ErrorCode::Forbidden);
+        assert_eq!(access.grant(1, Some(&monitor), None), Ok(Role::Monitor));
+        assert_eq!(
+            code(access.grant(1, Some(&monitor), Some(Role::Operator))),
+            ErrorCode::Forbidden
+        );
         assert_eq!(
             code(access.grant(1, Some(&Token::new("nope")), None)),
             ErrorCode::Unauthorized

@@ -20,7 +20,8 @@ use tokio::net::TcpStream;
 use tokio::sync::mpsc;
 use tokio::sync::mpsc::error::TrySendError;
 use tokio::task::JoinHandle;
-use tokio_tungstenite::tungstenite::protocol::WebSocketConfig;
+use tokio_tungstenite::tungstenite::protocol::frame::coding::CloseCode;
+use tokio_tungstenite::tungstenite::protocol::{CloseFrame, WebSocketConfig};
 use tokio_tungstenite::tungstenite::{Error as WsError, Message};
 
 use super::Shared;
@@ -32,10 +33,24 @@ const MIN_TELEMETRY_MS: u64 = 20;
 /// The most sample frames per second per output a client may ask for.
 const MAX_SAMPLE_RATE_HZ: f64 = 120.0;
 
+/// What the WebSocket layer reads before giving up on a message. Larger than [`MAX_MESSAGE_BYTES`] so that
+/// a message over the documented limit is read whole and refused with a reply and close code 1009: a
+/// connection dropped while the client still sends resets, and the client would never see the reply.
+const READ_LIMIT_BYTES: usize = 16 * MAX_MESSAGE_BYTES;
+
 fn websocket_config() -> WebSocketConfig {
     WebSocketConfig::default()
-        .max_message_size(Some(MAX_MESSAGE_BYTES))
-        .max_frame_size(Some(MAX_MESSAGE_BYTES))
+        .max_message_size(Some(READ_LIMIT_BYTES))
+        .max_frame_size(Some(READ_LIMIT_BYTES))
+}
+
+/// The reply to a message over [`MAX_MESSAGE_BYTES`].
+fn too_large(size: Option<usize>) -> ProtocolError {
+    let size = size.map_or_else(|| "a message".to_owned(), |s| format!("a message of {s} bytes"));
+    ProtocolError::new(
+        ErrorCode::TooLarge,
+        format!("{size} is over the limit of {MAX_MESSAGE_BYTES} bytes; the connection closes (code 1009)"),
+    )
 }
 
 /// Serves one connection until the client leaves or misbehaves.
@@ -71,6 +86,10 @@ pub async fn run(stream: TcpStream, peer: SocketAddr, shared: Arc<Shared>) {
     tracing::debug!("{peer}: connected");
     while let Some(message) = source.next().await {
         let keep_going = match message {
+            Ok(Message::Text(text)) if text.len() > MAX_MESSAGE_BYTES => {
+                session.close_too_large(Some(text.len()));
+                false
+            }
             Ok(Message::Text(text)) => session.handle(text.as_str()).await,
             Ok(Message::Binary(_)) => session.refuse(
                 None,
@@ -82,13 +101,8 @@ pub async fn run(stream: TcpStream, peer: SocketAddr, shared: Arc<Shared>) {
             Ok(Message::Close(_)) => false,
             Ok(_) => true,
             Err(WsError::Capacity(e)) => {
-                session.refuse(
-                    None,
-                    ProtocolError::new(
-                        ErrorCode::TooLarge,
-                        format!("{e}; the largest message accepted is {MAX_MESSAGE_BYTES} bytes"),
-                    ),
-                );
+                tracing::debug!("{peer}: {e}");
+                session.close_too_large(None);
                 false
             }
             Err(e) => {
@@ -150,6 +164,16 @@ impl Session {
 
     fn refuse(&self, id: Option<u64>, error: ProtocolError) -> bool {
         send(&self.out, &ServerMessage::error(id, error))
+    }
+
+    /// Refuses a message over the limit, then closes with 1009 (message too big), in that order.
+    fn close_too_large(&self, size: Option<usize>) {
+        self.refuse(None, too_large(size));
+        let frame = CloseFrame {
+            code: CloseCode::Size,
+            reason: format!("over {MAX_MESSAGE_BYTES} bytes").into(),
+        };
+        let _ = self.out.try_send(Message::Close(Some(frame)));
     }
 
     fn answer(&self, id: u64, outcome: Result<ReplyBody, ProtocolError>) -> bool {
@@ -498,11 +522,16 @@ impl Session {
                 ),
             ));
         }
-        let rate = if max_rate_hz.is_finite() && max_rate_hz > 0.0 {
-            max_rate_hz.min(MAX_SAMPLE_RATE_HZ)
-        } else {
-            10.0
-        };
+        if !(max_rate_hz > 0.0 && max_rate_hz <= MAX_SAMPLE_RATE_HZ) {
+            return Err(ProtocolError::new(
+                ErrorCode::InvalidValue,
+                format!(
+                    "max_rate_hz must be above 0 and at most {MAX_SAMPLE_RATE_HZ} frames a second per output, \
+                     not {max_rate_hz}; leave it out for 10"
+                ),
+            ));
+        }
+        let rate = max_rate_hz;
         if transport == SampleTransport::SharedMemory {
             return self.subscribe_shared(outputs, rate, max_image_width, pixels_in);
         }
