@@ -111,6 +111,7 @@ fn telemetry(diagram: &Diagram, tick: u64) -> kairos_protocol::Telemetry {
                 cycles: tick * 10,
                 cycle_rate_hz: 100.0,
                 cpu_share: 0.01,
+                missed_ticks: 0,
                 status: None,
             })
             .collect(),

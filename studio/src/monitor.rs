@@ -294,10 +294,13 @@ impl Monitor {
                 ui.separator();
                 egui::Grid::new("components")
                     .striped(true)
-                    .num_columns(6)
+                    .num_columns(7)
                     .show(ui, |ui| {
                         self.sort_header(ui, "component", SortBy::Name);
                         self.sort_header(ui, "state", SortBy::Trouble);
+                        ui.strong("missed ticks").on_hover_text(
+                            "periodic ticks skipped because a cycle took longer than its period",
+                        );
                         self.sort_header(ui, "cycles/s", SortBy::Rate);
                         ui.strong("last minute");
                         self.sort_header(ui, "CPU", SortBy::Cost);
@@ -316,6 +319,12 @@ impl Monitor {
                             if let Some(error) = &t.error {
                                 response.on_hover_text(error);
                             }
+                            let missed = RichText::new(t.missed_ticks.to_string());
+                            ui.label(if t.missed_ticks > 0 {
+                                missed.color(Color32::from_rgb(240, 110, 60))
+                            } else {
+                                missed
+                            });
                             ui.label(format!("{:.1}", t.cycle_rate_hz));
                             sparkline(ui, &component.rates, Color32::LIGHT_GREEN);
                             ui.label(format!("{:.1} %", t.cpu_share * 100.0));

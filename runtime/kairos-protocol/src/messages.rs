@@ -717,6 +717,9 @@ pub struct ComponentTelemetry {
     pub cycle_rate_hz: f64,
     /// Share of one core lately (0 to 1).
     pub cpu_share: f64,
+    /// Periodic ticks skipped so far because the component fell more than a period behind.
+    #[serde(default)]
+    pub missed_ticks: u64,
     /// What the component publishes about itself, when it does: a player's `position_s`, `duration_s`,
     /// `playing`, `speed`, `loop` and `tracks`; a recorder's `recording`, `path` and `bytes`.
     #[serde(default, skip_serializing_if = "Option::is_none")]

@@ -9,7 +9,9 @@ use std::time::{Duration, Instant};
 
 use kairos_diagram::{ComponentInfo, Diagram, ExecutionMode, ThreadSettings, Value};
 use kairos_sdk::host::{ContextHost as _, ContextParts, OutputBuffer, ReaderConfig};
-use kairos_sdk::{Clock, Component, ComponentError, ComponentResult, Context, Registry, RunSignal};
+use kairos_sdk::{
+    Clock, Component, ComponentError, ComponentResult, Context, Registry, RunSignal, Timestamp,
+};
 
 use crate::scheduling;
 use crate::stats::{ComponentState, ComponentStats, LinkStats, StatsSnapshot};
@@ -105,6 +107,8 @@ struct Monitor {
     state: Mutex<ComponentState>,
     cycles: AtomicU64,
     busy_nanos: AtomicU64,
+    /// Periodic ticks skipped because the component fell more than a period behind.
+    missed_ticks: AtomicU64,
     controls: Mutex<VecDeque<ControlRequest>>,
     status: kairos_sdk::host::StatusCell,
 }
@@ -122,6 +126,7 @@ impl Monitor {
             state: Mutex::new(ComponentState::Idle),
             cycles: AtomicU64::new(0),
             busy_nanos: AtomicU64::new(0),
+            missed_ticks: AtomicU64::new(0),
             controls: Mutex::new(VecDeque::new()),
             status,
         }
@@ -797,6 +802,7 @@ impl Engine {
                 state: slot.monitor.state(),
                 cycles: slot.monitor.cycles.load(Ordering::Relaxed),
                 busy_nanos: slot.monitor.busy_nanos.load(Ordering::Relaxed),
+                missed_ticks: slot.monitor.missed_ticks.load(Ordering::Relaxed),
                 cycle_rate_hz: 0.0,
                 cpu_share: 0.0,
                 status: slot.monitor.status.get(),
@@ -845,10 +851,53 @@ struct Worker {
     clock: Arc<dyn Clock>,
 }
 
+/// Missed periodic ticks not yet said in the log: at most one warning a second per component.
+#[derive(Default)]
+struct MissedTicks {
+    unsaid: u64,
+    last_said: Option<Instant>,
+}
+
+impl MissedTicks {
+    fn skipped(&mut self, id: &str, ticks: u64, period: Duration) {
+        self.unsaid += ticks;
+        if self
+            .last_said
+            .is_some_and(|at| at.elapsed() < Duration::from_secs(1))
+        {
+            return;
+        }
+        self.last_said = Some(Instant::now());
+        tracing::warn!(
+            component = id,
+            "'{id}' missed {} periodic ticks of {:.1} ms: a cycle, or the machine, took longer than its \
+             period; the ticks are skipped, not run late (lower its rate or lighten its work)",
+            std::mem::take(&mut self.unsaid),
+            period.as_secs_f64() * 1e3
+        );
+    }
+}
+
 /// How often a component's thread reads its own CPU time.
 const CPU_SAMPLE_PERIOD: Duration = Duration::from_millis(50);
 
 impl Worker {
+    /// The tick after `tick`. Fallen more than a period behind (a long cycle, a stall), it skips the missed
+    /// ticks, rather than run them back to back, and counts them.
+    fn next_tick(&self, tick: Timestamp, period: Duration, missed: &mut MissedTicks) -> Timestamp {
+        let next = tick.after(period);
+        let now = self.clock.now();
+        let behind = now.nanos_since(next);
+        let period_nanos = period.as_nanos().max(1) as i64;
+        if behind <= period_nanos {
+            return next;
+        }
+        let skipped = (behind / period_nanos) as u64;
+        self.monitor.missed_ticks.fetch_add(skipped, Ordering::Relaxed);
+        missed.skipped(&self.id, skipped, period);
+        now
+    }
+
     fn run(self, mut component: Box<dyn Component>, mut ctx: Context) {
         self.signal.bind_current_thread();
         scheduling::apply_to_current_thread(&self.id, &self.thread);
@@ -865,6 +914,7 @@ impl Worker {
             }
         };
         let mut next_tick = self.clock.now();
+        let mut missed = MissedTicks::default();
         let mut paused = false;
         while outcome.is_none() {
             if self.signal.stop_requested() {
@@ -922,12 +972,7 @@ impl Worker {
                 }
             }
             if let Some(period) = period {
-                next_tick = next_tick.after(period);
-                let now = self.clock.now();
-                // Fell more than a period behind (a long cycle, a stall): skip the missed ticks.
-                if now.nanos_since(next_tick) > period.as_nanos() as i64 {
-                    next_tick = now;
-                }
+                next_tick = self.next_tick(next_tick, period, &mut missed);
             }
             if cpu_checked.elapsed() >= CPU_SAMPLE_PERIOD {
                 cpu_checked = Instant::now();

@@ -64,6 +64,9 @@ pub struct ComponentStats {
     pub cycles: u64,
     /// CPU time spent by the component (its thread's CPU time; wall time in `core` for reactive ones).
     pub busy_nanos: u64,
+    /// Periodic ticks skipped because the component fell more than a period behind (0 for other modes).
+    #[serde(default)]
+    pub missed_ticks: u64,
     /// Cycles per second over the last interval.
     pub cycle_rate_hz: f64,
     /// Share of one core over the last interval (0.0 to 1.0).
@@ -158,19 +161,20 @@ impl StatsSnapshot {
         let _ = writeln!(out);
         let _ = writeln!(
             out,
-            "{:<width$}  {:<22} {:<8} {:>10} {:>9} {:>6}",
-            "component", "type", "state", "cycles", "cycles/s", "cpu%"
+            "{:<width$}  {:<22} {:<8} {:>10} {:>9} {:>6} {:>7}",
+            "component", "type", "state", "cycles", "cycles/s", "cpu%", "missed"
         );
         for component in &self.components {
             let _ = writeln!(
                 out,
-                "{:<width$}  {:<22} {:<8} {:>10} {:>9.1} {:>6.1}",
+                "{:<width$}  {:<22} {:<8} {:>10} {:>9.1} {:>6.1} {:>7}",
                 component.id,
                 component.type_name,
                 component.state.word(),
                 component.cycles,
                 component.cycle_rate_hz,
                 component.cpu_share * 100.0,
+                component.missed_ticks,
             );
             if let ComponentState::Failed(error) = &component.state {
                 let _ = writeln!(out, "{:<width$}    error: {error}", "");

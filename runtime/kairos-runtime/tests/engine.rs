@@ -46,6 +46,22 @@ impl Component for PanicsWhenMade {
     }
 }
 
+/// Periodic at 1 kHz, each cycle taking 5 ms: it cannot keep its rate.
+#[derive(Default)]
+struct SlowerThanItsPeriod;
+
+impl Component for SlowerThanItsPeriod {
+    fn birth(&mut self, ctx: &mut Context) -> ComponentResult {
+        ctx.set_period(Duration::from_millis(1));
+        Ok(())
+    }
+
+    fn core(&mut self, _ctx: &mut Context) -> ComponentResult {
+        sleep(Duration::from_millis(5));
+        Ok(())
+    }
+}
+
 fn registry() -> Registry {
     let mut registry = Registry::new();
     kairos_pack_core::register(&mut registry);
@@ -53,6 +69,11 @@ fn registry() -> Registry {
         .pack("faulty", "1.0.0", "test")
         .component::<PanicsWhenMade>(
             Descriptor::new("faulty.panics_when_made", "test", "Panics when made").build(),
+        )
+        .component::<SlowerThanItsPeriod>(
+            Descriptor::new("faulty.slower_than_its_period", "test", "Cycles of 5 ms at 1 kHz")
+                .mode(kairos_sdk::ExecutionMode::Periodic)
+                .build(),
         )
         .component::<PanicsOnThird>(
             Descriptor::new("faulty.panics_on_third", "test", "Panics on its third sample")
@@ -402,4 +423,45 @@ fn reactive_components_run_in_their_producer_and_output_subsampling_applies() {
     let double = snapshot.components.iter().find(|c| c.id == "double").unwrap();
     assert!(double.cycles as usize >= 2 * values.len() - 1, "{double:?}");
     assert_eq!(double.state, ComponentState::Stopped);
+}
+
+#[test]
+fn missed_periodic_ticks_are_counted() {
+    let d = diagram(
+        vec![
+            component("slow", "faulty.slower_than_its_period", &[]),
+            component("source", "core.sine", &[("rate", Value::F64(100.0))]),
+        ],
+        Vec::new(),
+    );
+    let mut engine = Engine::build(&d, &registry(), RealTimeClock::shared()).unwrap();
+    engine.start().unwrap();
+    sleep(Duration::from_millis(300));
+    let snapshot = engine.snapshot();
+    engine.stop();
+    let missed = |id: &str| {
+        snapshot
+            .components
+            .iter()
+            .find(|c| c.id == id)
+            .unwrap()
+            .missed_ticks
+    };
+    // About 4 of every 5 ticks are skipped: each 5 ms cycle spans five 1 ms periods.
+    let (slow_cycles, slow_missed) = (
+        snapshot
+            .components
+            .iter()
+            .find(|c| c.id == "slow")
+            .unwrap()
+            .cycles,
+        missed("slow"),
+    );
+    assert!(
+        slow_missed >= 2 * slow_cycles && slow_cycles > 10,
+        "{slow_cycles} cycles, {slow_missed} missed"
+    );
+    // A 100 Hz sine keeps its rate (a tick or two lost to a loaded machine is tolerated).
+    assert!(missed("source") <= 2, "{}", missed("source"));
+    assert!(snapshot.table().contains("missed"), "{}", snapshot.table());
 }

@@ -116,6 +116,7 @@ fn telemetry(snapshot: &StatsSnapshot, state: RuntimeState) -> Telemetry {
                 cycles: c.cycles,
                 cycle_rate_hz: c.cycle_rate_hz,
                 cpu_share: c.cpu_share,
+                missed_ticks: c.missed_ticks,
                 status: c.status.clone(),
             })
             .collect(),
