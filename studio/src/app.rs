@@ -201,12 +201,6 @@ impl StudioApp {
             .show(ui, |ui| {
                 crate::inspector::inspector_ui(ui, &self.session, &self.canvas, &mut self.commands);
             });
-        if self.session.viewers.any_docked() {
-            egui::Panel::right("viewers")
-                .default_size(470.0)
-                .size_range(300.0..=900.0)
-                .show(ui, |ui| self.session.viewers.show_docked(ui));
-        }
         // Top and bottom panels are fixed unless asked: the log is the one people make taller.
         egui::Panel::bottom("log")
             .resizable(true)
@@ -220,6 +214,14 @@ impl StudioApp {
                 .show(ui, |ui| self.transport.show(ui, &self.session.monitor))
                 .inner;
             self.commands.extend(requests.into_iter().map(Command::Request));
+        }
+        // After the log, so that the log spans under the canvas and the dock alike; bounded, so no
+        // viewer's contents widen it over the canvas.
+        if self.session.viewers.any_docked() {
+            egui::Panel::right("viewers")
+                .default_size(470.0)
+                .size_range(300.0..=900.0)
+                .show(ui, |ui| self.session.viewers.show_docked(ui));
         }
         let not_applied = self.session.not_applied();
         if !not_applied.is_empty() {
@@ -518,7 +520,7 @@ fn not_applied_ui(ui: &mut egui::Ui, edits: &[String], commands: &mut Vec<Comman
 }
 
 impl eframe::App for StudioApp {
-    fn ui(&mut self, ui: &mut egui::Ui, _frame: &mut eframe::Frame) {
+    fn ui(&mut self, ui: &mut egui::Ui, frame: &mut eframe::Frame) {
         if let Some((since, frames)) = &mut self.frame_trace {
             *frames += 1;
             eprintln!(
@@ -528,5 +530,8 @@ impl eframe::App for StudioApp {
             );
         }
         self.show(ui);
+        if let Some(render_state) = frame.wgpu_render_state() {
+            crate::cloud3d::forget(render_state, &self.session.viewers.take_closed_on_gpu());
+        }
     }
 }

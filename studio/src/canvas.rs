@@ -131,6 +131,11 @@ pub struct Canvas {
     rubber_band: Option<RubberBand>,
     /// An output the user asked to watch, until the studio takes it.
     viewer_request: Option<ViewerRequest>,
+    /// The size of the canvas on the screen last frame, to keep the zoom when it changes.
+    view_size: Option<Vec2>,
+    /// Frames left in which a fit follows the canvas's size instead of keeping the zoom: the panels
+    /// around it settle their sizes over the first frames after a fit (the studio's first frames too).
+    fit_frames: u8,
 }
 
 impl Default for Canvas {
@@ -146,6 +151,8 @@ impl Default for Canvas {
             to_screen: egui::emath::TSTransform::IDENTITY,
             rubber_band: None,
             viewer_request: None,
+            view_size: None,
+            fit_frames: 0,
         }
     }
 }
@@ -293,6 +300,7 @@ impl Canvas {
         let scene = egui::Scene::new().zoom_range(0.2..=3.0).drag_pan_buttons(
             egui::containers::DragPanButtons::MIDDLE | egui::containers::DragPanButtons::SECONDARY,
         );
+        self.keep_zoom(ui.available_rect_before_wrap().size());
         let mut scene_rect = self.scene_rect;
         // Zoomed far out, small text is unreadable and costly: only ids, boxes, curves and losses are drawn.
         let detail = self.to_screen.scaling >= DETAIL_SCALE;
@@ -684,11 +692,36 @@ impl Canvas {
         self.notice.as_ref().map(|n| n.text.as_str())
     }
 
+    /// When the canvas's room on the screen changes (a dock opens, the log grows, the window is resized),
+    /// shows more or less of the diagram at the same zoom, its top left corner in place: the scene would
+    /// otherwise squeeze the same part of the diagram into the new room and make its text unreadable.
+    fn keep_zoom(&mut self, size: Vec2) {
+        if self.fit_frames > 0 {
+            self.fit_frames -= 1;
+            self.view_size = Some(size);
+            return;
+        }
+        if let Some(before) = self.view_size.replace(size)
+            && before != size
+            && before.x > 0.0
+            && before.y > 0.0
+        {
+            let scale = Vec2::new(size.x / before.x, size.y / before.y);
+            self.scene_rect = Rect::from_min_size(self.scene_rect.min, self.scene_rect.size() * scale);
+        }
+    }
+
+    /// How many screen points one unit of the diagram takes, as of the last frame.
+    pub fn zoom(&self) -> f32 {
+        self.to_screen.scaling
+    }
+
     /// Frames the whole diagram in view.
     pub fn fit(&mut self, document: &Document, library: &LibraryInfo) {
         let bounds = Layout::of(document.diagram(), library).bounds();
         if bounds.is_positive() {
             self.scene_rect = bounds.expand(60.0);
+            self.fit_frames = 3;
         }
     }
 }

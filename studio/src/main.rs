@@ -130,10 +130,15 @@ fn main() -> ExitCode {
         (None, Some(url)) => format!("runtime {url}"),
         _ => "no runtime".to_owned(),
     };
-    let options = eframe::NativeOptions {
+    let mut options = eframe::NativeOptions {
         viewport: egui::ViewportBuilder::default().with_inner_size([1280.0, 800.0]),
         ..Default::default()
     };
+    options.wgpu_options.wgpu_setup =
+        eframe::egui_wgpu::WgpuSetup::CreateNew(eframe::egui_wgpu::WgpuSetupCreateNew {
+            native_adapter_selector: Some(std::sync::Arc::new(kairos_studio::cloud3d::choose_adapter)),
+            ..eframe::egui_wgpu::WgpuSetupCreateNew::without_display_handle()
+        });
     let result = eframe::run_native(
         "Kairos studio",
         options,

@@ -8,7 +8,7 @@ use std::collections::VecDeque;
 use std::sync::Arc;
 
 use egui::{Color32, ColorImage, RichText, TextureHandle, TextureOptions, Vec2};
-use egui_plot::{Legend, Line, Plot, PlotPoints, Points};
+use egui_plot::{Line, Plot, PlotPoints, Points};
 use kairos_protocol::frame::SampleHeader;
 
 use crate::cloud3d::{CloudCallback, ColorBy, GpuCloud, OrbitCamera};
@@ -17,8 +17,19 @@ use crate::cloud3d::{CloudCallback, ColorBy, GpuCloud, OrbitCamera};
 const SERIES_POINTS: usize = 10_000;
 /// The most rows a table keeps.
 const TABLE_ROWS: usize = 200;
-/// The time window a live plot follows, in seconds.
+/// The time window a live plot follows unless the user changes it, in seconds.
 const LIVE_WINDOW_S: f64 = 10.0;
+/// Colours of a plot's series, in order, so that the legend above the plot can name them.
+const SERIES_COLORS: [Color32; 8] = [
+    Color32::from_rgb(100, 170, 255),
+    Color32::from_rgb(255, 150, 80),
+    Color32::from_rgb(120, 210, 120),
+    Color32::from_rgb(240, 100, 110),
+    Color32::from_rgb(190, 140, 255),
+    Color32::from_rgb(230, 210, 90),
+    Color32::from_rgb(90, 210, 210),
+    Color32::from_rgb(200, 200, 200),
+];
 /// A timestamp this far before the previous one means time went back (nanoseconds).
 const TIME_JUMP_NS: i64 = 500_000_000;
 /// Mean Earth radius (IUGG), for the local projection of GNSS fixes.
@@ -121,6 +132,8 @@ pub struct Viewer {
     camera: OrbitCamera,
     color_by: ColorBy,
     point_size: f32,
+    /// The seconds a live plot shows.
+    window_s: f64,
 }
 
 impl std::fmt::Debug for Viewer {
@@ -306,7 +319,13 @@ impl Viewer {
             camera: OrbitCamera::default(),
             color_by: ColorBy::Height,
             point_size: 2.0,
+            window_s: LIVE_WINDOW_S,
         }
+    }
+
+    /// The seconds a live plot shows.
+    pub fn window_s(&self) -> f64 {
+        self.window_s
     }
 
     /// How many points the 3D view shows.
@@ -628,14 +647,39 @@ impl Viewer {
             .iter()
             .filter_map(|(_, points)| points.back().map(|p| p[0]))
             .fold(f64::NEG_INFINITY, f64::max);
+        ui.horizontal_wrapped(|ui| {
+            ui.add(
+                egui::DragValue::new(&mut self.window_s)
+                    .range(1.0..=600.0)
+                    .speed(0.5)
+                    .suffix(" s"),
+            )
+            .on_hover_text(
+                "how many seconds the live plot shows; pause to scroll back through all that was kept",
+            );
+            ui.weak("window");
+            ui.separator();
+            // The legend above the plot, never over the data.
+            for (index, (name, _)) in self.series.iter().enumerate() {
+                ui.label(RichText::new(name).color(series_color(index)).strong());
+            }
+        });
+        // In a window of its own the plot takes the room there is; in the dock, a fixed share.
+        let height = if self.docked {
+            260.0
+        } else {
+            (ui.available_height() - 4.0).max(160.0)
+        };
         let mut plot = Plot::new(("plot", self.id))
-            .legend(Legend::default())
-            .height(260.0)
-            .x_axis_label("s");
+            .height(height)
+            .x_axis_label("time (s)")
+            .x_axis_formatter(|mark, _| format!("{:.1}", mark.value).trim_end_matches(".0").to_owned())
+            .y_axis_min_width(48.0);
+        let window = self.window_s;
         if !self.paused && latest.is_finite() {
             // Live: follow the last seconds; paused: pan and zoom freely through what was kept.
             plot = plot
-                .include_x(latest - LIVE_WINDOW_S)
+                .include_x(latest - window)
                 .include_x(latest)
                 .auto_bounds(egui::Vec2b::new(false, true))
                 .allow_drag(false)
@@ -646,11 +690,16 @@ impl Viewer {
         let live = !self.paused;
         plot.show(ui, |plot_ui| {
             if live && latest.is_finite() {
-                plot_ui.set_plot_bounds_x(latest - LIVE_WINDOW_S..=latest);
+                plot_ui.set_plot_bounds_x(latest - window..=latest);
             }
-            for (name, points) in series {
-                let points: PlotPoints<'_> = points.iter().copied().collect();
-                plot_ui.line(Line::new(name.clone(), points));
+            for (index, (name, points)) in series.iter().enumerate() {
+                // Only what the window shows, live: the rest is kept for scrolling back when paused.
+                let points: PlotPoints<'_> = points
+                    .iter()
+                    .filter(|p| !live || p[0] >= latest - window)
+                    .copied()
+                    .collect();
+                plot_ui.line(Line::new(name.clone(), points).color(series_color(index)));
             }
         });
     }
@@ -687,22 +736,33 @@ impl Viewer {
 
     fn table(&self, ui: &mut egui::Ui) {
         egui::ScrollArea::vertical().max_height(300.0).show(ui, |ui| {
-            egui::Grid::new(("table", self.id)).striped(true).show(ui, |ui| {
-                ui.strong("#");
-                ui.strong("timestamp (s)");
-                ui.strong("latency");
-                ui.strong("value");
-                ui.end_row();
-                for (sequence, timestamp, latency, text) in &self.rows {
-                    ui.label(sequence.to_string());
-                    ui.label(format!("{:.3}", *timestamp as f64 / 1e9));
-                    ui.label(crate::monitor::milliseconds(*latency));
-                    ui.label(RichText::new(text).monospace());
+            egui::Grid::new(("table", self.id))
+                .striped(true)
+                .max_col_width(ui.available_width() * 0.6)
+                .show(ui, |ui| {
+                    ui.strong("#");
+                    ui.strong("timestamp (s)");
+                    ui.strong("latency");
+                    ui.strong("value");
                     ui.end_row();
-                }
-            });
+                    for (sequence, timestamp, latency, text) in &self.rows {
+                        ui.label(sequence.to_string());
+                        ui.label(format!("{:.3}", *timestamp as f64 / 1e9));
+                        ui.label(crate::monitor::milliseconds(*latency));
+                        // Long values are cut at the dock's edge (the whole text on hover), so the table
+                        // never widens the dock over the canvas.
+                        ui.add(egui::Label::new(RichText::new(text).monospace()).truncate())
+                            .on_hover_text(text);
+                        ui.end_row();
+                    }
+                });
         });
     }
+}
+
+/// The colour of a plot's series by its place.
+fn series_color(index: usize) -> Color32 {
+    SERIES_COLORS[index % SERIES_COLORS.len()]
 }
 
 /// Every open viewer.
@@ -712,6 +772,8 @@ pub struct Viewers {
     pub list: Vec<Viewer>,
     next_id: u64,
     changed: bool,
+    /// Closed 3D viewers whose GPU buffers are still to be freed.
+    closed_on_gpu: Vec<u64>,
 }
 
 impl Viewers {
@@ -809,8 +871,19 @@ impl Viewers {
         self.forget_closed();
     }
 
+    /// The 3D viewers closed since the last call, whose GPU buffers the renderer is to free.
+    pub fn take_closed_on_gpu(&mut self) -> Vec<u64> {
+        std::mem::take(&mut self.closed_on_gpu)
+    }
+
     fn forget_closed(&mut self) {
         let before = self.list.len();
+        self.closed_on_gpu.extend(
+            self.list
+                .iter()
+                .filter(|v| !v.open && matches!(v.kind, ViewerKind::Cloud | ViewerKind::Trajectory))
+                .map(|v| v.id),
+        );
         self.list.retain(|v| v.open);
         if self.list.len() != before {
             self.changed = true;

@@ -8,6 +8,7 @@
 
 use egui::Vec2;
 use egui_kittest::Harness;
+use egui_kittest::kittest::Queryable as _;
 use kairos_protocol::frame::SampleHeader;
 use kairos_studio::viewers::Viewers;
 
@@ -43,7 +44,7 @@ fn the_gpu_draws_the_points_of_a_cloud() {
         eframe::egui_wgpu::RendererOptions::PREDICTABLE,
     );
     kairos_studio::cloud3d::install(&render_state);
-    let renderer = egui_kittest::wgpu::WgpuTestRenderer::from_render_state(render_state);
+    let renderer = egui_kittest::wgpu::WgpuTestRenderer::from_render_state(render_state.clone());
     let mut viewers = Viewers::default();
     viewers.open("lidar.points".to_owned(), "point_cloud");
     let (header, bytes) = disc();
@@ -68,4 +69,13 @@ fn the_gpu_draws_the_points_of_a_cloud() {
         })
         .count();
     assert!(lit > 2_000, "only {lit} pixels show points");
+
+    // Closing the viewer frees its GPU buffers.
+    assert_eq!(kairos_studio::cloud3d::viewers_on_gpu(&render_state), 1);
+    harness.get_by_label("Close").click();
+    harness.run_steps(2);
+    let closed = harness.state_mut().take_closed_on_gpu();
+    assert_eq!(closed.len(), 1);
+    kairos_studio::cloud3d::forget(&render_state, &closed);
+    assert_eq!(kairos_studio::cloud3d::viewers_on_gpu(&render_state), 0);
 }

@@ -414,3 +414,63 @@ fn the_log_panel_is_made_taller_by_dragging_its_edge() {
         "the log's tabs moved from {before} to {after}"
     );
 }
+
+#[test]
+fn a_table_of_long_samples_keeps_the_dock_bounded_and_the_canvas_in_view() {
+    let mut harness = studio();
+    add_from_palette(&mut harness, "sensors.gnss", Pos2::new(500.0, 300.0));
+    let inspector_before = harness.get_by_label("Inspector").rect().left();
+    let viewers = &mut harness.state_mut().session.viewers;
+    viewers.open_kind("gnss1.fix".to_owned(), kairos_studio::viewers::ViewerKind::Table);
+    let header = kairos_protocol::frame::SampleHeader {
+        output: "gnss1.fix".to_owned(),
+        data_type: "gnss_fix".to_owned(),
+        timestamp_ns: 1,
+        time_of_issue_ns: 2,
+        sequence: 0,
+        skipped: 0,
+        value: Some(serde_json::json!({"note": "x".repeat(5000)})),
+        image: None,
+        intensity: false,
+    };
+    viewers.receive(&header, &[]);
+    harness.run_steps(4);
+    let dock_title = harness.get_by_label("gnss1.fix — latest samples").rect();
+    let float = harness.get_by_label("Float").rect();
+    let inspector_after = harness.get_by_label("Inspector").rect().left();
+    assert!(
+        (inspector_after - inspector_before).abs() < 0.5,
+        "the inspector keeps its place: {inspector_before} then {inspector_after}"
+    );
+    assert!(
+        float.right() <= inspector_before,
+        "the dock ends before the inspector: {float:?}"
+    );
+    let dock_width = float.right() - dock_title.left();
+    assert!(dock_width <= 900.0, "the dock is {dock_width} wide");
+    // The canvas keeps room between the palette and the dock, and its node is drawn there.
+    let node = on_canvas(&harness, "component gnss1 (sensors.gnss)");
+    assert!(
+        node.x < dock_title.left(),
+        "{node:?} is under the dock at {dock_title:?}"
+    );
+}
+
+#[test]
+fn docking_a_viewer_keeps_the_canvas_zoom() {
+    let mut harness = studio();
+    add_from_palette(&mut harness, "core.sine", Pos2::new(500.0, 300.0));
+    harness.run_steps(4);
+    let before = harness.state().canvas.zoom();
+    harness
+        .state_mut()
+        .session
+        .viewers
+        .open("sine1.out".to_owned(), "f64");
+    harness.run_steps(4);
+    let after = harness.state().canvas.zoom();
+    assert!(
+        (after - before).abs() < 1e-3,
+        "the zoom went from {before} to {after} when the dock opened"
+    );
+}
