@@ -348,6 +348,8 @@ impl StudioApp {
                 self.paste();
             }
             Command::Delete => self.delete_selection(),
+            Command::FitDiagram => self.canvas.fit(&self.session.document, &self.session.library),
+            Command::Zoom(factor) => self.canvas.zoom_by(factor),
             Command::TidyLayout => {
                 auto_layout(&mut self.session.document);
                 self.canvas.fit(&self.session.document, &self.session.library);

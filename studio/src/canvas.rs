@@ -711,6 +711,20 @@ impl Canvas {
         }
     }
 
+    /// Zooms by `factor` (above 1: in) about the middle of what is shown. Text stays crisp: the scene
+    /// lays it out again at the new size rather than scaling a picture of it.
+    pub fn zoom_by(&mut self, factor: f32) {
+        if !(factor.is_finite() && factor > 0.0) {
+            return;
+        }
+        let zoom = self.to_screen.scaling * factor;
+        if !(0.2..=3.0).contains(&zoom) {
+            return;
+        }
+        let center = self.scene_rect.center();
+        self.scene_rect = Rect::from_center_size(center, self.scene_rect.size() / factor);
+    }
+
     /// How many screen points one unit of the diagram takes, as of the last frame.
     pub fn zoom(&self) -> f32 {
         self.to_screen.scaling

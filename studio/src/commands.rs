@@ -84,6 +84,10 @@ pub enum Command {
         /// Why, in words.
         why: String,
     },
+    /// Frame the whole diagram in the canvas.
+    FitDiagram,
+    /// Zoom the canvas by this factor about its centre (above 1: in).
+    Zoom(f32),
     /// Change how a connection reads.
     SetReader {
         /// The output it reads.

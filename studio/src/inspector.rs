@@ -18,7 +18,7 @@ const INPUTS_DEFAULT: &str = "input's default";
 pub fn inspector_ui(ui: &mut egui::Ui, session: &Session, canvas: &Canvas, commands: &mut Vec<Command>) {
     ui.heading("Inspector");
     if let Some(selected) = &canvas.selected_connection {
-        ui.label(format!("{} → {}", selected.from, selected.to));
+        ui.label(format!("{} -> {}", selected.from, selected.to));
         if let Some(connection) = session
             .document
             .diagram()

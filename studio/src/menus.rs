@@ -28,16 +28,30 @@ pub fn menu_bar_ui(
     egui::MenuBar::new().ui(ui, |ui| {
         ui.menu_button("File", |ui| file_menu_ui(ui, menus, commands));
         ui.menu_button("Edit", |ui| {
-            for (label, command) in [
-                ("Undo", Command::Undo),
-                ("Redo", Command::Redo),
-                ("Delete", Command::Delete),
-                ("Tidy the layout", Command::TidyLayout),
-            ] {
-                if ui.button(label).clicked() {
-                    commands.push(command);
-                }
-            }
+            menu_items(
+                ui,
+                commands,
+                [
+                    ("Undo", "Ctrl+Z", Command::Undo),
+                    ("Redo", "Ctrl+Y", Command::Redo),
+                    ("Copy", "Ctrl+C", Command::Copy),
+                    ("Paste", "Ctrl+V", Command::Paste),
+                    ("Duplicate", "Ctrl+D", Command::Duplicate),
+                    ("Delete", "Del", Command::Delete),
+                    ("Tidy the layout", "", Command::TidyLayout),
+                ],
+            );
+        });
+        ui.menu_button("View", |ui| {
+            menu_items(
+                ui,
+                commands,
+                [
+                    ("Fit the diagram", "Ctrl+0", Command::FitDiagram),
+                    ("Zoom in", "Ctrl+=", Command::Zoom(ZOOM_STEP)),
+                    ("Zoom out", "Ctrl+-", Command::Zoom(1.0 / ZOOM_STEP)),
+                ],
+            );
         });
         ui.separator();
         run_controls_ui(ui, session.run_state(), commands);
@@ -46,17 +60,37 @@ pub fn menu_bar_ui(
     });
 }
 
-fn file_menu_ui(ui: &mut egui::Ui, menus: MenuContext<'_>, commands: &mut Vec<Command>) {
-    for (label, command) in [
-        ("New", Command::NewDiagram),
-        ("Open…", Command::OpenDiagram),
-        ("Save", Command::Save),
-        ("Save as…", Command::SaveAs),
-    ] {
-        if ui.button(label).clicked() {
+/// One zoom step of the keyboard and the View menu: fine enough to land on a readable size.
+pub const ZOOM_STEP: f32 = 1.1;
+
+/// Menu entries, each with its shortcut shown beside it.
+fn menu_items<const N: usize>(
+    ui: &mut egui::Ui,
+    commands: &mut Vec<Command>,
+    items: [(&str, &str, Command); N],
+) {
+    for (label, shortcut, command) in items {
+        if ui
+            .add(egui::Button::new(label).shortcut_text(shortcut))
+            .clicked()
+        {
             commands.push(command);
+            ui.close();
         }
     }
+}
+
+fn file_menu_ui(ui: &mut egui::Ui, menus: MenuContext<'_>, commands: &mut Vec<Command>) {
+    menu_items(
+        ui,
+        commands,
+        [
+            ("New", "Ctrl+N", Command::NewDiagram),
+            ("Open…", "Ctrl+O", Command::OpenDiagram),
+            ("Save", "Ctrl+S", Command::Save),
+            ("Save as…", "Ctrl+Shift+S", Command::SaveAs),
+        ],
+    );
     ui.menu_button("Recent", |ui| {
         for path in menus.recent {
             if ui.button(path.display().to_string()).clicked() {
@@ -80,9 +114,7 @@ fn file_menu_ui(ui: &mut egui::Ui, menus: MenuContext<'_>, commands: &mut Vec<Co
         commands.push(Command::UseLocalRuntime);
     }
     ui.separator();
-    if ui.button("Quit").clicked() {
-        commands.push(Command::Quit);
-    }
+    menu_items(ui, commands, [("Quit", "Ctrl+Q", Command::Quit)]);
 }
 
 /// Run, Pause, Resume and Stop, each enabled when the runtime's state allows it.
@@ -126,11 +158,32 @@ pub fn shortcuts(ctx: &egui::Context, commands: &mut Vec<Command>) {
     let typing = ctx.egui_wants_keyboard_input();
     let pressed =
         |modifiers, key| ctx.input_mut(|i| i.consume_shortcut(&KeyboardShortcut::new(modifiers, key)));
+    if pressed(Modifiers::COMMAND | Modifiers::SHIFT, Key::S) {
+        commands.push(Command::SaveAs);
+    }
     if pressed(Modifiers::COMMAND, Key::S) {
         commands.push(Command::Save);
     }
+    if pressed(Modifiers::COMMAND, Key::O) {
+        commands.push(Command::OpenDiagram);
+    }
+    if pressed(Modifiers::COMMAND, Key::N) {
+        commands.push(Command::NewDiagram);
+    }
+    if pressed(Modifiers::COMMAND, Key::Q) {
+        commands.push(Command::Quit);
+    }
     if typing {
         return;
+    }
+    if pressed(Modifiers::COMMAND, Key::Num0) {
+        commands.push(Command::FitDiagram);
+    }
+    if pressed(Modifiers::COMMAND, Key::Equals) || pressed(Modifiers::COMMAND, Key::Plus) {
+        commands.push(Command::Zoom(ZOOM_STEP));
+    }
+    if pressed(Modifiers::COMMAND, Key::Minus) {
+        commands.push(Command::Zoom(1.0 / ZOOM_STEP));
     }
     if pressed(Modifiers::COMMAND | Modifiers::SHIFT, Key::Z) || pressed(Modifiers::COMMAND, Key::Y) {
         commands.push(Command::Redo);

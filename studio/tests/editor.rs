@@ -149,7 +149,7 @@ fn a_diagram_is_built_through_the_interface_and_saved() {
     let path = dir.path().join("built.ron");
     harness.get_by_label("File").click();
     harness.run_steps(2);
-    harness.get_by_label("Save as…").click();
+    harness.get_by_label("Save as… Ctrl+Shift+S").click();
     harness.run_steps(2);
     let typed = dir.path().join("built");
     let field = harness.get_by_role_and_label(Role::TextInput, "File:");
@@ -473,4 +473,35 @@ fn docking_a_viewer_keeps_the_canvas_zoom() {
         (after - before).abs() < 1e-3,
         "the zoom went from {before} to {after} when the dock opened"
     );
+}
+
+#[test]
+fn the_view_menu_zooms_in_fine_steps_and_fits_the_diagram() {
+    let mut harness = studio();
+    add_from_palette(&mut harness, "core.sine", Pos2::new(500.0, 300.0));
+    harness.run_steps(4);
+    let zoom = |harness: &Harness<'_, StudioApp>| harness.state().canvas.zoom();
+    let before = zoom(&harness);
+    harness.get_by_label("View").click();
+    harness.run_steps(2);
+    // Each entry shows its shortcut.
+    harness.get_by_label("Zoom in Ctrl+=").click();
+    harness.run_steps(2);
+    let zoomed = zoom(&harness);
+    assert!(
+        (zoomed / before - 1.1).abs() < 0.01,
+        "one step is 10 %: {before} to {zoomed}"
+    );
+    harness.get_by_label("View").click();
+    harness.run_steps(2);
+    harness.get_by_label("Fit the diagram Ctrl+0").click();
+    harness.run_steps(4);
+    let fitted = zoom(&harness);
+    assert!(fitted > zoomed, "a lone node fitted fills the canvas: {fitted}");
+    // The Edit menu copies, pastes and duplicates.
+    harness.get_by_label("Edit").click();
+    harness.run_steps(2);
+    for entry in ["Copy Ctrl+C", "Paste Ctrl+V", "Duplicate Ctrl+D"] {
+        harness.get_by_label(entry);
+    }
 }
