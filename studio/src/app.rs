@@ -51,6 +51,8 @@ pub struct StudioApp {
     /// What the panels asked for this frame.
     commands: Vec<Command>,
     quitting: bool,
+    /// The example diagrams an empty canvas offers.
+    examples: Vec<crate::examples::Example>,
     /// The window title last sent: egui repaints after every viewport command, so sending the title each
     /// frame would keep the studio drawing for ever.
     window_title: String,
@@ -91,6 +93,9 @@ impl StudioApp {
             clipboard: Vec::new(),
             commands: Vec::new(),
             quitting: false,
+            examples: crate::examples::folder()
+                .map(|folder| crate::examples::in_folder(&folder))
+                .unwrap_or_default(),
             window_title: String::new(),
             frame_trace: std::env::var_os("KAIROS_STUDIO_TRACE_FRAMES")
                 .map(|_| (std::time::Instant::now(), 0)),
@@ -231,10 +236,16 @@ impl StudioApp {
         }
         let session = &mut self.session;
         let canvas = &mut self.canvas;
+        let examples = &self.examples;
+        let commands = &mut self.commands;
         let canvas_rect = egui::CentralPanel::default()
             .show(ui, |ui| {
+                let empty = session.document.diagram().components.is_empty();
                 let (document, shown) = session.canvas_view();
                 canvas.show(ui, document, &shown);
+                if empty {
+                    empty_canvas_ui(ui, examples, commands);
+                }
                 if let Some(refusal) = canvas.take_refusal() {
                     session.note(LogLevel::Warn, refusal);
                 }
@@ -497,6 +508,43 @@ impl StudioApp {
             self.session.document.remove_components(&ids);
         }
     }
+}
+
+/// What an empty canvas says: how to begin, and the examples to open.
+fn empty_canvas_ui(ui: &mut egui::Ui, examples: &[crate::examples::Example], commands: &mut Vec<Command>) {
+    let rect = ui.max_rect();
+    egui::Area::new(egui::Id::unique("empty canvas"))
+        .order(egui::Order::Middle)
+        // Top left, leaving the middle of the canvas free for what is dropped there.
+        .fixed_pos(rect.left_top() + egui::vec2(24.0, 24.0))
+        .constrain_to(rect)
+        .show(ui.ctx(), |ui| {
+            ui.set_max_width(440.0);
+            ui.heading("An empty diagram");
+            ui.label(
+                "Drag components from the palette on the left onto this canvas, then drag from an \
+                 output (right side of a node) to an input (left side) to connect them. Select a node \
+                 to set its properties on the right, and press Run.",
+            );
+            if examples.is_empty() {
+                return;
+            }
+            ui.add_space(8.0);
+            ui.menu_button("Open an example", |ui| {
+                for example in examples {
+                    if ui
+                        .button(&example.name)
+                        .on_hover_text(&example.description)
+                        .clicked()
+                    {
+                        commands.push(Command::OpenFile(example.path.clone()));
+                        ui.close();
+                    }
+                    ui.weak(&example.description);
+                    ui.add_space(4.0);
+                }
+            });
+        });
 }
 
 /// The bar over the canvas while the running diagram lacks some edits: which, and Restart.

@@ -15,6 +15,7 @@ pub mod commands;
 pub mod connection;
 pub mod dialogs;
 pub mod document;
+pub mod examples;
 pub mod inspector;
 pub mod local;
 pub mod log;

@@ -70,10 +70,7 @@ fn menu_items<const N: usize>(
     items: [(&str, &str, Command); N],
 ) {
     for (label, shortcut, command) in items {
-        if ui
-            .add(egui::Button::new(label).shortcut_text(shortcut))
-            .clicked()
-        {
+        if ui.add(egui::Button::new(label).shortcut_text(shortcut)).clicked() {
             commands.push(command);
             ui.close();
         }

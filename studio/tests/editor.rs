@@ -72,8 +72,9 @@ fn click_on_canvas(harness: &mut Harness<'_, StudioApp>, label: &str) {
     harness.run_steps(2);
 }
 
+/// Drags the palette's entry of `type_name` (shown by its readable name) onto the canvas at `at`.
 fn add_from_palette(harness: &mut Harness<'_, StudioApp>, type_name: &str, at: Pos2) {
-    let from = center_of(harness, type_name);
+    let from = center_of(harness, &kairos_studio::palette::display_name(type_name));
     drag(harness, from, at);
 }
 
@@ -260,7 +261,7 @@ fn a_box_dragged_on_the_background_selects_what_it_touches() {
 fn a_viewer_dropped_on_an_output_opens_for_its_type() {
     let mut harness = studio();
     add_from_palette(&mut harness, "sensors.camera", Pos2::new(450.0, 250.0));
-    let from = center_of(&harness, "viewer");
+    let from = center_of(&harness, "Viewer");
     let to = on_canvas(&harness, "output camera1.image (image)");
     drag(&mut harness, from, to);
     let viewers: Vec<(String, kairos_studio::viewers::ViewerKind)> = harness
@@ -504,4 +505,25 @@ fn the_view_menu_zooms_in_fine_steps_and_fits_the_diagram() {
     for entry in ["Copy Ctrl+C", "Paste Ctrl+V", "Duplicate Ctrl+D"] {
         harness.get_by_label(entry);
     }
+}
+
+#[test]
+fn an_empty_canvas_says_what_to_do_and_opens_an_example() {
+    let mut harness = studio();
+    harness.get_by_label("An empty diagram");
+    harness.get_by_label("Open an example").click();
+    harness.run_steps(2);
+    harness.get_by_label("hello").click();
+    harness.run_steps(3);
+    let ids: Vec<String> = harness
+        .state()
+        .session
+        .document
+        .diagram()
+        .components
+        .iter()
+        .map(|c| c.id.clone())
+        .collect();
+    assert_eq!(ids.len(), 3, "hello.ron is open: {ids:?}");
+    assert!(harness.query_by_label("An empty diagram").is_none());
 }

@@ -84,9 +84,9 @@ fn a_diagram_built_in_the_studio_runs_on_a_real_runtime() {
     });
     harness.run_steps(2);
 
-    let from = harness.get_by_label("core.counter").rect().center();
+    let from = harness.get_by_label("Counter").rect().center();
     drag(&mut harness, from, Pos2::new(500.0, 300.0));
-    let from = harness.get_by_label("core.console").rect().center();
+    let from = harness.get_by_label("Console").rect().center();
     drag(&mut harness, from, Pos2::new(800.0, 300.0));
     let output = harness.get_by_label("output counter1.out (i64)").rect().center();
     let input = harness.get_by_label("input console1.in (any)").rect().center();
@@ -571,5 +571,5 @@ fn a_component_made_in_the_studio_is_built_loaded_and_in_the_palette() {
         harness.run_steps(1);
     }
     harness.run_steps(2);
-    assert!(harness.query_by_label("lab.smoother").is_some(), "in the palette");
+    assert!(harness.query_by_label("Smoother").is_some(), "in the palette");
 }
