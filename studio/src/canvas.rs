@@ -157,6 +157,9 @@ impl Default for Canvas {
     }
 }
 
+/// The least zoom a fit goes to: below it node names are hard to read.
+const READABLE_ZOOM: f32 = 0.7;
+
 /// A palette entry being dragged onto the canvas: the component type's name.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct NewComponent(pub String);
@@ -699,6 +702,11 @@ impl Canvas {
         if self.fit_frames > 0 {
             self.fit_frames -= 1;
             self.view_size = Some(size);
+            // A fit never shrinks text below reading size: a large diagram shows its top left part.
+            let fitted = (size.x / self.scene_rect.width()).min(size.y / self.scene_rect.height());
+            if fitted.is_finite() && fitted < READABLE_ZOOM {
+                self.scene_rect = Rect::from_min_size(self.scene_rect.min, size / READABLE_ZOOM);
+            }
             return;
         }
         if let Some(before) = self.view_size.replace(size)
