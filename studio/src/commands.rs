@@ -84,6 +84,13 @@ pub enum Command {
         /// Why, in words.
         why: String,
     },
+    /// Rename a component (its connections follow).
+    Rename {
+        /// Its id now.
+        from: String,
+        /// The new id.
+        to: String,
+    },
     /// Frame the whole diagram in the canvas.
     FitDiagram,
     /// Zoom the canvas by this factor about its centre (above 1: in).

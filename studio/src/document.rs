@@ -157,6 +157,41 @@ impl Document {
         });
     }
 
+    /// Renames a component, its connections following; one undoable edit. Refused, with the reason and the
+    /// fix, when the name is not a valid id or another component has it.
+    pub fn rename_component(&mut self, from: &str, to: &str) -> Result<(), String> {
+        let to = to.trim();
+        if to == from {
+            return Ok(());
+        }
+        if !kairos_diagram::is_valid_id(to) {
+            return Err(format!(
+                "\"{to}\" cannot name a component: use letters, digits, _ and - (for example {from}_2)"
+            ));
+        }
+        if self.diagram.component(to).is_some() {
+            return Err(format!(
+                "there is already a component named {to}: choose another name"
+            ));
+        }
+        if self.diagram.component(from).is_none() {
+            return Err(format!("no component named {from}"));
+        }
+        self.edit(|diagram| {
+            if let Some(component) = diagram.component_mut(from) {
+                to.clone_into(&mut component.id);
+            }
+            for connection in &mut diagram.connections {
+                for end in [&mut connection.from, &mut connection.to] {
+                    if end.component == from {
+                        to.clone_into(&mut end.component);
+                    }
+                }
+            }
+        });
+        Ok(())
+    }
+
     /// Removes one connection.
     pub fn remove_connection(&mut self, from: &PortRef, to: &PortRef) {
         self.edit(|diagram| diagram.connections.retain(|c| !(&c.from == from && &c.to == to)));

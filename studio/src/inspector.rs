@@ -94,7 +94,7 @@ fn component_ui(
     instance: &ComponentInstance,
     commands: &mut Vec<Command>,
 ) {
-    ui.label(RichText::new(&instance.id).strong());
+    name_ui(ui, session, &instance.id, commands);
     let Some(info) = session.library.component_of(instance) else {
         ui.colored_label(Color32::LIGHT_RED, format!("unknown type {}", instance.type_name));
         return;
@@ -109,6 +109,36 @@ fn component_ui(
     if let Some(NodeState::Failed(error)) = session.node_state(&instance.id) {
         ui.separator();
         ui.colored_label(Color32::LIGHT_RED, format!("failed: {error}"));
+    }
+}
+
+/// The component's name, edited in place: a rename is asked for when editing ends.
+fn name_ui(ui: &mut egui::Ui, session: &Session, id: &str, commands: &mut Vec<Command>) {
+    let edit_id = egui::Id::unique(("rename", id));
+    let mut text = ui
+        .data(|d| d.get_temp::<String>(edit_id))
+        .unwrap_or_else(|| id.to_owned());
+    ui.horizontal(|ui| {
+        let label = ui.label("name").id;
+        let response = ui
+            .add(egui::TextEdit::singleline(&mut text).desired_width(160.0))
+            .labelled_by(label)
+            .on_hover_text("Rename the component; its connections follow");
+        if response.changed() {
+            ui.data_mut(|d| d.insert_temp(edit_id, text.clone()));
+        }
+        if response.lost_focus() {
+            ui.data_mut(|d| d.remove_temp::<String>(edit_id));
+            if text.trim() != id && !ui.input(|i| i.key_pressed(egui::Key::Escape)) {
+                commands.push(Command::Rename {
+                    from: id.to_owned(),
+                    to: text.trim().to_owned(),
+                });
+            }
+        }
+    });
+    if let Some(note) = session.field_note(id, "name") {
+        ui.colored_label(crate::log_panel::WARN_COLOR, note);
     }
 }
 

@@ -527,3 +527,53 @@ fn an_empty_canvas_says_what_to_do_and_opens_an_example() {
     assert_eq!(ids.len(), 3, "hello.ron is open: {ids:?}");
     assert!(harness.query_by_label("An empty diagram").is_none());
 }
+
+#[test]
+fn a_component_is_renamed_in_the_inspector_and_its_connections_follow() {
+    let mut harness = studio();
+    add_from_palette(&mut harness, "core.sine", Pos2::new(450.0, 250.0));
+    add_from_palette(&mut harness, "core.console", Pos2::new(800.0, 250.0));
+    let from = on_canvas(&harness, "output sine1.out (f64)");
+    let to = on_canvas(&harness, "input console1.in (any)");
+    drag(&mut harness, from, to);
+    click_on_canvas(&mut harness, "component sine1 (core.sine)");
+    let rename = |harness: &mut Harness<'_, StudioApp>, name: &str| {
+        harness.get_by_role_and_label(Role::TextInput, "name").focus();
+        harness.run_steps(1);
+        harness.key_press_modifiers(egui::Modifiers::COMMAND, egui::Key::A);
+        harness.run_steps(1);
+        harness
+            .get_by_role_and_label(Role::TextInput, "name")
+            .type_text(name);
+        harness.run_steps(1);
+        harness.key_press(egui::Key::Enter);
+        harness.run_steps(2);
+    };
+    rename(&mut harness, "wave");
+    let diagram = harness.state().session.document.diagram().clone();
+    assert!(diagram.component("wave").is_some() && diagram.component("sine1").is_none());
+    assert_eq!(diagram.connections[0].from, PortRef::new("wave", "out"));
+    // A name another component has is refused, said at the field.
+    rename(&mut harness, "console1");
+    assert!(
+        harness
+            .state()
+            .session
+            .document
+            .diagram()
+            .component("wave")
+            .is_some()
+    );
+    harness.get_by_label("there is already a component named console1: choose another name");
+    // One undo takes the rename back.
+    harness.state_mut().session.document.undo();
+    assert!(
+        harness
+            .state()
+            .session
+            .document
+            .diagram()
+            .component("sine1")
+            .is_some()
+    );
+}
