@@ -212,7 +212,13 @@ impl StudioApp {
             .default_size(150.0)
             .size_range(60.0..=500.0)
             .show(ui, |ui| {
-                bottom_panel_ui(ui, &mut self.bottom, &self.session.log, &mut self.session.monitor);
+                bottom_panel_ui(
+                    ui,
+                    &mut self.bottom,
+                    &self.session.log,
+                    &mut self.session.monitor,
+                    &mut self.session.console,
+                );
             });
         if crate::transport::has_controls(&self.session.monitor) {
             let requests = egui::Panel::bottom("transport")

@@ -13,6 +13,7 @@ pub mod client;
 pub mod cloud3d;
 pub mod commands;
 pub mod connection;
+pub mod console;
 pub mod dialogs;
 pub mod document;
 pub mod examples;

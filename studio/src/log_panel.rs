@@ -17,6 +17,8 @@ pub enum BottomTab {
     Log,
     /// The monitoring panel.
     Monitor,
+    /// What console components print.
+    Console,
 }
 
 /// The bottom panel's state between frames.
@@ -43,10 +45,17 @@ fn color(line: &LogLine) -> Color32 {
 }
 
 /// The tabs, the log's filters, and the log or the monitoring panel.
-pub fn bottom_panel_ui(ui: &mut egui::Ui, panel: &mut BottomPanel, log: &Log, monitor: &mut Monitor) {
+pub fn bottom_panel_ui(
+    ui: &mut egui::Ui,
+    panel: &mut BottomPanel,
+    log: &Log,
+    monitor: &mut Monitor,
+    console: &mut crate::console::Console,
+) {
     ui.horizontal(|ui| {
         ui.selectable_value(&mut panel.tab, BottomTab::Log, "Log");
         ui.selectable_value(&mut panel.tab, BottomTab::Monitor, "Monitor");
+        ui.selectable_value(&mut panel.tab, BottomTab::Console, "Console");
         if panel.tab == BottomTab::Log {
             ui.separator();
             log_filter_ui(ui, &mut panel.filter, log);
@@ -55,6 +64,7 @@ pub fn bottom_panel_ui(ui: &mut egui::Ui, panel: &mut BottomPanel, log: &Log, mo
     match panel.tab {
         BottomTab::Log => log_ui(ui, log, &panel.filter),
         BottomTab::Monitor => monitor.panel(ui),
+        BottomTab::Console => console.ui(ui),
     }
 }
 

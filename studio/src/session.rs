@@ -25,6 +25,8 @@ use crate::viewers::Viewers;
 const VIEWER_RATE_HZ: f64 = 30.0;
 /// Wider images are sent scaled down by a whole factor.
 const VIEWER_IMAGE_WIDTH: u32 = 1920;
+/// The console sink, whose printed lines the Console tab shows.
+const CONSOLE_TYPE: &str = "core.console";
 /// How often telemetry comes (4 Hz).
 const TELEMETRY_INTERVAL_MS: u64 = 250;
 /// The first id of the session's requests; 1 is the connection's `hello`.
@@ -169,6 +171,8 @@ pub struct Session {
     pub viewers: Viewers,
     /// The log panel's lines.
     pub log: Log,
+    /// What the diagram's console components printed.
+    pub console: crate::console::Console,
     /// What is remembered between launches.
     pub settings: Settings,
     /// Problems the runtime found with ports (a refused deploy), shown on them until the next deploy.
@@ -208,6 +212,7 @@ impl Session {
             monitor: Monitor::default(),
             viewers: Viewers::default(),
             log: Log::default(),
+            console: crate::console::Console::default(),
             settings,
             port_problems: BTreeMap::new(),
             field_notes: BTreeMap::new(),
@@ -327,7 +332,7 @@ impl Session {
             ClientEvent::Connected(welcome) => self.connected(&welcome),
             ClientEvent::Reply(reply) => self.take_reply(reply),
             ClientEvent::Telemetry(telemetry) => self.take_telemetry(&telemetry),
-            ClientEvent::Log(record) => self.log.record(record),
+            ClientEvent::Log(record) => self.take_log(record),
             ClientEvent::Sample(header, payload) => self.viewers.receive(&header, &payload),
             ClientEvent::SharedMemory(Ok(())) => {}
             ClientEvent::SharedMemory(Err(error)) => self.socket_instead(&error),
@@ -337,6 +342,28 @@ impl Session {
                 }
                 self.note(LogLevel::Error, reason);
             }
+        }
+    }
+
+    /// A log record: a console component's printed line goes to the Console, anything else to the log.
+    fn take_log(&mut self, record: kairos_protocol::LogRecord) {
+        let from_console = record.component.as_deref().is_some_and(|id| {
+            self.document
+                .diagram()
+                .component(id)
+                .is_some_and(|c| c.type_name == CONSOLE_TYPE)
+        });
+        match record.component {
+            Some(component) if from_console && record.level == LogLevel::Info => {
+                self.console.push(crate::console::ConsoleLine {
+                    at_ns: record.at_ns,
+                    component,
+                    text: record.message,
+                });
+            }
+            component => self
+                .log
+                .record(kairos_protocol::LogRecord { component, ..record }),
         }
     }
 
@@ -1154,5 +1181,27 @@ mod tests {
         let deploy = sent(&mut session);
         session.handle(ok(&deploy[0], json!({"diagnostics": [], "components": 2})));
         assert!(session.not_applied().is_empty());
+    }
+
+    #[test]
+    fn what_a_console_component_prints_goes_to_the_console_not_the_log() {
+        let mut session = connected();
+        let before = session.log.lines().count();
+        for (component, message) in [
+            ("console1", "console1: t=1 seq=0 latency=3.0µs 0.5"),
+            ("counter1", "counter1 started"),
+        ] {
+            session.handle(from_runtime(json!({"type": "log", "at_ns": 5, "level": "info",
+                "component": component, "message": message})));
+        }
+        let printed: Vec<&str> = session.console.lines().map(|l| l.text.as_str()).collect();
+        assert_eq!(printed, ["console1: t=1 seq=0 latency=3.0µs 0.5"]);
+        let logged: Vec<&str> = session
+            .log
+            .lines()
+            .skip(before)
+            .map(|l| l.text.as_str())
+            .collect();
+        assert_eq!(logged.len(), 1, "{logged:?}");
     }
 }

@@ -11,6 +11,9 @@ use kairos_sdk::{
     Synchronizer, TypeFilter,
 };
 
+/// The log target of what `core.console` prints.
+pub const CONSOLE_TARGET: &str = "kairos::console";
+
 /// `core.console`: prints samples on standard output.
 #[derive(Debug, Default)]
 pub struct Console {
@@ -65,6 +68,9 @@ impl Component for Console {
         );
         // A closed pipe (`kairos run ... | head`) is not the component's failure: stop printing quietly.
         let _ = std::io::stdout().lock().write_all(line.as_bytes());
+        // The same line for a client of `kairos serve` (the studio's Console), as a log record of this
+        // component; the runtime keeps records of this target off its standard error.
+        tracing::info!(target: CONSOLE_TARGET, "{}", line.trim_end());
         Ok(())
     }
 }

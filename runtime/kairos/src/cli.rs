@@ -179,6 +179,7 @@ fn colour_logs() -> bool {
 
 /// Sets up logging to standard error.
 pub fn init_logging(verbose: u8) {
+    use tracing_subscriber::Layer as _;
     use tracing_subscriber::layer::SubscriberExt as _;
     use tracing_subscriber::util::SubscriberInitExt as _;
     let default = match verbose {
@@ -194,7 +195,11 @@ pub fn init_logging(verbose: u8) {
             tracing_subscriber::fmt::layer()
                 .with_writer(std::io::stderr)
                 .with_ansi(colour_logs())
-                .with_target(false),
+                .with_target(false)
+                // What a console sink prints is on standard output already; clients get it from the tap.
+                .with_filter(tracing_subscriber::filter::filter_fn(|meta| {
+                    meta.target() != kairos_pack_core::sinks::CONSOLE_TARGET
+                })),
         )
         .with(crate::log_tap::LogTap)
         .try_init();
