@@ -55,7 +55,7 @@ pub fn bottom_panel_ui(
     ui.horizontal(|ui| {
         ui.selectable_value(&mut panel.tab, BottomTab::Log, "Log");
         ui.selectable_value(&mut panel.tab, BottomTab::Monitor, "Monitor");
-        ui.selectable_value(&mut panel.tab, BottomTab::Console, "Console");
+        ui.selectable_value(&mut panel.tab, BottomTab::Console, "Console output");
         if panel.tab == BottomTab::Log {
             ui.separator();
             log_filter_ui(ui, &mut panel.filter, log);
