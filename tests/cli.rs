@@ -231,3 +231,36 @@ fn logs_written_to_a_file_carry_no_colour_codes() {
         "standard error is a pipe here, as a file or journald would be: {stderr:?}"
     );
 }
+
+#[test]
+fn inspect_of_a_missing_file_says_why_once() {
+    let dir = tempfile::tempdir().unwrap();
+    let output = kairos(dir.path(), &["inspect", "nowhere.mcap"]);
+    let (_, stderr) = text(&output);
+    assert_eq!(output.status.code(), Some(1));
+    assert_eq!(stderr.matches("No such file or directory").count(), 1, "{stderr}");
+    assert!(stderr.contains("nowhere.mcap"), "{stderr}");
+}
+
+#[test]
+fn inspect_json_names_its_time_base_and_rounds_its_figures() {
+    let dir = tempfile::tempdir().unwrap();
+    let record = example("record");
+    let run = kairos(dir.path(), &["run", record.to_str().unwrap(), "--for", "1s"]);
+    assert!(run.status.success(), "{}", text(&run).1);
+    let output = kairos(dir.path(), &["inspect", "drive.mcap", "--json"]);
+    let (stdout, stderr) = text(&output);
+    assert!(output.status.success(), "{stderr}");
+    let report: serde_json::Value = serde_json::from_str(&stdout).unwrap();
+    assert_eq!(report["time"], "publish_time");
+    let decimals = |value: &serde_json::Value| {
+        value
+            .to_string()
+            .split_once('.')
+            .map_or(0, |(_, fraction)| fraction.len())
+    };
+    assert!(decimals(&report["duration_s"]) <= 6, "{}", report["duration_s"]);
+    for channel in report["channels"].as_array().unwrap() {
+        assert!(decimals(&channel["rate_hz"]) <= 3, "{}", channel["rate_hz"]);
+    }
+}

@@ -20,7 +20,7 @@ pub struct ChannelReport {
     pub kairos_type: Option<String>,
     /// Messages on the channel.
     pub messages: u64,
-    /// Messages per second between the first and the last.
+    /// Messages per second between the first and the last (publish times), to the thousandth.
     pub rate_hz: f64,
 }
 
@@ -35,11 +35,14 @@ pub struct Report {
     pub complete: bool,
     /// All messages.
     pub messages: u64,
+    /// Which of the messages' times `start_ns`, `end_ns`, `duration_s` and the rates use: always
+    /// `publish_time`, the samples' timestamps (`log_time` is when the recorder wrote them).
+    pub time: String,
     /// First publish time (the samples' timestamps), ns since the UNIX epoch.
     pub start_ns: u64,
     /// Last publish time.
     pub end_ns: u64,
-    /// `end − start`, in seconds.
+    /// `end − start`, in seconds, to the microsecond.
     pub duration_s: f64,
     /// Per channel, by topic.
     pub channels: Vec<ChannelReport>,
@@ -49,16 +52,24 @@ pub struct Report {
     pub damage: Option<String>,
 }
 
+/// `value` rounded to `1 / scale` (1e3: thousandths), so reports print figures a person reads, not
+/// floating-point noise.
+fn round_to(value: f64, scale: f64) -> f64 {
+    (value * scale).round() / scale
+}
+
 /// Why a file could not be inspected at all.
 #[derive(Debug, thiserror::Error)]
 pub enum InspectError {
     /// It could not be read.
-    #[error("cannot read {path}: {source}")]
+    // The system's reason is part of the message and not a `source`: printed with its causes (as `kairos`
+    // prints errors), a source would say it twice.
+    #[error("cannot read {path}: {error}")]
     Io {
         /// The file.
         path: String,
         /// Why.
-        source: std::io::Error,
+        error: std::io::Error,
     },
     /// It is not MCAP.
     #[error("{path} is not an MCAP recording: {reason}")]
@@ -101,9 +112,9 @@ pub fn inspect_with_progress(
 ) -> Result<Report, InspectError> {
     use std::io::Read as _;
     let shown = path.display().to_string();
-    let io_error = |source| InspectError::Io {
+    let io_error = |error| InspectError::Io {
         path: shown.clone(),
-        source,
+        error,
     };
     let mut file = std::fs::File::open(path).map_err(io_error)?;
     let total = file.metadata().map_err(io_error)?.len();
@@ -192,7 +203,7 @@ fn inspect_bytes_with_progress(
                 kairos_type: t.kairos_type,
                 messages: t.messages,
                 rate_hz: if span > 0.0 {
-                    (t.messages.saturating_sub(1)) as f64 / span
+                    round_to((t.messages.saturating_sub(1)) as f64 / span, 1e3)
                 } else {
                     0.0
                 },
@@ -204,9 +215,10 @@ fn inspect_bytes_with_progress(
         size_bytes: bytes.len() as u64,
         complete,
         messages,
+        time: "publish_time".to_owned(),
         start_ns,
         end_ns,
-        duration_s: end_ns.saturating_sub(start_ns) as f64 * 1e-9,
+        duration_s: round_to(end_ns.saturating_sub(start_ns) as f64 * 1e-9, 1e6),
         channels,
         metadata,
         damage,

@@ -29,9 +29,9 @@ fn io_error(path: &Path, error: impl std::fmt::Display) -> InspectError {
 
 /// Copies everything intact from `input` into a new, complete recording at `output`.
 pub fn recover(input: &Path, output: &Path) -> Result<Recovered, InspectError> {
-    let bytes = std::fs::read(input).map_err(|source| InspectError::Io {
+    let bytes = std::fs::read(input).map_err(|error| InspectError::Io {
         path: input.display().to_string(),
-        source,
+        error,
     })?;
     if bytes.get(..8) != Some(mcap::MAGIC) {
         return Err(io_error(input, "it does not start with the MCAP magic bytes"));
@@ -42,9 +42,9 @@ pub fn recover(input: &Path, output: &Path) -> Result<Recovered, InspectError> {
             "refusing to overwrite the file being recovered; choose another output",
         ));
     }
-    let file = File::create(output).map_err(|source| InspectError::Io {
+    let file = File::create(output).map_err(|error| InspectError::Io {
         path: output.display().to_string(),
-        source,
+        error,
     })?;
     let mut writer = mcap::WriteOptions::new()
         .compression(Some(mcap::Compression::Zstd))
