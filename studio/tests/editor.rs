@@ -621,3 +621,26 @@ fn the_palette_shows_readable_names_without_doubled_headers_and_searches() {
     assert!(harness.query_by_label("Sine wave").is_none());
 }
 
+#[test]
+fn what_a_console_prints_is_in_the_console_tab_with_its_component_and_time() {
+    let mut harness = studio();
+    add_from_palette(&mut harness, "core.console", Pos2::new(600.0, 300.0));
+    let printed = |at_ns: i64, message: &str| {
+        kairos_studio::client::ClientEvent::Log(kairos_protocol::LogRecord {
+            at_ns,
+            level: kairos_protocol::LogLevel::Info,
+            component: Some("console1".to_owned()),
+            message: message.to_owned(),
+        })
+    };
+    harness.state_mut().session.handle(printed(
+        1_795_557_290_476_402_148,
+        "console1: t=1 seq=0 latency=3.0µs 0.5",
+    ));
+    harness.run_steps(1);
+    harness.get_by_label("Console output").click();
+    harness.run_steps(2);
+    harness.get_by_label("t=1 seq=0 latency=3.0µs 0.5");
+    harness.get_by_label("21:54:50.476");
+    assert!(harness.get_all_by_label("console1").count() >= 1);
+}
