@@ -150,6 +150,7 @@ impl StudioApp {
         self.connection.poll_restart(&ctx, &mut self.session);
         self.session.describe_instances();
         shortcuts(&ctx, &mut self.commands);
+        crate::canvas::zoom_in_fine_steps(&ctx);
         if ctx.input(|i| i.viewport().close_requested()) && !self.quitting && self.session.document.is_dirty()
         {
             ctx.send_viewport_cmd(egui::ViewportCommand::CancelClose);
