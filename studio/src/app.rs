@@ -366,15 +366,11 @@ impl StudioApp {
                 self.paste();
             }
             Command::Delete => self.delete_selection(),
-            Command::Rename { from, to } => match self.session.document.rename_component(&from, &to) {
-                Ok(()) => {
-                    if self.canvas.selected.remove(&from) {
-                        self.canvas.selected.insert(to.clone());
-                    }
-                    self.session.succeeded(format!("renamed {from} to {to}"));
+            Command::Rename { from, to } => {
+                if self.session.rename_component(&from, &to) && self.canvas.selected.remove(&from) {
+                    self.canvas.selected.insert(to.trim().to_owned());
                 }
-                Err(why) => self.session.field_refused(&from, "name", why),
-            },
+            }
             Command::FitDiagram => self.canvas.fit(&self.session.document, &self.session.library),
             Command::Zoom(factor) => self.canvas.zoom_by(factor),
             Command::TidyLayout => {

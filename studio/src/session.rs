@@ -668,6 +668,38 @@ impl Session {
         }
     }
 
+    /// Renames a component (its connections follow, one undoable edit) and says so in the log; a name that
+    /// is taken or no valid id is refused, said at the inspector's name field and in the log. What the
+    /// fields said about the component moves to its new name.
+    pub fn rename_component(&mut self, from: &str, to: &str) -> bool {
+        match self.document.rename_component(from, to) {
+            Ok(()) => {
+                let to = to.trim();
+                let notes = std::mem::take(&mut self.field_notes);
+                self.field_notes = notes
+                    .into_iter()
+                    .filter(|((component, field), _)| !(component == from && field == "name"))
+                    .map(|((component, field), note)| {
+                        let component = if component == from {
+                            to.to_owned()
+                        } else {
+                            component
+                        };
+                        ((component, field), note)
+                    })
+                    .collect();
+                if from != to {
+                    self.succeeded(format!("renamed {from} to {to}"));
+                }
+                true
+            }
+            Err(why) => {
+                self.field_refused(from, "name", why);
+                false
+            }
+        }
+    }
+
     /// A value typed for a property was refused or clamped: the inspector says `why` at the field, and the
     /// log keeps it.
     pub fn field_refused(&mut self, component: &str, property: &str, why: String) {

@@ -569,6 +569,28 @@ fn a_component_is_renamed_in_the_inspector_and_its_connections_follow() {
             .is_some()
     );
     harness.get_by_label("there is already a component named console1: choose another name");
+    // So is a name that is no id, and the log says it too.
+    rename(&mut harness, "my wave");
+    let refusal = "\"my wave\" cannot name a component: use letters, digits, _ and - (for example wave_2)";
+    harness.get_by_label(refusal);
+    assert!(
+        harness
+            .state()
+            .session
+            .log
+            .lines()
+            .any(|l| l.text.ends_with(refusal)),
+        "said in the log"
+    );
+    assert!(
+        harness
+            .state()
+            .session
+            .document
+            .diagram()
+            .component("wave")
+            .is_some()
+    );
     // One undo takes the rename back.
     harness.state_mut().session.document.undo();
     assert!(
