@@ -1216,6 +1216,19 @@ mod tests {
     }
 
     #[test]
+    fn a_refused_name_is_said_at_the_field_until_a_rename_succeeds() {
+        let mut session = connected();
+        assert!(!session.rename_component("counter1", "console1"));
+        assert!(session.field_note("counter1", "name").is_some());
+        assert!(session.rename_component("counter1", " count "));
+        assert!(session.field_note("counter1", "name").is_none());
+        assert!(session.field_note("count", "name").is_none());
+        let connection = &session.document.diagram().connections[0];
+        assert_eq!(connection.from.component, "count");
+        assert!(session.log.lines().any(|l| l.text == "renamed counter1 to count"));
+    }
+
+    #[test]
     fn what_a_console_component_prints_goes_to_the_console_not_the_log() {
         let mut session = connected();
         let before = session.log.lines().count();
