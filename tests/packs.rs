@@ -256,6 +256,8 @@ fn packs_lists_loaded_packs_and_every_refused_library_with_its_reason() {
     assert_eq!(low_pass["properties"][0]["name"], "time_constant_s");
     let clamp = components.iter().find(|c| c["type_name"] == "cpp.clamp").unwrap();
     assert_eq!(clamp["inputs"][0]["filter"]["one_of"][0], "f64");
+    // The name people read, from the C++ descriptor's optional label.
+    assert_eq!(clamp["label"], "Clamp");
 }
 
 fn write_diagram(dir: &Path, name: &str, body: &str) -> PathBuf {

@@ -40,6 +40,7 @@ struct Clamp {
 const char *const kDescriptor = R"json({
   "type_name": "cpp.clamp",
   "pack": "cpp",
+  "label": "Clamp",
   "category": "math",
   "doc": "Limits each number to [min, max] (written in C++ against kairos.h)",
   "mode": "threaded",

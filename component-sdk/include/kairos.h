@@ -157,8 +157,8 @@ typedef int32_t (*kairos_lifecycle_fn)(void *instance, void *frame, const kairos
 typedef int32_t (*kairos_named_fn)(void *instance, void *frame, const kairos_host *host, kairos_str name, kairos_error *error);
 
 /* One component type. descriptor_json is the component's descriptor as `kairos components --json` prints
- * one (type_name, category, doc, mode, inputs, outputs, properties, actions); type_name must start with the
- * pack's name and a dot. Every function must be given: a table with a NULL one is refused at load. */
+ * one (type_name, category, doc, mode, inputs, outputs, properties, actions, and optionally label: the name
+ * the studio shows); type_name must start with the pack's name and a dot. Every function must be given: a table with a NULL one is refused at load. */
 typedef struct kairos_component_vtable {
     kairos_str type_name;
     kairos_str descriptor_json;

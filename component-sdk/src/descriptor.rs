@@ -5,6 +5,7 @@
 //! use kairos_sdk::{DataType, ExecutionMode, TypeFilter};
 //!
 //! let info = Descriptor::new("core.gain", "math", "Multiplies its input by a gain")
+//!     .label("Gain")
 //!     .mode(ExecutionMode::Threaded)
 //!     .input("in", TypeFilter::OneOf(vec![DataType::F64, DataType::I64]), "The signal")
 //!     .output("out", DataType::F64, "The signal times the gain")
@@ -36,6 +37,7 @@ impl Descriptor {
             info: ComponentInfo {
                 type_name: type_name.to_owned(),
                 pack: String::new(),
+                label: String::new(),
                 category: category.to_owned(),
                 doc: doc.to_owned(),
                 mode: ExecutionMode::Threaded,
@@ -45,6 +47,13 @@ impl Descriptor {
                 actions: Vec::new(),
             },
         }
+    }
+
+    /// Sets the name people read in the studio's palette (`Sine wave`). Without one the studio derives a
+    /// name from the type name (`core.moving_average` is "Moving average").
+    pub fn label(mut self, label: &str) -> Self {
+        label.trim().clone_into(&mut self.info.label);
+        self
     }
 
     /// Sets how the runtime drives the component.

@@ -31,6 +31,7 @@ pub use diagnostic::{
 pub use library::{
     ActionInfo, ComponentInfo, DataType, DescribeError, ExecutionMode, InputInfo, InstanceInfos, LibraryInfo,
     OutputInfo, PackInfo, PropertyInfo, PropertyKind, ReaderPolicy, TypeFilter, Value, ValueError,
+    readable_type_name,
 };
 pub use model::{
     ComponentInstance, Connection, Diagram, FORMAT_VERSION, MAX_BUFFER_SIZE, OutputSettings, PackRequirement,

@@ -499,6 +499,10 @@ pub struct ComponentInfo {
     pub type_name: String,
     /// The pack that provides it.
     pub pack: String,
+    /// The name people read in the studio's palette (`Sine wave`); empty when the pack gives none, and
+    /// then [`ComponentInfo::display_name`] derives one from the type name.
+    #[serde(default, skip_serializing_if = "String::is_empty")]
+    pub label: String,
     /// A category for grouping (`generators`, `math`, `sensors`, ...).
     pub category: String,
     /// One line of documentation.
@@ -516,6 +520,16 @@ pub struct ComponentInfo {
 }
 
 impl ComponentInfo {
+    /// The name people read: the pack's label, else one derived from the type name
+    /// ([`readable_type_name`]).
+    pub fn display_name(&self) -> String {
+        if self.label.trim().is_empty() {
+            readable_type_name(&self.type_name)
+        } else {
+            self.label.trim().to_owned()
+        }
+    }
+
     /// The input with this name.
     pub fn input(&self, name: &str) -> Option<&InputInfo> {
         self.inputs.iter().find(|p| p.name == name)
@@ -534,6 +548,40 @@ impl ComponentInfo {
     /// The action with this name.
     pub fn action(&self, name: &str) -> Option<&ActionInfo> {
         self.actions.iter().find(|a| a.name == name)
+    }
+}
+
+/// Short words that are read letter by letter, written in capitals by [`readable_type_name`].
+const ACRONYMS: [&str; 12] = [
+    "csv", "gnss", "imu", "can", "dbc", "nmea", "rgb", "mcap", "ekf", "enu", "gps", "id",
+];
+
+/// A readable name made from a type name, for components whose pack gives no label: the part after the
+/// pack, words spaced and the first capitalised, acronyms in capitals (`core.moving_average` is
+/// "Moving average", `core.csv_writer` "CSV writer").
+pub fn readable_type_name(type_name: &str) -> String {
+    let short = type_name.rsplit('.').next().unwrap_or(type_name);
+    let words: Vec<String> = short
+        .split(['_', '-'])
+        .filter(|w| !w.is_empty())
+        .enumerate()
+        .map(|(index, word)| {
+            if ACRONYMS.contains(&word.to_ascii_lowercase().as_str()) {
+                word.to_uppercase()
+            } else if index == 0 {
+                let mut chars = word.chars();
+                chars
+                    .next()
+                    .map_or_else(String::new, |first| first.to_uppercase().chain(chars).collect())
+            } else {
+                word.to_owned()
+            }
+        })
+        .collect();
+    if words.is_empty() {
+        type_name.to_owned()
+    } else {
+        words.join(" ")
     }
 }
 
@@ -633,5 +681,33 @@ mod tests {
             }
         );
         assert_eq!(error.to_string(), "-1e308 is out of range f64 in [0, 1e300]");
+    }
+
+    #[test]
+    fn a_component_without_a_label_gets_a_name_from_its_type() {
+        assert_eq!(super::readable_type_name("core.moving_average"), "Moving average");
+        assert_eq!(super::readable_type_name("core.csv_writer"), "CSV writer");
+        assert_eq!(super::readable_type_name("sensors.gnss"), "GNSS");
+        assert_eq!(super::readable_type_name("lab.scale"), "Scale");
+        assert_eq!(super::readable_type_name("odd"), "Odd");
+        assert_eq!(super::readable_type_name("x._"), "x._");
+        let unlabelled = super::ComponentInfo {
+            type_name: "core.sine".to_owned(),
+            pack: "core".to_owned(),
+            label: " ".to_owned(),
+            category: "generators".to_owned(),
+            doc: String::new(),
+            mode: super::ExecutionMode::Periodic,
+            inputs: Vec::new(),
+            outputs: Vec::new(),
+            properties: Vec::new(),
+            actions: Vec::new(),
+        };
+        assert_eq!(unlabelled.display_name(), "Sine");
+        let labelled = super::ComponentInfo {
+            label: "Sine wave".to_owned(),
+            ..unlabelled
+        };
+        assert_eq!(labelled.display_name(), "Sine wave");
     }
 }

@@ -150,6 +150,7 @@ impl StudioApp {
         self.connection.poll_restart(&ctx, &mut self.session);
         self.session.describe_instances();
         shortcuts(&ctx, &mut self.commands);
+        crate::canvas::zoom_in_fine_steps(&ctx);
         if ctx.input(|i| i.viewport().close_requested()) && !self.quitting && self.session.document.is_dirty()
         {
             ctx.send_viewport_cmd(egui::ViewportCommand::CancelClose);
@@ -365,15 +366,11 @@ impl StudioApp {
                 self.paste();
             }
             Command::Delete => self.delete_selection(),
-            Command::Rename { from, to } => match self.session.document.rename_component(&from, &to) {
-                Ok(()) => {
-                    if self.canvas.selected.remove(&from) {
-                        self.canvas.selected.insert(to.clone());
-                    }
-                    self.session.succeeded(format!("renamed {from} to {to}"));
+            Command::Rename { from, to } => {
+                if self.session.rename_component(&from, &to) && self.canvas.selected.remove(&from) {
+                    self.canvas.selected.insert(to.trim().to_owned());
                 }
-                Err(why) => self.session.field_refused(&from, "name", why),
-            },
+            }
             Command::FitDiagram => self.canvas.fit(&self.session.document, &self.session.library),
             Command::Zoom(factor) => self.canvas.zoom_by(factor),
             Command::TidyLayout => {
@@ -546,20 +543,35 @@ fn empty_canvas_ui(ui: &mut egui::Ui, examples: &[crate::examples::Example], com
             }
             ui.add_space(8.0);
             ui.menu_button("Open an example", |ui| {
+                ui.set_max_width(520.0);
                 for example in examples {
-                    if ui
-                        .button(&example.name)
-                        .on_hover_text(&example.description)
-                        .clicked()
-                    {
+                    // One button for the name and the description, so either opens it.
+                    if ui.add(example_button(ui, example)).clicked() {
                         commands.push(Command::OpenFile(example.path.clone()));
                         ui.close();
                     }
-                    ui.weak(&example.description);
-                    ui.add_space(4.0);
                 }
             });
         });
+}
+
+/// An example's entry: its name, and under it what it shows.
+fn example_button(ui: &egui::Ui, example: &crate::examples::Example) -> egui::Button<'static> {
+    let style = ui.style();
+    let mut job = egui::text::LayoutJob::default();
+    egui::RichText::new(&example.name).strong().append_to(
+        &mut job,
+        style,
+        egui::FontSelection::Default,
+        egui::Align::LEFT,
+    );
+    if !example.description.is_empty() {
+        egui::RichText::new(format!("\n{}", example.description))
+            .weak()
+            .append_to(&mut job, style, egui::FontSelection::Default, egui::Align::LEFT);
+    }
+    job.wrap.max_width = 500.0;
+    egui::Button::new(job).frame_when_inactive(false)
 }
 
 /// The bar over the canvas while the running diagram lacks some edits: which, and Restart.

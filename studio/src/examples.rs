@@ -1,5 +1,5 @@
 //! The example diagrams offered on an empty canvas: the `.ron` files of the repository's `examples/`
-//! folder, each with the first line of its leading comment as its description.
+//! folder, each with the first sentence of its leading comment as its description.
 
 use std::path::{Path, PathBuf};
 
@@ -50,7 +50,7 @@ pub fn in_folder(folder: &Path) -> Vec<Example> {
                 .unwrap_or_default(),
             description: std::fs::read_to_string(&path)
                 .ok()
-                .and_then(|text| first_comment(&text))
+                .and_then(|text| description(&text))
                 .unwrap_or_default(),
             path,
         })
@@ -59,10 +59,37 @@ pub fn in_folder(folder: &Path) -> Vec<Example> {
     examples
 }
 
-/// The first line of a file's leading `//` comment.
-fn first_comment(text: &str) -> Option<String> {
-    let line = text.lines().next()?.trim_start().strip_prefix("//")?.trim();
-    (!line.is_empty()).then(|| line.to_owned())
+/// The longest description kept, in characters: one line in the examples menu.
+const DESCRIPTION_CHARS: usize = 140;
+
+/// What a diagram file says it shows: the first sentence of its leading `//` comment, which may run over
+/// several lines (a diagram has no description field of its own, and its comment is where the examples
+/// say what they are).
+pub fn description(text: &str) -> Option<String> {
+    let comment: Vec<&str> = text
+        .lines()
+        .map(str::trim_start)
+        .map_while(|line| line.strip_prefix("//"))
+        .map(str::trim)
+        .take_while(|line| !line.is_empty())
+        .collect();
+    let comment = comment.join(" ");
+    // A sentence ends at a full stop followed by a space or the end (not `fusion.ron`'s dot).
+    let end = comment
+        .match_indices(". ")
+        .map(|(at, _)| at + 1)
+        .next()
+        .unwrap_or(comment.len());
+    let sentence = comment[..end].trim();
+    if sentence.is_empty() {
+        return None;
+    }
+    Some(if sentence.chars().count() > DESCRIPTION_CHARS {
+        let cut: String = sentence.chars().take(DESCRIPTION_CHARS - 3).collect();
+        format!("{}...", cut.trim_end())
+    } else {
+        sentence.to_owned()
+    })
 }
 
 #[cfg(test)]
@@ -79,5 +106,25 @@ mod tests {
             "Hello, Kairos: a sine wave, amplified, printed on the console."
         );
         assert!(examples.iter().all(|e| !e.description.is_empty()), "{examples:?}");
+        // A first sentence that runs over two lines is taken whole, and only the first.
+        let sensors = examples.iter().find(|e| e.name == "sensors").unwrap();
+        assert!(sensors.description.ends_with("open a viewer."), "{sensors:?}");
+    }
+
+    #[test]
+    fn a_description_is_the_leading_comments_first_sentence() {
+        let description = |text: &str| super::description(text);
+        assert_eq!(
+            description("// Replay into fusion.ron.\n// Record first.\nDiagram()").as_deref(),
+            Some("Replay into fusion.ron.")
+        );
+        assert_eq!(
+            description("  // No full stop\n//\n// Another paragraph.").as_deref(),
+            Some("No full stop")
+        );
+        assert_eq!(description("Diagram(format: 1)"), None);
+        assert_eq!(description("//\nDiagram()"), None);
+        let long = format!("// {}", "word ".repeat(60));
+        assert!(description(&long).unwrap().ends_with("..."));
     }
 }

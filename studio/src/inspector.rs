@@ -32,7 +32,14 @@ pub fn inspector_ui(ui: &mut egui::Ui, session: &Session, canvas: &Canvas, comma
     }
     let selected: Vec<&String> = canvas.selected.iter().collect();
     let [id] = selected.as_slice() else {
-        ui.label("Select a component or a connection.");
+        if selected.is_empty() {
+            ui.label("Select a component or a connection.");
+        } else {
+            ui.label(format!(
+                "{} components selected: select one alone to see its properties.",
+                selected.len()
+            ));
+        }
         return;
     };
     let Some(instance) = session.document.diagram().component(id) else {
@@ -99,7 +106,10 @@ fn component_ui(
         ui.colored_label(Color32::LIGHT_RED, format!("unknown type {}", instance.type_name));
         return;
     };
-    ui.label(RichText::new(&info.type_name).weak());
+    ui.horizontal_wrapped(|ui| {
+        ui.label(RichText::new(info.display_name()).strong());
+        ui.label(RichText::new(&info.type_name).weak());
+    });
     ui.label(&info.doc);
     ui.separator();
     for property in &info.properties {

@@ -668,6 +668,38 @@ impl Session {
         }
     }
 
+    /// Renames a component (its connections follow, one undoable edit) and says so in the log; a name that
+    /// is taken or no valid id is refused, said at the inspector's name field and in the log. What the
+    /// fields said about the component moves to its new name.
+    pub fn rename_component(&mut self, from: &str, to: &str) -> bool {
+        match self.document.rename_component(from, to) {
+            Ok(()) => {
+                let to = to.trim();
+                let notes = std::mem::take(&mut self.field_notes);
+                self.field_notes = notes
+                    .into_iter()
+                    .filter(|((component, field), _)| !(component == from && field == "name"))
+                    .map(|((component, field), note)| {
+                        let component = if component == from {
+                            to.to_owned()
+                        } else {
+                            component
+                        };
+                        ((component, field), note)
+                    })
+                    .collect();
+                if from != to {
+                    self.succeeded(format!("renamed {from} to {to}"));
+                }
+                true
+            }
+            Err(why) => {
+                self.field_refused(from, "name", why);
+                false
+            }
+        }
+    }
+
     /// A value typed for a property was refused or clamped: the inspector says `why` at the field, and the
     /// log keeps it.
     pub fn field_refused(&mut self, component: &str, property: &str, why: String) {
@@ -1181,6 +1213,19 @@ mod tests {
         let deploy = sent(&mut session);
         session.handle(ok(&deploy[0], json!({"diagnostics": [], "components": 2})));
         assert!(session.not_applied().is_empty());
+    }
+
+    #[test]
+    fn a_refused_name_is_said_at_the_field_until_a_rename_succeeds() {
+        let mut session = connected();
+        assert!(!session.rename_component("counter1", "console1"));
+        assert!(session.field_note("counter1", "name").is_some());
+        assert!(session.rename_component("counter1", " count "));
+        assert!(session.field_note("counter1", "name").is_none());
+        assert!(session.field_note("count", "name").is_none());
+        let connection = &session.document.diagram().connections[0];
+        assert_eq!(connection.from.component, "count");
+        assert!(session.log.lines().any(|l| l.text == "renamed counter1 to count"));
     }
 
     #[test]

@@ -74,7 +74,8 @@ fn click_on_canvas(harness: &mut Harness<'_, StudioApp>, label: &str) {
 
 /// Drags the palette's entry of `type_name` (shown by its readable name) onto the canvas at `at`.
 fn add_from_palette(harness: &mut Harness<'_, StudioApp>, type_name: &str, at: Pos2) {
-    let from = center_of(harness, &kairos_studio::palette::display_name(type_name));
+    let name = library().component(type_name).unwrap().display_name();
+    let from = center_of(harness, &name);
     drag(harness, from, at);
 }
 
@@ -513,7 +514,10 @@ fn an_empty_canvas_says_what_to_do_and_opens_an_example() {
     harness.get_by_label("An empty diagram");
     harness.get_by_label("Open an example").click();
     harness.run_steps(2);
-    harness.get_by_label("hello").click();
+    // Each example with its description, one button for both.
+    harness
+        .get_by_label_contains("Hello, Kairos: a sine wave, amplified, printed on the console.")
+        .click();
     harness.run_steps(3);
     let ids: Vec<String> = harness
         .state()
@@ -565,6 +569,28 @@ fn a_component_is_renamed_in_the_inspector_and_its_connections_follow() {
             .is_some()
     );
     harness.get_by_label("there is already a component named console1: choose another name");
+    // So is a name that is no id, and the log says it too.
+    rename(&mut harness, "my wave");
+    let refusal = "\"my wave\" cannot name a component: use letters, digits, _ and - (for example wave_2)";
+    harness.get_by_label(refusal);
+    assert!(
+        harness
+            .state()
+            .session
+            .log
+            .lines()
+            .any(|l| l.text.ends_with(refusal)),
+        "said in the log"
+    );
+    assert!(
+        harness
+            .state()
+            .session
+            .document
+            .diagram()
+            .component("wave")
+            .is_some()
+    );
     // One undo takes the rename back.
     harness.state_mut().session.document.undo();
     assert!(
@@ -576,4 +602,67 @@ fn a_component_is_renamed_in_the_inspector_and_its_connections_follow() {
             .component("sine1")
             .is_some()
     );
+}
+
+#[test]
+fn the_palette_shows_readable_names_without_doubled_headers_and_searches() {
+    let mut harness = studio();
+    // Readable names, each group once, its pack said only when it differs from the category.
+    for label in [
+        "Sine wave",
+        "Moving average",
+        "Simulated lidar",
+        "Sensors",
+        "Generators (core)",
+    ] {
+        harness.get_by_label(label);
+    }
+    assert!(harness.query_by_label("Sensors (sensors)").is_none());
+    let search = |harness: &mut Harness<'_, StudioApp>, text: &str| {
+        let field = harness.get_by_role(Role::TextInput);
+        field.focus();
+        harness.run_steps(1);
+        harness.key_press_modifiers(egui::Modifiers::COMMAND, egui::Key::A);
+        harness.get_by_role(Role::TextInput).type_text(text);
+        harness.run_steps(2);
+    };
+    // A name, an id, a description.
+    search(&mut harness, "moving");
+    harness.get_by_label("Moving average");
+    assert!(harness.query_by_label("Sine wave").is_none());
+    search(&mut harness, "core.sine");
+    harness.get_by_label("Sine wave");
+    search(&mut harness, "mcap");
+    harness.get_by_label("MCAP recorder");
+    assert!(
+        harness.query_by_label("Viewer").is_none(),
+        "the viewer answers its own words only"
+    );
+    search(&mut harness, "viewer");
+    harness.get_by_label("Viewer");
+    assert!(harness.query_by_label("Sine wave").is_none());
+}
+
+#[test]
+fn what_a_console_prints_is_in_the_console_tab_with_its_component_and_time() {
+    let mut harness = studio();
+    add_from_palette(&mut harness, "core.console", Pos2::new(600.0, 300.0));
+    let printed = |at_ns: i64, message: &str| {
+        kairos_studio::client::ClientEvent::Log(kairos_protocol::LogRecord {
+            at_ns,
+            level: kairos_protocol::LogLevel::Info,
+            component: Some("console1".to_owned()),
+            message: message.to_owned(),
+        })
+    };
+    harness.state_mut().session.handle(printed(
+        1_795_557_290_476_402_148,
+        "console1: t=1 seq=0 latency=3.0µs 0.5",
+    ));
+    harness.run_steps(1);
+    harness.get_by_label("Console output").click();
+    harness.run_steps(2);
+    harness.get_by_label("t=1 seq=0 latency=3.0µs 0.5");
+    harness.get_by_label("21:54:50.476");
+    assert!(harness.get_all_by_label("console1").count() >= 1);
 }

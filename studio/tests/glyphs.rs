@@ -69,3 +69,35 @@ fn every_character_in_the_interface_has_a_glyph() {
     }
     assert!(missing.is_empty(), "no glyph for: {missing:#?}");
 }
+
+/// The characters of the text the studio shows but does not write itself: the library's names,
+/// descriptions and units (palette, inspector), and what the built-in components print and log
+/// ("latency=3.0µs" in the Console tab).
+#[test]
+fn every_character_the_library_and_the_runtime_send_has_a_glyph() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let mut found = BTreeSet::new();
+    let library = std::fs::read_to_string(root.join("tests/library.json")).unwrap();
+    found.extend(library.chars().filter(|c| !c.is_ascii()));
+    let mut files = Vec::new();
+    sources(&root.join("../component-packs"), &mut files);
+    sources(&root.join("../runtime"), &mut files);
+    for (_, source) in &files {
+        literal_characters(source, &mut found);
+    }
+    let ctx = egui::Context::default();
+    ctx.run_ui(egui::RawInput::default(), |_| {})
+        .textures_delta
+        .clear();
+    let missing: Vec<String> = found
+        .into_iter()
+        .filter(|&c| {
+            !ctx.fonts_mut(|fonts| {
+                fonts.has_glyph(&egui::FontId::proportional(14.0), c)
+                    && fonts.has_glyph(&egui::FontId::monospace(14.0), c)
+            })
+        })
+        .map(|c| format!("{c:?} (U+{:04X})", c as u32))
+        .collect();
+    assert!(missing.is_empty(), "no glyph for: {missing:#?}");
+}

@@ -107,6 +107,7 @@ impl Sine {
             "core.sine",
             "A sine wave: offset + amplitude × sin(2π × frequency × t + phase)",
         )
+        .label("Sine wave")
         .property(
             Property::f64("phase_deg", 0.0)
                 .unit("deg")
@@ -137,6 +138,7 @@ impl Square {
             "core.square",
             "A square wave between offset − amplitude and offset + amplitude",
         )
+        .label("Square wave")
         .property(
             Property::f64("duty", 0.5)
                 .range(0.0, 1.0)
@@ -174,6 +176,7 @@ impl Counter {
             "Counts: start, start + step, start + 2 × step, ...",
             10.0,
         )
+        .label("Counter")
         .output("out", DataType::I64, "The count")
         .property(Property::i64("start", 0).doc("The first value"))
         .property(Property::i64("step", 1).live().doc("Added at each sample"))
@@ -214,6 +217,7 @@ impl Constant {
             "A constant value, repeated at a fixed rate",
             10.0,
         )
+        .label("Constant")
         .output("out", DataType::F64, "The value")
         .property(Property::f64("value", 0.0).live().doc("The value written"))
         .build()
@@ -241,6 +245,7 @@ impl Random {
             "Random numbers, uniform in (min, max] or normal (mean, std_dev); seeded, so repeatable",
             10.0,
         )
+        .label("Random numbers")
         .output("out", DataType::F64, "The numbers")
         .property(
             Property::choice("distribution", &["uniform", "normal"], "uniform")
@@ -293,6 +298,7 @@ impl Timer {
             "Ticks at a fixed rate; connect it to a triggered or Sampling reader to resample",
             10.0,
         )
+        .label("Timer")
         .output("tick", DataType::I64, "The tick number, from 0")
         .output("elapsed", DataType::F64, "Seconds since the first tick")
         .build()

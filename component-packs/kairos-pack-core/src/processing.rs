@@ -34,6 +34,7 @@ impl Gain {
             "math",
             "Multiplies each sample by a gain, keeping its timestamp",
         )
+        .label("Gain")
         .input("in", numeric(), "The signal")
         .output("out", DataType::F64, "gain × in")
         .property(Property::f64("gain", 1.0).live().doc("The factor"))
@@ -64,6 +65,7 @@ impl Add {
             "math",
             "a + b: on each new sample with the latest of the other input, or on samples matched by timestamp",
         )
+        .label("Add")
         .input("a", numeric(), "First term")
         .input("b", numeric(), "Second term")
         .output("out", DataType::F64, "a + b, stamped with the newer sample's timestamp")
@@ -124,6 +126,7 @@ impl MovingAverage {
             "math",
             "The mean of the last `window` samples",
         )
+        .label("Moving average")
         .input("in", numeric(), "The signal")
         .output("out", DataType::F64, "The running mean")
         .property(
@@ -174,6 +177,7 @@ impl Threshold {
             "math",
             "true when the input rises above threshold + hysteresis/2, false below threshold − hysteresis/2",
         )
+        .label("Threshold")
         .input("in", numeric(), "The signal")
         .output("out", DataType::Bool, "Whether the signal is above the threshold")
         .property(Property::f64("threshold", 0.0).live().doc("The level"))
@@ -216,6 +220,7 @@ impl Subsampler {
             "flow",
             "Passes one sample in `factor` on, unchanged (payload shared, not copied)",
         )
+        .label("Subsampler")
         .input("in", TypeFilter::Any, "Any stream")
         .output_following("out", "in", "Every factor-th sample of the input")
         .property(
@@ -258,7 +263,8 @@ impl SynchronizerComponent {
             "core.synchronizer",
             "fusion",
             "Matches samples of its connected inputs whose timestamps lie within a tolerance, and writes each matched set",
-        );
+        )
+        .label("Synchronizer");
         for (input, output) in SYNC_INPUTS.iter().zip(SYNC_OUTPUTS) {
             descriptor = descriptor
                 .input(
@@ -346,6 +352,7 @@ impl LatencyProbe {
             "monitoring",
             "Measures end-to-end latency (arrival time − timestamp) and passes samples on unchanged",
         )
+        .label("Latency probe")
         .input("in", TypeFilter::Any, "Any stream")
         .output_following("out", "in", "The input, passed on")
         .output(
@@ -386,6 +393,7 @@ impl Delay {
             "flow",
             "Holds each sample for `delay_ms` before passing it on: stands in for a slow algorithm when sizing buffers",
         )
+        .label("Delay")
         .input("in", TypeFilter::Any, "Any stream")
         .output_following("out", "in", "The input, later; timestamps kept")
         .property(Property::f64("delay_ms", 10.0).unit("ms").range(0.0, 60_000.0).live().doc("Time spent on each sample"))

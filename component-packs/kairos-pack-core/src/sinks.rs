@@ -28,6 +28,7 @@ impl Console {
             "sinks",
             "Prints samples on standard output: timestamp, sequence, latency, value",
         )
+        .label("Console")
         .input("in", TypeFilter::Any, "Any stream")
         .property(
             Property::i64("every", 1)
@@ -201,7 +202,8 @@ impl CsvWriter {
             "core.csv_writer",
             "sinks",
             "Writes samples to a CSV file: one row per sample, or one row per timestamp-matched set",
-        );
+        )
+        .label("CSV file writer");
         for input in CSV_INPUTS {
             descriptor = descriptor.input(input, TypeFilter::Any, "A stream to write");
         }

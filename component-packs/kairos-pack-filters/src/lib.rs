@@ -44,6 +44,7 @@ impl LowPass {
             "filters",
             "First-order low-pass filter; the time step comes from the timestamps",
         )
+        .label("Low-pass filter")
         .input("in", numeric(), "The signal")
         .output("out", DataType::F64, "The smoothed signal, same timestamps")
         .property(
@@ -97,6 +98,7 @@ impl Derivative {
             "filters",
             "Rate of change between consecutive samples, per second",
         )
+        .label("Derivative")
         .input("in", numeric(), "The signal")
         .output(
             "out",

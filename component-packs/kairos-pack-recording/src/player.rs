@@ -242,6 +242,7 @@ impl Player {
             "recording",
             "Replays MCAP recordings as if the sensors were live: one output per recorded channel",
         )
+        .label("MCAP player")
         .property(Property::path("path", "recording.mcap").doc("The recording to replay"))
         .property(Property::path("path2", "").doc("A second recording on the same timeline (optional)"))
         .property(Property::path("path3", "").doc("A third recording (optional)"))

@@ -83,7 +83,8 @@ impl Recorder {
             "recording.recorder",
             "recording",
             "Records its inputs to an MCAP file: one channel per input, both times kept, Foxglove schemas where they exist",
-        );
+        )
+        .label("MCAP recorder");
         for name in INPUT_NAMES {
             descriptor =
                 descriptor.input_with_policy(name, TypeFilter::Any, ReaderPolicy::Fifo, "A stream to record");

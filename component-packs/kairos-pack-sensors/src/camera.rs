@@ -24,6 +24,7 @@ pub fn descriptor() -> ComponentInfo {
          heading, a scrolling road that bends with the path, a car ahead) or colour bars, with the frame \
          number as a bar code along the top-left edge",
     )
+    .label("Simulated camera")
     .mode(ExecutionMode::Periodic)
     .output_with_buffer("image", DataType::Image, 8, "RGB8 frames, rows packed tightly")
     .property(rate_property(30.0, 240.0, "frames"))

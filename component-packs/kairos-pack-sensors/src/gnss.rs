@@ -29,6 +29,7 @@ pub fn descriptor() -> ComponentInfo {
         "Simulated GNSS receiver on the simulated vehicle: WGS84 fixes around a reference point, with \
          time-correlated noise and an outage action",
     )
+    .label("Simulated GNSS receiver")
     .mode(ExecutionMode::Periodic)
     .output(
         "fix",

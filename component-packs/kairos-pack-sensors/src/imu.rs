@@ -24,6 +24,7 @@ pub fn descriptor() -> ComponentInfo {
         "Simulated IMU on the simulated vehicle: body-frame angular velocity and specific force (gravity \
          included, +9.81 m/s² on z at rest), true orientation, plus the ground-truth pose",
     )
+    .label("Simulated IMU")
     .mode(ExecutionMode::Periodic)
     .output(
         "imu",

@@ -47,6 +47,7 @@ pub fn descriptor() -> ComponentInfo {
         "Simulated spinning lidar on the simulated vehicle: the ground, posts along the road and the car \
          ahead, as a point cloud in the sensor frame with intensities",
     )
+    .label("Simulated lidar")
     .mode(ExecutionMode::Periodic)
     .output(
         "points",

@@ -39,6 +39,7 @@ fn component(type_name: &str, pack: &str, mode: ExecutionMode) -> ComponentInfo 
     ComponentInfo {
         type_name: type_name.to_owned(),
         pack: pack.to_owned(),
+        label: String::new(),
         category: "test".to_owned(),
         doc: String::new(),
         mode,

@@ -472,8 +472,12 @@ fn components(library: &LibraryInfo, json: bool, filter: Option<&str>) -> anyhow
     for component in selected {
         let _ = writeln!(
             out,
-            "{}  [{} / {}, {:?}]",
-            component.type_name, component.pack, component.category, component.mode
+            "{} ({})  [{} / {}, {:?}]",
+            component.type_name,
+            component.display_name(),
+            component.pack,
+            component.category,
+            component.mode
         );
         let _ = writeln!(out, "    {}", component.doc);
         for input in &component.inputs {

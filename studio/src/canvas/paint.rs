@@ -28,6 +28,42 @@ pub fn short_policy(policy: ReaderPolicy) -> &'static str {
     }
 }
 
+/// Text on the canvas, laid out at the size it has on the screen: the scene scales what is painted in it,
+/// and text laid out at its unzoomed size would be a magnified (blurred) or shrunken picture of its glyphs.
+/// The galley is laid out at `font`'s size times the zoom, then scaled back into scene units, so the
+/// scene's own scaling brings it to exactly the size its glyphs were drawn at. Returns where it is, in
+/// scene units.
+pub fn crisp_text(
+    painter: &Painter,
+    pos: Pos2,
+    anchor: Align2,
+    text: impl ToString,
+    font: FontId,
+    color: Color32,
+) -> Rect {
+    let zoom = painter
+        .ctx()
+        .layer_transform_to_global(painter.layer_id())
+        .map_or(1.0, |to_screen| to_screen.scaling);
+    // In quarter points, so a zoom lays glyphs out at few distinct sizes (each one fills the font atlas);
+    // the scale below makes up the difference.
+    let size = (font.size * zoom * 4.0).round() / 4.0;
+    if !(zoom.is_finite() && zoom > 0.0 && size > 0.0) || (size - font.size).abs() < 1e-3 {
+        return painter.text(pos, anchor, text, font, color);
+    }
+    let scale = font.size / size;
+    let galley = painter.layout_no_wrap(text.to_string(), FontId::new(size, font.family), color);
+    let rect = anchor.anchor_size(pos, galley.size() * scale);
+    let mut shape = egui::epaint::TextShape::new(rect.min, galley, color);
+    // Scaled about its own corner, which stays where the anchor put it.
+    shape.transform(egui::emath::TSTransform::new(
+        rect.min.to_vec2() * (1.0 - scale),
+        scale,
+    ));
+    painter.add(shape);
+    rect
+}
+
 /// A stable colour per data type name, so a port's colour says what flows through it.
 pub fn type_color(name: &str) -> Color32 {
     let hash = name.bytes().fold(2_166_136_261_u32, |h, b| {
@@ -113,7 +149,8 @@ pub fn paint_connection(
             (Some(policy), true) => policy.name(),
             (Some(policy), false) => short_policy(policy),
         };
-        painter.text(
+        crisp_text(
+            painter,
             label.center(),
             Align2::CENTER_CENTER,
             text,
@@ -128,7 +165,8 @@ pub fn paint_connection(
             figures.rate_hz,
             milliseconds(figures.latency.p50_ns)
         );
-        painter.text(
+        crisp_text(
+            painter,
             label.center_bottom() + Vec2::new(0.0, 2.0),
             Align2::CENTER_TOP,
             &live,
@@ -137,7 +175,8 @@ pub fn paint_connection(
         );
     }
     if figures.overwritten > 0 {
-        painter.text(
+        crisp_text(
+            painter,
             label.center_bottom() + Vec2::new(0.0, 14.0),
             Align2::CENTER_TOP,
             format!("{} lost", figures.overwritten),
@@ -179,7 +218,8 @@ pub fn paint_node(painter: &Painter, visuals: &egui::Visuals, rect: Rect, look: 
     );
     let stripe = Rect::from_min_size(rect.min, Vec2::new(6.0, rect.height()));
     painter.rect_filled(stripe, 3.0, state_color(look.state));
-    painter.text(
+    crisp_text(
+        painter,
         rect.min + Vec2::new(12.0, 5.0),
         Align2::LEFT_TOP,
         look.id,
@@ -189,7 +229,8 @@ pub fn paint_node(painter: &Painter, visuals: &egui::Visuals, rect: Rect, look: 
     if !look.detail {
         return;
     }
-    painter.text(
+    crisp_text(
+        painter,
         rect.min + Vec2::new(12.0, 22.0),
         Align2::LEFT_TOP,
         look.type_name,
@@ -197,7 +238,8 @@ pub fn paint_node(painter: &Painter, visuals: &egui::Visuals, rect: Rect, look: 
         visuals.weak_text_color(),
     );
     if let Some(figures) = look.figures {
-        painter.text(
+        crisp_text(
+            painter,
             rect.right_top() + Vec2::new(-8.0, 5.0),
             Align2::RIGHT_TOP,
             format!(
@@ -260,7 +302,8 @@ pub fn paint_port(
             super::hit_test::Side::Input => (Vec2::new(9.0, 0.0), Align2::LEFT_CENTER),
             super::hit_test::Side::Output => (Vec2::new(-9.0, 0.0), Align2::RIGHT_CENTER),
         };
-        painter.text(
+        crisp_text(
+            painter,
             at + offset,
             align,
             look.name,
