@@ -28,9 +28,12 @@
 //!
 //! Each reader publishes its counters under a sequence lock of its own, so a snapshot from another
 //! thread always satisfies `written = read + skipped + overwritten + queued` exactly. The read count is
-//! not published: it follows from the cursor and the others. A FIFO reader's
-//! lapping is accounted lazily: samples beyond its share count as overwritten the moment they are,
-//! whether the reader looked yet or not.
+//! not published: it follows from the cursor and the others. Lapping is accounted lazily: samples beyond
+//! a reader's share count as overwritten (FIFO) or skipped (readers of the newest) the moment they are,
+//! whether the reader looked yet or not, so `queued` never exceeds the share.
+//!
+//! Subsampling belongs to the stream: a reader keeps the samples whose sequence is a multiple of its
+//! subsampling, and its policy applies to those (`Subsampling`).
 //!
 //! The set of readers changes under a mutex that neither reads nor writes take. A reader attaching
 //! while the writer runs waits until the writer is between two writes; every later write sees it (the
@@ -88,7 +91,8 @@ pub struct ReaderConfig {
     pub policy: ReaderPolicy,
     /// This reader's logical buffer size; `None` takes the output's. At most the ring's size.
     pub capacity: Option<usize>,
-    /// Keep one sample in this many (1 keeps all). Ignored by Sampling, which resamples in time anyway.
+    /// Keep one sample in this many of the producer's sequence (1 keeps all): the samples whose sequence
+    /// number is a multiple of it. The policy then applies to that stream, whatever the policy.
     pub subsampling: u32,
     /// The link's name for statistics and warnings (`sine1.out -> gain1.in`).
     pub link: String,
@@ -146,12 +150,48 @@ struct Progress {
     cloning: AtomicU64,
 }
 
+/// Which samples of the producer's sequence a reader keeps: those whose sequence number is a multiple
+/// of N. A property of the stream, not of the reads: whatever the policy, and however often the reader
+/// looks, it sees the same samples (and never waits for a sample subsampling would not keep).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+struct Subsampling(u64);
+
+impl Subsampling {
+    fn new(one_in: u32) -> Self {
+        Subsampling(u64::from(one_in.max(1)))
+    }
+
+    /// The first kept sequence at or after `sequence`.
+    fn kept_from(self, sequence: u64) -> u64 {
+        match self.0 {
+            1 => sequence,
+            n => sequence.div_ceil(n).saturating_mul(n),
+        }
+    }
+
+    /// The newest kept sequence before `end`, if there is one.
+    fn kept_before(self, end: u64) -> Option<u64> {
+        let last = end.checked_sub(1)?;
+        // No division on the way of every read when nothing is subsampled.
+        Some(if self.0 == 1 { last } else { last - last % self.0 })
+    }
+
+    /// How many kept sequences lie in `from..to`.
+    fn kept_in(self, from: u64, to: u64) -> u64 {
+        match self.0 {
+            _ if to <= from => 0,
+            1 => to - from,
+            n => to.div_ceil(n) - from.div_ceil(n),
+        }
+    }
+}
+
 /// Counters as the reader last published them.
 ///
 /// How many samples were read is not among them: every sequence from the reader's join to its cursor
 /// was read, skipped or overwritten, so it follows from the others (see [`Published::read`]). A read
 /// on the straight path then changes the cursor alone, which needs no sequence lock.
-#[derive(Clone, Copy)]
+#[derive(Clone, Copy, PartialEq, Eq)]
 struct Published {
     cursor: u64,
     skipped: u64,
@@ -163,6 +203,7 @@ struct ReaderShared {
     link: Arc<str>,
     policy: ReaderPolicy,
     capacity: u64,
+    subsampling: Subsampling,
     joined_at: u64,
     signal: Arc<RunSignal>,
     attached: AtomicBool,
@@ -186,9 +227,10 @@ impl ReaderShared {
     fn floor(&self, cursor: u64) -> u64 {
         match self.policy {
             ReaderPolicy::Fifo | ReaderPolicy::NeverSkipping => cursor,
-            // These clone the newest sample, which is at least the one before their cursor.
+            // These clone the newest kept sample, which is at least the newest kept before their cursor
+            // (Sampling clones that one again when nothing newer is kept).
             ReaderPolicy::LastOrNext | ReaderPolicy::WaitForNext | ReaderPolicy::Sampling => {
-                cursor.saturating_sub(1)
+                self.subsampling.kept_before(cursor).unwrap_or(0)
             }
         }
     }
@@ -222,32 +264,38 @@ impl ReaderShared {
         } else {
             detached_at
         };
-        let mut counters = counters_of(self.policy, self.capacity, self.joined_at, counts, written);
+        let mut counters = counters_of(self, counts, written);
         counters.latency = self.latency.snapshot().summary();
         counters
     }
 }
 
-/// The counters of a reader that had `counts` when `written` samples had been written. A FIFO reader
-/// whose pending samples exceed its share has lost the excess to the writer, looked or not.
-fn counters_of(
-    policy: ReaderPolicy,
-    capacity: u64,
-    joined_at: u64,
-    counts: Published,
-    written: u64,
-) -> LinkCounters {
+/// The counters of `reader` when it had published `counts` and `written` samples had been written.
+///
+/// `queued` never exceeds the reader's share: samples the writer laps before the reader looks are
+/// accounted at once, as the reader will account them when it does look. A FIFO reader has lost them to
+/// the writer (overwritten, those its subsampling keeps; skipped, the others); LastOrNext, WaitForNext
+/// and Sampling would have passed over them anyway, a lapped sample never being the newest (skipped).
+fn counters_of(reader: &ReaderShared, counts: Published, written: u64) -> LinkCounters {
     let written = written.max(counts.cursor);
     let mut queued = written - counts.cursor;
+    let mut skipped = counts.skipped;
     let mut overwritten = counts.overwritten;
-    if policy == ReaderPolicy::Fifo && queued > capacity {
-        overwritten += queued - capacity;
-        queued = capacity;
+    if queued > reader.capacity && reader.policy != ReaderPolicy::NeverSkipping {
+        let lapped_until = written - reader.capacity;
+        let lapped = lapped_until - counts.cursor;
+        let lost = match reader.policy {
+            ReaderPolicy::Fifo => reader.subsampling.kept_in(counts.cursor, lapped_until),
+            _ => 0,
+        };
+        overwritten += lost;
+        skipped += lapped - lost;
+        queued = reader.capacity;
     }
     LinkCounters {
-        written: written - joined_at,
-        read: counts.read(joined_at),
-        skipped: counts.skipped,
+        written: written - reader.joined_at,
+        read: counts.read(reader.joined_at),
+        skipped,
         overwritten,
         queued,
         repeated: counts.repeated,
@@ -869,6 +917,17 @@ impl OutputBuffer {
             );
             capacity = slots;
         }
+        let subsampling = Subsampling::new(config.subsampling);
+        if subsampling.0 > slots && config.policy.reads_newest() {
+            tracing::warn!(
+                "link {} keeps one sample in {} but {} holds {slots}: the newest kept sample may be gone \
+                 before it is read; give the output a buffer of at least {} samples",
+                config.link,
+                subsampling.0,
+                shared.output,
+                subsampling.0
+            );
+        }
         shared.version.fetch_add(1, Ordering::SeqCst);
         heavy_fence();
         shared.wait_for_writer_between_writes();
@@ -877,6 +936,7 @@ impl OutputBuffer {
             link: Arc::from(config.link),
             policy: config.policy,
             capacity,
+            subsampling,
             joined_at,
             signal: Arc::clone(&signal),
             attached: AtomicBool::new(true),
@@ -898,8 +958,7 @@ impl OutputBuffer {
             shared: reader,
             policy: config.policy,
             capacity,
-            subsampling: u64::from(config.subsampling.max(1)),
-            subsample_countdown: 0,
+            subsampling,
             counts: Published {
                 cursor: joined_at,
                 skipped: 0,
@@ -1049,6 +1108,11 @@ impl OutputBuffer {
         }
     }
 
+    /// How many samples the ring holds: at least the largest share of a reader.
+    pub fn slots(&self) -> usize {
+        self.shared.slots.len()
+    }
+
     /// How many samples were written in all.
     pub fn written(&self) -> u64 {
         self.shared.written.load(Ordering::Acquire)
@@ -1070,15 +1134,19 @@ impl OutputBuffer {
     }
 }
 
+/// A sample a read took: one not read before, or the one a Sampling reader read last, again.
+enum Taken {
+    New(Sample),
+    Again(Sample),
+}
+
 /// One reader of an output's buffer: the reading end of a link. Dropping it detaches it.
 pub struct Reader {
     buffer: OutputBuffer,
     shared: Arc<ReaderShared>,
     policy: ReaderPolicy,
     capacity: u64,
-    subsampling: u64,
-    /// Samples still to pass over before the next one kept.
-    subsample_countdown: u64,
+    subsampling: Subsampling,
     /// The counters, cursor included, as this reader knows them (published after each change).
     counts: Published,
     signal: Arc<RunSignal>,
@@ -1168,12 +1236,6 @@ impl Reader {
         }
     }
 
-    /// Counts a sample handed to the component and publishes the counters.
-    fn count_kept(&mut self, sample: &Sample) {
-        self.shared.latency.record(sample.latency_nanos());
-        self.publish();
-    }
-
     /// The next sample under the reader's policy, sleeping until one arrives.
     ///
     /// Returns early with [`ReadError::Stopped`] when the component is stopped, and with
@@ -1231,16 +1293,15 @@ impl Reader {
         let written = self.buffer.written();
         match self.policy {
             ReaderPolicy::Sampling => written > 0,
-            _ => self.counts.cursor < written,
+            _ => self.subsampling.kept_from(self.counts.cursor) < written,
         }
     }
 
     /// Skips everything pending (counted as skipped by policy); the next read waits for a new sample.
     pub fn skip_pending(&mut self) {
-        let written = self.buffer.written();
-        if written > self.counts.cursor {
-            self.counts.skipped += written - self.counts.cursor;
-            self.counts.cursor = written;
+        let before = self.counts.cursor;
+        self.pass_all(self.buffer.written());
+        if self.counts.cursor != before {
             self.publish();
         }
     }
@@ -1257,31 +1318,47 @@ impl Reader {
 
     /// Takes the next sample under the policy and subsampling, updating and publishing the counters.
     fn take(&mut self) -> Option<Sample> {
-        loop {
-            let sample = match self.policy {
-                ReaderPolicy::NeverSkipping => self.next_never_skipping()?,
-                ReaderPolicy::Fifo => self.next_fifo()?,
-                ReaderPolicy::LastOrNext | ReaderPolicy::WaitForNext => self.newest_unread()?,
-                ReaderPolicy::Sampling => return self.sampled(),
-            };
-            // Counts down to the next kept sample: no division per sample.
-            let keep = self.subsample_countdown == 0;
-            self.subsample_countdown = if keep {
-                self.subsampling - 1
-            } else {
-                self.subsample_countdown - 1
-            };
-            if keep {
-                self.count_kept(&sample);
-                return Some(sample);
-            }
-            self.counts.skipped += 1;
+        let before = self.counts;
+        let taken = match self.policy {
+            ReaderPolicy::NeverSkipping => self.next_never_skipping().map(Taken::New),
+            ReaderPolicy::Fifo => self.next_fifo().map(Taken::New),
+            ReaderPolicy::LastOrNext | ReaderPolicy::WaitForNext => self.newest_unread().map(Taken::New),
+            ReaderPolicy::Sampling => self.sampled(),
+        };
+        if let Some(Taken::New(sample)) = &taken {
+            self.shared.latency.record(sample.latency_nanos());
+        }
+        if self.counts != before {
             self.publish();
+        }
+        taken.map(|(Taken::New(sample) | Taken::Again(sample))| sample)
+    }
+
+    /// Moves the cursor over the written samples before the next kept one, counting them as skipped.
+    /// Returns whether the cursor is now on a kept sample that was written.
+    fn pass_to_kept(&mut self, written: u64) -> bool {
+        let cursor = self.counts.cursor;
+        let kept = self.subsampling.kept_from(cursor);
+        let passed = kept.min(written.max(cursor));
+        self.counts.skipped += passed - cursor;
+        self.counts.cursor = passed;
+        kept < written
+    }
+
+    /// Moves the cursor over every written sample, counting them as skipped.
+    fn pass_all(&mut self, written: u64) {
+        let cursor = self.counts.cursor;
+        if written > cursor {
+            self.counts.skipped += written - cursor;
+            self.counts.cursor = written;
         }
     }
 
-    /// NeverSkipping: the sample at the cursor, which the writer cannot have replaced (rule 1).
+    /// NeverSkipping: the next kept sample, which the writer cannot have replaced (rule 1).
     fn next_never_skipping(&mut self) -> Option<Sample> {
+        if self.subsampling.0 > 1 && !self.pass_to_kept(self.buffer.written()) {
+            return None;
+        }
         let cursor = self.never_skipping_ready()?;
         let sample = self.buffer.shared.clone_unchecked(cursor);
         self.counts.cursor = cursor + 1;
@@ -1298,7 +1375,8 @@ impl Reader {
         (self.buffer.shared.slot(cursor).stamp.load(Ordering::Acquire) == cursor).then_some(cursor)
     }
 
-    /// FIFO: the oldest sample still within this reader's share; what the writer lapped counts overwritten.
+    /// FIFO: the oldest kept sample still within this reader's share. What the writer lapped counts as
+    /// overwritten (or skipped, what subsampling would have passed over anyway), as in `counters_of`.
     fn next_fifo(&mut self) -> Option<Sample> {
         let mut written = self.buffer.written();
         loop {
@@ -1307,9 +1385,14 @@ impl Reader {
                 return None;
             }
             if written - cursor > self.capacity {
-                let lapped = written - cursor - self.capacity;
-                self.counts.overwritten += lapped;
-                self.counts.cursor += lapped;
+                let lapped_until = written - self.capacity;
+                let lost = self.subsampling.kept_in(cursor, lapped_until);
+                self.counts.overwritten += lost;
+                self.counts.skipped += lapped_until - cursor - lost;
+                self.counts.cursor = lapped_until;
+            }
+            if !self.pass_to_kept(written) {
+                return None;
             }
             match self.clone_announced(self.counts.cursor) {
                 Ok(sample) => {
@@ -1321,7 +1404,14 @@ impl Reader {
         }
     }
 
-    /// LastOrNext and WaitForNext: the newest sample if it is unread; older unread ones are skipped.
+    /// The newest kept sample below `written`, if the ring may still hold it. A ring of fewer slots than
+    /// the subsampling can have lost it (`attach` warns of that; the runtime sizes rings so it cannot).
+    fn newest_kept(&self, written: u64) -> Option<u64> {
+        let newest = self.subsampling.kept_before(written)?;
+        (written - newest <= self.buffer.shared.slots.len() as u64).then_some(newest)
+    }
+
+    /// LastOrNext and WaitForNext: the newest kept sample if it is unread; older unread ones are skipped.
     fn newest_unread(&mut self) -> Option<Sample> {
         let mut written = self.buffer.written();
         loop {
@@ -1329,7 +1419,12 @@ impl Reader {
             if cursor >= written {
                 return None;
             }
-            match self.clone_announced(written - 1) {
+            let Some(newest) = self.newest_kept(written).filter(|&newest| newest >= cursor) else {
+                // Only samples subsampling leaves out are pending (or the kept one is gone).
+                self.pass_all(written);
+                return None;
+            };
+            match self.clone_announced(newest) {
                 Ok(sample) => {
                     self.counts.skipped += written - 1 - cursor;
                     self.counts.cursor = written;
@@ -1340,20 +1435,18 @@ impl Reader {
         }
     }
 
-    /// Sampling: the newest sample, again if nothing newer came (unless the stream is closed).
-    fn sampled(&mut self) -> Option<Sample> {
+    /// Sampling: the newest kept sample, again if nothing newer was kept (unless the stream is closed).
+    fn sampled(&mut self) -> Option<Taken> {
         let mut written = self.buffer.written();
         loop {
             let cursor = self.counts.cursor;
-            if written == 0 {
-                return None;
-            }
-            let again = cursor >= written;
+            let newest = self.newest_kept(written)?;
+            let again = newest < cursor;
             if again && self.buffer.shared.closed.load(Ordering::Acquire) {
                 // A closed stream has nothing new to give: end it rather than repeat forever.
                 return None;
             }
-            let sample = match self.clone_announced(written - 1) {
+            let sample = match self.clone_announced(newest) {
                 Ok(sample) => sample,
                 Err(written_at_least) => {
                     written = written_at_least;
@@ -1361,14 +1454,14 @@ impl Reader {
                 }
             };
             if again {
+                // What is pending, if anything, subsampling leaves out.
+                self.pass_all(written);
                 self.counts.repeated += 1;
-                self.publish();
-            } else {
-                self.counts.skipped += written - 1 - cursor;
-                self.counts.cursor = written;
-                self.count_kept(&sample);
+                return Some(Taken::Again(sample));
             }
-            return Some(sample);
+            self.counts.skipped += written - 1 - cursor;
+            self.counts.cursor = written;
+            return Some(Taken::New(sample));
         }
     }
 

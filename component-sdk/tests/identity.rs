@@ -30,7 +30,8 @@ proptest! {
         writer_pause_every in 1_u64..50,
         reader_pauses in prop::collection::vec(0_u64..3, 1..4),
     ) {
-        let buffer = OutputBuffer::new("p.out", capacity);
+        // As the runtime sizes it: a reader of the newest with subsampling N needs N slots.
+        let buffer = OutputBuffer::with_slots("p.out", capacity, capacity.max(subsampling as usize));
         let mut consumers = Vec::new();
         for (index, policy) in policies.iter().enumerate() {
             let signal = Arc::new(RunSignal::new());
@@ -41,11 +42,21 @@ proptest! {
             consumers.push(thread::spawn(move || {
                 signal.bind_current_thread();
                 let mut last_sequence = None;
+                let mut last_counters = reader.counters();
                 loop {
                     match reader.read(true) {
                         Ok(sample) => {
                             let c = reader.counters();
                             assert!(c.balanced(), "{c:?}");
+                            assert!(c.queued <= capacity as u64, "queued beyond the share: {c:?}");
+                            assert_eq!(sample.sequence % u64::from(subsampling), 0, "not kept: {c:?}");
+                            let before = last_counters;
+                            assert!(
+                                c.written >= before.written && c.read + c.repeated > before.read + before.repeated
+                                    && c.skipped >= before.skipped && c.overwritten >= before.overwritten,
+                                "counters went back: {before:?} then {c:?}"
+                            );
+                            last_counters = c;
                             // Queueing policies never go backwards; Sampling may repeat.
                             if let Some(last) = last_sequence {
                                 assert!(sample.sequence >= last);

@@ -50,10 +50,17 @@ fn read_to_end(reader: &mut Reader) -> Vec<u64> {
 
 /// A writer writes `count` samples then closes; the reader reads until the end of the stream.
 fn model(policy: ReaderPolicy, capacity: usize, count: u64, check: fn(&[u64])) {
+    subsampled_model(policy, capacity, 1, count, check);
+}
+
+/// As [`model`], the reader keeping one sample in `one_in`.
+fn subsampled_model(policy: ReaderPolicy, capacity: usize, one_in: u32, count: u64, check: fn(&[u64])) {
     builder().check(move || {
         let buffer = OutputBuffer::new("w.out", capacity);
         let signal = Arc::new(RunSignal::new());
-        let mut reader = buffer.attach(ReaderConfig::new(policy, "w.out -> r.in"), Arc::clone(&signal));
+        let mut config = ReaderConfig::new(policy, "w.out -> r.in");
+        config.subsampling = one_in;
+        let mut reader = buffer.attach(config, Arc::clone(&signal));
         let writer = {
             let buffer = buffer.clone();
             loom::thread::spawn(move || {
@@ -70,7 +77,12 @@ fn model(policy: ReaderPolicy, capacity: usize, count: u64, check: fn(&[u64])) {
         writer.join().unwrap();
         let counters = reader.counters();
         assert!(counters.balanced(), "{counters:?}");
+        assert!(counters.queued <= capacity as u64, "{counters:?}");
         assert_eq!(counters.written, count);
+        assert!(
+            got.iter().all(|s| s % u64::from(one_in) == 0),
+            "not kept: {got:?}"
+        );
         check(&got);
     });
 }
@@ -95,6 +107,21 @@ fn last_or_next_ends_on_the_newest() {
     model(ReaderPolicy::LastOrNext, 2, 3, |got| {
         assert!(got.windows(2).all(|w| w[0] < w[1]), "{got:?}");
         assert_eq!(got.last(), Some(&2), "{got:?}");
+    });
+}
+
+#[test]
+fn a_subsampled_reader_of_the_newest_sees_kept_samples_only_and_ends_on_the_newest_kept() {
+    subsampled_model(ReaderPolicy::LastOrNext, 2, 2, 4, |got| {
+        assert!(got.windows(2).all(|w| w[0] < w[1]), "{got:?}");
+        assert_eq!(got.last(), Some(&2), "{got:?}");
+    });
+}
+
+#[test]
+fn a_subsampled_never_skipping_reader_gets_every_kept_sample() {
+    subsampled_model(ReaderPolicy::NeverSkipping, 1, 2, 3, |got| {
+        assert_eq!(got, [0, 2]);
     });
 }
 

@@ -268,6 +268,100 @@ fn input_subsampling_keeps_one_in_n_and_counts_the_rest_as_skipped() {
     assert_eq!(counts(r.counters()), [10, 4, 6, 0, 0]);
 }
 
+fn subsampled(buffer: &OutputBuffer, policy: ReaderPolicy, one_in: u32) -> kairos_sdk::host::Reader {
+    let mut config = ReaderConfig::new(policy, "test");
+    config.subsampling = one_in;
+    buffer.attach(config, Arc::new(RunSignal::new()))
+}
+
+#[test]
+fn subsampling_keeps_the_same_samples_whatever_the_policy_and_however_often_the_reader_looks() {
+    for policy in ReaderPolicy::ALL {
+        let buffer = OutputBuffer::new("p.out", 64);
+        let writer = Arc::new(RunSignal::new());
+        let mut r = subsampled(&buffer, policy, 2);
+        let mut got = Vec::new();
+        // The reader looks after every write: it must see the even samples only, each once (Sampling
+        // repeats the newest even one while the odd one follows it).
+        for sequence in 0..10 {
+            write_range(&buffer, &writer, sequence..sequence + 1);
+            if policy == ReaderPolicy::WaitForNext {
+                got.extend(sequences(&mut r));
+            } else if let Some(sample) = r.try_read() {
+                got.push(sample.sequence);
+            }
+        }
+        let expected: Vec<u64> = if policy == ReaderPolicy::Sampling {
+            vec![0, 0, 2, 2, 4, 4, 6, 6, 8, 8]
+        } else {
+            vec![0, 2, 4, 6, 8]
+        };
+        assert_eq!(got, expected, "{policy}");
+        let c = r.counters();
+        // Each look passes over the odd sample that came since.
+        assert_eq!(counts(c), [10, 5, 5, 0, 0], "{policy}");
+        assert_eq!(
+            c.repeated,
+            if policy == ReaderPolicy::Sampling { 5 } else { 0 },
+            "{policy}"
+        );
+    }
+}
+
+#[test]
+fn an_overloaded_subsampled_reader_of_the_newest_takes_the_newest_kept_sample_without_waiting() {
+    let buffer = OutputBuffer::new("p.out", 4);
+    let writer = Arc::new(RunSignal::new());
+    let mut last = subsampled(&buffer, ReaderPolicy::LastOrNext, 2);
+    let mut sampling = subsampled(&buffer, ReaderPolicy::Sampling, 2);
+    // The reader falls behind: the newest sample is odd, the kept one before it is still unread.
+    write_range(&buffer, &writer, 0..10);
+    assert_eq!(last.try_read().map(|s| s.sequence), Some(8));
+    assert_eq!(sampling.try_read().map(|s| s.sequence), Some(8));
+    assert_eq!(counts(last.counters()), [10, 1, 9, 0, 0]);
+    // Only an odd sample is new: nothing for LastOrNext, the same kept one again for Sampling.
+    write_range(&buffer, &writer, 10..11);
+    write_range(&buffer, &writer, 11..12);
+    assert_eq!(last.try_read().map(|s| s.sequence), Some(10));
+    write_range(&buffer, &writer, 12..13);
+    write_range(&buffer, &writer, 13..14);
+    assert_eq!(last.try_read().map(|s| s.sequence), Some(12));
+    assert!(last.try_read().is_none());
+    assert_eq!(counts(last.counters()), [14, 3, 11, 0, 0]);
+}
+
+#[test]
+fn a_lapped_subsampled_fifo_reader_counts_kept_samples_as_overwritten_and_the_others_as_skipped() {
+    let buffer = OutputBuffer::new("p.out", 4);
+    let writer = Arc::new(RunSignal::new());
+    let mut r = subsampled(&buffer, ReaderPolicy::Fifo, 2);
+    write_range(&buffer, &writer, 0..10);
+    // Lost to the writer: 0, 2, 4 (kept) and 1, 3, 5 (passed over anyway); 6 to 9 still held.
+    assert_eq!(counts(r.counters()), [10, 0, 3, 3, 4]);
+    assert_eq!(sequences(&mut r), vec![6, 8]);
+    assert_eq!(counts(r.counters()), [10, 2, 5, 3, 0]);
+}
+
+#[test]
+fn queued_never_exceeds_the_share_and_samples_lapped_before_a_reader_of_the_newest_looks_are_skipped() {
+    for policy in [
+        ReaderPolicy::LastOrNext,
+        ReaderPolicy::WaitForNext,
+        ReaderPolicy::Sampling,
+    ] {
+        let buffer = OutputBuffer::new("p.out", 4);
+        let writer = Arc::new(RunSignal::new());
+        let mut r = reader(&buffer, policy);
+        write_range(&buffer, &writer, 0..34);
+        assert_eq!(counts(r.counters()), [34, 0, 30, 0, 4], "{policy}");
+        // When it looks, the counts go on from there: the lapped ones were skipped, never overwritten.
+        if policy != ReaderPolicy::WaitForNext {
+            assert_eq!(r.try_read().map(|s| s.sequence), Some(33), "{policy}");
+            assert_eq!(counts(r.counters()), [34, 1, 33, 0, 0], "{policy}");
+        }
+    }
+}
+
 #[test]
 fn a_connection_may_have_a_larger_share_than_the_output_default() {
     let buffer = OutputBuffer::with_slots("p.out", 2, 8);

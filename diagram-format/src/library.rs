@@ -159,6 +159,15 @@ impl ReaderPolicy {
         ReaderPolicy::NeverSkipping,
     ];
 
+    /// Whether a read takes the newest sample, passing over older pending ones (LastOrNext, WaitForNext,
+    /// Sampling), rather than the oldest (FIFO, NeverSkipping).
+    pub fn reads_newest(self) -> bool {
+        matches!(
+            self,
+            ReaderPolicy::LastOrNext | ReaderPolicy::WaitForNext | ReaderPolicy::Sampling
+        )
+    }
+
     /// The name used in diagram files.
     pub fn name(self) -> &'static str {
         match self {

@@ -7,7 +7,9 @@ use std::sync::{Arc, Mutex, MutexGuard, OnceLock, Weak};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
-use kairos_diagram::{ComponentInfo, Diagram, ExecutionMode, ThreadSettings, Value};
+use kairos_diagram::{
+    ComponentInfo, Diagram, ExecutionMode, InstanceInfos, ReaderPolicy, ThreadSettings, Value,
+};
 use kairos_sdk::host::{ContextHost as _, ContextParts, OutputBuffer, ReaderConfig};
 use kairos_sdk::{
     Clock, Component, ComponentError, ComponentResult, Context, Registry, RunSignal, Timestamp,
@@ -308,7 +310,7 @@ pub struct Engine {
     clock: Arc<dyn Clock>,
     slots: Vec<Slot>,
     buffers: Vec<OutputBuffer>,
-    policies: BTreeMap<String, kairos_diagram::ReaderPolicy>,
+    policies: BTreeMap<String, ReaderPolicy>,
     state: EngineState,
     supervisor: Option<(SyncSender<()>, JoinHandle<()>)>,
 }
@@ -320,6 +322,30 @@ impl std::fmt::Debug for Engine {
             .field("state", &self.state)
             .finish_non_exhaustive()
     }
+}
+
+/// The policy a connection reads under: its own, else its input's default.
+fn connection_policy(
+    diagram: &Diagram,
+    registry: &Registry,
+    instances: &InstanceInfos,
+    connection: &kairos_diagram::Connection,
+) -> ReaderPolicy {
+    connection.policy.unwrap_or_else(|| {
+        let consumer = &connection.to.component;
+        let described = match instances.get(consumer) {
+            Some(Ok(info)) => Some(info),
+            _ => diagram
+                .components
+                .iter()
+                .find(|c| &c.id == consumer)
+                .and_then(|c| registry.component(&c.type_name))
+                .map(|registered| &registered.info),
+        };
+        described
+            .and_then(|info| info.input(&connection.to.port))
+            .map_or(ReaderPolicy::default(), |input| input.default_policy)
+    })
 }
 
 /// The name of a link in statistics and warnings.
@@ -372,12 +398,19 @@ impl Engine {
                 let size = settings
                     .and_then(|s| s.buffer_size)
                     .unwrap_or(output.default_buffer_size);
-                // Room for the largest share a connection from this output asks for.
+                // Room for the largest share a connection from this output asks for, and for the newest
+                // kept sample of a subsampled reader of the newest (one in N needs N slots).
                 let slots = diagram
                     .connections
                     .iter()
                     .filter(|c| c.from.component == instance.id && c.from.port == output.name)
-                    .filter_map(|c| c.buffer_size)
+                    .flat_map(|c| {
+                        let newest_kept = c
+                            .subsampling
+                            .filter(|_| connection_policy(diagram, registry, &instances, c).reads_newest());
+                        [c.buffer_size, newest_kept.map(|n| n as usize)]
+                    })
+                    .flatten()
                     .fold(size, usize::max);
                 let buffer =
                     OutputBuffer::with_slots(format!("{}.{}", instance.id, output.name), size, slots);
@@ -412,10 +445,10 @@ impl Engine {
             let Some(consumer) = pending.iter().find(|p| p.id == connection.to.component) else {
                 continue;
             };
-            let Some(input) = consumer.info.input(&connection.to.port) else {
+            if consumer.info.input(&connection.to.port).is_none() {
                 continue;
-            };
-            let policy = connection.policy.unwrap_or(input.default_policy);
+            }
+            let policy = connection_policy(diagram, registry, &instances, connection);
             let link = link_name(&connection.from, &connection.to);
             policies.insert(link.clone(), policy);
             let reader = buffer.attach(

@@ -62,6 +62,24 @@ impl Component for SlowerThanItsPeriod {
     }
 }
 
+/// What `SlowRecorder` read, in order (only one test uses it).
+static RECORDED: std::sync::Mutex<Vec<i64>> = std::sync::Mutex::new(Vec::new());
+
+/// Takes 2 ms per sample and records the values it reads.
+#[derive(Default)]
+struct SlowRecorder;
+
+impl Component for SlowRecorder {
+    fn core(&mut self, ctx: &mut Context) -> ComponentResult {
+        let sample = ctx.read("in")?;
+        sleep(Duration::from_millis(2));
+        if let Payload::I64(value) = sample.payload {
+            RECORDED.lock().unwrap().push(value);
+        }
+        Ok(())
+    }
+}
+
 fn registry() -> Registry {
     let mut registry = Registry::new();
     kairos_pack_core::register(&mut registry);
@@ -74,6 +92,20 @@ fn registry() -> Registry {
             Descriptor::new("faulty.slower_than_its_period", "test", "Cycles of 5 ms at 1 kHz")
                 .mode(kairos_sdk::ExecutionMode::Periodic)
                 .build(),
+        )
+        .component::<SlowRecorder>(
+            Descriptor::new(
+                "faulty.slow_recorder",
+                "test",
+                "Records what it reads, 2 ms a sample",
+            )
+            .input_with_policy(
+                "in",
+                TypeFilter::Any,
+                kairos_diagram::ReaderPolicy::LastOrNext,
+                "",
+            )
+            .build(),
         )
         .component::<PanicsOnThird>(
             Descriptor::new("faulty.panics_on_third", "test", "Panics on its third sample")
@@ -464,4 +496,46 @@ fn missed_periodic_ticks_are_counted() {
     // A 100 Hz sine keeps its rate (a tick or two lost to a loaded machine is tolerated).
     assert!(missed("source") <= 2, "{}", missed("source"));
     assert!(snapshot.table().contains("missed"), "{}", snapshot.table());
+}
+
+#[test]
+fn an_overloaded_subsampled_reader_of_the_newest_reads_kept_samples_only_and_queues_within_its_share() {
+    let mut counter = component("counter", "core.counter", &[("rate", Value::F64(2000.0))]);
+    counter.outputs.insert(
+        "out".into(),
+        kairos_diagram::OutputSettings {
+            buffer_size: Some(1),
+            subsampling: None,
+        },
+    );
+    let mut link = connect("counter.out", "slow.in");
+    link.subsampling = Some(3);
+    let d = diagram(
+        vec![counter, component("slow", "faulty.slow_recorder", &[])],
+        vec![link],
+    );
+    let mut engine = Engine::build(&d, &registry(), RealTimeClock::shared()).unwrap();
+    // The ring holds the newest kept sample whatever the share: one in 3 needs 3 slots.
+    assert!(engine.output_buffer("counter", "out").unwrap().slots() >= 3);
+    engine.start().unwrap();
+    let mut snapshots = Vec::new();
+    for _ in 0..10 {
+        sleep(Duration::from_millis(30));
+        snapshots.push(engine.snapshot());
+    }
+    engine.stop();
+    let values = RECORDED.lock().unwrap().clone();
+    // Without delay: about one value per 2 ms cycle, never one that subsampling leaves out.
+    assert!(
+        values.len() >= 40,
+        "the reader waited for fresh samples: {} in 300 ms",
+        values.len()
+    );
+    assert!(values.iter().all(|v| v % 3 == 0), "{values:?}");
+    assert!(values.windows(2).all(|w| w[0] < w[1]), "{values:?}");
+    for snapshot in &snapshots {
+        let counters = &snapshot.links[0].counters;
+        assert!(counters.balanced(), "{counters:?}");
+        assert!(counters.queued <= 1, "queued beyond the share of 1: {counters:?}");
+    }
 }
