@@ -163,6 +163,14 @@ fn a_recorder_killed_mid_run_leaves_every_closed_chunk_readable() {
         assert_eq!(code, Some(3), "a damaged file is reported: {report}");
         assert_eq!(report["complete"], false);
         assert!(report["damage"].as_str().unwrap().contains("intact"), "{report}");
+        // The drop counts until the last closed chunk are in the file, though it was never closed.
+        let drops = &report["metadata"]["kairos.drops"];
+        assert!(
+            drops["in1 camera.image"]
+                .as_str()
+                .is_some_and(|d| d.starts_with("written=")),
+            "{report}"
+        );
         // Over a second of closed chunks (0.2 s each): every track has data.
         for topic in ["camera.image", "imu.imu", "gnss.fix"] {
             assert!(
@@ -214,7 +222,30 @@ fn a_truncated_or_foreign_file_is_reported_not_a_crash() {
     std::fs::write(&damaged, &flipped).unwrap();
     let (code, report) = inspect(dir.path(), &damaged);
     assert_eq!(code, Some(3), "{report}");
-    assert!(report["messages"].as_u64().unwrap() < total);
+    let intact = report["messages"].as_u64().unwrap();
+    assert!(intact < total);
+    let regions = report["damaged_chunks"].as_array().unwrap();
+    assert!(!regions.is_empty(), "{report}");
+    let left_out: u64 = regions.iter().map(|r| r["messages"].as_u64().unwrap()).sum();
+    assert_eq!(
+        intact + left_out,
+        total,
+        "every message is intact or counted as left out: {report}"
+    );
+    // Recovery leaves the damaged chunks out and keeps every intact one, after them too.
+    let fixed = dir.path().join("flipped-fixed.mcap");
+    let output = kairos(
+        dir.path(),
+        &["recover", damaged.to_str().unwrap(), fixed.to_str().unwrap()],
+    );
+    let (stdout, _) = text(&output);
+    assert!(
+        stdout.contains("damaged chunk(s)") && stdout.contains("left out with its"),
+        "{stdout}"
+    );
+    let (code, recovered) = inspect(dir.path(), &fixed);
+    assert_eq!(code, Some(0), "{recovered}");
+    assert_eq!(recovered["messages"].as_u64(), Some(intact));
 
     let foreign = dir.path().join("notes.mcap");
     std::fs::write(&foreign, "not a recording").unwrap();

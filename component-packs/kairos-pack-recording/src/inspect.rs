@@ -7,6 +7,8 @@ use std::path::Path;
 use mcap::read::Summary;
 use serde::Serialize;
 
+use crate::safe_read::{Catalog, DamagedRegion};
+
 /// One channel of a recording.
 #[derive(Debug, Clone, Serialize)]
 pub struct ChannelReport {
@@ -48,8 +50,18 @@ pub struct Report {
     pub channels: Vec<ChannelReport>,
     /// Metadata records, by name.
     pub metadata: BTreeMap<String, BTreeMap<String, String>>,
-    /// Where reading stopped on a damaged file, and why.
+    /// How many messages the file's summary counts, when it has one: more than `messages` when chunks
+    /// are damaged.
+    pub summary_messages: Option<u64>,
+    /// Messages left out in damaged chunks, as far as their message indexes tell.
+    pub messages_left_out: u64,
+    /// The damaged chunks (and other records) left out, in file order: offset, length, messages, reason.
+    pub damaged_chunks: Vec<DamagedRegion>,
+    /// The damage in one line: each damaged chunk, and where a file that was not closed stops.
     pub damage: Option<String>,
+    /// How a file that was not closed ends (the last part of `damage`).
+    #[serde(skip)]
+    ending: Option<String>,
 }
 
 /// `value` rounded to `1 / scale` (1e3: thousandths), so reports print figures a person reads, not
@@ -141,7 +153,7 @@ pub fn inspect_bytes(shown: &str, bytes: &[u8]) -> Result<Report, InspectError> 
 fn inspect_bytes_with_progress(
     shown: &str,
     bytes: &[u8],
-    on_progress: impl FnMut(usize),
+    mut on_progress: impl FnMut(usize),
 ) -> Result<Report, InspectError> {
     let shown = shown.to_owned();
     if bytes.get(..8) != Some(mcap::MAGIC) {
@@ -153,42 +165,56 @@ fn inspect_bytes_with_progress(
     let summary = Summary::read(bytes).ok().flatten();
     let complete = summary.is_some();
     let mut metadata = BTreeMap::new();
-    if let Some(summary) = &summary {
-        for index in &summary.metadata_indexes {
-            if let Ok(record) = mcap::read::metadata(bytes, index) {
-                metadata.insert(record.name, record.metadata);
-            }
-        }
-    }
-    // Count by reading every message: it works the same on complete and damaged files.
+    let catalog = summary
+        .as_ref()
+        .map_or_else(Catalog::default, Catalog::from_summary);
+    // Count by reading every message: it works the same on complete and damaged files, and a damaged
+    // chunk's messages are not counted.
     let mut tallies: BTreeMap<String, Tally> = BTreeMap::new();
-    let mut damage = crate::safe_read::read_intact_with_progress(
+    let walked = crate::safe_read::walk(
         bytes,
-        |message| {
-            let channel = &message.channel;
-            let tally = tallies.entry(channel.topic.clone()).or_insert_with(|| Tally {
-                schema: channel
-                    .schema
-                    .as_ref()
-                    .map_or_else(String::new, |s| s.name.clone()),
-                encoding: channel.message_encoding.clone(),
-                kairos_type: channel.metadata.get("kairos.type").cloned(),
-                first: message.publish_time,
-                ..Tally::default()
-            });
-            tally.messages += 1;
-            tally.first = tally.first.min(message.publish_time);
-            tally.last = tally.last.max(message.publish_time);
+        catalog,
+        |block| {
+            for message in block.messages {
+                let channel = &message.channel;
+                let tally = tallies.entry(channel.topic.clone()).or_insert_with(|| Tally {
+                    schema: channel
+                        .schema
+                        .as_ref()
+                        .map_or_else(String::new, |s| s.name.clone()),
+                    encoding: channel.message_encoding.clone(),
+                    kairos_type: channel.metadata.get("kairos.type").cloned(),
+                    first: message.publish_time,
+                    ..Tally::default()
+                });
+                tally.messages += 1;
+                tally.first = tally.first.min(message.publish_time);
+                tally.last = tally.last.max(message.publish_time);
+            }
         },
-        |_| {},
-        on_progress,
+        // The last record of a name wins: the recorder rewrites its drop counts as it goes.
+        |record| {
+            metadata.insert(record.name, record.metadata);
+        },
+        |done| on_progress(usize::try_from(done).unwrap_or(usize::MAX)),
     )
-    .map(|d| format!("{d} (messages before this point are intact)"));
-    if !complete && damage.is_none() {
-        damage = Some(
-            "the file has no summary: it was not closed (a crash?); every closed chunk is intact".to_owned(),
-        );
-    }
+    .map_err(|error| InspectError::Io {
+        path: shown.clone(),
+        error,
+    })?;
+    let ending = if let Some(cut) = &walked.cut_short {
+        Some(format!("{cut}; every chunk before it is intact"))
+    } else if !complete {
+        Some("the file has no summary: it was not closed (a crash?); every closed chunk is intact".to_owned())
+    } else {
+        None
+    };
+    let damage: Vec<String> = walked
+        .damaged
+        .iter()
+        .map(ToString::to_string)
+        .chain(ending.clone())
+        .collect();
     let messages = tallies.values().map(|t| t.messages).sum();
     let start_ns = tallies.values().map(|t| t.first).min().unwrap_or(0);
     let end_ns = tallies.values().map(|t| t.last).max().unwrap_or(0);
@@ -221,7 +247,11 @@ fn inspect_bytes_with_progress(
         duration_s: round_to(end_ns.saturating_sub(start_ns) as f64 * 1e-9, 1e6),
         channels,
         metadata,
-        damage,
+        summary_messages: summary.and_then(|s| s.stats).map(|stats| stats.message_count),
+        messages_left_out: walked.messages_left_out(),
+        damaged_chunks: walked.damaged,
+        damage: (!damage.is_empty()).then(|| damage.join("; ")),
+        ending,
     })
 }
 
@@ -272,8 +302,31 @@ impl Report {
                 }
             }
         }
-        if let Some(damage) = &self.damage {
-            let _ = writeln!(out, "\ndamage: {damage}");
+        if !self.damaged_chunks.is_empty() {
+            let _ = writeln!(
+                out,
+                "\n{} damaged chunk(s) left out, holding {}{} messages:",
+                self.damaged_chunks.len(),
+                if self.damaged_chunks.iter().any(|d| d.messages.is_none()) {
+                    "at least "
+                } else {
+                    ""
+                },
+                self.messages_left_out,
+            );
+            for region in &self.damaged_chunks {
+                let _ = writeln!(out, "  {region}");
+            }
+            if let Some(total) = self.summary_messages {
+                let _ = writeln!(
+                    out,
+                    "  the summary counts {total} messages; {} are intact",
+                    self.messages
+                );
+            }
+        }
+        if let Some(ending) = &self.ending {
+            let _ = writeln!(out, "\ndamage: {ending}");
         }
         out
     }

@@ -485,7 +485,7 @@ impl Component for Player {
         for file in &files {
             if let Some(damage) = file.damage() {
                 tracing::warn!(
-                    "{}: {} is damaged: {damage}; replaying the {} intact blocks before it",
+                    "{}: {} is damaged: {damage}; replaying its {} intact blocks",
                     ctx.id(),
                     file.path().display(),
                     file.block_count()

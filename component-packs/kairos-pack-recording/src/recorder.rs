@@ -219,12 +219,10 @@ impl Recorder {
         Ok(())
     }
 
-    /// Writes the drop counts of every track and closes the file; it is complete and indexed.
-    fn close(&mut self, ctx: &Context) -> ComponentResult {
-        let Some(mut file) = self.file.take() else {
-            return Ok(());
-        };
-        self.closed_files += 1;
+    /// The `kairos.drops` record: per track, its link's counters now. Written with every chunk the period
+    /// closes and at the end, so a file that was never closed still tells what was lost until then (the
+    /// last record of that name is the latest).
+    fn drop_counts(&self, ctx: &Context) -> Metadata {
         let mut drops = BTreeMap::new();
         for index in &self.connected {
             let (Some(source), Some(counters)) = (
@@ -242,12 +240,21 @@ impl Recorder {
                 ),
             );
         }
+        Metadata {
+            name: "kairos.drops".to_owned(),
+            metadata: drops,
+        }
+    }
+
+    /// Writes the drop counts of every track and closes the file; it is complete and indexed.
+    fn close(&mut self, ctx: &Context) -> ComponentResult {
+        let Some(mut file) = self.file.take() else {
+            return Ok(());
+        };
+        self.closed_files += 1;
         let result = file
             .writer
-            .write_metadata(&Metadata {
-                name: "kairos.drops".to_owned(),
-                metadata: drops,
-            })
+            .write_metadata(&self.drop_counts(ctx))
             .and_then(|()| file.writer.finish().map(|_| ()));
         let inner = file.writer.into_inner();
         let flushed = inner
@@ -323,13 +330,19 @@ impl Recorder {
             .write_to_known_channel(&header, &self.scratch)
             .map_err(|e| failed(&path, "cannot write to", with_causes(&e)))?;
         file.bytes += self.scratch.len() as u64;
+        let chunk_due =
+            file.last_chunk.elapsed() >= Duration::from_secs_f64(ctx.f64_property("chunk_period_s")?);
         self.written_since_check += self.scratch.len() as u64;
-        let period = Duration::from_secs_f64(ctx.f64_property("chunk_period_s")?);
-        if file.last_chunk.elapsed() >= period {
-            file.last_chunk = Instant::now();
-            file.writer
-                .flush()
-                .map_err(|e| failed(&path, "cannot write to", with_causes(&e)))?;
+        if chunk_due {
+            // The metadata record closes the chunk; the flush hands both to the system.
+            let drops = self.drop_counts(ctx);
+            if let Some(file) = self.file.as_mut() {
+                file.last_chunk = Instant::now();
+                file.writer
+                    .write_metadata(&drops)
+                    .and_then(|()| file.writer.flush())
+                    .map_err(|e| failed(&path, "cannot write to", with_causes(&e)))?;
+            }
         }
         Ok(())
     }

@@ -1,5 +1,7 @@
 //! `kairos recover`: rewrites an unfinished or damaged recording into a complete, indexed one, keeping
-//! every message and metadata record that precedes the damage.
+//! every intact chunk and metadata record. A damaged chunk is left out whole (its messages cannot be
+//! trusted, and a copy with fresh checksums would hide that), reported with its offset and message
+//! count; every intact chunk after it is kept.
 
 use std::fs::File;
 use std::io::BufWriter;
@@ -8,6 +10,7 @@ use std::path::Path;
 use serde::Serialize;
 
 use crate::inspect::InspectError;
+use crate::safe_read::{Catalog, DamagedRegion};
 
 /// What a recovery kept.
 #[derive(Debug, Clone, Serialize)]
@@ -16,8 +19,17 @@ pub struct Recovered {
     pub messages: u64,
     /// Metadata records copied.
     pub metadata: u64,
-    /// Where reading stopped, if the input was damaged.
-    pub damage: Option<String>,
+    /// The damaged chunks left out, in file order.
+    pub left_out: Vec<DamagedRegion>,
+    /// Where the input stops in the middle of a record, when it does (it was not closed).
+    pub cut_short: Option<String>,
+}
+
+impl Recovered {
+    /// Messages left out with the damaged chunks, as far as their indexes tell.
+    pub fn messages_left_out(&self) -> u64 {
+        self.left_out.iter().filter_map(|d| d.messages).sum()
+    }
 }
 
 fn io_error(path: &Path, error: impl std::fmt::Display) -> InspectError {
@@ -51,32 +63,44 @@ pub fn recover(input: &Path, output: &Path) -> Result<Recovered, InspectError> {
         .profile("kairos")
         .create(BufWriter::new(file))
         .map_err(|e| io_error(output, e))?;
-    let mut recovered = Recovered {
-        messages: 0,
-        metadata: 0,
-        damage: None,
-    };
+    let catalog = mcap::read::Summary::read(&bytes)
+        .ok()
+        .flatten()
+        .map_or_else(Catalog::default, |summary| Catalog::from_summary(&summary));
+    let mut messages = 0;
     let mut failure = None;
     let mut metadata = Vec::new();
-    recovered.damage = crate::safe_read::read_intact(
-        &bytes,
-        |message| {
-            if failure.is_none() {
-                match writer.write(message) {
-                    Ok(()) => recovered.messages += 1,
-                    Err(error) => failure = Some(error.to_string()),
+    let walked = crate::safe_read::walk(
+        bytes.as_slice(),
+        catalog,
+        |block| {
+            for message in block.messages {
+                if failure.is_none() {
+                    match writer.write(message) {
+                        Ok(()) => messages += 1,
+                        Err(error) => failure = Some(error.to_string()),
+                    }
                 }
             }
         },
         |record| metadata.push(record),
-    );
+        |_| {},
+    )
+    .map_err(|error| InspectError::Io {
+        path: input.display().to_string(),
+        error,
+    })?;
     if let Some(error) = failure {
         return Err(io_error(output, error));
     }
     for record in &metadata {
         writer.write_metadata(record).map_err(|e| io_error(output, e))?;
-        recovered.metadata += 1;
     }
     writer.finish().map_err(|e| io_error(output, e))?;
-    Ok(recovered)
+    Ok(Recovered {
+        messages,
+        metadata: metadata.len() as u64,
+        left_out: walked.damaged,
+        cut_short: walked.cut_short,
+    })
 }

@@ -1,8 +1,9 @@
 //! A recording opened for replay: its channels, an index of its blocks (chunks, or messages outside
 //! chunks) with their time ranges, and where a damaged file stops being readable.
 //!
-//! Opening walks the file's top-level records once, reading each block through the length-limited,
-//! CRC-checking reader of [`crate::safe_read`]; nothing is kept in memory but the index. Replay then reads
+//! Opening walks the file's top-level records once with [`crate::safe_read::walk`], which reads each block
+//! through the length-limited, CRC-checking reader and leaves damaged chunks out whole; nothing is kept in
+//! memory but the index. Replay then reads
 //! one block at a time by its offset, so a recording of any size replays in bounded memory, and seeking
 //! is a binary search over block times.
 
@@ -13,9 +14,7 @@ use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex, OnceLock};
 use std::time::SystemTime;
 
-use mcap::records::op;
-
-use crate::safe_read::{Catalog, MAX_RECORD_BYTES, read_records};
+use crate::safe_read::{Catalog, read_records, walk};
 
 /// One recorded channel.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -98,10 +97,6 @@ impl RecordingIndex {
     fn scan(path: &Path) -> Result<RecordingIndex, String> {
         let shown = path.display();
         let file = File::open(path).map_err(|e| format!("cannot open {shown}: {e}"))?;
-        let length = file
-            .metadata()
-            .map_err(|e| format!("cannot read {shown}: {e}"))?
-            .len();
         let mut magic = [0_u8; 8];
         if file.read_exact_at(&mut magic, 0).is_err() || magic[..] != *mcap::MAGIC {
             return Err(format!(
@@ -117,81 +112,47 @@ impl RecordingIndex {
             damage: None,
         };
         let mut channels: BTreeMap<u16, ChannelEntry> = BTreeMap::new();
-        let mut offset = 8_u64;
-        let mut bytes = Vec::new();
-        loop {
-            if offset == length {
-                break;
-            }
-            let mut header = [0_u8; 9];
-            if offset + 9 > length || index.file.read_exact_at(&mut header, offset).is_err() {
-                index.damage = Some(format!(
-                    "the file ends in the middle of a record at byte {offset}"
-                ));
-                break;
-            }
-            let opcode = header[0];
-            let mut size = [0_u8; 8];
-            size.copy_from_slice(&header[1..]);
-            let body = u64::from_le_bytes(size);
-            let end = offset.saturating_add(9).saturating_add(body);
-            if body > MAX_RECORD_BYTES as u64 || end > length {
-                index.damage = Some(format!(
-                    "the record at byte {offset} claims {body} bytes, past the end of the file (truncated?)"
-                ));
-                break;
-            }
-            if opcode == op::DATA_END || opcode == op::FOOTER {
-                break;
-            }
-            if matches!(opcode, op::CHUNK | op::MESSAGE | op::SCHEMA | op::CHANNEL) {
-                bytes.resize(usize::try_from(end - offset).unwrap_or(0), 0);
-                if let Err(error) = index.file.read_exact_at(&mut bytes, offset) {
-                    index.damage = Some(format!("cannot read the record at byte {offset}: {error}"));
-                    break;
+        let mut blocks = Vec::new();
+        let walked = walk(
+            &index.file,
+            Catalog::default(),
+            |block| {
+                let mut times: Option<(u64, u64)> = None;
+                for message in block.messages {
+                    let channel = &message.channel;
+                    channels
+                        .entry(channel.id)
+                        .or_insert_with(|| ChannelEntry {
+                            id: channel.id,
+                            topic: channel.topic.clone(),
+                            schema: channel
+                                .schema
+                                .as_ref()
+                                .map_or_else(String::new, |s| s.name.clone()),
+                            encoding: channel.message_encoding.clone(),
+                            messages: 0,
+                        })
+                        .messages += 1;
+                    let (first, last) = times.get_or_insert((message.log_time, message.log_time));
+                    *first = (*first).min(message.log_time);
+                    *last = (*last).max(message.log_time);
                 }
-                let mut block: Option<(u64, u64)> = None;
-                let damage = read_records(
-                    &bytes,
-                    false,
-                    &mut index.catalog,
-                    |message| {
-                        let channel = &message.channel;
-                        channels
-                            .entry(channel.id)
-                            .or_insert_with(|| ChannelEntry {
-                                id: channel.id,
-                                topic: channel.topic.clone(),
-                                schema: channel
-                                    .schema
-                                    .as_ref()
-                                    .map_or_else(String::new, |s| s.name.clone()),
-                                encoding: channel.message_encoding.clone(),
-                                messages: 0,
-                            })
-                            .messages += 1;
-                        let (first, last) = block.get_or_insert((message.log_time, message.log_time));
-                        *first = (*first).min(message.log_time);
-                        *last = (*last).max(message.log_time);
-                    },
-                    |_| {},
-                );
-                if let Some(damage) = damage {
-                    index.damage = Some(format!("the record at byte {offset} is damaged: {damage}"));
-                    // Its messages were counted; a block is replayed whole or not at all.
-                    break;
-                }
-                if let Some((first_log_time, last_log_time)) = block {
-                    index.blocks.push(Block {
-                        offset,
-                        length: end - offset,
+                if let Some((first_log_time, last_log_time)) = times {
+                    blocks.push(Block {
+                        offset: block.offset,
+                        length: block.length,
                         first_log_time,
                         last_log_time,
                     });
                 }
-            }
-            offset = end;
-        }
+            },
+            |_| {},
+            |_| {},
+        )
+        .map_err(|e| format!("cannot read {shown}: {e}"))?;
+        index.blocks = blocks;
+        index.damage = walked.summary();
+        index.catalog = walked.catalog;
         index.channels = channels.into_values().collect();
         index
             .channels
@@ -209,7 +170,7 @@ impl RecordingIndex {
         &self.channels
     }
 
-    /// Where and why reading stopped, for a damaged file; everything before it replays.
+    /// What is damaged in the file (chunks left out, where it stops); every intact block replays.
     pub fn damage(&self) -> Option<&str> {
         self.damage.as_deref()
     }

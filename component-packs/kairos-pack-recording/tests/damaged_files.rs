@@ -11,6 +11,7 @@ use std::sync::{Arc, OnceLock};
 use kairos_pack_recording::decode::decode;
 use kairos_pack_recording::inspect_bytes;
 use kairos_pack_recording::recorder::Recorder;
+use kairos_pack_recording::safe_read::{Catalog, walk};
 use kairos_pack_recording::timeline::RecordingIndex;
 use kairos_sdk::harness::Harness;
 use kairos_sdk::{Image, Payload, PixelFormat, Timestamp};
@@ -132,4 +133,170 @@ fn the_player_reads_a_truncated_recording_up_to_the_damage() {
         index.damage()
     );
     assert!(index.block_count() > 0);
+}
+
+/// A recording of many chunks: 24 images of noise (which does not compress), each a chunk or more, between
+/// numbers on a second channel.
+fn many_chunks() -> &'static [u8] {
+    static BYTES: OnceLock<Vec<u8>> = OnceLock::new();
+    BYTES.get_or_init(|| {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("chunks.mcap");
+        let mut harness = Harness::new(Recorder::info(), Recorder::default());
+        harness.set_property("path", path.display().to_string()).unwrap();
+        harness.set_property("chunk_size_kb", 16_i64).unwrap();
+        let mut noise = 0x2545_f491_u32;
+        for i in 0..24_i64 {
+            let pixels: Vec<u8> = (0..96 * 64 * 3)
+                .map(|_| {
+                    noise ^= noise << 13;
+                    noise ^= noise >> 17;
+                    noise ^= noise << 5;
+                    noise as u8
+                })
+                .collect();
+            let image = Image::packed(96, 64, PixelFormat::Rgb8, Arc::<[u8]>::from(pixels)).unwrap();
+            harness.push("in1", Payload::Image(image), Timestamp::from_millis(i * 100));
+            for j in 0..5 {
+                harness.push(
+                    "in2",
+                    Payload::F64((i * 5 + j) as f64),
+                    Timestamp::from_millis(i * 100 + j),
+                );
+            }
+        }
+        harness.finish().unwrap();
+        std::fs::read(&path).unwrap()
+    })
+}
+
+/// The intact blocks of `bytes`: (offset, length, messages).
+fn blocks(bytes: &[u8]) -> Vec<(u64, u64, usize)> {
+    let mut blocks = Vec::new();
+    let walked = walk(
+        bytes,
+        Catalog::default(),
+        |block| blocks.push((block.offset, block.length, block.messages.len())),
+        |_| {},
+        |_| {},
+    )
+    .unwrap();
+    assert!(walked.damaged.is_empty(), "{:?}", walked.damaged);
+    blocks
+}
+
+/// `recover` on `bytes`: what it says, and the recovered file's report.
+fn recover_bytes(bytes: &[u8]) -> (kairos_pack_recording::Recovered, kairos_pack_recording::Report) {
+    let dir = tempfile::tempdir().unwrap();
+    let input = dir.path().join("damaged.mcap");
+    let output = dir.path().join("recovered.mcap");
+    std::fs::write(&input, bytes).unwrap();
+    let recovered = kairos_pack_recording::recover(&input, &output).unwrap();
+    let report = kairos_pack_recording::inspect(&output).unwrap();
+    (recovered, report)
+}
+
+#[test]
+fn a_chunk_failing_its_crc_is_left_out_whole_and_every_chunk_after_it_is_kept() {
+    let whole = many_chunks();
+    let blocks = blocks(whole);
+    let total: usize = blocks.iter().map(|b| b.2).sum();
+    assert!(blocks.len() >= 10, "{} blocks", blocks.len());
+    // One flipped byte in the middle of the third chunk's data.
+    let (offset, length, lost) = blocks[2];
+    let mut bytes = whole.to_vec();
+    bytes[usize::try_from(offset + length / 2).unwrap()] ^= 0x20;
+
+    let report = inspect_bytes("flipped", &bytes).unwrap();
+    assert_eq!(report.damaged_chunks.len(), 1, "{report:?}");
+    let region = &report.damaged_chunks[0];
+    assert_eq!((region.offset, region.length), (offset, length));
+    assert_eq!(
+        region.messages,
+        Some(lost as u64),
+        "counted from its message indexes"
+    );
+    assert_eq!(
+        report.messages,
+        (total - lost) as u64,
+        "its messages are not counted as intact"
+    );
+    assert_eq!(report.summary_messages, Some(total as u64));
+    assert!(
+        report
+            .damage
+            .as_deref()
+            .unwrap()
+            .contains(&format!("bytes {offset} to"))
+    );
+
+    let (recovered, fixed) = recover_bytes(&bytes);
+    assert_eq!(
+        recovered.messages,
+        (total - lost) as u64,
+        "every intact chunk after it is kept"
+    );
+    assert_eq!(recovered.left_out.len(), 1);
+    assert_eq!(recovered.messages_left_out(), lost as u64);
+    assert!(fixed.complete && fixed.damage.is_none(), "{fixed:?}");
+    assert_eq!(fixed.messages, (total - lost) as u64);
+}
+
+#[test]
+fn a_chunk_whose_length_is_damaged_is_passed_and_reading_resumes_at_the_next_chunk() {
+    let whole = many_chunks();
+    let blocks = blocks(whole);
+    let total: usize = blocks.iter().map(|b| b.2).sum();
+    let (offset, _, _) = blocks[3];
+    let mut bytes = whole.to_vec();
+    // The length's highest byte: the record now claims more than the file holds.
+    bytes[usize::try_from(offset).unwrap() + 8] ^= 0x40;
+    let report = inspect_bytes("length", &bytes).unwrap();
+    assert_eq!(report.damaged_chunks.len(), 1, "{report:?}");
+    assert_eq!(report.damaged_chunks[0].offset, offset);
+    assert_eq!(report.messages, (total - blocks[3].2) as u64, "{report:?}");
+    let (recovered, _) = recover_bytes(&bytes);
+    assert_eq!(recovered.messages, report.messages);
+}
+
+#[test]
+fn a_file_never_closed_with_its_first_chunk_damaged_keeps_the_later_chunks() {
+    // No summary (cut before it) and the first chunk, which defines the channels, damaged.
+    let whole = many_chunks();
+    let blocks = blocks(whole);
+    let (first, first_length, lost) = blocks[0];
+    let (final_offset, final_length, _) = *blocks.last().unwrap();
+    let mut bytes = whole[..usize::try_from(final_offset + final_length).unwrap()].to_vec();
+    bytes[usize::try_from(first + first_length / 2).unwrap()] ^= 0x01;
+    let report = inspect_bytes("crashed", &bytes).unwrap();
+    let total: usize = blocks.iter().map(|b| b.2).sum();
+    assert!(!report.complete);
+    assert_eq!(report.damaged_chunks.len(), 1, "{report:?}");
+    assert_eq!(report.messages, (total - lost) as u64, "{report:?}");
+}
+
+#[test]
+fn drop_counts_are_in_the_file_before_it_is_closed() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("running.mcap");
+    let mut harness = Harness::new(Recorder::info(), Recorder::default());
+    harness.set_property("path", path.display().to_string()).unwrap();
+    harness.set_property("chunk_period_s", 0.05).unwrap();
+    for i in 0..3_i64 {
+        harness.push("in1", Payload::F64(i as f64), Timestamp::from_millis(i));
+        harness.run().unwrap();
+        std::thread::sleep(std::time::Duration::from_millis(60));
+    }
+    // The recorder still runs: the file as a crash now would leave it.
+    let report = inspect_bytes("running", &std::fs::read(&path).unwrap()).unwrap();
+    assert!(!report.complete);
+    let drops = report
+        .metadata
+        .get("kairos.drops")
+        .expect("drop counts written as it goes");
+    assert!(
+        drops.values().any(|counts| counts.starts_with("written=")),
+        "{drops:?}"
+    );
+    drop(harness);
 }

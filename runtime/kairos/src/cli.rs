@@ -296,14 +296,30 @@ pub fn execute(cli: Cli) -> anyhow::Result<ExitCode> {
         Command::Recover { input, output } => {
             let recovered = kairos_pack_recording::recover(&input, &output)?;
             println!(
-                "{}: {} messages and {} metadata records recovered{}",
+                "{}: {} messages and {} metadata records recovered",
                 output.display(),
                 recovered.messages,
                 recovered.metadata,
-                recovered
-                    .damage
-                    .map_or_else(String::new, |d| format!("; reading stopped at: {d}"))
             );
+            if !recovered.left_out.is_empty() {
+                println!(
+                    "left out {} damaged chunk(s) of {}, holding {}{} messages:",
+                    recovered.left_out.len(),
+                    input.display(),
+                    if recovered.left_out.iter().any(|d| d.messages.is_none()) {
+                        "at least "
+                    } else {
+                        ""
+                    },
+                    recovered.messages_left_out()
+                );
+                for region in &recovered.left_out {
+                    println!("  {region}");
+                }
+            }
+            if let Some(cut) = &recovered.cut_short {
+                println!("{cut}: everything before it was recovered");
+            }
             Ok(ExitCode::SUCCESS)
         }
         Command::Packs { json } => {
