@@ -1,8 +1,9 @@
 //! Benchmark 10 — the control protocol, against a real `kairos serve` (in this process, on loopback).
 //!
 //! 1. Round trip of a request: `set_property` on a running component → its reply (the request is decoded,
-//!    handed to a blocking thread, delivered to the component's thread, applied, acknowledged and answered),
-//!    against a bare WebSocket ping → pong over the same connection, interleaved in the same run.
+//!    delivered to the component's thread, applied, acknowledged and answered), against a bare WebSocket
+//!    ping → pong over the same connection, interleaved in the same run: back to back, and each from a
+//!    quiet server (0.5 ms after the previous one).
 //! 2. The runtime's cost of telemetry: CPU time of the server's threads (named `k:net`: network and
 //!    blocking pools, where snapshots are taken) with four clients subscribed at 10 Hz, reading every event,
 //!    over the same time with no client, as a share of one core. The diagram runs either way; its own
@@ -19,6 +20,11 @@ use tungstenite::stream::MaybeTlsStream;
 use tungstenite::{Message, WebSocket};
 
 type Socket = WebSocket<MaybeTlsStream<TcpStream>>;
+
+/// The pause before each round trip measured from quiet: what the previous one left running (a
+/// component's thread going back to sleep, the network workers parking) has settled, as before a control
+/// request a person sends.
+const QUIET: Duration = Duration::from_micros(500);
 
 fn connect(address: SocketAddr) -> Option<Socket> {
     let (mut socket, _) = tungstenite::connect(format!("ws://{address}")).ok()?;
@@ -136,8 +142,10 @@ fn main() {
         .unwrap_or_default();
     let hello = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/../examples/hello.ron"))
         .unwrap_or_default();
-    let mut ours = LatencySeries::new("ours: set_property → reply");
-    let mut bare = LatencySeries::new("baseline: WebSocket ping → pong");
+    let mut ours = LatencySeries::new("ours: set_property → reply, back to back");
+    let mut bare = LatencySeries::new("baseline: WebSocket ping → pong, back to back");
+    let mut ours_quiet = LatencySeries::new("ours: set_property → reply, from quiet");
+    let mut bare_quiet = LatencySeries::new("baseline: WebSocket ping → pong, from quiet");
     if call(&mut socket, &json!({"id": 1, "type": "deploy", "diagram": hello})).is_none()
         || call(&mut socket, &json!({"id": 2, "type": "start"})).is_none()
     {
@@ -146,37 +154,49 @@ fn main() {
     }
     let mut id = 10_u64;
     for _ in 0..kairos_benches::repetitions() {
-        let mut request_times = Vec::with_capacity(round_trips);
-        let mut ping_times = Vec::with_capacity(round_trips);
-        for i in 0..round_trips {
-            id += 1;
-            let gain = 1.0 + (i % 7) as f64;
-            let request = json!({"id": id, "type": "set_property", "component": "gain1", "property": "gain", "value": gain});
-            let started = Instant::now();
-            if call(&mut socket, &request).is_none() {
-                println!("set_property failed");
-                return;
+        for (quiet, ours, bare) in [
+            (Duration::ZERO, &mut ours, &mut bare),
+            (QUIET, &mut ours_quiet, &mut bare_quiet),
+        ] {
+            let mut request_times = Vec::with_capacity(round_trips);
+            let mut ping_times = Vec::with_capacity(round_trips);
+            for i in 0..round_trips {
+                id += 1;
+                let gain = 1.0 + (i % 7) as f64;
+                let request = json!({"id": id, "type": "set_property", "component": "gain1", "property": "gain", "value": gain});
+                std::thread::sleep(quiet);
+                let started = Instant::now();
+                if call(&mut socket, &request).is_none() {
+                    println!("set_property failed");
+                    return;
+                }
+                request_times.push(nanos(started.elapsed()));
+                std::thread::sleep(quiet);
+                let started = Instant::now();
+                if ping(&mut socket).is_none() {
+                    println!("ping failed");
+                    return;
+                }
+                ping_times.push(nanos(started.elapsed()));
             }
-            request_times.push(nanos(started.elapsed()));
-            let started = Instant::now();
-            if ping(&mut socket).is_none() {
-                println!("ping failed");
-                return;
-            }
-            ping_times.push(nanos(started.elapsed()));
+            ours.reps.push(Percentiles::of(&mut request_times));
+            bare.reps.push(Percentiles::of(&mut ping_times));
         }
-        ours.reps.push(Percentiles::of(&mut request_times));
-        bare.reps.push(Percentiles::of(&mut ping_times));
     }
-    print_latency(&[&bare, &ours]);
+    print_latency(&[&bare, &ours, &bare_quiet, &ours_quiet]);
     let mut ratios = Ratios::new();
     ratios.add(
-        "p50: request round trip / ping",
+        "p50: request round trip / ping, back to back",
         ratio_spread(&ours, &bare, |p| p.p50),
         Some(Goal::AtMost(2.0)),
     );
     ratios.add(
-        "p99: request round trip / ping",
+        "p50: request round trip / ping, from quiet",
+        ratio_spread(&ours_quiet, &bare_quiet, |p| p.p50),
+        Some(Goal::AtMost(2.0)),
+    );
+    ratios.add(
+        "p99: request round trip / ping, back to back",
         ratio_spread(&ours, &bare, |p| p.p99),
         None,
     );

@@ -243,6 +243,37 @@ fn apply_controls(id: &str, component: &mut dyn Component, ctx: &mut Context, mo
     }
 }
 
+/// How a control call blocks when the component does not answer at once: it calls the function it is
+/// given, which blocks. A caller on an asynchronous runtime's thread moves its other tasks aside first;
+/// others just call it.
+pub type LongWait<'a> = &'a dyn Fn(&mut dyn FnMut());
+
+/// How long a control call waits for the component's answer yielding its core before it blocks. A
+/// component waiting for data answers within tens of microseconds once its thread runs, and that thread
+/// is often woken onto the caller's core: yielding lets it run there at once, where blocking would cost
+/// a wake-up of each thread (measured in BENCHMARKS.md, benchmark 10).
+const ANSWER_SPIN: Duration = Duration::from_micros(300);
+
+/// The component's answer: waited for yielding the core for a while, then through `long_wait`, 2 s at
+/// most.
+fn wait_for_answer(
+    answer: &Receiver<Result<(), String>>,
+    long_wait: LongWait<'_>,
+) -> Result<Result<(), String>, RecvTimeoutError> {
+    let spinning = Instant::now();
+    loop {
+        match answer.try_recv() {
+            Ok(result) => return Ok(result),
+            Err(mpsc::TryRecvError::Disconnected) => return Err(RecvTimeoutError::Disconnected),
+            Err(mpsc::TryRecvError::Empty) if spinning.elapsed() < ANSWER_SPIN => std::thread::yield_now(),
+            Err(mpsc::TryRecvError::Empty) => break,
+        }
+    }
+    let mut outcome = Err(RecvTimeoutError::Timeout);
+    long_wait(&mut || outcome = answer.recv_timeout(Duration::from_secs(2)));
+    outcome
+}
+
 /// A component that runs without a thread of its own, in the thread of whoever writes to it.
 struct ReactiveCell {
     id: String,
@@ -703,6 +734,17 @@ impl Engine {
     /// Changes a property: checked against its kind and range and whether it may change while running,
     /// then applied by the component on its own thread. A refused value keeps the old one.
     pub fn set_property(&self, id: &str, name: &str, value: &Value) -> Result<(), ControlError> {
+        self.set_property_waiting(id, name, value, &|wait| wait())
+    }
+
+    /// [`Engine::set_property`], blocking through `long_wait` when the component does not answer at once.
+    pub fn set_property_waiting(
+        &self,
+        id: &str,
+        name: &str,
+        value: &Value,
+        long_wait: LongWait<'_>,
+    ) -> Result<(), ControlError> {
         let slot = self.slot(id)?;
         let info = slot
             .info
@@ -734,11 +776,22 @@ impl Engine {
                 reply,
             },
             &answer,
+            long_wait,
         )
     }
 
     /// Triggers an action on a component.
     pub fn trigger_action(&self, id: &str, name: &str) -> Result<(), ControlError> {
+        self.trigger_action_waiting(id, name, &|wait| wait())
+    }
+
+    /// [`Engine::trigger_action`], blocking through `long_wait` when the component does not answer at once.
+    pub fn trigger_action_waiting(
+        &self,
+        id: &str,
+        name: &str,
+        long_wait: LongWait<'_>,
+    ) -> Result<(), ControlError> {
         let slot = self.slot(id)?;
         if slot.info.action(name).is_none() {
             return Err(ControlError::UnknownAction {
@@ -754,6 +807,7 @@ impl Engine {
                 reply,
             },
             &answer,
+            long_wait,
         )
     }
 
@@ -769,13 +823,26 @@ impl Engine {
         slot: &Slot,
         request: ControlRequest,
         answer: &Receiver<Result<(), String>>,
+        long_wait: LongWait<'_>,
     ) -> Result<(), ControlError> {
         let refused = |reason: String| ControlError::Refused {
             component: slot.id.clone(),
             reason,
         };
-        if slot.monitor.is_failed() {
-            return Err(refused("the component has failed".to_owned()));
+        match slot.monitor.state() {
+            ComponentState::Failed(_) => return Err(refused("the component has failed".to_owned())),
+            // Its thread is gone: nothing would ever answer.
+            ComponentState::Finished => {
+                return Err(refused(
+                    "the component has finished (its input streams ended)".to_owned(),
+                ));
+            }
+            ComponentState::Stopped if self.state == EngineState::Running => {
+                return Err(refused(
+                    "the component has stopped (an input it reads is not connected?)".to_owned(),
+                ));
+            }
+            _ => {}
         }
         match &slot.driver {
             Driver::Reactive(cell) => {
@@ -798,7 +865,7 @@ impl Engine {
                 slot.signal.raise_control();
             }
         }
-        match answer.recv_timeout(Duration::from_secs(2)) {
+        match wait_for_answer(answer, long_wait) {
             Ok(Ok(())) => Ok(()),
             Ok(Err(reason)) => Err(refused(reason)),
             Err(_) => Err(refused(

@@ -8,6 +8,6 @@ pub mod packs;
 pub mod scheduling;
 pub mod stats;
 
-pub use engine::{BuildError, ControlError, Engine, EngineState, link_name};
+pub use engine::{BuildError, ControlError, Engine, EngineState, LongWait, link_name};
 pub use packs::{PackScan, RefusedLibrary, load_packs, pack_path};
 pub use stats::{ComponentState, ComponentStats, LinkStats, StatsSnapshot};

@@ -80,6 +80,22 @@ impl Component for SlowRecorder {
     }
 }
 
+/// Each cycle takes 50 ms; it has a live property.
+#[derive(Default)]
+struct BusyCycles;
+
+impl Component for BusyCycles {
+    fn birth(&mut self, ctx: &mut Context) -> ComponentResult {
+        ctx.set_period(Duration::from_millis(10));
+        Ok(())
+    }
+
+    fn core(&mut self, _ctx: &mut Context) -> ComponentResult {
+        sleep(Duration::from_millis(50));
+        Ok(())
+    }
+}
+
 fn registry() -> Registry {
     let mut registry = Registry::new();
     kairos_pack_core::register(&mut registry);
@@ -91,6 +107,12 @@ fn registry() -> Registry {
         .component::<SlowerThanItsPeriod>(
             Descriptor::new("faulty.slower_than_its_period", "test", "Cycles of 5 ms at 1 kHz")
                 .mode(kairos_sdk::ExecutionMode::Periodic)
+                .build(),
+        )
+        .component::<BusyCycles>(
+            Descriptor::new("faulty.busy", "test", "Cycles of 50 ms")
+                .mode(kairos_sdk::ExecutionMode::Periodic)
+                .property(kairos_sdk::descriptor::Property::f64("level", 1.0).live())
                 .build(),
         )
         .component::<SlowRecorder>(
@@ -538,4 +560,58 @@ fn an_overloaded_subsampled_reader_of_the_newest_reads_kept_samples_only_and_que
         assert!(counters.balanced(), "{counters:?}");
         assert!(counters.queued <= 1, "queued beyond the share of 1: {counters:?}");
     }
+}
+
+#[test]
+fn a_control_request_blocks_through_the_callers_wait_only_when_the_answer_is_not_there_at_once() {
+    let d = diagram(
+        vec![
+            component("busy", "faulty.busy", &[]),
+            component("source", "core.sine", &[("rate", Value::F64(100.0))]),
+            component("gain", "core.gain", &[]),
+        ],
+        vec![connect("source.out", "gain.in")],
+    );
+    let mut engine = Engine::build(&d, &registry(), RealTimeClock::shared()).unwrap();
+    engine.start().unwrap();
+    sleep(Duration::from_millis(20));
+    let long_waits = std::cell::Cell::new(0);
+    let counting = |wait: &mut dyn FnMut()| {
+        long_waits.set(long_waits.get() + 1);
+        wait();
+    };
+    // A component in a 50 ms cycle answers after it: the caller is asked to block.
+    engine
+        .set_property_waiting("busy", "level", &Value::F64(2.0), &counting)
+        .unwrap();
+    assert_eq!(long_waits.get(), 1);
+    // A component waiting for data answers at once: no blocking wait.
+    let mut quick = 0;
+    for attempt in 0..20 {
+        long_waits.set(0);
+        engine
+            .set_property_waiting("gain", "gain", &Value::F64(f64::from(attempt)), &counting)
+            .unwrap();
+        quick += usize::from(long_waits.get() == 0);
+    }
+    engine.stop();
+    assert!(quick >= 15, "{quick} of 20 answered without a blocking wait");
+}
+
+#[test]
+fn a_control_request_to_a_component_whose_thread_ended_is_refused_at_once() {
+    // Nothing feeds the gain: it stops at its first read.
+    let d = diagram(vec![component("gain", "core.gain", &[])], Vec::new());
+    let mut engine = Engine::build(&d, &registry(), RealTimeClock::shared()).unwrap();
+    engine.start().unwrap();
+    sleep(Duration::from_millis(100));
+    let asked = std::time::Instant::now();
+    let refused = engine.set_property("gain", "gain", &Value::F64(3.0)).unwrap_err();
+    engine.stop();
+    assert!(refused.to_string().contains("has stopped"), "{refused}");
+    assert!(
+        asked.elapsed() < Duration::from_millis(500),
+        "{:?}",
+        asked.elapsed()
+    );
 }

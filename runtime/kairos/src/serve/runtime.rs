@@ -4,14 +4,14 @@
 //! the component's answer) run on blocking threads, never on the server's network threads.
 
 use std::sync::atomic::{AtomicU64, Ordering};
-use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
+use std::sync::{Arc, Mutex, MutexGuard, PoisonError, TryLockError};
 
 use kairos_diagram::{Diagnostic, Diagram, Value};
 use kairos_protocol::{
     ComponentTelemetry, DeployResult, ErrorCode, LatencyTelemetry, LinkTelemetry, ProtocolError,
     RuntimeState, Telemetry,
 };
-use kairos_runtime::{ComponentState, ControlError, Engine, EngineState, StatsSnapshot};
+use kairos_runtime::{ComponentState, ControlError, Engine, EngineState, LongWait, StatsSnapshot};
 use kairos_sdk::host::OutputBuffer;
 use kairos_sdk::{RealTimeClock, Registry};
 
@@ -135,6 +135,20 @@ impl Runtime {
 
     fn lock(&self) -> MutexGuard<'_, Deployment> {
         self.deployment.lock().unwrap_or_else(PoisonError::into_inner)
+    }
+
+    /// The deployment at once if it is free; otherwise blocking through `long_wait` (a deploy or a stop
+    /// may hold it for as long as threads take to join).
+    fn lock_waiting(&self, long_wait: LongWait<'_>) -> MutexGuard<'_, Deployment> {
+        match self.deployment.try_lock() {
+            Ok(guard) => guard,
+            Err(TryLockError::Poisoned(poisoned)) => poisoned.into_inner(),
+            Err(TryLockError::WouldBlock) => {
+                let mut guard = None;
+                long_wait(&mut || guard = Some(self.lock()));
+                guard.unwrap_or_else(|| self.lock())
+            }
+        }
     }
 
     /// The component library as plain data.
@@ -263,8 +277,16 @@ impl Runtime {
     /// Changes a property. While the diagram runs the component applies it (or refuses it, keeping the old
     /// value); otherwise the deployed diagram changes, validated, for the next start. Either way the
     /// deployed diagram remembers the new value.
-    pub fn set_property(&self, component: &str, property: &str, value: &Value) -> Result<(), ProtocolError> {
-        let mut deployment = self.lock();
+    ///
+    /// `long_wait` is how to block when the deployment is busy or the component does not answer at once.
+    pub fn set_property(
+        &self,
+        component: &str,
+        property: &str,
+        value: &Value,
+        long_wait: LongWait<'_>,
+    ) -> Result<(), ProtocolError> {
+        let mut deployment = self.lock_waiting(long_wait);
         let Some(diagram) = deployment.diagram.as_ref() else {
             return Err(error(ErrorCode::WrongState, "no diagram deployed"));
         };
@@ -285,16 +307,20 @@ impl Runtime {
         if live {
             if let Some(engine) = deployment.engine.as_ref() {
                 engine
-                    .set_property(component, property, value)
+                    .set_property_waiting(component, property, value, long_wait)
                     .map_err(|e| control_error(&e))?;
             }
         } else {
-            let problems: Vec<Diagnostic> = self
-                .registry
-                .validate(&changed, None)
-                .into_iter()
-                .filter(Diagnostic::is_error)
-                .collect();
+            // Validation may open files (a player's recordings): a long wait.
+            let mut problems: Vec<Diagnostic> = Vec::new();
+            long_wait(&mut || {
+                problems = self
+                    .registry
+                    .validate(&changed, None)
+                    .into_iter()
+                    .filter(Diagnostic::is_error)
+                    .collect();
+            });
             if let Some(first) = problems.first() {
                 let mut refused = error(
                     ErrorCode::InvalidValue,
@@ -311,13 +337,18 @@ impl Runtime {
     }
 
     /// Triggers an action on a running (or ready) component.
-    pub fn trigger_action(&self, component: &str, action: &str) -> Result<(), ProtocolError> {
-        let deployment = self.lock();
+    pub fn trigger_action(
+        &self,
+        component: &str,
+        action: &str,
+        long_wait: LongWait<'_>,
+    ) -> Result<(), ProtocolError> {
+        let deployment = self.lock_waiting(long_wait);
         let Some(engine) = deployment.engine.as_ref() else {
             return Err(error(ErrorCode::WrongState, "no diagram is running"));
         };
         engine
-            .trigger_action(component, action)
+            .trigger_action_waiting(component, action, long_wait)
             .map_err(|e| control_error(&e))
     }
 
