@@ -12,7 +12,15 @@ use common::{example, kairos, text};
 #[test]
 fn every_example_validates() {
     let dir = tempfile::tempdir().unwrap();
-    for name in ["hello", "camera", "fusion", "record", "sensors"] {
+    for name in [
+        "hello",
+        "camera",
+        "fusion",
+        "record",
+        "sensors",
+        "gnss_replay",
+        "gnss_serial",
+    ] {
         let path = example(name);
         let output = kairos(dir.path(), &["validate", path.to_str().unwrap()]);
         let (stdout, stderr) = text(&output);
@@ -152,4 +160,66 @@ fn fusion_matches_imu_and_gnss_by_timestamp() {
             (a - b) as f64 / 1e6
         );
     }
+}
+
+#[test]
+fn gnss_replay_prints_a_fix_a_second_at_the_receivers_timing() {
+    let output = kairos(
+        &common::repo_root(),
+        &["run", example("gnss_replay").to_str().unwrap(), "--for", "2500ms"],
+    );
+    let (stdout, stderr) = text(&output);
+    assert!(output.status.success(), "{stderr}");
+    let fixes: Vec<&str> = stdout.lines().filter(|l| l.contains("lat 48.71")).collect();
+    // At t = 0, 1 and 2 s.
+    assert_eq!(fixes.len(), 3, "{stdout}{stderr}");
+    assert!(fixes.iter().all(|l| l.contains("(Differential)")), "{stdout}");
+}
+
+#[test]
+fn a_gnss_receiver_on_udp_takes_sentences_from_another_process() {
+    let dir = tempfile::tempdir().unwrap();
+    let port = std::net::UdpSocket::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port();
+    let diagram = dir.path().join("udp.ron");
+    std::fs::write(
+        &diagram,
+        format!(
+            r#"Diagram(
+    format: 1,
+    packs: [Pack(name: "core", version: "^0.1"), Pack(name: "gnss", version: "^0.1")],
+    components: [
+        Component(id: "gnss", type: "gnss.nmea", properties: {{"source": "udp", "address": "127.0.0.1:{port}"}}),
+        Component(id: "print", type: "core.console"),
+    ],
+    connections: [Connection(from: "gnss.fix", to: "print.in")],
+)"#
+        ),
+    )
+    .unwrap();
+    let child = std::process::Command::new(env!("CARGO_BIN_EXE_kairos"))
+        .args(["run", diagram.to_str().unwrap(), "--for", "3s"])
+        .current_dir(dir.path())
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let sentences = std::fs::read_to_string(common::repo_root().join("examples/data/drive.nmea")).unwrap();
+    let sender = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
+    // Until the runtime listens (it starts in well under a second), then a second of sentences.
+    std::thread::sleep(std::time::Duration::from_secs(1));
+    for datagram in sentences.lines().collect::<Vec<_>>().chunks(3).take(10) {
+        sender
+            .send_to(datagram.join("\r\n").as_bytes(), ("127.0.0.1", port))
+            .unwrap();
+        std::thread::sleep(std::time::Duration::from_millis(100));
+    }
+    let output = child.wait_with_output().unwrap();
+    let (stdout, stderr) = text(&output);
+    assert!(output.status.success(), "{stderr}");
+    let fixes = stdout.lines().filter(|l| l.contains("lat 48.71")).count();
+    assert_eq!(fixes, 10, "{stdout}{stderr}");
 }

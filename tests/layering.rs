@@ -22,6 +22,7 @@ const HEADLESS: [&str; 11] = [
     "kairos-pack-sensors",
     "kairos-pack-recording",
     "kairos-pack-filters",
+    "kairos-pack-gnss",
 ];
 
 #[test]
@@ -72,6 +73,7 @@ const RULES: [(&str, &[&str]); 13] = [
     ("kairos-pack-core", &["kairos-sdk"]),
     ("kairos-pack-sensors", &["kairos-sdk"]),
     ("kairos-pack-recording", &["kairos-sdk"]),
+    ("kairos-pack-gnss", &["kairos-sdk"]),
     ("kairos-pack-filters", &["kairos-sdk"]),
     ("kairos-test-pack-faulty", &["kairos-sdk"]),
     // The engine.
@@ -87,6 +89,7 @@ const RULES: [(&str, &[&str]); 13] = [
             "kairos-pack-core",
             "kairos-pack-sensors",
             "kairos-pack-recording",
+            "kairos-pack-gnss",
         ],
     ),
     // The studio speaks the protocol and edits diagrams; it never links the engine or a pack.

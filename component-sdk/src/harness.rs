@@ -102,7 +102,8 @@ impl HarnessOutput {
         &self.outputs
     }
 
-    fn extend(&mut self, other: HarnessOutput) {
+    /// Adds the samples of `other` after these (to gather several runs).
+    pub fn extend(&mut self, other: HarnessOutput) {
         for (name, samples) in other.outputs {
             self.outputs.entry(name).or_default().extend(samples);
         }
@@ -391,6 +392,13 @@ impl Harness {
         let ctx = &mut running.ctx;
         catch("action", || component.action(name, ctx))?;
         Ok(Self::drain(running))
+    }
+
+    /// The status the component published last (`ctx.set_status`), if any.
+    pub fn status(&self) -> Option<serde_json::Value> {
+        self.running
+            .as_ref()
+            .and_then(|running| running.ctx.status_cell().get())
     }
 
     /// The harness clock's current time.

@@ -1,0 +1,374 @@
+//! `gnss.nmea`: a GNSS receiver speaking NMEA 0183, read from a serial port, UDP, a TCP server or a file.
+
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use kairos_sdk::descriptor::{Descriptor, Property};
+use kairos_sdk::{
+    Component, ComponentError, ComponentInfo, ComponentResult, Context, DataType, GnssFix, Payload,
+    Timestamp, Value,
+};
+
+use crate::sentence::{Decoder, Reading, SentenceError};
+use crate::source::{Endpoint, LiveSource, SerialSettings, file_lines};
+
+/// The component's type name.
+pub const TYPE_NAME: &str = "gnss.nmea";
+
+/// Vertical error relative to horizontal error, as receivers typically report (GGA has no VDOP).
+const VERTICAL_FACTOR: f64 = 1.5;
+
+/// The most warnings about bad input per second.
+const WARNING_PERIOD: Duration = Duration::from_secs(1);
+
+/// The descriptor of `gnss.nmea`.
+pub fn descriptor() -> ComponentInfo {
+    Descriptor::new(
+        TYPE_NAME,
+        "gnss",
+        "GNSS receiver speaking NMEA 0183 (GGA, RMC, VTG) on a serial port, UDP, a TCP server or a file: \
+         fixes, the receiver's UTC time, satellites, HDOP, speed and course, and the sentences as text. \
+         Samples are stamped when the sentence arrives",
+    )
+    .label("GNSS receiver (NMEA)")
+    .output(
+        "fix",
+        DataType::GnssFix,
+        "Position, altitude above the ellipsoid, accuracy from HDOP, fix status (GGA)",
+    )
+    .output(
+        "utc",
+        DataType::F64,
+        "The receiver's UTC time, seconds since 1970 (once a date is known)",
+    )
+    .output("satellites", DataType::I64, "Satellites used in the fix (GGA)")
+    .output("hdop", DataType::F64, "Horizontal dilution of precision (GGA)")
+    .output("speed", DataType::F64, "Speed over ground, m/s (RMC, VTG)")
+    .output(
+        "course",
+        DataType::F64,
+        "Course over ground, degrees from true north (RMC, VTG)",
+    )
+    .output(
+        "sentence",
+        DataType::Text,
+        "Every sentence with a valid checksum, as received",
+    )
+    .property(
+        Property::choice("source", &["serial", "udp", "tcp", "file"], "serial")
+            .doc("Where the sentences come from"),
+    )
+    .property(Property::path("device", "/dev/ttyUSB0").doc("Serial: the port"))
+    .property(
+        Property::i64("baud", 9600)
+            .unit("bit/s")
+            .int_range(300, 4_000_000)
+            .doc("Serial: the speed"),
+    )
+    .property(Property::choice("parity", &["none", "even", "odd"], "none").doc("Serial: parity"))
+    .property(
+        Property::i64("stop_bits", 1)
+            .int_range(1, 2)
+            .doc("Serial: stop bits"),
+    )
+    .property(
+        Property::choice("flow_control", &["none", "software", "hardware"], "none")
+            .doc("Serial: flow control (software: XON/XOFF, hardware: RTS/CTS)"),
+    )
+    .property(
+        Property::text("address", "0.0.0.0:10110")
+            .doc("UDP: the local address to listen on; TCP: the receiver's address to connect to"),
+    )
+    .property(Property::path("path", "").doc("File: NMEA sentences, one per line"))
+    .property(
+        Property::choice("replay", &["timing", "fast"], "timing")
+            .doc("File: at the receiver's timing (from the sentences' UTC times) or as fast as possible"),
+    )
+    .property(Property::bool("loop", false).doc("File: start again at the end"))
+    .property(
+        Property::f64("accuracy_per_hdop_m", 3.0)
+            .unit("m")
+            .range(0.0, 100.0)
+            .live()
+            .doc("Horizontal one-sigma accuracy per unit of HDOP (the user range error), m"),
+    )
+    .build()
+}
+
+/// A file being replayed.
+struct Replay {
+    lines: Vec<Vec<u8>>,
+    /// Lines dropped for being longer than a sentence can be.
+    overlong: u64,
+    next: usize,
+    at_timing: bool,
+    looping: bool,
+    /// The first sentence time and the clock time it was replayed at.
+    anchor: Option<(f64, Timestamp)>,
+}
+
+enum Input {
+    Live(LiveSource),
+    File(Replay),
+}
+
+/// What bad input was seen, for the status and the warnings.
+#[derive(Debug, Default)]
+struct Counts {
+    sentences: u64,
+    bad_checksum: u64,
+    malformed: u64,
+    last_problem: String,
+    warned: Option<Instant>,
+    unreported: u64,
+}
+
+/// The component. See [`descriptor`].
+#[derive(Default)]
+pub struct NmeaReceiver {
+    input: Option<Input>,
+    decoder: Decoder,
+    counts: Counts,
+    connected: bool,
+    published: Option<Instant>,
+}
+
+impl std::fmt::Debug for NmeaReceiver {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("NmeaReceiver")
+            .field("sentences", &self.counts.sentences)
+            .finish_non_exhaustive()
+    }
+}
+
+impl NmeaReceiver {
+    fn open(ctx: &Context) -> Result<Input, ComponentError> {
+        let endpoint = match ctx.text_property("source")?.as_str() {
+            "file" => {
+                let path = ctx.text_property("path")?;
+                if path.is_empty() {
+                    return Err(ComponentError::failed(
+                        "source is file but no path is given: set the property path",
+                    ));
+                }
+                let (lines, overlong) = file_lines(&path).map_err(ComponentError::failed)?;
+                return Ok(Input::File(Replay {
+                    lines,
+                    overlong,
+                    next: 0,
+                    at_timing: ctx.text_property("replay")? == "timing",
+                    looping: ctx.bool_property("loop")?,
+                    anchor: None,
+                }));
+            }
+            "udp" => Endpoint::Udp(ctx.text_property("address")?),
+            "tcp" => Endpoint::Tcp(ctx.text_property("address")?),
+            _ => Endpoint::Serial(SerialSettings {
+                device: ctx.text_property("device")?,
+                baud: u32::try_from(ctx.i64_property("baud")?).unwrap_or(9600),
+                parity: ctx.text_property("parity")?,
+                stop_bits: u8::try_from(ctx.i64_property("stop_bits")?).unwrap_or(1),
+                flow_control: ctx.text_property("flow_control")?,
+            }),
+        };
+        let tcp = matches!(endpoint, Endpoint::Tcp(_));
+        let mut source = LiveSource::new(endpoint);
+        // A missing port or an address in use fails the component at once, saying which; a TCP receiver
+        // may come up later, and is tried again every second.
+        match source.open_now() {
+            Ok(()) => {}
+            Err(reason) if tcp => tracing::warn!("{reason}; trying again every second"),
+            Err(reason) => return Err(ComponentError::failed(reason)),
+        }
+        Ok(Input::Live(source))
+    }
+
+    /// Decodes one line received at `received` and writes what it says.
+    fn handle(&mut self, ctx: &mut Context, line: &[u8], received: Timestamp) -> ComponentResult {
+        let decoded = std::str::from_utf8(line)
+            .map_err(|_| SentenceError::Malformed("not text".to_owned()))
+            .and_then(|text| Ok((text, self.decoder.decode(text)?)));
+        let (text, reading) = match decoded {
+            Ok(decoded) => decoded,
+            Err(error) => {
+                match error {
+                    SentenceError::BadChecksum => self.counts.bad_checksum += 1,
+                    SentenceError::Malformed(_) => self.counts.malformed += 1,
+                }
+                let shown: String = String::from_utf8_lossy(line).chars().take(40).collect();
+                self.counts.last_problem = format!("{error} in {shown:?}");
+                self.warn_bad_input();
+                return Ok(());
+            }
+        };
+        self.counts.sentences += 1;
+        ctx.write_at("sentence", Payload::Text(Arc::from(text)), received)?;
+        Self::write_reading(ctx, &reading, received)
+    }
+
+    fn write_reading(ctx: &mut Context, reading: &Reading, received: Timestamp) -> ComponentResult {
+        if let Some(fix) = reading.fix {
+            let per_hdop = ctx.f64_property("accuracy_per_hdop_m")?;
+            let horizontal = fix.hdop.map_or(f64::NAN, |hdop| hdop * per_hdop);
+            let payload = Payload::GnssFix(GnssFix {
+                latitude_deg: fix.latitude_deg,
+                longitude_deg: fix.longitude_deg,
+                altitude_m: fix.altitude_ellipsoid_m().unwrap_or(f64::NAN),
+                horizontal_accuracy_m: horizontal,
+                vertical_accuracy_m: horizontal * VERTICAL_FACTOR,
+                status: fix.status,
+            });
+            ctx.write_at("fix", payload, received)?;
+            if let Some(satellites) = fix.satellites {
+                ctx.write_at("satellites", Payload::I64(i64::from(satellites)), received)?;
+            }
+            if let Some(hdop) = fix.hdop {
+                ctx.write_at("hdop", Payload::F64(hdop), received)?;
+            }
+        }
+        if let Some(utc) = reading.utc_s {
+            ctx.write_at("utc", Payload::F64(utc), received)?;
+        }
+        if let Some(motion) = reading.motion {
+            if let Some(speed) = motion.speed_mps {
+                ctx.write_at("speed", Payload::F64(speed), received)?;
+            }
+            if let Some(course) = motion.course_deg {
+                ctx.write_at("course", Payload::F64(course), received)?;
+            }
+        }
+        Ok(())
+    }
+
+    /// Logs bad input at most once a second, with how much there was since the last warning.
+    fn warn_bad_input(&mut self) {
+        self.counts.unreported += 1;
+        if self.counts.warned.is_some_and(|at| at.elapsed() < WARNING_PERIOD) {
+            return;
+        }
+        self.counts.warned = Some(Instant::now());
+        tracing::warn!(
+            "{} bad line(s) skipped (last: {}); {} bad checksums and {} malformed lines in all",
+            self.counts.unreported,
+            self.counts.last_problem,
+            self.counts.bad_checksum,
+            self.counts.malformed
+        );
+        self.counts.unreported = 0;
+    }
+
+    fn publish_status(&mut self, ctx: &Context) {
+        if self
+            .published
+            .is_some_and(|at| at.elapsed() < Duration::from_millis(500))
+        {
+            return;
+        }
+        self.published = Some(Instant::now());
+        let overlong = match &self.input {
+            Some(Input::Live(source)) => source.dropped_overlong(),
+            Some(Input::File(replay)) => replay.overlong,
+            None => 0,
+        };
+        ctx.set_status(serde_json::json!({
+            "kind": "gnss",
+            "connected": self.connected,
+            "sentences": self.counts.sentences,
+            "bad_checksum": self.counts.bad_checksum,
+            "malformed": self.counts.malformed,
+            "overlong": overlong,
+        }));
+    }
+
+    /// The next line of a replayed file, once its time has come; `None` at the end.
+    fn next_replayed(
+        replay: &mut Replay,
+        decoder: &Decoder,
+        ctx: &Context,
+    ) -> Result<Option<Vec<u8>>, ComponentError> {
+        if replay.next >= replay.lines.len() {
+            if !replay.looping || replay.lines.is_empty() {
+                return Ok(None);
+            }
+            replay.next = 0;
+            replay.anchor = None;
+        }
+        let Some(line) = replay.lines.get(replay.next) else {
+            return Ok(None);
+        };
+        if replay.at_timing
+            && let Some(time) = std::str::from_utf8(line)
+                .ok()
+                .and_then(|text| decoder.clone().decode(text).ok())
+                .and_then(|reading| reading.time_of_day_s)
+        {
+            match replay.anchor {
+                None => replay.anchor = Some((time, ctx.now())),
+                Some((first, at)) => {
+                    // A day wraps at midnight.
+                    let elapsed = (time - first).rem_euclid(86_400.0);
+                    #[allow(clippy::cast_possible_truncation, reason = "seconds of a day in nanoseconds")]
+                    let deadline = Timestamp(at.0 + (elapsed * 1e9) as i64);
+                    // Interrupted (a control request) comes back here: the line is not consumed yet.
+                    ctx.wait_until(deadline)?;
+                }
+            }
+        }
+        replay.next += 1;
+        Ok(Some(line.clone()))
+    }
+}
+
+impl Component for NmeaReceiver {
+    fn birth(&mut self, ctx: &mut Context) -> ComponentResult {
+        self.decoder = Decoder::new();
+        self.input = Some(Self::open(ctx)?);
+        self.connected = true;
+        self.publish_status(ctx);
+        Ok(())
+    }
+
+    fn core(&mut self, ctx: &mut Context) -> ComponentResult {
+        let mut lines = Vec::new();
+        match &mut self.input {
+            Some(Input::Live(source)) => {
+                let received = source.receive();
+                if let Some(problem) = received.problem {
+                    tracing::warn!("{problem}");
+                    self.connected = false;
+                }
+                if received.recovered {
+                    tracing::info!("receiving again");
+                    self.connected = true;
+                }
+                let now = ctx.now();
+                lines.extend(received.lines.into_iter().map(|line| (line, now)));
+            }
+            Some(Input::File(replay)) => {
+                let Some(line) = Self::next_replayed(replay, &self.decoder, ctx)? else {
+                    self.published = None;
+                    self.publish_status(ctx);
+                    return Err(ComponentError::EndOfStream);
+                };
+                lines.push((line, ctx.now()));
+            }
+            None => return Err(ComponentError::Stopped),
+        }
+        for (line, received) in lines {
+            self.handle(ctx, &line, received)?;
+        }
+        self.publish_status(ctx);
+        Ok(())
+    }
+
+    fn death(&mut self, ctx: &mut Context) -> ComponentResult {
+        self.published = None;
+        self.publish_status(ctx);
+        self.input = None;
+        Ok(())
+    }
+
+    fn property_changed(&mut self, _name: &str, _value: &Value, _ctx: &mut Context) -> ComponentResult {
+        Ok(())
+    }
+}

@@ -1,0 +1,328 @@
+//! Where sentences come from: a serial port, a UDP socket, a TCP connection or a file. Each read waits a
+//! short while at most, so the component stays responsive to stop, pause and property changes; a link
+//! that drops (a serial adapter unplugged, a TCP peer gone) is reopened once a second.
+
+use std::fs::File;
+use std::io::{BufRead as _, BufReader, ErrorKind, Read as _};
+use std::net::{TcpStream, ToSocketAddrs as _, UdpSocket};
+use std::time::{Duration, Instant};
+
+use crate::sentence::MAX_SENTENCE_LEN;
+
+/// How long one read waits for bytes.
+pub const READ_WAIT: Duration = Duration::from_millis(50);
+/// How long after a failure a link is opened again.
+pub const REOPEN_AFTER: Duration = Duration::from_secs(1);
+
+/// The settings of a serial port.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct SerialSettings {
+    /// The device (`/dev/ttyUSB0`).
+    pub device: String,
+    /// Bits per second.
+    pub baud: u32,
+    /// `none`, `even` or `odd`.
+    pub parity: String,
+    /// 1 or 2.
+    pub stop_bits: u8,
+    /// `none`, `software` (XON/XOFF) or `hardware` (RTS/CTS).
+    pub flow_control: String,
+}
+
+impl SerialSettings {
+    /// Opens the port, with reads that wait [`READ_WAIT`] at most.
+    ///
+    /// # Errors
+    ///
+    /// The port cannot be opened or configured; the message names it and the cause.
+    pub fn open(&self) -> Result<Box<dyn serialport::SerialPort>, String> {
+        let parity = match self.parity.as_str() {
+            "even" => serialport::Parity::Even,
+            "odd" => serialport::Parity::Odd,
+            _ => serialport::Parity::None,
+        };
+        let stop_bits = if self.stop_bits == 2 {
+            serialport::StopBits::Two
+        } else {
+            serialport::StopBits::One
+        };
+        let flow_control = match self.flow_control.as_str() {
+            "software" => serialport::FlowControl::Software,
+            "hardware" => serialport::FlowControl::Hardware,
+            _ => serialport::FlowControl::None,
+        };
+        serialport::new(&self.device, self.baud)
+            .data_bits(serialport::DataBits::Eight)
+            .parity(parity)
+            .stop_bits(stop_bits)
+            .flow_control(flow_control)
+            .timeout(READ_WAIT)
+            .open()
+            .map_err(|e| format!("cannot open the serial port {}: {e}", self.device))
+    }
+}
+
+/// An open byte stream.
+#[derive(Debug)]
+enum Link {
+    Serial(Box<dyn serialport::SerialPort>),
+    Udp(UdpSocket),
+    Tcp(TcpStream),
+}
+
+/// What a source is asked to read.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Endpoint {
+    /// A serial port.
+    Serial(SerialSettings),
+    /// Datagrams received on this local address (`0.0.0.0:10110`).
+    Udp(String),
+    /// A TCP server to connect to (`192.168.1.20:10110`).
+    Tcp(String),
+}
+
+impl Endpoint {
+    fn describe(&self) -> String {
+        match self {
+            Endpoint::Serial(settings) => format!("serial port {}", settings.device),
+            Endpoint::Udp(address) => format!("UDP {address}"),
+            Endpoint::Tcp(address) => format!("TCP {address}"),
+        }
+    }
+
+    fn open(&self) -> Result<Link, String> {
+        match self {
+            Endpoint::Serial(settings) => settings.open().map(Link::Serial),
+            Endpoint::Udp(address) => {
+                let socket =
+                    UdpSocket::bind(address).map_err(|e| format!("cannot listen on UDP {address}: {e}"))?;
+                socket
+                    .set_read_timeout(Some(READ_WAIT))
+                    .map_err(|e| format!("UDP {address}: {e}"))?;
+                Ok(Link::Udp(socket))
+            }
+            Endpoint::Tcp(address) => {
+                let target = address
+                    .to_socket_addrs()
+                    .map_err(|e| format!("cannot resolve {address}: {e}"))?
+                    .next()
+                    .ok_or_else(|| format!("{address} resolves to no address"))?;
+                let stream = TcpStream::connect_timeout(&target, Duration::from_secs(1))
+                    .map_err(|e| format!("cannot connect to TCP {address}: {e}"))?;
+                stream
+                    .set_read_timeout(Some(READ_WAIT))
+                    .map_err(|e| format!("TCP {address}: {e}"))?;
+                Ok(Link::Tcp(stream))
+            }
+        }
+    }
+}
+
+/// Cuts a byte stream into lines: a line ends at `\n` (a `\r` before it is dropped); a line longer
+/// than a sentence can be is dropped whole and counted.
+#[derive(Debug, Default)]
+pub struct LineSplitter {
+    partial: Vec<u8>,
+    overlong: bool,
+    /// Lines dropped for being too long.
+    pub dropped_overlong: u64,
+}
+
+impl LineSplitter {
+    /// Feeds `bytes`; calls `on_line` with every complete line.
+    pub fn feed(&mut self, bytes: &[u8], mut on_line: impl FnMut(&[u8])) {
+        for &byte in bytes {
+            if byte == b'\n' {
+                if self.overlong {
+                    self.dropped_overlong += 1;
+                } else {
+                    let line = self.partial.strip_suffix(b"\r").unwrap_or(&self.partial);
+                    if !line.is_empty() {
+                        on_line(line);
+                    }
+                }
+                self.partial.clear();
+                self.overlong = false;
+            } else if self.partial.len() > MAX_SENTENCE_LEN {
+                self.overlong = true;
+            } else {
+                self.partial.push(byte);
+            }
+        }
+    }
+
+    /// Ends the stream: a last line without its line ending counts as a line; returns it.
+    pub fn finish(&mut self) -> Option<Vec<u8>> {
+        let line = std::mem::take(&mut self.partial);
+        let overlong = std::mem::take(&mut self.overlong);
+        (!line.is_empty() && !overlong).then_some(line)
+    }
+}
+
+/// A live source of lines: a serial port, UDP or TCP, reopened after a failure.
+#[derive(Debug)]
+pub struct LiveSource {
+    endpoint: Endpoint,
+    link: Option<Link>,
+    /// When opening last failed, and why.
+    failed: Option<(Instant, String)>,
+    splitter: LineSplitter,
+    buffer: Vec<u8>,
+}
+
+/// What one wait on a live source gave.
+#[derive(Debug, Default)]
+pub struct Received {
+    /// Complete lines.
+    pub lines: Vec<Vec<u8>>,
+    /// A failure to report (once per outage): the link could not be opened or went away.
+    pub problem: Option<String>,
+    /// The link came back after a failure.
+    pub recovered: bool,
+}
+
+impl LiveSource {
+    /// A source for `endpoint`, opened at the first read.
+    pub fn new(endpoint: Endpoint) -> Self {
+        LiveSource {
+            endpoint,
+            link: None,
+            failed: None,
+            splitter: LineSplitter::default(),
+            buffer: vec![0; 64 * 1024],
+        }
+    }
+
+    /// Opens the link now: an error names the device or address and the cause.
+    ///
+    /// # Errors
+    ///
+    /// As [`Endpoint::open`].
+    pub fn open_now(&mut self) -> Result<(), String> {
+        self.link = Some(self.endpoint.open()?);
+        Ok(())
+    }
+
+    /// Lines dropped for being longer than a sentence can be.
+    pub fn dropped_overlong(&self) -> u64 {
+        self.splitter.dropped_overlong
+    }
+
+    /// Waits [`READ_WAIT`] at most for bytes and returns the complete lines they end.
+    pub fn receive(&mut self) -> Received {
+        let mut received = Received::default();
+        if self.link.is_none() {
+            if let Some((at, _)) = &self.failed
+                && at.elapsed() < REOPEN_AFTER
+            {
+                std::thread::sleep(READ_WAIT);
+                return received;
+            }
+            match self.endpoint.open() {
+                Ok(link) => {
+                    self.link = Some(link);
+                    received.recovered = self.failed.take().is_some();
+                }
+                Err(reason) => {
+                    let first = self.failed.is_none();
+                    self.failed = Some((Instant::now(), reason.clone()));
+                    if first {
+                        received.problem = Some(reason);
+                    }
+                    return received;
+                }
+            }
+        }
+        let result = match &mut self.link {
+            Some(Link::Serial(port)) => port.read(&mut self.buffer),
+            Some(Link::Tcp(stream)) => match stream.read(&mut self.buffer) {
+                Ok(0) => Err(std::io::Error::new(
+                    ErrorKind::UnexpectedEof,
+                    "the peer closed the connection",
+                )),
+                other => other,
+            },
+            Some(Link::Udp(socket)) => socket.recv(&mut self.buffer).map(|read| {
+                // A datagram is whole: a last line without its ending still counts.
+                if self.buffer.get(read.wrapping_sub(1)) != Some(&b'\n') && read < self.buffer.len() {
+                    self.buffer[read] = b'\n';
+                    read + 1
+                } else {
+                    read
+                }
+            }),
+            None => return received,
+        };
+        match result {
+            Ok(read) => {
+                let bytes = self.buffer.get(..read).unwrap_or_default();
+                self.splitter
+                    .feed(bytes, |line| received.lines.push(line.to_vec()));
+            }
+            Err(e)
+                if matches!(
+                    e.kind(),
+                    ErrorKind::TimedOut | ErrorKind::WouldBlock | ErrorKind::Interrupted
+                ) => {}
+            Err(e) => {
+                let reason = format!(
+                    "{} went away: {e}; opening it again every second",
+                    self.endpoint.describe()
+                );
+                self.link = None;
+                self.splitter = LineSplitter {
+                    dropped_overlong: self.splitter.dropped_overlong,
+                    ..LineSplitter::default()
+                };
+                self.failed = Some((Instant::now(), reason.clone()));
+                received.problem = Some(reason);
+            }
+        }
+        received
+    }
+}
+
+/// The lines of a file, for replay, and how many were dropped for being longer than a sentence can be.
+///
+/// # Errors
+///
+/// The file cannot be read; the message names it and the cause.
+pub fn file_lines(path: &str) -> Result<(Vec<Vec<u8>>, u64), String> {
+    let file = File::open(path).map_err(|e| format!("cannot open the NMEA file {path}: {e}"))?;
+    let mut splitter = LineSplitter::default();
+    let mut lines = Vec::new();
+    let mut reader = BufReader::new(file);
+    loop {
+        let chunk = reader
+            .fill_buf()
+            .map_err(|e| format!("cannot read the NMEA file {path}: {e}"))?;
+        if chunk.is_empty() {
+            break;
+        }
+        let length = chunk.len();
+        splitter.feed(chunk, |line| lines.push(line.to_vec()));
+        reader.consume(length);
+    }
+    lines.extend(splitter.finish());
+    Ok((lines, splitter.dropped_overlong))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn lines_split_across_reads_join_and_overlong_ones_are_dropped_whole() {
+        let mut splitter = LineSplitter::default();
+        let mut lines = Vec::new();
+        splitter.feed(b"$GPGGA,1\r\n$GPR", |l| lines.push(l.to_vec()));
+        splitter.feed(b"MC,2\r\n", |l| lines.push(l.to_vec()));
+        splitter.feed(&[b'x'; 600], |l| lines.push(l.to_vec()));
+        splitter.feed(b"\n$GPVTG,3\n", |l| lines.push(l.to_vec()));
+        assert_eq!(
+            lines,
+            vec![b"$GPGGA,1".to_vec(), b"$GPRMC,2".to_vec(), b"$GPVTG,3".to_vec()]
+        );
+        assert_eq!(splitter.dropped_overlong, 1);
+    }
+}
