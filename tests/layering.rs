@@ -10,7 +10,7 @@
 use std::process::Command;
 
 const GUI_CRATES: [&str; 5] = ["egui", "eframe", "wgpu", "winit", "glutin"];
-const HEADLESS: [&str; 11] = [
+const HEADLESS: [&str; 13] = [
     "kairos-shm",
     "kairos-test-pack-faulty",
     "kairos-sdk",
@@ -23,6 +23,7 @@ const HEADLESS: [&str; 11] = [
     "kairos-pack-recording",
     "kairos-pack-filters",
     "kairos-pack-gnss",
+    "kairos-pack-serial",
 ];
 
 #[test]
@@ -62,7 +63,7 @@ fn headless_crates_depend_on_no_gui_crate() {
 
 /// The floors, bottom up, and what each crate of ours may depend on (normal and build dependencies).
 /// A crate missing from the table fails the test: a new crate takes its place here first.
-const RULES: [(&str, &[&str]); 13] = [
+const RULES: [(&str, &[&str]); 15] = [
     // Bottom floor: plain data, and the shared-memory layout both the runtime side and clients need.
     ("kairos-diagram", &[]),
     ("kairos-shm", &[]),
@@ -73,7 +74,9 @@ const RULES: [(&str, &[&str]); 13] = [
     ("kairos-pack-core", &["kairos-sdk"]),
     ("kairos-pack-sensors", &["kairos-sdk"]),
     ("kairos-pack-recording", &["kairos-sdk"]),
-    ("kairos-pack-gnss", &["kairos-sdk"]),
+    ("kairos-pack-serial", &["kairos-sdk"]),
+    // A sensor pack reads through the serial pack's links.
+    ("kairos-pack-gnss", &["kairos-sdk", "kairos-pack-serial"]),
     ("kairos-pack-filters", &["kairos-sdk"]),
     ("kairos-test-pack-faulty", &["kairos-sdk"]),
     // The engine.
@@ -90,6 +93,7 @@ const RULES: [(&str, &[&str]); 13] = [
             "kairos-pack-sensors",
             "kairos-pack-recording",
             "kairos-pack-gnss",
+            "kairos-pack-serial",
         ],
     ),
     // The studio speaks the protocol and edits diagrams; it never links the engine or a pack.

@@ -2,12 +2,12 @@
 #![no_main]
 
 use kairos_pack_gnss::sentence::Decoder;
-use kairos_pack_gnss::source::LineSplitter;
+use kairos_pack_serial::link::LineSplitter;
 use libfuzzer_sys::fuzz_target;
 
 fuzz_target!(|data: &[u8]| {
     let mut decoder = Decoder::new();
-    let mut splitter = LineSplitter::default();
+    let mut splitter = LineSplitter::new(256);
     splitter.feed(data, |line| {
         if let Ok(text) = std::str::from_utf8(line) {
             let _ = decoder.decode(text);

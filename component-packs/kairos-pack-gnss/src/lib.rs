@@ -4,12 +4,11 @@
 //! | --- | --- |
 //! | `gnss.nmea` | reads NMEA sentences from a serial port, UDP, a TCP server or a file (replayed at its timing or as fast as possible); writes fixes, the receiver's UTC time, satellites, HDOP, speed, course and the sentences as text |
 //!
-//! Sentences are parsed by the `nmea` crate (fields and checksums) and serial ports opened by the
-//! `serialport` crate; [`sentence`] turns them into readings, [`source`] reads the bytes.
+//! Sentences are parsed by the `nmea` crate (fields and checksums); [`sentence`] turns them into readings.
+//! The bytes come through the serial pack's links (`kairos_pack_serial::link`).
 
 pub mod receiver;
 pub mod sentence;
-pub mod source;
 
 use kairos_sdk::Registry;
 

@@ -9,8 +9,9 @@ use kairos_sdk::{
     Timestamp, Value,
 };
 
-use crate::sentence::{Decoder, Reading, SentenceError};
-use crate::source::{Endpoint, LiveSource, SerialSettings, file_lines};
+use kairos_pack_serial::link::{Endpoint, LiveSource, SerialSettings, file_lines};
+
+use crate::sentence::{Decoder, MAX_SENTENCE_LEN, Reading, SentenceError};
 
 /// The component's type name.
 pub const TYPE_NAME: &str = "gnss.nmea";
@@ -151,7 +152,8 @@ impl NmeaReceiver {
                         "source is file but no path is given: set the property path",
                     ));
                 }
-                let (lines, overlong) = file_lines(&path).map_err(ComponentError::failed)?;
+                let (lines, overlong) =
+                    file_lines(&path, MAX_SENTENCE_LEN).map_err(ComponentError::failed)?;
                 return Ok(Input::File(Replay {
                     lines,
                     overlong,
@@ -172,7 +174,7 @@ impl NmeaReceiver {
             }),
         };
         let tcp = matches!(endpoint, Endpoint::Tcp(_));
-        let mut source = LiveSource::new(endpoint);
+        let mut source = LiveSource::new(endpoint, MAX_SENTENCE_LEN);
         // A missing port or an address in use fails the component at once, saying which; a TCP receiver
         // may come up later, and is tried again every second.
         match source.open_now() {

@@ -252,7 +252,7 @@ proptest::proptest! {
     #[test]
     fn any_bytes_are_split_and_decoded_without_a_panic(bytes in proptest::collection::vec(proptest::prelude::any::<u8>(), 0..2048)) {
         let mut decoder = kairos_pack_gnss::sentence::Decoder::new();
-        let mut splitter = kairos_pack_gnss::source::LineSplitter::default();
+        let mut splitter = kairos_pack_serial::link::LineSplitter::new(256);
         splitter.feed(&bytes, |line| {
             if let Ok(text) = std::str::from_utf8(line) {
                 let _ = decoder.decode(text);

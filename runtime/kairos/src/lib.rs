@@ -19,6 +19,7 @@ pub fn builtin_registry() -> Registry {
     kairos_pack_core::register(&mut registry);
     kairos_pack_sensors::register(&mut registry);
     kairos_pack_recording::register(&mut registry);
+    kairos_pack_serial::register(&mut registry);
     kairos_pack_gnss::register(&mut registry);
     registry
 }

@@ -1,4 +1,4 @@
-//! Where sentences come from: a serial port, a UDP socket, a TCP connection or a file. Each read waits a
+//! Byte links a component reads: a serial port, a UDP socket, a TCP connection, or a file. Each read waits a
 //! short while at most, so the component stays responsive to stop, pause and property changes; a link
 //! that drops (a serial adapter unplugged, a TCP peer gone) is reopened once a second.
 
@@ -6,8 +6,6 @@ use std::fs::File;
 use std::io::{BufRead as _, BufReader, ErrorKind, Read as _};
 use std::net::{TcpStream, ToSocketAddrs as _, UdpSocket};
 use std::time::{Duration, Instant};
-
-use crate::sentence::MAX_SENTENCE_LEN;
 
 /// How long one read waits for bytes.
 pub const READ_WAIT: Duration = Duration::from_millis(50);
@@ -119,9 +117,10 @@ impl Endpoint {
 }
 
 /// Cuts a byte stream into lines: a line ends at `\n` (a `\r` before it is dropped); a line longer
-/// than a sentence can be is dropped whole and counted.
-#[derive(Debug, Default)]
+/// than the longest expected is dropped whole and counted.
+#[derive(Debug)]
 pub struct LineSplitter {
+    longest: usize,
     partial: Vec<u8>,
     overlong: bool,
     /// Lines dropped for being too long.
@@ -129,6 +128,16 @@ pub struct LineSplitter {
 }
 
 impl LineSplitter {
+    /// A splitter that drops lines longer than `longest` bytes.
+    pub fn new(longest: usize) -> Self {
+        LineSplitter {
+            longest,
+            partial: Vec::new(),
+            overlong: false,
+            dropped_overlong: 0,
+        }
+    }
+
     /// Feeds `bytes`; calls `on_line` with every complete line.
     pub fn feed(&mut self, bytes: &[u8], mut on_line: impl FnMut(&[u8])) {
         for &byte in bytes {
@@ -143,7 +152,7 @@ impl LineSplitter {
                 }
                 self.partial.clear();
                 self.overlong = false;
-            } else if self.partial.len() > MAX_SENTENCE_LEN {
+            } else if self.partial.len() > self.longest {
                 self.overlong = true;
             } else {
                 self.partial.push(byte);
@@ -182,13 +191,13 @@ pub struct Received {
 }
 
 impl LiveSource {
-    /// A source for `endpoint`, opened at the first read.
-    pub fn new(endpoint: Endpoint) -> Self {
+    /// A source for `endpoint` whose lines are at most `longest` bytes, opened at the first read.
+    pub fn new(endpoint: Endpoint, longest: usize) -> Self {
         LiveSource {
             endpoint,
             link: None,
             failed: None,
-            splitter: LineSplitter::default(),
+            splitter: LineSplitter::new(longest),
             buffer: vec![0; 64 * 1024],
         }
     }
@@ -197,7 +206,7 @@ impl LiveSource {
     ///
     /// # Errors
     ///
-    /// As [`Endpoint::open`].
+    /// The device cannot be opened or the address not bound or reached.
     pub fn open_now(&mut self) -> Result<(), String> {
         self.link = Some(self.endpoint.open()?);
         Ok(())
@@ -210,13 +219,32 @@ impl LiveSource {
 
     /// Waits [`READ_WAIT`] at most for bytes and returns the complete lines they end.
     pub fn receive(&mut self) -> Received {
+        let (mut bytes, mut received) = self.receive_bytes();
+        if received.problem.is_some() && self.link.is_none() {
+            // The link went: a line it cut is not joined to what comes after it.
+            self.splitter = LineSplitter {
+                dropped_overlong: self.splitter.dropped_overlong,
+                ..LineSplitter::new(self.splitter.longest)
+            };
+        }
+        // A datagram is whole: its last line needs no line ending.
+        if matches!(self.link, Some(Link::Udp(_))) && !bytes.is_empty() && bytes.last() != Some(&b'\n') {
+            bytes.push(b'\n');
+        }
+        self.splitter
+            .feed(&bytes, |line| received.lines.push(line.to_vec()));
+        received
+    }
+
+    /// Waits [`READ_WAIT`] at most for bytes and returns them as read (a datagram whole).
+    pub fn receive_bytes(&mut self) -> (Vec<u8>, Received) {
         let mut received = Received::default();
         if self.link.is_none() {
             if let Some((at, _)) = &self.failed
                 && at.elapsed() < REOPEN_AFTER
             {
                 std::thread::sleep(READ_WAIT);
-                return received;
+                return (Vec::new(), received);
             }
             match self.endpoint.open() {
                 Ok(link) => {
@@ -229,7 +257,7 @@ impl LiveSource {
                     if first {
                         received.problem = Some(reason);
                     }
-                    return received;
+                    return (Vec::new(), received);
                 }
             }
         }
@@ -242,23 +270,11 @@ impl LiveSource {
                 )),
                 other => other,
             },
-            Some(Link::Udp(socket)) => socket.recv(&mut self.buffer).map(|read| {
-                // A datagram is whole: a last line without its ending still counts.
-                if self.buffer.get(read.wrapping_sub(1)) != Some(&b'\n') && read < self.buffer.len() {
-                    self.buffer[read] = b'\n';
-                    read + 1
-                } else {
-                    read
-                }
-            }),
-            None => return received,
+            Some(Link::Udp(socket)) => socket.recv(&mut self.buffer),
+            None => return (Vec::new(), received),
         };
         match result {
-            Ok(read) => {
-                let bytes = self.buffer.get(..read).unwrap_or_default();
-                self.splitter
-                    .feed(bytes, |line| received.lines.push(line.to_vec()));
-            }
+            Ok(read) => return (self.buffer.get(..read).unwrap_or_default().to_vec(), received),
             Err(e)
                 if matches!(
                     e.kind(),
@@ -270,15 +286,11 @@ impl LiveSource {
                     self.endpoint.describe()
                 );
                 self.link = None;
-                self.splitter = LineSplitter {
-                    dropped_overlong: self.splitter.dropped_overlong,
-                    ..LineSplitter::default()
-                };
                 self.failed = Some((Instant::now(), reason.clone()));
                 received.problem = Some(reason);
             }
         }
-        received
+        (Vec::new(), received)
     }
 }
 
@@ -287,15 +299,15 @@ impl LiveSource {
 /// # Errors
 ///
 /// The file cannot be read; the message names it and the cause.
-pub fn file_lines(path: &str) -> Result<(Vec<Vec<u8>>, u64), String> {
-    let file = File::open(path).map_err(|e| format!("cannot open the NMEA file {path}: {e}"))?;
-    let mut splitter = LineSplitter::default();
+pub fn file_lines(path: &str, longest: usize) -> Result<(Vec<Vec<u8>>, u64), String> {
+    let file = File::open(path).map_err(|e| format!("cannot open {path}: {e}"))?;
+    let mut splitter = LineSplitter::new(longest);
     let mut lines = Vec::new();
     let mut reader = BufReader::new(file);
     loop {
         let chunk = reader
             .fill_buf()
-            .map_err(|e| format!("cannot read the NMEA file {path}: {e}"))?;
+            .map_err(|e| format!("cannot read {path}: {e}"))?;
         if chunk.is_empty() {
             break;
         }
@@ -313,7 +325,7 @@ mod tests {
 
     #[test]
     fn lines_split_across_reads_join_and_overlong_ones_are_dropped_whole() {
-        let mut splitter = LineSplitter::default();
+        let mut splitter = LineSplitter::new(256);
         let mut lines = Vec::new();
         splitter.feed(b"$GPGGA,1\r\n$GPR", |l| lines.push(l.to_vec()));
         splitter.feed(b"MC,2\r\n", |l| lines.push(l.to_vec()));
