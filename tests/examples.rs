@@ -20,6 +20,7 @@ fn every_example_validates() {
         "sensors",
         "gnss_replay",
         "gnss_serial",
+        "image_sequence",
     ] {
         let path = example(name);
         let output = kairos(dir.path(), &["validate", path.to_str().unwrap()]);
@@ -160,6 +161,29 @@ fn fusion_matches_imu_and_gnss_by_timestamp() {
             (a - b) as f64 / 1e6
         );
     }
+}
+
+#[test]
+fn image_sequence_plays_the_folder_at_the_times_in_the_names_and_loops() {
+    let output = kairos(
+        &common::repo_root(),
+        &[
+            "run",
+            example("image_sequence").to_str().unwrap(),
+            "--for",
+            "2600ms",
+            "--set",
+            "console1.every=1",
+        ],
+    );
+    let (stdout, stderr) = text(&output);
+    assert!(output.status.success(), "{stderr}");
+    let images = stdout
+        .lines()
+        .filter(|l| l.contains("Image(160x120 Rgb8)"))
+        .count();
+    // 20 images at 10 Hz, then the loop goes on: 26 or 27 in 2.6 s.
+    assert!((25..=27).contains(&images), "{images} images: {stdout}");
 }
 
 #[test]

@@ -10,7 +10,7 @@
 use std::process::Command;
 
 const GUI_CRATES: [&str; 5] = ["egui", "eframe", "wgpu", "winit", "glutin"];
-const HEADLESS: [&str; 13] = [
+const HEADLESS: [&str; 14] = [
     "kairos-shm",
     "kairos-test-pack-faulty",
     "kairos-sdk",
@@ -24,6 +24,7 @@ const HEADLESS: [&str; 13] = [
     "kairos-pack-filters",
     "kairos-pack-gnss",
     "kairos-pack-serial",
+    "kairos-pack-video",
 ];
 
 #[test]
@@ -63,7 +64,7 @@ fn headless_crates_depend_on_no_gui_crate() {
 
 /// The floors, bottom up, and what each crate of ours may depend on (normal and build dependencies).
 /// A crate missing from the table fails the test: a new crate takes its place here first.
-const RULES: [(&str, &[&str]); 15] = [
+const RULES: [(&str, &[&str]); 16] = [
     // Bottom floor: plain data, and the shared-memory layout both the runtime side and clients need.
     ("kairos-diagram", &[]),
     ("kairos-shm", &[]),
@@ -75,6 +76,7 @@ const RULES: [(&str, &[&str]); 15] = [
     ("kairos-pack-sensors", &["kairos-sdk"]),
     ("kairos-pack-recording", &["kairos-sdk"]),
     ("kairos-pack-serial", &["kairos-sdk"]),
+    ("kairos-pack-video", &["kairos-sdk"]),
     // A sensor pack reads through the serial pack's links.
     ("kairos-pack-gnss", &["kairos-sdk", "kairos-pack-serial"]),
     ("kairos-pack-filters", &["kairos-sdk"]),
@@ -94,6 +96,7 @@ const RULES: [(&str, &[&str]); 15] = [
             "kairos-pack-recording",
             "kairos-pack-gnss",
             "kairos-pack-serial",
+            "kairos-pack-video",
         ],
     ),
     // The studio speaks the protocol and edits diagrams; it never links the engine or a pack.

@@ -310,7 +310,7 @@ impl NmeaReceiver {
                     // A day wraps at midnight.
                     let elapsed = (time - first).rem_euclid(86_400.0);
                     #[allow(clippy::cast_possible_truncation, reason = "seconds of a day in nanoseconds")]
-                    let deadline = Timestamp(at.0 + (elapsed * 1e9) as i64);
+                    let deadline = Timestamp(at.0 + (elapsed * 1e9).round() as i64);
                     // Interrupted (a control request) comes back here: the line is not consumed yet.
                     ctx.wait_until(deadline)?;
                 }

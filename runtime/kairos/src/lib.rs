@@ -21,6 +21,7 @@ pub fn builtin_registry() -> Registry {
     kairos_pack_recording::register(&mut registry);
     kairos_pack_serial::register(&mut registry);
     kairos_pack_gnss::register(&mut registry);
+    kairos_pack_video::register(&mut registry);
     registry
 }
 

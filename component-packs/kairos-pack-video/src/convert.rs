@@ -1,0 +1,162 @@
+//! Camera pixel formats to RGB, as pure functions: YUYV (YUV 4:2:2, the format most USB cameras send
+//! uncompressed) and MJPEG (a JPEG per frame). Both write into a buffer from the shared pixel pool, so a
+//! frame is converted once and then only shared.
+
+use kairos_sdk::{Image, PixelFormat, PixelsMut};
+
+/// Why a frame does not convert.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum ConvertError {
+    /// The buffer is shorter than the size says.
+    #[error("a {width}×{height} YUYV frame needs {needed} bytes, got {got}")]
+    TooShort {
+        /// Width in pixels.
+        width: u32,
+        /// Height in pixels.
+        height: u32,
+        /// Bytes needed.
+        needed: usize,
+        /// Bytes given.
+        got: usize,
+    },
+    /// YUYV needs an even width (two pixels share their chroma).
+    #[error("YUYV needs an even width, got {0}")]
+    OddWidth(u32),
+    /// The JPEG does not decode.
+    #[error("the JPEG frame does not decode: {0}")]
+    Jpeg(String),
+}
+
+/// One pixel from BT.601 limited-range YUV (the range cameras use): R, G, B.
+#[inline]
+fn rgb_of(luma: u8, blue_diff: u8, red_diff: u8) -> [u8; 3] {
+    // Integer form of R = 1.164 (Y − 16) + 1.596 (V − 128), G = 1.164 (Y − 16) − 0.392 (U − 128) −
+    // 0.813 (V − 128), B = 1.164 (Y − 16) + 2.017 (U − 128), scaled by 256 and rounded.
+    let luma = 298 * (i32::from(luma) - 16);
+    let blue_diff = i32::from(blue_diff) - 128;
+    let red_diff = i32::from(red_diff) - 128;
+    #[allow(
+        clippy::cast_possible_truncation,
+        clippy::cast_sign_loss,
+        reason = "clamped to a byte"
+    )]
+    let clamp = |value: i32| ((value + 128) >> 8).clamp(0, 255) as u8;
+    [
+        clamp(luma + 409 * red_diff),
+        clamp(luma - 100 * blue_diff - 208 * red_diff),
+        clamp(luma + 516 * blue_diff),
+    ]
+}
+
+/// A YUYV frame (`Y0 U Y1 V` for each pair of pixels; `stride` bytes per row, at least `2 × width`) as
+/// an RGB image.
+///
+/// # Errors
+///
+/// An odd width, or a buffer shorter than the size says.
+pub fn yuyv_to_rgb(yuyv: &[u8], width: u32, height: u32, stride: u32) -> Result<Image, ConvertError> {
+    if !width.is_multiple_of(2) {
+        return Err(ConvertError::OddWidth(width));
+    }
+    let (w, h, stride) = (
+        width as usize,
+        height as usize,
+        (stride as usize).max(2 * width as usize),
+    );
+    let needed = if h == 0 { 0 } else { stride * (h - 1) + 2 * w };
+    if yuyv.len() < needed {
+        return Err(ConvertError::TooShort {
+            width,
+            height,
+            needed,
+            got: yuyv.len(),
+        });
+    }
+    let mut rgb = PixelsMut::new(w * h * 3);
+    for (row, out) in rgb.chunks_exact_mut((w * 3).max(1)).take(h).enumerate() {
+        let line = yuyv.get(row * stride..row * stride + 2 * w).unwrap_or_default();
+        for (pair, pixels) in line.chunks_exact(4).zip(out.chunks_exact_mut(6)) {
+            let [y0, u, y1, v] = [pair[0], pair[1], pair[2], pair[3]];
+            pixels[..3].copy_from_slice(&rgb_of(y0, u, v));
+            pixels[3..].copy_from_slice(&rgb_of(y1, u, v));
+        }
+    }
+    Image::packed(width, height, PixelFormat::Rgb8, rgb.freeze())
+        .map_err(|e| ConvertError::Jpeg(e.to_string()))
+}
+
+/// An MJPEG frame (one JPEG) as an RGB image.
+///
+/// # Errors
+///
+/// The frame does not decode.
+pub fn mjpeg_to_rgb(jpeg: &[u8]) -> Result<Image, ConvertError> {
+    let decoded = image::load_from_memory_with_format(jpeg, image::ImageFormat::Jpeg)
+        .map_err(|e| ConvertError::Jpeg(e.to_string()))?
+        .into_rgb8();
+    let (width, height) = decoded.dimensions();
+    let mut rgb = PixelsMut::new(decoded.as_raw().len());
+    rgb.copy_from_slice(decoded.as_raw());
+    Image::packed(width, height, PixelFormat::Rgb8, rgb.freeze())
+        .map_err(|e| ConvertError::Jpeg(e.to_string()))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn yuyv_black_white_and_primaries_convert_as_bt601_says() {
+        // Four pixel pairs: black, white, and the limited-range codes of pure red and blue.
+        let frame = [
+            16, 128, 16, 128, // black
+            235, 128, 235, 128, // white
+            81, 90, 81, 240, // red (Y 81, U 90, V 240)
+            41, 240, 41, 110, // blue (Y 41, U 240, V 110)
+        ];
+        let image = yuyv_to_rgb(&frame, 8, 1, 16).unwrap();
+        let rgb = &image.pixels[..];
+        let near = |got: &[u8], want: [u8; 3]| got.iter().zip(want).all(|(g, w)| g.abs_diff(w) <= 3);
+        assert!(near(&rgb[0..3], [0, 0, 0]), "{rgb:?}");
+        assert!(near(&rgb[6..9], [255, 255, 255]), "{rgb:?}");
+        assert!(near(&rgb[12..15], [255, 0, 0]), "{rgb:?}");
+        assert!(near(&rgb[18..21], [0, 0, 255]), "{rgb:?}");
+    }
+
+    #[test]
+    fn yuyv_with_row_padding_skips_it_and_short_or_odd_frames_are_refused() {
+        let mut frame = vec![128_u8; 2 * 16];
+        frame[..8].copy_from_slice(&[235, 128, 235, 128, 235, 128, 235, 128]);
+        let image = yuyv_to_rgb(&frame, 4, 2, 16).unwrap();
+        assert_eq!(image.pixels.len(), 4 * 2 * 3);
+        assert!(image.pixels[..12].iter().all(|&v| v >= 253));
+        assert!(matches!(
+            yuyv_to_rgb(&frame[..10], 4, 2, 16),
+            Err(ConvertError::TooShort { .. })
+        ));
+        assert_eq!(
+            yuyv_to_rgb(&frame, 3, 2, 16).unwrap_err(),
+            ConvertError::OddWidth(3)
+        );
+    }
+
+    #[test]
+    fn an_mjpeg_frame_decodes_close_to_what_was_encoded_and_garbage_is_refused() {
+        let source = image::RgbImage::from_fn(32, 16, |x, _| image::Rgb([(x * 8) as u8, 100, 200]));
+        let mut jpeg = Vec::new();
+        image::codecs::jpeg::JpegEncoder::new_with_quality(&mut jpeg, 95)
+            .encode_image(&source)
+            .unwrap();
+        let decoded = mjpeg_to_rgb(&jpeg).unwrap();
+        assert_eq!((decoded.width, decoded.height), (32, 16));
+        let error: u32 = decoded
+            .pixels
+            .iter()
+            .zip(source.as_raw())
+            .map(|(a, b)| u32::from(a.abs_diff(*b)))
+            .max()
+            .unwrap();
+        assert!(error <= 12, "max error {error}");
+        assert!(matches!(mjpeg_to_rgb(b"not a jpeg"), Err(ConvertError::Jpeg(_))));
+    }
+}
