@@ -68,6 +68,8 @@ fn every_component_starts_runs_and_stops_alone() {
     let library = registry.library_info();
     let dir = tempfile::tempdir().unwrap();
     let recording = small_recording(dir.path());
+    // Stand-ins for the devices of the sensor and I/O packs: pseudo-terminals for serial ports.
+    let ptys: Vec<nix::pty::OpenptyResult> = (0..2).map(|_| nix::pty::openpty(None, None).unwrap()).collect();
     let mut diagram = Diagram::default();
     for (index, info) in library.components.values().enumerate() {
         let mut instance = ComponentInstance::new(format!("c{index}"), info.type_name.clone());
@@ -78,6 +80,9 @@ fn every_component_starts_runs_and_stops_alone() {
                     .properties
                     .insert(property.name.clone(), Value::Text(path.display().to_string()));
             }
+        }
+        for (name, value) in hardware_stand_in(&info.type_name, &ptys) {
+            instance.properties.insert(name.to_owned(), value);
         }
         if info.type_name == "recording.player" {
             // A player needs a recording to describe its outputs; looping, it runs until stopped.
@@ -109,6 +114,28 @@ fn every_component_starts_runs_and_stops_alone() {
         if info.inputs.is_empty() {
             assert!(component.cycles > 0, "source {} never ran", info.type_name);
         }
+    }
+}
+
+/// Properties that give a component that reads or writes a device something real to work on here.
+fn hardware_stand_in(type_name: &str, ptys: &[nix::pty::OpenptyResult]) -> Vec<(&'static str, Value)> {
+    let pty = |index: usize| {
+        let path = nix::unistd::ttyname(&ptys[index].slave).unwrap();
+        Value::Text(path.display().to_string())
+    };
+    let examples = concat!(env!("CARGO_MANIFEST_DIR"), "/../../examples/data/images");
+    match type_name {
+        "gnss.nmea" => vec![
+            ("source", Value::Text("udp".to_owned())),
+            ("address", Value::Text("127.0.0.1:0".to_owned())),
+        ],
+        "serial.reader" => vec![("device", pty(0))],
+        "serial.writer" => vec![("device", pty(1))],
+        "video.image_sequence" => vec![
+            ("folder", Value::Text(examples.to_owned())),
+            ("loop", Value::Bool(true)),
+        ],
+        _ => Vec::new(),
     }
 }
 

@@ -26,7 +26,7 @@ const WARNING_PERIOD: Duration = Duration::from_secs(1);
 pub fn descriptor() -> ComponentInfo {
     Descriptor::new(
         TYPE_NAME,
-        "gnss",
+        "GNSS",
         "GNSS receiver speaking NMEA 0183 (GGA, RMC, VTG) on a serial port, UDP, a TCP server or a file: \
          fixes, the receiver's UTC time, satellites, HDOP, speed and course, and the sentences as text. \
          Samples are stamped when the sentence arrives",
