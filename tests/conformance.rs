@@ -130,6 +130,7 @@ fn hardware_stand_in(type_name: &str, ptys: &[nix::pty::OpenptyResult]) -> Vec<(
             ("address", Value::Text("127.0.0.1:0".to_owned())),
         ],
         "serial.reader" => vec![("device", pty(0))],
+        "net.udp_receiver" => vec![("address", Value::Text("127.0.0.1:0".to_owned()))],
         "serial.writer" => vec![("device", pty(1))],
         "video.image_sequence" => vec![
             ("folder", Value::Text(examples.to_owned())),

@@ -21,6 +21,7 @@ fn every_example_validates() {
         "gnss_replay",
         "gnss_serial",
         "image_sequence",
+        "udp_link",
     ] {
         let path = example(name);
         let output = kairos(dir.path(), &["validate", path.to_str().unwrap()]);
@@ -246,4 +247,57 @@ fn a_gnss_receiver_on_udp_takes_sentences_from_another_process() {
     assert!(output.status.success(), "{stderr}");
     let fixes = stdout.lines().filter(|l| l.contains("lat 48.71")).count();
     assert_eq!(fixes, 10, "{stdout}{stderr}");
+}
+
+#[test]
+fn two_runtimes_exchange_sentences_over_udp_through_the_socket_components() {
+    let dir = tempfile::tempdir().unwrap();
+    let port = std::net::UdpSocket::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port();
+    let receiver = dir.path().join("receiver.ron");
+    std::fs::write(
+        &receiver,
+        format!(
+            r#"Diagram(
+    format: 1,
+    packs: [Pack(name: "core", version: "^0.1"), Pack(name: "gnss", version: "^0.1")],
+    components: [
+        Component(id: "gnss", type: "gnss.nmea", properties: {{"source": "udp", "address": "127.0.0.1:{port}"}}),
+        Component(id: "print", type: "core.console"),
+    ],
+    connections: [Connection(from: "gnss.fix", to: "print.in")],
+)"#
+        ),
+    )
+    .unwrap();
+    let listening = std::process::Command::new(env!("CARGO_BIN_EXE_kairos"))
+        .args(["run", receiver.to_str().unwrap(), "--for", "5s"])
+        .current_dir(dir.path())
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    // Until the receiving runtime listens (well under a second).
+    std::thread::sleep(std::time::Duration::from_secs(1));
+    let destination = format!("sender.destination=127.0.0.1:{port}");
+    let sending = kairos(
+        &common::repo_root(),
+        &[
+            "run",
+            example("udp_link").to_str().unwrap(),
+            "--for",
+            "2500ms",
+            "--set",
+            &destination,
+        ],
+    );
+    assert!(sending.status.success(), "{}", text(&sending).1);
+    let output = listening.wait_with_output().unwrap();
+    let (stdout, stderr) = text(&output);
+    let fixes = stdout.lines().filter(|l| l.contains("lat 48.71")).count();
+    // A fix a second for 2.5 s: at 0, 1 and 2 s.
+    assert_eq!(fixes, 3, "{stdout}{stderr}");
 }

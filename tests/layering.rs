@@ -10,7 +10,7 @@
 use std::process::Command;
 
 const GUI_CRATES: [&str; 5] = ["egui", "eframe", "wgpu", "winit", "glutin"];
-const HEADLESS: [&str; 14] = [
+const HEADLESS: [&str; 15] = [
     "kairos-shm",
     "kairos-test-pack-faulty",
     "kairos-sdk",
@@ -25,6 +25,7 @@ const HEADLESS: [&str; 14] = [
     "kairos-pack-gnss",
     "kairos-pack-serial",
     "kairos-pack-video",
+    "kairos-pack-net",
 ];
 
 #[test]
@@ -64,7 +65,7 @@ fn headless_crates_depend_on_no_gui_crate() {
 
 /// The floors, bottom up, and what each crate of ours may depend on (normal and build dependencies).
 /// A crate missing from the table fails the test: a new crate takes its place here first.
-const RULES: [(&str, &[&str]); 16] = [
+const RULES: [(&str, &[&str]); 17] = [
     // Bottom floor: plain data, and the shared-memory layout both the runtime side and clients need.
     ("kairos-diagram", &[]),
     ("kairos-shm", &[]),
@@ -77,6 +78,7 @@ const RULES: [(&str, &[&str]); 16] = [
     ("kairos-pack-recording", &["kairos-sdk"]),
     ("kairos-pack-serial", &["kairos-sdk"]),
     ("kairos-pack-video", &["kairos-sdk"]),
+    ("kairos-pack-net", &["kairos-sdk"]),
     // A sensor pack reads through the serial pack's links.
     ("kairos-pack-gnss", &["kairos-sdk", "kairos-pack-serial"]),
     ("kairos-pack-filters", &["kairos-sdk"]),
@@ -97,6 +99,7 @@ const RULES: [(&str, &[&str]); 16] = [
             "kairos-pack-gnss",
             "kairos-pack-serial",
             "kairos-pack-video",
+            "kairos-pack-net",
         ],
     ),
     // The studio speaks the protocol and edits diagrams; it never links the engine or a pack.

@@ -22,6 +22,7 @@ pub fn builtin_registry() -> Registry {
     kairos_pack_serial::register(&mut registry);
     kairos_pack_gnss::register(&mut registry);
     kairos_pack_video::register(&mut registry);
+    kairos_pack_net::register(&mut registry);
     registry
 }
 

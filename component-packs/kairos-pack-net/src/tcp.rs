@@ -1,0 +1,379 @@
+//! `net.tcp_receiver` and `net.tcp_sender`: a TCP connection as a client, or the clients of a server.
+
+use std::io::{ErrorKind, Read as _, Write as _};
+use std::net::{SocketAddr, TcpListener, TcpStream, ToSocketAddrs as _};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use kairos_sdk::descriptor::{Descriptor, Property};
+use kairos_sdk::{
+    Component, ComponentError, ComponentInfo, ComponentResult, Context, DataType, Payload, ReaderPolicy,
+    TypeFilter, Value,
+};
+
+use crate::framing::{Deframer, Framing};
+
+/// How long a client's read waits, so stop and control requests get through.
+const READ_WAIT: Duration = Duration::from_millis(50);
+/// How long a server with nothing to read sleeps before looking again.
+const IDLE_WAIT: Duration = Duration::from_millis(10);
+/// How often a lost connection is tried again.
+const RECONNECT_AFTER: Duration = Duration::from_secs(1);
+/// How long a write to one client may block before that client is dropped.
+const WRITE_WAIT: Duration = Duration::from_millis(500);
+/// The most clients a server keeps.
+const MOST_CLIENTS: usize = 64;
+
+fn failed(error: impl std::fmt::Display) -> ComponentError {
+    ComponentError::failed(error)
+}
+
+fn mode_property() -> Property {
+    Property::choice("mode", &["client", "server"], "client")
+        .doc("client: connect to address; server: listen on address for clients")
+}
+
+fn resolve(address: &str) -> Result<SocketAddr, ComponentError> {
+    address
+        .to_socket_addrs()
+        .map_err(|e| failed(format_args!("cannot resolve {address}: {e}")))?
+        .next()
+        .ok_or_else(|| failed(format_args!("{address} resolves to no address")))
+}
+
+fn listen(address: &str) -> Result<TcpListener, ComponentError> {
+    let listener = TcpListener::bind(address)
+        .map_err(|e| failed(format_args!("cannot listen on TCP {address}: {e}")))?;
+    listener.set_nonblocking(true).map_err(failed)?;
+    Ok(listener)
+}
+
+/// Logs at most once a second.
+#[derive(Debug, Default)]
+struct Throttled(Option<Instant>);
+
+impl Throttled {
+    fn warn(&mut self, message: &str) {
+        if self.0.is_none_or(|at| at.elapsed() >= Duration::from_secs(1)) {
+            self.0 = Some(Instant::now());
+            tracing::warn!("{message}");
+        }
+    }
+}
+
+/// The descriptor of `net.tcp_receiver`.
+pub fn receiver_descriptor() -> ComponentInfo {
+    Descriptor::new(
+        "net.tcp_receiver",
+        "network",
+        "Reads TCP: as a client of a server, or as a server of many clients; raw reads, lines or \
+         length-prefixed messages, each one sample stamped on reception",
+    )
+    .label("TCP receiver")
+    .output(
+        "data",
+        DataType::Bytes,
+        "Each message (raw and length_prefixed framing)",
+    )
+    .output("line", DataType::Text, "Each line (lines framing)")
+    .property(mode_property())
+    .property(
+        Property::text("address", "127.0.0.1:5001")
+            .doc("The server to connect to, or the address to listen on"),
+    )
+    .property(Framing::property())
+    .build()
+}
+
+/// One connection being read.
+#[derive(Debug)]
+struct Connection {
+    stream: TcpStream,
+    peer: String,
+    deframer: Deframer,
+}
+
+/// `net.tcp_receiver`. See [`receiver_descriptor`].
+#[derive(Debug, Default)]
+pub struct TcpReceiver {
+    framing: Option<Framing>,
+    listener: Option<TcpListener>,
+    /// The server to connect to (client mode).
+    server: Option<SocketAddr>,
+    last_attempt: Option<Instant>,
+    connections: Vec<Connection>,
+    buffer: Vec<u8>,
+    messages: u64,
+    cut_off: u64,
+    refused: u64,
+    warnings: Throttled,
+    published: Option<Instant>,
+}
+
+impl TcpReceiver {
+    fn connect_or_accept(&mut self, framing: Framing) {
+        if let Some(listener) = &self.listener {
+            while let Ok((stream, peer)) = listener.accept() {
+                if self.connections.len() >= MOST_CLIENTS {
+                    self.warnings
+                        .warn(&format!("more than {MOST_CLIENTS} clients: {peer} refused"));
+                    continue;
+                }
+                if stream.set_nonblocking(true).is_ok() {
+                    tracing::info!("client {peer} connected");
+                    self.connections.push(Connection {
+                        stream,
+                        peer: peer.to_string(),
+                        deframer: Deframer::new(framing),
+                    });
+                }
+            }
+        } else if let Some(server) = self.server
+            && self.connections.is_empty()
+            && self.last_attempt.is_none_or(|at| at.elapsed() >= RECONNECT_AFTER)
+        {
+            self.last_attempt = Some(Instant::now());
+            match TcpStream::connect_timeout(&server, Duration::from_secs(1)) {
+                Ok(stream) => {
+                    if stream.set_read_timeout(Some(READ_WAIT)).is_ok() {
+                        tracing::info!("connected to {server}");
+                        self.connections.push(Connection {
+                            stream,
+                            peer: server.to_string(),
+                            deframer: Deframer::new(framing),
+                        });
+                    }
+                }
+                Err(e) => self.warnings.warn(&format!(
+                    "cannot connect to {server}: {e}; trying again every second"
+                )),
+            }
+        }
+    }
+}
+
+impl Component for TcpReceiver {
+    fn birth(&mut self, ctx: &mut Context) -> ComponentResult {
+        let address = ctx.text_property("address")?;
+        self.framing = Some(Framing::of(&ctx.text_property("framing")?));
+        if ctx.text_property("mode")? == "server" {
+            self.listener = Some(listen(&address)?);
+        } else {
+            self.server = Some(resolve(&address)?);
+        }
+        self.buffer = vec![0; 256 * 1024];
+        Ok(())
+    }
+
+    fn core(&mut self, ctx: &mut Context) -> ComponentResult {
+        let framing = self.framing.unwrap_or(Framing::Raw);
+        self.connect_or_accept(framing);
+        if self.connections.is_empty() {
+            ctx.sleep(if self.listener.is_some() {
+                IDLE_WAIT
+            } else {
+                READ_WAIT
+            })?;
+            return Ok(());
+        }
+        let mut messages: Vec<Vec<u8>> = Vec::new();
+        let mut closed = Vec::new();
+        for (index, connection) in self.connections.iter_mut().enumerate() {
+            let read = match connection.stream.read(&mut self.buffer) {
+                Ok(0) => Err("the peer closed the connection".to_owned()),
+                Ok(read) => Ok(read),
+                Err(e)
+                    if matches!(
+                        e.kind(),
+                        ErrorKind::WouldBlock | ErrorKind::TimedOut | ErrorKind::Interrupted
+                    ) =>
+                {
+                    Ok(0)
+                }
+                Err(e) => Err(e.to_string()),
+            };
+            match read {
+                Ok(read) => {
+                    let bytes = self.buffer.get(..read).unwrap_or_default();
+                    if let Err(too_long) = connection.deframer.feed(bytes, |m| messages.push(m.to_vec())) {
+                        self.refused += 1;
+                        self.warnings.warn(&format!(
+                            "{}: a message of {} bytes is too long; the connection is closed",
+                            connection.peer, too_long.0
+                        ));
+                        closed.push(index);
+                    }
+                }
+                Err(reason) => {
+                    if connection.deframer.pending() > 0 {
+                        self.cut_off += 1;
+                    }
+                    self.warnings.warn(&format!("{}: {reason}", connection.peer));
+                    closed.push(index);
+                }
+            }
+        }
+        for index in closed.into_iter().rev() {
+            self.connections.remove(index);
+        }
+        let now = ctx.now();
+        let idle = messages.is_empty();
+        for message in messages {
+            self.messages += 1;
+            if framing == Framing::Lines {
+                let text = String::from_utf8_lossy(&message);
+                ctx.write_at("line", Payload::Text(Arc::from(text.as_ref())), now)?;
+            } else {
+                ctx.write_at("data", Payload::Bytes(Arc::from(message)), now)?;
+            }
+        }
+        if self
+            .published
+            .is_none_or(|at| at.elapsed() >= Duration::from_millis(500))
+        {
+            self.published = Some(Instant::now());
+            ctx.set_status(serde_json::json!({
+                "kind": "tcp", "connections": self.connections.len(), "messages": self.messages,
+                "cut_off": self.cut_off, "refused": self.refused,
+            }));
+        }
+        if idle && self.listener.is_some() {
+            ctx.sleep(IDLE_WAIT)?;
+        }
+        Ok(())
+    }
+
+    fn property_changed(&mut self, _name: &str, _value: &Value, _ctx: &mut Context) -> ComponentResult {
+        Ok(())
+    }
+}
+
+/// The descriptor of `net.tcp_sender`.
+pub fn sender_descriptor() -> ComponentInfo {
+    Descriptor::new(
+        "net.tcp_sender",
+        "network",
+        "Writes each text or bytes sample to TCP: as a client of a server, or to every client of a server \
+         it runs; raw, as lines or length-prefixed",
+    )
+    .label("TCP sender")
+    .input_with_policy(
+        "in",
+        TypeFilter::OneOf(vec![DataType::Bytes, DataType::Text]),
+        ReaderPolicy::Fifo,
+        "What to send",
+    )
+    .property(mode_property())
+    .property(
+        Property::text("address", "127.0.0.1:5001")
+            .doc("The server to connect to, or the address to listen on"),
+    )
+    .property(Framing::property())
+    .build()
+}
+
+/// `net.tcp_sender`. See [`sender_descriptor`].
+#[derive(Debug, Default)]
+pub struct TcpSender {
+    framing: Option<Framing>,
+    listener: Option<TcpListener>,
+    server: Option<SocketAddr>,
+    last_attempt: Option<Instant>,
+    peers: Vec<(TcpStream, String)>,
+    sent: u64,
+    dropped: u64,
+    warnings: Throttled,
+    published: Option<Instant>,
+}
+
+impl TcpSender {
+    fn connect_or_accept(&mut self) {
+        if let Some(listener) = &self.listener {
+            while let Ok((stream, peer)) = listener.accept() {
+                let ready = stream.set_nonblocking(false).is_ok()
+                    && stream.set_write_timeout(Some(WRITE_WAIT)).is_ok();
+                if ready && self.peers.len() < MOST_CLIENTS {
+                    tracing::info!("client {peer} connected");
+                    self.peers.push((stream, peer.to_string()));
+                }
+            }
+        } else if let Some(server) = self.server
+            && self.peers.is_empty()
+            && self.last_attempt.is_none_or(|at| at.elapsed() >= RECONNECT_AFTER)
+        {
+            self.last_attempt = Some(Instant::now());
+            match TcpStream::connect_timeout(&server, Duration::from_secs(1)) {
+                Ok(stream) => {
+                    if stream.set_write_timeout(Some(WRITE_WAIT)).is_ok() {
+                        tracing::info!("connected to {server}");
+                        self.peers.push((stream, server.to_string()));
+                    }
+                }
+                Err(e) => self.warnings.warn(&format!(
+                    "cannot connect to {server}: {e}; samples are dropped (and counted) until it connects, \
+                     tried every second"
+                )),
+            }
+        }
+    }
+}
+
+impl Component for TcpSender {
+    fn birth(&mut self, ctx: &mut Context) -> ComponentResult {
+        let address = ctx.text_property("address")?;
+        self.framing = Some(Framing::of(&ctx.text_property("framing")?));
+        if ctx.text_property("mode")? == "server" {
+            self.listener = Some(listen(&address)?);
+        } else {
+            self.server = Some(resolve(&address)?);
+        }
+        Ok(())
+    }
+
+    fn core(&mut self, ctx: &mut Context) -> ComponentResult {
+        let sample = ctx.read("in")?;
+        let bytes: &[u8] = match &sample.payload {
+            Payload::Bytes(bytes) => bytes,
+            Payload::Text(text) => text.as_bytes(),
+            other => {
+                return Err(failed(format_args!(
+                    "expected bytes or text, got {}",
+                    other.data_type()
+                )));
+            }
+        };
+        let framed = self.framing.unwrap_or(Framing::Raw).frame(bytes);
+        self.connect_or_accept();
+        if self.peers.is_empty() {
+            self.dropped += 1;
+        }
+        let mut gone = Vec::new();
+        for (index, (stream, peer)) in self.peers.iter_mut().enumerate() {
+            match stream.write_all(&framed) {
+                Ok(()) => self.sent += 1,
+                Err(e) => {
+                    self.dropped += 1;
+                    self.warnings.warn(&format!("{peer}: {e}; disconnected"));
+                    gone.push(index);
+                }
+            }
+        }
+        for index in gone.into_iter().rev() {
+            self.peers.remove(index);
+        }
+        if self
+            .published
+            .is_none_or(|at| at.elapsed() >= Duration::from_millis(500))
+        {
+            self.published = Some(Instant::now());
+            ctx.set_status(serde_json::json!({
+                "kind": "tcp", "connections": self.peers.len(), "sent": self.sent, "dropped": self.dropped,
+            }));
+        }
+        Ok(())
+    }
+
+    fn property_changed(&mut self, _name: &str, _value: &Value, _ctx: &mut Context) -> ComponentResult {
+        Ok(())
+    }
+}

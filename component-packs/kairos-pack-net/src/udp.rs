@@ -1,0 +1,225 @@
+//! `net.udp_receiver` and `net.udp_sender`: one sample per datagram.
+
+use std::net::{Ipv4Addr, SocketAddr, ToSocketAddrs as _, UdpSocket};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use kairos_sdk::descriptor::{Descriptor, Property};
+use kairos_sdk::{
+    Component, ComponentError, ComponentInfo, ComponentResult, Context, DataType, Payload, ReaderPolicy,
+    TypeFilter, Value,
+};
+
+/// How long one receive waits, so stop and control requests get through.
+const RECEIVE_WAIT: Duration = Duration::from_millis(50);
+/// The largest UDP payload over IPv4.
+const LARGEST_DATAGRAM: usize = 65_507;
+
+/// The descriptor of `net.udp_receiver`.
+pub fn receiver_descriptor() -> ComponentInfo {
+    Descriptor::new(
+        "net.udp_receiver",
+        "network",
+        "Receives UDP datagrams on an address, unicast or from a multicast group: one bytes sample per \
+         datagram, stamped on reception",
+    )
+    .label("UDP receiver")
+    .output("data", DataType::Bytes, "Each datagram")
+    .property(Property::text("address", "0.0.0.0:5000").doc("The local address and port to listen on"))
+    .property(
+        Property::text("group", "").doc("An IPv4 multicast group to join (239.1.2.3), or empty for unicast"),
+    )
+    .property(
+        Property::text("interface", "0.0.0.0")
+            .doc("The local interface's address for the multicast group (0.0.0.0: the system's choice)"),
+    )
+    .build()
+}
+
+fn failed(error: impl std::fmt::Display) -> ComponentError {
+    ComponentError::failed(error)
+}
+
+/// `net.udp_receiver`. See [`receiver_descriptor`].
+#[derive(Debug, Default)]
+pub struct UdpReceiver {
+    socket: Option<UdpSocket>,
+    buffer: Vec<u8>,
+    datagrams: u64,
+    published: Option<Instant>,
+}
+
+impl Component for UdpReceiver {
+    fn birth(&mut self, ctx: &mut Context) -> ComponentResult {
+        let address = ctx.text_property("address")?;
+        let socket = UdpSocket::bind(&address)
+            .map_err(|e| failed(format_args!("cannot listen on UDP {address}: {e}")))?;
+        let group = ctx.text_property("group")?;
+        if !group.is_empty() {
+            let group: Ipv4Addr = group
+                .parse()
+                .map_err(|_| failed(format_args!("group {group:?} is not an IPv4 address (239.1.2.3)")))?;
+            let interface: Ipv4Addr = ctx
+                .text_property("interface")?
+                .parse()
+                .map_err(|_| failed("interface is not an IPv4 address"))?;
+            socket
+                .join_multicast_v4(&group, &interface)
+                .map_err(|e| failed(format_args!("cannot join the multicast group {group}: {e}")))?;
+        }
+        socket.set_read_timeout(Some(RECEIVE_WAIT)).map_err(failed)?;
+        self.socket = Some(socket);
+        self.buffer = vec![0; LARGEST_DATAGRAM + 1];
+        Ok(())
+    }
+
+    fn core(&mut self, ctx: &mut Context) -> ComponentResult {
+        let Some(socket) = &self.socket else {
+            return Err(ComponentError::Stopped);
+        };
+        match socket.recv(&mut self.buffer) {
+            Ok(read) => {
+                let now = ctx.now();
+                let datagram = Arc::<[u8]>::from(self.buffer.get(..read).unwrap_or_default());
+                self.datagrams += 1;
+                ctx.write_at("data", Payload::Bytes(datagram), now)?;
+            }
+            Err(e)
+                if matches!(
+                    e.kind(),
+                    std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut
+                ) => {}
+            // An ICMP error from an earlier send on this socket, and the like: the socket still works.
+            Err(e) => tracing::debug!("UDP receive: {e}"),
+        }
+        if self
+            .published
+            .is_none_or(|at| at.elapsed() >= Duration::from_millis(500))
+        {
+            self.published = Some(Instant::now());
+            ctx.set_status(serde_json::json!({"kind": "udp", "datagrams": self.datagrams}));
+        }
+        Ok(())
+    }
+
+    fn property_changed(&mut self, _name: &str, _value: &Value, _ctx: &mut Context) -> ComponentResult {
+        Ok(())
+    }
+}
+
+/// The descriptor of `net.udp_sender`.
+pub fn sender_descriptor() -> ComponentInfo {
+    Descriptor::new(
+        "net.udp_sender",
+        "network",
+        "Sends each text or bytes sample as one UDP datagram to an address, unicast or multicast",
+    )
+    .label("UDP sender")
+    .input_with_policy(
+        "in",
+        TypeFilter::OneOf(vec![DataType::Bytes, DataType::Text]),
+        ReaderPolicy::Fifo,
+        "What to send",
+    )
+    .property(
+        Property::text("destination", "127.0.0.1:5000")
+            .doc("Where to send: address and port (a multicast group's address sends to the group)"),
+    )
+    .property(
+        Property::i64("ttl", 1)
+            .int_range(1, 255)
+            .doc("Multicast time to live: how many routers a datagram may cross"),
+    )
+    .build()
+}
+
+/// `net.udp_sender`. See [`sender_descriptor`].
+#[derive(Debug, Default)]
+pub struct UdpSender {
+    socket: Option<UdpSocket>,
+    destination: Option<SocketAddr>,
+    sent: u64,
+    failed: u64,
+    too_large: u64,
+    warned: Option<Instant>,
+    published: Option<Instant>,
+}
+
+impl UdpSender {
+    fn warn(&mut self, what: &str) {
+        if self
+            .warned
+            .is_none_or(|at| at.elapsed() >= Duration::from_secs(1))
+        {
+            self.warned = Some(Instant::now());
+            tracing::warn!(
+                "{what} ({} not sent, {} too large, in all)",
+                self.failed,
+                self.too_large
+            );
+        }
+    }
+}
+
+impl Component for UdpSender {
+    fn birth(&mut self, ctx: &mut Context) -> ComponentResult {
+        let destination = ctx.text_property("destination")?;
+        let address = destination
+            .to_socket_addrs()
+            .map_err(|e| failed(format_args!("cannot resolve the destination {destination}: {e}")))?
+            .next()
+            .ok_or_else(|| failed(format_args!("{destination} resolves to no address")))?;
+        let local = if address.is_ipv4() { "0.0.0.0:0" } else { "[::]:0" };
+        let socket = UdpSocket::bind(local).map_err(failed)?;
+        if address.ip().is_multicast() {
+            let ttl = u32::try_from(ctx.i64_property("ttl")?).unwrap_or(1);
+            socket.set_multicast_ttl_v4(ttl).map_err(failed)?;
+        }
+        self.socket = Some(socket);
+        self.destination = Some(address);
+        Ok(())
+    }
+
+    fn core(&mut self, ctx: &mut Context) -> ComponentResult {
+        let sample = ctx.read("in")?;
+        let bytes: &[u8] = match &sample.payload {
+            Payload::Bytes(bytes) => bytes,
+            Payload::Text(text) => text.as_bytes(),
+            other => {
+                return Err(failed(format_args!(
+                    "expected bytes or text, got {}",
+                    other.data_type()
+                )));
+            }
+        };
+        if bytes.len() > LARGEST_DATAGRAM {
+            self.too_large += 1;
+            let size = bytes.len();
+            self.warn(&format!(
+                "a sample of {size} bytes is larger than a UDP datagram can be ({LARGEST_DATAGRAM}); not sent"
+            ));
+        } else if let (Some(socket), Some(destination)) = (&self.socket, self.destination) {
+            match socket.send_to(bytes, destination) {
+                Ok(_) => self.sent += 1,
+                Err(e) => {
+                    self.failed += 1;
+                    self.warn(&format!("cannot send to {destination}: {e}"));
+                }
+            }
+        }
+        if self
+            .published
+            .is_none_or(|at| at.elapsed() >= Duration::from_millis(500))
+        {
+            self.published = Some(Instant::now());
+            ctx.set_status(serde_json::json!({
+                "kind": "udp", "sent": self.sent, "failed": self.failed, "too_large": self.too_large,
+            }));
+        }
+        Ok(())
+    }
+
+    fn property_changed(&mut self, _name: &str, _value: &Value, _ctx: &mut Context) -> ComponentResult {
+        Ok(())
+    }
+}

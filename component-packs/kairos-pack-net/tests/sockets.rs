@@ -1,0 +1,192 @@
+//! The socket components against real sockets on loopback: datagrams both ways, TCP as client and as
+//! server in every framing, a peer that leaves mid-message, messages too large.
+#![allow(
+    clippy::unwrap_used,
+    clippy::expect_used,
+    reason = "a failed unwrap is a failed test"
+)]
+
+use std::io::{Read as _, Write as _};
+use std::net::{TcpListener, TcpStream, UdpSocket};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use kairos_pack_net::framing::Framing;
+use kairos_pack_net::{tcp, udp};
+use kairos_sdk::harness::{Harness, HarnessOutput};
+use kairos_sdk::{Payload, Timestamp};
+
+fn free_port() -> u16 {
+    TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port()
+}
+
+fn run_until(harness: &mut Harness, output: &str, count: usize) -> HarnessOutput {
+    let mut out = HarnessOutput::default();
+    let started = Instant::now();
+    while out.samples(output).len() < count && started.elapsed() < Duration::from_secs(5) {
+        out.extend(harness.run().unwrap());
+    }
+    out
+}
+
+fn bytes_of(out: &HarnessOutput, output: &str) -> Vec<Vec<u8>> {
+    out.samples(output)
+        .iter()
+        .map(|s| match &s.payload {
+            Payload::Bytes(bytes) => bytes.to_vec(),
+            Payload::Text(text) => text.as_bytes().to_vec(),
+            other => panic!("{other:?}"),
+        })
+        .collect()
+}
+
+#[test]
+fn a_udp_receiver_gives_one_sample_per_datagram() {
+    let port = UdpSocket::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port();
+    let mut harness = Harness::new(udp::receiver_descriptor(), udp::UdpReceiver::default());
+    harness
+        .set_property("address", format!("127.0.0.1:{port}"))
+        .unwrap();
+    harness.run().unwrap();
+    let sender = UdpSocket::bind("127.0.0.1:0").unwrap();
+    for datagram in [&b"first"[..], &[0, 1, 2, 255], &vec![7_u8; 60_000]] {
+        sender.send_to(datagram, ("127.0.0.1", port)).unwrap();
+    }
+    let out = run_until(&mut harness, "data", 3);
+    let got = bytes_of(&out, "data");
+    assert_eq!(got.len(), 3);
+    assert_eq!(got[0], b"first");
+    assert_eq!(got[1], [0, 1, 2, 255]);
+    assert_eq!(got[2].len(), 60_000);
+}
+
+#[test]
+fn a_udp_sender_sends_text_and_bytes_and_counts_what_is_too_large() {
+    let receiver = UdpSocket::bind("127.0.0.1:0").unwrap();
+    receiver.set_read_timeout(Some(Duration::from_secs(2))).unwrap();
+    let mut harness = Harness::new(udp::sender_descriptor(), udp::UdpSender::default());
+    harness
+        .set_property("destination", receiver.local_addr().unwrap().to_string())
+        .unwrap();
+    harness.push("in", Payload::Text(Arc::from("hello")), Timestamp(1));
+    harness.push("in", Payload::Bytes(Arc::from(vec![9_u8; 70_000])), Timestamp(2));
+    harness.push("in", Payload::Bytes(Arc::from(&[1_u8, 2][..])), Timestamp(3));
+    harness.run().unwrap();
+    let mut buffer = [0_u8; 1024];
+    let read = receiver.recv(&mut buffer).unwrap();
+    assert_eq!(&buffer[..read], b"hello");
+    let read = receiver.recv(&mut buffer).unwrap();
+    assert_eq!(&buffer[..read], [1, 2], "the oversized one was not sent");
+    std::thread::sleep(Duration::from_millis(600));
+    harness.push("in", Payload::Text(Arc::from("again")), Timestamp(4));
+    harness.run().unwrap();
+    let status = harness.status().unwrap();
+    assert_eq!(
+        (status["sent"].as_u64(), status["too_large"].as_u64()),
+        (Some(3), Some(1)),
+        "{status}"
+    );
+}
+
+#[test]
+fn a_tcp_client_reads_lines_counts_a_line_cut_off_and_connects_again() {
+    let listener = TcpListener::bind("127.0.0.1:0").unwrap();
+    let mut harness = Harness::new(tcp::receiver_descriptor(), tcp::TcpReceiver::default());
+    harness
+        .set_property("address", listener.local_addr().unwrap().to_string())
+        .unwrap();
+    harness.set_property("framing", "lines").unwrap();
+    harness.run().unwrap();
+    let (mut server, _) = listener.accept().unwrap();
+    server.write_all(b"one\r\ntwo\nthr").unwrap();
+    let out = run_until(&mut harness, "line", 2);
+    assert_eq!(bytes_of(&out, "line"), [b"one".to_vec(), b"two".to_vec()]);
+    drop(server);
+    // The half line is not joined to what the next connection sends.
+    let accepted = std::thread::spawn(move || listener.accept().unwrap().0);
+    let started = Instant::now();
+    while !accepted.is_finished() && started.elapsed() < Duration::from_secs(5) {
+        harness.run().unwrap();
+    }
+    let mut server = accepted.join().unwrap();
+    server.write_all(b"four\n").unwrap();
+    let out = run_until(&mut harness, "line", 1);
+    assert_eq!(bytes_of(&out, "line"), [b"four".to_vec()]);
+    std::thread::sleep(Duration::from_millis(600));
+    harness.run().unwrap();
+    assert_eq!(harness.status().unwrap()["cut_off"], 1);
+}
+
+#[test]
+fn a_tcp_server_reads_length_prefixed_messages_from_several_clients() {
+    let port = free_port();
+    let mut harness = Harness::new(tcp::receiver_descriptor(), tcp::TcpReceiver::default());
+    harness.set_property("mode", "server").unwrap();
+    harness
+        .set_property("address", format!("127.0.0.1:{port}"))
+        .unwrap();
+    harness.set_property("framing", "length_prefixed").unwrap();
+    harness.run().unwrap();
+    let mut first = TcpStream::connect(("127.0.0.1", port)).unwrap();
+    let mut second = TcpStream::connect(("127.0.0.1", port)).unwrap();
+    first
+        .write_all(&Framing::LengthPrefixed.frame(b"from the first"))
+        .unwrap();
+    let framed = Framing::LengthPrefixed.frame(&[5_u8; 1000]);
+    second.write_all(&framed[..10]).unwrap();
+    let out = run_until(&mut harness, "data", 1);
+    second.write_all(&framed[10..]).unwrap();
+    let mut all = bytes_of(&out, "data");
+    all.extend(bytes_of(&run_until(&mut harness, "data", 1), "data"));
+    assert_eq!(all, [b"from the first".to_vec(), vec![5_u8; 1000]]);
+    // A length no message may have closes that connection only.
+    first.write_all(&[0xff, 0xff, 0xff, 0xff]).unwrap();
+    second
+        .write_all(&Framing::LengthPrefixed.frame(b"still here"))
+        .unwrap();
+    let out = run_until(&mut harness, "data", 1);
+    assert_eq!(bytes_of(&out, "data"), [b"still here".to_vec()]);
+}
+
+#[test]
+fn a_tcp_sender_serves_every_client_and_a_client_sender_reaches_its_server() {
+    let port = free_port();
+    let mut harness = Harness::new(tcp::sender_descriptor(), tcp::TcpSender::default());
+    harness.set_property("mode", "server").unwrap();
+    harness
+        .set_property("address", format!("127.0.0.1:{port}"))
+        .unwrap();
+    harness.set_property("framing", "lines").unwrap();
+    harness.run().unwrap();
+    let mut clients: Vec<TcpStream> = (0..2)
+        .map(|_| TcpStream::connect(("127.0.0.1", port)).unwrap())
+        .collect();
+    std::thread::sleep(Duration::from_millis(50));
+    harness.push("in", Payload::Text(Arc::from("to everyone")), Timestamp(1));
+    harness.run().unwrap();
+    for client in &mut clients {
+        let mut line = [0_u8; 12];
+        client.read_exact(&mut line).unwrap();
+        assert_eq!(&line, b"to everyone\n");
+    }
+
+    let listener = TcpListener::bind("127.0.0.1:0").unwrap();
+    let mut harness = Harness::new(tcp::sender_descriptor(), tcp::TcpSender::default());
+    harness
+        .set_property("address", listener.local_addr().unwrap().to_string())
+        .unwrap();
+    harness.push("in", Payload::Bytes(Arc::from(&[1_u8, 2, 3][..])), Timestamp(1));
+    harness.run().unwrap();
+    let (mut server, _) = listener.accept().unwrap();
+    let mut got = [0_u8; 3];
+    server.read_exact(&mut got).unwrap();
+    assert_eq!(got, [1, 2, 3]);
+}
