@@ -130,7 +130,10 @@ fn hardware_stand_in(type_name: &str, ptys: &[nix::pty::OpenptyResult]) -> Vec<(
             ("address", Value::Text("127.0.0.1:0".to_owned())),
         ],
         "serial.reader" => vec![("device", pty(0))],
-        "net.udp_receiver" => vec![("address", Value::Text("127.0.0.1:0".to_owned()))],
+        // Any free port, so that nothing else listening makes them fail.
+        "net.udp_receiver" | "lidar.velodyne" => {
+            vec![("address", Value::Text("127.0.0.1:0".to_owned()))]
+        }
         "serial.writer" => vec![("device", pty(1))],
         "video.image_sequence" => vec![
             ("folder", Value::Text(examples.to_owned())),

@@ -10,7 +10,7 @@
 use std::process::Command;
 
 const GUI_CRATES: [&str; 5] = ["egui", "eframe", "wgpu", "winit", "glutin"];
-const HEADLESS: [&str; 15] = [
+const HEADLESS: [&str; 16] = [
     "kairos-shm",
     "kairos-test-pack-faulty",
     "kairos-sdk",
@@ -26,6 +26,7 @@ const HEADLESS: [&str; 15] = [
     "kairos-pack-serial",
     "kairos-pack-video",
     "kairos-pack-net",
+    "kairos-pack-lidar",
 ];
 
 #[test]
@@ -65,7 +66,7 @@ fn headless_crates_depend_on_no_gui_crate() {
 
 /// The floors, bottom up, and what each crate of ours may depend on (normal and build dependencies).
 /// A crate missing from the table fails the test: a new crate takes its place here first.
-const RULES: [(&str, &[&str]); 17] = [
+const RULES: [(&str, &[&str]); 18] = [
     // Bottom floor: plain data, and the shared-memory layout both the runtime side and clients need.
     ("kairos-diagram", &[]),
     ("kairos-shm", &[]),
@@ -79,6 +80,7 @@ const RULES: [(&str, &[&str]); 17] = [
     ("kairos-pack-serial", &["kairos-sdk"]),
     ("kairos-pack-video", &["kairos-sdk"]),
     ("kairos-pack-net", &["kairos-sdk"]),
+    ("kairos-pack-lidar", &["kairos-sdk"]),
     // A sensor pack reads through the serial pack's links.
     ("kairos-pack-gnss", &["kairos-sdk", "kairos-pack-serial"]),
     ("kairos-pack-filters", &["kairos-sdk"]),
@@ -100,6 +102,7 @@ const RULES: [(&str, &[&str]); 17] = [
             "kairos-pack-serial",
             "kairos-pack-video",
             "kairos-pack-net",
+            "kairos-pack-lidar",
         ],
     ),
     // The studio speaks the protocol and edits diagrams; it never links the engine or a pack.

@@ -23,6 +23,7 @@ pub fn builtin_registry() -> Registry {
     kairos_pack_gnss::register(&mut registry);
     kairos_pack_video::register(&mut registry);
     kairos_pack_net::register(&mut registry);
+    kairos_pack_lidar::register(&mut registry);
     registry
 }
 
