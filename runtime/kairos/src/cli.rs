@@ -112,6 +112,12 @@ pub enum Command {
         /// Show only types containing this text.
         filter: Option<String>,
     },
+    /// List this machine's serial ports, CAN interfaces and cameras, for the device properties.
+    Devices {
+        /// Print JSON instead of text.
+        #[arg(long)]
+        json: bool,
+    },
     /// Generate a pack or a component from the templates.
     #[command(subcommand)]
     New(NewCommand),
@@ -216,7 +222,8 @@ pub fn execute(cli: Cli) -> anyhow::Result<ExitCode> {
         | Command::Components { .. }
         | Command::New(_)
         | Command::Inspect { .. }
-        | Command::Recover { .. } => Vec::new(),
+        | Command::Recover { .. }
+        | Command::Devices { .. } => Vec::new(),
     };
     let (registry, scan) = crate::registry_with_packs(&cli.pack_path, &diagrams);
     if !matches!(cli.command, Command::Packs { .. }) {
@@ -319,6 +326,18 @@ pub fn execute(cli: Cli) -> anyhow::Result<ExitCode> {
             }
             if let Some(cut) = &recovered.cut_short {
                 println!("{cut}: everything before it was recovered");
+            }
+            Ok(ExitCode::SUCCESS)
+        }
+        Command::Devices { json } => {
+            let devices = crate::devices::list(std::path::Path::new("/"));
+            if json {
+                println!(
+                    "{}",
+                    serde_json::to_string_pretty(&devices).context("encoding the devices as JSON")?
+                );
+            } else {
+                print!("{}", crate::devices::text(&devices));
             }
             Ok(ExitCode::SUCCESS)
         }
