@@ -81,7 +81,7 @@ fn every_component_starts_runs_and_stops_alone() {
                     .insert(property.name.clone(), Value::Text(path.display().to_string()));
             }
         }
-        for (name, value) in hardware_stand_in(&info.type_name, &ptys) {
+        for (name, value) in hardware_stand_in(&info.type_name, &ptys, dir.path()) {
             instance.properties.insert(name.to_owned(), value);
         }
         if info.type_name == "recording.player" {
@@ -118,7 +118,11 @@ fn every_component_starts_runs_and_stops_alone() {
 }
 
 /// Properties that give a component that reads or writes a device something real to work on here.
-fn hardware_stand_in(type_name: &str, ptys: &[nix::pty::OpenptyResult]) -> Vec<(&'static str, Value)> {
+fn hardware_stand_in(
+    type_name: &str,
+    ptys: &[nix::pty::OpenptyResult],
+    dir: &std::path::Path,
+) -> Vec<(&'static str, Value)> {
     let pty = |index: usize| {
         let path = nix::unistd::ttyname(&ptys[index].slave).unwrap();
         Value::Text(path.display().to_string())
@@ -135,6 +139,27 @@ fn hardware_stand_in(type_name: &str, ptys: &[nix::pty::OpenptyResult]) -> Vec<(
             vec![("address", Value::Text("127.0.0.1:0".to_owned()))]
         }
         "serial.writer" => vec![("device", pty(1))],
+        "can.candump_reader" => {
+            let log = dir.join("stand-in.log");
+            std::fs::write(
+                &log,
+                "(1.000000) can0 100#4000EC01\n(1.010000) can0 100#4100EC01\n",
+            )
+            .unwrap();
+            vec![
+                ("path", Value::Text(log.display().to_string())),
+                ("loop", Value::Bool(true)),
+            ]
+        }
+        "can.dbc_decoder" => {
+            let dbc = dir.join("stand-in.dbc");
+            std::fs::write(
+                &dbc,
+                "VERSION \"\"\n\nNS_ :\n\nBS_:\n\nBU_: ECU\n\nBO_ 256 Engine: 8 ECU\n SG_ Speed : 0|16@1+ (0.25,0) [0|16383.75] \"rpm\" ECU\n",
+            )
+            .unwrap();
+            vec![("dbc", Value::Text(dbc.display().to_string()))]
+        }
         "video.image_sequence" => vec![
             ("folder", Value::Text(examples.to_owned())),
             ("loop", Value::Bool(true)),

@@ -11,7 +11,8 @@ use common::{example, kairos, text};
 
 #[test]
 fn every_example_validates() {
-    let dir = tempfile::tempdir().unwrap();
+    // From the repository's folder, as the examples say to run them: their data files are named from there.
+    let root = common::repo_root();
     for name in [
         "hello",
         "camera",
@@ -22,9 +23,10 @@ fn every_example_validates() {
         "gnss_serial",
         "image_sequence",
         "udp_link",
+        "can_replay",
     ] {
         let path = example(name);
-        let output = kairos(dir.path(), &["validate", path.to_str().unwrap()]);
+        let output = kairos(&root, &["validate", path.to_str().unwrap()]);
         let (stdout, stderr) = text(&output);
         assert!(output.status.success(), "{name}: {stdout}{stderr}");
         assert!(stdout.contains("valid"), "{name}: {stdout}");
@@ -300,4 +302,35 @@ fn two_runtimes_exchange_sentences_over_udp_through_the_socket_components() {
     let fixes = stdout.lines().filter(|l| l.contains("lat 48.71")).count();
     // A fix a second for 2.5 s: at 0, 1 and 2 s.
     assert_eq!(fixes, 3, "{stdout}{stderr}");
+}
+
+#[test]
+fn can_replay_decodes_the_log_into_signals_with_units() {
+    let output = kairos(
+        &common::repo_root(),
+        &[
+            "run",
+            example("can_replay").to_str().unwrap(),
+            "--for",
+            "1500ms",
+            "--set",
+            "console1.every=1",
+        ],
+    );
+    let (stdout, stderr) = text(&output);
+    assert!(output.status.success(), "{stderr}");
+    let engine = stdout.lines().filter(|l| l.contains("Engine: Speed = ")).count();
+    let wheels = stdout
+        .lines()
+        .filter(|l| l.contains("Wheels: FrontLeft = "))
+        .count();
+    // 100 engine frames a second, 50 wheel frames: about 150 and 75 in 1.5 s.
+    assert!(
+        (140..=152).contains(&engine) && (70..=77).contains(&wheels),
+        "{engine} {wheels}: {stdout}"
+    );
+    assert!(
+        stdout.contains("Temperature = 85 degC; Throttle = 20 %"),
+        "{stdout}"
+    );
 }

@@ -10,7 +10,7 @@
 use std::process::Command;
 
 const GUI_CRATES: [&str; 5] = ["egui", "eframe", "wgpu", "winit", "glutin"];
-const HEADLESS: [&str; 16] = [
+const HEADLESS: [&str; 17] = [
     "kairos-shm",
     "kairos-test-pack-faulty",
     "kairos-sdk",
@@ -27,6 +27,7 @@ const HEADLESS: [&str; 16] = [
     "kairos-pack-video",
     "kairos-pack-net",
     "kairos-pack-lidar",
+    "kairos-pack-can",
 ];
 
 #[test]
@@ -66,7 +67,7 @@ fn headless_crates_depend_on_no_gui_crate() {
 
 /// The floors, bottom up, and what each crate of ours may depend on (normal and build dependencies).
 /// A crate missing from the table fails the test: a new crate takes its place here first.
-const RULES: [(&str, &[&str]); 18] = [
+const RULES: [(&str, &[&str]); 19] = [
     // Bottom floor: plain data, and the shared-memory layout both the runtime side and clients need.
     ("kairos-diagram", &[]),
     ("kairos-shm", &[]),
@@ -81,6 +82,7 @@ const RULES: [(&str, &[&str]); 18] = [
     ("kairos-pack-video", &["kairos-sdk"]),
     ("kairos-pack-net", &["kairos-sdk"]),
     ("kairos-pack-lidar", &["kairos-sdk"]),
+    ("kairos-pack-can", &["kairos-sdk"]),
     // A sensor pack reads through the serial pack's links.
     ("kairos-pack-gnss", &["kairos-sdk", "kairos-pack-serial"]),
     ("kairos-pack-filters", &["kairos-sdk"]),
@@ -103,6 +105,7 @@ const RULES: [(&str, &[&str]); 18] = [
             "kairos-pack-video",
             "kairos-pack-net",
             "kairos-pack-lidar",
+            "kairos-pack-can",
         ],
     ),
     // The studio speaks the protocol and edits diagrams; it never links the engine or a pack.

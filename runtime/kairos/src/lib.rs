@@ -25,6 +25,7 @@ pub fn builtin_registry() -> Registry {
     kairos_pack_video::register(&mut registry);
     kairos_pack_net::register(&mut registry);
     kairos_pack_lidar::register(&mut registry);
+    kairos_pack_can::register(&mut registry);
     registry
 }
 

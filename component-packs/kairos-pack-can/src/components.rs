@@ -1,0 +1,405 @@
+//! `can.candump_reader`, `can.candump_writer` and `can.dbc_decoder`.
+
+use std::collections::BTreeMap;
+use std::fmt::Write as _;
+use std::fs::File;
+use std::io::{BufRead as _, BufReader, BufWriter, Write as _};
+use std::path::Path;
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use kairos_sdk::descriptor::{Descriptor, Property};
+use kairos_sdk::{
+    Component, ComponentError, ComponentInfo, ComponentResult, Context, DataType, DescribeError, Payload,
+    ReaderPolicy, Timestamp, TypeFilter, Value,
+};
+
+use crate::candump::{self, Logged};
+use crate::dbc::Database;
+
+fn failed(error: impl std::fmt::Display) -> ComponentError {
+    ComponentError::failed(error)
+}
+
+fn can_frames() -> TypeFilter {
+    TypeFilter::OneOf(vec![DataType::CanFrame])
+}
+
+/// Logs bad input at most once a second.
+#[derive(Debug, Default)]
+struct Warnings(Option<Instant>);
+
+impl Warnings {
+    fn warn(&mut self, message: impl FnOnce() -> String) {
+        if self.0.is_none_or(|at| at.elapsed() >= Duration::from_secs(1)) {
+            self.0 = Some(Instant::now());
+            tracing::warn!("{}", message());
+        }
+    }
+}
+
+/// The descriptor of `can.candump_reader`.
+pub fn reader_descriptor() -> ComponentInfo {
+    Descriptor::new(
+        "can.candump_reader",
+        "CAN",
+        "Replays a candump log (can-utils' candump -l) at its timing or as fast as possible: one frame \
+         sample per logged frame; error frames and malformed lines counted",
+    )
+    .label("CAN log player (candump)")
+    .output("frame", DataType::CanFrame, "Each logged frame")
+    .property(Property::path("path", "").doc("The log file"))
+    .property(
+        Property::choice("replay", &["timing", "fast"], "timing")
+            .doc("At the log's timing, or as fast as the readers take the frames"),
+    )
+    .property(Property::text("interface", "").doc("Only frames logged on this interface (empty: all)"))
+    .property(Property::bool("loop", false).doc("Start again at the end"))
+    .build()
+}
+
+/// `can.candump_reader`. See [`reader_descriptor`].
+#[derive(Debug, Default)]
+pub struct CandumpReader {
+    path: String,
+    lines: Option<std::io::Lines<BufReader<File>>>,
+    line_number: u64,
+    /// The first frame's log time and the clock time it was replayed at.
+    anchor: Option<(f64, Timestamp)>,
+    /// A frame whose wait a control request interrupted.
+    pending: Option<(f64, kairos_sdk::CanFrame)>,
+    frames: u64,
+    error_frames: u64,
+    malformed: u64,
+    warnings: Warnings,
+    published: Option<Instant>,
+}
+
+impl CandumpReader {
+    fn open(&mut self) -> Result<(), ComponentError> {
+        let file = File::open(&self.path)
+            .map_err(|e| failed(format_args!("cannot open the log {}: {e}", self.path)))?;
+        self.lines = Some(BufReader::new(file).lines());
+        self.line_number = 0;
+        self.anchor = None;
+        Ok(())
+    }
+
+    fn publish_status(&mut self, ctx: &Context, now: bool) {
+        if !now
+            && self
+                .published
+                .is_some_and(|at| at.elapsed() < Duration::from_millis(500))
+        {
+            return;
+        }
+        self.published = Some(Instant::now());
+        ctx.set_status(serde_json::json!({
+            "kind": "can", "frames": self.frames, "error_frames": self.error_frames, "malformed": self.malformed,
+        }));
+    }
+
+    /// The next frame of the log on the chosen interface, or `None` at its end.
+    fn next_frame(&mut self, interface: &str) -> Result<Option<(f64, kairos_sdk::CanFrame)>, ComponentError> {
+        loop {
+            let Some(lines) = &mut self.lines else {
+                return Ok(None);
+            };
+            let Some(line) = lines.next() else { return Ok(None) };
+            self.line_number += 1;
+            let line = line.map_err(|e| failed(format_args!("cannot read {}: {e}", self.path)))?;
+            if line.trim().is_empty() {
+                continue;
+            }
+            match candump::parse(&line) {
+                Ok(Logged::Frame {
+                    time_s,
+                    interface: logged_on,
+                    frame,
+                }) => {
+                    if interface.is_empty() || logged_on == interface {
+                        return Ok(Some((time_s, frame)));
+                    }
+                }
+                Ok(Logged::Error { .. }) => self.error_frames += 1,
+                Err(error) => {
+                    self.malformed += 1;
+                    let (path, number, count) = (&self.path, self.line_number, self.malformed);
+                    self.warnings.warn(|| {
+                        format!("{path}:{number}: {error}; skipped ({count} malformed lines in all)")
+                    });
+                }
+            }
+        }
+    }
+}
+
+impl Component for CandumpReader {
+    fn birth(&mut self, ctx: &mut Context) -> ComponentResult {
+        self.path = ctx.text_property("path")?;
+        if self.path.is_empty() {
+            return Err(failed("no log to replay: set the property path to a candump log"));
+        }
+        self.open()
+    }
+
+    fn core(&mut self, ctx: &mut Context) -> ComponentResult {
+        let interface = ctx.text_property("interface")?;
+        let next = match self.pending.take() {
+            Some(frame) => Some(frame),
+            None => match self.next_frame(&interface)? {
+                Some(frame) => Some(frame),
+                None if ctx.bool_property("loop")? && self.frames > 0 => {
+                    self.open()?;
+                    self.next_frame(&interface)?
+                }
+                None => None,
+            },
+        };
+        let Some((time_s, frame)) = next else {
+            self.publish_status(ctx, true);
+            return Err(ComponentError::EndOfStream);
+        };
+        let now = ctx.now();
+        let (first, at) = *self.anchor.get_or_insert((time_s, now));
+        let due = if ctx.text_property("replay")? == "timing" {
+            #[allow(clippy::cast_possible_truncation, reason = "nanoseconds of a log")]
+            let offset = ((time_s - first).max(0.0) * 1e9).round() as i64;
+            let due = Timestamp(at.0 + offset);
+            if let Err(interrupted) = ctx.wait_until(due) {
+                self.pending = Some((time_s, frame));
+                return Err(interrupted);
+            }
+            due
+        } else {
+            now
+        };
+        self.frames += 1;
+        ctx.write_at("frame", Payload::CanFrame(frame), due)?;
+        self.publish_status(ctx, false);
+        Ok(())
+    }
+
+    fn death(&mut self, ctx: &mut Context) -> ComponentResult {
+        self.publish_status(ctx, true);
+        Ok(())
+    }
+
+    fn property_changed(&mut self, _name: &str, _value: &Value, _ctx: &mut Context) -> ComponentResult {
+        Ok(())
+    }
+}
+
+/// The descriptor of `can.candump_writer`.
+pub fn writer_descriptor() -> ComponentInfo {
+    Descriptor::new(
+        "can.candump_writer",
+        "CAN",
+        "Writes frames to a candump log (readable by can-utils' canplayer and by can.candump_reader), \
+         each at its timestamp",
+    )
+    .label("CAN log writer (candump)")
+    .input_with_policy(
+        "frame",
+        can_frames(),
+        ReaderPolicy::NeverSkipping,
+        "The frames to log",
+    )
+    .property(Property::path("path", "can.log").doc("The log file (created or replaced)"))
+    .property(Property::text("interface", "can0").doc("The interface name written on each line"))
+    .build()
+}
+
+/// `can.candump_writer`. See [`writer_descriptor`].
+#[derive(Debug, Default)]
+pub struct CandumpWriter {
+    file: Option<BufWriter<File>>,
+    path: String,
+    interface: String,
+    last_flush: Option<Instant>,
+}
+
+impl Component for CandumpWriter {
+    fn birth(&mut self, ctx: &mut Context) -> ComponentResult {
+        self.path = ctx.text_property("path")?;
+        self.interface = ctx.text_property("interface")?;
+        let file =
+            File::create(&self.path).map_err(|e| failed(format_args!("cannot create {}: {e}", self.path)))?;
+        self.file = Some(BufWriter::new(file));
+        Ok(())
+    }
+
+    fn core(&mut self, ctx: &mut Context) -> ComponentResult {
+        let sample = ctx.read("frame")?;
+        let Payload::CanFrame(frame) = &sample.payload else {
+            return Err(failed(format_args!(
+                "expected a CAN frame, got {}",
+                sample.payload.data_type()
+            )));
+        };
+        let line = candump::format(frame, sample.timestamp.as_nanos(), &self.interface);
+        let Some(file) = self.file.as_mut() else {
+            return Ok(());
+        };
+        writeln!(file, "{line}").map_err(|e| failed(format_args!("cannot write {}: {e}", self.path)))?;
+        // A log a crash leaves behind holds all but the last second.
+        if self
+            .last_flush
+            .is_none_or(|at| at.elapsed() >= Duration::from_secs(1))
+        {
+            self.last_flush = Some(Instant::now());
+            file.flush()
+                .map_err(|e| failed(format_args!("cannot write {}: {e}", self.path)))?;
+        }
+        Ok(())
+    }
+
+    fn death(&mut self, _ctx: &mut Context) -> ComponentResult {
+        if let Some(mut file) = self.file.take() {
+            file.flush()
+                .map_err(|e| failed(format_args!("cannot write {}: {e}", self.path)))?;
+        }
+        Ok(())
+    }
+
+    fn property_changed(&mut self, _name: &str, _value: &Value, _ctx: &mut Context) -> ComponentResult {
+        Ok(())
+    }
+}
+
+/// The descriptor of `can.dbc_decoder` before its DBC is read: the outputs every instance has.
+pub fn decoder_descriptor() -> ComponentInfo {
+    decoder_base().build()
+}
+
+fn decoder_base() -> Descriptor {
+    Descriptor::new(
+        "can.dbc_decoder",
+        "CAN",
+        "Decodes CAN frames with a DBC database into named, scaled signals with units: every signal of a \
+         frame as one line of text, and one number output per signal of the database",
+    )
+    .label("CAN decoder (DBC)")
+    .input_with_policy("frame", can_frames(), ReaderPolicy::Fifo, "The frames to decode")
+    .output(
+        "signals",
+        DataType::Text,
+        "Each decoded frame: `Message: Signal = value unit; ...`",
+    )
+    .property(Property::path("dbc", "").doc("The DBC file"))
+}
+
+/// `value` as people write it: no floating-point noise from the scaling (`38.4`, not `38.400000000000006`).
+fn readable(value: f64) -> String {
+    let text = format!("{value:.9}");
+    let trimmed = text.trim_end_matches('0').trim_end_matches('.');
+    if trimmed == "-0" {
+        "0".to_owned()
+    } else {
+        trimmed.to_owned()
+    }
+}
+
+/// The output of a signal: `Message_Signal`.
+fn output_name(message: &str, signal: &str) -> String {
+    format!("{message}_{signal}")
+}
+
+/// `can.dbc_decoder`'s descriptor for an instance: one output per signal of its DBC.
+///
+/// # Errors
+///
+/// The DBC cannot be read or parsed (the error is on the property `dbc`, with the line and column).
+pub fn describe_decoder(properties: &BTreeMap<String, Value>) -> Result<ComponentInfo, DescribeError> {
+    let path = properties.get("dbc").and_then(Value::as_text).unwrap_or("");
+    if path.is_empty() {
+        return Err(
+            DescribeError::property("dbc", "no DBC file").with_suggestion("set 'dbc' to the bus's .dbc file")
+        );
+    }
+    let database = Database::open(Path::new(path)).map_err(|e| DescribeError::property("dbc", e.0))?;
+    let mut descriptor = decoder_base();
+    for message in database.messages.values() {
+        for signal in &message.signals {
+            let unit = if signal.unit.is_empty() {
+                String::new()
+            } else {
+                format!(", {}", signal.unit)
+            };
+            descriptor = descriptor.output(
+                &output_name(&message.name, &signal.name),
+                DataType::F64,
+                &format!("{}.{}{unit}", message.name, signal.name),
+            );
+        }
+    }
+    Ok(descriptor.build())
+}
+
+/// `can.dbc_decoder`. See [`decoder_descriptor`].
+#[derive(Debug, Default)]
+pub struct DbcDecoder {
+    database: Database,
+    unknown: u64,
+    decoded: u64,
+    published: Option<Instant>,
+}
+
+impl Component for DbcDecoder {
+    fn birth(&mut self, ctx: &mut Context) -> ComponentResult {
+        let path = ctx.text_property("dbc")?;
+        self.database = Database::open(Path::new(&path)).map_err(|e| failed(e.0))?;
+        Ok(())
+    }
+
+    fn core(&mut self, ctx: &mut Context) -> ComponentResult {
+        let sample = ctx.read("frame")?;
+        let Payload::CanFrame(frame) = &sample.payload else {
+            return Err(failed(format_args!(
+                "expected a CAN frame, got {}",
+                sample.payload.data_type()
+            )));
+        };
+        let Some(signals) = self.database.decode(frame) else {
+            self.unknown += 1;
+            return Ok(());
+        };
+        self.decoded += 1;
+        let mut line = String::new();
+        for (index, signal) in signals.iter().enumerate() {
+            if index == 0 {
+                line.push_str(signal.message);
+                line.push_str(": ");
+            } else {
+                line.push_str("; ");
+            }
+            let _ = write!(line, "{} = {}", signal.signal, readable(signal.value));
+            if !signal.unit.is_empty() {
+                line.push(' ');
+                line.push_str(signal.unit);
+            }
+        }
+        let outputs: Vec<(String, f64)> = signals
+            .iter()
+            .map(|s| (output_name(s.message, s.signal), s.value))
+            .collect();
+        ctx.write_processed("signals", &sample, Payload::Text(Arc::from(line)))?;
+        for (output, value) in outputs {
+            ctx.write_processed(output.as_str(), &sample, Payload::F64(value))?;
+        }
+        if self
+            .published
+            .is_none_or(|at| at.elapsed() >= Duration::from_millis(500))
+        {
+            self.published = Some(Instant::now());
+            ctx.set_status(
+                serde_json::json!({"kind": "can", "decoded": self.decoded, "unknown_ids": self.unknown}),
+            );
+        }
+        Ok(())
+    }
+
+    fn property_changed(&mut self, _name: &str, _value: &Value, _ctx: &mut Context) -> ComponentResult {
+        Ok(())
+    }
+}
