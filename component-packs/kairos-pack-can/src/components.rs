@@ -289,15 +289,11 @@ fn decoder_base() -> Descriptor {
     .property(Property::path("dbc", "").doc("The DBC file"))
 }
 
-/// `value` as people write it: no floating-point noise from the scaling (`38.4`, not `38.400000000000006`).
-fn readable(value: f64) -> String {
-    let text = format!("{value:.9}");
-    let trimmed = text.trim_end_matches('0').trim_end_matches('.');
-    if trimmed == "-0" {
-        "0".to_owned()
-    } else {
-        trimmed.to_owned()
-    }
+/// `value` as people write it, without the floating-point noise of the scaling (`38.4`, not
+/// `38.400000000000006`): rounded to nine decimals, then written in the fewest digits that read back.
+pub fn readable(value: f64) -> f64 {
+    let rounded = (value * 1e9).round() / 1e9;
+    if rounded == 0.0 { 0.0 } else { rounded }
 }
 
 /// The output of a signal: `Message_Signal`.
@@ -340,6 +336,9 @@ pub fn describe_decoder(properties: &BTreeMap<String, Value>) -> Result<Componen
 #[derive(Debug, Default)]
 pub struct DbcDecoder {
     database: Database,
+    /// Per message, the output index of its first signal (outputs follow the database's order, as
+    /// [`describe_decoder`] makes them).
+    first_output: BTreeMap<(u32, bool), usize>,
     unknown: u64,
     decoded: u64,
     published: Option<Instant>,
@@ -349,6 +348,12 @@ impl Component for DbcDecoder {
     fn birth(&mut self, ctx: &mut Context) -> ComponentResult {
         let path = ctx.text_property("dbc")?;
         self.database = Database::open(Path::new(&path)).map_err(|e| failed(e.0))?;
+        // Output 0 is `signals`.
+        let mut next = 1;
+        for (key, message) in &self.database.messages {
+            self.first_output.insert(*key, next);
+            next += message.signals.len();
+        }
         Ok(())
     }
 
@@ -379,13 +384,15 @@ impl Component for DbcDecoder {
                 line.push_str(signal.unit);
             }
         }
-        let outputs: Vec<(String, f64)> = signals
-            .iter()
-            .map(|s| (output_name(s.message, s.signal), s.value))
-            .collect();
-        ctx.write_processed("signals", &sample, Payload::Text(Arc::from(line)))?;
+        let first = self
+            .first_output
+            .get(&(frame.id, frame.extended))
+            .copied()
+            .unwrap_or(0);
+        let outputs: Vec<(usize, f64)> = signals.iter().map(|s| (first + s.index, s.value)).collect();
+        ctx.write_processed(0, &sample, Payload::Text(Arc::from(line)))?;
         for (output, value) in outputs {
-            ctx.write_processed(output.as_str(), &sample, Payload::F64(value))?;
+            ctx.write_processed(output, &sample, Payload::F64(value))?;
         }
         if self
             .published

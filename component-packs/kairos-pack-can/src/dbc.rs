@@ -46,6 +46,8 @@ pub struct MessageSpec {
 /// A decoded signal.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Decoded<'a> {
+    /// The signal's position among its message's signals.
+    pub index: usize,
     /// The message's name.
     pub message: &'a str,
     /// The signal's name.
@@ -143,10 +145,12 @@ impl Database {
         let decoded = message
             .signals
             .iter()
-            .filter(|s| s.multiplexed_on.is_none() || s.multiplexed_on == switch)
-            .filter_map(|signal| {
+            .enumerate()
+            .filter(|(_, s)| s.multiplexed_on.is_none() || s.multiplexed_on == switch)
+            .filter_map(|(index, signal)| {
                 let raw = raw_of(signal, data)?;
                 Some(Decoded {
+                    index,
                     message: &message.name,
                     signal: &signal.name,
                     value: physical(signal, raw),

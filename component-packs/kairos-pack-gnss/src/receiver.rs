@@ -19,6 +19,15 @@ pub const TYPE_NAME: &str = "gnss.nmea";
 /// Vertical error relative to horizontal error, as receivers typically report (GGA has no VDOP).
 const VERTICAL_FACTOR: f64 = 1.5;
 
+/// The outputs, in the descriptor's order (written by index: no name lookup per sample).
+const FIX: usize = 0;
+const UTC: usize = 1;
+const SATELLITES: usize = 2;
+const HDOP: usize = 3;
+const SPEED: usize = 4;
+const COURSE: usize = 5;
+const SENTENCE: usize = 6;
+
 /// The most warnings about bad input per second.
 const WARNING_PERIOD: Duration = Duration::from_secs(1);
 
@@ -98,7 +107,8 @@ pub fn descriptor() -> ComponentInfo {
 
 /// A file being replayed.
 struct Replay {
-    lines: Vec<Vec<u8>>,
+    /// Shared, so that handing one out costs no copy.
+    lines: Vec<Arc<[u8]>>,
     /// Lines dropped for being longer than a sentence can be.
     overlong: u64,
     next: usize,
@@ -128,6 +138,8 @@ struct Counts {
 #[derive(Default)]
 pub struct NmeaReceiver {
     input: Option<Input>,
+    /// The `accuracy_per_hdop_m` property, kept here: read for every fix.
+    accuracy_per_hdop: f64,
     decoder: Decoder,
     counts: Counts,
     connected: bool,
@@ -155,7 +167,7 @@ impl NmeaReceiver {
                 let (lines, overlong) =
                     file_lines(&path, MAX_SENTENCE_LEN).map_err(ComponentError::failed)?;
                 return Ok(Input::File(Replay {
-                    lines,
+                    lines: lines.into_iter().map(Arc::from).collect(),
                     overlong,
                     next: 0,
                     at_timing: ctx.text_property("replay")? == "timing",
@@ -204,13 +216,17 @@ impl NmeaReceiver {
             }
         };
         self.counts.sentences += 1;
-        ctx.write_at("sentence", Payload::Text(Arc::from(text)), received)?;
-        Self::write_reading(ctx, &reading, received)
+        ctx.write_at(SENTENCE, Payload::Text(Arc::from(text)), received)?;
+        Self::write_reading(ctx, &reading, received, self.accuracy_per_hdop)
     }
 
-    fn write_reading(ctx: &mut Context, reading: &Reading, received: Timestamp) -> ComponentResult {
+    fn write_reading(
+        ctx: &mut Context,
+        reading: &Reading,
+        received: Timestamp,
+        per_hdop: f64,
+    ) -> ComponentResult {
         if let Some(fix) = reading.fix {
-            let per_hdop = ctx.f64_property("accuracy_per_hdop_m")?;
             let horizontal = fix.hdop.map_or(f64::NAN, |hdop| hdop * per_hdop);
             let payload = Payload::GnssFix(GnssFix {
                 latitude_deg: fix.latitude_deg,
@@ -220,23 +236,23 @@ impl NmeaReceiver {
                 vertical_accuracy_m: horizontal * VERTICAL_FACTOR,
                 status: fix.status,
             });
-            ctx.write_at("fix", payload, received)?;
+            ctx.write_at(FIX, payload, received)?;
             if let Some(satellites) = fix.satellites {
-                ctx.write_at("satellites", Payload::I64(i64::from(satellites)), received)?;
+                ctx.write_at(SATELLITES, Payload::I64(i64::from(satellites)), received)?;
             }
             if let Some(hdop) = fix.hdop {
-                ctx.write_at("hdop", Payload::F64(hdop), received)?;
+                ctx.write_at(HDOP, Payload::F64(hdop), received)?;
             }
         }
         if let Some(utc) = reading.utc_s {
-            ctx.write_at("utc", Payload::F64(utc), received)?;
+            ctx.write_at(UTC, Payload::F64(utc), received)?;
         }
         if let Some(motion) = reading.motion {
             if let Some(speed) = motion.speed_mps {
-                ctx.write_at("speed", Payload::F64(speed), received)?;
+                ctx.write_at(SPEED, Payload::F64(speed), received)?;
             }
             if let Some(course) = motion.course_deg {
-                ctx.write_at("course", Payload::F64(course), received)?;
+                ctx.write_at(COURSE, Payload::F64(course), received)?;
             }
         }
         Ok(())
@@ -287,7 +303,7 @@ impl NmeaReceiver {
         replay: &mut Replay,
         decoder: &Decoder,
         ctx: &Context,
-    ) -> Result<Option<Vec<u8>>, ComponentError> {
+    ) -> Result<Option<Arc<[u8]>>, ComponentError> {
         if replay.next >= replay.lines.len() {
             if !replay.looping || replay.lines.is_empty() {
                 return Ok(None);
@@ -317,13 +333,14 @@ impl NmeaReceiver {
             }
         }
         replay.next += 1;
-        Ok(Some(line.clone()))
+        Ok(Some(Arc::clone(line)))
     }
 }
 
 impl Component for NmeaReceiver {
     fn birth(&mut self, ctx: &mut Context) -> ComponentResult {
         self.decoder = Decoder::new();
+        self.accuracy_per_hdop = ctx.f64_property("accuracy_per_hdop_m")?;
         self.input = Some(Self::open(ctx)?);
         self.connected = true;
         self.publish_status(ctx);
@@ -331,7 +348,6 @@ impl Component for NmeaReceiver {
     }
 
     fn core(&mut self, ctx: &mut Context) -> ComponentResult {
-        let mut lines = Vec::new();
         match &mut self.input {
             Some(Input::Live(source)) => {
                 let received = source.receive();
@@ -344,7 +360,9 @@ impl Component for NmeaReceiver {
                     self.connected = true;
                 }
                 let now = ctx.now();
-                lines.extend(received.lines.into_iter().map(|line| (line, now)));
+                for line in received.lines {
+                    self.handle(ctx, &line, now)?;
+                }
             }
             Some(Input::File(replay)) => {
                 let Some(line) = Self::next_replayed(replay, &self.decoder, ctx)? else {
@@ -352,12 +370,10 @@ impl Component for NmeaReceiver {
                     self.publish_status(ctx);
                     return Err(ComponentError::EndOfStream);
                 };
-                lines.push((line, ctx.now()));
+                let now = ctx.now();
+                self.handle(ctx, &line, now)?;
             }
             None => return Err(ComponentError::Stopped),
-        }
-        for (line, received) in lines {
-            self.handle(ctx, &line, received)?;
         }
         self.publish_status(ctx);
         Ok(())
@@ -370,7 +386,12 @@ impl Component for NmeaReceiver {
         Ok(())
     }
 
-    fn property_changed(&mut self, _name: &str, _value: &Value, _ctx: &mut Context) -> ComponentResult {
+    fn property_changed(&mut self, name: &str, value: &Value, _ctx: &mut Context) -> ComponentResult {
+        if name == "accuracy_per_hdop_m"
+            && let Some(value) = value.as_f64()
+        {
+            self.accuracy_per_hdop = value;
+        }
         Ok(())
     }
 }
