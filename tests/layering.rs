@@ -124,6 +124,9 @@ const RULES: [(&str, &[&str]); 19] = [
             "kairos-pack-sensors",
             "kairos-pack-recording",
             "kairos-pack-filters",
+            "kairos-pack-gnss",
+            "kairos-pack-can",
+            "kairos-pack-lidar",
         ],
     ),
 ];
