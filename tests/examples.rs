@@ -203,15 +203,15 @@ fn gnss_replay_prints_a_fix_a_second_at_the_receivers_timing() {
     assert!(fixes.iter().all(|l| l.contains("(Differential)")), "{stdout}");
 }
 
-#[test]
-fn a_gnss_receiver_on_udp_takes_sentences_from_another_process() {
-    let dir = tempfile::tempdir().unwrap();
+/// Starts `kairos run` for `duration` on a diagram in `dir` whose `gnss.nmea` listens on a free UDP port
+/// of loopback and prints its fixes; returns the process and the port.
+fn gnss_on_udp(dir: &std::path::Path, duration: &str) -> (std::process::Child, u16) {
     let port = std::net::UdpSocket::bind("127.0.0.1:0")
         .unwrap()
         .local_addr()
         .unwrap()
         .port();
-    let diagram = dir.path().join("udp.ron");
+    let diagram = dir.join("udp.ron");
     std::fs::write(
         &diagram,
         format!(
@@ -228,12 +228,19 @@ fn a_gnss_receiver_on_udp_takes_sentences_from_another_process() {
     )
     .unwrap();
     let child = std::process::Command::new(env!("CARGO_BIN_EXE_kairos"))
-        .args(["run", diagram.to_str().unwrap(), "--for", "3s"])
-        .current_dir(dir.path())
+        .args(["run", diagram.to_str().unwrap(), "--for", duration])
+        .current_dir(dir)
         .stdout(std::process::Stdio::piped())
         .stderr(std::process::Stdio::piped())
         .spawn()
         .unwrap();
+    (child, port)
+}
+
+#[test]
+fn a_gnss_receiver_on_udp_takes_sentences_from_another_process() {
+    let dir = tempfile::tempdir().unwrap();
+    let (child, port) = gnss_on_udp(dir.path(), "3s");
     let sentences = std::fs::read_to_string(common::repo_root().join("examples/data/drive.nmea")).unwrap();
     let sender = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
     // Until the runtime listens (it starts in well under a second), then a second of sentences.
@@ -254,34 +261,7 @@ fn a_gnss_receiver_on_udp_takes_sentences_from_another_process() {
 #[test]
 fn two_runtimes_exchange_sentences_over_udp_through_the_socket_components() {
     let dir = tempfile::tempdir().unwrap();
-    let port = std::net::UdpSocket::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port();
-    let receiver = dir.path().join("receiver.ron");
-    std::fs::write(
-        &receiver,
-        format!(
-            r#"Diagram(
-    format: 1,
-    packs: [Pack(name: "core", version: "^0.1"), Pack(name: "gnss", version: "^0.1")],
-    components: [
-        Component(id: "gnss", type: "gnss.nmea", properties: {{"source": "udp", "address": "127.0.0.1:{port}"}}),
-        Component(id: "print", type: "core.console"),
-    ],
-    connections: [Connection(from: "gnss.fix", to: "print.in")],
-)"#
-        ),
-    )
-    .unwrap();
-    let listening = std::process::Command::new(env!("CARGO_BIN_EXE_kairos"))
-        .args(["run", receiver.to_str().unwrap(), "--for", "5s"])
-        .current_dir(dir.path())
-        .stdout(std::process::Stdio::piped())
-        .stderr(std::process::Stdio::piped())
-        .spawn()
-        .unwrap();
+    let (listening, port) = gnss_on_udp(dir.path(), "5s");
     // Until the receiving runtime listens (well under a second).
     std::thread::sleep(std::time::Duration::from_secs(1));
     let destination = format!("sender.destination=127.0.0.1:{port}");

@@ -39,6 +39,7 @@ pub mod sample;
 pub mod signal;
 pub mod stats;
 mod sync;
+mod throttle;
 pub mod time;
 
 pub use component::{
@@ -56,6 +57,7 @@ pub use registry::{Describe, Factory, PackRegistrar, RefusedComponent, Registere
 pub use sample::Sample;
 pub use signal::RunSignal;
 pub use stats::{LatencySummary, LinkCounters};
+pub use throttle::{STATUS_PERIOD, Throttle, WARNING_PERIOD};
 pub use time::{Clock, ManualClock, RealTimeClock, Timestamp};
 
 /// The text of a panic payload, for reports.

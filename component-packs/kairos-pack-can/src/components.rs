@@ -6,13 +6,14 @@ use std::fs::File;
 use std::io::{BufRead as _, BufReader, BufWriter, Write as _};
 use std::path::Path;
 use std::sync::Arc;
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use kairos_sdk::descriptor::{Descriptor, Property};
 use kairos_sdk::{
     Component, ComponentError, ComponentInfo, ComponentResult, Context, DataType, DescribeError, Payload,
     ReaderPolicy, Timestamp, TypeFilter, Value,
 };
+use kairos_sdk::{STATUS_PERIOD, Throttle};
 
 use crate::candump::{self, Logged};
 use crate::dbc::Database;
@@ -23,19 +24,6 @@ fn failed(error: impl std::fmt::Display) -> ComponentError {
 
 fn can_frames() -> TypeFilter {
     TypeFilter::OneOf(vec![DataType::CanFrame])
-}
-
-/// Logs bad input at most once a second.
-#[derive(Debug, Default)]
-struct Warnings(Option<Instant>);
-
-impl Warnings {
-    fn warn(&mut self, message: impl FnOnce() -> String) {
-        if self.0.is_none_or(|at| at.elapsed() >= Duration::from_secs(1)) {
-            self.0 = Some(Instant::now());
-            tracing::warn!("{}", message());
-        }
-    }
 }
 
 /// The descriptor of `can.candump_reader`.
@@ -71,8 +59,8 @@ pub struct CandumpReader {
     frames: u64,
     error_frames: u64,
     malformed: u64,
-    warnings: Warnings,
-    published: Option<Instant>,
+    warnings: Throttle,
+    published: Throttle,
 }
 
 impl CandumpReader {
@@ -86,14 +74,10 @@ impl CandumpReader {
     }
 
     fn publish_status(&mut self, ctx: &Context, now: bool) {
-        if !now
-            && self
-                .published
-                .is_some_and(|at| at.elapsed() < Duration::from_millis(500))
-        {
+        let due = self.published.ready(STATUS_PERIOD);
+        if !now && !due {
             return;
         }
-        self.published = Some(Instant::now());
         ctx.set_status(serde_json::json!({
             "kind": "can", "frames": self.frames, "error_frames": self.error_frames, "malformed": self.malformed,
         }));
@@ -190,6 +174,9 @@ impl Component for CandumpReader {
     }
 }
 
+/// How often the log writer hands what it wrote to the system: a crash loses at most this much.
+const FLUSH_PERIOD: Duration = Duration::from_secs(1);
+
 /// The descriptor of `can.candump_writer`.
 pub fn writer_descriptor() -> ComponentInfo {
     Descriptor::new(
@@ -216,7 +203,7 @@ pub struct CandumpWriter {
     file: Option<BufWriter<File>>,
     path: String,
     interface: String,
-    last_flush: Option<Instant>,
+    last_flush: Throttle,
 }
 
 impl Component for CandumpWriter {
@@ -243,11 +230,7 @@ impl Component for CandumpWriter {
         };
         writeln!(file, "{line}").map_err(|e| failed(format_args!("cannot write {}: {e}", self.path)))?;
         // A log a crash leaves behind holds all but the last second.
-        if self
-            .last_flush
-            .is_none_or(|at| at.elapsed() >= Duration::from_secs(1))
-        {
-            self.last_flush = Some(Instant::now());
+        if self.last_flush.ready(FLUSH_PERIOD) {
             file.flush()
                 .map_err(|e| failed(format_args!("cannot write {}: {e}", self.path)))?;
         }
@@ -341,7 +324,7 @@ pub struct DbcDecoder {
     first_output: BTreeMap<(u32, bool), usize>,
     unknown: u64,
     decoded: u64,
-    published: Option<Instant>,
+    published: Throttle,
 }
 
 impl Component for DbcDecoder {
@@ -394,11 +377,7 @@ impl Component for DbcDecoder {
         for (output, value) in outputs {
             ctx.write_processed(output, &sample, Payload::F64(value))?;
         }
-        if self
-            .published
-            .is_none_or(|at| at.elapsed() >= Duration::from_millis(500))
-        {
-            self.published = Some(Instant::now());
+        if self.published.ready(STATUS_PERIOD) {
             ctx.set_status(
                 serde_json::json!({"kind": "can", "decoded": self.decoded, "unknown_ids": self.unknown}),
             );

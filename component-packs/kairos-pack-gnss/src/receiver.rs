@@ -1,13 +1,13 @@
 //! `gnss.nmea`: a GNSS receiver speaking NMEA 0183, read from a serial port, UDP, a TCP server or a file.
 
 use std::sync::Arc;
-use std::time::{Duration, Instant};
 
 use kairos_sdk::descriptor::{Descriptor, Property};
 use kairos_sdk::{
     Component, ComponentError, ComponentInfo, ComponentResult, Context, DataType, GnssFix, Payload,
     Timestamp, Value,
 };
+use kairos_sdk::{STATUS_PERIOD, Throttle, WARNING_PERIOD};
 
 use kairos_pack_serial::link::{Endpoint, LiveSource, SerialSettings, file_lines};
 
@@ -27,9 +27,6 @@ const HDOP: usize = 3;
 const SPEED: usize = 4;
 const COURSE: usize = 5;
 const SENTENCE: usize = 6;
-
-/// The most warnings about bad input per second.
-const WARNING_PERIOD: Duration = Duration::from_secs(1);
 
 /// The descriptor of `gnss.nmea`.
 pub fn descriptor() -> ComponentInfo {
@@ -130,7 +127,7 @@ struct Counts {
     bad_checksum: u64,
     malformed: u64,
     last_problem: String,
-    warned: Option<Instant>,
+    warned: Throttle,
     unreported: u64,
 }
 
@@ -143,7 +140,7 @@ pub struct NmeaReceiver {
     decoder: Decoder,
     counts: Counts,
     connected: bool,
-    published: Option<Instant>,
+    published: Throttle,
 }
 
 impl std::fmt::Debug for NmeaReceiver {
@@ -261,10 +258,9 @@ impl NmeaReceiver {
     /// Logs bad input at most once a second, with how much there was since the last warning.
     fn warn_bad_input(&mut self) {
         self.counts.unreported += 1;
-        if self.counts.warned.is_some_and(|at| at.elapsed() < WARNING_PERIOD) {
+        if !self.counts.warned.ready(WARNING_PERIOD) {
             return;
         }
-        self.counts.warned = Some(Instant::now());
         tracing::warn!(
             "{} bad line(s) skipped (last: {}); {} bad checksums and {} malformed lines in all",
             self.counts.unreported,
@@ -276,13 +272,9 @@ impl NmeaReceiver {
     }
 
     fn publish_status(&mut self, ctx: &Context) {
-        if self
-            .published
-            .is_some_and(|at| at.elapsed() < Duration::from_millis(500))
-        {
+        if !self.published.ready(STATUS_PERIOD) {
             return;
         }
-        self.published = Some(Instant::now());
         let overlong = match &self.input {
             Some(Input::Live(source)) => source.dropped_overlong(),
             Some(Input::File(replay)) => replay.overlong,
@@ -366,7 +358,7 @@ impl Component for NmeaReceiver {
             }
             Some(Input::File(replay)) => {
                 let Some(line) = Self::next_replayed(replay, &self.decoder, ctx)? else {
-                    self.published = None;
+                    self.published.reset();
                     self.publish_status(ctx);
                     return Err(ComponentError::EndOfStream);
                 };
@@ -380,7 +372,7 @@ impl Component for NmeaReceiver {
     }
 
     fn death(&mut self, ctx: &mut Context) -> ComponentResult {
-        self.published = None;
+        self.published.reset();
         self.publish_status(ctx);
         self.input = None;
         Ok(())

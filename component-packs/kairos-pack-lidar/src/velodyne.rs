@@ -3,13 +3,14 @@
 use std::net::UdpSocket;
 use std::path::Path;
 use std::sync::Arc;
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use kairos_sdk::descriptor::{Descriptor, Property};
 use kairos_sdk::{
     Component, ComponentError, ComponentInfo, ComponentResult, Context, DataType, Payload, PointCloud,
     Timestamp, Value,
 };
+use kairos_sdk::{STATUS_PERIOD, Throttle, WARNING_PERIOD};
 
 use crate::pcap::Capture;
 use crate::vlp16::Decoder;
@@ -70,8 +71,8 @@ pub struct Velodyne {
     bad_packets: u64,
     revolutions: u64,
     last_problem: String,
-    warned: Option<Instant>,
-    published: Option<Instant>,
+    warned: Throttle,
+    published: Throttle,
 }
 
 impl std::fmt::Debug for Velodyne {
@@ -122,8 +123,7 @@ impl Velodyne {
             Err(error) => {
                 self.bad_packets += 1;
                 self.last_problem = error.to_string();
-                if self.warned.is_none_or(|t| t.elapsed() >= Duration::from_secs(1)) {
-                    self.warned = Some(Instant::now());
+                if self.warned.ready(WARNING_PERIOD) {
                     tracing::warn!(
                         "{} packet(s) refused in all (last: {})",
                         self.bad_packets,
@@ -144,14 +144,10 @@ impl Velodyne {
     }
 
     fn publish_status(&mut self, ctx: &Context, now: bool) {
-        if !now
-            && self
-                .published
-                .is_some_and(|t| t.elapsed() < Duration::from_millis(500))
-        {
+        let due = self.published.ready(STATUS_PERIOD);
+        if !now && !due {
             return;
         }
-        self.published = Some(Instant::now());
         ctx.set_status(serde_json::json!({
             "kind": "lidar", "packets": self.packets, "bad_packets": self.bad_packets,
             "revolutions": self.revolutions,

@@ -3,13 +3,14 @@
 use std::io::{ErrorKind, Read as _, Write as _};
 use std::net::{SocketAddr, TcpListener, TcpStream, ToSocketAddrs as _};
 use std::sync::Arc;
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use kairos_sdk::descriptor::{Descriptor, Property};
 use kairos_sdk::{
     Component, ComponentError, ComponentInfo, ComponentResult, Context, DataType, Payload, ReaderPolicy,
     TypeFilter, Value,
 };
+use kairos_sdk::{STATUS_PERIOD, Throttle};
 
 use crate::framing::{Deframer, Framing};
 
@@ -48,16 +49,66 @@ fn listen(address: &str) -> Result<TcpListener, ComponentError> {
     Ok(listener)
 }
 
-/// Logs at most once a second.
-#[derive(Debug, Default)]
-struct Throttled(Option<Instant>);
+/// Where a TCP component's connections come from: the clients of its own server, or its one connection
+/// to a server, tried again every second while there is none.
+#[derive(Debug)]
+enum Side {
+    Server(TcpListener),
+    Client { server: SocketAddr, attempts: Throttle },
+}
 
-impl Throttled {
-    fn warn(&mut self, message: &str) {
-        if self.0.is_none_or(|at| at.elapsed() >= Duration::from_secs(1)) {
-            self.0 = Some(Instant::now());
-            tracing::warn!("{message}");
+impl Side {
+    /// The side the properties `mode` and `address` ask for: listening now, or ready to connect.
+    fn of(ctx: &Context) -> Result<Self, ComponentError> {
+        let address = ctx.text_property("address")?;
+        Ok(if ctx.text_property("mode")? == "server" {
+            Side::Server(listen(&address)?)
+        } else {
+            Side::Client {
+                server: resolve(&address)?,
+                attempts: Throttle::default(),
+            }
+        })
+    }
+
+    fn is_server(&self) -> bool {
+        matches!(self, Side::Server(_))
+    }
+
+    /// The connections made since the last call: clients waiting at the server (`room` of them at most,
+    /// the others refused), or the connection to the server while `connected` is false. A failure to
+    /// connect is logged through `warnings`, followed by `meanwhile`.
+    fn new_connections(
+        &mut self,
+        connected: usize,
+        warnings: &mut Throttle,
+        meanwhile: &str,
+    ) -> Vec<(TcpStream, String)> {
+        let mut made = Vec::new();
+        match self {
+            Side::Server(listener) => {
+                while let Ok((stream, peer)) = listener.accept() {
+                    if connected + made.len() >= MOST_CLIENTS {
+                        warnings.warn(|| format!("more than {MOST_CLIENTS} clients: {peer} refused"));
+                        continue;
+                    }
+                    tracing::info!("client {peer} connected");
+                    made.push((stream, peer.to_string()));
+                }
+            }
+            Side::Client { server, attempts } => {
+                if connected == 0 && attempts.ready(RECONNECT_AFTER) {
+                    match TcpStream::connect_timeout(server, Duration::from_secs(1)) {
+                        Ok(stream) => {
+                            tracing::info!("connected to {server}");
+                            made.push((stream, server.to_string()));
+                        }
+                        Err(e) => warnings.warn(|| format!("cannot connect to {server}: {e}; {meanwhile}")),
+                    }
+                }
+            }
         }
+        made
     }
 }
 
@@ -97,56 +148,37 @@ struct Connection {
 #[derive(Debug, Default)]
 pub struct TcpReceiver {
     framing: Option<Framing>,
-    listener: Option<TcpListener>,
-    /// The server to connect to (client mode).
-    server: Option<SocketAddr>,
-    last_attempt: Option<Instant>,
+    side: Option<Side>,
     connections: Vec<Connection>,
     buffer: Vec<u8>,
     messages: u64,
     cut_off: u64,
     refused: u64,
-    warnings: Throttled,
-    published: Option<Instant>,
+    warnings: Throttle,
+    published: Throttle,
 }
 
 impl TcpReceiver {
     fn connect_or_accept(&mut self, framing: Framing) {
-        if let Some(listener) = &self.listener {
-            while let Ok((stream, peer)) = listener.accept() {
-                if self.connections.len() >= MOST_CLIENTS {
-                    self.warnings
-                        .warn(&format!("more than {MOST_CLIENTS} clients: {peer} refused"));
-                    continue;
-                }
-                if stream.set_nonblocking(true).is_ok() {
-                    tracing::info!("client {peer} connected");
-                    self.connections.push(Connection {
-                        stream,
-                        peer: peer.to_string(),
-                        deframer: Deframer::new(framing),
-                    });
-                }
-            }
-        } else if let Some(server) = self.server
-            && self.connections.is_empty()
-            && self.last_attempt.is_none_or(|at| at.elapsed() >= RECONNECT_AFTER)
-        {
-            self.last_attempt = Some(Instant::now());
-            match TcpStream::connect_timeout(&server, Duration::from_secs(1)) {
-                Ok(stream) => {
-                    if stream.set_read_timeout(Some(READ_WAIT)).is_ok() {
-                        tracing::info!("connected to {server}");
-                        self.connections.push(Connection {
-                            stream,
-                            peer: server.to_string(),
-                            deframer: Deframer::new(framing),
-                        });
-                    }
-                }
-                Err(e) => self.warnings.warn(&format!(
-                    "cannot connect to {server}: {e}; trying again every second"
-                )),
+        let Some(side) = &mut self.side else { return };
+        let server = side.is_server();
+        for (stream, peer) in side.new_connections(
+            self.connections.len(),
+            &mut self.warnings,
+            "trying again every second",
+        ) {
+            // A server reads its clients in turn without waiting; a client waits a little for its server.
+            let ready = if server {
+                stream.set_nonblocking(true)
+            } else {
+                stream.set_read_timeout(Some(READ_WAIT))
+            };
+            if ready.is_ok() {
+                self.connections.push(Connection {
+                    stream,
+                    peer,
+                    deframer: Deframer::new(framing),
+                });
             }
         }
     }
@@ -154,13 +186,8 @@ impl TcpReceiver {
 
 impl Component for TcpReceiver {
     fn birth(&mut self, ctx: &mut Context) -> ComponentResult {
-        let address = ctx.text_property("address")?;
         self.framing = Some(Framing::of(&ctx.text_property("framing")?));
-        if ctx.text_property("mode")? == "server" {
-            self.listener = Some(listen(&address)?);
-        } else {
-            self.server = Some(resolve(&address)?);
-        }
+        self.side = Some(Side::of(ctx)?);
         self.buffer = vec![0; 256 * 1024];
         Ok(())
     }
@@ -169,7 +196,7 @@ impl Component for TcpReceiver {
         let framing = self.framing.unwrap_or(Framing::Raw);
         self.connect_or_accept(framing);
         if self.connections.is_empty() {
-            ctx.sleep(if self.listener.is_some() {
+            ctx.sleep(if self.side.as_ref().is_some_and(Side::is_server) {
                 IDLE_WAIT
             } else {
                 READ_WAIT
@@ -197,10 +224,12 @@ impl Component for TcpReceiver {
                     let bytes = self.buffer.get(..read).unwrap_or_default();
                     if let Err(too_long) = connection.deframer.feed(bytes, |m| messages.push(m.to_vec())) {
                         self.refused += 1;
-                        self.warnings.warn(&format!(
-                            "{}: a message of {} bytes is too long; the connection is closed",
-                            connection.peer, too_long.0
-                        ));
+                        self.warnings.warn(|| {
+                            format!(
+                                "{}: a message of {} bytes is too long; the connection is closed",
+                                connection.peer, too_long.0
+                            )
+                        });
                         closed.push(index);
                     }
                 }
@@ -208,7 +237,7 @@ impl Component for TcpReceiver {
                     if connection.deframer.pending() > 0 {
                         self.cut_off += 1;
                     }
-                    self.warnings.warn(&format!("{}: {reason}", connection.peer));
+                    self.warnings.warn(|| format!("{}: {reason}", connection.peer));
                     closed.push(index);
                 }
             }
@@ -227,17 +256,13 @@ impl Component for TcpReceiver {
                 ctx.write_at("data", Payload::Bytes(Arc::from(message)), now)?;
             }
         }
-        if self
-            .published
-            .is_none_or(|at| at.elapsed() >= Duration::from_millis(500))
-        {
-            self.published = Some(Instant::now());
+        if self.published.ready(STATUS_PERIOD) {
             ctx.set_status(serde_json::json!({
                 "kind": "tcp", "connections": self.connections.len(), "messages": self.messages,
                 "cut_off": self.cut_off, "refused": self.refused,
             }));
         }
-        if idle && self.listener.is_some() {
+        if idle && self.side.as_ref().is_some_and(Side::is_server) {
             ctx.sleep(IDLE_WAIT)?;
         }
         Ok(())
@@ -276,43 +301,22 @@ pub fn sender_descriptor() -> ComponentInfo {
 #[derive(Debug, Default)]
 pub struct TcpSender {
     framing: Option<Framing>,
-    listener: Option<TcpListener>,
-    server: Option<SocketAddr>,
-    last_attempt: Option<Instant>,
+    side: Option<Side>,
     peers: Vec<(TcpStream, String)>,
     sent: u64,
     dropped: u64,
-    warnings: Throttled,
-    published: Option<Instant>,
+    warnings: Throttle,
+    published: Throttle,
 }
 
 impl TcpSender {
     fn connect_or_accept(&mut self) {
-        if let Some(listener) = &self.listener {
-            while let Ok((stream, peer)) = listener.accept() {
-                let ready = stream.set_nonblocking(false).is_ok()
-                    && stream.set_write_timeout(Some(WRITE_WAIT)).is_ok();
-                if ready && self.peers.len() < MOST_CLIENTS {
-                    tracing::info!("client {peer} connected");
-                    self.peers.push((stream, peer.to_string()));
-                }
-            }
-        } else if let Some(server) = self.server
-            && self.peers.is_empty()
-            && self.last_attempt.is_none_or(|at| at.elapsed() >= RECONNECT_AFTER)
-        {
-            self.last_attempt = Some(Instant::now());
-            match TcpStream::connect_timeout(&server, Duration::from_secs(1)) {
-                Ok(stream) => {
-                    if stream.set_write_timeout(Some(WRITE_WAIT)).is_ok() {
-                        tracing::info!("connected to {server}");
-                        self.peers.push((stream, server.to_string()));
-                    }
-                }
-                Err(e) => self.warnings.warn(&format!(
-                    "cannot connect to {server}: {e}; samples are dropped (and counted) until it connects, \
-                     tried every second"
-                )),
+        let Some(side) = &mut self.side else { return };
+        let meanwhile = "samples are dropped (and counted) until it connects, tried every second";
+        for (stream, peer) in side.new_connections(self.peers.len(), &mut self.warnings, meanwhile) {
+            // Blocking writes, but never for long: a stuck client is dropped, not waited for.
+            if stream.set_nonblocking(false).is_ok() && stream.set_write_timeout(Some(WRITE_WAIT)).is_ok() {
+                self.peers.push((stream, peer));
             }
         }
     }
@@ -320,13 +324,8 @@ impl TcpSender {
 
 impl Component for TcpSender {
     fn birth(&mut self, ctx: &mut Context) -> ComponentResult {
-        let address = ctx.text_property("address")?;
         self.framing = Some(Framing::of(&ctx.text_property("framing")?));
-        if ctx.text_property("mode")? == "server" {
-            self.listener = Some(listen(&address)?);
-        } else {
-            self.server = Some(resolve(&address)?);
-        }
+        self.side = Some(Side::of(ctx)?);
         Ok(())
     }
 
@@ -353,7 +352,7 @@ impl Component for TcpSender {
                 Ok(()) => self.sent += 1,
                 Err(e) => {
                     self.dropped += 1;
-                    self.warnings.warn(&format!("{peer}: {e}; disconnected"));
+                    self.warnings.warn(|| format!("{peer}: {e}; disconnected"));
                     gone.push(index);
                 }
             }
@@ -361,11 +360,7 @@ impl Component for TcpSender {
         for index in gone.into_iter().rev() {
             self.peers.remove(index);
         }
-        if self
-            .published
-            .is_none_or(|at| at.elapsed() >= Duration::from_millis(500))
-        {
-            self.published = Some(Instant::now());
+        if self.published.ready(STATUS_PERIOD) {
             ctx.set_status(serde_json::json!({
                 "kind": "tcp", "connections": self.peers.len(), "sent": self.sent, "dropped": self.dropped,
             }));

@@ -2,13 +2,14 @@
 
 use std::net::{Ipv4Addr, SocketAddr, ToSocketAddrs as _, UdpSocket};
 use std::sync::Arc;
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use kairos_sdk::descriptor::{Descriptor, Property};
 use kairos_sdk::{
     Component, ComponentError, ComponentInfo, ComponentResult, Context, DataType, Payload, ReaderPolicy,
     TypeFilter, Value,
 };
+use kairos_sdk::{STATUS_PERIOD, Throttle, WARNING_PERIOD};
 
 /// How long one receive waits, so stop and control requests get through.
 const RECEIVE_WAIT: Duration = Duration::from_millis(50);
@@ -46,7 +47,7 @@ pub struct UdpReceiver {
     socket: Option<UdpSocket>,
     buffer: Vec<u8>,
     datagrams: u64,
-    published: Option<Instant>,
+    published: Throttle,
 }
 
 impl Component for UdpReceiver {
@@ -92,11 +93,7 @@ impl Component for UdpReceiver {
             // An ICMP error from an earlier send on this socket, and the like: the socket still works.
             Err(e) => tracing::debug!("UDP receive: {e}"),
         }
-        if self
-            .published
-            .is_none_or(|at| at.elapsed() >= Duration::from_millis(500))
-        {
-            self.published = Some(Instant::now());
+        if self.published.ready(STATUS_PERIOD) {
             ctx.set_status(serde_json::json!({"kind": "udp", "datagrams": self.datagrams}));
         }
         Ok(())
@@ -141,17 +138,13 @@ pub struct UdpSender {
     sent: u64,
     failed: u64,
     too_large: u64,
-    warned: Option<Instant>,
-    published: Option<Instant>,
+    warned: Throttle,
+    published: Throttle,
 }
 
 impl UdpSender {
     fn warn(&mut self, what: &str) {
-        if self
-            .warned
-            .is_none_or(|at| at.elapsed() >= Duration::from_secs(1))
-        {
-            self.warned = Some(Instant::now());
+        if self.warned.ready(WARNING_PERIOD) {
             tracing::warn!(
                 "{what} ({} not sent, {} too large, in all)",
                 self.failed,
@@ -207,11 +200,7 @@ impl Component for UdpSender {
                 }
             }
         }
-        if self
-            .published
-            .is_none_or(|at| at.elapsed() >= Duration::from_millis(500))
-        {
-            self.published = Some(Instant::now());
+        if self.published.ready(STATUS_PERIOD) {
             ctx.set_status(serde_json::json!({
                 "kind": "udp", "sent": self.sent, "failed": self.failed, "too_large": self.too_large,
             }));

@@ -3,13 +3,14 @@
 
 use std::io::Write as _;
 use std::sync::Arc;
-use std::time::{Duration, Instant};
+use std::time::Instant;
 
 use kairos_sdk::descriptor::{Descriptor, Property};
 use kairos_sdk::{
     Component, ComponentError, ComponentInfo, ComponentResult, Context, DataType, Payload, ReaderPolicy,
     TypeFilter, Value,
 };
+use kairos_sdk::{STATUS_PERIOD, Throttle};
 
 use crate::link::{Endpoint, LiveSource, REOPEN_AFTER, SerialSettings};
 
@@ -79,19 +80,15 @@ pub struct SerialReader {
     lines: bool,
     connected: bool,
     received: u64,
-    published: Option<Instant>,
+    published: Throttle,
 }
 
 impl SerialReader {
     fn publish_status(&mut self, ctx: &Context, now: bool) {
-        if !now
-            && self
-                .published
-                .is_some_and(|at| at.elapsed() < Duration::from_millis(500))
-        {
+        let due = self.published.ready(STATUS_PERIOD);
+        if !now && !due {
             return;
         }
-        self.published = Some(Instant::now());
         ctx.set_status(serde_json::json!({
             "kind": "serial",
             "connected": self.connected,
@@ -188,7 +185,7 @@ pub struct SerialWriter {
     failed: Option<Instant>,
     dropped: u64,
     sent: u64,
-    published: Option<Instant>,
+    published: Throttle,
 }
 
 impl std::fmt::Debug for SerialWriter {
@@ -202,14 +199,10 @@ impl std::fmt::Debug for SerialWriter {
 
 impl SerialWriter {
     fn publish_status(&mut self, ctx: &Context, now: bool) {
-        if !now
-            && self
-                .published
-                .is_some_and(|at| at.elapsed() < Duration::from_millis(500))
-        {
+        let due = self.published.ready(STATUS_PERIOD);
+        if !now && !due {
             return;
         }
-        self.published = Some(Instant::now());
         ctx.set_status(serde_json::json!({
             "kind": "serial",
             "connected": self.port.is_some(),

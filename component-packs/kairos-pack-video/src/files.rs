@@ -3,13 +3,13 @@
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
-use std::time::{Duration, Instant};
 
 use kairos_sdk::descriptor::{Descriptor, Property};
 use kairos_sdk::{
     Component, ComponentError, ComponentInfo, ComponentResult, Context, DataType, Image, Payload,
     PixelFormat, PixelsMut, ReaderPolicy, Timestamp, TypeFilter, Value,
 };
+use kairos_sdk::{STATUS_PERIOD, Throttle};
 
 /// The file names the sequence plays, by extension (lower case).
 const IMAGE_EXTENSIONS: [&str; 3] = ["png", "jpg", "jpeg"];
@@ -310,7 +310,7 @@ pub fn writer_descriptor() -> ComponentInfo {
 pub struct ImageWriter {
     folder: PathBuf,
     written: u64,
-    published: Option<Instant>,
+    published: Throttle,
 }
 
 /// `image` as the `image` crate's buffer, 8 bits per channel, without row padding.
@@ -413,11 +413,7 @@ impl Component for ImageWriter {
         };
         written.map_err(|e| ComponentError::failed(format_args!("cannot write {}: {e}", path.display())))?;
         self.written += 1;
-        if self
-            .published
-            .is_none_or(|at| at.elapsed() >= Duration::from_millis(500))
-        {
-            self.published = Some(Instant::now());
+        if self.published.ready(STATUS_PERIOD) {
             ctx.set_status(serde_json::json!({"kind": "image_writer", "written": self.written, "folder": self.folder.display().to_string()}));
         }
         Ok(())
