@@ -74,13 +74,14 @@ const RULES: [(&str, &[&str]); 19] = [
     // What pack authors and protocol clients program against.
     ("kairos-sdk", &["kairos-diagram", "kairos-shm"]),
     ("kairos-protocol", &["kairos-diagram", "kairos-shm"]),
-    // Packs see the SDK alone.
+    // Packs see the SDK alone (the network pack also the protocol's frame format, below).
     ("kairos-pack-core", &["kairos-sdk"]),
     ("kairos-pack-sensors", &["kairos-sdk"]),
     ("kairos-pack-recording", &["kairos-sdk"]),
     ("kairos-pack-serial", &["kairos-sdk"]),
     ("kairos-pack-video", &["kairos-sdk"]),
-    ("kairos-pack-net", &["kairos-sdk"]),
+    // The network pack carries whole samples in the protocol's frame format.
+    ("kairos-pack-net", &["kairos-sdk", "kairos-protocol"]),
     ("kairos-pack-lidar", &["kairos-sdk"]),
     ("kairos-pack-can", &["kairos-sdk"]),
     // A sensor pack reads through the serial pack's links.
@@ -127,6 +128,7 @@ const RULES: [(&str, &[&str]); 19] = [
             "kairos-pack-gnss",
             "kairos-pack-can",
             "kairos-pack-lidar",
+            "kairos-pack-net",
         ],
     ),
 ];

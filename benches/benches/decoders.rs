@@ -18,53 +18,13 @@ use std::path::Path;
 use std::sync::Arc;
 use std::time::Instant;
 
-use kairos_benches::{Goal, LatencySeries, Percentiles, Ratios, Table, header, nanos, print_latency, size};
+use kairos_benches::{
+    Goal, LatencySeries, Percentiles, Ratios, Table, component_context as context, header, nanos,
+    print_latency, size,
+};
 use kairos_pack_can::components::readable;
-use kairos_sdk::host::{ContextParts, OutputBuffer, Reader, ReaderConfig};
-use kairos_sdk::{Component, ComponentInfo, Context, Payload, ReaderPolicy, RealTimeClock, RunSignal, Value};
-
-/// A context for `info` with `properties` over the defaults: every output writes into a buffer of its own
-/// (nobody reads, so writes never wait); `inputs` feed its inputs in order.
-fn context(
-    info: &ComponentInfo,
-    properties: &[(&str, Value)],
-    inputs: Vec<Option<Reader>>,
-) -> (Context, Vec<OutputBuffer>) {
-    let mut values: BTreeMap<String, Value> = info
-        .properties
-        .iter()
-        .map(|p| (p.name.clone(), p.default.clone()))
-        .collect();
-    for (name, value) in properties {
-        values.insert((*name).to_owned(), value.clone());
-    }
-    let buffers: Vec<OutputBuffer> = info
-        .outputs
-        .iter()
-        .map(|o| OutputBuffer::new(format!("bench.{}", o.name), 4))
-        .collect();
-    let outputs = info
-        .outputs
-        .iter()
-        .zip(&buffers)
-        .map(|(o, b)| kairos_sdk::host::output_port(o.name.clone(), Some(o.data_type.clone()), b.clone(), 1))
-        .collect();
-    let inputs = info
-        .inputs
-        .iter()
-        .zip(inputs)
-        .map(|(i, reader)| kairos_sdk::host::input_port(i.name.clone(), reader))
-        .collect();
-    let ctx = kairos_sdk::host::context(ContextParts {
-        id: "bench".to_owned(),
-        inputs,
-        outputs,
-        properties: values,
-        clock: RealTimeClock::shared(),
-        signal: Arc::new(RunSignal::new()),
-    });
-    (ctx, buffers)
-}
+use kairos_sdk::host::ReaderConfig;
+use kairos_sdk::{Component, Payload, ReaderPolicy, RunSignal, Value};
 
 /// Nanoseconds per item of `items` calls of `op`.
 fn per_item(items: usize, mut op: impl FnMut()) -> f64 {

@@ -4,9 +4,13 @@
 //! Every benchmark is a `harness = false` binary under `benches/`. `KAIROS_BENCH_QUICK=1` makes each one
 //! run for about a second; without it they run the full, documented size.
 
+use std::collections::BTreeMap;
 use std::fmt::Write as _;
-use std::sync::OnceLock;
+use std::sync::{Arc, OnceLock};
 use std::time::{Duration, Instant};
+
+use kairos_sdk::host::{ContextParts, OutputBuffer, Reader};
+use kairos_sdk::{ComponentInfo, Context, RealTimeClock, RunSignal, Value};
 
 /// Whether the quick (CI-sized) mode was asked for with `KAIROS_BENCH_QUICK=1`.
 pub fn quick() -> bool {
@@ -406,12 +410,7 @@ pub fn bare_mcap_rate<'p>(
         .add_schema(&schema.name, &schema.encoding, &schema.data)
         .ok()?;
     let channel = writer
-        .add_channel(
-            schema_id,
-            "camera.image",
-            "protobuf",
-            &std::collections::BTreeMap::new(),
-        )
+        .add_channel(schema_id, "camera.image", "protobuf", &BTreeMap::new())
         .ok()?;
     let mut buffer = Vec::new();
     let mut bytes = 0;
@@ -462,4 +461,47 @@ pub fn start_kairos_serve() -> Option<std::net::SocketAddr> {
         });
     });
     rx.recv_timeout(Duration::from_secs(10)).ok()
+}
+
+/// A context for `info` with `properties` over the defaults: every output writes into a buffer of its own
+/// (nobody reads, so writes never wait); `inputs` feed its inputs in order.
+pub fn component_context(
+    info: &ComponentInfo,
+    properties: &[(&str, Value)],
+    inputs: Vec<Option<Reader>>,
+) -> (Context, Vec<OutputBuffer>) {
+    let mut values: BTreeMap<String, Value> = info
+        .properties
+        .iter()
+        .map(|p| (p.name.clone(), p.default.clone()))
+        .collect();
+    for (name, value) in properties {
+        values.insert((*name).to_owned(), value.clone());
+    }
+    let buffers: Vec<OutputBuffer> = info
+        .outputs
+        .iter()
+        .map(|o| OutputBuffer::new(format!("bench.{}", o.name), 4))
+        .collect();
+    let outputs = info
+        .outputs
+        .iter()
+        .zip(&buffers)
+        .map(|(o, b)| kairos_sdk::host::output_port(o.name.clone(), Some(o.data_type.clone()), b.clone(), 1))
+        .collect();
+    let inputs = info
+        .inputs
+        .iter()
+        .zip(inputs)
+        .map(|(i, reader)| kairos_sdk::host::input_port(i.name.clone(), reader))
+        .collect();
+    let ctx = kairos_sdk::host::context(ContextParts {
+        id: "bench".to_owned(),
+        inputs,
+        outputs,
+        properties: values,
+        clock: RealTimeClock::shared(),
+        signal: Arc::new(RunSignal::new()),
+    });
+    (ctx, buffers)
 }

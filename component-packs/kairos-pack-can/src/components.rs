@@ -389,3 +389,126 @@ impl Component for DbcDecoder {
         Ok(())
     }
 }
+
+/// The descriptor of `can.dbc_encoder` before its DBC is read: the output every instance has.
+pub fn encoder_descriptor() -> ComponentInfo {
+    encoder_base().build()
+}
+
+fn encoder_base() -> Descriptor {
+    Descriptor::new(
+        "can.dbc_encoder",
+        "CAN",
+        "Encodes named signals into frames of one DBC message: one input per signal of the message, one \
+         frame out for each value received, carrying the newest value of every signal",
+    )
+    .label("CAN encoder (DBC)")
+    .output("frame", DataType::CanFrame, "The encoded frames")
+    .property(Property::path("dbc", "").doc("The DBC file"))
+    .property(Property::text("message", "").doc("The message to encode, by its name in the DBC"))
+}
+
+/// The message named by `properties`, from the DBC they name.
+fn encoded_message(
+    properties: &BTreeMap<String, Value>,
+) -> Result<(Database, crate::dbc::MessageSpec), DescribeError> {
+    let path = properties.get("dbc").and_then(Value::as_text).unwrap_or("");
+    if path.is_empty() {
+        return Err(
+            DescribeError::property("dbc", "no DBC file").with_suggestion("set 'dbc' to the bus's .dbc file")
+        );
+    }
+    let database = Database::open(Path::new(path)).map_err(|e| DescribeError::property("dbc", e.0))?;
+    let name = properties.get("message").and_then(Value::as_text).unwrap_or("");
+    let names: Vec<&str> = database.messages.values().map(|m| m.name.as_str()).collect();
+    let Some(message) = database.messages.values().find(|m| m.name == name).cloned() else {
+        let problem = if name.is_empty() {
+            "no message chosen".to_owned()
+        } else {
+            format!("{path} has no message {name:?}")
+        };
+        return Err(DescribeError::property("message", problem)
+            .with_suggestion(format!("one of: {}", names.join(", "))));
+    };
+    Ok((database, message))
+}
+
+/// `can.dbc_encoder`'s descriptor for an instance: one input per signal of its message.
+///
+/// # Errors
+///
+/// The DBC cannot be read or parsed, or has no such message.
+pub fn describe_encoder(properties: &BTreeMap<String, Value>) -> Result<ComponentInfo, DescribeError> {
+    let (_, message) = encoded_message(properties)?;
+    let mut descriptor = encoder_base();
+    let numbers = TypeFilter::OneOf(vec![DataType::F64, DataType::I64, DataType::Bool]);
+    for signal in &message.signals {
+        let unit = if signal.unit.is_empty() {
+            String::new()
+        } else {
+            format!(", {}", signal.unit)
+        };
+        descriptor = descriptor.input_with_policy(
+            &signal.name,
+            numbers.clone(),
+            ReaderPolicy::Fifo,
+            &format!("{}.{}{unit}", message.name, signal.name),
+        );
+    }
+    Ok(descriptor.build())
+}
+
+/// `can.dbc_encoder`. See [`encoder_descriptor`].
+#[derive(Debug, Default)]
+pub struct DbcEncoder {
+    database: Database,
+    message: String,
+    signals: Vec<String>,
+    values: BTreeMap<String, f64>,
+    encoded: u64,
+    published: Throttle,
+}
+
+impl Component for DbcEncoder {
+    fn birth(&mut self, ctx: &mut Context) -> ComponentResult {
+        let (database, message) = encoded_message(ctx.properties()).map_err(|e| failed(e.message))?;
+        self.database = database;
+        self.signals = message.signals.iter().map(|s| s.name.clone()).collect();
+        // A signal nobody feeds is sent as 0 (its raw value is the offset's opposite, as the DBC says).
+        self.values = self.signals.iter().map(|s| (s.clone(), 0.0)).collect();
+        self.message = message.name;
+        Ok(())
+    }
+
+    fn core(&mut self, ctx: &mut Context) -> ComponentResult {
+        let inputs: Vec<usize> = (0..self.signals.len()).collect();
+        let (position, sample) = ctx.read_any(&inputs)?;
+        let value = match sample.payload {
+            Payload::F64(v) => v,
+            #[allow(clippy::cast_precision_loss, reason = "a signal's raw value fits in 53 bits")]
+            Payload::I64(v) => v as f64,
+            Payload::Bool(v) => f64::from(u8::from(v)),
+            ref other => {
+                return Err(failed(format_args!(
+                    "expected a number, got {}",
+                    other.data_type()
+                )));
+            }
+        };
+        if let Some(signal) = self.signals.get(position) {
+            self.values.insert(signal.clone(), value);
+        }
+        if let Some(frame) = self.database.encode(&self.message, &self.values) {
+            self.encoded += 1;
+            ctx.write_processed("frame", &sample, Payload::CanFrame(frame))?;
+        }
+        if self.published.ready(STATUS_PERIOD) {
+            ctx.set_status(serde_json::json!({"kind": "can", "encoded": self.encoded}));
+        }
+        Ok(())
+    }
+
+    fn property_changed(&mut self, _name: &str, _value: &Value, _ctx: &mut Context) -> ComponentResult {
+        Ok(())
+    }
+}

@@ -5,6 +5,7 @@
 //! | `can.candump_reader` | replays a candump log at its timing or as fast as possible |
 //! | `can.candump_writer` | writes frames to a candump log |
 //! | `can.dbc_decoder` | decodes frames with a DBC: every signal as text, and one number output per signal |
+//! | `can.dbc_encoder` | encodes signals into frames of one DBC message: one input per signal |
 //!
 //! [`candump`] reads and writes log lines; [`dbc`] decodes and encodes signals (the `can-dbc` crate parses
 //! the file).
@@ -24,5 +25,9 @@ pub fn register(registry: &mut Registry) {
         .component_described::<components::DbcDecoder>(
             components::decoder_descriptor(),
             components::describe_decoder,
+        )
+        .component_described::<components::DbcEncoder>(
+            components::encoder_descriptor(),
+            components::describe_encoder,
         );
 }

@@ -9,8 +9,8 @@
 use std::collections::BTreeMap;
 
 use kairos_pack_can::components::{
-    CandumpReader, CandumpWriter, DbcDecoder, decoder_descriptor, describe_decoder, reader_descriptor,
-    writer_descriptor,
+    CandumpReader, CandumpWriter, DbcDecoder, DbcEncoder, decoder_descriptor, describe_decoder,
+    describe_encoder, reader_descriptor, writer_descriptor,
 };
 use kairos_sdk::harness::{Harness, HarnessOutput};
 use kairos_sdk::{CanFrame, Payload, Timestamp, Value};
@@ -100,6 +100,61 @@ fn the_decoder_gives_signals_by_name_with_units_and_a_number_output_each() {
         "the frame's timestamp is kept"
     );
     let _ = decoder_descriptor();
+}
+
+#[test]
+fn the_encoder_makes_frames_the_decoder_reads_back_with_the_newest_value_of_each_signal() {
+    let dir = tempfile::tempdir().unwrap();
+    let dbc = dir.path().join("engine.dbc");
+    std::fs::write(&dbc, DBC).unwrap();
+    let path = Value::Text(dbc.display().to_string());
+    let properties = BTreeMap::from([
+        ("dbc".to_owned(), path.clone()),
+        ("message".to_owned(), Value::Text("Engine".into())),
+    ]);
+    let info = describe_encoder(&properties).unwrap();
+    let inputs: Vec<&str> = info.inputs.iter().map(|i| i.name.as_str()).collect();
+    assert_eq!(inputs, ["Speed", "Temperature"]);
+    let mut encoder = Harness::new(info, DbcEncoder::default());
+    encoder.set_property("dbc", dbc.display().to_string()).unwrap();
+    encoder.set_property("message", "Engine").unwrap();
+    encoder.push("Speed", Payload::F64(2000.0), Timestamp(5));
+    encoder.push("Temperature", Payload::I64(-60), Timestamp(6));
+    let frames = encoder.finish().unwrap();
+    let frames = frames.samples("frame");
+    assert_eq!(frames.len(), 2, "one frame per value received");
+    assert_eq!(frames[1].timestamp, Timestamp(6));
+    let mut decoder = Harness::new(
+        describe_decoder(&BTreeMap::from([("dbc".to_owned(), path)])).unwrap(),
+        DbcDecoder::default(),
+    );
+    decoder.set_property("dbc", dbc.display().to_string()).unwrap();
+    for frame in frames {
+        decoder.push_sample("frame", frame.clone());
+    }
+    let signals = decoder.finish().unwrap();
+    // The first frame carries the speed and a temperature not yet received (0 degC); the second both.
+    assert_eq!(signals.f64_values("Engine_Speed"), [2000.0, 2000.0]);
+    assert_eq!(signals.f64_values("Engine_Temperature"), [0.0, -60.0]);
+}
+
+#[test]
+fn an_encoder_for_a_message_the_dbc_lacks_names_the_messages_it_has() {
+    let dir = tempfile::tempdir().unwrap();
+    let dbc = dir.path().join("engine.dbc");
+    std::fs::write(&dbc, DBC).unwrap();
+    let properties = BTreeMap::from([
+        ("dbc".to_owned(), Value::Text(dbc.display().to_string())),
+        ("message".to_owned(), Value::Text("Brakes".into())),
+    ]);
+    let error = describe_encoder(&properties).unwrap_err();
+    assert_eq!(error.property.as_deref(), Some("message"));
+    assert!(
+        error.message.contains("no message \"Brakes\""),
+        "{}",
+        error.message
+    );
+    assert_eq!(error.suggestion.as_deref(), Some("one of: Engine"));
 }
 
 #[test]

@@ -1,5 +1,6 @@
-//! The network pack: raw bytes over UDP and TCP, for devices and programs that speak their own protocol
-//! over the network (paper §2.3.2: RTMaps' socket components).
+//! The network pack: UDP and TCP for devices and programs that speak their own protocol over the network
+//! (raw bytes), and for other Kairos runtimes (whole samples with both times and their sequence number,
+//! `encoding: kairos`): paper §2.3.2, RTMaps' socket components.
 //!
 //! | type | what it does |
 //! | --- | --- |
@@ -11,7 +12,9 @@
 //! Every received sample is stamped on reception. Lost links are reported once and opened again every
 //! second; what could not be sent or was cut off is counted in the component's status.
 
+pub mod encoding;
 pub mod framing;
+pub mod sample_frame;
 pub mod tcp;
 pub mod udp;
 
@@ -21,8 +24,8 @@ use kairos_sdk::Registry;
 pub fn register(registry: &mut Registry) {
     registry
         .pack("net", env!("CARGO_PKG_VERSION"), "built-in")
-        .component::<udp::UdpReceiver>(udp::receiver_descriptor())
-        .component::<udp::UdpSender>(udp::sender_descriptor())
-        .component::<tcp::TcpReceiver>(tcp::receiver_descriptor())
-        .component::<tcp::TcpSender>(tcp::sender_descriptor());
+        .component_described::<udp::UdpReceiver>(udp::receiver_descriptor(), udp::describe_receiver)
+        .component_described::<udp::UdpSender>(udp::sender_descriptor(), udp::describe_sender)
+        .component_described::<tcp::TcpReceiver>(tcp::receiver_descriptor(), tcp::describe_receiver)
+        .component_described::<tcp::TcpSender>(tcp::sender_descriptor(), tcp::describe_sender);
 }

@@ -1,5 +1,6 @@
 //! `net.tcp_receiver` and `net.tcp_sender`: a TCP connection as a client, or the clients of a server.
 
+use std::collections::BTreeMap;
 use std::io::{ErrorKind, Read as _, Write as _};
 use std::net::{SocketAddr, TcpListener, TcpStream, ToSocketAddrs as _};
 use std::sync::Arc;
@@ -7,12 +8,14 @@ use std::time::Duration;
 
 use kairos_sdk::descriptor::{Descriptor, Property};
 use kairos_sdk::{
-    Component, ComponentError, ComponentInfo, ComponentResult, Context, DataType, Payload, ReaderPolicy,
-    TypeFilter, Value,
+    Component, ComponentError, ComponentInfo, ComponentResult, Context, DataType, DescribeError, Payload,
+    ReaderPolicy, TypeFilter, Value,
 };
 use kairos_sdk::{STATUS_PERIOD, Throttle};
 
+use crate::encoding::{self, SampleReceiver};
 use crate::framing::{Deframer, Framing};
+use crate::sample_frame;
 
 /// How long a client's read waits, so stop and control requests get through.
 const READ_WAIT: Duration = Duration::from_millis(50);
@@ -112,28 +115,52 @@ impl Side {
     }
 }
 
-/// The descriptor of `net.tcp_receiver`.
+/// The descriptor of `net.tcp_receiver` as listed (raw bytes).
 pub fn receiver_descriptor() -> ComponentInfo {
+    receiver_base()
+        .output(
+            "data",
+            DataType::Bytes,
+            "Each message (raw and length_prefixed framing)",
+        )
+        .output("line", DataType::Text, "Each line (lines framing)")
+        .build()
+}
+
+/// The descriptor of one `net.tcp_receiver`: bytes and lines, or with encoding kairos, samples of the sent
+/// type.
+pub fn describe_receiver(properties: &BTreeMap<String, Value>) -> Result<ComponentInfo, DescribeError> {
+    Ok(if encoding::is_kairos(properties) {
+        let data_type = encoding::data_type_of(properties)?;
+        receiver_base()
+            .output(
+                encoding::SAMPLES,
+                data_type,
+                "Each sample received, with both its times",
+            )
+            .build()
+    } else {
+        receiver_descriptor()
+    })
+}
+
+fn receiver_base() -> Descriptor {
     Descriptor::new(
         "net.tcp_receiver",
         "network",
         "Reads TCP: as a client of a server, or as a server of many clients; raw reads, lines or \
-         length-prefixed messages, each one sample stamped on reception",
+         length-prefixed messages, each one sample stamped on reception; or (encoding kairos) whole Kairos \
+         samples with their times",
     )
     .label("TCP receiver")
-    .output(
-        "data",
-        DataType::Bytes,
-        "Each message (raw and length_prefixed framing)",
-    )
-    .output("line", DataType::Text, "Each line (lines framing)")
     .property(mode_property())
     .property(
         Property::text("address", "127.0.0.1:5001")
             .doc("The server to connect to, or the address to listen on"),
     )
     .property(Framing::property())
-    .build()
+    .property(encoding::property())
+    .property(encoding::data_type_property())
 }
 
 /// One connection being read.
@@ -154,6 +181,7 @@ pub struct TcpReceiver {
     messages: u64,
     cut_off: u64,
     refused: u64,
+    samples: Option<SampleReceiver>,
     warnings: Throttle,
     published: Throttle,
 }
@@ -187,6 +215,10 @@ impl TcpReceiver {
 impl Component for TcpReceiver {
     fn birth(&mut self, ctx: &mut Context) -> ComponentResult {
         self.framing = Some(Framing::of(&ctx.text_property("framing")?));
+        if encoding::is_kairos(ctx.properties()) {
+            self.samples = Some(SampleReceiver::of(ctx)?);
+            self.framing = Some(Framing::LengthPrefixed);
+        }
         self.side = Some(Side::of(ctx)?);
         self.buffer = vec![0; 256 * 1024];
         Ok(())
@@ -203,7 +235,7 @@ impl Component for TcpReceiver {
             })?;
             return Ok(());
         }
-        let mut messages: Vec<Vec<u8>> = Vec::new();
+        let mut messages: Vec<(Vec<u8>, usize)> = Vec::new();
         let mut closed = Vec::new();
         for (index, connection) in self.connections.iter_mut().enumerate() {
             let read = match connection.stream.read(&mut self.buffer) {
@@ -222,7 +254,10 @@ impl Component for TcpReceiver {
             match read {
                 Ok(read) => {
                     let bytes = self.buffer.get(..read).unwrap_or_default();
-                    if let Err(too_long) = connection.deframer.feed(bytes, |m| messages.push(m.to_vec())) {
+                    if let Err(too_long) = connection
+                        .deframer
+                        .feed(bytes, |m| messages.push((m.to_vec(), index)))
+                    {
                         self.refused += 1;
                         self.warnings.warn(|| {
                             format!(
@@ -242,25 +277,32 @@ impl Component for TcpReceiver {
                 }
             }
         }
-        for index in closed.into_iter().rev() {
-            self.connections.remove(index);
-        }
         let now = ctx.now();
         let idle = messages.is_empty();
-        for message in messages {
+        for (message, from) in messages {
             self.messages += 1;
-            if framing == Framing::Lines {
+            if let Some(samples) = &mut self.samples {
+                let peer = self.connections.get(from).map_or("", |c| c.peer.as_str());
+                samples.take(&message, peer, ctx)?;
+            } else if framing == Framing::Lines {
                 let text = String::from_utf8_lossy(&message);
                 ctx.write_at("line", Payload::Text(Arc::from(text.as_ref())), now)?;
             } else {
                 ctx.write_at("data", Payload::Bytes(Arc::from(message)), now)?;
             }
         }
+        for index in closed.into_iter().rev() {
+            self.connections.remove(index);
+        }
         if self.published.ready(STATUS_PERIOD) {
-            ctx.set_status(serde_json::json!({
+            let status = serde_json::json!({
                 "kind": "tcp", "connections": self.connections.len(), "messages": self.messages,
                 "cut_off": self.cut_off, "refused": self.refused,
-            }));
+            });
+            ctx.set_status(match &self.samples {
+                Some(samples) => encoding::merged(status, samples.status()),
+                None => status,
+            });
         }
         if idle && self.side.as_ref().is_some_and(Side::is_server) {
             ctx.sleep(IDLE_WAIT)?;
@@ -273,27 +315,37 @@ impl Component for TcpReceiver {
     }
 }
 
-/// The descriptor of `net.tcp_sender`.
+/// The descriptor of `net.tcp_sender` as listed (text or bytes).
 pub fn sender_descriptor() -> ComponentInfo {
+    sender_base(TypeFilter::OneOf(vec![DataType::Bytes, DataType::Text]))
+}
+
+/// The descriptor of one `net.tcp_sender`: text or bytes in, or with encoding kairos, samples of any type.
+pub fn describe_sender(properties: &BTreeMap<String, Value>) -> Result<ComponentInfo, DescribeError> {
+    Ok(if encoding::is_kairos(properties) {
+        sender_base(TypeFilter::Any)
+    } else {
+        sender_descriptor()
+    })
+}
+
+fn sender_base(accepts: TypeFilter) -> ComponentInfo {
     Descriptor::new(
         "net.tcp_sender",
         "network",
         "Writes each text or bytes sample to TCP: as a client of a server, or to every client of a server \
-         it runs; raw, as lines or length-prefixed",
+         it runs; raw, as lines or length-prefixed; or (encoding kairos) each sample of any type whole, with \
+         its times and sequence number",
     )
     .label("TCP sender")
-    .input_with_policy(
-        "in",
-        TypeFilter::OneOf(vec![DataType::Bytes, DataType::Text]),
-        ReaderPolicy::Fifo,
-        "What to send",
-    )
+    .input_with_policy("in", accepts, ReaderPolicy::Fifo, "What to send")
     .property(mode_property())
     .property(
         Property::text("address", "127.0.0.1:5001")
             .doc("The server to connect to, or the address to listen on"),
     )
     .property(Framing::property())
+    .property(encoding::property())
     .build()
 }
 
@@ -303,6 +355,9 @@ pub struct TcpSender {
     framing: Option<Framing>,
     side: Option<Side>,
     peers: Vec<(TcpStream, String)>,
+    /// With encoding kairos: the name samples are sent under (the output feeding `in`).
+    kairos_output: Option<String>,
+    frame: Vec<u8>,
     sent: u64,
     dropped: u64,
     warnings: Throttle,
@@ -315,6 +370,8 @@ impl TcpSender {
         let meanwhile = "samples are dropped (and counted) until it connects, tried every second";
         for (stream, peer) in side.new_connections(self.peers.len(), &mut self.warnings, meanwhile) {
             // Blocking writes, but never for long: a stuck client is dropped, not waited for.
+            // Samples go out as they come: a small one waits for no acknowledgement.
+            let _ = stream.set_nodelay(self.kairos_output.is_some());
             if stream.set_nonblocking(false).is_ok() && stream.set_write_timeout(Some(WRITE_WAIT)).is_ok() {
                 self.peers.push((stream, peer));
             }
@@ -325,6 +382,10 @@ impl TcpSender {
 impl Component for TcpSender {
     fn birth(&mut self, ctx: &mut Context) -> ComponentResult {
         self.framing = Some(Framing::of(&ctx.text_property("framing")?));
+        if encoding::is_kairos(ctx.properties()) {
+            self.kairos_output = Some(crate::udp::sent_as(ctx));
+            self.framing = Some(Framing::LengthPrefixed);
+        }
         self.side = Some(Side::of(ctx)?);
         Ok(())
     }
@@ -332,6 +393,13 @@ impl Component for TcpSender {
     fn core(&mut self, ctx: &mut Context) -> ComponentResult {
         let sample = ctx.read("in")?;
         let bytes: &[u8] = match &sample.payload {
+            _ if self.kairos_output.is_some() => {
+                let (head, body) = sample_frame::encode(self.kairos_output.as_deref().unwrap_or(""), &sample);
+                self.frame.clear();
+                self.frame.extend_from_slice(&head);
+                self.frame.extend_from_slice(&body);
+                &self.frame
+            }
             Payload::Bytes(bytes) => bytes,
             Payload::Text(text) => text.as_bytes(),
             other => {

@@ -1,31 +1,56 @@
 //! `net.udp_receiver` and `net.udp_sender`: one sample per datagram.
 
+use std::collections::BTreeMap;
 use std::net::{Ipv4Addr, SocketAddr, ToSocketAddrs as _, UdpSocket};
 use std::sync::Arc;
 use std::time::Duration;
 
 use kairos_sdk::descriptor::{Descriptor, Property};
 use kairos_sdk::{
-    Component, ComponentError, ComponentInfo, ComponentResult, Context, DataType, Payload, ReaderPolicy,
-    TypeFilter, Value,
+    Component, ComponentError, ComponentInfo, ComponentResult, Context, DataType, DescribeError, Payload,
+    ReaderPolicy, TypeFilter, Value,
 };
 use kairos_sdk::{STATUS_PERIOD, Throttle, WARNING_PERIOD};
+
+use crate::encoding::{self, SampleReceiver};
+use crate::sample_frame;
 
 /// How long one receive waits, so stop and control requests get through.
 const RECEIVE_WAIT: Duration = Duration::from_millis(50);
 /// The largest UDP payload over IPv4.
 const LARGEST_DATAGRAM: usize = 65_507;
 
-/// The descriptor of `net.udp_receiver`.
+/// The descriptor of `net.udp_receiver` as listed (raw bytes).
 pub fn receiver_descriptor() -> ComponentInfo {
+    receiver_base()
+        .output("data", DataType::Bytes, "Each datagram")
+        .build()
+}
+
+/// The descriptor of one `net.udp_receiver`: a bytes output, or with encoding kairos, one of the sent type.
+pub fn describe_receiver(properties: &BTreeMap<String, Value>) -> Result<ComponentInfo, DescribeError> {
+    Ok(if encoding::is_kairos(properties) {
+        let data_type = encoding::data_type_of(properties)?;
+        receiver_base()
+            .output(
+                encoding::SAMPLES,
+                data_type,
+                "Each sample received, with both its times",
+            )
+            .build()
+    } else {
+        receiver_descriptor()
+    })
+}
+
+fn receiver_base() -> Descriptor {
     Descriptor::new(
         "net.udp_receiver",
         "network",
         "Receives UDP datagrams on an address, unicast or from a multicast group: one bytes sample per \
-         datagram, stamped on reception",
+         datagram stamped on reception, or (encoding kairos) one Kairos sample per datagram with its times",
     )
     .label("UDP receiver")
-    .output("data", DataType::Bytes, "Each datagram")
     .property(Property::text("address", "0.0.0.0:5000").doc("The local address and port to listen on"))
     .property(
         Property::text("group", "").doc("An IPv4 multicast group to join (239.1.2.3), or empty for unicast"),
@@ -34,11 +59,20 @@ pub fn receiver_descriptor() -> ComponentInfo {
         Property::text("interface", "0.0.0.0")
             .doc("The local interface's address for the multicast group (0.0.0.0: the system's choice)"),
     )
-    .build()
+    .property(encoding::property())
+    .property(encoding::data_type_property())
 }
 
 fn failed(error: impl std::fmt::Display) -> ComponentError {
     ComponentError::failed(error)
+}
+
+/// The name a sender's samples travel under: the output feeding its input, or the sender itself.
+pub(crate) fn sent_as(ctx: &Context) -> String {
+    ctx.inputs()
+        .first()
+        .and_then(|input| input.source())
+        .map_or_else(|| format!("{}.in", ctx.id()), str::to_owned)
 }
 
 /// `net.udp_receiver`. See [`receiver_descriptor`].
@@ -47,6 +81,7 @@ pub struct UdpReceiver {
     socket: Option<UdpSocket>,
     buffer: Vec<u8>,
     datagrams: u64,
+    samples: Option<SampleReceiver>,
     published: Throttle,
 }
 
@@ -71,6 +106,9 @@ impl Component for UdpReceiver {
         socket.set_read_timeout(Some(RECEIVE_WAIT)).map_err(failed)?;
         self.socket = Some(socket);
         self.buffer = vec![0; LARGEST_DATAGRAM + 1];
+        if encoding::is_kairos(ctx.properties()) {
+            self.samples = Some(SampleReceiver::of(ctx)?);
+        }
         Ok(())
     }
 
@@ -78,12 +116,16 @@ impl Component for UdpReceiver {
         let Some(socket) = &self.socket else {
             return Err(ComponentError::Stopped);
         };
-        match socket.recv(&mut self.buffer) {
-            Ok(read) => {
+        match socket.recv_from(&mut self.buffer) {
+            Ok((read, peer)) => {
                 let now = ctx.now();
-                let datagram = Arc::<[u8]>::from(self.buffer.get(..read).unwrap_or_default());
+                let datagram = self.buffer.get(..read).unwrap_or_default();
                 self.datagrams += 1;
-                ctx.write_at("data", Payload::Bytes(datagram), now)?;
+                if let Some(samples) = &mut self.samples {
+                    samples.take(datagram, &peer.to_string(), ctx)?;
+                } else {
+                    ctx.write_at("data", Payload::Bytes(Arc::from(datagram)), now)?;
+                }
             }
             Err(e)
                 if matches!(
@@ -94,7 +136,11 @@ impl Component for UdpReceiver {
             Err(e) => tracing::debug!("UDP receive: {e}"),
         }
         if self.published.ready(STATUS_PERIOD) {
-            ctx.set_status(serde_json::json!({"kind": "udp", "datagrams": self.datagrams}));
+            let status = serde_json::json!({"kind": "udp", "datagrams": self.datagrams});
+            ctx.set_status(match &self.samples {
+                Some(samples) => encoding::merged(status, samples.status()),
+                None => status,
+            });
         }
         Ok(())
     }
@@ -104,20 +150,29 @@ impl Component for UdpReceiver {
     }
 }
 
-/// The descriptor of `net.udp_sender`.
+/// The descriptor of `net.udp_sender` as listed (text or bytes).
 pub fn sender_descriptor() -> ComponentInfo {
+    sender_base(TypeFilter::OneOf(vec![DataType::Bytes, DataType::Text]))
+}
+
+/// The descriptor of one `net.udp_sender`: text or bytes in, or with encoding kairos, samples of any type.
+pub fn describe_sender(properties: &BTreeMap<String, Value>) -> Result<ComponentInfo, DescribeError> {
+    Ok(if encoding::is_kairos(properties) {
+        sender_base(TypeFilter::Any)
+    } else {
+        sender_descriptor()
+    })
+}
+
+fn sender_base(accepts: TypeFilter) -> ComponentInfo {
     Descriptor::new(
         "net.udp_sender",
         "network",
-        "Sends each text or bytes sample as one UDP datagram to an address, unicast or multicast",
+        "Sends each text or bytes sample as one UDP datagram to an address, unicast or multicast; or \
+         (encoding kairos) each sample of any type whole, with its times and sequence number",
     )
     .label("UDP sender")
-    .input_with_policy(
-        "in",
-        TypeFilter::OneOf(vec![DataType::Bytes, DataType::Text]),
-        ReaderPolicy::Fifo,
-        "What to send",
-    )
+    .input_with_policy("in", accepts, ReaderPolicy::Fifo, "What to send")
     .property(
         Property::text("destination", "127.0.0.1:5000")
             .doc("Where to send: address and port (a multicast group's address sends to the group)"),
@@ -127,6 +182,7 @@ pub fn sender_descriptor() -> ComponentInfo {
             .int_range(1, 255)
             .doc("Multicast time to live: how many routers a datagram may cross"),
     )
+    .property(encoding::property())
     .build()
 }
 
@@ -135,6 +191,9 @@ pub fn sender_descriptor() -> ComponentInfo {
 pub struct UdpSender {
     socket: Option<UdpSocket>,
     destination: Option<SocketAddr>,
+    /// With encoding kairos: the name samples are sent under (the output feeding `in`).
+    kairos_output: Option<String>,
+    frame: Vec<u8>,
     sent: u64,
     failed: u64,
     too_large: u64,
@@ -170,12 +229,22 @@ impl Component for UdpSender {
         }
         self.socket = Some(socket);
         self.destination = Some(address);
+        if encoding::is_kairos(ctx.properties()) {
+            self.kairos_output = Some(sent_as(ctx));
+        }
         Ok(())
     }
 
     fn core(&mut self, ctx: &mut Context) -> ComponentResult {
         let sample = ctx.read("in")?;
         let bytes: &[u8] = match &sample.payload {
+            _ if self.kairos_output.is_some() => {
+                let (head, body) = sample_frame::encode(self.kairos_output.as_deref().unwrap_or(""), &sample);
+                self.frame.clear();
+                self.frame.extend_from_slice(&head);
+                self.frame.extend_from_slice(&body);
+                &self.frame
+            }
             Payload::Bytes(bytes) => bytes,
             Payload::Text(text) => text.as_bytes(),
             other => {
@@ -189,7 +258,7 @@ impl Component for UdpSender {
             self.too_large += 1;
             let size = bytes.len();
             self.warn(&format!(
-                "a sample of {size} bytes is larger than a UDP datagram can be ({LARGEST_DATAGRAM}); not sent"
+                "a sample of {size} bytes is larger than a UDP datagram can be ({LARGEST_DATAGRAM}); not sent (TCP carries any size)"
             ));
         } else if let (Some(socket), Some(destination)) = (&self.socket, self.destination) {
             match socket.send_to(bytes, destination) {

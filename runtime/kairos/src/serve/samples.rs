@@ -3,10 +3,10 @@
 use std::borrow::Cow;
 use std::sync::Arc;
 
-use kairos_protocol::frame::{self, ImageLayout, SampleHeader};
+use kairos_pack_net::sample_frame;
+use kairos_protocol::frame::{self, ImageLayout};
 use kairos_sdk::host::{Reader, ReaderConfig};
-use kairos_sdk::{FixStatus, Image, Payload, PixelFormat, ReaderPolicy, RunSignal, Sample};
-use serde_json::json;
+use kairos_sdk::{Image, Payload, ReaderPolicy, RunSignal, Sample};
 
 use super::runtime::Runtime;
 
@@ -57,17 +57,6 @@ impl LatestSamples {
     }
 }
 
-fn format_name(format: PixelFormat) -> &'static str {
-    match format {
-        PixelFormat::Gray8 => "gray8",
-        PixelFormat::Gray16 => "gray16",
-        PixelFormat::Rgb8 => "rgb8",
-        PixelFormat::Rgba8 => "rgba8",
-        PixelFormat::Bgr8 => "bgr8",
-        PixelFormat::Bgra8 => "bgra8",
-    }
-}
-
 /// The image's pixels, packed, keeping one pixel in `factor` along both axes.
 fn downscale(image: &Image, factor: u32) -> (u32, u32, Vec<u8>) {
     let pixel = image.format.bytes_per_pixel() as usize;
@@ -83,50 +72,6 @@ fn downscale(image: &Image, factor: u32) -> (u32, u32, Vec<u8>) {
         }
     }
     (width, height, pixels)
-}
-
-/// Small payloads as the JSON `value` of a frame header; `None` for those that travel as bytes.
-fn value_of(payload: &Payload) -> Option<serde_json::Value> {
-    macro_rules! xyz {
-        ($v:expr) => {
-            json!([$v.x, $v.y, $v.z])
-        };
-    }
-    Some(match payload {
-        Payload::F64(v) => json!(v),
-        Payload::I64(v) => json!(v),
-        Payload::Bool(v) => json!(v),
-        Payload::Vector(v) => json!(&v[..]),
-        Payload::Matrix(m) => json!({"rows": m.rows, "cols": m.cols, "values": m.values}),
-        Payload::Text(t) => json!(&t[..]),
-        Payload::Imu(imu) => json!({
-            "angular_velocity": xyz!(imu.angular_velocity),
-            "linear_acceleration": xyz!(imu.linear_acceleration),
-            "orientation": imu.orientation.map(|q| json!([q.x, q.y, q.z, q.w])),
-        }),
-        Payload::GnssFix(fix) => {
-            let status = match fix.status {
-                FixStatus::NoFix => "no_fix",
-                FixStatus::Fix => "fix",
-                FixStatus::Differential => "differential",
-                FixStatus::RtkFixed => "rtk_fixed",
-            };
-            json!({
-                "latitude_deg": fix.latitude_deg, "longitude_deg": fix.longitude_deg, "altitude_m": fix.altitude_m,
-                "horizontal_accuracy_m": fix.horizontal_accuracy_m, "vertical_accuracy_m": fix.vertical_accuracy_m,
-                "status": status,
-            })
-        }
-        Payload::CanFrame(frame) => {
-            json!({"id": frame.id, "extended": frame.extended, "fd": frame.fd, "data": frame.data()})
-        }
-        Payload::Pose(pose) => {
-            let q = pose.orientation;
-            json!({"position": xyz!(pose.position), "orientation": [q.x, q.y, q.z, q.w]})
-        }
-        // Large payloads travel as bytes; a type newer than this server has its data type in the header.
-        _ => return None,
-    })
 }
 
 /// Encodes `sample` of `output` as a frame; images wider than `max_image_width` are downscaled.
@@ -158,17 +103,7 @@ pub fn encode_parts<'s>(
     max_image_width: Option<u32>,
     pixels_in: PixelsIn,
 ) -> (Vec<u8>, Cow<'s, [u8]>) {
-    let mut header = SampleHeader {
-        output: output.to_owned(),
-        data_type: sample.payload.data_type().to_string(),
-        timestamp_ns: sample.timestamp.as_nanos(),
-        time_of_issue_ns: sample.time_of_issue.as_nanos(),
-        sequence: sample.sequence,
-        skipped,
-        value: value_of(&sample.payload),
-        image: None,
-        intensity: false,
-    };
+    let mut header = sample_frame::header_of(output, sample, skipped);
     let body: Cow<'s, [u8]> = match &sample.payload {
         Payload::Image(image) => {
             let factor = max_image_width
@@ -188,7 +123,7 @@ pub fn encode_parts<'s>(
             header.image = Some(ImageLayout {
                 width,
                 height,
-                format: format_name(image.format).to_owned(),
+                format: sample_frame::format_name(image.format).to_owned(),
                 stride: if factor > 1 {
                     width * image.format.bytes_per_pixel()
                 } else {
@@ -199,19 +134,7 @@ pub fn encode_parts<'s>(
             });
             pixels
         }
-        Payload::PointCloud(cloud) => {
-            header.intensity = cloud.intensity.is_some();
-            let mut bytes = Vec::with_capacity(cloud.points.len() * 16);
-            for (index, point) in cloud.points.iter().enumerate() {
-                for value in point.to_array() {
-                    bytes.extend_from_slice(&value.to_le_bytes());
-                }
-                if let Some(intensity) = &cloud.intensity {
-                    bytes.extend_from_slice(&intensity.get(index).copied().unwrap_or(0.0).to_le_bytes());
-                }
-            }
-            Cow::Owned(bytes)
-        }
+        Payload::PointCloud(cloud) => Cow::Owned(sample_frame::point_bytes(cloud)),
         Payload::Bytes(bytes) => Cow::Borrowed(&bytes[..]),
         Payload::Custom(custom) => Cow::Borrowed(&custom.data[..]),
         _ => Cow::Borrowed(&[]),

@@ -1,0 +1,510 @@
+//! Whole samples in the control protocol's frame format (`kairos_protocol::frame`), both ways, so two
+//! runtimes exchange samples with both times and their sequence number, and fusion by timestamp still
+//! works across them.
+//!
+//! Small payloads travel as the header's JSON `value`; images, point clouds, bytes and pack-defined data as
+//! the bytes after the header. Encoding then decoding gives back the same payload, whatever its type.
+
+use std::borrow::Cow;
+use std::sync::Arc;
+
+use glam::{DQuat, DVec3, Vec3};
+use kairos_protocol::frame::{self, ImageLayout, SampleHeader};
+use kairos_sdk::{
+    CanFrame, CustomPayload, DataType, FixStatus, GnssFix, Image, Imu, Matrix, Payload, PixelFormat,
+    PixelsMut, PointCloud, Pose, Sample, Timestamp,
+};
+use serde_json::{Value as Json, json};
+
+/// The name of a pixel format in frames (`rgb8`).
+pub fn format_name(format: PixelFormat) -> &'static str {
+    match format {
+        PixelFormat::Gray8 => "gray8",
+        PixelFormat::Gray16 => "gray16",
+        PixelFormat::Rgb8 => "rgb8",
+        PixelFormat::Rgba8 => "rgba8",
+        PixelFormat::Bgr8 => "bgr8",
+        PixelFormat::Bgra8 => "bgra8",
+    }
+}
+
+fn format_of(name: &str) -> Option<PixelFormat> {
+    Some(match name {
+        "gray8" => PixelFormat::Gray8,
+        "gray16" => PixelFormat::Gray16,
+        "rgb8" => PixelFormat::Rgb8,
+        "rgba8" => PixelFormat::Rgba8,
+        "bgr8" => PixelFormat::Bgr8,
+        "bgra8" => PixelFormat::Bgra8,
+        _ => return None,
+    })
+}
+
+fn status_name(status: FixStatus) -> &'static str {
+    match status {
+        FixStatus::NoFix => "no_fix",
+        FixStatus::Fix => "fix",
+        FixStatus::Differential => "differential",
+        FixStatus::RtkFixed => "rtk_fixed",
+    }
+}
+
+/// Small payloads as the JSON `value` of a frame header; `None` for those that travel as bytes.
+pub fn value_of(payload: &Payload) -> Option<Json> {
+    macro_rules! xyz {
+        ($v:expr) => {
+            json!([$v.x, $v.y, $v.z])
+        };
+    }
+    Some(match payload {
+        Payload::F64(v) => json!(v),
+        Payload::I64(v) => json!(v),
+        Payload::Bool(v) => json!(v),
+        Payload::Vector(v) => json!(&v[..]),
+        Payload::Matrix(m) => json!({"rows": m.rows, "cols": m.cols, "values": m.values}),
+        Payload::Text(t) => json!(&t[..]),
+        Payload::Imu(imu) => json!({
+            "angular_velocity": xyz!(imu.angular_velocity),
+            "linear_acceleration": xyz!(imu.linear_acceleration),
+            "orientation": imu.orientation.map(|q| json!([q.x, q.y, q.z, q.w])),
+        }),
+        Payload::GnssFix(fix) => json!({
+            "latitude_deg": fix.latitude_deg, "longitude_deg": fix.longitude_deg, "altitude_m": fix.altitude_m,
+            "horizontal_accuracy_m": fix.horizontal_accuracy_m, "vertical_accuracy_m": fix.vertical_accuracy_m,
+            "status": status_name(fix.status),
+        }),
+        Payload::CanFrame(frame) => {
+            json!({"id": frame.id, "extended": frame.extended, "fd": frame.fd, "data": frame.data()})
+        }
+        Payload::Pose(pose) => {
+            let q = pose.orientation;
+            json!({"position": xyz!(pose.position), "orientation": [q.x, q.y, q.z, q.w]})
+        }
+        // Large payloads travel as bytes after the header.
+        _ => return None,
+    })
+}
+
+/// A point cloud's points as frame bytes: x, y, z and, with intensity, a fourth f32, little-endian.
+pub fn point_bytes(cloud: &PointCloud) -> Vec<u8> {
+    let stride = if cloud.intensity.is_some() { 16 } else { 12 };
+    let mut bytes = Vec::with_capacity(cloud.points.len() * stride);
+    for (index, point) in cloud.points.iter().enumerate() {
+        for value in point.to_array() {
+            bytes.extend_from_slice(&value.to_le_bytes());
+        }
+        if let Some(intensity) = &cloud.intensity {
+            bytes.extend_from_slice(&intensity.get(index).copied().unwrap_or(0.0).to_le_bytes());
+        }
+    }
+    bytes
+}
+
+/// The header of `sample` of `output`, without image layout (the caller knows how it sends pixels).
+pub fn header_of(output: &str, sample: &Sample, skipped: u64) -> SampleHeader {
+    SampleHeader {
+        output: output.to_owned(),
+        data_type: sample.payload.data_type().to_string(),
+        timestamp_ns: sample.timestamp.as_nanos(),
+        time_of_issue_ns: sample.time_of_issue.as_nanos(),
+        sequence: sample.sequence,
+        skipped,
+        value: value_of(&sample.payload),
+        image: None,
+        intensity: matches!(&sample.payload, Payload::PointCloud(cloud) if cloud.intensity.is_some()),
+    }
+}
+
+/// `sample` whole, as a frame in two parts: its start (magic, header length, header) and the payload's
+/// bytes, borrowed where they can be (pixels, bytes), so a transport copies them once, where they go.
+pub fn encode<'s>(output: &str, sample: &'s Sample) -> (Vec<u8>, Cow<'s, [u8]>) {
+    let mut header = header_of(output, sample, 0);
+    let body: Cow<'s, [u8]> = match &sample.payload {
+        Payload::Image(image) => {
+            header.image = Some(ImageLayout {
+                width: image.width,
+                height: image.height,
+                format: format_name(image.format).to_owned(),
+                stride: image.stride,
+                original_width: None,
+                shared: None,
+            });
+            Cow::Borrowed(&image.pixels[..])
+        }
+        Payload::PointCloud(cloud) => Cow::Owned(point_bytes(cloud)),
+        Payload::Bytes(bytes) => Cow::Borrowed(&bytes[..]),
+        Payload::Custom(custom) => Cow::Borrowed(&custom.data[..]),
+        _ => Cow::Borrowed(&[]),
+    };
+    (frame::encode(&header, &[]), body)
+}
+
+/// `sample` whole as one frame.
+pub fn encode_whole(output: &str, sample: &Sample) -> Vec<u8> {
+    let (head, body) = encode(output, sample);
+    let mut bytes = Vec::with_capacity(head.len() + body.len());
+    bytes.extend_from_slice(&head);
+    bytes.extend_from_slice(&body);
+    bytes
+}
+
+/// A sample received in a frame.
+#[derive(Debug, Clone)]
+pub struct Received {
+    /// The sender's output (`camera.image`).
+    pub output: String,
+    /// Its sequence number on that output.
+    pub sequence: u64,
+    /// The sample, with both of its times as sent (its own sequence number is the receiver's to give).
+    pub sample: Sample,
+}
+
+/// Decodes a frame made by [`encode`] back into its sample.
+pub fn decode(bytes: &[u8]) -> Result<Received, String> {
+    let (header, body) = frame::decode(bytes).map_err(|e| e.to_string())?;
+    let payload = payload_of(&header, body)?;
+    let mut sample = Sample::new(payload, Timestamp(header.timestamp_ns));
+    sample.time_of_issue = Timestamp(header.time_of_issue_ns);
+    Ok(Received {
+        output: header.output,
+        sequence: header.sequence,
+        sample,
+    })
+}
+
+fn number(value: &Json) -> Result<f64, String> {
+    match value {
+        // JSON has no NaN: a NaN was sent as null.
+        Json::Null => Ok(f64::NAN),
+        other => other.as_f64().ok_or_else(|| format!("{other} is not a number")),
+    }
+}
+
+fn numbers(value: Option<&Json>) -> Result<Vec<f64>, String> {
+    value
+        .and_then(Json::as_array)
+        .ok_or("expected an array of numbers")?
+        .iter()
+        .map(number)
+        .collect()
+}
+
+fn field<'v>(value: &'v Json, name: &str) -> Result<&'v Json, String> {
+    value.get(name).ok_or_else(|| format!("no field {name:?}"))
+}
+
+fn vector3(value: Option<&Json>) -> Result<DVec3, String> {
+    match numbers(value)?[..] {
+        [x, y, z] => Ok(DVec3::new(x, y, z)),
+        _ => Err("expected [x, y, z]".to_owned()),
+    }
+}
+
+fn quaternion(value: Option<&Json>) -> Result<DQuat, String> {
+    match numbers(value)?[..] {
+        [x, y, z, w] => Ok(DQuat::from_xyzw(x, y, z, w)),
+        _ => Err("expected [x, y, z, w]".to_owned()),
+    }
+}
+
+#[allow(
+    clippy::too_many_lines,
+    reason = "one arm per payload type, the inverse of `value_of` and `encode`; it reads best in one place"
+)]
+fn payload_of(header: &SampleHeader, body: &[u8]) -> Result<Payload, String> {
+    let data_type = DataType::from_name(&header.data_type);
+    let value = || {
+        header
+            .value
+            .as_ref()
+            .ok_or_else(|| format!("a {data_type} frame without its value"))
+    };
+    let payload = match data_type {
+        // A NaN went as null, which the header reads back as no value.
+        DataType::F64 => Payload::F64(header.value.as_ref().map_or(Ok(f64::NAN), number)?),
+        DataType::I64 => Payload::I64(value()?.as_i64().ok_or("the value is not an integer")?),
+        DataType::Bool => Payload::Bool(value()?.as_bool().ok_or("the value is not a boolean")?),
+        DataType::Vector => Payload::Vector(Arc::from(numbers(Some(value()?))?)),
+        DataType::Matrix => {
+            let value = value()?;
+            let dimension = |name| {
+                field(value, name)?
+                    .as_u64()
+                    .and_then(|n| usize::try_from(n).ok())
+                    .ok_or_else(|| format!("{name} is not a count"))
+            };
+            let (rows, cols) = (dimension("rows")?, dimension("cols")?);
+            let values = numbers(value.get("values"))?;
+            if rows.checked_mul(cols) != Some(values.len()) {
+                return Err(format!("a {rows}×{cols} matrix with {} values", values.len()));
+            }
+            Payload::Matrix(Arc::new(Matrix { rows, cols, values }))
+        }
+        DataType::Text => Payload::Text(Arc::from(value()?.as_str().ok_or("the value is not text")?)),
+        DataType::Imu => {
+            let value = value()?;
+            let orientation = match value.get("orientation") {
+                None | Some(Json::Null) => None,
+                some => Some(quaternion(some)?),
+            };
+            Payload::Imu(Imu {
+                angular_velocity: vector3(value.get("angular_velocity"))?,
+                linear_acceleration: vector3(value.get("linear_acceleration"))?,
+                orientation,
+            })
+        }
+        DataType::GnssFix => {
+            let value = value()?;
+            let status = match field(value, "status")?.as_str() {
+                Some("no_fix") => FixStatus::NoFix,
+                Some("fix") => FixStatus::Fix,
+                Some("differential") => FixStatus::Differential,
+                Some("rtk_fixed") => FixStatus::RtkFixed,
+                _ => return Err("an unknown fix status".to_owned()),
+            };
+            Payload::GnssFix(GnssFix {
+                latitude_deg: number(field(value, "latitude_deg")?)?,
+                longitude_deg: number(field(value, "longitude_deg")?)?,
+                altitude_m: number(field(value, "altitude_m")?)?,
+                horizontal_accuracy_m: number(field(value, "horizontal_accuracy_m")?)?,
+                vertical_accuracy_m: number(field(value, "vertical_accuracy_m")?)?,
+                status,
+            })
+        }
+        DataType::CanFrame => {
+            let value = value()?;
+            let id = field(value, "id")?
+                .as_u64()
+                .and_then(|id| u32::try_from(id).ok())
+                .ok_or("the CAN id is not a 32-bit number")?;
+            let data: Vec<u8> = field(value, "data")?
+                .as_array()
+                .ok_or("the CAN data is not an array")?
+                .iter()
+                .map(|byte| byte.as_u64().and_then(|b| u8::try_from(b).ok()))
+                .collect::<Option<_>>()
+                .ok_or("the CAN data are not bytes")?;
+            let extended = value.get("extended").and_then(Json::as_bool).unwrap_or(false);
+            let mut frame = CanFrame::new(id, extended, &data).ok_or("more than 64 CAN data bytes")?;
+            frame.fd |= value.get("fd").and_then(Json::as_bool).unwrap_or(false);
+            Payload::CanFrame(frame)
+        }
+        DataType::Pose => {
+            let value = value()?;
+            Payload::Pose(Pose {
+                position: vector3(value.get("position"))?,
+                orientation: quaternion(value.get("orientation"))?,
+            })
+        }
+        DataType::Bytes => Payload::Bytes(Arc::from(body)),
+        DataType::Image => {
+            let layout = header.image.as_ref().ok_or("an image frame without its layout")?;
+            let format = format_of(&layout.format)
+                .ok_or_else(|| format!("an unknown pixel format {:?}", layout.format))?;
+            // Into the shared pixel pool, so the image goes on through the diagram without another copy.
+            let mut pixels = PixelsMut::new(body.len());
+            pixels.copy_from_slice(body);
+            Payload::Image(
+                Image::with_stride(
+                    layout.width,
+                    layout.height,
+                    format,
+                    layout.stride,
+                    pixels.freeze(),
+                )
+                .map_err(|e| e.to_string())?,
+            )
+        }
+        DataType::PointCloud => {
+            let stride = if header.intensity { 16 } else { 12 };
+            if !body.len().is_multiple_of(stride) {
+                return Err(format!(
+                    "{} bytes of points are not a whole number of {stride}-byte points",
+                    body.len()
+                ));
+            }
+            let float = |bytes: &[u8], at: usize| {
+                bytes
+                    .get(at..at + 4)
+                    .and_then(|b| b.try_into().ok())
+                    .map_or(0.0, f32::from_le_bytes)
+            };
+            let points = body
+                .chunks_exact(stride)
+                .map(|p| Vec3::new(float(p, 0), float(p, 4), float(p, 8)))
+                .collect();
+            let intensity = header
+                .intensity
+                .then(|| body.chunks_exact(stride).map(|p| float(p, 12)).collect());
+            Payload::PointCloud(Arc::new(PointCloud { points, intensity }))
+        }
+        DataType::Custom(name) => Payload::Custom(CustomPayload {
+            type_name: Arc::from(name.as_str()),
+            data: Arc::from(body),
+        }),
+    };
+    Ok(payload)
+}
+
+/// Counts what a stream of sequence numbers from one sender says about the link: samples lost in transit
+/// (gaps), samples that arrived after a later one (reordered) and samples that came twice. A sender that
+/// starts again (its sequence back at 0, or far behind) starts a new count.
+#[derive(Debug, Default, Clone, Copy, PartialEq, Eq)]
+pub struct SequenceTracker {
+    newest: Option<u64>,
+    /// Bit `i`: whether `newest - i` was received, for the last 64 sequence numbers.
+    seen: u64,
+    /// Samples never received: the gaps between sequence numbers, less those that came late.
+    pub lost: u64,
+    /// Samples received after a later one (not passed on: the output's readers expect time order).
+    pub reordered: u64,
+    /// Samples received a second time.
+    pub duplicates: u64,
+    /// Times the sender started again.
+    pub restarts: u64,
+}
+
+/// How far behind the newest a sequence number must be to mean that the sender started again rather than
+/// that a sample was late.
+const RESTART_DISTANCE: u64 = 1024;
+
+impl SequenceTracker {
+    /// Takes in `sequence`; whether the sample is new and in order, and goes on.
+    pub fn take(&mut self, sequence: u64) -> bool {
+        match self.newest {
+            Some(newest) if sequence > newest => {
+                let ahead = sequence - newest;
+                self.lost += ahead - 1;
+                self.seen = self
+                    .seen
+                    .checked_shl(u32::try_from(ahead).unwrap_or(u32::MAX))
+                    .unwrap_or(0);
+            }
+            Some(newest) if sequence == 0 || newest - sequence >= RESTART_DISTANCE => {
+                self.restarts += 1;
+                self.seen = 0;
+            }
+            Some(newest) => {
+                let behind = newest - sequence;
+                let bit = 1_u64
+                    .checked_shl(u32::try_from(behind).unwrap_or(u32::MAX))
+                    .unwrap_or(0);
+                if self.seen & bit != 0 {
+                    self.duplicates += 1;
+                } else {
+                    // A late sample: it fills a gap counted as lost.
+                    self.seen |= bit;
+                    self.reordered += 1;
+                    self.lost = self.lost.saturating_sub(1);
+                }
+                return false;
+            }
+            None => {}
+        }
+        self.newest = Some(sequence);
+        self.seen |= 1;
+        true
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use std::sync::Arc;
+
+    use glam::{DQuat, DVec3, Vec3};
+    use kairos_sdk::{
+        CanFrame, CustomPayload, FixStatus, GnssFix, Image, Imu, Matrix, Payload, PixelFormat, PointCloud,
+        Pose, Sample, Timestamp,
+    };
+
+    use super::{SequenceTracker, decode, encode_whole};
+
+    fn every_payload() -> Vec<Payload> {
+        let pixels: Vec<u8> = (0..4 * 3 * 3).map(|i| i as u8).collect();
+        vec![
+            Payload::F64(-1.5),
+            Payload::I64(i64::MIN),
+            Payload::Bool(true),
+            Payload::Vector(Arc::from(vec![1.0, 2.5])),
+            Payload::Matrix(Arc::new(Matrix {
+                rows: 2,
+                cols: 1,
+                values: vec![3.0, 4.0],
+            })),
+            Payload::Text(Arc::from("héllo")),
+            Payload::Bytes(Arc::from(&[0_u8, 255, 7][..])),
+            Payload::Imu(Imu {
+                angular_velocity: DVec3::new(0.1, 0.2, 0.3),
+                linear_acceleration: DVec3::new(0.0, 0.0, 9.81),
+                orientation: Some(DQuat::IDENTITY),
+            }),
+            Payload::GnssFix(GnssFix {
+                latitude_deg: 48.8,
+                longitude_deg: 2.3,
+                altitude_m: 35.0,
+                horizontal_accuracy_m: 1.5,
+                vertical_accuracy_m: 3.0,
+                status: FixStatus::RtkFixed,
+            }),
+            Payload::CanFrame(CanFrame::new(0x18FF_0001, true, &[1, 2, 3]).unwrap()),
+            Payload::Pose(Pose {
+                position: DVec3::new(1.0, 2.0, 3.0),
+                orientation: DQuat::from_rotation_z(0.5),
+            }),
+            // Rows of 12 bytes with a stride of 12; the pixels keep their layout.
+            Payload::Image(Image::packed(4, 3, PixelFormat::Bgr8, Arc::<[u8]>::from(pixels)).unwrap()),
+            Payload::PointCloud(Arc::new(PointCloud {
+                points: vec![Vec3::new(1.0, -2.0, 0.5), Vec3::ZERO],
+                intensity: Some(vec![0.25, 1.0]),
+            })),
+            Payload::Custom(CustomPayload {
+                type_name: Arc::from("radar_track"),
+                data: Arc::from(&b"track"[..]),
+            }),
+        ]
+    }
+
+    #[test]
+    fn every_payload_type_comes_back_whole_with_both_times_and_its_sequence() {
+        for payload in every_payload() {
+            let mut sample = Sample::new(payload.clone(), Timestamp(1_700_000_000_123_456_789));
+            sample.time_of_issue = Timestamp(1_700_000_000_200_000_000);
+            sample.sequence = 41;
+            let received = decode(&encode_whole("sensor.out", &sample)).unwrap();
+            assert_eq!(received.sample.payload, payload);
+            assert_eq!(received.sample.timestamp, sample.timestamp);
+            assert_eq!(received.sample.time_of_issue, sample.time_of_issue);
+            assert_eq!((received.output.as_str(), received.sequence), ("sensor.out", 41));
+        }
+    }
+
+    #[test]
+    fn a_nan_travels_as_a_nan() {
+        let sample = Sample::new(Payload::F64(f64::NAN), Timestamp(1));
+        let received = decode(&encode_whole("a.b", &sample)).unwrap();
+        assert!(matches!(received.sample.payload, Payload::F64(v) if v.is_nan()));
+    }
+
+    #[test]
+    fn damaged_frames_are_refused_with_the_reason() {
+        let sample = Sample::new(Payload::Vector(Arc::from(vec![1.0])), Timestamp(1));
+        let bytes = encode_whole("a.b", &sample);
+        assert!(decode(&bytes[..bytes.len() - 3]).is_err());
+        assert!(decode(b"garbage").unwrap_err().contains("KSF1"));
+        let image = Sample::new(every_payload().swap_remove(11), Timestamp(1));
+        let bytes = encode_whole("camera.image", &image);
+        let error = decode(&bytes[..bytes.len() - 1]).unwrap_err();
+        assert!(error.contains("buffer") || error.contains("bytes"), "{error}");
+    }
+
+    #[test]
+    fn gaps_count_as_lost_and_late_samples_as_reordered() {
+        let mut tracker = SequenceTracker::default();
+        let taken: Vec<bool> = [0, 1, 4, 3, 5, 5].iter().map(|s| tracker.take(*s)).collect();
+        assert_eq!(taken, [true, true, true, false, true, false]);
+        // 2 and 3 went missing, then 3 came late; 5 came twice.
+        assert_eq!((tracker.lost, tracker.reordered, tracker.duplicates), (1, 1, 1));
+        assert!(tracker.take(0));
+        assert_eq!(tracker.restarts, 1);
+    }
+}
