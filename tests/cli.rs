@@ -264,3 +264,63 @@ fn inspect_json_names_its_time_base_and_rounds_its_figures() {
         assert!(decimals(&channel["rate_hz"]) <= 3, "{}", channel["rate_hz"]);
     }
 }
+
+#[test]
+fn a_gnss_receiver_sets_the_runtime_clock_to_its_utc() {
+    let root = common::repo_root();
+    let output = kairos(
+        &root,
+        &[
+            "run",
+            "examples/gnss_replay.ron",
+            "--for",
+            "2500ms",
+            "--stats",
+            "--stats-interval",
+            "10s",
+            "--clock-source",
+            "gnss",
+        ],
+    );
+    let (stdout, stderr) = text(&output);
+    assert!(output.status.success(), "{stderr}");
+    assert!(stderr.contains("clock: follows 'gnss', locked"), "{stderr}");
+    // The recording's fixes are from 2026-11-25 10:00:00 UTC: the samples carry that time, not the
+    // machine's.
+    assert!(stdout.contains("t=179560080"), "{stdout}");
+}
+
+#[test]
+fn a_clock_source_that_cannot_give_the_time_is_refused_with_the_ones_that_can() {
+    let root = common::repo_root();
+    let output = kairos(
+        &root,
+        &[
+            "run",
+            "examples/gnss_replay.ron",
+            "--for",
+            "1s",
+            "--clock-source",
+            "console1",
+        ],
+    );
+    let (_, stderr) = text(&output);
+    assert!(!output.status.success());
+    assert!(
+        stderr.contains("'console1' (core.console) cannot be the clock source"),
+        "{stderr}"
+    );
+    assert!(stderr.contains("components that can: gnss"), "{stderr}");
+    let missing = kairos(
+        &root,
+        &[
+            "run",
+            "examples/gnss_replay.ron",
+            "--for",
+            "1s",
+            "--clock-source",
+            "nobody",
+        ],
+    );
+    assert!(text(&missing).1.contains("the diagram has no component 'nobody'"));
+}

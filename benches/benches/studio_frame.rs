@@ -115,6 +115,7 @@ fn telemetry(diagram: &Diagram, tick: u64) -> kairos_protocol::Telemetry {
                 status: None,
             })
             .collect(),
+        clock: None,
     }
 }
 

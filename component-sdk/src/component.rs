@@ -404,6 +404,13 @@ impl Context {
         self.clock.describe()
     }
 
+    /// For a time source (a GNSS receiver): at `measured_at` on the runtime clock (when the data arrived),
+    /// the true time was `reference`. When the diagram makes this component its clock source, the runtime
+    /// clock follows these references; otherwise they are ignored. Returns whether the clock took it.
+    pub fn clock_reference(&self, measured_at: Timestamp, reference: Timestamp) -> bool {
+        self.clock.take_reference(&self.id, measured_at, reference)
+    }
+
     /// Sleeps until `deadline` on the runtime clock. A stop cuts the sleep short with
     /// [`ComponentError::Stopped`], a pause, property change or action with
     /// [`ComponentError::Interrupted`]: return either from `core` with `?`.

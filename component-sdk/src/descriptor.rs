@@ -45,8 +45,16 @@ impl Descriptor {
                 outputs: Vec::new(),
                 properties: Vec::new(),
                 actions: Vec::new(),
+                time_source: false,
             },
         }
+    }
+
+    /// Declares that the component can be the diagram's clock source: it calls
+    /// [`crate::Context::clock_reference`] with the true time it receives (a GNSS receiver's UTC).
+    pub fn time_source(mut self) -> Self {
+        self.info.time_source = true;
+        self
     }
 
     /// Sets the name people read in the studio's palette (`Sine wave`). Without one the studio derives a

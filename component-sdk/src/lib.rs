@@ -28,6 +28,7 @@ pub mod abi;
 mod buffer;
 pub mod component;
 pub mod descriptor;
+pub mod disciplined;
 pub mod harness;
 #[cfg(feature = "host")]
 pub mod host;
@@ -45,6 +46,7 @@ pub mod time;
 pub use component::{
     Component, ComponentError, ComponentResult, Context, InputPort, OutputPort, PortKey, Synchronizer,
 };
+pub use disciplined::{ClockState, ClockStatus, DisciplinedClock};
 pub use kairos_diagram::{
     ComponentInfo, DataType, DescribeError, ExecutionMode, LibraryInfo, OutputInfo, PackInfo, PropertyKind,
     ReaderPolicy, TypeFilter, Value,

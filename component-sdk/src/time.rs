@@ -94,6 +94,22 @@ pub trait Clock: Send + Sync + fmt::Debug {
 
     /// A one-line description for logs and recordings (`real time, epoch 2026-…`).
     fn describe(&self) -> String;
+
+    /// Takes a reference from the diagram's time source: at `measured_at` on this clock, the component
+    /// `source` says the true time was `reference`. Only a clock disciplined by that component uses it;
+    /// returns whether it did.
+    fn take_reference(&self, source: &str, measured_at: Timestamp, reference: Timestamp) -> bool {
+        let _ = (source, measured_at, reference);
+        false
+    }
+
+    /// From now on the clock may not step, only slew: the diagram is running and deadlines are set.
+    fn forbid_steps(&self) {}
+
+    /// Where a disciplined clock stands, for telemetry; `None` for a clock that follows no source.
+    fn status(&self) -> Option<crate::disciplined::ClockStatus> {
+        None
+    }
 }
 
 /// Real time: the wall clock read once at creation, advanced by the monotonic clock.

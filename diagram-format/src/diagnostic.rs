@@ -89,6 +89,8 @@ pub enum DiagnosticCode {
     /// A component whose ports depend on its properties could not describe itself (a player whose
     /// recording cannot be read).
     CannotDescribe,
+    /// A clock source that is not a component of the diagram, or not one that can give the time.
+    InvalidClockSource,
 }
 
 /// Where a problem is in the source text.

@@ -526,6 +526,10 @@ pub struct ComponentInfo {
     pub properties: Vec<PropertyInfo>,
     /// Its actions.
     pub actions: Vec<ActionInfo>,
+    /// Whether it can be the diagram's clock source (it gives the runtime clock references of true time,
+    /// as a GNSS receiver does).
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub time_source: bool,
 }
 
 impl ComponentInfo {
@@ -711,6 +715,7 @@ mod tests {
             outputs: Vec::new(),
             properties: Vec::new(),
             actions: Vec::new(),
+            time_source: false,
         };
         assert_eq!(unlabelled.display_name(), "Sine");
         let labelled = super::ComponentInfo {

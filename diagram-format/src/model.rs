@@ -26,6 +26,9 @@ pub struct Diagram {
     pub components: Vec<ComponentInstance>,
     /// The connections, each from an output to an input.
     pub connections: Vec<Connection>,
+    /// The component whose time the runtime clock follows (a GNSS receiver), if any.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub clock_source: Option<String>,
 }
 
 impl Default for Diagram {
@@ -35,6 +38,7 @@ impl Default for Diagram {
             packs: Vec::new(),
             components: Vec::new(),
             connections: Vec::new(),
+            clock_source: None,
         }
     }
 }

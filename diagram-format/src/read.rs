@@ -28,6 +28,8 @@ pub struct SourceMap {
     pub components: Vec<ComponentLocations>,
     /// One entry per connection.
     pub connections: Vec<ConnectionLocations>,
+    /// The clock source's value, when given.
+    pub clock_source: Option<Location>,
 }
 
 /// Where a pack requirement is.
@@ -472,7 +474,13 @@ impl Reader<'_> {
     }
 
     fn diagram(&mut self, node: &Node) -> Option<ParsedDiagram> {
-        let fields = self.fields(node, "Diagram", &["format", "packs", "components", "connections"])?;
+        let fields = self.fields(
+            node,
+            "Diagram",
+            &["format", "clock_source", "packs", "components", "connections"],
+        )?;
+        let clock_source_node = fields.optional("clock_source");
+        let clock_source = self.optional(clock_source_node, Self::text).ok()?;
         let format_node = self.required(&fields, "format");
         let format = format_node.and_then(|n| self.integer::<u32>(n));
         let packs = self.items(fields.optional("packs"), Self::pack);
@@ -488,10 +496,12 @@ impl Reader<'_> {
                 packs,
                 components,
                 connections,
+                clock_source,
             },
             source_map: SourceMap {
                 diagram: self.location(node.head),
                 format: self.location(format_node.span),
+                clock_source: clock_source_node.map(|n| self.location(n.span)),
                 packs: pack_locations,
                 components: component_locations,
                 connections: connection_locations,

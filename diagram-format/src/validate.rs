@@ -39,6 +39,7 @@ pub fn validate_with(
         found: Vec::new(),
     };
     validator.check_format();
+    validator.check_clock_source();
     validator.check_packs();
     validator.check_components();
     validator.check_connections();
@@ -144,6 +145,49 @@ impl<'a> Validator<'a> {
             self.found
                 .push(Diagnostic::error(DiagnosticCode::UnsupportedFormat, message).at(location));
         }
+    }
+
+    fn check_clock_source(&mut self) {
+        let Some(source) = &self.diagram.clock_source else {
+            return;
+        };
+        let location = self.source_map.and_then(|m| m.clock_source);
+        let able: Vec<&str> = self
+            .diagram
+            .components
+            .iter()
+            .filter(|c| {
+                self.library
+                    .components
+                    .get(&c.type_name)
+                    .is_some_and(|i| i.time_source)
+            })
+            .map(|c| c.id.as_str())
+            .collect();
+        let suggestion = if able.is_empty() {
+            "add a component that gives the time (a GNSS receiver, gnss.nmea) and name it here, or remove \
+             clock_source"
+                .to_owned()
+        } else {
+            format!("components that can: {}", able.join(", "))
+        };
+        let message = match self.diagram.component(source) {
+            None => format!("the clock source '{source}' is not a component of this diagram"),
+            Some(instance) => match self.library.components.get(&instance.type_name) {
+                // An unknown type is reported on the component itself.
+                None => return,
+                Some(info) if info.time_source => return,
+                Some(_) => format!(
+                    "'{source}' ({}) cannot be the clock source: it does not give the time",
+                    instance.type_name
+                ),
+            },
+        };
+        self.found.push(
+            Diagnostic::error(DiagnosticCode::InvalidClockSource, message)
+                .at(location)
+                .with_suggestion(Some(suggestion)),
+        );
     }
 
     fn check_packs(&mut self) {

@@ -56,6 +56,9 @@ impl fmt::Display for CanonicalRon<'_> {
         let diagram = self.0;
         f.write_str("// Kairos diagram\nDiagram(\n")?;
         writeln!(f, "    format: {},", diagram.format)?;
+        if let Some(source) = &diagram.clock_source {
+            writeln!(f, "    clock_source: {},", Quoted(source))?;
+        }
 
         let mut packs: Vec<&PackRequirement> = diagram.packs.iter().collect();
         packs.sort_by(|a, b| compare_packs(a, b));

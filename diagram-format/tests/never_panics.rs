@@ -173,11 +173,13 @@ fn diagram() -> impl Strategy<Value = Diagram> {
         ),
         prop::collection::vec(component(), 0..5),
         prop::collection::vec(connection(), 0..5),
+        prop::option::of("[a-z]{1,6}"),
     )
-        .prop_map(|(format, packs, components, connections)| Diagram {
+        .prop_map(|(format, packs, components, connections, clock_source)| Diagram {
             format,
             packs,
             components,
             connections,
+            clock_source,
         })
 }

@@ -100,6 +100,7 @@ fn scrambled_diagram() -> Diagram {
             connection,
             Connection::new(PortRef::new("gain1", "out"), PortRef::new("console1", "in")),
         ],
+        clock_source: Some("sine1".to_owned()),
     }
 }
 

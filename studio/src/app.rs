@@ -390,6 +390,11 @@ impl StudioApp {
                 why,
             } => self.session.field_refused(&component, &property, why),
             Command::SetReader { from, to, settings } => self.session.set_reader(&from, &to, settings),
+            Command::SetClockSource(source) => {
+                self.session
+                    .document
+                    .edit(|diagram| diagram.clock_source = source);
+            }
             Command::TriggerAction { component, action } => {
                 self.session
                     .request(RequestBody::TriggerAction { component, action });

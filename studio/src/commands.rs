@@ -104,6 +104,8 @@ pub enum Command {
         /// The new settings.
         settings: ReaderSettings,
     },
+    /// Make the runtime clock follow a component (a GNSS receiver), or no component.
+    SetClockSource(Option<String>),
     /// Trigger a component's action.
     TriggerAction {
         /// The component's id.

@@ -154,6 +154,13 @@ impl Document {
             diagram
                 .connections
                 .retain(|c| !ids.contains(&c.from.component) && !ids.contains(&c.to.component));
+            if diagram
+                .clock_source
+                .as_ref()
+                .is_some_and(|source| ids.contains(source))
+            {
+                diagram.clock_source = None;
+            }
         });
     }
 
@@ -187,6 +194,9 @@ impl Document {
                         to.clone_into(&mut end.component);
                     }
                 }
+            }
+            if diagram.clock_source.as_deref() == Some(from) {
+                diagram.clock_source = Some(to.to_owned());
             }
         });
         Ok(())
@@ -431,6 +441,32 @@ mod tests {
         assert!(!reopened.is_dirty());
         reopened.save().unwrap();
         assert_eq!(std::fs::read(&path).unwrap(), first);
+    }
+
+    #[test]
+    fn the_clock_source_follows_a_rename_goes_with_its_component_and_is_saved() {
+        let library = library();
+        let mut document = Document::default();
+        let gnss = document.add_component(
+            library.component("gnss.nmea").unwrap(),
+            &library,
+            Position { x: 0.0, y: 0.0 },
+        );
+        document.edit(|diagram| diagram.clock_source = Some(gnss.clone()));
+        document.rename_component(&gnss, "receiver").unwrap();
+        assert_eq!(document.diagram().clock_source.as_deref(), Some("receiver"));
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("d.ron");
+        document.save_as(&path).unwrap();
+        assert!(
+            std::fs::read_to_string(&path)
+                .unwrap()
+                .contains("clock_source: \"receiver\"")
+        );
+        document.remove_components(&["receiver".to_owned()]);
+        assert_eq!(document.diagram().clock_source, None);
+        assert!(document.undo());
+        assert_eq!(document.diagram().clock_source.as_deref(), Some("receiver"));
     }
 
     #[test]

@@ -111,6 +111,18 @@ fn component_ui(
         ui.label(RichText::new(&info.type_name).weak());
     });
     ui.label(&info.doc);
+    if info.time_source {
+        let follows = session.document.diagram().clock_source.as_deref() == Some(instance.id.as_str());
+        let mut checked = follows;
+        ui.checkbox(&mut checked, "The runtime clock follows its time")
+            .on_hover_text(
+                "The diagram's clock source: the runtime clock is set to this component's time when the \
+                 diagram starts (a GNSS receiver's UTC), then slewed to follow it, never going backwards",
+            );
+        if checked != follows {
+            commands.push(Command::SetClockSource(checked.then(|| instance.id.clone())));
+        }
+    }
     ui.separator();
     for property in &info.properties {
         property_ui(ui, session, instance, property, commands);

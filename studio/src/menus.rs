@@ -147,6 +147,22 @@ fn connection_state_ui(ui: &mut egui::Ui, session: &Session) {
     };
     ui.label(RichText::new(text).color(color));
     ui.label(format!("— {:?}", session.run_state()).to_lowercase());
+    if let Some(clock) = session.clock() {
+        let color = match clock.state.as_str() {
+            "locked" => Color32::LIGHT_GREEN,
+            "lost" => Color32::LIGHT_RED,
+            _ => Color32::YELLOW,
+        };
+        ui.label(RichText::new(format!("clock: {} {}", clock.source, clock.state)).color(color))
+            .on_hover_text(format!(
+                "The runtime clock follows '{}': error {:+.3} ms at the last reference, set {:+.3} s from the \
+                 machine's clock at start, {} references",
+                clock.source,
+                clock.error_ns as f64 * 1e-6,
+                clock.step_ns as f64 * 1e-9,
+                clock.references
+            ));
+    }
 }
 
 /// The keyboard shortcuts; Save works while typing, the others only when no text field has the keyboard.

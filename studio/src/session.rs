@@ -182,6 +182,8 @@ pub struct Session {
     field_notes: BTreeMap<(String, String), String>,
     runtime: Option<RuntimeLink>,
     run_state: RuntimeState,
+    /// The runtime clock, when a component disciplines it.
+    clock: Option<kairos_protocol::ClockTelemetry>,
     states: BTreeMap<String, NodeState>,
     next_request: u64,
     pending: BTreeMap<u64, Pending>,
@@ -218,6 +220,7 @@ impl Session {
             field_notes: BTreeMap::new(),
             runtime: None,
             run_state: RuntimeState::Empty,
+            clock: None,
             states: BTreeMap::new(),
             next_request: FIRST_REQUEST_ID,
             pending: BTreeMap::new(),
@@ -254,6 +257,11 @@ impl Session {
     /// Where the runtime is, as its telemetry last said.
     pub fn run_state(&self) -> RuntimeState {
         self.run_state
+    }
+
+    /// The runtime clock, when a component of the running diagram disciplines it.
+    pub fn clock(&self) -> Option<&kairos_protocol::ClockTelemetry> {
+        self.clock.as_ref()
     }
 
     /// A component's state as the runtime last reported it.
@@ -508,6 +516,7 @@ impl Session {
     /// Node states and live figures from one telemetry event.
     fn take_telemetry(&mut self, telemetry: &Telemetry) {
         self.run_state = telemetry.state;
+        self.clock.clone_from(&telemetry.clock);
         // A refused deploy's marks stay until the next deploy, whatever runs meanwhile.
         let refused: Vec<(String, NodeState)> = self
             .states

@@ -4,8 +4,8 @@ use std::sync::Arc;
 
 use kairos_sdk::descriptor::{Descriptor, Property};
 use kairos_sdk::{
-    Component, ComponentError, ComponentInfo, ComponentResult, Context, DataType, GnssFix, Payload,
-    Timestamp, Value,
+    Component, ComponentError, ComponentInfo, ComponentResult, Context, DataType, FixStatus, GnssFix,
+    Payload, Timestamp, Value,
 };
 use kairos_sdk::{STATUS_PERIOD, Throttle, WARNING_PERIOD};
 
@@ -38,6 +38,7 @@ pub fn descriptor() -> ComponentInfo {
          Samples are stamped when the sentence arrives",
     )
     .label("GNSS receiver (NMEA)")
+    .time_source()
     .output(
         "fix",
         DataType::GnssFix,
@@ -140,6 +141,8 @@ pub struct NmeaReceiver {
     decoder: Decoder,
     counts: Counts,
     connected: bool,
+    /// Set when a reference stepped the runtime clock, until a replay takes its schedule from the new time.
+    clock_stepped: bool,
     published: Throttle,
 }
 
@@ -214,7 +217,18 @@ impl NmeaReceiver {
         };
         self.counts.sentences += 1;
         ctx.write_at(SENTENCE, Payload::Text(Arc::from(text)), received)?;
-        Self::write_reading(ctx, &reading, received, self.accuracy_per_hdop)
+        Self::write_reading(ctx, &reading, received, self.accuracy_per_hdop)?;
+        // The receiver's UTC, from a sentence with a fix (GGA) or motion (RMC), is a reference for the
+        // runtime clock when the diagram makes this component its clock source.
+        let fixed = reading.fix.is_some_and(|fix| fix.status != FixStatus::NoFix) || reading.motion.is_some();
+        if let Some(utc) = reading.utc_s.filter(|_| fixed) {
+            let before = ctx.now();
+            if ctx.clock_reference(received, Timestamp::from_secs_f64(utc)) {
+                // The first reference may step the clock: a replay's schedule starts again from there.
+                self.clock_stepped |= ctx.now().nanos_since(before).abs() > 1_000_000_000;
+            }
+        }
+        Ok(())
     }
 
     fn write_reading(
@@ -364,6 +378,11 @@ impl Component for NmeaReceiver {
                 };
                 let now = ctx.now();
                 self.handle(ctx, &line, now)?;
+                if std::mem::take(&mut self.clock_stepped)
+                    && let Some(Input::File(replay)) = &mut self.input
+                {
+                    replay.anchor = None;
+                }
             }
             None => return Err(ComponentError::Stopped),
         }

@@ -47,6 +47,7 @@ fn component(type_name: &str, pack: &str, mode: ExecutionMode) -> ComponentInfo 
         outputs: Vec::new(),
         properties: Vec::new(),
         actions: Vec::new(),
+        time_source: false,
     }
 }
 

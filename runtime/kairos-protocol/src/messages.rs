@@ -737,6 +737,28 @@ pub struct Telemetry {
     pub links: Vec<LinkTelemetry>,
     /// Per component.
     pub components: Vec<ComponentTelemetry>,
+    /// The runtime clock, when a component of the diagram disciplines it (a GNSS receiver).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub clock: Option<ClockTelemetry>,
+}
+
+/// A runtime clock that follows a component of the diagram.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ClockTelemetry {
+    /// The component it follows.
+    pub source: String,
+    /// `acquiring` (no time from the source yet), `locked` (within 10 ms), `slewing` (a larger error being
+    /// slewed away at 1 ms/s), `holdover` (no time for 3 s) or `lost` (for 30 s).
+    pub state: String,
+    /// The source's time minus the clock's at its last reference, ns.
+    pub error_ns: i64,
+    /// How far the first reference stepped the clock from the machine's, ns.
+    pub step_ns: i64,
+    /// References taken.
+    pub references: u64,
+    /// Seconds since the last one.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub since_reference_s: Option<f64>,
 }
 
 /// One log record.

@@ -253,6 +253,8 @@ pub type LongWait<'a> = &'a dyn Fn(&mut dyn FnMut());
 /// is often woken onto the caller's core: yielding lets it run there at once, where blocking would cost
 /// a wake-up of each thread (measured in BENCHMARKS.md, benchmark 10).
 const ANSWER_SPIN: Duration = Duration::from_micros(300);
+/// How long `start` waits for the clock source's first reference before starting the rest anyway.
+const CLOCK_LOCK_WAIT: Duration = Duration::from_secs(10);
 
 /// The component's answer: waited for yielding the core for a while, then through `long_wait`, 2 s at
 /// most.
@@ -339,6 +341,8 @@ struct Pending {
 /// A diagram instantiated on a component library: buffers allocated, readers attached, components made.
 pub struct Engine {
     clock: Arc<dyn Clock>,
+    /// The component the clock follows, started first so the clock can lock before anything else runs.
+    clock_source: Option<String>,
     slots: Vec<Slot>,
     buffers: Vec<OutputBuffer>,
     policies: BTreeMap<String, ReaderPolicy>,
@@ -550,6 +554,7 @@ impl Engine {
         }
         Ok(Engine {
             clock,
+            clock_source: diagram.clock_source.clone(),
             slots,
             buffers: buffers.into_values().collect(),
             policies,
@@ -584,42 +589,101 @@ impl Engine {
                 }
             }
         }
-        for slot in &mut self.slots {
-            if let Driver::Threaded {
-                mode,
-                pending,
-                handle,
-            } = &mut slot.driver
-                && let Some(boxed) = pending.take()
-            {
-                let (component, ctx) = *boxed;
-                let worker = Worker {
-                    id: slot.id.clone(),
-                    mode: *mode,
-                    thread: slot.thread.clone(),
-                    signal: Arc::clone(&slot.signal),
-                    monitor: Arc::clone(&slot.monitor),
-                    clock: Arc::clone(&self.clock),
-                };
-                slot.monitor.set_state(ComponentState::Running);
-                let spawned = std::thread::Builder::new()
-                    .name(thread_name(&slot.id))
-                    .spawn(move || worker.run(component, ctx));
-                match spawned {
-                    Ok(joined) => *handle = Some(joined),
-                    Err(error) => {
-                        slot.monitor
-                            .fail(&slot.id, "start", &format!("cannot spawn its thread: {error}"));
-                        self.state = EngineState::Running;
-                        self.stop();
-                        return Err(error);
-                    }
-                }
+        // The clock source first: the clock steps to its time once, before anything else reads it, and
+        // only slews from then on.
+        let source = self
+            .clock_source
+            .clone()
+            .filter(|_| self.clock.status().is_some());
+        if let Some(source) = &source
+            && let Some(slot) = self.slots.iter_mut().find(|slot| &slot.id == source)
+        {
+            Self::spawn(slot, &self.clock)?;
+            self.wait_for_clock_lock(source);
+        }
+        self.clock.forbid_steps();
+        for index in 0..self.slots.len() {
+            let Some(slot) = self.slots.get_mut(index) else {
+                continue;
+            };
+            if let Err(error) = Self::spawn(slot, &self.clock) {
+                self.state = EngineState::Running;
+                self.stop();
+                return Err(error);
             }
         }
         self.state = EngineState::Running;
         self.start_supervisor();
         Ok(())
+    }
+
+    /// Gives a threaded or periodic component not started yet its named thread.
+    fn spawn(slot: &mut Slot, clock: &Arc<dyn Clock>) -> std::io::Result<()> {
+        let Driver::Threaded {
+            mode,
+            pending,
+            handle,
+        } = &mut slot.driver
+        else {
+            return Ok(());
+        };
+        let Some(boxed) = pending.take() else {
+            return Ok(());
+        };
+        let (component, ctx) = *boxed;
+        let worker = Worker {
+            id: slot.id.clone(),
+            mode: *mode,
+            thread: slot.thread.clone(),
+            signal: Arc::clone(&slot.signal),
+            monitor: Arc::clone(&slot.monitor),
+            clock: Arc::clone(clock),
+        };
+        slot.monitor.set_state(ComponentState::Running);
+        let spawned = std::thread::Builder::new()
+            .name(thread_name(&slot.id))
+            .spawn(move || worker.run(component, ctx));
+        match spawned {
+            Ok(joined) => {
+                *handle = Some(joined);
+                Ok(())
+            }
+            Err(error) => {
+                slot.monitor
+                    .fail(&slot.id, "start", &format!("cannot spawn its thread: {error}"));
+                Err(error)
+            }
+        }
+    }
+
+    /// Waits, at most [`CLOCK_LOCK_WAIT`], for the clock source's first reference.
+    fn wait_for_clock_lock(&self, source: &str) {
+        let started = Instant::now();
+        let running = || {
+            self.slots
+                .iter()
+                .find(|slot| slot.id == source)
+                .is_some_and(|slot| slot.monitor.state() == ComponentState::Running)
+        };
+        while started.elapsed() < CLOCK_LOCK_WAIT && running() {
+            if let Some(status) = self.clock.status()
+                && status.references > 0
+            {
+                tracing::info!(
+                    "the clock follows '{source}': set to its time ({:+.3} s from the machine's) in {:.1} s",
+                    status.step_ns as f64 * 1e-9,
+                    started.elapsed().as_secs_f64()
+                );
+                return;
+            }
+            std::thread::sleep(Duration::from_millis(10));
+        }
+        tracing::warn!(
+            "no time from the clock source '{source}' within {} s: the diagram starts on the machine's clock, \
+             which will only be slewed towards the source's time (at most 1 ms/s); start again once the \
+             source has a fix to set the clock at once",
+            CLOCK_LOCK_WAIT.as_secs()
+        );
     }
 
     /// Warns about overflowing links at most once a second each, naming the link.
@@ -912,6 +976,7 @@ impl Engine {
             at: self.clock.now(),
             links,
             components,
+            clock: self.clock.status(),
         }
     }
 

@@ -9,5 +9,17 @@ pub mod scheduling;
 pub mod stats;
 
 pub use engine::{BuildError, ControlError, Engine, EngineState, LongWait, link_name};
+
+use std::sync::Arc;
+
+use kairos_sdk::{Clock, DisciplinedClock, RealTimeClock};
+
+/// The clock a diagram runs on: real time, or real time disciplined by its `clock_source`.
+pub fn clock_for(diagram: &kairos_diagram::Diagram) -> Arc<dyn Clock> {
+    match &diagram.clock_source {
+        Some(source) => Arc::new(DisciplinedClock::new(source.clone())),
+        None => RealTimeClock::shared(),
+    }
+}
 pub use packs::{PackScan, RefusedLibrary, load_packs, pack_path};
 pub use stats::{ComponentState, ComponentStats, LinkStats, StatsSnapshot};

@@ -85,6 +85,9 @@ pub struct StatsSnapshot {
     pub links: Vec<LinkStats>,
     /// Per component, in diagram order.
     pub components: Vec<ComponentStats>,
+    /// The clock, when a component of the diagram disciplines it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub clock: Option<kairos_sdk::ClockStatus>,
 }
 
 impl StatsSnapshot {
@@ -117,6 +120,24 @@ impl StatsSnapshot {
     pub fn table(&self) -> String {
         use std::fmt::Write as _;
         let mut out = String::new();
+        if let Some(clock) = &self.clock {
+            let state = serde_json::to_value(clock.state)
+                .ok()
+                .and_then(|v| v.as_str().map(str::to_owned))
+                .unwrap_or_default();
+            let _ = write!(
+                out,
+                "clock: follows '{}', {state}, error {:+.3} ms, stepped {:+.3} s at lock, {} references",
+                clock.source,
+                clock.error_ns as f64 * 1e-6,
+                clock.step_ns as f64 * 1e-9,
+                clock.references
+            );
+            if let Some(since) = clock.since_reference_s {
+                let _ = write!(out, ", the last {since:.1} s ago");
+            }
+            out.push('\n');
+        }
         let width = self.links.iter().map(|l| l.link.len()).max().unwrap_or(4).max(4);
         let _ = writeln!(
             out,

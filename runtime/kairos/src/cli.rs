@@ -47,6 +47,10 @@ pub enum Command {
         /// Override a property before running, e.g. `--set sine1.frequency=2.5` (repeatable).
         #[arg(long = "set", value_name = "ID.PROPERTY=VALUE")]
         overrides: Vec<String>,
+        /// Make the runtime clock follow this component's time (a GNSS receiver), overriding the
+        /// diagram's `clock_source`.
+        #[arg(long, value_name = "ID")]
+        clock_source: Option<String>,
     },
     /// Serve a headless runtime that the studio or any WebSocket client drives (the control protocol).
     Serve {
@@ -251,6 +255,7 @@ pub fn execute(cli: Cli) -> anyhow::Result<ExitCode> {
             stats,
             stats_interval,
             overrides,
+            clock_source,
         } => crate::run::run(
             &registry,
             &diagram,
@@ -258,6 +263,7 @@ pub fn execute(cli: Cli) -> anyhow::Result<ExitCode> {
                 duration,
                 stats: stats.then_some(stats_interval),
                 overrides,
+                clock_source,
                 searched: scan.searched.clone(),
             },
         ),

@@ -8,7 +8,7 @@ use std::time::{Duration, Instant};
 use anyhow::{Context as _, bail};
 use kairos_diagram::Value;
 use kairos_runtime::{ComponentState, Engine, StatsSnapshot};
-use kairos_sdk::{RealTimeClock, Registry};
+use kairos_sdk::Registry;
 
 /// How `kairos run` behaves.
 #[derive(Debug, Clone, Default)]
@@ -19,6 +19,8 @@ pub struct RunOptions {
     pub stats: Option<Duration>,
     /// Property overrides, `ID.PROPERTY=VALUE`.
     pub overrides: Vec<String>,
+    /// The component the clock follows, over the diagram's `clock_source`.
+    pub clock_source: Option<String>,
     /// The pack path searched, for messages about missing packs.
     pub searched: Vec<std::path::PathBuf>,
 }
@@ -63,6 +65,13 @@ pub fn run(registry: &Registry, path: &Path, options: &RunOptions) -> anyhow::Re
         };
         component.properties.insert(property, value);
     }
+    if let Some(source) = &options.clock_source {
+        if parsed.diagram.component(source).is_none() {
+            bail!("--clock-source '{source}': the diagram has no component '{source}'");
+        }
+        parsed.diagram.clock_source = Some(source.clone());
+        parsed.source_map.clock_source = None;
+    }
     let diagnostics = registry.validate(&parsed.diagram, Some(&parsed.source_map));
     if !diagnostics.is_empty() {
         eprint!(
@@ -80,7 +89,11 @@ pub fn run(registry: &Registry, path: &Path, options: &RunOptions) -> anyhow::Re
     })
     .context("installing the Ctrl-C handler")?;
 
-    let mut engine = match Engine::build(&parsed.diagram, registry, RealTimeClock::shared()) {
+    let mut engine = match Engine::build(
+        &parsed.diagram,
+        registry,
+        kairos_runtime::clock_for(&parsed.diagram),
+    ) {
         Ok(engine) => engine,
         Err(error) => bail!("{error}"),
     };

@@ -8,12 +8,12 @@ use std::sync::{Arc, Mutex, MutexGuard, PoisonError, TryLockError};
 
 use kairos_diagram::{Diagnostic, Diagram, Value};
 use kairos_protocol::{
-    ComponentTelemetry, DeployResult, ErrorCode, LatencyTelemetry, LinkTelemetry, ProtocolError,
-    RuntimeState, Telemetry,
+    ClockTelemetry, ComponentTelemetry, DeployResult, ErrorCode, LatencyTelemetry, LinkTelemetry,
+    ProtocolError, RuntimeState, Telemetry,
 };
 use kairos_runtime::{ComponentState, ControlError, Engine, EngineState, LongWait, StatsSnapshot};
+use kairos_sdk::Registry;
 use kairos_sdk::host::OutputBuffer;
-use kairos_sdk::{RealTimeClock, Registry};
 
 /// The deployed diagram, its text as deployed, and the engine built from it.
 #[derive(Default)]
@@ -120,6 +120,17 @@ fn telemetry(snapshot: &StatsSnapshot, state: RuntimeState) -> Telemetry {
                 status: c.status.clone(),
             })
             .collect(),
+        clock: snapshot.clock.as_ref().map(|clock| ClockTelemetry {
+            source: clock.source.clone(),
+            state: serde_json::to_value(clock.state)
+                .ok()
+                .and_then(|v| v.as_str().map(str::to_owned))
+                .unwrap_or_default(),
+            error_ns: clock.error_ns,
+            step_ns: clock.step_ns,
+            references: clock.references,
+            since_reference_s: clock.since_reference_s,
+        }),
     }
 }
 
@@ -185,8 +196,12 @@ impl Runtime {
         if diagnostics.iter().any(Diagnostic::is_error) {
             return Err(invalid(text, diagnostics));
         }
-        let engine = Engine::build(&parsed.diagram, &self.registry, RealTimeClock::shared())
-            .map_err(|e| error(ErrorCode::InvalidDiagram, e.to_string()))?;
+        let engine = Engine::build(
+            &parsed.diagram,
+            &self.registry,
+            kairos_runtime::clock_for(&parsed.diagram),
+        )
+        .map_err(|e| error(ErrorCode::InvalidDiagram, e.to_string()))?;
         let mut deployment = self.lock();
         if let Some(mut old) = deployment.engine.take() {
             old.stop();
@@ -217,7 +232,7 @@ impl Runtime {
             .as_ref()
             .is_none_or(|e| e.state() == EngineState::Stopped);
         if stale {
-            let engine = Engine::build(&diagram, &self.registry, RealTimeClock::shared())
+            let engine = Engine::build(&diagram, &self.registry, kairos_runtime::clock_for(&diagram))
                 .map_err(|e| error(ErrorCode::InvalidDiagram, e.to_string()))?;
             deployment.engine = Some(engine);
             deployment.previous = None;

@@ -1,0 +1,371 @@
+//! A runtime clock that follows a time source in the diagram (paper §2.3.1: "any component implementing
+//! the necessary interface can behave as a time source for the entire application"), such as a GNSS
+//! receiver's UTC.
+//!
+//! The clock is the monotonic clock plus an offset. The source gives references (the true time at a
+//! moment read on this clock); the first one steps the offset, every later one only *slews* it, at most
+//! [`MAX_SLEW`] seconds per second, so the clock never goes backwards after the first lock and never runs
+//! more than 0.1 % fast or slow. Among recent references the one that makes the clock latest is trusted:
+//! a reference can only arrive late (serial buffering, a busy thread), never early, so the latest one is
+//! the one delayed least.
+
+use std::collections::VecDeque;
+use std::sync::Mutex;
+use std::sync::atomic::{AtomicBool, AtomicI64, AtomicU64, Ordering};
+use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
+
+use crate::signal::RunSignal;
+use crate::time::{Clock, Timestamp};
+
+/// The most the offset moves per second of clock once locked: 1 ms/s.
+pub const MAX_SLEW: f64 = 1e-3;
+/// How many recent references the estimate looks at.
+const WINDOW: usize = 8;
+/// With no reference for this long the clock is in holdover; for ten times this long, lost.
+const HOLDOVER_AFTER: Duration = Duration::from_secs(3);
+/// An error larger than this after lock keeps the state at `slewing` rather than `locked`.
+const LOCKED_WITHIN_NS: i64 = 10_000_000;
+
+/// Where a disciplined clock stands.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ClockState {
+    /// No reference yet: the clock is the machine's wall clock.
+    Acquiring,
+    /// Following the source: the last error was under 10 ms.
+    Locked,
+    /// Following the source, still slewing away a larger error.
+    Slewing,
+    /// No reference for 3 s: running on, at the last rate.
+    Holdover,
+    /// No reference for 30 s.
+    Lost,
+}
+
+/// What a clock tells telemetry about itself.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct ClockStatus {
+    /// The component that is the time source.
+    pub source: String,
+    /// Where the clock stands.
+    pub state: ClockState,
+    /// The source's time minus this clock's at the last reference (after the correction so far), ns.
+    pub error_ns: i64,
+    /// What this clock adds to the machine's monotonic time (the total correction), ns since the epoch.
+    pub offset_ns: i64,
+    /// How far the first reference stepped the clock from the machine's wall clock, ns (0 when it came
+    /// too late to step).
+    pub step_ns: i64,
+    /// References taken in.
+    pub references: u64,
+    /// Seconds since the last reference, when there was one.
+    pub since_reference_s: Option<f64>,
+}
+
+/// The offset's course: from `from` at monotonic time `anchor`, moving towards `target` at
+/// [`MAX_SLEW`].
+#[derive(Debug, Clone, Copy)]
+struct Course {
+    /// Nanoseconds of monotonic time.
+    anchor: i64,
+    /// Nanoseconds of offset, at the anchor.
+    from: i64,
+    /// Nanoseconds of offset, where the course ends.
+    target: i64,
+}
+
+impl Course {
+    #[allow(
+        clippy::cast_possible_truncation,
+        clippy::cast_precision_loss,
+        reason = "nanoseconds of slew over a run fit an f64's 53 bits"
+    )]
+    fn offset_at(self, monotonic_ns: i64) -> i64 {
+        let elapsed = monotonic_ns.saturating_sub(self.anchor).max(0);
+        let most = (elapsed as f64 * MAX_SLEW) as i64;
+        let wanted = self.target.saturating_sub(self.from);
+        self.from.saturating_add(wanted.clamp(-most, most))
+    }
+}
+
+#[derive(Debug)]
+struct Discipline {
+    /// Recent references as (error against the clock's offset-free time, monotonic time taken).
+    recent: VecDeque<(i64, i64)>,
+    references: u64,
+    last_reference_ns: Option<i64>,
+    last_error_ns: i64,
+    step_ns: i64,
+}
+
+/// A clock disciplined by one component of the diagram. See the module's documentation.
+#[derive(Debug)]
+pub struct DisciplinedClock {
+    source: String,
+    start: Instant,
+    /// The course, published as three atomics behind a sequence counter so `now` never takes a lock.
+    version: AtomicU64,
+    anchor_ns: AtomicI64,
+    from_ns: AtomicI64,
+    target_ns: AtomicI64,
+    discipline: Mutex<Discipline>,
+    steps_allowed: AtomicBool,
+}
+
+impl DisciplinedClock {
+    /// A clock that `source` (a component's id) disciplines; until its first reference it reads the
+    /// machine's wall clock.
+    pub fn new(source: impl Into<String>) -> Self {
+        let wall = SystemTime::now()
+            .duration_since(UNIX_EPOCH)
+            .map_or(0, |d| i64::try_from(d.as_nanos()).unwrap_or(i64::MAX));
+        DisciplinedClock {
+            source: source.into(),
+            start: Instant::now(),
+            version: AtomicU64::new(0),
+            anchor_ns: AtomicI64::new(0),
+            from_ns: AtomicI64::new(wall),
+            target_ns: AtomicI64::new(wall),
+            discipline: Mutex::new(Discipline {
+                recent: VecDeque::with_capacity(WINDOW),
+                references: 0,
+                last_reference_ns: None,
+                last_error_ns: 0,
+                step_ns: 0,
+            }),
+            steps_allowed: AtomicBool::new(true),
+        }
+    }
+
+    fn monotonic_ns(&self) -> i64 {
+        i64::try_from(self.start.elapsed().as_nanos()).unwrap_or(i64::MAX)
+    }
+
+    fn course(&self) -> Course {
+        loop {
+            let before = self.version.load(Ordering::Acquire);
+            let course = Course {
+                anchor: self.anchor_ns.load(Ordering::Acquire),
+                from: self.from_ns.load(Ordering::Acquire),
+                target: self.target_ns.load(Ordering::Acquire),
+            };
+            if before.is_multiple_of(2) && self.version.load(Ordering::Acquire) == before {
+                return course;
+            }
+            std::hint::spin_loop();
+        }
+    }
+
+    /// Publishes a new course; callers hold the discipline's lock, so there is one writer at a time.
+    fn publish(&self, course: Course) {
+        self.version.fetch_add(1, Ordering::AcqRel);
+        self.anchor_ns.store(course.anchor, Ordering::Release);
+        self.from_ns.store(course.from, Ordering::Release);
+        self.target_ns.store(course.target, Ordering::Release);
+        self.version.fetch_add(1, Ordering::AcqRel);
+    }
+
+    /// Takes in a reference from `source`: at `measured_at` on this clock, the true time was `reference`.
+    /// Returns false (and changes nothing) for any other component.
+    pub fn take_reference(&self, source: &str, measured_at: Timestamp, reference: Timestamp) -> bool {
+        if source != self.source {
+            return false;
+        }
+        let Ok(mut discipline) = self.discipline.lock() else {
+            return false;
+        };
+        let now_monotonic = self.monotonic_ns();
+        let course = self.course();
+        // The monotonic time at which `measured_at` was read, and the offset the clock had then.
+        let offset_then = course.offset_at(now_monotonic);
+        let measured_monotonic = measured_at.as_nanos().saturating_sub(offset_then);
+        let wanted_offset = reference.as_nanos().saturating_sub(measured_monotonic);
+        discipline.recent.push_back((wanted_offset, now_monotonic));
+        while discipline.recent.len() > WINDOW {
+            discipline.recent.pop_front();
+        }
+        // A late reference asks for a smaller offset than a prompt one: trust the largest.
+        let best = discipline
+            .recent
+            .iter()
+            .map(|(offset, _)| *offset)
+            .max()
+            .unwrap_or(wanted_offset);
+        let first = discipline.references == 0;
+        let step = first && self.steps_allowed.load(Ordering::Acquire);
+        discipline.references += 1;
+        discipline.last_reference_ns = Some(now_monotonic);
+        // After the first step the clock agrees with its source.
+        discipline.last_error_ns = if step {
+            discipline.step_ns = best.saturating_sub(offset_then);
+            0
+        } else {
+            wanted_offset.saturating_sub(offset_then)
+        };
+        if step {
+            // The first lock steps the clock: from here on it only slews.
+            self.publish(Course {
+                anchor: now_monotonic,
+                from: best,
+                target: best,
+            });
+        } else {
+            self.publish(Course {
+                anchor: now_monotonic,
+                from: offset_then,
+                target: best,
+            });
+        }
+        true
+    }
+
+    /// Where the clock stands.
+    pub fn clock_status(&self) -> ClockStatus {
+        let discipline = self.discipline.lock().ok();
+        let monotonic = self.monotonic_ns();
+        let offset_ns = self.course().offset_at(monotonic);
+        let (references, last, error_ns, step_ns) = discipline.as_ref().map_or((0, None, 0, 0), |d| {
+            (d.references, d.last_reference_ns, d.last_error_ns, d.step_ns)
+        });
+        #[allow(clippy::cast_precision_loss, reason = "seconds for display")]
+        let since_reference_s = last.map(|at| (monotonic - at) as f64 * 1e-9);
+        let holdover = HOLDOVER_AFTER.as_secs_f64();
+        let state = match since_reference_s {
+            None => ClockState::Acquiring,
+            Some(since) if since > 10.0 * holdover => ClockState::Lost,
+            Some(since) if since > holdover => ClockState::Holdover,
+            Some(_) if error_ns.abs() > LOCKED_WITHIN_NS => ClockState::Slewing,
+            Some(_) => ClockState::Locked,
+        };
+        ClockStatus {
+            source: self.source.clone(),
+            state,
+            error_ns,
+            offset_ns,
+            step_ns,
+            references,
+            since_reference_s,
+        }
+    }
+}
+
+impl Clock for DisciplinedClock {
+    fn now(&self) -> Timestamp {
+        let monotonic = self.monotonic_ns();
+        Timestamp(monotonic.saturating_add(self.course().offset_at(monotonic)))
+    }
+
+    fn wait_until(&self, deadline: Timestamp, signal: &RunSignal) -> bool {
+        loop {
+            if signal.wants_attention() {
+                return false;
+            }
+            let now = self.now();
+            if now >= deadline {
+                return true;
+            }
+            signal.park_timeout(deadline.duration_since(now));
+        }
+    }
+
+    fn describe(&self) -> String {
+        format!(
+            "disciplined by component '{}' (slewed at most 1 ms/s after the first lock)",
+            self.source
+        )
+    }
+
+    fn take_reference(&self, source: &str, measured_at: Timestamp, reference: Timestamp) -> bool {
+        DisciplinedClock::take_reference(self, source, measured_at, reference)
+    }
+
+    fn forbid_steps(&self) {
+        self.steps_allowed.store(false, Ordering::Release);
+    }
+
+    fn status(&self) -> Option<ClockStatus> {
+        Some(self.clock_status())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use std::time::Duration;
+
+    use super::{ClockState, DisciplinedClock, MAX_SLEW};
+    use crate::time::{Clock, Timestamp};
+
+    const DAY: i64 = 86_400_000_000_000;
+
+    #[test]
+    fn the_first_reference_steps_the_clock_and_only_its_source_counts() {
+        let clock = DisciplinedClock::new("gnss");
+        assert_eq!(clock.clock_status().state, ClockState::Acquiring);
+        let before = clock.now();
+        // The receiver says it is a day earlier than the machine thinks.
+        assert!(!clock.take_reference("other", before, Timestamp(before.0 - DAY)));
+        assert!(clock.take_reference("gnss", before, Timestamp(before.0 - DAY)));
+        let after = clock.now();
+        assert!(
+            (after.0 - (before.0 - DAY)).abs() < 50_000_000,
+            "stepped to the receiver's time"
+        );
+        assert_eq!(clock.clock_status().state, ClockState::Locked);
+    }
+
+    #[test]
+    fn after_lock_the_clock_slews_at_most_a_millisecond_a_second_and_never_goes_back() {
+        let clock = DisciplinedClock::new("gnss");
+        let now = clock.now();
+        clock.take_reference("gnss", now, now);
+        // Now the receiver keeps saying the clock is 1 s ahead: it may only slow down, never step back.
+        for _ in 0..8 {
+            let now = clock.now();
+            clock.take_reference("gnss", now, Timestamp(now.0 - 1_000_000_000));
+        }
+        assert_eq!(clock.clock_status().state, ClockState::Slewing);
+        let offset_before = clock.clock_status().offset_ns;
+        let started = std::time::Instant::now();
+        let mut previous = clock.now();
+        while started.elapsed() < Duration::from_millis(200) {
+            let reading = clock.now();
+            assert!(reading >= previous, "the clock went backwards");
+            previous = reading;
+        }
+        let slewed = offset_before - clock.clock_status().offset_ns;
+        #[allow(clippy::cast_precision_loss, reason = "a bound in nanoseconds")]
+        let most = started.elapsed().as_nanos() as f64 * MAX_SLEW + 10_000.0;
+        #[allow(clippy::cast_precision_loss, reason = "a bound in nanoseconds")]
+        let slewed_f = slewed as f64;
+        assert!(
+            slewed > 0 && slewed_f <= most,
+            "slewed {slewed} ns, at most {most}"
+        );
+    }
+
+    #[test]
+    fn once_steps_are_forbidden_a_first_reference_only_slews() {
+        let clock = DisciplinedClock::new("gnss");
+        clock.forbid_steps();
+        let now = clock.now();
+        clock.take_reference("gnss", now, Timestamp(now.0 - DAY));
+        let after = clock.now();
+        assert!(after >= now, "no step back");
+        let status = clock.clock_status();
+        assert_eq!((status.state, status.step_ns), (ClockState::Slewing, 0));
+        assert!(status.error_ns < -DAY / 2);
+    }
+
+    #[test]
+    fn late_references_do_not_pull_the_clock_back() {
+        let clock = DisciplinedClock::new("gnss");
+        let now = clock.now();
+        clock.take_reference("gnss", now, now);
+        let offset = clock.clock_status().offset_ns;
+        // A reference that arrived 80 ms late says the clock is 80 ms ahead; the prompt one wins.
+        let now = clock.now();
+        clock.take_reference("gnss", now, Timestamp(now.0 - 80_000_000));
+        std::thread::sleep(Duration::from_millis(20));
+        assert!(clock.clock_status().offset_ns >= offset - 1_000_000);
+    }
+}
