@@ -1,0 +1,371 @@
+//! `can.socketcan_reader` and `can.socketcan_writer`: a live bus through Linux SocketCAN, classic CAN or
+//! CAN FD, on the `socketcan` crate.
+
+use std::io::ErrorKind;
+use std::path::Path;
+use std::time::Duration;
+
+use kairos_sdk::descriptor::{Descriptor, Property};
+use kairos_sdk::{
+    CanFrame, Component, ComponentError, ComponentInfo, ComponentResult, Context, DataType, Payload,
+    ReaderPolicy, TypeFilter, Value,
+};
+use kairos_sdk::{STATUS_PERIOD, Throttle};
+use socketcan::{
+    CanAnyFrame, CanDataFrame, CanErrorFrame, CanFdFrame, CanFdSocket, CanFilter, CanFrame as BusFrame,
+    CanSocket, EmbeddedFrame, ExtendedId, Frame as _, Id, Socket, SocketOptions, StandardId,
+};
+
+/// How long one read waits, so stop and control requests get through.
+const READ_WAIT: Duration = Duration::from_millis(50);
+
+fn failed(error: impl std::fmt::Display) -> ComponentError {
+    ComponentError::failed(error)
+}
+
+/// Parses `filters`: comma-separated `ID` (that identifier alone) or `ID:MASK` (the identifiers whose
+/// masked bits equal ID's), hexadecimal with or without `0x`. Empty: every frame.
+pub fn parse_filters(text: &str) -> Result<Vec<(u32, u32)>, String> {
+    let hex = |part: &str| {
+        let digits = part.trim().trim_start_matches("0x").trim_start_matches("0X");
+        u32::from_str_radix(digits, 16)
+            .map_err(|_| format!("{:?} is not a hexadecimal identifier", part.trim()))
+    };
+    text.split(',')
+        .filter(|part| !part.trim().is_empty())
+        .map(|part| match part.split_once(':') {
+            Some((id, mask)) => Ok((hex(id)?, hex(mask)?)),
+            // One identifier: every one of its bits must match (an extended one's 29).
+            None => hex(part).map(|id| (id, if id > 0x7FF { 0x1FFF_FFFF } else { 0x7FF })),
+        })
+        .collect()
+}
+
+/// Why an interface cannot be opened, in words that say what to do.
+fn open_error(interface: &str, error: &std::io::Error) -> String {
+    if !Path::new("/proc/net/can").exists() {
+        return format!(
+            "cannot open CAN interface '{interface}': this system has no SocketCAN ({error}); load the \
+             kernel's can and can_raw modules (modprobe can_raw)"
+        );
+    }
+    if error.raw_os_error() == Some(libc_enodev()) || error.kind() == ErrorKind::NotFound {
+        return format!(
+            "no CAN interface '{interface}' ({error}); `kairos devices` lists those present; a virtual bus: \
+             ip link add dev vcan0 type vcan && ip link set up vcan0"
+        );
+    }
+    format!("cannot open CAN interface '{interface}': {error}")
+}
+
+/// `ENODEV`, the error for a network interface that does not exist.
+const fn libc_enodev() -> i32 {
+    19
+}
+
+/// `ENOBUFS`: the interface's transmit queue is full.
+const ENOBUFS: i32 = 105;
+
+/// An open bus: classic frames only, or classic and FD.
+#[derive(Debug)]
+enum Bus {
+    Classic(CanSocket),
+    Fd(CanFdSocket),
+}
+
+/// What one read gave.
+#[derive(Debug)]
+enum Received {
+    Frame(CanFrame),
+    Remote,
+    Error(String),
+    /// More data than a frame holds: cannot come from the kernel, counted if it ever does.
+    Oversized,
+}
+
+impl Bus {
+    fn open(interface: &str, fd: bool, filters: &[(u32, u32)]) -> Result<Self, String> {
+        let bus = if fd {
+            CanFdSocket::open(interface).map(Bus::Fd)
+        } else {
+            CanSocket::open(interface).map(Bus::Classic)
+        }
+        .map_err(|e| open_error(interface, &e))?;
+        let filters: Vec<CanFilter> = filters
+            .iter()
+            .map(|(id, mask)| CanFilter::new(*id, *mask))
+            .collect();
+        let configured = match &bus {
+            Bus::Classic(socket) => Self::configure(socket, &filters),
+            Bus::Fd(socket) => Self::configure(socket, &filters),
+        };
+        configured.map_err(|e| format!("cannot configure CAN interface '{interface}': {e}"))?;
+        Ok(bus)
+    }
+
+    fn configure<S: Socket + SocketOptions>(socket: &S, filters: &[CanFilter]) -> std::io::Result<()> {
+        if !filters.is_empty() {
+            socket.set_filters(filters)?;
+        }
+        // Error frames are counted and reported, never mistaken for data.
+        socket.set_error_filter_accept_all()?;
+        socket.set_read_timeout(READ_WAIT)
+    }
+
+    fn read(&self) -> std::io::Result<Received> {
+        Ok(match self {
+            Bus::Classic(socket) => match socket.read_frame()? {
+                BusFrame::Data(frame) => converted(frame.raw_id(), frame.is_extended(), frame.data(), false),
+                BusFrame::Remote(_) => Received::Remote,
+                BusFrame::Error(frame) => Received::Error(error_text(frame)),
+            },
+            Bus::Fd(socket) => match socket.read_frame()? {
+                CanAnyFrame::Normal(frame) => {
+                    converted(frame.raw_id(), frame.is_extended(), frame.data(), false)
+                }
+                CanAnyFrame::Fd(frame) => converted(frame.raw_id(), frame.is_extended(), frame.data(), true),
+                CanAnyFrame::Remote(_) => Received::Remote,
+                CanAnyFrame::Error(frame) => Received::Error(error_text(frame)),
+            },
+        })
+    }
+
+    fn write(&self, frame: &CanFrame) -> Result<(), String> {
+        let id: Id = if frame.extended {
+            ExtendedId::new(frame.id).map(Id::Extended)
+        } else {
+            u16::try_from(frame.id)
+                .ok()
+                .and_then(StandardId::new)
+                .map(Id::Standard)
+        }
+        .ok_or_else(|| {
+            format!(
+                "{:#x} is not a valid {} identifier",
+                frame.id,
+                if frame.extended { "29-bit" } else { "11-bit" }
+            )
+        })?;
+        let written = match self {
+            Bus::Classic(socket) => {
+                if frame.fd || frame.data().len() > 8 {
+                    return Err("a CAN FD frame on a classic socket: set 'fd' to send it".to_owned());
+                }
+                let data = CanDataFrame::new(id, frame.data()).ok_or("a frame the bus cannot carry")?;
+                socket.write_frame(&data)
+            }
+            Bus::Fd(socket) if frame.fd || frame.data().len() > 8 => {
+                let data = CanFdFrame::new(id, frame.data()).ok_or("a frame the bus cannot carry")?;
+                socket.write_frame(&data)
+            }
+            Bus::Fd(socket) => {
+                let data = CanDataFrame::new(id, frame.data()).ok_or("a frame the bus cannot carry")?;
+                socket.write_frame(&data)
+            }
+        };
+        written.map_err(|e| {
+            if e.raw_os_error() == Some(ENOBUFS) {
+                "the interface's transmit queue is full (the bus is saturated, or nobody acknowledges)"
+                    .to_owned()
+            } else {
+                e.to_string()
+            }
+        })
+    }
+}
+
+/// A received data frame as a sample's frame.
+fn converted(id: u32, extended: bool, data: &[u8], fd: bool) -> Received {
+    match CanFrame::new(id, extended, data) {
+        Some(mut frame) => {
+            frame.fd |= fd;
+            Received::Frame(frame)
+        }
+        None => Received::Oversized,
+    }
+}
+
+fn error_text(frame: CanErrorFrame) -> String {
+    socketcan::CanError::from(frame).to_string()
+}
+
+fn interface_property() -> Property {
+    Property::text("interface", "can0")
+        .doc("The SocketCAN interface (can0, vcan0); `kairos devices` lists them")
+}
+
+fn fd_property() -> Property {
+    Property::bool("fd", false)
+        .doc("CAN FD: frames of up to 64 bytes (the interface must be configured for FD)")
+}
+
+/// The descriptor of `can.socketcan_reader`.
+pub fn reader_descriptor() -> ComponentInfo {
+    Descriptor::new(
+        "can.socketcan_reader",
+        "CAN",
+        "Reads a live CAN bus through SocketCAN: one frame sample per data frame, stamped on reception; \
+         error frames counted and reported",
+    )
+    .label("CAN bus reader (SocketCAN)")
+    .output("frame", DataType::CanFrame, "Each data frame received")
+    .property(interface_property())
+    .property(fd_property())
+    .property(Property::text("filters", "").doc(
+        "Only these frames (the kernel filters them): comma-separated hexadecimal IDs, or ID:MASK pairs \
+         (100, 18FF0000:1FFF0000); empty: every frame",
+    ))
+    .build()
+}
+
+/// `can.socketcan_reader`. See [`reader_descriptor`].
+#[derive(Debug, Default)]
+pub struct SocketCanReader {
+    bus: Option<Bus>,
+    interface: String,
+    frames: u64,
+    remote: u64,
+    errors: u64,
+    last_error: String,
+    warnings: Throttle,
+    published: Throttle,
+}
+
+impl Component for SocketCanReader {
+    fn birth(&mut self, ctx: &mut Context) -> ComponentResult {
+        self.interface = ctx.text_property("interface")?;
+        let filters = parse_filters(&ctx.text_property("filters")?)
+            .map_err(|e| failed(format_args!("filters: {e}")))?;
+        self.bus = Some(Bus::open(&self.interface, ctx.bool_property("fd")?, &filters).map_err(failed)?);
+        Ok(())
+    }
+
+    fn core(&mut self, ctx: &mut Context) -> ComponentResult {
+        let Some(bus) = &self.bus else {
+            return Err(ComponentError::Stopped);
+        };
+        match bus.read() {
+            Ok(Received::Frame(frame)) => {
+                self.frames += 1;
+                let now = ctx.now();
+                ctx.write_at("frame", Payload::CanFrame(frame), now)?;
+            }
+            Ok(Received::Remote | Received::Oversized) => self.remote += 1,
+            Ok(Received::Error(what)) => {
+                self.errors += 1;
+                let (interface, count) = (&self.interface, self.errors);
+                self.warnings
+                    .warn(|| format!("{interface}: error frame: {what} ({count} in all)"));
+                self.last_error = what;
+            }
+            Err(e)
+                if matches!(
+                    e.kind(),
+                    ErrorKind::WouldBlock | ErrorKind::TimedOut | ErrorKind::Interrupted
+                ) => {}
+            Err(e) => {
+                // The interface went down, or away: say so once a second and keep trying.
+                let interface = &self.interface;
+                self.warnings.warn(|| format!("{interface}: {e}; reading again"));
+                ctx.sleep(READ_WAIT)?;
+            }
+        }
+        if self.published.ready(STATUS_PERIOD) {
+            ctx.set_status(serde_json::json!({
+                "kind": "can", "interface": self.interface, "frames": self.frames, "remote_frames": self.remote,
+                "error_frames": self.errors, "last_error": self.last_error,
+            }));
+        }
+        Ok(())
+    }
+
+    fn property_changed(&mut self, _name: &str, _value: &Value, _ctx: &mut Context) -> ComponentResult {
+        Ok(())
+    }
+}
+
+/// The descriptor of `can.socketcan_writer`.
+pub fn writer_descriptor() -> ComponentInfo {
+    Descriptor::new(
+        "can.socketcan_writer",
+        "CAN",
+        "Sends each frame sample on a live CAN bus through SocketCAN",
+    )
+    .label("CAN bus writer (SocketCAN)")
+    .input_with_policy(
+        "frame",
+        TypeFilter::OneOf(vec![DataType::CanFrame]),
+        ReaderPolicy::Fifo,
+        "The frames to send",
+    )
+    .property(interface_property())
+    .property(fd_property())
+    .build()
+}
+
+/// `can.socketcan_writer`. See [`writer_descriptor`].
+#[derive(Debug, Default)]
+pub struct SocketCanWriter {
+    bus: Option<Bus>,
+    interface: String,
+    sent: u64,
+    not_sent: u64,
+    warnings: Throttle,
+    published: Throttle,
+}
+
+impl Component for SocketCanWriter {
+    fn birth(&mut self, ctx: &mut Context) -> ComponentResult {
+        self.interface = ctx.text_property("interface")?;
+        self.bus = Some(Bus::open(&self.interface, ctx.bool_property("fd")?, &[]).map_err(failed)?);
+        Ok(())
+    }
+
+    fn core(&mut self, ctx: &mut Context) -> ComponentResult {
+        let sample = ctx.read("frame")?;
+        let Payload::CanFrame(frame) = &sample.payload else {
+            return Err(failed(format_args!(
+                "expected a CAN frame, got {}",
+                sample.payload.data_type()
+            )));
+        };
+        let Some(bus) = &self.bus else {
+            return Err(ComponentError::Stopped);
+        };
+        match bus.write(frame) {
+            Ok(()) => self.sent += 1,
+            Err(why) => {
+                self.not_sent += 1;
+                let (interface, count) = (&self.interface, self.not_sent);
+                self.warnings
+                    .warn(|| format!("{interface}: frame not sent: {why} ({count} in all)"));
+            }
+        }
+        if self.published.ready(STATUS_PERIOD) {
+            ctx.set_status(serde_json::json!({
+                "kind": "can", "interface": self.interface, "sent": self.sent, "not_sent": self.not_sent,
+            }));
+        }
+        Ok(())
+    }
+
+    fn property_changed(&mut self, _name: &str, _value: &Value, _ctx: &mut Context) -> ComponentResult {
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::parse_filters;
+
+    #[test]
+    fn filters_are_identifiers_or_identifier_mask_pairs_in_hexadecimal() {
+        assert_eq!(parse_filters(""), Ok(vec![]));
+        assert_eq!(
+            parse_filters("100, 0x18FF0000:1FFF0000"),
+            Ok(vec![(0x100, 0x7FF), (0x18FF_0000, 0x1FFF_0000)])
+        );
+        assert_eq!(parse_filters("18FEF100"), Ok(vec![(0x18FE_F100, 0x1FFF_FFFF)]));
+        assert!(parse_filters("12G").unwrap_err().contains("\"12G\""));
+    }
+}
