@@ -436,6 +436,36 @@ fn clients_that_flood_vanish_or_never_read_do_not_disturb_a_running_diagram() {
 }
 
 #[test]
+fn devices_lists_what_kairos_devices_lists_and_the_library_marks_the_properties_naming_them() {
+    let _machine = shared_machine();
+    let dir = tempfile::tempdir().unwrap();
+    let server = serve(dir.path(), &[]);
+    let mut socket = operator(&server);
+    let reply = call(&mut socket, &json!({"id": 5, "type": "devices"}));
+    assert_eq!(reply["ok"], true, "{reply}");
+    let listed = common::kairos(dir.path(), &["devices", "--json"]);
+    let listed: Value = serde_json::from_slice(&listed.stdout).unwrap();
+    assert_eq!(
+        reply["result"]["devices"], listed,
+        "the protocol and the command agree"
+    );
+    let library = call(&mut socket, &json!({"id": 6, "type": "library"}));
+    let kind_of = |type_name: &str, property: &str| {
+        library["result"]["components"][type_name]["properties"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|p| p["name"] == property)
+            .map(|p| p["device"].clone())
+            .unwrap()
+    };
+    assert_eq!(kind_of("gnss.nmea", "device"), "serial");
+    assert_eq!(kind_of("serial.reader", "device"), "serial");
+    assert_eq!(kind_of("can.socketcan_reader", "interface"), "can");
+    assert_eq!(kind_of("gnss.nmea", "path"), Value::Null);
+}
+
+#[test]
 fn a_sample_subscription_gets_the_latest_frames_at_the_asked_rate() {
     let _machine = shared_machine();
     let dir = tempfile::tempdir().unwrap();

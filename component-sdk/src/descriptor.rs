@@ -15,8 +15,8 @@
 //! ```
 
 use kairos_diagram::{
-    ActionInfo, ComponentInfo, DataType, ExecutionMode, InputInfo, OutputInfo, PropertyInfo, PropertyKind,
-    ReaderPolicy, TypeFilter, Value,
+    ActionInfo, ComponentInfo, DataType, DeviceKind, ExecutionMode, InputInfo, OutputInfo, PropertyInfo,
+    PropertyKind, ReaderPolicy, TypeFilter, Value,
 };
 
 /// The buffer size an output gets unless its descriptor or the diagram says otherwise.
@@ -165,8 +165,16 @@ impl Property {
                 live: false,
                 doc: String::new(),
                 unit: String::new(),
+                device: None,
             },
         }
+    }
+
+    /// Marks the property as naming a device of `kind`: the studio offers the devices of that kind
+    /// present on the runtime's machine.
+    pub fn device(mut self, kind: DeviceKind) -> Self {
+        self.info.device = Some(kind);
+        self
     }
 
     /// A float property.

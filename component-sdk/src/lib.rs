@@ -48,8 +48,8 @@ pub use component::{
 };
 pub use disciplined::{ClockState, ClockStatus, DisciplinedClock};
 pub use kairos_diagram::{
-    ComponentInfo, DataType, DescribeError, ExecutionMode, LibraryInfo, OutputInfo, PackInfo, PropertyKind,
-    ReaderPolicy, TypeFilter, Value,
+    ComponentInfo, DataType, DescribeError, DeviceKind, ExecutionMode, LibraryInfo, OutputInfo, PackInfo,
+    PropertyKind, ReaderPolicy, TypeFilter, Value,
 };
 pub use payload::{
     CanFrame, CustomPayload, FixStatus, GnssFix, Image, Imu, Matrix, Payload, PixelFormat, PointCloud, Pose,

@@ -29,9 +29,9 @@ pub use diagnostic::{
     Diagnostic, DiagnosticCode, Location, Note, Severity, closest, did_you_mean, render_all,
 };
 pub use library::{
-    ActionInfo, ComponentInfo, DataType, DescribeError, ExecutionMode, InputInfo, InstanceInfos, LibraryInfo,
-    OutputInfo, PackInfo, PropertyInfo, PropertyKind, ReaderPolicy, TypeFilter, Value, ValueError,
-    readable_type_name,
+    ActionInfo, ComponentInfo, DataType, DescribeError, DeviceKind, ExecutionMode, InputInfo, InstanceInfos,
+    LibraryInfo, OutputInfo, PackInfo, PropertyInfo, PropertyKind, ReaderPolicy, TypeFilter, Value,
+    ValueError, readable_type_name,
 };
 pub use model::{
     ComponentInstance, Connection, Diagram, FORMAT_VERSION, MAX_BUFFER_SIZE, OutputSettings, PackRequirement,

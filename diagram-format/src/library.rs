@@ -96,6 +96,35 @@ impl fmt::Display for DataType {
     }
 }
 
+/// A kind of device a property can name.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum DeviceKind {
+    /// A serial port (`/dev/ttyUSB0`).
+    Serial,
+    /// A CAN interface (`can0`).
+    Can,
+    /// A camera (`/dev/video0`).
+    Camera,
+}
+
+impl DeviceKind {
+    /// The name used in listings and the protocol (`serial`, `can`, `camera`).
+    pub fn name(self) -> &'static str {
+        match self {
+            DeviceKind::Serial => "serial",
+            DeviceKind::Can => "can",
+            DeviceKind::Camera => "camera",
+        }
+    }
+}
+
+impl fmt::Display for DeviceKind {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
 /// Which output types an input accepts.
 #[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
@@ -490,6 +519,10 @@ pub struct PropertyInfo {
     /// The unit of a number (`Hz`, `m`, `ms`); empty when it has none.
     #[serde(default, skip_serializing_if = "String::is_empty")]
     pub unit: String,
+    /// The kind of device the property names (a serial port, a CAN interface, a camera), so an editor
+    /// can offer the devices present.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub device: Option<DeviceKind>,
 }
 
 /// One action: a button a user may press at any time.

@@ -390,6 +390,7 @@ impl StudioApp {
                 why,
             } => self.session.field_refused(&component, &property, why),
             Command::SetReader { from, to, settings } => self.session.set_reader(&from, &to, settings),
+            Command::RefreshDevices => self.session.refresh_devices(),
             Command::SetClockSource(source) => {
                 self.session
                     .document

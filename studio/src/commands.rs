@@ -104,6 +104,8 @@ pub enum Command {
         /// The new settings.
         settings: ReaderSettings,
     },
+    /// Ask the runtime for the devices of its machine again.
+    RefreshDevices,
     /// Make the runtime clock follow a component (a GNSS receiver), or no component.
     SetClockSource(Option<String>),
     /// Trigger a component's action.

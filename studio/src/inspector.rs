@@ -198,6 +198,9 @@ fn property_ui(
             ui.label(RichText::new("live").small().weak())
                 .on_hover_text("changes apply at once while the diagram runs");
         }
+        if let Some(kind) = property.device {
+            device_picker(ui, session, kind, &mut edited, commands);
+        }
     });
     if let Err(error) = property.kind.check(&edited) {
         ui.colored_label(Color32::LIGHT_RED, error.to_string());
@@ -217,6 +220,53 @@ fn property_ui(
             property: property.name.clone(),
             why,
         });
+    }
+}
+
+/// The devices of `kind` on the runtime's machine, to pick one for a property naming such a device; asked
+/// of the runtime the first time one is shown, and again with the refresh button.
+fn device_picker(
+    ui: &mut egui::Ui,
+    session: &Session,
+    kind: kairos_diagram::DeviceKind,
+    edited: &mut Value,
+    commands: &mut Vec<Command>,
+) {
+    let Some(devices) = session.devices() else {
+        if session.runtime().is_some_and(|r| r.connected) {
+            commands.push(Command::RefreshDevices);
+        }
+        return;
+    };
+    let present: Vec<_> = devices.iter().filter(|d| d.kind == kind).collect();
+    let label = if present.is_empty() {
+        format!("no {kind} here")
+    } else {
+        format!("{} present", present.len())
+    };
+    egui::ComboBox::from_id_salt(("devices", kind))
+        .selected_text(label)
+        .show_ui(ui, |ui| {
+            for device in &present {
+                let chosen = matches!(edited, Value::Text(text) if *text == device.path);
+                let text = if device.description.is_empty() {
+                    device.path.clone()
+                } else {
+                    format!("{} — {}", device.path, device.description)
+                };
+                if ui.selectable_label(chosen, text).clicked() {
+                    *edited = Value::Text(device.path.clone());
+                }
+            }
+        })
+        .response
+        .on_hover_text(format!("The {kind} devices of the runtime's machine"));
+    if ui
+        .small_button("↻")
+        .on_hover_text("Look for devices again")
+        .clicked()
+    {
+        commands.push(Command::RefreshDevices);
     }
 }
 

@@ -70,6 +70,8 @@ enum Pending {
     Samples,
     /// A deploy (of the text kept in `Deploy`).
     Deploy,
+    /// The devices of the runtime's machine.
+    Devices,
     /// Anything whose answer only matters when it is an error.
     Other,
 }
@@ -184,6 +186,10 @@ pub struct Session {
     run_state: RuntimeState,
     /// The runtime clock, when a component disciplines it.
     clock: Option<kairos_protocol::ClockTelemetry>,
+    /// The devices of the runtime's machine, once asked (`None`: never asked, or asked of another
+    /// runtime); `devices_asked` while a request is out.
+    devices: Option<Vec<kairos_protocol::DeviceInfo>>,
+    devices_asked: bool,
     states: BTreeMap<String, NodeState>,
     next_request: u64,
     pending: BTreeMap<u64, Pending>,
@@ -221,6 +227,8 @@ impl Session {
             runtime: None,
             run_state: RuntimeState::Empty,
             clock: None,
+            devices: None,
+            devices_asked: false,
             states: BTreeMap::new(),
             next_request: FIRST_REQUEST_ID,
             pending: BTreeMap::new(),
@@ -257,6 +265,19 @@ impl Session {
     /// Where the runtime is, as its telemetry last said.
     pub fn run_state(&self) -> RuntimeState {
         self.run_state
+    }
+
+    /// The devices of the runtime's machine, once the runtime has said.
+    pub fn devices(&self) -> Option<&[kairos_protocol::DeviceInfo]> {
+        self.devices.as_deref()
+    }
+
+    /// Asks the runtime for its devices (again); one request at a time.
+    pub fn refresh_devices(&mut self) {
+        if !self.devices_asked {
+            self.devices_asked = true;
+            self.request_for(RequestBody::Devices, Pending::Devices);
+        }
     }
 
     /// The runtime clock, when a component of the running diagram disciplines it.
@@ -424,6 +445,9 @@ impl Session {
         };
         self.succeeded(format!("connected to {} ({:?})", welcome.server, welcome.role));
         self.request_for(RequestBody::Library, Pending::Library);
+        // Another runtime, maybe another machine: its devices are asked for when a picker needs them.
+        self.devices = None;
+        self.devices_asked = false;
         self.request(RequestBody::SubscribeTelemetry {
             interval_ms: TELEMETRY_INTERVAL_MS,
         });
@@ -460,6 +484,11 @@ impl Session {
                 self.socket_instead(&error.message);
                 return;
             }
+            Some(Pending::Devices) => {
+                // A runtime that cannot list its devices: the pickers say there are none.
+                self.devices_asked = false;
+                self.devices = Some(Vec::new());
+            }
             Some(Pending::Describe) => {
                 // A diagram the runtime cannot parse yet: the editor keeps the type's ports.
                 self.described.awaiting = false;
@@ -488,6 +517,10 @@ impl Session {
                 if let Some(services) = subscribed.services {
                     self.effects.push(Effect::ReadShared(services));
                 }
+            }
+            (Some(Pending::Devices), ReplyBody::Devices(list)) => {
+                self.devices_asked = false;
+                self.devices = Some(list.devices);
             }
             (Some(Pending::Describe), ReplyBody::DescribeInstances(described)) => {
                 self.described.awaiting = false;

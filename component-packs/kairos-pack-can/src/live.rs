@@ -10,7 +10,7 @@ use kairos_sdk::{
     CanFrame, Component, ComponentError, ComponentInfo, ComponentResult, Context, DataType, Payload,
     ReaderPolicy, TypeFilter, Value,
 };
-use kairos_sdk::{STATUS_PERIOD, Throttle};
+use kairos_sdk::{DeviceKind, STATUS_PERIOD, Throttle};
 use socketcan::{
     CanAnyFrame, CanDataFrame, CanErrorFrame, CanFdFrame, CanFdSocket, CanFilter, CanFrame as BusFrame,
     CanSocket, EmbeddedFrame, ExtendedId, Frame as _, Id, Socket, SocketOptions, StandardId,
@@ -192,6 +192,7 @@ fn error_text(frame: CanErrorFrame) -> String {
 fn interface_property() -> Property {
     Property::text("interface", "can0")
         .doc("The SocketCAN interface (can0, vcan0); `kairos devices` lists them")
+        .device(DeviceKind::Can)
 }
 
 fn fd_property() -> Property {

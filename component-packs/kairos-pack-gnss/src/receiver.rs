@@ -7,7 +7,7 @@ use kairos_sdk::{
     Component, ComponentError, ComponentInfo, ComponentResult, Context, DataType, FixStatus, GnssFix,
     Payload, Timestamp, Value,
 };
-use kairos_sdk::{STATUS_PERIOD, Throttle, WARNING_PERIOD};
+use kairos_sdk::{DeviceKind, STATUS_PERIOD, Throttle, WARNING_PERIOD};
 
 use kairos_pack_serial::link::{Endpoint, LiveSource, SerialSettings, file_lines};
 
@@ -66,7 +66,11 @@ pub fn descriptor() -> ComponentInfo {
         Property::choice("source", &["serial", "udp", "tcp", "file"], "serial")
             .doc("Where the sentences come from"),
     )
-    .property(Property::path("device", "/dev/ttyUSB0").doc("Serial: the port"))
+    .property(
+        Property::path("device", "/dev/ttyUSB0")
+            .doc("Serial: the port")
+            .device(DeviceKind::Serial),
+    )
     .property(
         Property::i64("baud", 9600)
             .unit("bit/s")

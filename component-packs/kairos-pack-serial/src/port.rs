@@ -10,7 +10,7 @@ use kairos_sdk::{
     Component, ComponentError, ComponentInfo, ComponentResult, Context, DataType, Payload, ReaderPolicy,
     TypeFilter, Value,
 };
-use kairos_sdk::{STATUS_PERIOD, Throttle};
+use kairos_sdk::{DeviceKind, STATUS_PERIOD, Throttle};
 
 use crate::link::{Endpoint, LiveSource, REOPEN_AFTER, SerialSettings};
 
@@ -20,7 +20,11 @@ pub const LONGEST_LINE: usize = 64 * 1024;
 /// The properties every serial component has.
 pub fn serial_properties(descriptor: Descriptor) -> Descriptor {
     descriptor
-        .property(Property::path("device", "/dev/ttyUSB0").doc("The port"))
+        .property(
+            Property::path("device", "/dev/ttyUSB0")
+                .doc("The port")
+                .device(DeviceKind::Serial),
+        )
         .property(
             Property::i64("baud", 115_200)
                 .unit("bit/s")

@@ -26,6 +26,7 @@ fn output(name: &str, data_type: DataType) -> OutputInfo {
 
 fn property(name: &str, kind: PropertyKind, default: Value) -> PropertyInfo {
     PropertyInfo {
+        device: None,
         name: name.to_owned(),
         kind,
         default,

@@ -160,6 +160,8 @@ requests! {
     } => Described, Monitor;
     /// The deployed diagram's text.
     GetDiagram = "get_diagram" => DiagramReply, Monitor;
+    /// The serial ports, CAN interfaces and cameras of the runtime's machine.
+    Devices = "devices" => DeviceList, Monitor;
     /// Validates a diagram (RON text) and, if valid, makes it the runtime's diagram, stopping the old one.
     Deploy = "deploy" {
         /// The diagram file's text.
@@ -759,6 +761,24 @@ pub struct ClockTelemetry {
     /// Seconds since the last one.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub since_reference_s: Option<f64>,
+}
+
+/// The result of `devices`.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct DeviceList {
+    /// Serial ports first, each kind by path.
+    pub devices: Vec<DeviceInfo>,
+}
+
+/// One device of the runtime's machine.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct DeviceInfo {
+    /// Its kind; a property marked with the same kind names such devices.
+    pub kind: kairos_diagram::DeviceKind,
+    /// What a property takes: a device path (`/dev/ttyUSB0`) or an interface name (`can0`).
+    pub path: String,
+    /// What it is, where the system says (`FTDI FT232R USB UART`, `UVC Camera`), and a state.
+    pub description: String,
 }
 
 /// One log record.

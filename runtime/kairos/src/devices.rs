@@ -4,18 +4,8 @@
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
-use serde::Serialize;
-
-/// One device.
-#[derive(Debug, Clone, PartialEq, Eq, Serialize)]
-pub struct Device {
-    /// `serial`, `can` or `camera`.
-    pub kind: String,
-    /// What a component's property takes: a device path (`/dev/ttyUSB0`) or an interface name (`can0`).
-    pub path: String,
-    /// What it is, where the system says (`FTDI FT232R USB UART`, `UVC Camera`), and a state.
-    pub description: String,
-}
+pub use kairos_protocol::DeviceInfo as Device;
+use kairos_sdk::DeviceKind;
 
 /// The devices under `root` (`/` but in tests), serial ports first, each kind by path.
 pub fn list(root: &Path) -> Vec<Device> {
@@ -65,7 +55,7 @@ fn serial_ports(root: &Path) -> Vec<Device> {
             .map_or_else(|| name_of(&link), |(name, _)| name.to_owned())
             .replace('_', " ");
         ports.push(Device {
-            kind: "serial".to_owned(),
+            kind: DeviceKind::Serial,
             path: format!("/dev/{port}"),
             description: format!(
                 "{description} ({})",
@@ -80,7 +70,7 @@ fn serial_ports(root: &Path) -> Vec<Device> {
         let known = ports.iter().any(|p| p.path == format!("/dev/{name}"));
         if !known && SERIAL_PREFIXES.iter().any(|prefix| name.starts_with(prefix)) {
             ports.push(Device {
-                kind: "serial".to_owned(),
+                kind: DeviceKind::Serial,
                 path: format!("/dev/{name}"),
                 description: "serial port".to_owned(),
             });
@@ -96,7 +86,7 @@ fn can_interfaces(root: &Path) -> Vec<Device> {
         .into_iter()
         .filter(|interface| read_trimmed(&interface.join("type")).as_deref() == Some("280"))
         .map(|interface| Device {
-            kind: "can".to_owned(),
+            kind: DeviceKind::Can,
             path: name_of(&interface),
             description: format!(
                 "CAN interface, {}",
@@ -111,7 +101,7 @@ fn cameras(root: &Path) -> Vec<Device> {
     entries(&root.join("sys/class/video4linux"))
         .into_iter()
         .map(|device| Device {
-            kind: "camera".to_owned(),
+            kind: DeviceKind::Camera,
             path: format!("/dev/{}", name_of(&device)),
             description: read_trimmed(&device.join("name")).unwrap_or_else(|| "video device".to_owned()),
         })
@@ -166,10 +156,7 @@ mod tests {
         std::fs::write(video.join("name"), "UVC Camera (046d:0825)\n").unwrap();
 
         let devices = list(root.path());
-        let summary: Vec<(&str, &str)> = devices
-            .iter()
-            .map(|d| (d.kind.as_str(), d.path.as_str()))
-            .collect();
+        let summary: Vec<(&str, &str)> = devices.iter().map(|d| (d.kind.name(), d.path.as_str())).collect();
         assert_eq!(
             summary,
             [

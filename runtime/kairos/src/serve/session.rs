@@ -286,6 +286,9 @@ impl Session {
                 role,
             } => ReplyBody::Hello(self.hello(protocol, &client, token.as_ref(), role)?),
             RequestBody::Library => ReplyBody::Library(self.shared.runtime.library()),
+            RequestBody::Devices => ReplyBody::Devices(kairos_protocol::DeviceList {
+                devices: crate::devices::list(std::path::Path::new("/")),
+            }),
             RequestBody::DescribeInstances { diagram } => {
                 ReplyBody::DescribeInstances(tokio::task::block_in_place(|| {
                     self.shared.runtime.describe_instances(&diagram)
