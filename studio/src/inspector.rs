@@ -262,7 +262,7 @@ fn device_picker(
         .response
         .on_hover_text(format!("The {kind} devices of the runtime's machine"));
     if ui
-        .small_button("↻")
+        .small_button("refresh")
         .on_hover_text("Look for devices again")
         .clicked()
     {
