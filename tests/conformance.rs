@@ -105,12 +105,18 @@ fn every_component_starts_runs_and_stops_alone() {
     sleep(Duration::from_millis(300));
     engine.stop();
     let snapshot = engine.snapshot();
-    // Without a CAN bus here, a SocketCAN component must fail at birth naming its interface.
-    let no_bus = !std::path::Path::new("/sys/class/net/vcan0").exists();
+    // Without a CAN bus or a camera here, a component for one must fail at birth naming its device.
+    let absent = |type_name: &str| match type_name {
+        "can.socketcan_reader" | "can.socketcan_writer" => {
+            (!std::path::Path::new("/sys/class/net/vcan0").exists()).then_some("'vcan0'")
+        }
+        "video.v4l2_camera" => (!std::path::Path::new("/dev/video0").exists()).then_some("/dev/video0"),
+        _ => None,
+    };
     for (component, info) in snapshot.components.iter().zip(library.components.values()) {
-        if no_bus && info.type_name.starts_with("can.socketcan") {
+        if let Some(named) = absent(&info.type_name) {
             assert!(
-                matches!(&component.state, ComponentState::Failed(why) if why.contains("'vcan0'")),
+                matches!(&component.state, ComponentState::Failed(why) if why.contains(named)),
                 "{} ({}): {:?}",
                 component.id,
                 info.type_name,
@@ -160,6 +166,7 @@ fn hardware_stand_in(
         "can.socketcan_reader" | "can.socketcan_writer" => {
             vec![("interface", Value::Text("vcan0".to_owned()))]
         }
+        "video.v4l2_camera" => vec![("device", Value::Text("/dev/video0".to_owned()))],
         "can.candump_reader" => {
             let log = dir.join("stand-in.log");
             std::fs::write(
