@@ -454,11 +454,7 @@ impl Viewer {
     }
 
     fn table_sample(&mut self, header: &SampleHeader, value: &serde_json::Value, payload: &[u8]) {
-        let text = if value.is_null() {
-            format!("{} bytes", payload.len())
-        } else {
-            value.to_string()
-        };
+        let text = table_text(&header.data_type, value, payload.len());
         if self.rows.len() == TABLE_ROWS {
             self.rows.pop_back();
         }
@@ -891,9 +887,61 @@ impl Viewers {
     }
 }
 
+/// A sample as a table row reads it: text as it is (a decoded CAN frame's `Engine: Speed = 2000 rpm`), a
+/// CAN frame as candump writes it, other small payloads as JSON, large ones by their size.
+fn table_text(data_type: &str, value: &serde_json::Value, payload_len: usize) -> String {
+    match value {
+        serde_json::Value::Null => format!("{payload_len} bytes"),
+        serde_json::Value::String(text) => text.clone(),
+        frame if data_type == "can_frame" => {
+            let id = frame["id"].as_u64().unwrap_or(0);
+            let extended = frame["extended"].as_bool().unwrap_or(false);
+            let data: Vec<String> = frame["data"]
+                .as_array()
+                .map(|bytes| {
+                    bytes
+                        .iter()
+                        .map(|b| format!("{:02X}", b.as_u64().unwrap_or(0)))
+                        .collect()
+                })
+                .unwrap_or_default();
+            let id = if extended {
+                format!("{id:08X}")
+            } else {
+                format!("{id:03X}")
+            };
+            let fd = if frame["fd"].as_bool().unwrap_or(false) {
+                " (FD)"
+            } else {
+                ""
+            };
+            format!("{id} [{}] {}{fd}", data.len(), data.join(" "))
+        }
+        other => other.to_string(),
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn table_rows_read_text_as_text_and_can_frames_as_candump_does() {
+        let line = serde_json::json!("Engine: Speed = 2000 rpm; Temperature = 85 degC");
+        assert_eq!(
+            table_text("text", &line, 0),
+            "Engine: Speed = 2000 rpm; Temperature = 85 degC"
+        );
+        let frame = serde_json::json!({"id": 256, "extended": false, "fd": false, "data": [64, 31, 236]});
+        assert_eq!(table_text("can_frame", &frame, 0), "100 [3] 40 1F EC");
+        let extended = serde_json::json!({"id": 0x18FF_0001_u32, "extended": true, "fd": false, "data": []});
+        assert_eq!(table_text("can_frame", &extended, 0), "18FF0001 [0] ");
+        assert_eq!(table_text("f64", &serde_json::json!(0.5), 0), "0.5");
+        assert_eq!(
+            table_text("image", &serde_json::Value::Null, 921_600),
+            "921600 bytes"
+        );
+    }
 
     #[test]
     fn images_of_every_format_become_rgba() {

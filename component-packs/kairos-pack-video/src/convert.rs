@@ -91,12 +91,35 @@ pub fn yuyv_to_rgb(yuyv: &[u8], width: u32, height: u32, stride: u32) -> Result<
 ///
 /// The frame does not decode.
 pub fn mjpeg_to_rgb(jpeg: &[u8]) -> Result<Image, ConvertError> {
-    let decoded = image::load_from_memory_with_format(jpeg, image::ImageFormat::Jpeg)
+    /// 7680 × 4320 RGB.
+    const LARGEST_FRAME_BYTES: usize = 7680 * 4320 * 3;
+    use image::ImageDecoder as _;
+    let decoder = image::codecs::jpeg::JpegDecoder::new(std::io::Cursor::new(jpeg))
+        .map_err(|e| ConvertError::Jpeg(e.to_string()))?;
+    if decoder.color_type() == image::ColorType::Rgb8 {
+        // Colour frames decode straight into the shared pixel pool: no copy after the decoder's.
+        let (width, height) = decoder.dimensions();
+        // A damaged header can claim any size: nothing larger than an 8K frame is a camera's.
+        let bytes = usize::try_from(decoder.total_bytes())
+            .ok()
+            .filter(|bytes| *bytes <= LARGEST_FRAME_BYTES)
+            .ok_or_else(|| {
+                ConvertError::Jpeg(format!("a {width}×{height} frame is larger than cameras send"))
+            })?;
+        let mut rgb = PixelsMut::new(bytes);
+        decoder
+            .read_image(&mut rgb)
+            .map_err(|e| ConvertError::Jpeg(e.to_string()))?;
+        return Image::packed(width, height, PixelFormat::Rgb8, rgb.freeze())
+            .map_err(|e| ConvertError::Jpeg(e.to_string()));
+    }
+    // Grey frames (rare from cameras) go through the image crate's conversion.
+    let grey = image::load_from_memory_with_format(jpeg, image::ImageFormat::Jpeg)
         .map_err(|e| ConvertError::Jpeg(e.to_string()))?
         .into_rgb8();
-    let (width, height) = decoded.dimensions();
-    let mut rgb = PixelsMut::new(decoded.as_raw().len());
-    rgb.copy_from_slice(decoded.as_raw());
+    let (width, height) = grey.dimensions();
+    let mut rgb = PixelsMut::new(grey.as_raw().len());
+    rgb.copy_from_slice(grey.as_raw());
     Image::packed(width, height, PixelFormat::Rgb8, rgb.freeze())
         .map_err(|e| ConvertError::Jpeg(e.to_string()))
 }
