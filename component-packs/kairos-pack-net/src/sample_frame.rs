@@ -478,6 +478,38 @@ mod tests {
         }
     }
 
+    proptest::proptest! {
+        #[test]
+        fn any_bytes_decode_or_are_refused_never_a_panic(bytes in proptest::collection::vec(proptest::num::u8::ANY, 0..512)) {
+            let _ = decode(&bytes);
+            let mut framed = b"KSF1".to_vec();
+            framed.extend_from_slice(&bytes);
+            let _ = decode(&framed);
+        }
+
+        #[test]
+        fn numbers_text_and_bytes_come_back_exactly(
+            values in proptest::collection::vec(-1e300_f64..1e300, 0..32),
+            text in ".{0,64}",
+            bytes in proptest::collection::vec(proptest::num::u8::ANY, 0..256),
+            timestamp in proptest::num::i64::ANY,
+            sequence in proptest::num::u64::ANY,
+        ) {
+            for payload in [
+                Payload::Vector(Arc::from(values.clone())),
+                Payload::Text(Arc::from(text.as_str())),
+                Payload::Bytes(Arc::from(bytes.clone())),
+            ] {
+                let mut sample = Sample::new(payload.clone(), Timestamp(timestamp));
+                sample.sequence = sequence;
+                let received = decode(&encode_whole("a.b", &sample)).unwrap();
+                proptest::prop_assert_eq!(received.sample.payload, payload);
+                proptest::prop_assert_eq!(received.sample.timestamp, Timestamp(timestamp));
+                proptest::prop_assert_eq!(received.sequence, sequence);
+            }
+        }
+    }
+
     #[test]
     fn a_nan_travels_as_a_nan() {
         let sample = Sample::new(Payload::F64(f64::NAN), Timestamp(1));

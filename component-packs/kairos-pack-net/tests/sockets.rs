@@ -190,3 +190,68 @@ fn a_tcp_sender_serves_every_client_and_a_client_sender_reaches_its_server() {
     server.read_exact(&mut got).unwrap();
     assert_eq!(got, [1, 2, 3]);
 }
+
+#[test]
+fn a_kairos_receiver_counts_garbage_other_types_gaps_and_late_samples_and_passes_the_rest_on() {
+    use kairos_pack_net::sample_frame::encode_whole;
+    use kairos_sdk::Sample;
+
+    let port = UdpSocket::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port();
+    let properties = std::collections::BTreeMap::from([
+        ("encoding".to_owned(), kairos_sdk::Value::Text("kairos".into())),
+        ("data_type".to_owned(), kairos_sdk::Value::Text("f64".into())),
+    ]);
+    let mut harness = Harness::new(
+        udp::describe_receiver(&properties).unwrap(),
+        udp::UdpReceiver::default(),
+    );
+    harness
+        .set_property("address", format!("127.0.0.1:{port}"))
+        .unwrap();
+    harness.set_property("encoding", "kairos").unwrap();
+    harness.set_property("data_type", "f64").unwrap();
+    harness.run().unwrap();
+    let sender = UdpSocket::bind("127.0.0.1:0").unwrap();
+    let frame = |sequence: u64, payload: Payload| {
+        let mut sample = Sample::new(payload, Timestamp(1_000 + i64::try_from(sequence).unwrap()));
+        sample.time_of_issue = Timestamp(5_000);
+        sample.sequence = sequence;
+        encode_whole("remote.out", &sample)
+    };
+    let datagrams = [
+        frame(0, Payload::F64(0.0)),
+        b"KSF1 not a frame".to_vec(),
+        frame(1, Payload::Text(Arc::from("a text"))),
+        frame(3, Payload::F64(3.0)),
+        frame(2, Payload::F64(2.0)),
+        frame(4, Payload::F64(4.0)),
+    ];
+    for datagram in &datagrams {
+        sender.send_to(datagram, ("127.0.0.1", port)).unwrap();
+    }
+    let out = run_until(&mut harness, "samples", 3);
+    // 0, 3 and 4 in order; 2 came after 3: counted, not written (the output stays in time order).
+    assert_eq!(out.f64_values("samples"), [0.0, 3.0, 4.0]);
+    let first = &out.samples("samples")[0];
+    assert_eq!(
+        (first.timestamp, first.time_of_issue),
+        (Timestamp(1_000), Timestamp(5_000))
+    );
+    std::thread::sleep(Duration::from_millis(600));
+    harness.run().unwrap();
+    let status = harness.status().unwrap();
+    // Sequence 1 (the text) was refused for its type, so it counts as lost in transit as well.
+    for (count, expected) in [
+        ("malformed", 1),
+        ("wrong_type", 1),
+        ("reordered", 1),
+        ("lost", 1),
+        ("received", 3),
+    ] {
+        assert_eq!(status[count], expected, "{count}: {status}");
+    }
+}
