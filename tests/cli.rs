@@ -324,3 +324,28 @@ fn a_clock_source_that_cannot_give_the_time_is_refused_with_the_ones_that_can() 
     );
     assert!(text(&missing).1.contains("the diagram has no component 'nobody'"));
 }
+
+#[test]
+fn a_diagram_placing_components_on_other_hosts_validates_but_never_runs_them_here_unnoticed() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("two_hosts.ron");
+    std::fs::write(
+        &path,
+        r#"Diagram(format: 1,
+            hosts: {"car": Host(endpoint: "ws://10.0.0.2:7600", token_file: "car.token")},
+            packs: [],
+            components: [
+                Component(id: "sine1", type: "core.sine", host: "car"),
+                Component(id: "console1", type: "core.console"),
+            ],
+            connections: [Connection(from: "sine1.out", to: "console1.in")])"#,
+    )
+    .unwrap();
+    let validated = kairos(dir.path(), &["validate", path.to_str().unwrap()]);
+    assert!(validated.status.success(), "{}", text(&validated).1);
+    let run = kairos(dir.path(), &["run", path.to_str().unwrap(), "--for", "1s"]);
+    let (_, stderr) = text(&run);
+    assert!(!run.status.success());
+    assert!(stderr.contains("'sine1' is placed on host 'car'"), "{stderr}");
+    assert!(stderr.contains("remove `host: \"car\"`"), "{stderr}");
+}

@@ -91,6 +91,10 @@ pub enum DiagnosticCode {
     CannotDescribe,
     /// A clock source that is not a component of the diagram, or not one that can give the time.
     InvalidClockSource,
+    /// A component placed on a host the `hosts` section does not name.
+    UnknownHost,
+    /// A host whose endpoint is not a `ws://` or `wss://` address with a port.
+    InvalidEndpoint,
 }
 
 /// Where a problem is in the source text.

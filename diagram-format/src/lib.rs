@@ -34,12 +34,12 @@ pub use library::{
     ValueError, readable_type_name,
 };
 pub use model::{
-    ComponentInstance, Connection, Diagram, FORMAT_VERSION, MAX_BUFFER_SIZE, OutputSettings, PackRequirement,
-    PortRef, Position, ThreadSettings,
+    ComponentInstance, Connection, Diagram, FORMAT_VERSION, HostSpec, MAX_BUFFER_SIZE, OutputSettings,
+    PackRequirement, PortRef, Position, ThreadSettings,
 };
 pub use read::{
-    ComponentLocations, ConnectionLocations, EntryLocations, LoadError, OutputLocations, PackLocations,
-    ParsedDiagram, SourceMap, load, parse,
+    ComponentLocations, ConnectionLocations, EntryLocations, HostLocations, LoadError, OutputLocations,
+    PackLocations, ParsedDiagram, SourceMap, load, parse,
 };
 pub use ron_syntax::MAX_DEPTH;
 pub use validate::{is_valid_id, output_type, resolved_properties, validate, validate_with};

@@ -29,6 +29,19 @@ pub struct Diagram {
     /// The component whose time the runtime clock follows (a GNSS receiver), if any.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub clock_source: Option<String>,
+    /// The machines parts of the diagram run on, by name; empty: everything runs where it is deployed.
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub hosts: BTreeMap<String, HostSpec>,
+}
+
+/// A machine running `kairos serve` that a diagram deploys its components marked with the host's name to.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct HostSpec {
+    /// Its control protocol endpoint (`ws://10.0.0.2:7600`, or `wss://` with TLS).
+    pub endpoint: String,
+    /// The file holding its token, relative to the diagram's folder, when it asks for one.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub token_file: Option<String>,
 }
 
 impl Default for Diagram {
@@ -39,6 +52,7 @@ impl Default for Diagram {
             components: Vec::new(),
             connections: Vec::new(),
             clock_source: None,
+            hosts: BTreeMap::new(),
         }
     }
 }
@@ -113,6 +127,9 @@ pub struct ComponentInstance {
     pub thread: ThreadSettings,
     /// Where the studio draws it.
     pub position: Position,
+    /// The host it runs on (a name of the diagram's `hosts`); `None`: the machine that deploys.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub host: Option<String>,
 }
 
 impl ComponentInstance {
@@ -125,6 +142,7 @@ impl ComponentInstance {
             outputs: BTreeMap::new(),
             thread: ThreadSettings::default(),
             position: Position::default(),
+            host: None,
         }
     }
 }

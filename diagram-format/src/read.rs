@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 use crate::diagnostic::{Diagnostic, DiagnosticCode, LineIndex, Location, did_you_mean, render_all};
 use crate::library::{LibraryInfo, ReaderPolicy, Value};
 use crate::model::{
-    ComponentInstance, Connection, Diagram, OutputSettings, PackRequirement, PortRef, Position,
+    ComponentInstance, Connection, Diagram, HostSpec, OutputSettings, PackRequirement, PortRef, Position,
     ThreadSettings,
 };
 use crate::ron_syntax::{Field, Node, NodeKind, Span, parse_document};
@@ -30,6 +30,17 @@ pub struct SourceMap {
     pub connections: Vec<ConnectionLocations>,
     /// The clock source's value, when given.
     pub clock_source: Option<Location>,
+    /// Each host's name and endpoint.
+    pub hosts: BTreeMap<String, HostLocations>,
+}
+
+/// Where a host of the `hosts` section is.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct HostLocations {
+    /// Its name (the map's key).
+    pub name: Location,
+    /// Its endpoint's value.
+    pub endpoint: Location,
 }
 
 /// Where a pack requirement is.
@@ -60,6 +71,8 @@ pub struct ComponentLocations {
     pub outputs: BTreeMap<String, OutputLocations>,
     /// The thread priority's value, when given.
     pub priority: Option<Location>,
+    /// The host's value, when given.
+    pub host: Option<Location>,
 }
 
 /// Where a map entry's key and value are.
@@ -477,8 +490,19 @@ impl Reader<'_> {
         let fields = self.fields(
             node,
             "Diagram",
-            &["format", "clock_source", "packs", "components", "connections"],
+            &[
+                "format",
+                "clock_source",
+                "hosts",
+                "packs",
+                "components",
+                "connections",
+            ],
         )?;
+        let (hosts, host_locations) = fields
+            .optional("hosts")
+            .map(|n| self.hosts(n))
+            .unwrap_or_default();
         let clock_source_node = fields.optional("clock_source");
         let clock_source = self.optional(clock_source_node, Self::text).ok()?;
         let format_node = self.required(&fields, "format");
@@ -497,8 +521,10 @@ impl Reader<'_> {
                 components,
                 connections,
                 clock_source,
+                hosts,
             },
             source_map: SourceMap {
+                hosts: host_locations,
                 diagram: self.location(node.head),
                 format: self.location(format_node.span),
                 clock_source: clock_source_node.map(|n| self.location(n.span)),
@@ -538,7 +564,15 @@ impl Reader<'_> {
     }
 
     fn component(&mut self, node: &Node) -> Option<(ComponentInstance, ComponentLocations)> {
-        let known = ["id", "type", "position", "properties", "outputs", "thread"];
+        let known = [
+            "id",
+            "type",
+            "host",
+            "position",
+            "properties",
+            "outputs",
+            "thread",
+        ];
         let fields = self.fields(node, "Component", &known)?;
         let id_node = self.required(&fields, "id");
         let type_node = self.required(&fields, "type");
@@ -549,6 +583,8 @@ impl Reader<'_> {
         let properties = fields.optional("properties").map(|n| self.properties(n));
         let outputs = fields.optional("outputs").map(|n| self.outputs(n));
         let thread = fields.optional("thread").map(|n| self.thread(n));
+        let host_node = fields.optional("host");
+        let host = self.optional(host_node, Self::text).ok()?;
 
         let (properties, property_locations) = properties.unwrap_or_default();
         let (outputs, output_locations) = outputs.unwrap_or_default();
@@ -561,7 +597,9 @@ impl Reader<'_> {
         instance.properties = properties;
         instance.outputs = outputs;
         instance.thread = thread;
+        instance.host = host;
         let locations = ComponentLocations {
+            host: host_node.map(|n| self.location(n.span)),
             component: self.location(node.head),
             id: self.location(id_node?.span),
             type_name: self.location(type_node?.span),
@@ -571,6 +609,34 @@ impl Reader<'_> {
             priority,
         };
         Some((instance, locations))
+    }
+
+    /// The `hosts` map: `"name": Host(endpoint: "ws://…", token_file: "…")`.
+    fn hosts(&mut self, node: &Node) -> (BTreeMap<String, HostSpec>, BTreeMap<String, HostLocations>) {
+        let mut hosts = BTreeMap::new();
+        let mut locations = BTreeMap::new();
+        for (name, name_span, value) in self.string_map(node, "host") {
+            let Some(fields) = self.fields(value, "Host", &["endpoint", "token_file"]) else {
+                continue;
+            };
+            let endpoint_node = self.required(&fields, "endpoint");
+            let endpoint = endpoint_node.and_then(|n| self.text(n));
+            let Ok(token_file) = self.optional(fields.optional("token_file"), Self::text) else {
+                continue;
+            };
+            let (Some(endpoint), Some(endpoint_node)) = (endpoint, endpoint_node) else {
+                continue;
+            };
+            locations.insert(
+                name.clone(),
+                HostLocations {
+                    name: self.location(name_span),
+                    endpoint: self.location(endpoint_node.span),
+                },
+            );
+            hosts.insert(name, HostSpec { endpoint, token_file });
+        }
+        (hosts, locations)
     }
 
     fn position(&mut self, node: &Node) -> Option<Position> {

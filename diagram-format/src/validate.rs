@@ -40,6 +40,7 @@ pub fn validate_with(
     };
     validator.check_format();
     validator.check_clock_source();
+    validator.check_hosts();
     validator.check_packs();
     validator.check_components();
     validator.check_connections();
@@ -188,6 +189,61 @@ impl<'a> Validator<'a> {
                 .at(location)
                 .with_suggestion(Some(suggestion)),
         );
+    }
+
+    fn check_hosts(&mut self) {
+        for (name, host) in &self.diagram.hosts {
+            let at = self.source_map.and_then(|m| m.hosts.get(name)).copied();
+            if !is_valid_id(name) {
+                self.found.push(
+                    Diagnostic::error(
+                        DiagnosticCode::InvalidId,
+                        format!("'{name}' cannot name a host: use letters, digits, _ and -"),
+                    )
+                    .at(at.map(|l| l.name)),
+                );
+            }
+            if let Err(why) = check_endpoint(&host.endpoint) {
+                self.found.push(
+                    Diagnostic::error(
+                        DiagnosticCode::InvalidEndpoint,
+                        format!("host '{name}': the endpoint {:?} {why}", host.endpoint),
+                    )
+                    .at(at.map(|l| l.endpoint))
+                    .with_suggestion(Some(
+                        "write the address `kairos serve` listens on there, as ws://HOST:PORT (wss:// with TLS)"
+                            .to_owned(),
+                    )),
+                );
+            }
+        }
+        let known: Vec<&str> = self.diagram.hosts.keys().map(String::as_str).collect();
+        for (index, component) in self.diagram.components.iter().enumerate() {
+            let Some(host) = &component.host else { continue };
+            if self.diagram.hosts.contains_key(host) {
+                continue;
+            }
+            let location = self
+                .source_map
+                .and_then(|m| m.components.get(index))
+                .and_then(|l| l.host);
+            let suggestion = if known.is_empty() {
+                format!("add a hosts section: hosts: {{ \"{host}\": Host(endpoint: \"ws://ADDRESS:PORT\") }}")
+            } else {
+                format!("the hosts are: {}; or add '{host}' to them", known.join(", "))
+            };
+            self.found.push(
+                Diagnostic::error(
+                    DiagnosticCode::UnknownHost,
+                    format!(
+                        "'{}' runs on host '{host}', which the diagram's hosts do not name",
+                        component.id
+                    ),
+                )
+                .at(location)
+                .with_suggestion(Some(suggestion)),
+            );
+        }
     }
 
     fn check_packs(&mut self) {
@@ -786,9 +842,46 @@ fn strongly_connected_components(edges: &BTreeMap<usize, Vec<usize>>) -> Vec<Vec
     components
 }
 
+/// Whether `endpoint` is a `ws://` or `wss://` address with a host and a port; why not.
+fn check_endpoint(endpoint: &str) -> Result<(), &'static str> {
+    let Some(rest) = endpoint
+        .strip_prefix("ws://")
+        .or_else(|| endpoint.strip_prefix("wss://"))
+    else {
+        return Err("does not start with ws:// or wss://");
+    };
+    let authority = rest.split('/').next().unwrap_or_default();
+    let Some((host, port)) = authority.rsplit_once(':') else {
+        return Err("has no port");
+    };
+    if host.is_empty() || host == "[" {
+        return Err("has no host");
+    }
+    match port.parse::<u16>() {
+        Ok(port) if port > 0 => Ok(()),
+        _ => Err("has no valid port (1 to 65535)"),
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn endpoints_are_websocket_addresses_with_a_port() {
+        for good in ["ws://10.0.0.2:7600", "wss://car.local:7600/", "ws://[::1]:7600"] {
+            assert_eq!(check_endpoint(good), Ok(()), "{good}");
+        }
+        for (bad, why) in [
+            ("10.0.0.2:7600", "does not start with ws:// or wss://"),
+            ("ws://10.0.0.2", "has no port"),
+            ("ws://:7600", "has no host"),
+            ("ws://car:0", "has no valid port (1 to 65535)"),
+            ("wss://car:http", "has no valid port (1 to 65535)"),
+        ] {
+            assert_eq!(check_endpoint(bad), Err(why), "{bad}");
+        }
+    }
 
     #[test]
     fn ids() {

@@ -59,6 +59,22 @@ impl fmt::Display for CanonicalRon<'_> {
         if let Some(source) = &diagram.clock_source {
             writeln!(f, "    clock_source: {},", Quoted(source))?;
         }
+        if !diagram.hosts.is_empty() {
+            f.write_str("    hosts: {\n")?;
+            for (name, host) in &diagram.hosts {
+                write!(
+                    f,
+                    "        {}: Host(endpoint: {}",
+                    Quoted(name),
+                    Quoted(&host.endpoint)
+                )?;
+                if let Some(token_file) = &host.token_file {
+                    write!(f, ", token_file: {}", Quoted(token_file))?;
+                }
+                f.write_str("),\n")?;
+            }
+            f.write_str("    },\n")?;
+        }
 
         let mut packs: Vec<&PackRequirement> = diagram.packs.iter().collect();
         packs.sort_by(|a, b| compare_packs(a, b));
@@ -111,6 +127,9 @@ fn write_component(f: &mut fmt::Formatter<'_>, component: &ComponentInstance) ->
     f.write_str("Component(\n")?;
     writeln!(f, "{FIELD}id: {},", Quoted(&component.id))?;
     writeln!(f, "{FIELD}type: {},", Quoted(&component.type_name))?;
+    if let Some(host) = &component.host {
+        writeln!(f, "{FIELD}host: {},", Quoted(host))?;
+    }
     let position = component.position;
     // Compare bits, not values: `-0.0` is not the default and must survive a round trip.
     if position.x.to_bits() != 0 || position.y.to_bits() != 0 {

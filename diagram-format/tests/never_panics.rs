@@ -3,8 +3,8 @@
 mod common;
 
 use kairos_diagram::{
-    ComponentInstance, Connection, Diagram, OutputSettings, PackRequirement, PortRef, Position, ReaderPolicy,
-    ThreadSettings, Value, parse, render_all, validate,
+    ComponentInstance, Connection, Diagram, HostSpec, OutputSettings, PackRequirement, PortRef, Position,
+    ReaderPolicy, ThreadSettings, Value, parse, render_all, validate,
 };
 use proptest::prelude::*;
 
@@ -132,13 +132,15 @@ fn component() -> impl Strategy<Value = ComponentInstance> {
             Just(Position::default()),
             (finite_or_infinite_f32(), finite_or_infinite_f32()).prop_map(|(x, y)| Position { x, y }),
         ],
+        any::<Option<String>>(),
     )
-        .prop_map(|(id, type_name, properties, outputs, thread, position)| {
+        .prop_map(|(id, type_name, properties, outputs, thread, position, host)| {
             let mut instance = ComponentInstance::new(id, type_name);
             instance.properties = properties;
             instance.outputs = outputs;
             instance.thread = thread;
             instance.position = position;
+            instance.host = host;
             instance
         })
 }
@@ -174,12 +176,21 @@ fn diagram() -> impl Strategy<Value = Diagram> {
         prop::collection::vec(component(), 0..5),
         prop::collection::vec(connection(), 0..5),
         prop::option::of("[a-z]{1,6}"),
+        prop::collection::btree_map(
+            any::<String>(),
+            (any::<String>(), any::<Option<String>>())
+                .prop_map(|(endpoint, token_file)| HostSpec { endpoint, token_file }),
+            0..3,
+        ),
     )
-        .prop_map(|(format, packs, components, connections, clock_source)| Diagram {
-            format,
-            packs,
-            components,
-            connections,
-            clock_source,
-        })
+        .prop_map(
+            |(format, packs, components, connections, clock_source, hosts)| Diagram {
+                format,
+                packs,
+                components,
+                connections,
+                clock_source,
+                hosts,
+            },
+        )
 }

@@ -5,8 +5,8 @@ mod common;
 use std::collections::BTreeMap;
 
 use kairos_diagram::{
-    ComponentInstance, Connection, Diagram, OutputSettings, PackRequirement, PortRef, Position, ReaderPolicy,
-    ThreadSettings, Value, parse, resolved_properties,
+    ComponentInstance, Connection, Diagram, HostSpec, OutputSettings, PackRequirement, PortRef, Position,
+    ReaderPolicy, ThreadSettings, Value, parse, resolved_properties,
 };
 
 const CANONICAL: &str = include_str!("corpus/canonical.ron");
@@ -81,6 +81,7 @@ fn scrambled_diagram() -> Diagram {
     sine.outputs.insert("out".to_owned(), OutputSettings::default());
     let mut gain = ComponentInstance::new("gain1", "core.gain");
     gain.thread.priority = Some(99);
+    gain.host = Some("roadside".to_owned());
     let mut connection = Connection::new(PortRef::new("sine1", "out"), PortRef::new("gain1", "in"));
     connection.policy = Some(ReaderPolicy::NeverSkipping);
     Diagram {
@@ -101,6 +102,22 @@ fn scrambled_diagram() -> Diagram {
             Connection::new(PortRef::new("gain1", "out"), PortRef::new("console1", "in")),
         ],
         clock_source: Some("sine1".to_owned()),
+        hosts: BTreeMap::from([
+            (
+                "roadside".to_owned(),
+                HostSpec {
+                    endpoint: "wss://10.0.0.3:7600".to_owned(),
+                    token_file: Some("roadside \"token\".txt".to_owned()),
+                },
+            ),
+            (
+                "car".to_owned(),
+                HostSpec {
+                    endpoint: "ws://car.local:7600".to_owned(),
+                    token_file: None,
+                },
+            ),
+        ]),
     }
 }
 

@@ -445,9 +445,14 @@ impl Canvas {
         let response = interact_node(ui, component, node.rect);
         self.select_or_move(ui, &response, &component.id, frame.diagram, document);
         let state = frame.shown.states.get(&component.id);
+        // A component placed on another machine says which, under its type.
+        let subtitle: std::borrow::Cow<'_, str> = match &component.host {
+            Some(host) => format!("{} — on {host}", component.type_name).into(),
+            None => component.type_name.as_str().into(),
+        };
         let look = NodeLook {
             id: &component.id,
-            type_name: &component.type_name,
+            type_name: &subtitle,
             selected: self.selected.contains(&component.id),
             state,
             figures: frame

@@ -400,7 +400,27 @@ impl Engine {
         clock: Arc<dyn Clock>,
     ) -> Result<Engine, BuildError> {
         let instances = registry.instance_infos(diagram);
-        let diagnostics = kairos_diagram::validate_with(diagram, None, &registry.library_info(), &instances);
+        let mut diagnostics =
+            kairos_diagram::validate_with(diagram, None, &registry.library_info(), &instances);
+        // An engine runs a diagram on one machine: a part placed elsewhere must not run here unnoticed.
+        for component in &diagram.components {
+            if let Some(host) = &component.host {
+                diagnostics.push(
+                    kairos_diagram::Diagnostic::error(
+                        kairos_diagram::DiagnosticCode::UnknownHost,
+                        format!(
+                            "'{}' is placed on host '{host}': this runtime runs a diagram on its own machine, \
+                             and deploying one diagram across hosts is not part of this version",
+                            component.id
+                        ),
+                    )
+                    .with_suggestion(Some(format!(
+                        "remove `host: \"{host}\"` from '{}' to run it here",
+                        component.id
+                    ))),
+                );
+            }
+        }
         if diagnostics.iter().any(kairos_diagram::Diagnostic::is_error) {
             return Err(BuildError::Invalid(diagnostics));
         }
