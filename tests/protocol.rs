@@ -739,3 +739,98 @@ fn recorders_and_players_are_driven_over_the_protocol() {
     let player = &status["result"]["telemetry"]["components"][0];
     assert_eq!(player["state"], "running", "{status}");
 }
+
+/// A diagram over two served hosts and this machine: a sine into a CSV file on each.
+fn two_host_diagram(a: &Server, b: &str, cross: bool) -> String {
+    let connection = if cross {
+        r#"Connection(from: "sine_a.out", to: "csv_b.in1")"#
+    } else {
+        r#"Connection(from: "sine_a.out", to: "csv_a.in1"), Connection(from: "sine_b.out", to: "csv_b.in1")"#
+    };
+    format!(
+        r#"Diagram(format: 1,
+            hosts: {{"a": Host(endpoint: "{}", token_file: "a.token"), "b": Host(endpoint: "{b}", token_file: "b.token")}},
+            packs: [],
+            components: [
+                Component(id: "sine_a", type: "core.sine", host: "a"),
+                Component(id: "csv_a", type: "core.csv_writer", host: "a", properties: {{"path": "a.csv"}}),
+                Component(id: "sine_b", type: "core.sine", host: "b"),
+                Component(id: "csv_b", type: "core.csv_writer", host: "b", properties: {{"path": "b.csv"}}),
+                Component(id: "sine_here", type: "core.sine"),
+                Component(id: "csv_here", type: "core.csv_writer", properties: {{"path": "here.csv"}}),
+            ],
+            connections: [{connection}, Connection(from: "sine_here.out", to: "csv_here.in1")])"#,
+        a.url
+    )
+}
+
+#[test]
+fn deploy_runs_each_part_on_its_host_and_stops_them_all() {
+    let _machine = shared_machine();
+    let (dir_a, dir_b, here) = (
+        tempfile::tempdir().unwrap(),
+        tempfile::tempdir().unwrap(),
+        tempfile::tempdir().unwrap(),
+    );
+    let (a, b) = (serve(dir_a.path(), &[]), serve(dir_b.path(), &[]));
+    std::fs::write(here.path().join("a.token"), &a.token).unwrap();
+    std::fs::write(here.path().join("b.token"), &b.token).unwrap();
+    let diagram = here.path().join("two_hosts.ron");
+    std::fs::write(&diagram, two_host_diagram(&a, &b.url, false)).unwrap();
+    let deployed = common::kairos(
+        here.path(),
+        &["deploy", diagram.to_str().unwrap(), "--for", "1500ms"],
+    );
+    let (_, stderr) = text(&deployed);
+    assert!(deployed.status.success(), "{stderr}");
+    assert!(stderr.contains("host 'a' started its part"), "{stderr}");
+    // Each part ran where it was placed: its CSV is in that host's folder.
+    for (folder, file) in [(&dir_a, "a.csv"), (&dir_b, "b.csv"), (&here, "here.csv")] {
+        let rows = std::fs::read_to_string(folder.path().join(file)).unwrap_or_default();
+        assert!(rows.lines().count() > 10, "{file}: {rows:?}\n{stderr}");
+    }
+    for server in [&a, &b] {
+        let mut socket = operator(server);
+        assert_eq!(state(&mut socket), "ready", "stopped at the end");
+    }
+}
+
+#[test]
+fn deploy_starts_nothing_when_a_host_is_unreachable_refuses_or_a_link_crosses_hosts() {
+    let _machine = shared_machine();
+    let (dir_a, here) = (tempfile::tempdir().unwrap(), tempfile::tempdir().unwrap());
+    let a = serve(dir_a.path(), &[]);
+    std::fs::write(here.path().join("a.token"), &a.token).unwrap();
+    std::fs::write(here.path().join("b.token"), "not the token").unwrap();
+    let diagram = here.path().join("two_hosts.ron");
+    let unused = std::net::TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port();
+    for (b, cross, expected) in [
+        (
+            format!("ws://127.0.0.1:{unused}"),
+            false,
+            "host 'b' is unreachable".to_owned(),
+        ),
+        (a.url.clone(), false, "host 'b' refused".to_owned()),
+        (
+            a.url.clone(),
+            true,
+            "the connection sine_a.out -> csv_b.in1 crosses from host 'a' to host 'b'".to_owned(),
+        ),
+    ] {
+        std::fs::write(&diagram, two_host_diagram(&a, &b, cross)).unwrap();
+        let deployed = common::kairos(here.path(), &["deploy", diagram.to_str().unwrap(), "--for", "1s"]);
+        let (_, stderr) = text(&deployed);
+        assert!(!deployed.status.success());
+        assert!(stderr.contains(&expected), "{expected}: {stderr}");
+        let mut socket = operator(&a);
+        assert_ne!(state(&mut socket), "running", "nothing started: {stderr}");
+        assert!(
+            !here.path().join("here.csv").exists(),
+            "nothing started here either"
+        );
+    }
+}

@@ -409,13 +409,14 @@ impl Engine {
                     kairos_diagram::Diagnostic::error(
                         kairos_diagram::DiagnosticCode::UnknownHost,
                         format!(
-                            "'{}' is placed on host '{host}': this runtime runs a diagram on its own machine, \
-                             and deploying one diagram across hosts is not part of this version",
+                            "'{}' is placed on host '{host}': a runtime runs the part of a diagram that is its \
+                             own",
                             component.id
                         ),
                     )
                     .with_suggestion(Some(format!(
-                        "remove `host: \"{host}\"` from '{}' to run it here",
+                        "`kairos deploy` sends each host its part; or remove `host: \"{host}\"` from '{}' to \
+                         run it here",
                         component.id
                     ))),
                 );

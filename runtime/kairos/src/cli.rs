@@ -28,30 +28,37 @@ pub struct Cli {
     pub command: Command,
 }
 
+/// What `run` and `deploy` take.
+#[derive(Debug, clap::Args)]
+pub struct RunArgs {
+    /// The diagram file (.ron).
+    diagram: PathBuf,
+    /// Stop after this long (e.g. 10s, 500ms, 2m).
+    #[arg(long = "for", value_parser = parse_duration)]
+    duration: Option<Duration>,
+    /// Print per-link and per-component statistics periodically and a final table at exit.
+    #[arg(long)]
+    stats: bool,
+    /// How often --stats prints.
+    #[arg(long, value_parser = parse_duration, default_value = "1s")]
+    stats_interval: Duration,
+    /// Override a property before running, e.g. `--set sine1.frequency=2.5` (repeatable).
+    #[arg(long = "set", value_name = "ID.PROPERTY=VALUE")]
+    overrides: Vec<String>,
+    /// Make the runtime clock follow this component's time (a GNSS receiver), overriding the
+    /// diagram's `clock_source`.
+    #[arg(long, value_name = "ID")]
+    clock_source: Option<String>,
+}
+
 /// The subcommands.
 #[derive(Debug, Subcommand)]
 pub enum Command {
     /// Run a diagram until Ctrl-C, or for a given time.
-    Run {
-        /// The diagram file (.ron).
-        diagram: PathBuf,
-        /// Stop after this long (e.g. 10s, 500ms, 2m).
-        #[arg(long = "for", value_parser = parse_duration)]
-        duration: Option<Duration>,
-        /// Print per-link and per-component statistics periodically and a final table at exit.
-        #[arg(long)]
-        stats: bool,
-        /// How often --stats prints.
-        #[arg(long, value_parser = parse_duration, default_value = "1s")]
-        stats_interval: Duration,
-        /// Override a property before running, e.g. `--set sine1.frequency=2.5` (repeatable).
-        #[arg(long = "set", value_name = "ID.PROPERTY=VALUE")]
-        overrides: Vec<String>,
-        /// Make the runtime clock follow this component's time (a GNSS receiver), overriding the
-        /// diagram's `clock_source`.
-        #[arg(long, value_name = "ID")]
-        clock_source: Option<String>,
-    },
+    Run(RunArgs),
+    /// Run a diagram over several machines: each component marked with a `host` on that host's `kairos
+    /// serve`, the others here; everything starts or nothing does, and Ctrl-C stops every host.
+    Deploy(RunArgs),
     /// Serve a headless runtime that the studio or any WebSocket client drives (the control protocol).
     Serve {
         /// Where to listen. Anything but loopback requires --token-file.
@@ -219,7 +226,7 @@ pub fn init_logging(verbose: u8) {
 #[allow(clippy::too_many_lines, reason = "one arm per subcommand, each a call")]
 pub fn execute(cli: Cli) -> anyhow::Result<ExitCode> {
     let diagrams: Vec<&std::path::Path> = match &cli.command {
-        Command::Run { diagram, .. } => vec![diagram.as_path()],
+        Command::Run(args) | Command::Deploy(args) => vec![args.diagram.as_path()],
         Command::Serve { diagram, .. } => diagram.iter().map(PathBuf::as_path).collect(),
         Command::Validate { diagrams } => diagrams.iter().map(PathBuf::as_path).collect(),
         Command::Packs { .. }
@@ -249,24 +256,8 @@ pub fn execute(cli: Cli) -> anyhow::Result<ExitCode> {
         }
     }
     match cli.command {
-        Command::Run {
-            diagram,
-            duration,
-            stats,
-            stats_interval,
-            overrides,
-            clock_source,
-        } => crate::run::run(
-            &registry,
-            &diagram,
-            &crate::run::RunOptions {
-                duration,
-                stats: stats.then_some(stats_interval),
-                overrides,
-                clock_source,
-                searched: scan.searched.clone(),
-            },
-        ),
+        Command::Run(args) => run_with(&registry, args, false, &scan.searched),
+        Command::Deploy(args) => run_with(&registry, args, true, &scan.searched),
         Command::Validate { diagrams } => Ok(validate(&registry, &diagrams, &scan.searched)),
         Command::Serve {
             listen,
@@ -596,4 +587,24 @@ fn inspect_showing_progress(
     });
     eprint!("\r{}\r", " ".repeat(60));
     report
+}
+
+fn run_with(
+    registry: &Registry,
+    args: RunArgs,
+    deploy: bool,
+    searched: &[PathBuf],
+) -> anyhow::Result<ExitCode> {
+    crate::run::run(
+        registry,
+        &args.diagram,
+        &crate::run::RunOptions {
+            duration: args.duration,
+            stats: args.stats.then_some(args.stats_interval),
+            overrides: args.overrides,
+            clock_source: args.clock_source,
+            searched: searched.to_vec(),
+            deploy,
+        },
+    )
 }

@@ -23,6 +23,8 @@ pub struct RunOptions {
     pub clock_source: Option<String>,
     /// The pack path searched, for messages about missing packs.
     pub searched: Vec<std::path::PathBuf>,
+    /// `kairos deploy`: the components with a `host` go to that host's `kairos serve`, the rest runs here.
+    pub deploy: bool,
 }
 
 /// Parses `ID.PROPERTY=VALUE`; the value is a boolean, an integer, a number, or else text.
@@ -49,15 +51,8 @@ pub fn parse_override(text: &str) -> anyhow::Result<(String, String, Value)> {
 /// Exit code when the run ended with a failed component.
 const EXIT_COMPONENT_FAILED: u8 = 2;
 
-/// Runs the diagram at `path` with the components of `registry`.
-pub fn run(registry: &Registry, path: &Path, options: &RunOptions) -> anyhow::Result<ExitCode> {
-    let (source, mut parsed) = match kairos_diagram::load(path) {
-        Ok(loaded) => loaded,
-        Err(error) => {
-            eprint!("{}", error.render());
-            return Ok(ExitCode::from(1));
-        }
-    };
+/// `--set` and `--clock-source` applied to the diagram read.
+fn apply_options(parsed: &mut kairos_diagram::ParsedDiagram, options: &RunOptions) -> anyhow::Result<()> {
     for text in &options.overrides {
         let (id, property, value) = parse_override(text)?;
         let Some(component) = parsed.diagram.component_mut(&id) else {
@@ -72,6 +67,19 @@ pub fn run(registry: &Registry, path: &Path, options: &RunOptions) -> anyhow::Re
         parsed.diagram.clock_source = Some(source.clone());
         parsed.source_map.clock_source = None;
     }
+    Ok(())
+}
+
+/// Runs the diagram at `path` with the components of `registry`.
+pub fn run(registry: &Registry, path: &Path, options: &RunOptions) -> anyhow::Result<ExitCode> {
+    let (source, mut parsed) = match kairos_diagram::load(path) {
+        Ok(loaded) => loaded,
+        Err(error) => {
+            eprint!("{}", error.render());
+            return Ok(ExitCode::from(1));
+        }
+    };
+    apply_options(&mut parsed, options)?;
     let diagnostics = registry.validate(&parsed.diagram, Some(&parsed.source_map));
     if !diagnostics.is_empty() {
         eprint!(
@@ -81,6 +89,19 @@ pub fn run(registry: &Registry, path: &Path, options: &RunOptions) -> anyhow::Re
     }
     if diagnostics.iter().any(kairos_diagram::Diagnostic::is_error) {
         return Ok(ExitCode::from(1));
+    }
+
+    // Deploying: every host's part is deployed and started before this machine's part starts; then the
+    // diagram run here is this machine's part alone.
+    let mut hosts = Vec::new();
+    if options.deploy {
+        let parts = crate::deploy::split(&parsed.diagram)?;
+        let folder = path.parent().unwrap_or_else(|| Path::new("."));
+        hosts = crate::deploy::deploy_remote(&parsed.diagram, &parts, folder)?;
+        for host in &hosts {
+            tracing::info!("host '{}' started its part", host.name());
+        }
+        parsed.diagram = parts.get(&None).cloned().unwrap_or_default();
     }
 
     let (stop_tx, stop_rx) = mpsc::sync_channel::<()>(1);
@@ -121,7 +142,7 @@ pub fn run(registry: &Registry, path: &Path, options: &RunOptions) -> anyhow::Re
         if options.duration.is_some_and(|d| started.elapsed() >= d) {
             break;
         }
-        if engine.all_finished() {
+        if engine.all_finished() && hosts.is_empty() {
             tracing::info!("every component has finished");
             break;
         }
@@ -139,6 +160,7 @@ pub fn run(registry: &Registry, path: &Path, options: &RunOptions) -> anyhow::Re
         }
     }
     engine.stop();
+    crate::deploy::stop_all(&mut hosts);
     let last = engine.snapshot().with_rates_since(&first);
     if options.stats.is_some() {
         eprintln!(
