@@ -38,8 +38,13 @@ impl Drop for Server {
 }
 
 fn serve(dir: &Path, extra: &[&str]) -> Server {
+    serve_with_env(dir, extra, &[])
+}
+
+fn serve_with_env(dir: &Path, extra: &[&str], env: &[(&str, &str)]) -> Server {
     let token_file = dir.join("token.txt");
     let mut child = Command::new(env!("CARGO_BIN_EXE_kairos"))
+        .envs(env.iter().copied())
         .args(["serve", "--listen", "127.0.0.1:0", "--token-file"])
         .arg(&token_file)
         .arg("--monitor-token-file")
@@ -833,4 +838,49 @@ fn deploy_starts_nothing_when_a_host_is_unreachable_refuses_or_a_link_crosses_ho
             "nothing started here either"
         );
     }
+}
+
+#[test]
+fn a_slave_whose_clock_is_250_ms_off_locks_to_its_master_within_a_second() {
+    let _machine = shared_machine();
+    let (dir_master, dir_slave) = (tempfile::tempdir().unwrap(), tempfile::tempdir().unwrap());
+    let port = std::net::UdpSocket::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port();
+    let address = format!("127.0.0.1:{port}");
+    let _master = serve(dir_master.path(), &["--clock-master", &address]);
+    let slave = serve_with_env(
+        dir_slave.path(),
+        &["--clock-slave-of", &address],
+        &[("KAIROS_TEST_CLOCK_OFFSET_MS", "250")],
+    );
+    let mut socket = operator(&slave);
+    let hello = std::fs::read_to_string(example("hello")).unwrap();
+    let reply = call(&mut socket, &json!({"id": 2, "type": "deploy", "diagram": hello}));
+    assert_eq!(reply["ok"], true, "{reply}");
+    let started = Instant::now();
+    let clock = loop {
+        let status = call(&mut socket, &json!({"id": 4, "type": "status"}));
+        let clock = status["result"]["telemetry"]["clock"].clone();
+        if clock["state"] == "locked" && clock["references"].as_u64().unwrap_or(0) >= 8 {
+            break clock;
+        }
+        assert!(started.elapsed() < Duration::from_secs(3), "not locked: {status}");
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    assert!(
+        started.elapsed() < Duration::from_secs(2),
+        "locked in {:?}",
+        started.elapsed()
+    );
+    assert_eq!(clock["source"], "master");
+    eprintln!("locked in {:?}: {clock}", started.elapsed());
+    // The slave started 250 ms ahead: its first lock set it back by as much (within 5 ms of scheduling).
+    let step_ms = clock["step_ns"].as_f64().unwrap() / 1e6;
+    assert!((step_ms + 250.0).abs() < 5.0, "stepped {step_ms} ms: {clock}");
+    // On one machine the two clocks are the same clock: what remains is the exchange's own error.
+    let error_us = clock["error_ns"].as_f64().unwrap().abs() / 1e3;
+    assert!(error_us < 500.0, "error {error_us} µs: {clock}");
 }

@@ -455,6 +455,8 @@ pub fn start_kairos_serve() -> Option<std::net::SocketAddr> {
             max_connections: 16,
             stop_with_stdin: false,
             temporary_token: false,
+            clock_master: None,
+            clock_slave_of: None,
         };
         let _ = kairos::serve::serve_with(kairos::builtin_registry(), &options, move |address| {
             let _ = tx.send(address);

@@ -110,6 +110,8 @@ pub struct DisciplinedClock {
     target_ns: AtomicI64,
     discipline: Mutex<Discipline>,
     steps_allowed: AtomicBool,
+    /// How many recent references the estimate looks at.
+    window: usize,
 }
 
 impl DisciplinedClock {
@@ -134,7 +136,26 @@ impl DisciplinedClock {
                 step_ns: 0,
             }),
             steps_allowed: AtomicBool::new(true),
+            window: WINDOW,
         }
+    }
+
+    /// Trusts each reference as it comes (a source that filters its own, such as a clock synchronisation
+    /// that keeps its least-delayed exchange), rather than the latest of the last 8.
+    #[must_use]
+    pub fn trusting_each_reference(mut self) -> Self {
+        self.window = 1;
+        self
+    }
+
+    /// Starts `offset_ns` away from the machine's wall clock: a test-only stand-in for a machine whose
+    /// clock is wrong.
+    #[must_use]
+    pub fn shifted_by(self, offset_ns: i64) -> Self {
+        let wall = self.from_ns.load(Ordering::Acquire).saturating_add(offset_ns);
+        self.from_ns.store(wall, Ordering::Release);
+        self.target_ns.store(wall, Ordering::Release);
+        self
     }
 
     fn monotonic_ns(&self) -> i64 {
@@ -181,7 +202,7 @@ impl DisciplinedClock {
         let measured_monotonic = measured_at.as_nanos().saturating_sub(offset_then);
         let wanted_offset = reference.as_nanos().saturating_sub(measured_monotonic);
         discipline.recent.push_back((wanted_offset, now_monotonic));
-        while discipline.recent.len() > WINDOW {
+        while discipline.recent.len() > self.window {
             discipline.recent.pop_front();
         }
         // A late reference asks for a smaller offset than a prompt one: trust the largest.

@@ -87,6 +87,13 @@ pub enum Command {
         /// run alone).
         #[arg(long, requires = "token_file")]
         temporary_token: bool,
+        /// Be the clock master of other runtimes: answer their clock exchanges on this UDP address
+        /// (`0.0.0.0:7401`).
+        #[arg(long, value_name = "HOST:PORT", conflicts_with = "clock_slave_of")]
+        clock_master: Option<String>,
+        /// Follow the clock of the master at this UDP address: every diagram deployed here runs on it.
+        #[arg(long, value_name = "HOST:PORT")]
+        clock_slave_of: Option<String>,
     },
     /// Check diagrams against the component library; exit 0 when all are valid.
     Validate {
@@ -268,6 +275,8 @@ pub fn execute(cli: Cli) -> anyhow::Result<ExitCode> {
             max_connections,
             stop_with_stdin,
             temporary_token,
+            clock_master,
+            clock_slave_of,
         } => crate::serve::serve(
             registry,
             &crate::serve::ServeOptions {
@@ -279,6 +288,8 @@ pub fn execute(cli: Cli) -> anyhow::Result<ExitCode> {
                 max_connections,
                 stop_with_stdin,
                 temporary_token,
+                clock_master,
+                clock_slave_of,
             },
         ),
         Command::Inspect { file, json } => {

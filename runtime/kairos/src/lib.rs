@@ -1,6 +1,7 @@
 //! The `kairos` command-line tool: the headless runtime with the built-in packs linked in.
 
 pub mod cli;
+pub mod clock_sync;
 pub mod deploy;
 pub mod devices;
 pub mod duration;

@@ -45,6 +45,10 @@ pub struct ServeOptions {
     pub stop_with_stdin: bool,
     /// Remove the token file at exit, and its folder when empty.
     pub temporary_token: bool,
+    /// Answer other runtimes' clock exchanges on this UDP address.
+    pub clock_master: Option<String>,
+    /// Follow the clock master at this UDP address.
+    pub clock_slave_of: Option<String>,
 }
 
 /// What every session shares.
@@ -104,6 +108,7 @@ pub fn serve_with(
         );
     }
     let runtime = Runtime::new(registry);
+    synchronise_clock(&runtime, options)?;
     if let Some(path) = &options.diagram {
         let text =
             std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
@@ -241,4 +246,36 @@ async fn refuse_busy(stream: tokio::net::TcpStream, limit: usize) {
         let _ = websocket.send(Message::text(text)).await;
     }
     let _ = websocket.close(None).await;
+}
+
+/// `--clock-master`: answer other runtimes' clock exchanges; `--clock-slave-of`: run every diagram deployed
+/// here on a clock that follows the master's.
+fn synchronise_clock(runtime: &Runtime, options: &ServeOptions) -> anyhow::Result<()> {
+    if let Some(bind) = &options.clock_master {
+        let bound = crate::clock_sync::run_master(bind)
+            .with_context(|| format!("--clock-master {bind}: cannot answer clock exchanges there"))?;
+        tracing::info!("clock master: answering on udp://{bound}");
+    }
+    if let Some(master) = &options.clock_slave_of {
+        let address = master
+            .to_socket_addrs()
+            .ok()
+            .and_then(|mut a| a.next())
+            .with_context(|| format!("--clock-slave-of {master}: not an address (HOST:PORT)"))?;
+        // A documented test-only setting: a machine whose clock is this far off.
+        let shifted = std::env::var("KAIROS_TEST_CLOCK_OFFSET_MS")
+            .ok()
+            .and_then(|ms| ms.parse::<i64>().ok())
+            .unwrap_or(0);
+        let clock = Arc::new(
+            kairos_sdk::DisciplinedClock::new(crate::clock_sync::MASTER_SOURCE)
+                .trusting_each_reference()
+                .shifted_by(shifted.saturating_mul(1_000_000)),
+        );
+        crate::clock_sync::run_slave(address, Arc::clone(&clock))
+            .with_context(|| format!("--clock-slave-of {master}: cannot open the clock socket"))?;
+        runtime.set_clock(clock);
+        tracing::info!("following the clock master at udp://{address}");
+    }
+    Ok(())
 }

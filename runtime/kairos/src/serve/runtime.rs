@@ -30,6 +30,8 @@ pub struct Runtime {
     /// Changes whenever the engine is replaced: sample subscriptions re-attach when it does. Outside the
     /// lock, so their frequent checks never wait behind a control operation.
     generation: AtomicU64,
+    /// The clock every deployed diagram runs on, when this runtime follows a clock master.
+    clock: Mutex<Option<Arc<dyn kairos_sdk::Clock>>>,
 }
 
 impl std::fmt::Debug for Runtime {
@@ -141,7 +143,23 @@ impl Runtime {
             registry,
             deployment: Mutex::new(Deployment::default()),
             generation: AtomicU64::new(0),
+            clock: Mutex::new(None),
         })
+    }
+
+    /// Runs every diagram deployed from now on on `clock` (a clock synchronised with a master).
+    pub fn set_clock(&self, clock: Arc<dyn kairos_sdk::Clock>) {
+        if let Ok(mut slot) = self.clock.lock() {
+            *slot = Some(clock);
+        }
+    }
+
+    /// The clock a diagram deployed here runs on.
+    fn clock_for(&self, diagram: &Diagram) -> Arc<dyn kairos_sdk::Clock> {
+        match self.clock.lock().ok().and_then(|slot| slot.clone()) {
+            Some(shared) => shared,
+            None => kairos_runtime::clock_for(diagram),
+        }
     }
 
     fn lock(&self) -> MutexGuard<'_, Deployment> {
@@ -196,12 +214,8 @@ impl Runtime {
         if diagnostics.iter().any(Diagnostic::is_error) {
             return Err(invalid(text, diagnostics));
         }
-        let engine = Engine::build(
-            &parsed.diagram,
-            &self.registry,
-            kairos_runtime::clock_for(&parsed.diagram),
-        )
-        .map_err(|e| error(ErrorCode::InvalidDiagram, e.to_string()))?;
+        let engine = Engine::build(&parsed.diagram, &self.registry, self.clock_for(&parsed.diagram))
+            .map_err(|e| error(ErrorCode::InvalidDiagram, e.to_string()))?;
         let mut deployment = self.lock();
         if let Some(mut old) = deployment.engine.take() {
             old.stop();
@@ -232,7 +246,7 @@ impl Runtime {
             .as_ref()
             .is_none_or(|e| e.state() == EngineState::Stopped);
         if stale {
-            let engine = Engine::build(&diagram, &self.registry, kairos_runtime::clock_for(&diagram))
+            let engine = Engine::build(&diagram, &self.registry, self.clock_for(&diagram))
                 .map_err(|e| error(ErrorCode::InvalidDiagram, e.to_string()))?;
             deployment.engine = Some(engine);
             deployment.previous = None;

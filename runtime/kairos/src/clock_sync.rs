@@ -1,0 +1,169 @@
+//! Synchronised clocks between `kairos serve` instances (paper §2.3.1: a master and N slaves, "similar to
+//! NTP"). A master answers on a UDP port of its own; a slave asks it every 250 ms (every 50 ms until it
+//! has locked) with the four-timestamp exchange:
+//!
+//! t1 the slave sends, t2 the master receives, t3 the master answers, t4 the slave receives.
+//! offset = ((t2 − t1) + (t3 − t4)) / 2, round-trip delay = (t4 − t1) − (t3 − t2).
+//!
+//! Both receptions are stamped by the kernel (`SO_TIMESTAMPNS`), so neither side's scheduling delays count.
+//! Of the last 8 exchanges the one with the least delay gives the offset (a queued packet only ever
+//! lengthens the delay, and an asymmetric one biases the offset by half of it). The slave's clock is a
+//! [`DisciplinedClock`]: stepped at its first lock, slewed afterwards, never backwards.
+//!
+//! The master's reference is the machine's wall clock (`CLOCK_REALTIME`), which the real-time clock of its
+//! diagrams follows.
+
+use std::collections::VecDeque;
+use std::io::IoSliceMut;
+use std::net::{SocketAddr, UdpSocket};
+use std::os::fd::AsRawFd as _;
+use std::sync::Arc;
+use std::time::{Duration, SystemTime, UNIX_EPOCH};
+
+use kairos_sdk::{Clock as _, DisciplinedClock, Timestamp};
+use nix::sys::socket::{ControlMessageOwned, MsgFlags, SockaddrStorage, recvmsg, setsockopt, sockopt};
+
+/// The first bytes of every clock packet.
+const MAGIC: &[u8; 4] = b"KCS1";
+/// Exchanges whose least delay gives the offset.
+const WINDOW: usize = 8;
+/// The name a slave's clock gives its source.
+pub const MASTER_SOURCE: &str = "master";
+
+/// The wall clock now, in ns since the UNIX epoch.
+fn wall_now() -> i64 {
+    SystemTime::now()
+        .duration_since(UNIX_EPOCH)
+        .map_or(0, |d| i64::try_from(d.as_nanos()).unwrap_or(i64::MAX))
+}
+
+/// Receives one packet into `buffer`: its length, sender and kernel reception time (wall clock, ns).
+fn receive_stamped(socket: &UdpSocket, buffer: &mut [u8]) -> std::io::Result<(usize, SocketAddr, i64)> {
+    let mut space = nix::cmsg_space!(nix::sys::time::TimeSpec);
+    let mut slices = [IoSliceMut::new(buffer)];
+    let message = recvmsg::<SockaddrStorage>(
+        socket.as_raw_fd(),
+        &mut slices,
+        Some(&mut space),
+        MsgFlags::empty(),
+    )
+    .map_err(std::io::Error::from)?;
+    let mut stamped = None;
+    for control in message.cmsgs().map_err(std::io::Error::from)? {
+        if let ControlMessageOwned::ScmTimestampns(time) = control {
+            stamped = Some(time.tv_sec() * 1_000_000_000 + time.tv_nsec());
+        }
+    }
+    let from = message
+        .address
+        .and_then(|a| a.as_sockaddr_in().map(|v4| SocketAddr::V4((*v4).into())))
+        .ok_or_else(|| std::io::Error::other("a clock packet from no IPv4 address"))?;
+    // Without a kernel stamp (never seen on Linux), the time of reading is the next best.
+    Ok((message.bytes, from, stamped.unwrap_or_else(wall_now)))
+}
+
+fn stamped_socket(bind: &str) -> std::io::Result<UdpSocket> {
+    let socket = UdpSocket::bind(bind)?;
+    setsockopt(&socket, sockopt::ReceiveTimestampns, &true).map_err(std::io::Error::from)?;
+    Ok(socket)
+}
+
+fn read_i64(bytes: &[u8], at: usize) -> Option<i64> {
+    bytes.get(at..at + 8)?.try_into().ok().map(i64::from_le_bytes)
+}
+
+/// Answers slaves on `bind` (`0.0.0.0:7401`) until the process ends.
+pub fn run_master(bind: &str) -> std::io::Result<SocketAddr> {
+    let socket = stamped_socket(bind)?;
+    let address = socket.local_addr()?;
+    std::thread::Builder::new()
+        .name("k:clock".to_owned())
+        .spawn(move || {
+            let mut buffer = [0_u8; 64];
+            loop {
+                let Ok((read, from, received)) = receive_stamped(&socket, &mut buffer) else {
+                    continue;
+                };
+                let (Some(b"KCS1"), Some(t1)) = (buffer.get(..4), read_i64(&buffer[..read], 4)) else {
+                    continue;
+                };
+                let mut answer = Vec::with_capacity(28);
+                answer.extend_from_slice(MAGIC);
+                answer.extend_from_slice(&t1.to_le_bytes());
+                answer.extend_from_slice(&received.to_le_bytes());
+                answer.extend_from_slice(&wall_now().to_le_bytes());
+                let _ = socket.send_to(&answer, from);
+            }
+        })?;
+    Ok(address)
+}
+
+/// One exchange's result.
+#[derive(Debug, Clone, Copy)]
+struct Exchange {
+    offset: i64,
+    delay: i64,
+}
+
+/// Follows the master at `master` (`HOST:PORT`) with `clock`, until the process ends.
+pub fn run_slave(master: SocketAddr, clock: Arc<DisciplinedClock>) -> std::io::Result<()> {
+    let socket = stamped_socket(if master.is_ipv4() { "0.0.0.0:0" } else { "[::]:0" })?;
+    socket.set_read_timeout(Some(Duration::from_millis(200)))?;
+    std::thread::Builder::new()
+        .name("k:clock".to_owned())
+        .spawn(move || {
+            let mut recent: VecDeque<Exchange> = VecDeque::with_capacity(WINDOW);
+            let mut buffer = [0_u8; 64];
+            let mut warned = kairos_sdk::Throttle::default();
+            loop {
+                let t1 = clock.now().as_nanos();
+                let mut ask = MAGIC.to_vec();
+                ask.extend_from_slice(&t1.to_le_bytes());
+                if let Err(e) = socket.send_to(&ask, master) {
+                    warned.warn(|| format!("clock master {master}: {e}"));
+                }
+                match receive_stamped(&socket, &mut buffer) {
+                    Ok((read, _, received_wall)) => {
+                        let packet = &buffer[..read];
+                        let fields = (read_i64(packet, 4), read_i64(packet, 12), read_i64(packet, 20));
+                        if let (Some(b"KCS1"), (Some(echoed), Some(t2), Some(t3))) = (packet.get(..4), fields)
+                            && echoed == t1
+                        {
+                            // The kernel's stamp is wall-clock time; on this clock it was as long ago as on that one.
+                            let now = clock.now().as_nanos();
+                            let t4 = now - (wall_now() - received_wall);
+                            let exchange = Exchange {
+                                offset: i64::midpoint(t2 - t1, t3 - t4),
+                                delay: (t4 - t1) - (t3 - t2),
+                            };
+                            recent.push_back(exchange);
+                            while recent.len() > WINDOW {
+                                recent.pop_front();
+                            }
+                            if let Some(best) = recent.iter().min_by_key(|e| e.delay) {
+                                clock.take_reference(
+                                    MASTER_SOURCE,
+                                    Timestamp(t4),
+                                    Timestamp(t4 + best.offset),
+                                );
+                            }
+                        }
+                    }
+                    Err(e)
+                        if matches!(
+                            e.kind(),
+                            std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut
+                        ) =>
+                    {
+                        warned.warn(|| {
+                            format!("clock master {master} does not answer; the clock runs on, in holdover")
+                        });
+                    }
+                    Err(e) => warned.warn(|| format!("clock master {master}: {e}")),
+                }
+                let locked = clock.clock_status().references >= WINDOW as u64;
+                std::thread::sleep(Duration::from_millis(if locked { 250 } else { 50 }));
+            }
+        })?;
+    Ok(())
+}
