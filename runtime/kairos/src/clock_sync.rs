@@ -101,7 +101,9 @@ pub fn run_master(bind: &str) -> std::io::Result<SocketAddr> {
 /// One exchange's result.
 #[derive(Debug, Clone, Copy)]
 struct Exchange {
-    offset: i64,
+    /// The master's time minus the slave's *uncorrected* (monotonic) time: unlike the offset against the
+    /// slave's clock, it stays true while the clock is corrected, so an older exchange can still be used.
+    base: i64,
     delay: i64,
 }
 
@@ -133,7 +135,7 @@ pub fn run_slave(master: SocketAddr, clock: Arc<DisciplinedClock>) -> std::io::R
                             let now = clock.now().as_nanos();
                             let t4 = now - (wall_now() - received_wall);
                             let exchange = Exchange {
-                                offset: i64::midpoint(t2 - t1, t3 - t4),
+                                base: i64::midpoint(t2 - t1, t3 - t4) + clock.clock_status().offset_ns,
                                 delay: (t4 - t1) - (t3 - t2),
                             };
                             recent.push_back(exchange);
@@ -141,11 +143,9 @@ pub fn run_slave(master: SocketAddr, clock: Arc<DisciplinedClock>) -> std::io::R
                                 recent.pop_front();
                             }
                             if let Some(best) = recent.iter().min_by_key(|e| e.delay) {
-                                clock.take_reference(
-                                    MASTER_SOURCE,
-                                    Timestamp(t4),
-                                    Timestamp(t4 + best.offset),
-                                );
+                                let now = clock.now().as_nanos();
+                                let master_now = now - clock.clock_status().offset_ns + best.base;
+                                clock.take_reference(MASTER_SOURCE, Timestamp(now), Timestamp(master_now));
                             }
                         }
                     }
