@@ -798,6 +798,19 @@ fn deploy_runs_each_part_on_its_host_and_stops_them_all() {
         let mut socket = operator(server);
         assert_eq!(state(&mut socket), "ready", "stopped at the end");
     }
+    // Started together: the first samples of the three parts are stamped within a few milliseconds.
+    let first_stamp = |folder: &tempfile::TempDir, file: &str| -> i64 {
+        let rows = std::fs::read_to_string(folder.path().join(file)).unwrap();
+        let row = rows.lines().nth(1).unwrap().to_owned();
+        row.split(',').nth(1).unwrap().parse().unwrap()
+    };
+    let stamps = [
+        first_stamp(&dir_a, "a.csv"),
+        first_stamp(&dir_b, "b.csv"),
+        first_stamp(&here, "here.csv"),
+    ];
+    let spread_ms = (stamps.iter().max().unwrap() - stamps.iter().min().unwrap()) as f64 / 1e6;
+    assert!(spread_ms < 20.0, "first samples {spread_ms} ms apart: {stamps:?}");
 }
 
 #[test]
@@ -883,4 +896,38 @@ fn a_slave_whose_clock_is_250_ms_off_locks_to_its_master_within_a_second() {
     // On one machine the two clocks are the same clock: what remains is the exchange's own error.
     let error_us = clock["error_ns"].as_f64().unwrap().abs() / 1e3;
     assert!(error_us < 500.0, "error {error_us} µs: {clock}");
+}
+
+#[test]
+fn a_start_instant_too_far_ahead_is_refused_and_one_in_the_past_starts_at_once() {
+    let _machine = shared_machine();
+    let dir = tempfile::tempdir().unwrap();
+    let server = serve(dir.path(), &[]);
+    let mut socket = operator(&server);
+    let hello = std::fs::read_to_string(example("hello")).unwrap();
+    let reply = call(&mut socket, &json!({"id": 2, "type": "deploy", "diagram": hello}));
+    assert_eq!(reply["ok"], true, "{reply}");
+    let now_ns = i64::try_from(
+        std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .unwrap()
+            .as_nanos(),
+    )
+    .unwrap();
+    let far = call(
+        &mut socket,
+        &json!({"id": 3, "type": "start", "at_ns": now_ns + 120_000_000_000_i64}),
+    );
+    assert_eq!(far["ok"], false, "{far}");
+    assert!(
+        far["error"]["message"].as_str().unwrap().contains("120.0 s away"),
+        "{far}"
+    );
+    assert_eq!(state(&mut socket), "ready");
+    let past = call(
+        &mut socket,
+        &json!({"id": 4, "type": "start", "at_ns": now_ns - 1_000_000_000_i64}),
+    );
+    assert_eq!(past["ok"], true, "{past}");
+    assert_eq!(state(&mut socket), "running");
 }

@@ -230,7 +230,7 @@ fn main() {
     );
     let deploy = control.request(RequestBody::Deploy { diagram });
     let deployed = wait_for_reply(&control, deploy).is_some();
-    let start = control.request(RequestBody::Start);
+    let start = control.request(RequestBody::Start { at_ns: None });
     if !deployed || wait_for_reply(&control, start).is_none() {
         eprintln!("the camera diagram did not start");
         return;

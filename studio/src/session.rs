@@ -539,7 +539,7 @@ impl Session {
                 self.port_problems.clear();
                 self.succeeded("deployed");
                 if std::mem::take(&mut self.deploy.start_after) {
-                    self.request(RequestBody::Start);
+                    self.request(RequestBody::Start { at_ns: None });
                 }
             }
             _ => {}
@@ -1003,7 +1003,7 @@ mod tests {
             after,
             [
                 RequestBody::UnsubscribeSamples { outputs: Vec::new() },
-                RequestBody::Start
+                RequestBody::Start { at_ns: None }
             ]
         );
         assert!(
@@ -1148,7 +1148,7 @@ mod tests {
     #[test]
     fn without_a_runtime_a_request_is_an_error_in_the_log() {
         let mut session = Session::new(document(), library(), Settings::default());
-        session.request(RequestBody::Start);
+        session.request(RequestBody::Start { at_ns: None });
         assert!(session.take_effects().is_empty());
         assert!(
             session

@@ -438,7 +438,7 @@ fn frames_compare_by_socket_and_shared_memory(shared_pixels: bool) {
             .to_owned(),
     });
     wait_for_reply(&socket, deploy);
-    let start = socket.request(RequestBody::Start);
+    let start = socket.request(RequestBody::Start { at_ns: None });
     wait_for_reply(&socket, start);
     let subscribe = |client: &mut RuntimeClient, transport, shared_pixels| {
         client.request(RequestBody::SubscribeSamples {

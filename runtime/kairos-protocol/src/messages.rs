@@ -167,8 +167,13 @@ requests! {
         /// The diagram file's text.
         diagram: String,
     } => DeployResult, Operator;
-    /// Starts the deployed diagram.
-    Start = "start" => Done, Operator;
+    /// Starts the deployed diagram: now, or at an instant on the runtime's clock (several runtimes whose
+    /// clocks follow one master start together); the reply comes once it has started.
+    Start = "start" {
+        /// When to start, ns since the UNIX epoch on the runtime's clock; absent: now.
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        at_ns: Option<i64>,
+    } => Done, Operator;
     /// Pauses it.
     Pause = "pause" => Done, Operator;
     /// Resumes it after a pause.

@@ -138,12 +138,23 @@ impl Host {
 
     /// Sends `body` and waits for its reply; a refusal names the host and the reason (and each diagnostic).
     pub fn call(&mut self, body: RequestBody) -> anyhow::Result<serde_json::Value> {
+        let id = self.send(body)?;
+        self.wait(id)
+    }
+
+    /// Sends `body` without waiting; its id, for [`Host::wait`].
+    pub fn send(&mut self, body: RequestBody) -> anyhow::Result<u64> {
         let id = self.next_id;
         self.next_id += 1;
         let text = serde_json::to_string(&Request { id, body })?;
         self.socket
             .send(Message::text(text))
             .map_err(|e| anyhow::anyhow!("host '{}': {e}", self.name))?;
+        Ok(id)
+    }
+
+    /// The reply to request `id`.
+    pub fn wait(&mut self, id: u64) -> anyhow::Result<serde_json::Value> {
         loop {
             let message = self
                 .socket
@@ -174,8 +185,8 @@ impl Host {
     }
 }
 
-/// Reaches every host of `parts`, deploys each part, and starts them all, or none: the hosts reached so
-/// far are left deployed and stopped when anything fails.
+/// Reaches every host of `parts` and deploys each part, or fails naming the host and its reason. Nothing
+/// is started.
 pub fn deploy_remote(
     diagram: &Diagram,
     parts: &BTreeMap<Option<String>, Diagram>,
@@ -195,20 +206,36 @@ pub fn deploy_remote(
             .unwrap_or_default();
         host.call(RequestBody::Deploy { diagram: part })?;
     }
-    let mut started = 0;
-    for index in 0..hosts.len() {
-        let Some(host) = hosts.get_mut(index) else {
-            continue;
-        };
-        if let Err(error) = host.call(RequestBody::Start) {
-            for earlier in hosts.iter_mut().take(started) {
-                let _ = earlier.call(RequestBody::Stop);
-            }
-            return Err(error);
-        }
-        started += 1;
-    }
     Ok(hosts)
+}
+
+/// How far ahead of now the hosts are told to start: time for every request to arrive.
+pub const START_LEAD: Duration = Duration::from_millis(500);
+
+/// Asks every host to start at `at` (ns since the UNIX epoch on its clock), without waiting: each answers
+/// once started. Collect the answers with [`confirm_started`].
+pub fn start_all_at(hosts: &mut [Host], at: i64) -> anyhow::Result<Vec<u64>> {
+    hosts
+        .iter_mut()
+        .map(|host| host.send(RequestBody::Start { at_ns: Some(at) }))
+        .collect()
+}
+
+/// The hosts' answers to [`start_all_at`]; the first refusal, after stopping every host.
+pub fn confirm_started(hosts: &mut [Host], ids: &[u64]) -> anyhow::Result<()> {
+    let mut refused = None;
+    for (host, id) in hosts.iter_mut().zip(ids) {
+        if let Err(error) = host.wait(*id) {
+            refused.get_or_insert(error);
+        }
+    }
+    match refused {
+        None => Ok(()),
+        Some(error) => {
+            stop_all(hosts);
+            Err(error)
+        }
+    }
 }
 
 /// Stops every host's part, saying which could not be stopped.

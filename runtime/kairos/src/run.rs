@@ -98,9 +98,6 @@ pub fn run(registry: &Registry, path: &Path, options: &RunOptions) -> anyhow::Re
         let parts = crate::deploy::split(&parsed.diagram)?;
         let folder = path.parent().unwrap_or_else(|| Path::new("."));
         hosts = crate::deploy::deploy_remote(&parsed.diagram, &parts, folder)?;
-        for host in &hosts {
-            tracing::info!("host '{}' started its part", host.name());
-        }
         parsed.diagram = parts.get(&None).cloned().unwrap_or_default();
     }
 
@@ -118,7 +115,7 @@ pub fn run(registry: &Registry, path: &Path, options: &RunOptions) -> anyhow::Re
         Ok(engine) => engine,
         Err(error) => bail!("{error}"),
     };
-    engine.start().context("starting the diagram")?;
+    start_everywhere(&mut engine, &mut hosts)?;
     tracing::info!(
         "running {} ({} components){}",
         path.display(),
@@ -170,6 +167,31 @@ pub fn run(registry: &Registry, path: &Path, options: &RunOptions) -> anyhow::Re
         );
     }
     Ok(report_failures(&last))
+}
+
+/// Starts this machine's part, and with hosts, every host's part at one instant, each on its own clock.
+fn start_everywhere(engine: &mut Engine, hosts: &mut [crate::deploy::Host]) -> anyhow::Result<()> {
+    if hosts.is_empty() {
+        engine.start().context("starting the diagram")?;
+    } else {
+        // Every part starts at one instant, each host on its own clock (synchronised with a master).
+        use kairos_sdk::Clock as _;
+        let wall = kairos_sdk::RealTimeClock::new();
+        let at = wall.now().after(crate::deploy::START_LEAD);
+        let asked = crate::deploy::start_all_at(hosts, at.as_nanos())?;
+        while wall.now() < at {
+            std::thread::sleep(Duration::from_micros(200));
+        }
+        engine.start().context("starting the diagram")?;
+        if let Err(error) = crate::deploy::confirm_started(hosts, &asked) {
+            engine.stop();
+            return Err(error);
+        }
+        for host in hosts.iter() {
+            tracing::info!("host '{}' started its part", host.name());
+        }
+    }
+    Ok(())
 }
 
 fn report_failures(snapshot: &StatsSnapshot) -> ExitCode {

@@ -154,6 +154,14 @@ impl Runtime {
         }
     }
 
+    /// The time on this runtime's clock: the master's, when it follows one; the machine's otherwise.
+    pub fn now(&self) -> kairos_sdk::Timestamp {
+        match self.clock.lock().ok().and_then(|slot| slot.clone()) {
+            Some(shared) => shared.now(),
+            None => kairos_sdk::Clock::now(&kairos_sdk::RealTimeClock::new()),
+        }
+    }
+
     /// The clock a diagram deployed here runs on.
     fn clock_for(&self, diagram: &Diagram) -> Arc<dyn kairos_sdk::Clock> {
         match self.clock.lock().ok().and_then(|slot| slot.clone()) {

@@ -16,7 +16,7 @@ use kairos_protocol::{
     ProtocolError, ReplyBody, RequestBody, RequestKind, Role, SampleTransport, SamplesSubscribed,
     ServerMessage, Status, TelemetrySubscribed, Token, Welcome, decode_request,
 };
-use kairos_sdk::Value;
+use kairos_sdk::{Timestamp, Value};
 use tokio::net::TcpStream;
 use tokio::sync::mpsc;
 use tokio::sync::mpsc::error::TrySendError;
@@ -31,6 +31,10 @@ use super::samples::{LatestSamples, PixelsIn};
 
 /// The shortest telemetry period a client may ask for.
 const MIN_TELEMETRY_MS: u64 = 20;
+/// A start this long after its agreed instant is reported as missed.
+const MISSED_START_NS: i64 = 1_000_000;
+/// The farthest ahead a start instant may be: further means clocks that disagree, or a wrong instant.
+const FARTHEST_START: Duration = Duration::from_mins(1);
 /// The most sample frames per second per output a client may ask for.
 const MAX_SAMPLE_RATE_HZ: f64 = 120.0;
 
@@ -201,6 +205,34 @@ impl Session {
         tokio::task::block_in_place(|| operation(&runtime))
     }
 
+    /// Waits until the runtime's clock reaches `at`: asleep until the last 2 ms, then looking every 50 µs.
+    async fn wait_for_instant(&self, at: Timestamp) -> Result<(), ProtocolError> {
+        let runtime = self.runtime();
+        let ahead = at.nanos_since(runtime.now());
+        if ahead > i64::try_from(FARTHEST_START.as_nanos()).unwrap_or(i64::MAX) {
+            return Err(ProtocolError::new(
+                ErrorCode::InvalidValue,
+                format!(
+                    "the start instant is {:.1} s away on this runtime's clock (at most {} s): the clocks \
+                     disagree, or the instant is wrong",
+                    ahead as f64 * 1e-9,
+                    FARTHEST_START.as_secs()
+                ),
+            ));
+        }
+        let left = at.nanos_since(runtime.now());
+        if left > 2_000_000 {
+            tokio::time::sleep(Duration::from_nanos(u64::try_from(left - 2_000_000).unwrap_or(0))).await;
+        }
+        // The async timer's grain is a millisecond: the last two are waited on this thread.
+        tokio::task::block_in_place(|| {
+            while runtime.now() < at {
+                std::thread::sleep(Duration::from_micros(50));
+            }
+        });
+        Ok(())
+    }
+
     /// Handles one text message; `false` ends the session.
     async fn handle(&mut self, text: &str) -> bool {
         let request = match decode_request(text) {
@@ -305,8 +337,19 @@ impl Session {
             RequestBody::Deploy { diagram } => {
                 ReplyBody::Deploy(self.blocking(move |r| r.deploy(&diagram)).await?)
             }
-            RequestBody::Start => {
+            RequestBody::Start { at_ns } => {
+                if let Some(at) = at_ns {
+                    self.wait_for_instant(Timestamp(at)).await?;
+                }
                 self.blocking(Runtime::start).await?;
+                if let Some(at) = at_ns {
+                    let late = self.runtime().now().nanos_since(Timestamp(at));
+                    if late > MISSED_START_NS {
+                        tracing::warn!("started {:.1} ms after the agreed instant", late as f64 * 1e-6);
+                    } else {
+                        tracing::info!("started at the agreed instant (+{:.0} µs)", late as f64 * 1e-3);
+                    }
+                }
                 ReplyBody::Start(Done {})
             }
             RequestBody::Pause => {
