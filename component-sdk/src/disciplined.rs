@@ -277,16 +277,7 @@ impl Clock for DisciplinedClock {
     }
 
     fn wait_until(&self, deadline: Timestamp, signal: &RunSignal) -> bool {
-        loop {
-            if signal.wants_attention() {
-                return false;
-            }
-            let now = self.now();
-            if now >= deadline {
-                return true;
-            }
-            signal.park_timeout(deadline.duration_since(now));
-        }
+        crate::time::wait_in_real_time(self, deadline, signal)
     }
 
     fn describe(&self) -> String {

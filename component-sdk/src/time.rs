@@ -153,16 +153,7 @@ impl Clock for RealTimeClock {
     }
 
     fn wait_until(&self, deadline: Timestamp, signal: &RunSignal) -> bool {
-        loop {
-            if signal.wants_attention() {
-                return false;
-            }
-            let now = self.now();
-            if now >= deadline {
-                return true;
-            }
-            signal.park_timeout(deadline.duration_since(now));
-        }
+        wait_in_real_time(self, deadline, signal)
     }
 
     fn describe(&self) -> String {
@@ -170,6 +161,22 @@ impl Clock for RealTimeClock {
             "real time (monotonic, epoch read at start: {})",
             Timestamp(self.start_nanos)
         )
+    }
+}
+
+/// Waits until `clock` (one that advances with real time) reaches `deadline`, parked meanwhile, or until
+/// `signal` asks for attention (then `false`). Looks again after each wake-up, so a clock that is slewed or
+/// stepped meanwhile is followed.
+pub(crate) fn wait_in_real_time(clock: &dyn Clock, deadline: Timestamp, signal: &RunSignal) -> bool {
+    loop {
+        if signal.wants_attention() {
+            return false;
+        }
+        let now = clock.now();
+        if now >= deadline {
+            return true;
+        }
+        signal.park_timeout(deadline.duration_since(now));
     }
 }
 

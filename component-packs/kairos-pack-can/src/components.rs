@@ -290,6 +290,22 @@ fn output_name(message: &str, signal: &str) -> String {
 ///
 /// The DBC cannot be read or parsed (the error is on the property `dbc`, with the line and column).
 pub fn describe_decoder(properties: &BTreeMap<String, Value>) -> Result<ComponentInfo, DescribeError> {
+    let (_, database) = database_of(properties)?;
+    let mut descriptor = decoder_base();
+    for message in database.messages.values() {
+        for signal in &message.signals {
+            descriptor = descriptor.output(
+                &output_name(&message.name, &signal.name),
+                DataType::F64,
+                &signal_doc(&message.name, signal),
+            );
+        }
+    }
+    Ok(descriptor.build())
+}
+
+/// The DBC the property `dbc` names, with its path; a missing or broken file is an error on that property.
+fn database_of(properties: &BTreeMap<String, Value>) -> Result<(&str, Database), DescribeError> {
     let path = properties.get("dbc").and_then(Value::as_text).unwrap_or("");
     if path.is_empty() {
         return Err(
@@ -297,22 +313,16 @@ pub fn describe_decoder(properties: &BTreeMap<String, Value>) -> Result<Componen
         );
     }
     let database = Database::open(Path::new(path)).map_err(|e| DescribeError::property("dbc", e.0))?;
-    let mut descriptor = decoder_base();
-    for message in database.messages.values() {
-        for signal in &message.signals {
-            let unit = if signal.unit.is_empty() {
-                String::new()
-            } else {
-                format!(", {}", signal.unit)
-            };
-            descriptor = descriptor.output(
-                &output_name(&message.name, &signal.name),
-                DataType::F64,
-                &format!("{}.{}{unit}", message.name, signal.name),
-            );
-        }
+    Ok((path, database))
+}
+
+/// What a signal's port says of it: `Message.Signal, unit`.
+fn signal_doc(message: &str, signal: &crate::dbc::SignalSpec) -> String {
+    if signal.unit.is_empty() {
+        format!("{message}.{}", signal.name)
+    } else {
+        format!("{message}.{}, {}", signal.name, signal.unit)
     }
-    Ok(descriptor.build())
 }
 
 /// `can.dbc_decoder`. See [`decoder_descriptor`].
@@ -412,13 +422,7 @@ fn encoder_base() -> Descriptor {
 fn encoded_message(
     properties: &BTreeMap<String, Value>,
 ) -> Result<(Database, crate::dbc::MessageSpec), DescribeError> {
-    let path = properties.get("dbc").and_then(Value::as_text).unwrap_or("");
-    if path.is_empty() {
-        return Err(
-            DescribeError::property("dbc", "no DBC file").with_suggestion("set 'dbc' to the bus's .dbc file")
-        );
-    }
-    let database = Database::open(Path::new(path)).map_err(|e| DescribeError::property("dbc", e.0))?;
+    let (path, database) = database_of(properties)?;
     let name = properties.get("message").and_then(Value::as_text).unwrap_or("");
     let names: Vec<&str> = database.messages.values().map(|m| m.name.as_str()).collect();
     let Some(message) = database.messages.values().find(|m| m.name == name).cloned() else {
@@ -443,16 +447,11 @@ pub fn describe_encoder(properties: &BTreeMap<String, Value>) -> Result<Componen
     let mut descriptor = encoder_base();
     let numbers = TypeFilter::OneOf(vec![DataType::F64, DataType::I64, DataType::Bool]);
     for signal in &message.signals {
-        let unit = if signal.unit.is_empty() {
-            String::new()
-        } else {
-            format!(", {}", signal.unit)
-        };
         descriptor = descriptor.input_with_policy(
             &signal.name,
             numbers.clone(),
             ReaderPolicy::Fifo,
-            &format!("{}.{}{unit}", message.name, signal.name),
+            &signal_doc(&message.name, signal),
         );
     }
     Ok(descriptor.build())

@@ -1,14 +1,17 @@
 //! What a socket component carries: raw bytes (third-party devices and programs) or whole Kairos samples
-//! (another runtime), and the receiving side of the latter: decode, check the type, count the link's
-//! gaps and reordering, write with both times kept.
+//! (another runtime). Both ends of the latter live here, shared by the UDP and TCP components: the sender
+//! encodes into one reused buffer; the receiver decodes, checks the type, counts the link's gaps and
+//! reordering, and writes with both times kept.
 
 use std::collections::BTreeMap;
 
 use kairos_sdk::descriptor::Property;
 use kairos_sdk::{
-    ComponentError, ComponentResult, Context, DataType, DescribeError, Sample, Throttle, Value,
+    ComponentError, ComponentResult, Context, DataType, DescribeError, Payload, Sample, Throttle, TypeFilter,
+    Value,
 };
 
+use crate::framing;
 use crate::sample_frame::{self, SequenceTracker};
 
 /// The output of a receiver in Kairos mode.
@@ -36,6 +39,65 @@ pub fn is_kairos(properties: &BTreeMap<String, Value>) -> bool {
     properties.get("encoding").and_then(Value::as_text) == Some("kairos")
 }
 
+/// What a sender with `properties` accepts: text or bytes raw, any type as Kairos samples.
+pub fn sender_accepts(properties: &BTreeMap<String, Value>) -> TypeFilter {
+    if is_kairos(properties) {
+        TypeFilter::Any
+    } else {
+        TypeFilter::OneOf(vec![DataType::Bytes, DataType::Text])
+    }
+}
+
+/// The bytes a raw-mode sender sends of `payload`.
+pub fn raw_bytes(payload: &Payload) -> Result<&[u8], ComponentError> {
+    match payload {
+        Payload::Bytes(bytes) => Ok(bytes),
+        Payload::Text(text) => Ok(text.as_bytes()),
+        other => Err(ComponentError::failed(format_args!(
+            "expected bytes or text, got {}",
+            other.data_type()
+        ))),
+    }
+}
+
+/// The sending end of a Kairos-sample link: the name its samples travel under, and one frame buffer
+/// reused for every sample.
+#[derive(Debug)]
+pub struct SampleSender {
+    output: String,
+    frame: Vec<u8>,
+}
+
+impl SampleSender {
+    /// A sender naming its samples after the output feeding the component's first input (or the
+    /// component itself when nothing does).
+    pub fn of(ctx: &Context) -> Self {
+        let output = ctx
+            .inputs()
+            .first()
+            .and_then(|input| input.source())
+            .map_or_else(|| format!("{}.in", ctx.id()), str::to_owned);
+        SampleSender {
+            output,
+            frame: Vec::new(),
+        }
+    }
+
+    /// `sample` as one frame, after its length when `length_prefixed` (a stream's framing): the payload's
+    /// bytes are copied once, into the buffer the socket sends from.
+    pub fn frame(&mut self, sample: &Sample, length_prefixed: bool) -> &[u8] {
+        let (head, body) = sample_frame::encode(&self.output, sample);
+        self.frame.clear();
+        if length_prefixed {
+            self.frame
+                .extend_from_slice(&framing::length_prefix(head.len() + body.len()));
+        }
+        self.frame.extend_from_slice(&head);
+        self.frame.extend_from_slice(&body);
+        &self.frame
+    }
+}
+
 /// The type a Kairos-mode receiver with `properties` outputs.
 pub fn data_type_of(properties: &BTreeMap<String, Value>) -> Result<DataType, DescribeError> {
     let name = properties
@@ -56,7 +118,9 @@ pub fn data_type_of(properties: &BTreeMap<String, Value>) -> Result<DataType, De
 #[derive(Debug, Default)]
 pub struct SampleReceiver {
     expected: Option<DataType>,
-    trackers: BTreeMap<String, SequenceTracker>,
+    /// Per sender: its address, its output's name, and what its sequence numbers said. A few senders at
+    /// most, so a list looked up without building a key per sample.
+    trackers: Vec<(String, String, SequenceTracker)>,
     received: u64,
     malformed: u64,
     wrong_type: u64,
@@ -110,10 +174,21 @@ impl SampleReceiver {
             });
             return Ok(());
         }
-        let tracker = self
+        let known = self
             .trackers
-            .entry(format!("{peer} {}", received.output))
-            .or_default();
+            .iter()
+            .position(|(from, output, _)| from == peer && *output == received.output);
+        let index = known.unwrap_or_else(|| {
+            self.trackers.push((
+                peer.to_owned(),
+                received.output.clone(),
+                SequenceTracker::default(),
+            ));
+            self.trackers.len() - 1
+        });
+        let Some((_, _, tracker)) = self.trackers.get_mut(index) else {
+            return Ok(());
+        };
         if tracker.take(received.sequence) {
             self.received += 1;
             ctx.write_replayed(SAMPLES, payload, timestamp, time_of_issue)?;
@@ -123,7 +198,12 @@ impl SampleReceiver {
 
     /// The link's figures for the component's status.
     pub fn status(&self) -> serde_json::Value {
-        let sum = |field: fn(&SequenceTracker) -> u64| self.trackers.values().map(field).sum::<u64>();
+        let sum = |field: fn(&SequenceTracker) -> u64| {
+            self.trackers
+                .iter()
+                .map(|(_, _, tracker)| field(tracker))
+                .sum::<u64>()
+        };
         serde_json::json!({
             "received": self.received,
             "lost": sum(|t| t.lost),
@@ -137,10 +217,12 @@ impl SampleReceiver {
     }
 }
 
-/// Merges `extra`'s fields into the status object `status`.
-pub fn merged(mut status: serde_json::Value, extra: serde_json::Value) -> serde_json::Value {
-    if let (Some(status), serde_json::Value::Object(extra)) = (status.as_object_mut(), extra) {
-        status.extend(extra);
+/// A receiver component's `status`, with the link's figures when it receives Kairos samples.
+pub fn status_with(mut status: serde_json::Value, samples: Option<&SampleReceiver>) -> serde_json::Value {
+    if let (Some(status), Some(serde_json::Value::Object(figures))) =
+        (status.as_object_mut(), samples.map(SampleReceiver::status))
+    {
+        status.extend(figures);
     }
     status
 }

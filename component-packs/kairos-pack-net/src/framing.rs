@@ -48,13 +48,17 @@ impl Framing {
                 framed
             }
             Framing::LengthPrefixed => {
-                let length = u32::try_from(message.len()).unwrap_or(u32::MAX);
-                let mut framed = length.to_be_bytes().to_vec();
+                let mut framed = length_prefix(message.len()).to_vec();
                 framed.extend_from_slice(message);
                 framed
             }
         }
     }
+}
+
+/// The 4-byte big-endian length that goes before a message of `length` bytes in length-prefixed framing.
+pub fn length_prefix(length: usize) -> [u8; 4] {
+    u32::try_from(length).unwrap_or(u32::MAX).to_be_bytes()
 }
 
 /// Why a stream cannot be read on.

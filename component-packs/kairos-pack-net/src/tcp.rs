@@ -1,5 +1,6 @@
 //! `net.tcp_receiver` and `net.tcp_sender`: a TCP connection as a client, or the clients of a server.
 
+use std::borrow::Cow;
 use std::collections::BTreeMap;
 use std::io::{ErrorKind, Read as _, Write as _};
 use std::net::{SocketAddr, TcpListener, TcpStream, ToSocketAddrs as _};
@@ -13,9 +14,8 @@ use kairos_sdk::{
 };
 use kairos_sdk::{STATUS_PERIOD, Throttle};
 
-use crate::encoding::{self, SampleReceiver};
+use crate::encoding::{self, SampleReceiver, SampleSender};
 use crate::framing::{Deframer, Framing};
-use crate::sample_frame;
 
 /// How long a client's read waits, so stop and control requests get through.
 const READ_WAIT: Duration = Duration::from_millis(50);
@@ -299,10 +299,7 @@ impl Component for TcpReceiver {
                 "kind": "tcp", "connections": self.connections.len(), "messages": self.messages,
                 "cut_off": self.cut_off, "refused": self.refused,
             });
-            ctx.set_status(match &self.samples {
-                Some(samples) => encoding::merged(status, samples.status()),
-                None => status,
-            });
+            ctx.set_status(encoding::status_with(status, self.samples.as_ref()));
         }
         if idle && self.side.as_ref().is_some_and(Side::is_server) {
             ctx.sleep(IDLE_WAIT)?;
@@ -317,16 +314,12 @@ impl Component for TcpReceiver {
 
 /// The descriptor of `net.tcp_sender` as listed (text or bytes).
 pub fn sender_descriptor() -> ComponentInfo {
-    sender_base(TypeFilter::OneOf(vec![DataType::Bytes, DataType::Text]))
+    sender_base(encoding::sender_accepts(&BTreeMap::new()))
 }
 
 /// The descriptor of one `net.tcp_sender`: text or bytes in, or with encoding kairos, samples of any type.
 pub fn describe_sender(properties: &BTreeMap<String, Value>) -> Result<ComponentInfo, DescribeError> {
-    Ok(if encoding::is_kairos(properties) {
-        sender_base(TypeFilter::Any)
-    } else {
-        sender_descriptor()
-    })
+    Ok(sender_base(encoding::sender_accepts(properties)))
 }
 
 fn sender_base(accepts: TypeFilter) -> ComponentInfo {
@@ -355,9 +348,8 @@ pub struct TcpSender {
     framing: Option<Framing>,
     side: Option<Side>,
     peers: Vec<(TcpStream, String)>,
-    /// With encoding kairos: the name samples are sent under (the output feeding `in`).
-    kairos_output: Option<String>,
-    frame: Vec<u8>,
+    /// With encoding kairos: whole samples, each after its length.
+    samples: Option<SampleSender>,
     sent: u64,
     dropped: u64,
     warnings: Throttle,
@@ -371,7 +363,7 @@ impl TcpSender {
         for (stream, peer) in side.new_connections(self.peers.len(), &mut self.warnings, meanwhile) {
             // Blocking writes, but never for long: a stuck client is dropped, not waited for.
             // Samples go out as they come: a small one waits for no acknowledgement.
-            let _ = stream.set_nodelay(self.kairos_output.is_some());
+            let _ = stream.set_nodelay(self.samples.is_some());
             if stream.set_nonblocking(false).is_ok() && stream.set_write_timeout(Some(WRITE_WAIT)).is_ok() {
                 self.peers.push((stream, peer));
             }
@@ -383,8 +375,7 @@ impl Component for TcpSender {
     fn birth(&mut self, ctx: &mut Context) -> ComponentResult {
         self.framing = Some(Framing::of(&ctx.text_property("framing")?));
         if encoding::is_kairos(ctx.properties()) {
-            self.kairos_output = Some(crate::udp::sent_as(ctx));
-            self.framing = Some(Framing::LengthPrefixed);
+            self.samples = Some(SampleSender::of(ctx));
         }
         self.side = Some(Side::of(ctx)?);
         Ok(())
@@ -392,25 +383,16 @@ impl Component for TcpSender {
 
     fn core(&mut self, ctx: &mut Context) -> ComponentResult {
         let sample = ctx.read("in")?;
-        let bytes: &[u8] = match &sample.payload {
-            _ if self.kairos_output.is_some() => {
-                let (head, body) = sample_frame::encode(self.kairos_output.as_deref().unwrap_or(""), &sample);
-                self.frame.clear();
-                self.frame.extend_from_slice(&head);
-                self.frame.extend_from_slice(&body);
-                &self.frame
-            }
-            Payload::Bytes(bytes) => bytes,
-            Payload::Text(text) => text.as_bytes(),
-            other => {
-                return Err(failed(format_args!(
-                    "expected bytes or text, got {}",
-                    other.data_type()
-                )));
-            }
-        };
-        let framed = self.framing.unwrap_or(Framing::Raw).frame(bytes);
         self.connect_or_accept();
+        // Kairos samples are framed as they are encoded: one copy of the payload, not two.
+        let framed: Cow<'_, [u8]> = match &mut self.samples {
+            Some(sender) => Cow::Borrowed(sender.frame(&sample, true)),
+            None => Cow::Owned(
+                self.framing
+                    .unwrap_or(Framing::Raw)
+                    .frame(encoding::raw_bytes(&sample.payload)?),
+            ),
+        };
         if self.peers.is_empty() {
             self.dropped += 1;
         }

@@ -12,8 +12,7 @@ use kairos_sdk::{
 };
 use kairos_sdk::{STATUS_PERIOD, Throttle, WARNING_PERIOD};
 
-use crate::encoding::{self, SampleReceiver};
-use crate::sample_frame;
+use crate::encoding::{self, SampleReceiver, SampleSender};
 
 /// How long one receive waits, so stop and control requests get through.
 const RECEIVE_WAIT: Duration = Duration::from_millis(50);
@@ -67,14 +66,6 @@ fn failed(error: impl std::fmt::Display) -> ComponentError {
     ComponentError::failed(error)
 }
 
-/// The name a sender's samples travel under: the output feeding its input, or the sender itself.
-pub(crate) fn sent_as(ctx: &Context) -> String {
-    ctx.inputs()
-        .first()
-        .and_then(|input| input.source())
-        .map_or_else(|| format!("{}.in", ctx.id()), str::to_owned)
-}
-
 /// `net.udp_receiver`. See [`receiver_descriptor`].
 #[derive(Debug, Default)]
 pub struct UdpReceiver {
@@ -82,6 +73,8 @@ pub struct UdpReceiver {
     buffer: Vec<u8>,
     datagrams: u64,
     samples: Option<SampleReceiver>,
+    /// The last sender and its address in words, written once rather than for every datagram.
+    peer: Option<(SocketAddr, String)>,
     published: Throttle,
 }
 
@@ -122,7 +115,11 @@ impl Component for UdpReceiver {
                 let datagram = self.buffer.get(..read).unwrap_or_default();
                 self.datagrams += 1;
                 if let Some(samples) = &mut self.samples {
-                    samples.take(datagram, &peer.to_string(), ctx)?;
+                    if self.peer.as_ref().is_none_or(|(address, _)| *address != peer) {
+                        self.peer = Some((peer, peer.to_string()));
+                    }
+                    let name = self.peer.as_ref().map_or("", |(_, name)| name.as_str());
+                    samples.take(datagram, name, ctx)?;
                 } else {
                     ctx.write_at("data", Payload::Bytes(Arc::from(datagram)), now)?;
                 }
@@ -137,10 +134,7 @@ impl Component for UdpReceiver {
         }
         if self.published.ready(STATUS_PERIOD) {
             let status = serde_json::json!({"kind": "udp", "datagrams": self.datagrams});
-            ctx.set_status(match &self.samples {
-                Some(samples) => encoding::merged(status, samples.status()),
-                None => status,
-            });
+            ctx.set_status(encoding::status_with(status, self.samples.as_ref()));
         }
         Ok(())
     }
@@ -152,16 +146,12 @@ impl Component for UdpReceiver {
 
 /// The descriptor of `net.udp_sender` as listed (text or bytes).
 pub fn sender_descriptor() -> ComponentInfo {
-    sender_base(TypeFilter::OneOf(vec![DataType::Bytes, DataType::Text]))
+    sender_base(encoding::sender_accepts(&BTreeMap::new()))
 }
 
 /// The descriptor of one `net.udp_sender`: text or bytes in, or with encoding kairos, samples of any type.
 pub fn describe_sender(properties: &BTreeMap<String, Value>) -> Result<ComponentInfo, DescribeError> {
-    Ok(if encoding::is_kairos(properties) {
-        sender_base(TypeFilter::Any)
-    } else {
-        sender_descriptor()
-    })
+    Ok(sender_base(encoding::sender_accepts(properties)))
 }
 
 fn sender_base(accepts: TypeFilter) -> ComponentInfo {
@@ -191,9 +181,8 @@ fn sender_base(accepts: TypeFilter) -> ComponentInfo {
 pub struct UdpSender {
     socket: Option<UdpSocket>,
     destination: Option<SocketAddr>,
-    /// With encoding kairos: the name samples are sent under (the output feeding `in`).
-    kairos_output: Option<String>,
-    frame: Vec<u8>,
+    /// With encoding kairos: whole samples.
+    samples: Option<SampleSender>,
     sent: u64,
     failed: u64,
     too_large: u64,
@@ -202,13 +191,11 @@ pub struct UdpSender {
 }
 
 impl UdpSender {
-    fn warn(&mut self, what: &str) {
-        if self.warned.ready(WARNING_PERIOD) {
-            tracing::warn!(
-                "{what} ({} not sent, {} too large, in all)",
-                self.failed,
-                self.too_large
-            );
+    /// Logs `what` at most once a second with the counts so far (an associated function, so it can run
+    /// while the frame being sent borrows the sender).
+    fn warn(warned: &mut Throttle, failed: u64, too_large: u64, what: &str) {
+        if warned.ready(WARNING_PERIOD) {
+            tracing::warn!("{what} ({failed} not sent, {too_large} too large, in all)");
         }
     }
 }
@@ -230,42 +217,35 @@ impl Component for UdpSender {
         self.socket = Some(socket);
         self.destination = Some(address);
         if encoding::is_kairos(ctx.properties()) {
-            self.kairos_output = Some(sent_as(ctx));
+            self.samples = Some(SampleSender::of(ctx));
         }
         Ok(())
     }
 
     fn core(&mut self, ctx: &mut Context) -> ComponentResult {
         let sample = ctx.read("in")?;
-        let bytes: &[u8] = match &sample.payload {
-            _ if self.kairos_output.is_some() => {
-                let (head, body) = sample_frame::encode(self.kairos_output.as_deref().unwrap_or(""), &sample);
-                self.frame.clear();
-                self.frame.extend_from_slice(&head);
-                self.frame.extend_from_slice(&body);
-                &self.frame
-            }
-            Payload::Bytes(bytes) => bytes,
-            Payload::Text(text) => text.as_bytes(),
-            other => {
-                return Err(failed(format_args!(
-                    "expected bytes or text, got {}",
-                    other.data_type()
-                )));
-            }
+        let bytes = match &mut self.samples {
+            Some(sender) => sender.frame(&sample, false),
+            None => encoding::raw_bytes(&sample.payload)?,
         };
         if bytes.len() > LARGEST_DATAGRAM {
             self.too_large += 1;
             let size = bytes.len();
-            self.warn(&format!(
-                "a sample of {size} bytes is larger than a UDP datagram can be ({LARGEST_DATAGRAM}); not sent (TCP carries any size)"
-            ));
+            Self::warn(
+                &mut self.warned,
+                self.failed,
+                self.too_large,
+                &format!(
+                    "a sample of {size} bytes is larger than a UDP datagram can be ({LARGEST_DATAGRAM}); not sent (TCP carries any size)"
+                ),
+            );
         } else if let (Some(socket), Some(destination)) = (&self.socket, self.destination) {
             match socket.send_to(bytes, destination) {
                 Ok(_) => self.sent += 1,
                 Err(e) => {
                     self.failed += 1;
-                    self.warn(&format!("cannot send to {destination}: {e}"));
+                    let what = format!("cannot send to {destination}: {e}");
+                    Self::warn(&mut self.warned, self.failed, self.too_large, &what);
                 }
             }
         }
