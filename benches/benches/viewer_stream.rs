@@ -228,7 +228,10 @@ fn main() {
          Component(id: \"lidar\", type: \"sensors.lidar\", position: (x: 0.0, y: 100.0), \
          properties: {{\"channels\": 64, \"columns\": 1600, \"rate\": {RATE_HZ:.1}}})], connections: [])"
     );
-    let deploy = control.request(RequestBody::Deploy { diagram });
+    let deploy = control.request(RequestBody::Deploy {
+        diagram,
+        network: None,
+    });
     let deployed = wait_for_reply(&control, deploy).is_some();
     let start = control.request(RequestBody::Start { at_ns: None });
     if !deployed || wait_for_reply(&control, start).is_none() {

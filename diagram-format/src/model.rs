@@ -42,6 +42,33 @@ pub struct HostSpec {
     /// The file holding its token, relative to the diagram's folder, when it asks for one.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub token_file: Option<String>,
+    /// Where the other hosts reach its Zenoh session for the links between parts (`tcp/10.0.0.2:7447`);
+    /// absent: the endpoint's address, port 7447. It listens there.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub zenoh: Option<String>,
+}
+
+/// The Zenoh port a host listens on when its `zenoh` endpoint is not given (Zenoh's own default).
+pub const DEFAULT_ZENOH_PORT: u16 = 7447;
+
+impl HostSpec {
+    /// The Zenoh endpoint the host listens on and the others connect to: `zenoh`, or the control
+    /// endpoint's address with port [`DEFAULT_ZENOH_PORT`].
+    pub fn zenoh_endpoint(&self) -> String {
+        if let Some(explicit) = &self.zenoh {
+            return explicit.clone();
+        }
+        let authority = self
+            .endpoint
+            .split("://")
+            .nth(1)
+            .and_then(|rest| rest.split('/').next())
+            .unwrap_or_default();
+        let address = authority
+            .rsplit_once(':')
+            .map_or(authority, |(address, _)| address);
+        format!("tcp/{address}:{DEFAULT_ZENOH_PORT}")
+    }
 }
 
 impl Default for Diagram {

@@ -41,6 +41,8 @@ pub struct HostLocations {
     pub name: Location,
     /// Its endpoint's value.
     pub endpoint: Location,
+    /// Its Zenoh endpoint's value, when given.
+    pub zenoh: Option<Location>,
 }
 
 /// Where a pack requirement is.
@@ -616,12 +618,16 @@ impl Reader<'_> {
         let mut hosts = BTreeMap::new();
         let mut locations = BTreeMap::new();
         for (name, name_span, value) in self.string_map(node, "host") {
-            let Some(fields) = self.fields(value, "Host", &["endpoint", "token_file"]) else {
+            let Some(fields) = self.fields(value, "Host", &["endpoint", "token_file", "zenoh"]) else {
                 continue;
             };
             let endpoint_node = self.required(&fields, "endpoint");
             let endpoint = endpoint_node.and_then(|n| self.text(n));
             let Ok(token_file) = self.optional(fields.optional("token_file"), Self::text) else {
+                continue;
+            };
+            let zenoh_node = fields.optional("zenoh");
+            let Ok(zenoh) = self.optional(zenoh_node, Self::text) else {
                 continue;
             };
             let (Some(endpoint), Some(endpoint_node)) = (endpoint, endpoint_node) else {
@@ -632,9 +638,17 @@ impl Reader<'_> {
                 HostLocations {
                     name: self.location(name_span),
                     endpoint: self.location(endpoint_node.span),
+                    zenoh: zenoh_node.map(|n| self.location(n.span)),
                 },
             );
-            hosts.insert(name, HostSpec { endpoint, token_file });
+            hosts.insert(
+                name,
+                HostSpec {
+                    endpoint,
+                    token_file,
+                    zenoh,
+                },
+            );
         }
         (hosts, locations)
     }

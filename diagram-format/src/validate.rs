@@ -5,6 +5,8 @@ use std::collections::{BTreeMap, BTreeSet, HashMap};
 
 use crate::diagnostic::{Diagnostic, DiagnosticCode, Location, closest, did_you_mean};
 use crate::library::{ComponentInfo, DescribeError, ExecutionMode, InstanceInfos, LibraryInfo, Value};
+#[cfg(test)]
+use crate::model::HostSpec;
 use crate::model::{ComponentInstance, Connection, Diagram, FORMAT_VERSION, MAX_BUFFER_SIZE, PortRef};
 use crate::read::{ComponentLocations, ConnectionLocations, PackLocations, SourceMap};
 
@@ -212,6 +214,21 @@ impl<'a> Validator<'a> {
                     .at(at.map(|l| l.endpoint))
                     .with_suggestion(Some(
                         "write the address `kairos serve` listens on there, as ws://HOST:PORT (wss:// with TLS)"
+                            .to_owned(),
+                    )),
+                );
+            }
+            if let Some(zenoh) = &host.zenoh
+                && let Err(why) = check_zenoh_endpoint(zenoh)
+            {
+                self.found.push(
+                    Diagnostic::error(
+                        DiagnosticCode::InvalidEndpoint,
+                        format!("host '{name}': the Zenoh endpoint {zenoh:?} {why}"),
+                    )
+                    .at(at.and_then(|l| l.zenoh))
+                    .with_suggestion(Some(
+                        "write where the other hosts reach this one's links, as tcp/HOST:PORT (tls/HOST:PORT with TLS)"
                             .to_owned(),
                     )),
                 );
@@ -863,9 +880,51 @@ fn check_endpoint(endpoint: &str) -> Result<(), &'static str> {
     }
 }
 
+/// A Zenoh endpoint as the hosts section takes it: `tcp/HOST:PORT` or `tls/HOST:PORT`.
+fn check_zenoh_endpoint(endpoint: &str) -> Result<(), &'static str> {
+    let Some(authority) = endpoint
+        .strip_prefix("tcp/")
+        .or_else(|| endpoint.strip_prefix("tls/"))
+    else {
+        return Err("does not start with tcp/ or tls/");
+    };
+    let Some((host, port)) = authority.rsplit_once(':') else {
+        return Err("has no port");
+    };
+    if host.is_empty() || host.contains(['/', '#', '?']) {
+        return Err("has no host");
+    }
+    match port.parse::<u16>() {
+        Ok(port) if port > 0 => Ok(()),
+        _ => Err("has no valid port (1 to 65535)"),
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn zenoh_endpoints_are_tcp_or_tls_addresses_with_a_port() {
+        for good in ["tcp/10.0.0.2:7447", "tls/car.local:7447", "tcp/[::1]:7447"] {
+            assert_eq!(check_zenoh_endpoint(good), Ok(()), "{good}");
+        }
+        for (bad, why) in [
+            ("10.0.0.2:7447", "does not start with tcp/ or tls/"),
+            ("udp/10.0.0.2:7447", "does not start with tcp/ or tls/"),
+            ("tcp/10.0.0.2", "has no port"),
+            ("tcp/:7447", "has no host"),
+            ("tcp/car:0", "has no valid port (1 to 65535)"),
+        ] {
+            assert_eq!(check_zenoh_endpoint(bad), Err(why), "{bad}");
+        }
+        let spec = HostSpec {
+            endpoint: "ws://10.0.0.2:7600".to_owned(),
+            token_file: None,
+            zenoh: None,
+        };
+        assert_eq!(spec.zenoh_endpoint(), "tcp/10.0.0.2:7447");
+    }
 
     #[test]
     fn endpoints_are_websocket_addresses_with_a_port() {

@@ -71,6 +71,9 @@ impl fmt::Display for CanonicalRon<'_> {
                 if let Some(token_file) = &host.token_file {
                     write!(f, ", token_file: {}", Quoted(token_file))?;
                 }
+                if let Some(zenoh) = &host.zenoh {
+                    write!(f, ", zenoh: {}", Quoted(zenoh))?;
+                }
                 f.write_str("),\n")?;
             }
             f.write_str("    },\n")?;

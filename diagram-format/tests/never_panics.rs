@@ -178,8 +178,13 @@ fn diagram() -> impl Strategy<Value = Diagram> {
         prop::option::of("[a-z]{1,6}"),
         prop::collection::btree_map(
             any::<String>(),
-            (any::<String>(), any::<Option<String>>())
-                .prop_map(|(endpoint, token_file)| HostSpec { endpoint, token_file }),
+            (any::<String>(), any::<Option<String>>(), any::<Option<String>>()).prop_map(
+                |(endpoint, token_file, zenoh)| HostSpec {
+                    endpoint,
+                    token_file,
+                    zenoh,
+                },
+            ),
             0..3,
         ),
     )

@@ -108,6 +108,7 @@ fn scrambled_diagram() -> Diagram {
                 HostSpec {
                     endpoint: "wss://10.0.0.3:7600".to_owned(),
                     token_file: Some("roadside \"token\".txt".to_owned()),
+                    zenoh: Some("tls/10.0.0.3:7447".to_owned()),
                 },
             ),
             (
@@ -115,6 +116,7 @@ fn scrambled_diagram() -> Diagram {
                 HostSpec {
                     endpoint: "ws://car.local:7600".to_owned(),
                     token_file: None,
+                    zenoh: None,
                 },
             ),
         ]),

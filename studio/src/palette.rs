@@ -81,11 +81,16 @@ fn rank(search: &str, name: &str, id: &str, doc: &str) -> Option<u8> {
     })
 }
 
+/// The pack of the components that carry a connection between two hosts.
+const LINK_PACK: &str = "link";
+
 /// Every entry that answers `search`, best first, then by name.
 pub fn search<'a>(library: &'a LibraryInfo, search: &str) -> Vec<Found<'a>> {
     let mut found: Vec<Found<'a>> = library
         .components
         .values()
+        // The ends of links between hosts are placed by deploying, never by hand.
+        .filter(|info| info.pack != LINK_PACK)
         .filter_map(|info| {
             let name = info.display_name();
             rank(search, &name, &info.type_name, &info.doc).map(|rank| Found {

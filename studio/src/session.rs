@@ -577,6 +577,7 @@ impl Session {
         self.request_for(
             RequestBody::Deploy {
                 diagram: self.deploy.text.clone(),
+                network: None,
             },
             Pending::Deploy,
         );
@@ -983,7 +984,7 @@ mod tests {
         let deploy = sent(&mut session);
         let [
             Request {
-                body: RequestBody::Deploy { diagram },
+                body: RequestBody::Deploy { diagram, .. },
                 ..
             },
         ] = deploy.as_slice()

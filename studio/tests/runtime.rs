@@ -436,6 +436,7 @@ fn frames_compare_by_socket_and_shared_memory(shared_pixels: bool) {
                   Component(id: \"camera\", type: \"sensors.camera\", position: (x: 0.0, y: 0.0), \
                   properties: {\"width\": 640, \"height\": 480, \"rate\": 20.0})], connections: [])"
             .to_owned(),
+        network: None,
     });
     wait_for_reply(&socket, deploy);
     let start = socket.request(RequestBody::Start { at_ns: None });

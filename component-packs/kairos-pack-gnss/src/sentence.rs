@@ -1,12 +1,14 @@
-//! NMEA 0183 sentences to readings: a pure decoder over the `nmea` crate, which checks the checksum and
-//! parses the fields. What is decoded: GGA (position, altitude, fix quality, satellites, HDOP, UTC time of
-//! day), RMC (date, time, course and speed), VTG (course and speed). Any other sentence with a valid
-//! checksum is accepted and passed on as text only.
+//! NMEA 0183 sentences to readings: a pure decoder that checks the checksum and parses the fields of
+//! GGA (position, altitude, fix quality, satellites, HDOP, UTC time of day), RMC (date, time, course and
+//! speed) and VTG (course and speed). Any other sentence with a valid checksum is accepted and passed on
+//! as text only.
+//!
+//! Decision: written here rather than taken from the `nmea` crate, whose exact `serde_with` pin cannot be
+//! built together with Zenoh; three sentences' fields are little code, and the tests and fuzz target hold
+//! it to the standard's layout (NMEA 0183 v4.11, fields as the receivers' manuals list them).
 
 use chrono::{NaiveDate, NaiveTime, Timelike as _};
 use kairos_sdk::FixStatus;
-use nmea::sentences::FixType;
-use nmea::{Error as NmeaError, ParseResult};
 
 /// Knots to metres per second (1 kn = 1852 m / 3600 s).
 const METRES_PER_SECOND_PER_KNOT: f64 = 1852.0 / 3600.0;
@@ -101,41 +103,54 @@ impl Decoder {
                 line.len()
             )));
         }
-        match nmea::parse_str(line) {
-            Ok(ParseResult::GGA(gga)) => {
-                let mut reading = self.timed(gga.fix_time, None);
-                if let (Some(latitude_deg), Some(longitude_deg)) = (gga.latitude, gga.longitude) {
+        let fields = checked_fields(line)?;
+        let kind = fields[0].get(2..).unwrap_or_default();
+        // Proprietary sentences (`$P…`) have no talker: text only, like any sentence not decoded here.
+        if fields[0].starts_with('P') {
+            return Ok(Reading::default());
+        }
+        match kind {
+            "GGA" => {
+                let field = |index: usize| field(&fields, index, "GGA");
+                let mut reading = self.timed(time_of(field(1)?)?, None);
+                let latitude = angle(field(2)?, field(3)?, 'N', 'S')?;
+                let longitude = angle(field(4)?, field(5)?, 'E', 'W')?;
+                if let (Some(latitude_deg), Some(longitude_deg)) = (latitude, longitude) {
                     reading.fix = Some(Fix {
                         latitude_deg,
                         longitude_deg,
-                        altitude_msl_m: gga.altitude.map(f64::from),
-                        geoid_separation_m: gga.geoid_separation.map(f64::from),
-                        status: status_of(gga.fix_type),
-                        satellites: gga.fix_satellites,
-                        hdop: gga.hdop.map(f64::from),
+                        altitude_msl_m: number(field(9)?, "altitude")?,
+                        geoid_separation_m: fields
+                            .get(11)
+                            .map_or(Ok(None), |f| number(f, "geoid separation"))?,
+                        status: status_of(number::<u8>(field(6)?, "fix quality")?),
+                        satellites: number(field(7)?, "satellites")?,
+                        hdop: number(field(8)?, "HDOP")?,
                     });
                 }
                 Ok(reading)
             }
-            Ok(ParseResult::RMC(rmc)) => {
-                let mut reading = self.timed(rmc.fix_time, rmc.fix_date);
+            "RMC" => {
+                let field = |index: usize| field(&fields, index, "RMC");
+                let mut reading = self.timed(time_of(field(1)?)?, date_of(field(9)?)?);
                 reading.motion = Some(Motion {
-                    speed_mps: rmc.speed_over_ground.map(knots_to_mps),
-                    course_deg: rmc.true_course.map(f64::from),
+                    speed_mps: number(field(7)?, "speed")?.map(knots_to_mps),
+                    course_deg: number(field(8)?, "course")?,
                 });
                 Ok(reading)
             }
-            Ok(ParseResult::VTG(vtg)) => Ok(Reading {
-                motion: Some(Motion {
-                    speed_mps: vtg.speed_over_ground.map(knots_to_mps),
-                    course_deg: vtg.true_course.map(f64::from),
-                }),
-                ..Reading::default()
-            }),
-            // A valid sentence this decoder does not read (GSV, GSA, proprietary ones): text only.
-            Ok(_) | Err(NmeaError::Unsupported(_) | NmeaError::DisabledSentence) => Ok(Reading::default()),
-            Err(NmeaError::ChecksumMismatch { .. }) => Err(SentenceError::BadChecksum),
-            Err(other) => Err(SentenceError::Malformed(other.to_string())),
+            "VTG" => {
+                let field = |index: usize| field(&fields, index, "VTG");
+                Ok(Reading {
+                    motion: Some(Motion {
+                        speed_mps: number(field(5)?, "speed")?.map(knots_to_mps),
+                        course_deg: number(field(1)?, "course")?,
+                    }),
+                    ..Reading::default()
+                })
+            }
+            // A valid sentence this decoder does not read (GSV, GSA, ...): text only.
+            _ => Ok(Reading::default()),
         }
     }
 
@@ -168,16 +183,138 @@ impl Decoder {
     }
 }
 
-fn knots_to_mps(knots: f32) -> f64 {
-    f64::from(knots) * METRES_PER_SECOND_PER_KNOT
+fn knots_to_mps(knots: f64) -> f64 {
+    knots * METRES_PER_SECOND_PER_KNOT
 }
 
-/// GGA's quality field as a fix status; a fix that is not a measured position is no fix.
-fn status_of(fix_type: Option<FixType>) -> FixStatus {
-    match fix_type {
-        Some(FixType::Gps | FixType::Pps) => FixStatus::Fix,
-        Some(FixType::DGps | FixType::FloatRtk) => FixStatus::Differential,
-        Some(FixType::Rtk) => FixStatus::RtkFixed,
+/// The fields of `line` (`$BODY*CS`), after checking its checksum; the first is the address (talker and
+/// sentence type, e.g. `GPGGA`).
+fn checked_fields(line: &str) -> Result<Vec<&str>, SentenceError> {
+    let malformed = |why: &str| SentenceError::Malformed(why.to_owned());
+    let Some(rest) = line.strip_prefix('$').or_else(|| line.strip_prefix('!')) else {
+        return Err(malformed("does not start with '$'"));
+    };
+    let Some((body, checksum)) = rest.rsplit_once('*') else {
+        return Err(malformed("no '*' before a checksum"));
+    };
+    if !body.is_ascii() || body.bytes().any(|b| b.is_ascii_control() || b == b'$') {
+        return Err(malformed("characters that are not printable ASCII"));
+    }
+    let Ok(expected) = u8::from_str_radix(checksum, 16)
+        .map_err(drop)
+        .and_then(|value| if checksum.len() == 2 { Ok(value) } else { Err(()) })
+    else {
+        return Err(malformed("the checksum is not two hexadecimal digits"));
+    };
+    if body.bytes().fold(0_u8, |sum, byte| sum ^ byte) != expected {
+        return Err(SentenceError::BadChecksum);
+    }
+    let fields: Vec<&str> = body.split(',').collect();
+    if fields[0].len() < 3 || !fields[0].bytes().all(|b| b.is_ascii_alphanumeric()) {
+        return Err(malformed("no sentence address (like GPGGA) after '$'"));
+    }
+    Ok(fields)
+}
+
+/// Field `index` of a `sentence`, which must have it (empty when the receiver left it blank).
+fn field<'l>(fields: &[&'l str], index: usize, sentence: &str) -> Result<&'l str, SentenceError> {
+    fields.get(index).copied().ok_or_else(|| {
+        SentenceError::Malformed(format!(
+            "{sentence} with {} fields, fewer than {}",
+            fields.len() - 1,
+            index
+        ))
+    })
+}
+
+/// A number field: `None` when blank.
+fn number<T: std::str::FromStr>(text: &str, what: &str) -> Result<Option<T>, SentenceError> {
+    if text.is_empty() {
+        return Ok(None);
+    }
+    text.parse()
+        .map(Some)
+        .map_err(|_| SentenceError::Malformed(format!("{what} {text:?} is not a number")))
+}
+
+/// `hhmmss.sss`.
+fn time_of(text: &str) -> Result<Option<NaiveTime>, SentenceError> {
+    if text.is_empty() {
+        return Ok(None);
+    }
+    let bad = || SentenceError::Malformed(format!("time {text:?} is not hhmmss.sss"));
+    let digits = |range: std::ops::Range<usize>| -> Result<u32, SentenceError> {
+        text.get(range).and_then(|d| d.parse().ok()).ok_or_else(bad)
+    };
+    let (hours, minutes, seconds) = (digits(0..2)?, digits(2..4)?, digits(4..6)?);
+    let nanos = match text.get(6..) {
+        Some("") | None => 0,
+        Some(fraction) => {
+            let fraction: f64 = fraction.parse().map_err(|_| bad())?;
+            if !(0.0..1.0).contains(&fraction) {
+                return Err(bad());
+            }
+            (fraction * 1e9).round().min(999_999_999.0) as u32
+        }
+    };
+    NaiveTime::from_hms_nano_opt(hours, minutes, seconds, nanos)
+        .ok_or_else(bad)
+        .map(Some)
+}
+
+/// `ddmmyy`; years before 80 are this century's.
+fn date_of(text: &str) -> Result<Option<NaiveDate>, SentenceError> {
+    if text.is_empty() {
+        return Ok(None);
+    }
+    let bad = || SentenceError::Malformed(format!("date {text:?} is not ddmmyy"));
+    let digits = |range: std::ops::Range<usize>| -> Result<u32, SentenceError> {
+        text.get(range).and_then(|d| d.parse().ok()).ok_or_else(bad)
+    };
+    if text.len() != 6 {
+        return Err(bad());
+    }
+    let (day, month, year) = (digits(0..2)?, digits(2..4)?, digits(4..6)?);
+    let year = if year < 80 { 2000 + year } else { 1900 + year };
+    NaiveDate::from_ymd_opt(i32::try_from(year).map_err(|_| bad())?, month, day)
+        .ok_or_else(bad)
+        .map(Some)
+}
+
+/// `dddmm.mmmm` and its hemisphere as signed degrees; `None` when blank.
+fn angle(text: &str, hemisphere: &str, positive: char, negative: char) -> Result<Option<f64>, SentenceError> {
+    if text.is_empty() {
+        return Ok(None);
+    }
+    let bad = || {
+        SentenceError::Malformed(format!(
+            "angle {text:?}{hemisphere} is not dddmm.mmmm and {positive} or {negative}"
+        ))
+    };
+    let value: f64 = text.parse().map_err(|_| bad())?;
+    if !value.is_finite() || value < 0.0 {
+        return Err(bad());
+    }
+    let degrees = (value / 100.0).trunc();
+    let minutes = value - degrees * 100.0;
+    if minutes >= 60.0 {
+        return Err(bad());
+    }
+    let sign = match hemisphere.chars().next() {
+        Some(c) if c == positive => 1.0,
+        Some(c) if c == negative => -1.0,
+        _ => return Err(bad()),
+    };
+    Ok(Some(sign * (degrees + minutes / 60.0)))
+}
+
+/// GGA's quality field as a fix status (1 GPS, 2 DGPS, 3 PPS, 4 RTK fixed, 5 RTK float; 0 none, 6
+/// estimated, 7 manual, 8 simulated); a fix that is not a measured position is no fix.
+fn status_of(quality: Option<u8>) -> FixStatus {
+    match quality {
+        Some(1 | 3) => FixStatus::Fix,
+        Some(2 | 5) => FixStatus::Differential,
+        Some(4) => FixStatus::RtkFixed,
         _ => FixStatus::NoFix,
     }
 }
@@ -262,5 +399,35 @@ mod tests {
         ));
         let gsv = with_checksum("GPGSV,3,1,11,03,03,111,00,04,15,270,00,06,01,010,00,13,06,292,00");
         assert_eq!(decoder.decode(&gsv), Ok(Reading::default()));
+    }
+
+    proptest::proptest! {
+        #[test]
+        fn any_line_decodes_or_is_refused_without_a_panic(line in "\\PC{0,120}") {
+            let _ = Decoder::new().decode(&line);
+            let _ = Decoder::new().decode(&with_checksum(&line));
+        }
+
+        #[test]
+        fn a_gga_written_with_any_position_reads_back(
+            latitude in -89.99_f64..89.99,
+            longitude in -179.99_f64..179.99,
+            quality in 0_u8..9,
+        ) {
+            let angle = |value: f64, width: usize| {
+                let degrees = value.abs().trunc();
+                format!("{degrees:0width$}{:07.4}", (value.abs() - degrees) * 60.0)
+            };
+            let line = with_checksum(&format!(
+                "GNGGA,120000.00,{},{},{},{},{quality},9,0.8,100.0,M,47.0,M,,",
+                angle(latitude, 2),
+                if latitude < 0.0 { 'S' } else { 'N' },
+                angle(longitude, 3),
+                if longitude < 0.0 { 'W' } else { 'E' },
+            ));
+            let fix = Decoder::new().decode(&line).unwrap().fix.unwrap();
+            proptest::prop_assert!((fix.latitude_deg - latitude).abs() < 1e-5);
+            proptest::prop_assert!((fix.longitude_deg - longitude).abs() < 1e-5);
+        }
     }
 }

@@ -137,6 +137,14 @@ impl SampleReceiver {
         })
     }
 
+    /// A receiver outputting samples of `data_type` (any, custom types included).
+    pub fn expecting(data_type: DataType) -> Self {
+        SampleReceiver {
+            expected: Some(data_type),
+            ..SampleReceiver::default()
+        }
+    }
+
     /// Takes one frame from `peer`: writes its sample on [`SAMPLES`] when it decodes, has the expected type
     /// and comes in order; counts it otherwise.
     pub fn take(&mut self, frame: &[u8], peer: &str, ctx: &mut Context) -> ComponentResult {

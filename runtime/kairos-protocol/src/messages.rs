@@ -166,7 +166,13 @@ requests! {
     Deploy = "deploy" {
         /// The diagram file's text.
         diagram: String,
+        /// For a part of a diagram spread over several hosts: the Zenoh network its links to the other
+        /// parts travel on (`kairos deploy` sends it). Absent: the diagram has no such links.
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        network: Option<LinkNetwork>,
     } => DeployResult, Operator;
+    /// The deployed diagram's links to other hosts: each end, and whether its far end has matched.
+    Links = "links" => LinkList, Monitor;
     /// Starts the deployed diagram: now, or at an instant on the runtime's clock (several runtimes whose
     /// clocks follow one master start together); the reply comes once it has started.
     Start = "start" {
@@ -766,6 +772,41 @@ pub struct ClockTelemetry {
     /// Seconds since the last one.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub since_reference_s: Option<f64>,
+}
+
+/// Where a runtime's links to other hosts travel: one Zenoh session, listening and connecting on explicit
+/// endpoints (`tcp/192.168.1.10:7447`), with scouting off.
+#[derive(Debug, Clone, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct LinkNetwork {
+    /// Where this runtime listens for the other hosts.
+    #[serde(default)]
+    pub listen: Vec<String>,
+    /// The other hosts' endpoints this runtime connects to.
+    #[serde(default)]
+    pub connect: Vec<String>,
+}
+
+/// The result of `links`.
+#[derive(Debug, Clone, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct LinkList {
+    /// Each end of a link to another host held by the deployed diagram.
+    pub links: Vec<LinkEnd>,
+}
+
+/// One end of a link between hosts.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct LinkEnd {
+    /// The component carrying it (placed by `kairos deploy`).
+    pub component: String,
+    /// The Zenoh key its samples travel under.
+    pub key: String,
+    /// `sender` or `receiver`.
+    pub role: String,
+    /// The far end, in words (`fusion.imu on host 'roadside'`).
+    pub peer: String,
+    /// For a sender: whether a receiver matches it. A receiver cannot tell; it says `true` once it has
+    /// received a sample.
+    pub matched: bool,
 }
 
 /// The result of `devices`.

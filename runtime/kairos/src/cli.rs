@@ -206,11 +206,17 @@ pub fn init_logging(verbose: u8) {
     use tracing_subscriber::Layer as _;
     use tracing_subscriber::layer::SubscriberExt as _;
     use tracing_subscriber::util::SubscriberInitExt as _;
-    let default = match verbose {
+    let level = match verbose {
         0 => "info",
         1 => "debug",
         _ => "trace",
     };
+    // Zenoh's own messages (retries, its configuration) only when asked: the links report what matters
+    // themselves, naming the hosts and components.
+    let zenoh = if verbose >= 2 { level } else { "error" };
+    let default = format!(
+        "{level},zenoh={zenoh},zenoh_transport={zenoh},zenoh_link_tcp={zenoh},zenoh_link_commons={zenoh},zenoh_config={zenoh}"
+    );
     let filter = tracing_subscriber::EnvFilter::try_from_default_env()
         .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(default));
     let _ = tracing_subscriber::registry()

@@ -10,53 +10,131 @@ use std::path::Path;
 use std::time::Duration;
 
 use anyhow::{Context as _, bail};
-use kairos_diagram::{Diagram, HostSpec};
-use kairos_protocol::{PROTOCOL_VERSION, Reply, Request, RequestBody, Role, Token};
+use kairos_diagram::{Connection, Diagram, HostSpec, PortRef, ReaderPolicy, Value};
+use kairos_protocol::{LinkList, LinkNetwork, PROTOCOL_VERSION, Reply, Request, RequestBody, Role, Token};
+use kairos_sdk::Registry;
 use tungstenite::stream::MaybeTlsStream;
 use tungstenite::{Message, WebSocket};
 
 /// How long reaching a host and each of its answers may take.
 const HOST_WAIT: Duration = Duration::from_secs(5);
 
-/// The parts of `diagram`: by host name, and the one without a host (`None`). Connections must stay
-/// within a part: one between hosts is refused with both ends named.
-pub fn split(diagram: &Diagram) -> anyhow::Result<BTreeMap<Option<String>, Diagram>> {
+/// A diagram split over its hosts.
+#[derive(Debug, Default)]
+pub struct Plan {
+    /// The parts, by host name, and the one without a host (`None`, run by the deploying machine). Each
+    /// connection between two hosts became a `link.sender` in the producer's part and a `link.receiver`
+    /// in the consumer's.
+    pub parts: BTreeMap<Option<String>, Diagram>,
+    /// Those connections.
+    pub links: Vec<CrossLink>,
+}
+
+/// A connection between two hosts.
+#[derive(Debug, Clone)]
+pub struct CrossLink {
+    /// `camera.image on host 'car'`.
+    pub from: String,
+    /// `viewer.in on this machine`.
+    pub to: String,
+    /// The Zenoh key its samples travel under.
+    pub key: String,
+}
+
+/// Where a part runs, in words.
+fn place(host: Option<&String>) -> String {
+    host.map_or_else(|| "this machine".to_owned(), |h| format!("host '{h}'"))
+}
+
+/// An id for a component added to `part`, unused by the diagram and the part.
+fn free_id(diagram: &Diagram, part: &Diagram, wanted: &str) -> String {
+    let taken = |id: &str| diagram.component(id).is_some() || part.component(id).is_some();
+    let mut id = wanted.to_owned();
+    let mut suffix = 2;
+    while taken(&id) {
+        id = format!("{wanted}_{suffix}");
+        suffix += 1;
+    }
+    id
+}
+
+/// Splits `diagram` by each component's `host`, links between hosts included. `deployment` tells this
+/// deployment's keys from any other's on the same network.
+///
+/// # Errors
+///
+/// A connection whose ends are not both in the diagram (validation refuses those first).
+pub fn split(diagram: &Diagram, registry: &Registry, deployment: &str) -> anyhow::Result<Plan> {
     let host_of: BTreeMap<&str, Option<&String>> = diagram
         .components
         .iter()
         .map(|c| (c.id.as_str(), c.host.as_ref()))
         .collect();
-    let mut parts: BTreeMap<Option<String>, Diagram> = BTreeMap::new();
+    let mut plan = Plan::default();
+    let new_part = || Diagram {
+        packs: diagram.packs.clone(),
+        ..Diagram::default()
+    };
     for component in &diagram.components {
-        let part = parts.entry(component.host.clone()).or_insert_with(|| Diagram {
-            packs: diagram.packs.clone(),
-            ..Diagram::default()
-        });
+        let part = plan.parts.entry(component.host.clone()).or_insert_with(new_part);
         let mut placed = component.clone();
         placed.host = None;
         part.components.push(placed);
     }
+    let infos = registry.instance_infos(diagram);
     for connection in &diagram.connections {
-        let from = host_of.get(connection.from.component.as_str()).copied().flatten();
-        let to = host_of.get(connection.to.component.as_str()).copied().flatten();
-        if from != to {
-            let name = |host: Option<&String>| {
-                host.map_or_else(|| "this machine".to_owned(), |h| format!("host '{h}'"))
-            };
+        let (Some(&from), Some(&to)) = (
+            host_of.get(connection.from.component.as_str()),
+            host_of.get(connection.to.component.as_str()),
+        ) else {
             bail!(
-                "the connection {} -> {} crosses from {} to {}: links between hosts are not part of this version; \
-                 place both ends on one host",
+                "the connection {} -> {} names a component the diagram lacks",
                 connection.from,
-                connection.to,
-                name(from),
-                name(to)
+                connection.to
             );
+        };
+        if from == to {
+            plan.parts
+                .entry(from.cloned())
+                .or_insert_with(new_part)
+                .connections
+                .push(connection.clone());
+            continue;
         }
-        if let Some(part) = parts.get_mut(&from.cloned()) {
-            part.connections.push(connection.clone());
-        }
+        // An instance's own descriptor where its ports depend on its properties, else its type's.
+        let info = |id: &str| {
+            infos.get(id).and_then(|r| r.as_ref().ok()).or_else(|| {
+                let component = diagram.component(id)?;
+                registry.component(&component.type_name).map(|r| &r.info)
+            })
+        };
+        let data_type = info(&connection.from.component)
+            .and_then(|i| i.outputs.iter().find(|o| o.name == connection.from.port))
+            .map(|o| o.data_type.to_string())
+            .with_context(|| {
+                format!(
+                    "the connection {} -> {}: no such output",
+                    connection.from, connection.to
+                )
+            })?;
+        let policy = connection.policy.or_else(|| {
+            info(&connection.to.component)
+                .and_then(|i| i.inputs.iter().find(|p| p.name == connection.to.port))
+                .map(|p| p.default_policy)
+        });
+        let reliable = policy == Some(ReaderPolicy::NeverSkipping);
+        let link = place_link(
+            &mut plan,
+            diagram,
+            connection,
+            (from, to),
+            &data_type,
+            reliable,
+            deployment,
+        );
+        plan.links.push(link);
     }
-    for part in parts.values_mut() {
+    for part in plan.parts.values_mut() {
         if diagram
             .clock_source
             .as_ref()
@@ -64,7 +142,7 @@ pub fn split(diagram: &Diagram) -> anyhow::Result<BTreeMap<Option<String>, Diagr
         {
             part.clock_source.clone_from(&diagram.clock_source);
         }
-        // A host needs the packs of its own part only.
+        // A host needs the packs of its own part only (links are built in).
         let used: Vec<&str> = part
             .components
             .iter()
@@ -72,7 +150,151 @@ pub fn split(diagram: &Diagram) -> anyhow::Result<BTreeMap<Option<String>, Diagr
             .collect();
         part.packs.retain(|pack| used.contains(&pack.name.as_str()));
     }
-    Ok(parts)
+    Ok(plan)
+}
+
+/// A link component of `type_name` carrying `key`.
+fn link_component(
+    type_name: &str,
+    id: &str,
+    key: &str,
+    reliable: bool,
+    peer: &str,
+) -> kairos_diagram::ComponentInstance {
+    let mut component = kairos_diagram::ComponentInstance::new(id, type_name);
+    for (name, value) in [
+        ("key", Value::Text(key.to_owned())),
+        ("reliable", Value::Bool(reliable)),
+        ("peer", Value::Text(peer.to_owned())),
+    ] {
+        component.properties.insert(name.to_owned(), value);
+    }
+    component
+}
+
+/// Puts the two ends of `connection`, between the hosts `from` and `to`, into their parts: a sender
+/// reading the output on the producer's host (the connection's subsampling applied there, so what is
+/// dropped never travels), a receiver on the consumer's whose output the consumer reads with the
+/// connection's policy and buffer size.
+fn place_link(
+    plan: &mut Plan,
+    diagram: &Diagram,
+    connection: &Connection,
+    (from, to): (Option<&String>, Option<&String>),
+    data_type: &str,
+    reliable: bool,
+    deployment: &str,
+) -> CrossLink {
+    let new_part = || Diagram {
+        packs: diagram.packs.clone(),
+        ..Diagram::default()
+    };
+    let key = format!(
+        "kairos/{deployment}/{}/{}/{}/{}",
+        connection.from.component, connection.from.port, connection.to.component, connection.to.port
+    );
+    let from_words = format!("{} on {}", connection.from, place(from));
+    let to_words = format!("{} on {}", connection.to, place(to));
+
+    let producing = plan.parts.entry(from.cloned()).or_insert_with(new_part);
+    let sender_id = free_id(
+        diagram,
+        producing,
+        &format!("link_to_{}_{}", connection.to.component, connection.to.port),
+    );
+    producing.components.push(link_component(
+        crate::link::SENDER,
+        &sender_id,
+        &key,
+        reliable,
+        &to_words,
+    ));
+    producing.connections.push(Connection {
+        policy: Some(if reliable {
+            ReaderPolicy::NeverSkipping
+        } else {
+            ReaderPolicy::Fifo
+        }),
+        buffer_size: connection.buffer_size,
+        subsampling: connection.subsampling,
+        ..Connection::new(connection.from.clone(), PortRef::new(&sender_id, "in"))
+    });
+
+    let consuming = plan.parts.entry(to.cloned()).or_insert_with(new_part);
+    let receiver_id = free_id(
+        diagram,
+        consuming,
+        &format!("link_from_{}_{}", connection.from.component, connection.from.port),
+    );
+    let queue = connection
+        .buffer_size
+        .and_then(|q| i64::try_from(q).ok())
+        .unwrap_or(64);
+    let mut receiver = link_component(crate::link::RECEIVER, &receiver_id, &key, reliable, &from_words);
+    receiver
+        .properties
+        .insert("data_type".to_owned(), Value::Text(data_type.to_owned()));
+    receiver.properties.insert("queue".to_owned(), Value::I64(queue));
+    consuming.components.push(receiver);
+    consuming.connections.push(Connection {
+        from: PortRef::new(&receiver_id, crate::link::SAMPLES_OUTPUT),
+        subsampling: None,
+        ..connection.clone()
+    });
+    CrossLink {
+        from: from_words,
+        to: to_words,
+        key,
+    }
+}
+
+/// Each part's link network, by host (`None`: the deploying machine).
+pub type Networks = BTreeMap<Option<String>, LinkNetwork>;
+
+/// The Zenoh network of each part with links: every such host listens on its own endpoint and connects
+/// to those after it (so each pair is joined once); the deploying machine listens nowhere and connects to
+/// them all.
+pub fn networks(diagram: &Diagram, plan: &Plan) -> BTreeMap<Option<String>, LinkNetwork> {
+    let has_links = |part: &Diagram| {
+        part.components
+            .iter()
+            .any(|c| c.type_name == crate::link::SENDER || c.type_name == crate::link::RECEIVER)
+    };
+    let linked: Vec<(&String, String)> = plan
+        .parts
+        .iter()
+        .filter(|(_, part)| has_links(part))
+        .filter_map(|(host, _)| host.as_ref())
+        .filter_map(|host| diagram.hosts.get(host).map(|spec| (host, spec.zenoh_endpoint())))
+        .collect();
+    let mut networks = BTreeMap::new();
+    for (index, (host, endpoint)) in linked.iter().enumerate() {
+        networks.insert(
+            Some((*host).clone()),
+            LinkNetwork {
+                listen: vec![endpoint.clone()],
+                connect: linked.iter().skip(index + 1).map(|(_, e)| e.clone()).collect(),
+            },
+        );
+    }
+    if plan.parts.get(&None).is_some_and(has_links) {
+        networks.insert(
+            None,
+            LinkNetwork {
+                listen: Vec::new(),
+                connect: linked.iter().map(|(_, e)| e.clone()).collect(),
+            },
+        );
+    }
+    networks
+}
+
+/// A name for this deployment's keys: the deploying process and the time it started.
+pub fn deployment_name() -> String {
+    let nanos = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_nanos());
+    format!("{:x}{:x}", std::process::id(), nanos & 0xffff_ffff)
 }
 
 /// A connection to one host's `kairos serve`, as an operator.
@@ -94,6 +316,11 @@ impl Host {
     /// Connects to `spec`'s endpoint and says hello with the token of its token file (relative to
     /// `folder`, the diagram's).
     pub fn reach(name: &str, spec: &HostSpec, folder: &Path) -> anyhow::Result<Self> {
+        Self::reach_within(name, spec, folder, HOST_WAIT)
+    }
+
+    /// [`Host::reach`], waiting at most `wait` for the host to accept the connection.
+    pub fn reach_within(name: &str, spec: &HostSpec, folder: &Path, wait: Duration) -> anyhow::Result<Self> {
         let token = match &spec.token_file {
             Some(file) => {
                 let path = folder.join(file);
@@ -117,7 +344,7 @@ impl Host {
         let stream = std::net::ToSocketAddrs::to_socket_addrs(&address.as_str())
             .ok()
             .and_then(|mut addresses| addresses.next())
-            .and_then(|address| TcpStream::connect_timeout(&address, HOST_WAIT).ok())
+            .and_then(|address| TcpStream::connect_timeout(&address, wait).ok())
             .with_context(|| format!("host '{name}' is unreachable at {}", spec.endpoint))?;
         stream.set_read_timeout(Some(HOST_WAIT))?;
         let (socket, _) = tungstenite::client(spec.endpoint.as_str(), MaybeTlsStream::Plain(stream))
@@ -134,6 +361,21 @@ impl Host {
             role: Some(Role::Operator),
         })?;
         Ok(host)
+    }
+
+    /// Whether the host still answers, within [`HEALTH_WAIT`].
+    pub fn ping(&mut self) -> anyhow::Result<()> {
+        self.set_wait(HEALTH_WAIT)?;
+        let answered = self.call(RequestBody::Status).map(drop);
+        self.set_wait(HOST_WAIT)?;
+        answered
+    }
+
+    fn set_wait(&mut self, wait: Duration) -> anyhow::Result<()> {
+        if let MaybeTlsStream::Plain(stream) = self.socket.get_mut() {
+            stream.set_read_timeout(Some(wait))?;
+        }
+        Ok(())
     }
 
     /// Sends `body` and waits for its reply; a refusal names the host and the reason (and each diagnostic).
@@ -185,28 +427,93 @@ impl Host {
     }
 }
 
-/// Reaches every host of `parts` and deploys each part, or fails naming the host and its reason. Nothing
-/// is started.
+/// Reaches every host of `plan` and deploys each part with its link network, or fails naming the host
+/// and its reason. Nothing is started.
 pub fn deploy_remote(
     diagram: &Diagram,
-    parts: &BTreeMap<Option<String>, Diagram>,
+    plan: &Plan,
+    networks: &BTreeMap<Option<String>, LinkNetwork>,
     folder: &Path,
 ) -> anyhow::Result<Vec<Host>> {
     let mut hosts = Vec::new();
-    for name in parts.keys().flatten() {
+    for name in plan.parts.keys().flatten() {
         let Some(spec) = diagram.hosts.get(name) else {
             bail!("no host '{name}' in the diagram's hosts");
         };
         hosts.push(Host::reach(name, spec, folder)?);
     }
     for host in &mut hosts {
-        let part = parts
-            .get(&Some(host.name().to_owned()))
-            .map(Diagram::to_ron)
-            .unwrap_or_default();
-        host.call(RequestBody::Deploy { diagram: part })?;
+        let key = Some(host.name().to_owned());
+        let part = plan.parts.get(&key).map(Diagram::to_ron).unwrap_or_default();
+        host.call(RequestBody::Deploy {
+            diagram: part,
+            network: networks.get(&key).cloned(),
+        })?;
     }
     Ok(hosts)
+}
+
+/// How long the links between hosts may take to match once every part is deployed.
+pub const LINK_MATCH_WAIT: Duration = Duration::from_secs(5);
+
+/// Waits until every link of `plan` has matched (its sender sees its receiver), here and on every host;
+/// a link that does not within [`LINK_MATCH_WAIT`] is an error naming both ends.
+pub fn wait_for_links(
+    plan: &Plan,
+    hosts: &mut [Host],
+    networks: &BTreeMap<Option<String>, LinkNetwork>,
+) -> anyhow::Result<()> {
+    if plan.links.is_empty() {
+        return Ok(());
+    }
+    let deadline = std::time::Instant::now() + LINK_MATCH_WAIT;
+    loop {
+        let mut matched: Vec<String> = crate::link::network::ends()
+            .into_iter()
+            .filter(|end| end.matched && end.role == "sender")
+            .map(|end| end.key)
+            .collect();
+        for host in hosts.iter_mut() {
+            let list: LinkList = serde_json::from_value(host.call(RequestBody::Links)?)?;
+            matched.extend(
+                list.links
+                    .into_iter()
+                    .filter(|end| end.matched && end.role == "sender")
+                    .map(|end| end.key),
+            );
+        }
+        let waiting: Vec<&CrossLink> = plan.links.iter().filter(|l| !matched.contains(&l.key)).collect();
+        if waiting.is_empty() {
+            return Ok(());
+        }
+        if std::time::Instant::now() >= deadline {
+            let mut why = format!(
+                "{} link(s) between hosts did not match within {} s, so nothing was started:",
+                waiting.len(),
+                LINK_MATCH_WAIT.as_secs()
+            );
+            for link in waiting {
+                let _ = write!(why, "\n  {} -> {}", link.from, link.to);
+            }
+            let _ = write!(why, "\n  the hosts' link endpoints:");
+            for (host, network) in networks {
+                let _ = write!(
+                    why,
+                    "\n    {} listens on [{}], connects to [{}]",
+                    place(host.as_ref()),
+                    network.listen.join(", "),
+                    network.connect.join(", ")
+                );
+            }
+            let _ = write!(
+                why,
+                "\n  check that each listening address is this host's and that a firewall lets the others reach it \
+                 (set it with `zenoh: \"tcp/ADDRESS:PORT\"` in the hosts section)"
+            );
+            bail!(why);
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    }
 }
 
 /// How far ahead of now the hosts are told to start: time for every request to arrive.
@@ -234,6 +541,140 @@ pub fn confirm_started(hosts: &mut [Host], ids: &[u64]) -> anyhow::Result<()> {
         Some(error) => {
             stop_all(hosts);
             Err(error)
+        }
+    }
+}
+
+/// How often the deploying machine asks each host whether it is still there, and how long an answer may
+/// take: a killed host or a cut link is reported within a second.
+const HEALTH_PERIOD: Duration = Duration::from_millis(250);
+const HEALTH_WAIT: Duration = Duration::from_millis(600);
+/// How often a lost host is tried again, and how long reaching it may take then.
+const RETRY_PERIOD: Duration = Duration::from_secs(1);
+
+/// A running deployment, watched from the deploying machine: a host that stops answering is reported
+/// with the links it cuts while the others keep running; when it answers again, its part is deployed and
+/// started again and its links resume.
+#[derive(Debug)]
+pub struct Watch {
+    diagram: Diagram,
+    plan: Plan,
+    networks: BTreeMap<Option<String>, LinkNetwork>,
+    folder: std::path::PathBuf,
+    /// The hosts answering.
+    pub hosts: Vec<Host>,
+    /// The hosts lost, with when to try each again.
+    lost: BTreeMap<String, std::time::Instant>,
+    last_check: std::time::Instant,
+}
+
+impl Watch {
+    /// Watches `hosts`, all started.
+    pub fn new(
+        diagram: Diagram,
+        plan: Plan,
+        networks: BTreeMap<Option<String>, LinkNetwork>,
+        folder: &Path,
+        hosts: Vec<Host>,
+    ) -> Self {
+        Watch {
+            diagram,
+            plan,
+            networks,
+            folder: folder.to_owned(),
+            hosts,
+            lost: BTreeMap::new(),
+            last_check: std::time::Instant::now(),
+        }
+    }
+
+    /// Whether any host is part of the deployment.
+    pub fn is_empty(&self) -> bool {
+        self.hosts.is_empty() && self.lost.is_empty()
+    }
+
+    /// The links that cross to or from `host`, in words.
+    fn links_of(&self, host: &str) -> Vec<String> {
+        let words = format!("host '{host}'");
+        self.plan
+            .links
+            .iter()
+            .filter(|l| l.from.ends_with(&words) || l.to.ends_with(&words))
+            .map(|l| format!("{} -> {}", l.from, l.to))
+            .collect()
+    }
+
+    /// Asks each host whether it is there (at most every [`HEALTH_PERIOD`]) and tries lost ones again.
+    pub fn check(&mut self) {
+        if self.last_check.elapsed() < HEALTH_PERIOD {
+            return;
+        }
+        self.last_check = std::time::Instant::now();
+        let mut answering = Vec::new();
+        for mut host in std::mem::take(&mut self.hosts) {
+            match host.ping() {
+                Ok(()) => answering.push(host),
+                Err(error) => {
+                    let links = self.links_of(host.name());
+                    let cut = if links.is_empty() {
+                        String::new()
+                    } else {
+                        format!("; links cut: {}", links.join(", "))
+                    };
+                    tracing::error!(
+                        "host '{}' is lost ({error:#}){cut}; the other hosts keep running, and its part is \
+                         deployed again when it answers",
+                        host.name()
+                    );
+                    self.lost
+                        .insert(host.name().to_owned(), std::time::Instant::now() + RETRY_PERIOD);
+                }
+            }
+        }
+        self.hosts = answering;
+        let due: Vec<String> = self
+            .lost
+            .iter()
+            .filter(|(_, at)| **at <= std::time::Instant::now())
+            .map(|(name, _)| name.clone())
+            .collect();
+        for name in due {
+            match self.redeploy(&name) {
+                Ok(host) => {
+                    tracing::info!("host '{name}' is back: its part was deployed and started again");
+                    self.lost.remove(&name);
+                    self.hosts.push(host);
+                }
+                Err(error) => {
+                    tracing::debug!("host '{name}' is still lost: {error:#}");
+                    self.lost.insert(name, std::time::Instant::now() + RETRY_PERIOD);
+                }
+            }
+        }
+    }
+
+    fn redeploy(&self, name: &str) -> anyhow::Result<Host> {
+        let spec = self
+            .diagram
+            .hosts
+            .get(name)
+            .with_context(|| format!("no host '{name}'"))?;
+        let mut host = Host::reach_within(name, spec, &self.folder, RETRY_PERIOD)?;
+        let key = Some(name.to_owned());
+        let part = self.plan.parts.get(&key).map(Diagram::to_ron).unwrap_or_default();
+        host.call(RequestBody::Deploy {
+            diagram: part,
+            network: self.networks.get(&key).cloned(),
+        })?;
+        host.call(RequestBody::Start { at_ns: None })?;
+        Ok(host)
+    }
+
+    /// Stops every host's part.
+    pub fn stop_all(&mut self) {
+        stop_all(&mut self.hosts);
+        for name in self.lost.keys() {
+            tracing::warn!("host '{name}' was lost and could not be stopped: stop it there");
         }
     }
 }

@@ -5,6 +5,7 @@ pub mod clock_sync;
 pub mod deploy;
 pub mod devices;
 pub mod duration;
+pub mod link;
 pub mod log_tap;
 pub mod packs;
 pub mod run;
@@ -28,6 +29,7 @@ pub fn builtin_registry() -> Registry {
     kairos_pack_net::register(&mut registry);
     kairos_pack_lidar::register(&mut registry);
     kairos_pack_can::register(&mut registry);
+    link::register(&mut registry);
     registry
 }
 

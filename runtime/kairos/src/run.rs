@@ -93,12 +93,13 @@ pub fn run(registry: &Registry, path: &Path, options: &RunOptions) -> anyhow::Re
 
     // Deploying: every host's part is deployed and started before this machine's part starts; then the
     // diagram run here is this machine's part alone.
-    let mut hosts = Vec::new();
+    let mut watch = None;
     if options.deploy {
-        let parts = crate::deploy::split(&parsed.diagram)?;
+        let (hosts, plan, networks) = deploy_parts(&parsed.diagram, registry, path)?;
+        let here = plan.parts.get(&None).cloned().unwrap_or_default();
+        let whole = std::mem::replace(&mut parsed.diagram, here);
         let folder = path.parent().unwrap_or_else(|| Path::new("."));
-        hosts = crate::deploy::deploy_remote(&parsed.diagram, &parts, folder)?;
-        parsed.diagram = parts.get(&None).cloned().unwrap_or_default();
+        watch = Some(crate::deploy::Watch::new(whole, plan, networks, folder, hosts));
     }
 
     let (stop_tx, stop_rx) = mpsc::sync_channel::<()>(1);
@@ -115,7 +116,7 @@ pub fn run(registry: &Registry, path: &Path, options: &RunOptions) -> anyhow::Re
         Ok(engine) => engine,
         Err(error) => bail!("{error}"),
     };
-    start_everywhere(&mut engine, &mut hosts)?;
+    start_everywhere(&mut engine, watch.as_mut().map_or(&mut [], |w| &mut w.hosts))?;
     tracing::info!(
         "running {} ({} components){}",
         path.display(),
@@ -139,7 +140,10 @@ pub fn run(registry: &Registry, path: &Path, options: &RunOptions) -> anyhow::Re
         if options.duration.is_some_and(|d| started.elapsed() >= d) {
             break;
         }
-        if engine.all_finished() && hosts.is_empty() {
+        if let Some(watch) = &mut watch {
+            watch.check();
+        }
+        if engine.all_finished() && watch.as_ref().is_none_or(crate::deploy::Watch::is_empty) {
             tracing::info!("every component has finished");
             break;
         }
@@ -157,7 +161,9 @@ pub fn run(registry: &Registry, path: &Path, options: &RunOptions) -> anyhow::Re
         }
     }
     engine.stop();
-    crate::deploy::stop_all(&mut hosts);
+    if let Some(watch) = &mut watch {
+        watch.stop_all();
+    }
     let last = engine.snapshot().with_rates_since(&first);
     if options.stats.is_some() {
         eprintln!(
@@ -167,6 +173,36 @@ pub fn run(registry: &Registry, path: &Path, options: &RunOptions) -> anyhow::Re
         );
     }
     Ok(report_failures(&last))
+}
+
+/// Splits `diagram` over its hosts, deploys each host's part, prepares this machine's links and waits for
+/// every link to match.
+fn deploy_parts(
+    diagram: &kairos_diagram::Diagram,
+    registry: &Registry,
+    path: &Path,
+) -> anyhow::Result<(
+    Vec<crate::deploy::Host>,
+    crate::deploy::Plan,
+    crate::deploy::Networks,
+)> {
+    let plan = crate::deploy::split(diagram, registry, &crate::deploy::deployment_name())?;
+    let networks = crate::deploy::networks(diagram, &plan);
+    let folder = path.parent().unwrap_or_else(|| Path::new("."));
+    let mut hosts = crate::deploy::deploy_remote(diagram, &plan, &networks, folder)?;
+    if let Some(network) = networks.get(&None) {
+        crate::link::network::join(network)?;
+    }
+    crate::link::network::prepare(
+        plan.parts
+            .get(&None)
+            .unwrap_or(&kairos_diagram::Diagram::default()),
+    )?;
+    crate::deploy::wait_for_links(&plan, &mut hosts, &networks)?;
+    for link in &plan.links {
+        tracing::info!("linked {} -> {}", link.from, link.to);
+    }
+    Ok((hosts, plan, networks))
 }
 
 /// Starts this machine's part, and with hosts, every host's part at one instant, each on its own clock.

@@ -112,7 +112,7 @@ pub fn serve_with(
     if let Some(path) = &options.diagram {
         let text =
             std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
-        if let Err(error) = runtime.deploy(&text) {
+        if let Err(error) = runtime.deploy(&text, None) {
             eprintln!("{}: {}", path.display(), error.message);
             return Ok(ExitCode::from(1));
         }

@@ -216,7 +216,11 @@ impl Runtime {
     }
 
     /// Validates `text` and makes it the deployed diagram, stopping and replacing the running one.
-    pub fn deploy(&self, text: &str) -> Result<DeployResult, ProtocolError> {
+    pub fn deploy(
+        &self,
+        text: &str,
+        network: Option<&kairos_protocol::LinkNetwork>,
+    ) -> Result<DeployResult, ProtocolError> {
         let parsed = kairos_diagram::parse(text).map_err(|diagnostics| invalid(text, diagnostics))?;
         let diagnostics = self.registry.validate(&parsed.diagram, Some(&parsed.source_map));
         if diagnostics.iter().any(Diagnostic::is_error) {
@@ -228,6 +232,13 @@ impl Runtime {
         if let Some(mut old) = deployment.engine.take() {
             old.stop();
         }
+        // The part's links to other hosts are declared now, so they match before anything starts.
+        if let Some(network) = network {
+            crate::link::network::join(network)
+                .map_err(|e| error(ErrorCode::InvalidDiagram, format!("{e:#}")))?;
+        }
+        crate::link::network::prepare(&parsed.diagram)
+            .map_err(|e| error(ErrorCode::InvalidDiagram, format!("{e:#}")))?;
         let components = parsed.diagram.components.len();
         deployment.diagram = Some(parsed.diagram);
         deployment.engine = Some(engine);

@@ -334,9 +334,13 @@ impl Session {
                 })
                 .await?,
             ),
-            RequestBody::Deploy { diagram } => {
-                ReplyBody::Deploy(self.blocking(move |r| r.deploy(&diagram)).await?)
-            }
+            RequestBody::Deploy { diagram, network } => ReplyBody::Deploy(
+                self.blocking(move |r| r.deploy(&diagram, network.as_ref()))
+                    .await?,
+            ),
+            RequestBody::Links => ReplyBody::Links(kairos_protocol::LinkList {
+                links: tokio::task::block_in_place(crate::link::network::ends),
+            }),
             RequestBody::Start { at_ns } => {
                 if let Some(at) = at_ns {
                     self.wait_for_instant(Timestamp(at)).await?;

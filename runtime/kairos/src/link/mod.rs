@@ -1,0 +1,244 @@
+//! Links between the hosts of one diagram, over Zenoh.
+//!
+//! `kairos deploy` turns each connection between two hosts into a pair of components: a `link.sender` on
+//! the producer's host, reading the output like any consumer, and a `link.receiver` on the consumer's,
+//! writing into a local output the consumer reads with its own policy, so the five reader policies stay
+//! local and exact. Every sample travels whole, with both its times, in the control protocol's sample
+//! frame, numbered by the sender so the receiver counts what was lost in transit. A consumer that never
+//! skips makes its link reliable and blocking (the one case where a consumer may slow its producer); any
+//! other drops rather than blocks.
+
+pub mod network;
+
+use std::collections::BTreeMap;
+use std::time::{Duration, Instant};
+
+use kairos_pack_net::encoding::{SAMPLES, SampleReceiver};
+use kairos_pack_net::sample_frame;
+use kairos_sdk::descriptor::{Descriptor, Property};
+use kairos_sdk::{
+    Component, ComponentError, ComponentInfo, ComponentResult, Context, DataType, DescribeError,
+    ReaderPolicy, Registry, STATUS_PERIOD, Throttle, TypeFilter, Value, WARNING_PERIOD,
+};
+use zenoh::Wait as _;
+
+/// The sending end's type name.
+pub const SENDER: &str = "link.sender";
+/// The receiving end's type name.
+pub const RECEIVER: &str = "link.receiver";
+
+/// The receiver's output.
+pub const SAMPLES_OUTPUT: &str = SAMPLES;
+
+/// How long one wait for a sample lasts, so stop and control requests get through.
+const RECEIVE_WAIT: Duration = Duration::from_millis(50);
+
+/// Registers the pack "link".
+pub fn register(registry: &mut Registry) {
+    registry
+        .pack("link", env!("CARGO_PKG_VERSION"), "built-in")
+        .component::<LinkSender>(sender_descriptor())
+        .component_described::<LinkReceiver>(receiver_descriptor(), describe_receiver);
+}
+
+fn common(descriptor: Descriptor) -> Descriptor {
+    descriptor
+        .property(Property::text("key", "").doc("The Zenoh key the samples travel under"))
+        .property(
+            Property::bool("reliable", false)
+                .doc("Reliable and blocking (the consumer never skips); otherwise samples are dropped rather than wait"),
+        )
+        .property(Property::text("peer", "").doc("The far end, in words, for messages"))
+}
+
+/// The descriptor of `link.sender`.
+pub fn sender_descriptor() -> ComponentInfo {
+    common(Descriptor::new(
+        SENDER,
+        "across hosts",
+        "Sends each sample it reads to another host over Zenoh, whole, with both its times and a sequence \
+         number. Placed by `kairos deploy` on a connection between two hosts",
+    ))
+    .label("Link to another host")
+    .input_with_policy("in", TypeFilter::Any, ReaderPolicy::Fifo, "What to send")
+    .build()
+}
+
+/// The descriptor of `link.receiver` as listed.
+pub fn receiver_descriptor() -> ComponentInfo {
+    receiver_base(DataType::F64)
+}
+
+/// The descriptor of one `link.receiver`: an output of its `data_type`.
+pub fn describe_receiver(properties: &BTreeMap<String, Value>) -> Result<ComponentInfo, DescribeError> {
+    let name = properties
+        .get("data_type")
+        .and_then(Value::as_text)
+        .unwrap_or("f64");
+    Ok(receiver_base(DataType::from_name(name)))
+}
+
+fn receiver_base(data_type: DataType) -> ComponentInfo {
+    common(Descriptor::new(
+        RECEIVER,
+        "across hosts",
+        "Receives the samples another host's link sends and writes them with both their times, counting \
+         those lost in transit. Placed by `kairos deploy` on a connection between two hosts",
+    ))
+    .label("Link from another host")
+    .output(SAMPLES, data_type, "Each sample received, with both its times")
+    .property(Property::text("data_type", "f64").doc("The type of the samples the sender sends"))
+    .property(
+        Property::i64("queue", 64)
+            .int_range(1, 65_536)
+            .doc("Samples held between the network and this component"),
+    )
+    .build()
+}
+
+/// `link.sender`. See [`sender_descriptor`].
+#[derive(Debug, Default)]
+pub struct LinkSender {
+    end: Option<std::sync::Arc<network::SenderEnd>>,
+    /// The name the samples travel under: the output feeding this link.
+    output: String,
+    /// Samples put on the link, and of those, put while no receiver matched (lost with the far end).
+    sent: u64,
+    unmatched: u64,
+    failed: u64,
+    /// Whether a receiver matched at the last look (every status period).
+    matched: bool,
+    warned: Throttle,
+    published: Throttle,
+}
+
+impl Component for LinkSender {
+    fn birth(&mut self, ctx: &mut Context) -> ComponentResult {
+        let key = ctx.text_property("key")?;
+        let end = network::sender(&key).ok_or_else(|| {
+            ComponentError::failed(format_args!(
+                "no link is declared under {key}: links are placed and declared by `kairos deploy`"
+            ))
+        })?;
+        self.matched = network::matched(&end);
+        self.end = Some(end);
+        self.output = ctx
+            .inputs()
+            .first()
+            .and_then(|input| input.source())
+            .map_or_else(|| format!("{}.in", ctx.id()), str::to_owned);
+        Ok(())
+    }
+
+    fn core(&mut self, ctx: &mut Context) -> ComponentResult {
+        let mut sample = ctx.read("in")?;
+        let Some(end) = &self.end else {
+            return Err(ComponentError::Stopped);
+        };
+        // Numbered by the link, not by the output: a gap the receiver sees was lost in transit, never a
+        // sample this reader's policy skipped (those are counted on the input).
+        sample.sequence = self.sent;
+        let frame = sample_frame::encode_whole(&self.output, &sample);
+        match end.publisher.put(frame).wait() {
+            Ok(()) => {
+                self.sent += 1;
+                if !self.matched {
+                    self.unmatched += 1;
+                }
+            }
+            Err(e) => {
+                self.failed += 1;
+                if self.warned.ready(WARNING_PERIOD) {
+                    tracing::warn!("link to {}: cannot send: {e} ({} in all)", end.peer, self.failed);
+                }
+            }
+        }
+        if self.published.ready(STATUS_PERIOD) {
+            let matched = network::matched(end);
+            if matched != self.matched {
+                if matched {
+                    tracing::info!("link to {}: matched again", end.peer);
+                } else {
+                    tracing::warn!(
+                        "link to {}: no receiver any more; samples are dropped until it returns",
+                        end.peer
+                    );
+                }
+                self.matched = matched;
+            }
+            ctx.set_status(serde_json::json!({
+                "kind": "link", "to": end.peer, "sent": self.sent, "sent_unmatched": self.unmatched,
+                "failed": self.failed, "matched": matched,
+            }));
+        }
+        Ok(())
+    }
+
+    fn property_changed(&mut self, name: &str, _value: &Value, _ctx: &mut Context) -> ComponentResult {
+        Err(ComponentError::failed(format_args!(
+            "{name} of a link is set by `kairos deploy`; deploy again to change it"
+        )))
+    }
+}
+
+/// `link.receiver`. See [`receiver_descriptor`].
+#[derive(Debug, Default)]
+pub struct LinkReceiver {
+    end: Option<std::sync::Arc<network::ReceiverEnd>>,
+    samples: SampleReceiver,
+    last: Option<Instant>,
+    published: Throttle,
+}
+
+impl Component for LinkReceiver {
+    fn birth(&mut self, ctx: &mut Context) -> ComponentResult {
+        let key = ctx.text_property("key")?;
+        let end = network::receiver(&key).ok_or_else(|| {
+            ComponentError::failed(format_args!(
+                "no link is declared under {key}: links are placed and declared by `kairos deploy`"
+            ))
+        })?;
+        self.end = Some(end);
+        self.samples = SampleReceiver::expecting(DataType::from_name(&ctx.text_property("data_type")?));
+        Ok(())
+    }
+
+    fn core(&mut self, ctx: &mut Context) -> ComponentResult {
+        let Some(end) = self.end.clone() else {
+            return Err(ComponentError::Stopped);
+        };
+        match end.incoming.recv_timeout(RECEIVE_WAIT) {
+            Ok(Some(sample)) => {
+                self.last = Some(Instant::now());
+                let frame = sample.payload().to_bytes();
+                self.samples.take(&frame, &end.peer, ctx)?;
+            }
+            Ok(None) => {}
+            Err(e) => {
+                return Err(ComponentError::failed(format_args!(
+                    "the link from {} closed: {e}",
+                    end.peer
+                )));
+            }
+        }
+        if self.published.ready(STATUS_PERIOD) {
+            let mut status = serde_json::json!({
+                "kind": "link", "from": end.peer,
+                "last_sample_age_ms": self.last.map(|at| at.elapsed().as_millis()),
+            });
+            if let (Some(status), serde_json::Value::Object(figures)) =
+                (status.as_object_mut(), self.samples.status())
+            {
+                status.extend(figures);
+            }
+            ctx.set_status(status);
+        }
+        Ok(())
+    }
+
+    fn property_changed(&mut self, name: &str, _value: &Value, _ctx: &mut Context) -> ComponentResult {
+        Err(ComponentError::failed(format_args!(
+            "{name} of a link is set by `kairos deploy`; deploy again to change it"
+        )))
+    }
+}
