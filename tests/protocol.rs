@@ -1019,6 +1019,11 @@ fn deploy_starts_nothing_when_a_host_is_unreachable_or_refuses() {
             "host 'b' is unreachable".to_owned(),
         ),
         (a.url.clone(), "host 'b' refused".to_owned()),
+        // A token never crosses the network in clear text unless the user says so.
+        (
+            "ws://192.0.2.1:7600".to_owned(),
+            "host 'b': its token would cross the network in clear text".to_owned(),
+        ),
     ] {
         std::fs::write(&diagram, two_host_diagram(&a, &b)).unwrap();
         let deployed = common::kairos(here.path(), &["deploy", diagram.to_str().unwrap(), "--for", "1s"]);
@@ -1032,6 +1037,113 @@ fn deploy_starts_nothing_when_a_host_is_unreachable_or_refuses() {
             "nothing started here either"
         );
     }
+}
+
+#[test]
+fn deploy_starts_nothing_while_a_host_clock_is_not_locked_unless_told_to() {
+    let _machine = shared_machine();
+    let (dir_a, dir_b, here) = (
+        tempfile::tempdir().unwrap(),
+        tempfile::tempdir().unwrap(),
+        tempfile::tempdir().unwrap(),
+    );
+    // Host b follows a master that never answers: its clock stays acquiring.
+    let silent = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
+    let master = silent.local_addr().unwrap().to_string();
+    let a = serve(dir_a.path(), &[]);
+    let b = serve(dir_b.path(), &["--clock-slave-of", &master]);
+    std::fs::write(here.path().join("a.token"), &a.token).unwrap();
+    std::fs::write(here.path().join("b.token"), &b.token).unwrap();
+    let diagram = here.path().join("two_hosts.ron");
+    std::fs::write(&diagram, two_host_diagram(&a, &b.url)).unwrap();
+    let refused = common::kairos(here.path(), &["deploy", diagram.to_str().unwrap(), "--for", "1s"]);
+    let (_, stderr) = text(&refused);
+    assert!(!refused.status.success(), "{stderr}");
+    assert!(
+        stderr.contains("host 'b': clock acquiring") && stderr.contains("--start-unlocked"),
+        "{stderr}"
+    );
+    assert!(stderr.contains("host 'a' follows no clock master"), "{stderr}");
+    assert_ne!(state(&mut operator(&b)), "running");
+    let forced = common::kairos(
+        here.path(),
+        &[
+            "deploy",
+            diagram.to_str().unwrap(),
+            "--for",
+            "1s",
+            "--start-unlocked",
+        ],
+    );
+    let (_, stderr) = text(&forced);
+    assert!(forced.status.success(), "{stderr}");
+    assert!(stderr.contains("starting with clocks not locked"), "{stderr}");
+    assert!(
+        std::fs::read_to_string(dir_b.path().join("b.csv"))
+            .unwrap()
+            .lines()
+            .count()
+            > 10
+    );
+}
+
+#[test]
+fn status_shows_each_host_state_clock_and_links_and_names_the_unreachable() {
+    let _machine = shared_machine();
+    let (dir_a, dir_b, here) = (
+        tempfile::tempdir().unwrap(),
+        tempfile::tempdir().unwrap(),
+        tempfile::tempdir().unwrap(),
+    );
+    let port = std::net::UdpSocket::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port();
+    let master = format!("127.0.0.1:{port}");
+    let a = serve(dir_a.path(), &["--clock-master", &master]);
+    let b = serve(dir_b.path(), &["--clock-slave-of", &master]);
+    std::fs::write(here.path().join("a.token"), &a.token).unwrap();
+    std::fs::write(here.path().join("b.token"), &b.token).unwrap();
+    let diagram = here.path().join("two_hosts.ron");
+    std::fs::write(&diagram, two_host_diagram(&a, &b.url)).unwrap();
+    let started = Instant::now();
+    let line_of_b = loop {
+        let shown = common::kairos(here.path(), &["status", diagram.to_str().unwrap()]);
+        let (stdout, stderr) = text(&shown);
+        assert!(shown.status.success(), "{stdout}{stderr}");
+        let line = stdout.lines().find(|l| l.starts_with("b (")).unwrap().to_owned();
+        if line.contains("clock locked") || started.elapsed() > Duration::from_secs(5) {
+            assert!(
+                stdout.contains(&format!("a ({}): empty, own clock", a.url)),
+                "{stdout}"
+            );
+            break line;
+        }
+        std::thread::sleep(Duration::from_millis(200));
+    };
+    assert!(
+        line_of_b.contains("clock locked ±") && line_of_b.contains("(follows master)"),
+        "{line_of_b}"
+    );
+    drop(b);
+    let shown = common::kairos(here.path(), &["status", diagram.to_str().unwrap()]);
+    let (stdout, _) = text(&shown);
+    assert!(!shown.status.success());
+    assert!(
+        stdout.contains("b (") && stdout.contains("NOT REACHED"),
+        "{stdout}"
+    );
+    let one = common::kairos(
+        here.path(),
+        &[
+            "status",
+            &a.url,
+            "--token-file",
+            dir_a.path().join("token.txt").to_str().unwrap(),
+        ],
+    );
+    assert!(text(&one).0.contains("runtime ("), "{}", text(&one).0);
 }
 
 #[test]

@@ -365,6 +365,7 @@ impl Canvas {
                 start,
                 to,
                 Stroke::new(2.0, ui.visuals().selection.stroke.color),
+                false,
             );
         }
         if link_released
@@ -412,6 +413,13 @@ impl Canvas {
         }
         let figures = frame.shown.monitor.link(&connection.from, &connection.to);
         let policy = policy_of(connection, frame.diagram, library);
+        let host_of = |id: &str| frame.diagram.component(id).and_then(|c| c.host.as_deref());
+        let (from_host, to_host) = (
+            host_of(&connection.from.component),
+            host_of(&connection.to.component),
+        );
+        let between_hosts = (from_host != to_host)
+            .then(|| format!("{} → {}", from_host.unwrap_or("here"), to_host.unwrap_or("here")));
         let look = ConnectionLook {
             color: document
                 .output_type(&connection.from, library)
@@ -422,6 +430,7 @@ impl Canvas {
             figures: figures.map(|f| &f.latest),
             dropping: figures.is_some_and(crate::monitor::LinkHistory::dropping),
             detail: frame.detail,
+            between_hosts: between_hosts.as_deref(),
         };
         paint::paint_connection(frame.painter, ui.visuals(), from, to, &look);
         if response.hovered() {

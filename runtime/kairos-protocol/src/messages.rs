@@ -630,6 +630,11 @@ pub struct Status {
     pub state: RuntimeState,
     /// The latest statistics, when a diagram is deployed.
     pub telemetry: Option<Telemetry>,
+    /// Where the runtime's clock stands: the master's it follows (`kairos serve --clock-slave-of`),
+    /// whatever is deployed, or else the deployed diagram's time source; absent when it runs on the
+    /// machine's own clock.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub clock: Option<ClockTelemetry>,
 }
 
 /// Latency figures of one link, in nanoseconds.

@@ -51,6 +51,24 @@ pub struct RunArgs {
     clock_source: Option<String>,
 }
 
+/// What `deploy` takes.
+#[derive(Debug, clap::Args)]
+pub struct DeployArgs {
+    #[command(flatten)]
+    run: RunArgs,
+    /// Send tokens to hosts off this machine over plain ws://, where anyone on the network path can read
+    /// them and take control of those runtimes. Without it, such a deploy is refused: use wss:// instead.
+    #[arg(long)]
+    allow_clear_text_tokens: bool,
+    /// How far from its master a host's clock may be for the start to go ahead (hosts started with
+    /// `--clock-slave-of`).
+    #[arg(long, value_parser = parse_duration, default_value = "1ms")]
+    lock_bound: Duration,
+    /// Start even when a host's clock is not locked within --lock-bound: the parts may start apart.
+    #[arg(long)]
+    start_unlocked: bool,
+}
+
 /// The subcommands.
 #[derive(Debug, Subcommand)]
 pub enum Command {
@@ -58,7 +76,7 @@ pub enum Command {
     Run(RunArgs),
     /// Run a diagram over several machines: each component marked with a `host` on that host's `kairos
     /// serve`, the others here; everything starts or nothing does, and Ctrl-C stops every host.
-    Deploy(RunArgs),
+    Deploy(DeployArgs),
     /// Serve a headless runtime that the studio or any WebSocket client drives (the control protocol).
     Serve {
         /// Where to listen. Anything but loopback requires --token-file.
@@ -135,6 +153,15 @@ pub enum Command {
         /// Print JSON instead of text.
         #[arg(long)]
         json: bool,
+    },
+    /// Show what each host of a diagram is doing (state, clock against its master, links), or one
+    /// runtime given its ws:// endpoint. Exits with 1 when a host cannot be reached.
+    Status {
+        /// A diagram with a hosts section, or a runtime's endpoint (ws://ADDRESS:PORT).
+        target: String,
+        /// The runtime's token file, with an endpoint (a diagram names its own).
+        #[arg(long)]
+        token_file: Option<PathBuf>,
     },
     /// Generate a pack or a component from the templates.
     #[command(subcommand)]
@@ -239,7 +266,7 @@ pub fn init_logging(verbose: u8) {
 #[allow(clippy::too_many_lines, reason = "one arm per subcommand, each a call")]
 pub fn execute(cli: Cli) -> anyhow::Result<ExitCode> {
     let diagrams: Vec<&std::path::Path> = match &cli.command {
-        Command::Run(args) | Command::Deploy(args) => vec![args.diagram.as_path()],
+        Command::Run(args) | Command::Deploy(DeployArgs { run: args, .. }) => vec![args.diagram.as_path()],
         Command::Serve { diagram, .. } => diagram.iter().map(PathBuf::as_path).collect(),
         Command::Validate { diagrams } => diagrams.iter().map(PathBuf::as_path).collect(),
         Command::Packs { .. }
@@ -247,7 +274,8 @@ pub fn execute(cli: Cli) -> anyhow::Result<ExitCode> {
         | Command::New(_)
         | Command::Inspect { .. }
         | Command::Recover { .. }
-        | Command::Devices { .. } => Vec::new(),
+        | Command::Devices { .. }
+        | Command::Status { .. } => Vec::new(),
     };
     let (registry, scan) = crate::registry_with_packs(&cli.pack_path, &diagrams);
     if !matches!(cli.command, Command::Packs { .. }) {
@@ -269,8 +297,17 @@ pub fn execute(cli: Cli) -> anyhow::Result<ExitCode> {
         }
     }
     match cli.command {
-        Command::Run(args) => run_with(&registry, args, false, &scan.searched),
-        Command::Deploy(args) => run_with(&registry, args, true, &scan.searched),
+        Command::Run(args) => run_with(&registry, args, None, &scan.searched),
+        Command::Deploy(args) => run_with(
+            &registry,
+            args.run,
+            Some(crate::run::DeployOptions {
+                clear_text_tokens: args.allow_clear_text_tokens,
+                lock_bound: args.lock_bound,
+                start_unlocked: args.start_unlocked,
+            }),
+            &scan.searched,
+        ),
         Command::Validate { diagrams } => Ok(validate(&registry, &diagrams, &scan.searched)),
         Command::Serve {
             listen,
@@ -342,6 +379,14 @@ pub fn execute(cli: Cli) -> anyhow::Result<ExitCode> {
                 println!("{cut}: everything before it was recovered");
             }
             Ok(ExitCode::SUCCESS)
+        }
+        Command::Status { target, token_file } => {
+            let reached_all = crate::status::print(&target, token_file.as_deref())?;
+            Ok(if reached_all {
+                ExitCode::SUCCESS
+            } else {
+                ExitCode::from(1)
+            })
         }
         Command::Devices { json } => {
             let devices = crate::devices::list(std::path::Path::new("/"));
@@ -609,7 +654,7 @@ fn inspect_showing_progress(
 fn run_with(
     registry: &Registry,
     args: RunArgs,
-    deploy: bool,
+    deploy: Option<crate::run::DeployOptions>,
     searched: &[PathBuf],
 ) -> anyhow::Result<ExitCode> {
     crate::run::run(

@@ -297,6 +297,24 @@ pub fn deployment_name() -> String {
     format!("{:x}{:x}", std::process::id(), nanos & 0xffff_ffff)
 }
 
+/// How the deploying machine reaches hosts: token files are relative to `folder` (the diagram's); tokens
+/// go over plain ws:// to a host off this machine only with `clear_text_tokens`.
+#[derive(Debug, Clone)]
+pub struct Reach {
+    folder: std::path::PathBuf,
+    clear_text_tokens: bool,
+}
+
+impl Reach {
+    /// Token files in `folder`.
+    pub fn new(folder: &Path, clear_text_tokens: bool) -> Self {
+        Reach {
+            folder: folder.to_owned(),
+            clear_text_tokens,
+        }
+    }
+}
+
 /// A connection to one host's `kairos serve`, as an operator.
 pub struct Host {
     name: String,
@@ -315,12 +333,13 @@ impl std::fmt::Debug for Host {
 impl Host {
     /// Connects to `spec`'s endpoint and says hello with the token of its token file (relative to
     /// `folder`, the diagram's).
-    pub fn reach(name: &str, spec: &HostSpec, folder: &Path) -> anyhow::Result<Self> {
-        Self::reach_within(name, spec, folder, HOST_WAIT)
+    pub fn reach(name: &str, spec: &HostSpec, reach: &Reach) -> anyhow::Result<Self> {
+        Self::reach_within(name, spec, reach, HOST_WAIT)
     }
 
     /// [`Host::reach`], waiting at most `wait` for the host to accept the connection.
-    pub fn reach_within(name: &str, spec: &HostSpec, folder: &Path, wait: Duration) -> anyhow::Result<Self> {
+    pub fn reach_within(name: &str, spec: &HostSpec, reach: &Reach, wait: Duration) -> anyhow::Result<Self> {
+        let folder = reach.folder.as_path();
         let token = match &spec.token_file {
             Some(file) => {
                 let path = folder.join(file);
@@ -341,9 +360,21 @@ impl Host {
         if spec.endpoint.starts_with("wss://") {
             bail!("host '{name}': wss:// endpoints are not part of this version; use ws://");
         }
-        let stream = std::net::ToSocketAddrs::to_socket_addrs(&address.as_str())
+        let resolved = std::net::ToSocketAddrs::to_socket_addrs(&address.as_str())
             .ok()
-            .and_then(|mut addresses| addresses.next())
+            .and_then(|mut addresses| addresses.next());
+        if token.is_some()
+            && !reach.clear_text_tokens
+            && resolved.is_some_and(|address| !address.ip().is_loopback())
+        {
+            bail!(
+                "host '{name}': its token would cross the network in clear text to {} (ws://), where anyone \
+                 on the path can read it and take control of that runtime; use a wss:// endpoint, or pass \
+                 --allow-clear-text-tokens on a network you trust",
+                spec.endpoint
+            );
+        }
+        let stream = resolved
             .and_then(|address| TcpStream::connect_timeout(&address, wait).ok())
             .with_context(|| format!("host '{name}' is unreachable at {}", spec.endpoint))?;
         stream.set_read_timeout(Some(HOST_WAIT))?;
@@ -433,14 +464,14 @@ pub fn deploy_remote(
     diagram: &Diagram,
     plan: &Plan,
     networks: &BTreeMap<Option<String>, LinkNetwork>,
-    folder: &Path,
+    reach: &Reach,
 ) -> anyhow::Result<Vec<Host>> {
     let mut hosts = Vec::new();
     for name in plan.parts.keys().flatten() {
         let Some(spec) = diagram.hosts.get(name) else {
             bail!("no host '{name}' in the diagram's hosts");
         };
-        hosts.push(Host::reach(name, spec, folder)?);
+        hosts.push(Host::reach(name, spec, reach)?);
     }
     for host in &mut hosts {
         let key = Some(host.name().to_owned());
@@ -516,6 +547,53 @@ pub fn wait_for_links(
     }
 }
 
+/// Checks, before anything starts, that every host whose clock follows a master is locked to it within
+/// `bound`. A host that is not is named with its state and error, and nothing starts, unless
+/// `start_unlocked` (then it is only warned about). A host following no master starts on its own clock,
+/// which is said.
+pub fn check_clocks(hosts: &mut [Host], bound: Duration, start_unlocked: bool) -> anyhow::Result<()> {
+    let bound_ns = i64::try_from(bound.as_nanos()).unwrap_or(i64::MAX);
+    let mut unlocked = Vec::new();
+    for host in hosts.iter_mut() {
+        let status = host.call(RequestBody::Status)?;
+        let clock = &status["clock"];
+        let Some(state) = clock["state"].as_str() else {
+            tracing::warn!(
+                "host '{}' follows no clock master: it reaches the start instant on its own clock \
+                 (`kairos serve --clock-slave-of` synchronises it)",
+                host.name()
+            );
+            continue;
+        };
+        let error_ns = clock["error_ns"].as_i64().unwrap_or(i64::MAX);
+        if state == "locked" && error_ns.abs() <= bound_ns {
+            tracing::info!(
+                "host '{}': clock locked, error {:+.1} µs",
+                host.name(),
+                error_ns as f64 * 1e-3
+            );
+        } else {
+            unlocked.push(format!(
+                "host '{}': clock {state}, error {:+.3} ms",
+                host.name(),
+                error_ns as f64 * 1e-6
+            ));
+        }
+    }
+    if unlocked.is_empty() {
+        return Ok(());
+    }
+    let list = unlocked.join("; ");
+    if start_unlocked {
+        tracing::warn!("starting with clocks not locked within {bound:?}, as asked: {list}");
+        return Ok(());
+    }
+    bail!(
+        "not every host's clock is locked to its master within {bound:?}, so nothing was started: {list}; \
+         wait for them to lock, raise --lock-bound, or pass --start-unlocked to start anyway"
+    )
+}
+
 /// How far ahead of now the hosts are told to start: time for every request to arrive.
 pub const START_LEAD: Duration = Duration::from_millis(500);
 
@@ -560,7 +638,7 @@ pub struct Watch {
     diagram: Diagram,
     plan: Plan,
     networks: BTreeMap<Option<String>, LinkNetwork>,
-    folder: std::path::PathBuf,
+    reach: Reach,
     /// The hosts answering.
     pub hosts: Vec<Host>,
     /// The hosts lost, with when to try each again.
@@ -574,14 +652,14 @@ impl Watch {
         diagram: Diagram,
         plan: Plan,
         networks: BTreeMap<Option<String>, LinkNetwork>,
-        folder: &Path,
+        reach: Reach,
         hosts: Vec<Host>,
     ) -> Self {
         Watch {
             diagram,
             plan,
             networks,
-            folder: folder.to_owned(),
+            reach,
             hosts,
             lost: BTreeMap::new(),
             last_check: std::time::Instant::now(),
@@ -659,7 +737,7 @@ impl Watch {
             .hosts
             .get(name)
             .with_context(|| format!("no host '{name}'"))?;
-        let mut host = Host::reach_within(name, spec, &self.folder, RETRY_PERIOD)?;
+        let mut host = Host::reach_within(name, spec, &self.reach, RETRY_PERIOD)?;
         let key = Some(name.to_owned());
         let part = self.plan.parts.get(&key).map(Diagram::to_ron).unwrap_or_default();
         host.call(RequestBody::Deploy {

@@ -10,6 +10,7 @@ pub mod log_tap;
 pub mod packs;
 pub mod run;
 pub mod serve;
+pub mod status;
 pub mod wizard;
 
 use std::path::{Path, PathBuf};

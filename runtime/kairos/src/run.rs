@@ -24,7 +24,18 @@ pub struct RunOptions {
     /// The pack path searched, for messages about missing packs.
     pub searched: Vec<std::path::PathBuf>,
     /// `kairos deploy`: the components with a `host` go to that host's `kairos serve`, the rest runs here.
-    pub deploy: bool,
+    pub deploy: Option<DeployOptions>,
+}
+
+/// What `kairos deploy` adds to `kairos run`.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct DeployOptions {
+    /// Send tokens over plain ws:// to hosts off this machine (refused otherwise).
+    pub clear_text_tokens: bool,
+    /// How far from its master a host's clock may be for the start to go ahead.
+    pub lock_bound: Duration,
+    /// Start even with hosts whose clocks are not locked within `lock_bound`.
+    pub start_unlocked: bool,
 }
 
 /// Parses `ID.PROPERTY=VALUE`; the value is a boolean, an integer, a number, or else text.
@@ -94,12 +105,10 @@ pub fn run(registry: &Registry, path: &Path, options: &RunOptions) -> anyhow::Re
     // Deploying: every host's part is deployed and started before this machine's part starts; then the
     // diagram run here is this machine's part alone.
     let mut watch = None;
-    if options.deploy {
-        let (hosts, plan, networks) = deploy_parts(&parsed.diagram, registry, path)?;
-        let here = plan.parts.get(&None).cloned().unwrap_or_default();
-        let whole = std::mem::replace(&mut parsed.diagram, here);
-        let folder = path.parent().unwrap_or_else(|| Path::new("."));
-        watch = Some(crate::deploy::Watch::new(whole, plan, networks, folder, hosts));
+    if let Some(deploy) = options.deploy {
+        let (here, deployed) = deploy_parts(&parsed.diagram, registry, path, deploy)?;
+        parsed.diagram = here;
+        watch = Some(deployed);
     }
 
     let (stop_tx, stop_rx) = mpsc::sync_channel::<()>(1);
@@ -116,7 +125,11 @@ pub fn run(registry: &Registry, path: &Path, options: &RunOptions) -> anyhow::Re
         Ok(engine) => engine,
         Err(error) => bail!("{error}"),
     };
-    start_everywhere(&mut engine, watch.as_mut().map_or(&mut [], |w| &mut w.hosts))?;
+    start_everywhere(
+        &mut engine,
+        watch.as_mut().map_or(&mut [], |w| &mut w.hosts),
+        options.deploy.unwrap_or_default(),
+    )?;
     tracing::info!(
         "running {} ({} components){}",
         path.display(),
@@ -176,42 +189,43 @@ pub fn run(registry: &Registry, path: &Path, options: &RunOptions) -> anyhow::Re
 }
 
 /// Splits `diagram` over its hosts, deploys each host's part, prepares this machine's links and waits for
-/// every link to match.
+/// every link to match: this machine's part, and the hosts to watch.
 fn deploy_parts(
     diagram: &kairos_diagram::Diagram,
     registry: &Registry,
     path: &Path,
-) -> anyhow::Result<(
-    Vec<crate::deploy::Host>,
-    crate::deploy::Plan,
-    crate::deploy::Networks,
-)> {
+    options: DeployOptions,
+) -> anyhow::Result<(kairos_diagram::Diagram, crate::deploy::Watch)> {
     let plan = crate::deploy::split(diagram, registry, &crate::deploy::deployment_name())?;
     let networks = crate::deploy::networks(diagram, &plan);
     let folder = path.parent().unwrap_or_else(|| Path::new("."));
-    let mut hosts = crate::deploy::deploy_remote(diagram, &plan, &networks, folder)?;
+    let reach = crate::deploy::Reach::new(folder, options.clear_text_tokens);
+    let mut hosts = crate::deploy::deploy_remote(diagram, &plan, &networks, &reach)?;
+    let here = plan.parts.get(&None).cloned().unwrap_or_default();
     if let Some(network) = networks.get(&None) {
         crate::link::network::join(network)?;
     }
-    crate::link::network::prepare(
-        plan.parts
-            .get(&None)
-            .unwrap_or(&kairos_diagram::Diagram::default()),
-    )?;
+    crate::link::network::prepare(&here)?;
     crate::deploy::wait_for_links(&plan, &mut hosts, &networks)?;
     for link in &plan.links {
         tracing::info!("linked {} -> {}", link.from, link.to);
     }
-    Ok((hosts, plan, networks))
+    let watch = crate::deploy::Watch::new(diagram.clone(), plan, networks, reach, hosts);
+    Ok((here, watch))
 }
 
 /// Starts this machine's part, and with hosts, every host's part at one instant, each on its own clock.
-fn start_everywhere(engine: &mut Engine, hosts: &mut [crate::deploy::Host]) -> anyhow::Result<()> {
+fn start_everywhere(
+    engine: &mut Engine,
+    hosts: &mut [crate::deploy::Host],
+    deploy: DeployOptions,
+) -> anyhow::Result<()> {
     if hosts.is_empty() {
         engine.start().context("starting the diagram")?;
     } else {
-        // Every part starts at one instant, each host on its own clock (synchronised with a master).
         use kairos_sdk::Clock as _;
+        crate::deploy::check_clocks(hosts, deploy.lock_bound, deploy.start_unlocked)?;
+        // Every part starts at one instant, each host on its own clock (synchronised with a master).
         let wall = kairos_sdk::RealTimeClock::new();
         let at = wall.now().after(crate::deploy::START_LEAD);
         let asked = crate::deploy::start_all_at(hosts, at.as_nanos())?;

@@ -94,8 +94,8 @@ fn state_color(state: Option<&NodeState>) -> Color32 {
     }
 }
 
-/// A connection's curve from an output to an input.
-pub fn paint_edge(painter: &Painter, from: Pos2, to: Pos2, stroke: Stroke) {
+/// A connection's curve from an output to an input; dashed for one between two hosts.
+pub fn paint_edge(painter: &Painter, from: Pos2, to: Pos2, stroke: Stroke, dashed: bool) {
     let bend = ((to.x - from.x).abs() * 0.5).max(40.0);
     let shape = egui::epaint::CubicBezierShape::from_points_stroke(
         [from, from + Vec2::new(bend, 0.0), to - Vec2::new(bend, 0.0), to],
@@ -103,7 +103,12 @@ pub fn paint_edge(painter: &Painter, from: Pos2, to: Pos2, stroke: Stroke) {
         Color32::TRANSPARENT,
         stroke,
     );
-    painter.add(shape);
+    if dashed {
+        let points = shape.flatten(Some(0.5));
+        painter.extend(egui::Shape::dashed_line(&points, stroke, 8.0, 5.0));
+    } else {
+        painter.add(shape);
+    }
 }
 
 /// How a connection looks this frame.
@@ -123,6 +128,8 @@ pub struct ConnectionLook<'a> {
     pub dropping: bool,
     /// Whether there is room for small text (zoomed in enough).
     pub detail: bool,
+    /// The hosts it crosses between (`car → roadside`; `here` for the deploying machine), when they differ.
+    pub between_hosts: Option<&'a str>,
 }
 
 /// A connection: its curve, its policy's label, its rate, latency and losses.
@@ -139,8 +146,18 @@ pub fn paint_connection(
         (false, true) => Stroke::new(4.0, look.color),
         (false, false) => Stroke::new(2.0, look.color),
     };
-    paint_edge(painter, from, to, stroke);
+    paint_edge(painter, from, to, stroke, look.between_hosts.is_some());
     let label = look.label.rect;
+    if let Some(hosts) = look.between_hosts.filter(|_| look.detail) {
+        crisp_text(
+            painter,
+            label.center_top() - Vec2::new(0.0, 2.0),
+            Align2::CENTER_BOTTOM,
+            hosts,
+            FontId::proportional(10.0),
+            visuals.weak_text_color(),
+        );
+    }
     painter.rect_filled(label, 4.0, visuals.extreme_bg_color);
     if look.detail {
         // The policy's full name where there is room for it, its short form on short connections.

@@ -17,10 +17,11 @@ use kairos_pack_net::encoding::{SAMPLES, SampleReceiver};
 use kairos_pack_net::sample_frame;
 use kairos_sdk::descriptor::{Descriptor, Property};
 use kairos_sdk::{
-    Component, ComponentError, ComponentInfo, ComponentResult, Context, DataType, DescribeError,
+    Component, ComponentError, ComponentInfo, ComponentResult, Context, DataType, DescribeError, Payload,
     ReaderPolicy, Registry, STATUS_PERIOD, Throttle, TypeFilter, Value, WARNING_PERIOD,
 };
 use zenoh::Wait as _;
+use zenoh::bytes::ZBytes;
 
 /// The sending end's type name.
 pub const SENDER: &str = "link.sender";
@@ -96,6 +97,35 @@ fn receiver_base(data_type: DataType) -> ComponentInfo {
     .build()
 }
 
+/// `sample` as one frame for Zenoh: the start copied, the payload's bytes shared where the payload holds
+/// them (pixels, bytes), so a camera's frames travel without a copy on the sending side.
+fn frame_of(output: &str, sample: &kairos_sdk::Sample) -> ZBytes {
+    let (head, body) = sample_frame::encode(output, sample);
+    let shared = match &sample.payload {
+        Payload::Image(image) => Some(bytes::Bytes::from_owner(image.pixels.clone())),
+        Payload::Bytes(data) => Some(bytes::Bytes::from_owner(data.clone())),
+        Payload::Custom(custom) => Some(bytes::Bytes::from_owner(custom.data.clone())),
+        _ => None,
+    };
+    match shared {
+        Some(body) if body.len() > SHARE_FROM => {
+            let mut writer = ZBytes::writer();
+            writer.append(ZBytes::from(head));
+            writer.append(ZBytes::from(body));
+            ZBytes::from(writer)
+        }
+        _ => {
+            let mut whole = head;
+            whole.extend_from_slice(&body);
+            ZBytes::from(whole)
+        }
+    }
+}
+
+/// Payloads larger than this are shared with Zenoh rather than copied into the frame: below it a copy
+/// costs less than a second slice.
+const SHARE_FROM: usize = 4096;
+
 /// `link.sender`. See [`sender_descriptor`].
 #[derive(Debug, Default)]
 pub struct LinkSender {
@@ -138,8 +168,7 @@ impl Component for LinkSender {
         // Numbered by the link, not by the output: a gap the receiver sees was lost in transit, never a
         // sample this reader's policy skipped (those are counted on the input).
         sample.sequence = self.sent;
-        let frame = sample_frame::encode_whole(&self.output, &sample);
-        match end.publisher.put(frame).wait() {
+        match end.publisher.put(frame_of(&self.output, &sample)).wait() {
             Ok(()) => {
                 self.sent += 1;
                 if !self.matched {

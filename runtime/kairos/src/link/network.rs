@@ -216,7 +216,6 @@ pub fn prepare(diagram: &Diagram) -> anyhow::Result<()> {
                 } else {
                     CongestionControl::Drop
                 })
-                .express(true)
                 .wait()
                 .map_err(|e| anyhow::anyhow!("{e}"))
                 .with_context(context)?;
@@ -253,6 +252,11 @@ pub fn prepare(diagram: &Diagram) -> anyhow::Result<()> {
         }
     }
     Ok(())
+}
+
+/// The session, for measuring links against Zenoh alone in the same configuration.
+pub fn session() -> Option<zenoh::Session> {
+    network().as_ref().map(|n| n.session.clone())
 }
 
 /// The declared sending end under `key`.

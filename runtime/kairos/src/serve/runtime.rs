@@ -122,17 +122,21 @@ fn telemetry(snapshot: &StatsSnapshot, state: RuntimeState) -> Telemetry {
                 status: c.status.clone(),
             })
             .collect(),
-        clock: snapshot.clock.as_ref().map(|clock| ClockTelemetry {
-            source: clock.source.clone(),
-            state: serde_json::to_value(clock.state)
-                .ok()
-                .and_then(|v| v.as_str().map(str::to_owned))
-                .unwrap_or_default(),
-            error_ns: clock.error_ns,
-            step_ns: clock.step_ns,
-            references: clock.references,
-            since_reference_s: clock.since_reference_s,
-        }),
+        clock: snapshot.clock.as_ref().map(clock_telemetry),
+    }
+}
+
+fn clock_telemetry(clock: &kairos_sdk::ClockStatus) -> ClockTelemetry {
+    ClockTelemetry {
+        source: clock.source.clone(),
+        state: serde_json::to_value(clock.state)
+            .ok()
+            .and_then(|v| v.as_str().map(str::to_owned))
+            .unwrap_or_default(),
+        error_ns: clock.error_ns,
+        step_ns: clock.step_ns,
+        references: clock.references,
+        since_reference_s: clock.since_reference_s,
     }
 }
 
@@ -160,6 +164,12 @@ impl Runtime {
             Some(shared) => shared.now(),
             None => kairos_sdk::Clock::now(&kairos_sdk::RealTimeClock::new()),
         }
+    }
+
+    /// Where this runtime's clock stands, when it follows a master (whatever is deployed).
+    pub fn clock_telemetry(&self) -> Option<ClockTelemetry> {
+        let clock = self.clock.lock().ok().and_then(|slot| slot.clone())?;
+        clock.status().as_ref().map(clock_telemetry)
     }
 
     /// The clock a diagram deployed here runs on.

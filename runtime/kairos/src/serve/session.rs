@@ -382,9 +382,13 @@ impl Session {
             }
             RequestBody::Status => ReplyBody::Status(
                 self.blocking(|r| {
+                    let telemetry = r.telemetry();
                     Ok(Status {
                         state: r.state(),
-                        telemetry: r.telemetry(),
+                        clock: r
+                            .clock_telemetry()
+                            .or_else(|| telemetry.as_ref().and_then(|t| t.clock.clone())),
+                        telemetry,
                     })
                 })
                 .await?,
