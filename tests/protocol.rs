@@ -8,6 +8,7 @@
 
 mod common;
 
+use std::fmt::Write as _;
 use std::io::{BufRead as _, BufReader};
 use std::net::TcpStream;
 use std::path::Path;
@@ -46,8 +47,27 @@ fn serve_with_env(dir: &Path, extra: &[&str], env: &[(&str, &str)]) -> Server {
 }
 
 fn serve_on(dir: &Path, listen: &str, extra: &[&str], env: &[(&str, &str)]) -> Server {
+    serve_in(None, dir, listen, extra, env)
+}
+
+/// `kairos serve` in network namespace `namespace` (`ip netns exec`), or in this one.
+fn serve_in(
+    namespace: Option<&str>,
+    dir: &Path,
+    listen: &str,
+    extra: &[&str],
+    env: &[(&str, &str)],
+) -> Server {
     let token_file = dir.join("token.txt");
-    let mut child = Command::new(env!("CARGO_BIN_EXE_kairos"))
+    let mut command = match namespace {
+        Some(namespace) => {
+            let mut command = Command::new("ip");
+            command.args(["netns", "exec", namespace, env!("CARGO_BIN_EXE_kairos")]);
+            command
+        }
+        None => Command::new(env!("CARGO_BIN_EXE_kairos")),
+    };
+    let mut child = command
         .envs(env.iter().copied())
         .args(["serve", "--listen", listen, "--token-file"])
         .arg(&token_file)
@@ -812,6 +832,17 @@ fn deploy_runs_each_part_on_its_host_and_stops_them_all() {
     ];
     let spread_ms = (stamps.iter().max().unwrap() - stamps.iter().min().unwrap()) as f64 / 1e6;
     assert!(spread_ms < 20.0, "first samples {spread_ms} ms apart: {stamps:?}");
+    // And stopped together: the last samples too.
+    let last_stamp = |folder: &tempfile::TempDir, file: &str| -> i64 {
+        csv_values(&folder.path().join(file)).last().unwrap().0
+    };
+    let stamps = [
+        last_stamp(&dir_a, "a.csv"),
+        last_stamp(&dir_b, "b.csv"),
+        last_stamp(&here, "here.csv"),
+    ];
+    let spread_ms = (stamps.iter().max().unwrap() - stamps.iter().min().unwrap()) as f64 / 1e6;
+    assert!(spread_ms < 30.0, "last samples {spread_ms} ms apart: {stamps:?}");
 }
 
 fn free_tcp_port() -> u16 {
@@ -1115,7 +1146,7 @@ fn status_shows_each_host_state_clock_and_links_and_names_the_unreachable() {
         let line = stdout.lines().find(|l| l.starts_with("b (")).unwrap().to_owned();
         if line.contains("clock locked") || started.elapsed() > Duration::from_secs(5) {
             assert!(
-                stdout.contains(&format!("a ({}): empty, own clock", a.url)),
+                stdout.contains(&format!("a ({}): empty, clock master", a.url)),
                 "{stdout}"
             );
             break line;
@@ -1144,6 +1175,349 @@ fn status_shows_each_host_state_clock_and_links_and_names_the_unreachable() {
         ],
     );
     assert!(text(&one).0.contains("runtime ("), "{}", text(&one).0);
+}
+
+/// Two network namespaces joined by a veth pair (10.200.N.1 in the first, .2 in the second), made for a
+/// test and removed after it.
+struct Namespaces {
+    names: [String; 2],
+    veth: String,
+    subnet: u32,
+}
+
+impl Namespaces {
+    /// The pair, or `None` (saying why) where this machine does not allow making them.
+    fn make() -> Option<Self> {
+        let id = std::process::id() % 100_000;
+        let names = [format!("kairos_a{id}"), format!("kairos_b{id}")];
+        let veth = format!("kva{id}");
+        let subnet = id % 250;
+        let made = Namespaces {
+            names: names.clone(),
+            veth: veth.clone(),
+            subnet,
+        };
+        let steps: Vec<Vec<String>> = vec![
+            vec!["netns".into(), "add".into(), names[0].clone()],
+            vec!["netns".into(), "add".into(), names[1].clone()],
+            vec![
+                "link".into(),
+                "add".into(),
+                veth.clone(),
+                "netns".into(),
+                names[0].clone(),
+                "type".into(),
+                "veth".into(),
+                "peer".into(),
+                "name".into(),
+                format!("kvb{id}"),
+                "netns".into(),
+                names[1].clone(),
+            ],
+            vec![
+                "-n".into(),
+                names[0].clone(),
+                "addr".into(),
+                "add".into(),
+                format!("10.200.{subnet}.1/24"),
+                "dev".into(),
+                veth.clone(),
+            ],
+            vec![
+                "-n".into(),
+                names[1].clone(),
+                "addr".into(),
+                "add".into(),
+                format!("10.200.{subnet}.2/24"),
+                "dev".into(),
+                format!("kvb{id}"),
+            ],
+            vec![
+                "-n".into(),
+                names[0].clone(),
+                "link".into(),
+                "set".into(),
+                veth.clone(),
+                "up".into(),
+            ],
+            vec![
+                "-n".into(),
+                names[1].clone(),
+                "link".into(),
+                "set".into(),
+                format!("kvb{id}"),
+                "up".into(),
+            ],
+            vec![
+                "-n".into(),
+                names[0].clone(),
+                "link".into(),
+                "set".into(),
+                "lo".into(),
+                "up".into(),
+            ],
+            vec![
+                "-n".into(),
+                names[1].clone(),
+                "link".into(),
+                "set".into(),
+                "lo".into(),
+                "up".into(),
+            ],
+        ];
+        for step in steps {
+            let done = Command::new("ip").args(&step).stderr(Stdio::piped()).output();
+            match done {
+                Ok(output) if output.status.success() => {}
+                Ok(output) => {
+                    eprintln!(
+                        "skipped: cannot make network namespaces here (ip {}: {})",
+                        step.join(" "),
+                        String::from_utf8_lossy(&output.stderr).trim()
+                    );
+                    return None;
+                }
+                Err(error) => {
+                    eprintln!("skipped: no `ip` command to make network namespaces ({error})");
+                    return None;
+                }
+            }
+        }
+        Some(made)
+    }
+
+    fn address(&self, index: u8) -> String {
+        format!("10.200.{}.{index}", self.subnet)
+    }
+
+    /// Takes the veth link down or up.
+    fn set_link(&self, up: bool) {
+        let state = if up { "up" } else { "down" };
+        let done = Command::new("ip")
+            .args(["-n", &self.names[0], "link", "set", &self.veth, state])
+            .status()
+            .unwrap();
+        assert!(done.success());
+    }
+}
+
+impl Drop for Namespaces {
+    fn drop(&mut self) {
+        for name in &self.names {
+            let _ = Command::new("ip").args(["netns", "del", name]).status();
+        }
+    }
+}
+
+#[test]
+fn across_two_network_namespaces_a_cut_link_is_reported_and_the_part_resumes_when_it_returns() {
+    let _machine = whole_machine();
+    let Some(namespaces) = Namespaces::make() else {
+        return;
+    };
+    let (dir_a, dir_b, here) = (
+        tempfile::tempdir().unwrap(),
+        tempfile::tempdir().unwrap(),
+        tempfile::tempdir().unwrap(),
+    );
+    let (address_a, address_b) = (namespaces.address(1), namespaces.address(2));
+    let a = serve_in(
+        Some(&namespaces.names[0]),
+        dir_a.path(),
+        &format!("{address_a}:7400"),
+        &[],
+        &[],
+    );
+    let b = serve_in(
+        Some(&namespaces.names[1]),
+        dir_b.path(),
+        &format!("{address_b}:7400"),
+        &[],
+        &[],
+    );
+    std::fs::write(here.path().join("a.token"), &a.token).unwrap();
+    std::fs::write(here.path().join("b.token"), &b.token).unwrap();
+    // A sine on host a, doubled on host b, written on host a: both ways across the veth pair.
+    let diagram = format!(
+        r#"Diagram(format: 1,
+            hosts: {{
+                "a": Host(endpoint: "{}", token_file: "a.token", zenoh: "tcp/{address_a}:7447"),
+                "b": Host(endpoint: "{}", token_file: "b.token", zenoh: "tcp/{address_b}:7447"),
+            }},
+            components: [
+                Component(id: "sine", type: "core.sine", host: "a", properties: {{"rate": 100.0}}),
+                Component(id: "gain", type: "core.gain", host: "b", properties: {{"gain": 2.0}}),
+                Component(id: "csv", type: "core.csv_writer", host: "a", properties: {{"path": "back.csv"}}),
+            ],
+            connections: [
+                Connection(from: "sine.out", to: "gain.in"),
+                Connection(from: "gain.out", to: "csv.in1"),
+            ])"#,
+        a.url, b.url
+    );
+    let path = here.path().join("namespaces.ron");
+    std::fs::write(&path, diagram).unwrap();
+    let deploy = |extra: &[&str], log: &Path| {
+        Command::new("ip")
+            .args([
+                "netns",
+                "exec",
+                &namespaces.names[0],
+                env!("CARGO_BIN_EXE_kairos"),
+                "deploy",
+            ])
+            .arg(&path)
+            .args(extra)
+            .current_dir(here.path())
+            .stdout(Stdio::null())
+            .stderr(std::fs::File::create(log).unwrap())
+            .spawn()
+            .unwrap()
+    };
+    // Off loopback, a token is not sent in clear text unless the user says so.
+    let refused_log = here.path().join("refused.log");
+    let refused = deploy(&["--for", "1s"], &refused_log).wait_with_output().unwrap();
+    assert!(!refused.status.success());
+    wait_for_log(&refused_log, "in clear text", Duration::from_secs(1));
+
+    let log = here.path().join("deploy.log");
+    let mut deploying = deploy(&["--for", "9s", "--allow-clear-text-tokens"], &log);
+    wait_for_log(&log, "host 'b' started its part", Duration::from_secs(15));
+    std::thread::sleep(Duration::from_millis(1500));
+    namespaces.set_link(false);
+    let reported = wait_for_log(&log, "host 'b' is lost", Duration::from_secs(3));
+    assert!(reported < Duration::from_secs(1), "reported after {reported:?}");
+    std::thread::sleep(Duration::from_secs(1));
+    namespaces.set_link(true);
+    let returned_at = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .unwrap()
+        .as_nanos() as i64;
+    wait_for_log(&log, "host 'b' is back", Duration::from_secs(5));
+    let status = deploying.wait().unwrap();
+    let content = std::fs::read_to_string(&log).unwrap();
+    assert!(status.success(), "{content}");
+    let rows = csv_values(&dir_a.path().join("back.csv"));
+    let after = rows.iter().filter(|(stamp, _)| *stamp > returned_at).count();
+    assert!(
+        after > 50,
+        "{after} samples back on a after the link returned\n{content}"
+    );
+    drop((a, b));
+}
+
+/// The rows of a CSV from `core.csv_writer`, without the columns that depend on when a run happened (times
+/// of issue) or how its streams were numbered.
+fn timeless_rows(path: &Path) -> Vec<String> {
+    let text = std::fs::read_to_string(path).unwrap_or_default();
+    let mut lines = text.lines();
+    let header: Vec<&str> = lines.next().unwrap_or_default().split(',').collect();
+    let keep: Vec<usize> = (0..header.len())
+        .filter(|&i| !header[i].ends_with("time_of_issue_ns") && !header[i].ends_with("sequence"))
+        .collect();
+    lines
+        .map(|row| {
+            let fields: Vec<&str> = row.split(',').collect();
+            keep.iter()
+                .filter_map(|&i| fields.get(i).copied())
+                .collect::<Vec<_>>()
+                .join(",")
+        })
+        .collect()
+}
+
+#[test]
+fn fusion_spread_over_three_hosts_gives_the_one_host_output_by_timestamp() {
+    let _machine = shared_machine();
+    let dirs: Vec<tempfile::TempDir> = (0..4).map(|_| tempfile::tempdir().unwrap()).collect();
+    let here = dirs[3].path();
+    // A recording of a simulated IMU (100 Hz) and GNSS (10 Hz): the same input for both runs.
+    let recording = here.join("drive.mcap");
+    std::fs::write(
+        here.join("record.ron"),
+        format!(
+            r#"Diagram(format: 1, components: [
+                Component(id: "imu", type: "sensors.imu", properties: {{"rate": 100.0}}),
+                Component(id: "gnss", type: "sensors.gnss", properties: {{"rate": 10.0}}),
+                Component(id: "recorder", type: "recording.recorder", properties: {{"path": {:?}}}),
+            ], connections: [
+                Connection(from: "imu.imu", to: "recorder.in1", buffer_size: 64),
+                Connection(from: "gnss.fix", to: "recorder.in2"),
+            ])"#,
+            recording.display().to_string()
+        ),
+    )
+    .unwrap();
+    let recorded = common::kairos(here, &["run", "record.ron", "--for", "2s"]);
+    assert!(recorded.status.success(), "{}", text(&recorded).1);
+
+    let fusion = |placed: [&str; 3], hosts: &str, csv: &Path| {
+        let at = |index: usize| {
+            if placed[index].is_empty() {
+                String::new()
+            } else {
+                format!(r#", host: "{}""#, placed[index])
+            }
+        };
+        format!(
+            r#"Diagram(format: 1, {hosts} components: [
+                Component(id: "imu_player", type: "recording.player", properties: {{"path": {rec:?}}}{}),
+                Component(id: "gnss_player", type: "recording.player", properties: {{"path": {rec:?}}}{}),
+                Component(id: "sync", type: "core.synchronizer", properties: {{"tolerance_ms": 5.0}}{}),
+                Component(id: "csv", type: "core.csv_writer", properties: {{"path": {csv:?}, "synchronize": true, "tolerance_ms": 5.0}}{}),
+            ], connections: [
+                Connection(from: "imu_player.imu_imu", to: "sync.in1", policy: NeverSkipping, buffer_size: 256),
+                Connection(from: "gnss_player.gnss_fix", to: "sync.in2", policy: NeverSkipping, buffer_size: 64),
+                Connection(from: "sync.out1", to: "csv.in1", policy: NeverSkipping, buffer_size: 256),
+                Connection(from: "sync.out2", to: "csv.in2", policy: NeverSkipping, buffer_size: 256),
+            ])"#,
+            at(0),
+            at(1),
+            at(2),
+            at(2),
+            rec = recording.display().to_string(),
+            csv = csv.display().to_string(),
+        )
+    };
+    // On one machine.
+    let one_csv = here.join("one.csv");
+    std::fs::write(here.join("one.ron"), fusion(["", "", ""], "", &one_csv)).unwrap();
+    let one = common::kairos(here, &["run", "one.ron", "--for", "3s"]);
+    assert!(one.status.success(), "{}", text(&one).1);
+
+    // The IMU's player on host a, the GNSS's on host b, the fusion on host c.
+    let servers: Vec<Server> = dirs[..3].iter().map(|d| serve(d.path(), &[])).collect();
+    let mut hosts = String::from("hosts: {");
+    for (name, server) in ["a", "b", "c"].iter().zip(&servers) {
+        std::fs::write(here.join(format!("{name}.token")), &server.token).unwrap();
+        let _ = write!(
+            hosts,
+            r#""{name}": Host(endpoint: "{}", token_file: "{name}.token", zenoh: "tcp/127.0.0.1:{}"),"#,
+            server.url,
+            free_tcp_port()
+        );
+    }
+    hosts.push_str("},");
+    let spread_csv = dirs[2].path().join("spread.csv");
+    std::fs::write(
+        here.join("spread.ron"),
+        fusion(["a", "b", "c"], &hosts, &spread_csv),
+    )
+    .unwrap();
+    let spread = common::kairos(here, &["deploy", "spread.ron", "--for", "3s"]);
+    assert!(spread.status.success(), "{}", text(&spread).1);
+
+    let (alone, across) = (timeless_rows(&one_csv), timeless_rows(&spread_csv));
+    // One fused row per GNSS fix (10 Hz for 2 s), each with the IMU sample nearest in time.
+    assert!(alone.len() >= 15, "{} fused rows on one machine", alone.len());
+    assert_eq!(
+        across.len(),
+        alone.len(),
+        "as many fused rows across hosts as on one machine"
+    );
+    for (row, (a, b)) in alone.iter().zip(&across).enumerate() {
+        assert_eq!(a, b, "fused row {row} differs");
+    }
 }
 
 #[test]

@@ -123,6 +123,10 @@ fn camera_imu_and_gnss_are_recorded_with_their_schemas_and_read_back() {
             .unwrap()
             .starts_with("real time")
     );
+    // The clock's state is in the file: here the machine's own, free-running.
+    let clock = &report["metadata"]["kairos.clock"];
+    assert_eq!(clock["source"], "this machine", "{clock}");
+    assert_eq!(clock["state"], "free", "{clock}");
 
     // An independent reader (Python `mcap`, CRCs checked, Foxglove schemas decoded with protobuf) agrees.
     let checked = Command::new("python3")

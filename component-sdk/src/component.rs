@@ -404,6 +404,12 @@ impl Context {
         self.clock.describe()
     }
 
+    /// Where the runtime clock stands when something disciplines it (a clock master, a GNSS receiver):
+    /// its source, state and error; `None` for the machine's own clock.
+    pub fn clock_status(&self) -> Option<crate::disciplined::ClockStatus> {
+        self.clock.status()
+    }
+
     /// For a time source (a GNSS receiver): at `measured_at` on the runtime clock (when the data arrived),
     /// the true time was `reference`. When the diagram makes this component its clock source, the runtime
     /// clock follows these references; otherwise they are ignored. Returns whether the clock took it.

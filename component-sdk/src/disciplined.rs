@@ -60,6 +60,10 @@ pub struct ClockStatus {
     pub references: u64,
     /// Seconds since the last reference, when there was one.
     pub since_reference_s: Option<f64>,
+    /// How far from its source the clock may be, when the source can tell (a clock master: half the
+    /// round trip of the exchange used, the most an asymmetric path can bias it), ns.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub error_bound_ns: Option<i64>,
 }
 
 /// The offset's course: from `from` at monotonic time `anchor`, moving towards `target` at
@@ -112,6 +116,8 @@ pub struct DisciplinedClock {
     steps_allowed: AtomicBool,
     /// How many recent references the estimate looks at.
     window: usize,
+    /// The source's bound on the error, ns; negative while unknown.
+    error_bound_ns: AtomicI64,
 }
 
 impl DisciplinedClock {
@@ -137,6 +143,7 @@ impl DisciplinedClock {
             }),
             steps_allowed: AtomicBool::new(true),
             window: WINDOW,
+            error_bound_ns: AtomicI64::new(-1),
         }
     }
 
@@ -241,6 +248,13 @@ impl DisciplinedClock {
     }
 
     /// Where the clock stands.
+    /// Records how far from its source this clock may be, as the source measured it (see
+    /// [`ClockStatus::error_bound_ns`]).
+    pub fn set_error_bound(&self, bound_ns: i64) {
+        self.error_bound_ns.store(bound_ns.max(0), Ordering::Relaxed);
+    }
+
+    /// Where the clock stands.
     pub fn clock_status(&self) -> ClockStatus {
         let discipline = self.discipline.lock().ok();
         let monotonic = self.monotonic_ns();
@@ -266,6 +280,7 @@ impl DisciplinedClock {
             step_ns,
             references,
             since_reference_s,
+            error_bound_ns: Some(self.error_bound_ns.load(Ordering::Relaxed)).filter(|bound| *bound >= 0),
         }
     }
 }

@@ -419,7 +419,7 @@ impl Canvas {
             host_of(&connection.to.component),
         );
         let between_hosts = (from_host != to_host)
-            .then(|| format!("{} → {}", from_host.unwrap_or("here"), to_host.unwrap_or("here")));
+            .then(|| format!("{} -> {}", from_host.unwrap_or("here"), to_host.unwrap_or("here")));
         let look = ConnectionLook {
             color: document
                 .output_type(&connection.from, library)

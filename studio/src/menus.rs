@@ -128,7 +128,7 @@ pub fn run_controls_ui(ui: &mut egui::Ui, state: RuntimeState, commands: &mut Ve
     for (label, enabled, request) in [
         ("Pause", running, RequestBody::Pause),
         ("Resume", paused, RequestBody::Resume),
-        ("Stop", running || paused, RequestBody::Stop),
+        ("Stop", running || paused, RequestBody::Stop { at_ns: None }),
     ] {
         if ui.add_enabled(enabled, egui::Button::new(label)).clicked() {
             commands.push(Command::Request(request));
@@ -153,7 +153,11 @@ fn connection_state_ui(ui: &mut egui::Ui, session: &Session) {
             "lost" => Color32::LIGHT_RED,
             _ => Color32::YELLOW,
         };
-        ui.label(RichText::new(format!("clock: {} {}", clock.source, clock.state)).color(color))
+        // The bound the master gives (half an exchange's round trip) where there is one.
+        let within = clock.error_bound_ns.map_or_else(String::new, |bound| {
+            format!(" ±{:.1} µs", bound.unsigned_abs() as f64 * 1e-3)
+        });
+        ui.label(RichText::new(format!("clock: {} {}{within}", clock.source, clock.state)).color(color))
             .on_hover_text(format!(
                 "The runtime clock follows '{}': error {:+.3} ms at the last reference, set {:+.3} s from the \
                  machine's clock at start, {} references",

@@ -76,6 +76,34 @@ fn with_causes(error: &dyn std::error::Error) -> String {
     text
 }
 
+/// The `kairos.clock` record: what the runtime clock was when it was written (at the start, with every
+/// chunk and at the end; the last is the latest). A recording made while the clock was not locked to its
+/// source (a master, a GNSS receiver) says so here: `state` is not `locked`.
+fn clock_record(ctx: &Context) -> Metadata {
+    let mut clock = BTreeMap::from([("description".to_owned(), ctx.clock_description())]);
+    if let Some(status) = ctx.clock_status() {
+        let state = serde_json::to_value(status.state)
+            .ok()
+            .and_then(|v| v.as_str().map(str::to_owned))
+            .unwrap_or_default();
+        clock.insert("source".to_owned(), status.source);
+        clock.insert("state".to_owned(), state);
+        clock.insert("error_ns".to_owned(), status.error_ns.to_string());
+        clock.insert("step_ns".to_owned(), status.step_ns.to_string());
+        clock.insert("references".to_owned(), status.references.to_string());
+        if let Some(bound) = status.error_bound_ns {
+            clock.insert("error_bound_ns".to_owned(), bound.to_string());
+        }
+    } else {
+        clock.insert("source".to_owned(), "this machine".to_owned());
+        clock.insert("state".to_owned(), "free".to_owned());
+    }
+    Metadata {
+        name: "kairos.clock".to_owned(),
+        metadata: clock,
+    }
+}
+
 impl Recorder {
     /// The descriptor.
     pub fn info() -> ComponentInfo {
@@ -205,6 +233,9 @@ impl Recorder {
                 })
                 .map_err(|e| failed(&path, "cannot write to", with_causes(&e)))?;
         }
+        writer
+            .write_metadata(&clock_record(ctx))
+            .map_err(|e| failed(&path, "cannot write to", with_causes(&e)))?;
         tracing::info!("recording to {}", path.display());
         let now = Instant::now();
         self.file = Some(OpenFile {
@@ -255,6 +286,7 @@ impl Recorder {
         let result = file
             .writer
             .write_metadata(&self.drop_counts(ctx))
+            .and_then(|()| file.writer.write_metadata(&clock_record(ctx)))
             .and_then(|()| file.writer.finish().map(|_| ()));
         let inner = file.writer.into_inner();
         let flushed = inner
@@ -340,6 +372,7 @@ impl Recorder {
                 file.last_chunk = Instant::now();
                 file.writer
                     .write_metadata(&drops)
+                    .and_then(|()| file.writer.write_metadata(&clock_record(ctx)))
                     .and_then(|()| file.writer.flush())
                     .map_err(|e| failed(&path, "cannot write to", with_causes(&e)))?;
             }

@@ -184,8 +184,13 @@ requests! {
     Pause = "pause" => Done, Operator;
     /// Resumes it after a pause.
     Resume = "resume" => Done, Operator;
-    /// Stops it (it can be started again).
-    Stop = "stop" => Done, Operator;
+    /// Stops it (it can be started again): now, or at an instant on the runtime's clock (several runtimes
+    /// stop together, as they started); the reply comes once it has stopped.
+    Stop = "stop" {
+        /// When to stop, ns since the UNIX epoch on the runtime's clock; absent: now.
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        at_ns: Option<i64>,
+    } => Done, Operator;
     /// Changes a property, validated; a refused value keeps the old one and the error says why.
     SetProperty = "set_property" {
         /// The component's id.
@@ -766,7 +771,8 @@ pub struct ClockTelemetry {
     /// The component it follows.
     pub source: String,
     /// `acquiring` (no time from the source yet), `locked` (within 10 ms), `slewing` (a larger error being
-    /// slewed away at 1 ms/s), `holdover` (no time for 3 s) or `lost` (for 30 s).
+    /// slewed away at 1 ms/s), `holdover` (no time for 3 s) or `lost` (for 30 s); `master` for the clock
+    /// master itself (`kairos serve --clock-master`), which is the reference.
     pub state: String,
     /// The source's time minus the clock's at its last reference, ns.
     pub error_ns: i64,
@@ -777,6 +783,10 @@ pub struct ClockTelemetry {
     /// Seconds since the last one.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub since_reference_s: Option<f64>,
+    /// How far from its source the clock may be, when the source can tell (a clock master: half the
+    /// round trip of the exchange used), ns.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub error_bound_ns: Option<i64>,
 }
 
 /// Where a runtime's links to other hosts travel: one Zenoh session, listening and connecting on explicit

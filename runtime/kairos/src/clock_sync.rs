@@ -146,6 +146,9 @@ pub fn run_slave(master: SocketAddr, clock: Arc<DisciplinedClock>) -> std::io::R
                                 let now = clock.now().as_nanos();
                                 let master_now = now - clock.clock_status().offset_ns + best.base;
                                 clock.take_reference(MASTER_SOURCE, Timestamp(now), Timestamp(master_now));
+                                // The offset is exact on a symmetric path; an asymmetric one biases it by at
+                                // most half the round trip.
+                                clock.set_error_bound(best.delay / 2);
                             }
                         }
                     }

@@ -565,12 +565,20 @@ pub fn check_clocks(hosts: &mut [Host], bound: Duration, start_unlocked: bool) -
             );
             continue;
         };
-        let error_ns = clock["error_ns"].as_i64().unwrap_or(i64::MAX);
+        if state == "master" {
+            tracing::info!("host '{}' is the clock master", host.name());
+            continue;
+        }
+        // The master's bound where it gives one (half the exchange's round trip), else the last error.
+        let error_ns = clock["error_bound_ns"]
+            .as_i64()
+            .or_else(|| clock["error_ns"].as_i64())
+            .unwrap_or(i64::MAX);
         if state == "locked" && error_ns.abs() <= bound_ns {
             tracing::info!(
-                "host '{}': clock locked, error {:+.1} µs",
+                "host '{}': clock locked, within ±{:.1} µs",
                 host.name(),
-                error_ns as f64 * 1e-3
+                error_ns.unsigned_abs() as f64 * 1e-3
             );
         } else {
             unlocked.push(format!(
@@ -593,6 +601,9 @@ pub fn check_clocks(hosts: &mut [Host], bound: Duration, start_unlocked: bool) -
          wait for them to lock, raise --lock-bound, or pass --start-unlocked to start anyway"
     )
 }
+
+/// How far ahead of now the hosts are told to stop: time for every request to arrive.
+pub const STOP_LEAD: Duration = Duration::from_millis(200);
 
 /// How far ahead of now the hosts are told to start: time for every request to arrive.
 pub const START_LEAD: Duration = Duration::from_millis(500);
@@ -748,9 +759,31 @@ impl Watch {
         Ok(host)
     }
 
-    /// Stops every host's part.
-    pub fn stop_all(&mut self) {
-        stop_all(&mut self.hosts);
+    /// Stops every host's part and, with `stop_here`, this machine's, all at one instant
+    /// [`STOP_LEAD`] ahead, each host on its own clock, as they started.
+    pub fn stop_together(&mut self, stop_here: impl FnOnce()) {
+        use kairos_sdk::Clock as _;
+        let wall = kairos_sdk::RealTimeClock::new();
+        let at = wall.now().after(STOP_LEAD);
+        let asked: Vec<anyhow::Result<u64>> = self
+            .hosts
+            .iter_mut()
+            .map(|host| {
+                host.send(RequestBody::Stop {
+                    at_ns: Some(at.as_nanos()),
+                })
+            })
+            .collect();
+        while wall.now() < at {
+            std::thread::sleep(Duration::from_micros(200));
+        }
+        stop_here();
+        for (host, id) in self.hosts.iter_mut().zip(asked) {
+            match id.and_then(|id| host.wait(id)) {
+                Ok(_) => tracing::info!("host '{}' stopped", host.name()),
+                Err(error) => tracing::warn!("{error:#}"),
+            }
+        }
         for name in self.lost.keys() {
             tracing::warn!("host '{name}' was lost and could not be stopped: stop it there");
         }
@@ -760,7 +793,7 @@ impl Watch {
 /// Stops every host's part, saying which could not be stopped.
 pub fn stop_all(hosts: &mut [Host]) {
     for host in hosts {
-        match host.call(RequestBody::Stop) {
+        match host.call(RequestBody::Stop { at_ns: None }) {
             Ok(_) => tracing::info!("host '{}' stopped", host.name()),
             Err(error) => tracing::warn!("{error}"),
         }

@@ -173,9 +173,9 @@ pub fn run(registry: &Registry, path: &Path, options: &RunOptions) -> anyhow::Re
             last_print = Instant::now();
         }
     }
-    engine.stop();
-    if let Some(watch) = &mut watch {
-        watch.stop_all();
+    match &mut watch {
+        Some(watch) => watch.stop_together(|| engine.stop()),
+        None => engine.stop(),
     }
     let last = engine.snapshot().with_rates_since(&first);
     if options.stats.is_some() {

@@ -33,8 +33,13 @@ fn line(name: &str, spec: &HostSpec, reach: &Reach) -> String {
             }
             let clock = &status["clock"];
             match clock["state"].as_str() {
+                Some("master") => text.push_str(", clock master"),
                 Some(state) => {
-                    let error_us = clock["error_ns"].as_i64().unwrap_or(0).unsigned_abs() as f64 * 1e-3;
+                    let error_us = clock["error_bound_ns"]
+                        .as_i64()
+                        .unwrap_or_else(|| clock["error_ns"].as_i64().unwrap_or(0))
+                        .unsigned_abs() as f64
+                        * 1e-3;
                     let _ = write!(
                         text,
                         ", clock {state} ±{error_us:.1} µs (follows {})",

@@ -128,7 +128,7 @@ pub struct ConnectionLook<'a> {
     pub dropping: bool,
     /// Whether there is room for small text (zoomed in enough).
     pub detail: bool,
-    /// The hosts it crosses between (`car → roadside`; `here` for the deploying machine), when they differ.
+    /// The hosts it crosses between (`car -> roadside`; `here` for the deploying machine), when they differ.
     pub between_hosts: Option<&'a str>,
 }
 

@@ -255,6 +255,7 @@ fn synchronise_clock(runtime: &Runtime, options: &ServeOptions) -> anyhow::Resul
         let bound = crate::clock_sync::run_master(bind)
             .with_context(|| format!("--clock-master {bind}: cannot answer clock exchanges there"))?;
         tracing::info!("clock master: answering on udp://{bound}");
+        runtime.set_clock_master();
     }
     if let Some(master) = &options.clock_slave_of {
         let address = master

@@ -3,7 +3,7 @@
 //! One lock guards the deployment; operations that may block (start, stop, a property change waiting for
 //! the component's answer) run on blocking threads, never on the server's network threads.
 
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard, PoisonError, TryLockError};
 
 use kairos_diagram::{Diagnostic, Diagram, Value};
@@ -32,6 +32,8 @@ pub struct Runtime {
     generation: AtomicU64,
     /// The clock every deployed diagram runs on, when this runtime follows a clock master.
     clock: Mutex<Option<Arc<dyn kairos_sdk::Clock>>>,
+    /// Whether this runtime is the clock master of others.
+    clock_master: AtomicBool,
 }
 
 impl std::fmt::Debug for Runtime {
@@ -137,6 +139,7 @@ fn clock_telemetry(clock: &kairos_sdk::ClockStatus) -> ClockTelemetry {
         step_ns: clock.step_ns,
         references: clock.references,
         since_reference_s: clock.since_reference_s,
+        error_bound_ns: clock.error_bound_ns,
     }
 }
 
@@ -148,6 +151,7 @@ impl Runtime {
             deployment: Mutex::new(Deployment::default()),
             generation: AtomicU64::new(0),
             clock: Mutex::new(None),
+            clock_master: AtomicBool::new(false),
         })
     }
 
@@ -166,10 +170,25 @@ impl Runtime {
         }
     }
 
-    /// Where this runtime's clock stands, when it follows a master (whatever is deployed).
+    /// Makes this runtime the clock master of others: its own clock is the reference.
+    pub fn set_clock_master(&self) {
+        self.clock_master.store(true, Ordering::Release);
+    }
+
+    /// Where this runtime's clock stands when it follows a master or is one (whatever is deployed).
     pub fn clock_telemetry(&self) -> Option<ClockTelemetry> {
-        let clock = self.clock.lock().ok().and_then(|slot| slot.clone())?;
-        clock.status().as_ref().map(clock_telemetry)
+        if let Some(clock) = self.clock.lock().ok().and_then(|slot| slot.clone()) {
+            return clock.status().as_ref().map(clock_telemetry);
+        }
+        self.clock_master.load(Ordering::Acquire).then(|| ClockTelemetry {
+            source: "this machine".to_owned(),
+            state: "master".to_owned(),
+            error_ns: 0,
+            step_ns: 0,
+            references: 0,
+            since_reference_s: None,
+            error_bound_ns: Some(0),
+        })
     }
 
     /// The clock a diagram deployed here runs on.

@@ -213,8 +213,8 @@ impl Session {
             return Err(ProtocolError::new(
                 ErrorCode::InvalidValue,
                 format!(
-                    "the start instant is {:.1} s away on this runtime's clock (at most {} s): the clocks \
-                     disagree, or the instant is wrong",
+                    "the instant asked for is {:.1} s away on this runtime's clock (at most {} s): the \
+                     clocks disagree, or the instant is wrong",
                     ahead as f64 * 1e-9,
                     FARTHEST_START.as_secs()
                 ),
@@ -364,7 +364,10 @@ impl Session {
                 self.blocking(Runtime::resume).await?;
                 ReplyBody::Resume(Done {})
             }
-            RequestBody::Stop => {
+            RequestBody::Stop { at_ns } => {
+                if let Some(at) = at_ns {
+                    self.wait_for_instant(Timestamp(at)).await?;
+                }
                 self.blocking(Runtime::stop).await?;
                 ReplyBody::Stop(Done {})
             }
