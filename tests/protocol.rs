@@ -1520,6 +1520,103 @@ fn fusion_spread_over_three_hosts_gives_the_one_host_output_by_timestamp() {
     }
 }
 
+/// A self-signed certificate for 127.0.0.1 and its key, made with `openssl`, as `NAME.pem` and
+/// `NAME.key` in `dir`; false (saying why) where `openssl` is missing.
+fn make_certificate(dir: &Path, name: &str) -> bool {
+    let made = Command::new("openssl")
+        .args([
+            "req",
+            "-x509",
+            "-newkey",
+            "ec",
+            "-pkeyopt",
+            "ec_paramgen_curve:prime256v1",
+            "-nodes",
+            "-days",
+            "2",
+        ])
+        .args([
+            "-subj",
+            "/CN=kairos test",
+            "-addext",
+            "subjectAltName=IP:127.0.0.1",
+        ])
+        .args(["-addext", "basicConstraints=critical,CA:FALSE"])
+        .arg("-keyout")
+        .arg(dir.join(format!("{name}.key")))
+        .arg("-out")
+        .arg(dir.join(format!("{name}.pem")))
+        .stderr(Stdio::null())
+        .status();
+    match made {
+        Ok(status) if status.success() => true,
+        other => {
+            eprintln!("skipped: openssl could not make a test certificate ({other:?})");
+            false
+        }
+    }
+}
+
+#[test]
+fn deploy_over_tls_trusts_the_named_certificate_and_refuses_another() {
+    let _machine = shared_machine();
+    let (dir_a, here) = (tempfile::tempdir().unwrap(), tempfile::tempdir().unwrap());
+    if !make_certificate(here.path(), "host") || !make_certificate(here.path(), "other") {
+        return;
+    }
+    let (cert, key) = (here.path().join("host.pem"), here.path().join("host.key"));
+    let a = serve(
+        dir_a.path(),
+        &[
+            "--tls-cert",
+            cert.to_str().unwrap(),
+            "--tls-key",
+            key.to_str().unwrap(),
+        ],
+    );
+    assert!(a.url.starts_with("wss://"), "{}", a.url);
+    std::fs::write(here.path().join("a.token"), &a.token).unwrap();
+    let diagram = |certificate: &str| {
+        format!(
+            r#"Diagram(format: 1,
+                hosts: {{"a": Host(endpoint: "{}", token_file: "a.token", certificate: "{certificate}")}},
+                components: [
+                    Component(id: "sine", type: "core.sine", host: "a"),
+                    Component(id: "csv", type: "core.csv_writer", host: "a", properties: {{"path": "a.csv"}}),
+                ],
+                connections: [Connection(from: "sine.out", to: "csv.in1")])"#,
+            a.url
+        )
+    };
+    let path = here.path().join("tls.ron");
+    std::fs::write(&path, diagram("host.pem")).unwrap();
+    let deployed = common::kairos(here.path(), &["deploy", path.to_str().unwrap(), "--for", "1s"]);
+    let (_, stderr) = text(&deployed);
+    assert!(deployed.status.success(), "{stderr}");
+    let rows = csv_values(&dir_a.path().join("a.csv"));
+    assert!(rows.len() > 10, "{} rows over TLS\n{stderr}", rows.len());
+
+    // A certificate that is not the host's: refused with the reason, nothing started.
+    std::fs::remove_file(dir_a.path().join("a.csv")).unwrap();
+    std::fs::write(&path, diagram("other.pem")).unwrap();
+    let refused = common::kairos(here.path(), &["deploy", path.to_str().unwrap(), "--for", "1s"]);
+    let (_, stderr) = text(&refused);
+    assert!(!refused.status.success());
+    assert!(
+        stderr.contains("host 'a' at wss://") && stderr.contains("certificate"),
+        "{stderr}"
+    );
+    assert!(!dir_a.path().join("a.csv").exists(), "nothing started");
+    // And one without any certificate named is told what to add.
+    std::fs::write(&path, diagram("").replace(r#", certificate: """#, "")).unwrap();
+    let unnamed = common::kairos(here.path(), &["deploy", path.to_str().unwrap(), "--for", "1s"]);
+    assert!(
+        text(&unnamed).1.contains("needs the certificate to trust"),
+        "{}",
+        text(&unnamed).1
+    );
+}
+
 #[test]
 fn a_slave_whose_clock_is_250_ms_off_locks_to_its_master_within_a_second() {
     let _machine = shared_machine();

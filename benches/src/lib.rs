@@ -457,6 +457,7 @@ pub fn start_kairos_serve() -> Option<std::net::SocketAddr> {
             temporary_token: false,
             clock_master: None,
             clock_slave_of: None,
+            tls: None,
         };
         let _ = kairos::serve::serve_with(kairos::builtin_registry(), &options, move |address| {
             let _ = tx.send(address);

@@ -46,6 +46,10 @@ pub struct HostSpec {
     /// absent: the endpoint's address, port 7447. It listens there.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub zenoh: Option<String>,
+    /// With a `wss://` endpoint: the certificate to trust (the host's own, or its issuer's), a PEM file
+    /// relative to the diagram's folder.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub certificate: Option<String>,
 }
 
 /// The Zenoh port a host listens on when its `zenoh` endpoint is not given (Zenoh's own default).

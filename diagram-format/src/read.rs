@@ -618,12 +618,17 @@ impl Reader<'_> {
         let mut hosts = BTreeMap::new();
         let mut locations = BTreeMap::new();
         for (name, name_span, value) in self.string_map(node, "host") {
-            let Some(fields) = self.fields(value, "Host", &["endpoint", "token_file", "zenoh"]) else {
+            let Some(fields) =
+                self.fields(value, "Host", &["endpoint", "token_file", "zenoh", "certificate"])
+            else {
                 continue;
             };
             let endpoint_node = self.required(&fields, "endpoint");
             let endpoint = endpoint_node.and_then(|n| self.text(n));
             let Ok(token_file) = self.optional(fields.optional("token_file"), Self::text) else {
+                continue;
+            };
+            let Ok(certificate) = self.optional(fields.optional("certificate"), Self::text) else {
                 continue;
             };
             let zenoh_node = fields.optional("zenoh");
@@ -647,6 +652,7 @@ impl Reader<'_> {
                     endpoint,
                     token_file,
                     zenoh,
+                    certificate,
                 },
             );
         }

@@ -922,6 +922,7 @@ mod tests {
             endpoint: "ws://10.0.0.2:7600".to_owned(),
             token_file: None,
             zenoh: None,
+            certificate: None,
         };
         assert_eq!(spec.zenoh_endpoint(), "tcp/10.0.0.2:7447");
     }

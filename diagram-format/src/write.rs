@@ -74,6 +74,9 @@ impl fmt::Display for CanonicalRon<'_> {
                 if let Some(zenoh) = &host.zenoh {
                     write!(f, ", zenoh: {}", Quoted(zenoh))?;
                 }
+                if let Some(certificate) = &host.certificate {
+                    write!(f, ", certificate: {}", Quoted(certificate))?;
+                }
                 f.write_str("),\n")?;
             }
             f.write_str("    },\n")?;

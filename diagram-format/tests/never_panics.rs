@@ -178,13 +178,18 @@ fn diagram() -> impl Strategy<Value = Diagram> {
         prop::option::of("[a-z]{1,6}"),
         prop::collection::btree_map(
             any::<String>(),
-            (any::<String>(), any::<Option<String>>(), any::<Option<String>>()).prop_map(
-                |(endpoint, token_file, zenoh)| HostSpec {
+            (
+                any::<String>(),
+                any::<Option<String>>(),
+                any::<Option<String>>(),
+                any::<Option<String>>(),
+            )
+                .prop_map(|(endpoint, token_file, zenoh, certificate)| HostSpec {
                     endpoint,
                     token_file,
                     zenoh,
-                },
-            ),
+                    certificate,
+                }),
             0..3,
         ),
     )

@@ -109,6 +109,7 @@ fn scrambled_diagram() -> Diagram {
                     endpoint: "wss://10.0.0.3:7600".to_owned(),
                     token_file: Some("roadside \"token\".txt".to_owned()),
                     zenoh: Some("tls/10.0.0.3:7447".to_owned()),
+                    certificate: Some("roadside.pem".to_owned()),
                 },
             ),
             (
@@ -117,6 +118,7 @@ fn scrambled_diagram() -> Diagram {
                     endpoint: "ws://car.local:7600".to_owned(),
                     token_file: None,
                     zenoh: None,
+                    certificate: None,
                 },
             ),
         ]),

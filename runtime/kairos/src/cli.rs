@@ -112,6 +112,12 @@ pub enum Command {
         /// Follow the clock of the master at this UDP address: every diagram deployed here runs on it.
         #[arg(long, value_name = "HOST:PORT")]
         clock_slave_of: Option<String>,
+        /// Serve over TLS (wss://) with this certificate chain (PEM); clients trust it or its issuer.
+        #[arg(long, value_name = "FILE", requires = "tls_key")]
+        tls_cert: Option<PathBuf>,
+        /// The certificate's private key (PEM).
+        #[arg(long, value_name = "FILE", requires = "tls_cert")]
+        tls_key: Option<PathBuf>,
     },
     /// Check diagrams against the component library; exit 0 when all are valid.
     Validate {
@@ -162,6 +168,9 @@ pub enum Command {
         /// The runtime's token file, with an endpoint (a diagram names its own).
         #[arg(long)]
         token_file: Option<PathBuf>,
+        /// With a wss:// endpoint: the certificate to trust (PEM).
+        #[arg(long)]
+        certificate: Option<PathBuf>,
     },
     /// Generate a pack or a component from the templates.
     #[command(subcommand)]
@@ -320,6 +329,8 @@ pub fn execute(cli: Cli) -> anyhow::Result<ExitCode> {
             temporary_token,
             clock_master,
             clock_slave_of,
+            tls_cert,
+            tls_key,
         } => crate::serve::serve(
             registry,
             &crate::serve::ServeOptions {
@@ -333,6 +344,7 @@ pub fn execute(cli: Cli) -> anyhow::Result<ExitCode> {
                 temporary_token,
                 clock_master,
                 clock_slave_of,
+                tls: tls_cert.zip(tls_key),
             },
         ),
         Command::Inspect { file, json } => {
@@ -380,8 +392,12 @@ pub fn execute(cli: Cli) -> anyhow::Result<ExitCode> {
             }
             Ok(ExitCode::SUCCESS)
         }
-        Command::Status { target, token_file } => {
-            let reached_all = crate::status::print(&target, token_file.as_deref())?;
+        Command::Status {
+            target,
+            token_file,
+            certificate,
+        } => {
+            let reached_all = crate::status::print(&target, token_file.as_deref(), certificate.as_deref())?;
             Ok(if reached_all {
                 ExitCode::SUCCESS
             } else {

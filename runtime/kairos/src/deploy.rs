@@ -13,7 +13,6 @@ use anyhow::{Context as _, bail};
 use kairos_diagram::{Connection, Diagram, HostSpec, PortRef, ReaderPolicy, Value};
 use kairos_protocol::{LinkList, LinkNetwork, PROTOCOL_VERSION, Reply, Request, RequestBody, Role, Token};
 use kairos_sdk::Registry;
-use tungstenite::stream::MaybeTlsStream;
 use tungstenite::{Message, WebSocket};
 
 /// How long reaching a host and each of its answers may take.
@@ -318,8 +317,86 @@ impl Reach {
 /// A connection to one host's `kairos serve`, as an operator.
 pub struct Host {
     name: String,
-    socket: WebSocket<MaybeTlsStream<TcpStream>>,
+    socket: WebSocket<Stream>,
+    /// The connection under it, for its timeouts.
+    tcp: TcpStream,
     next_id: u64,
+}
+
+/// What a host's WebSocket runs on: TCP, or TLS over TCP for a `wss://` endpoint.
+enum Stream {
+    Plain(TcpStream),
+    Tls(Box<rustls::StreamOwned<rustls::ClientConnection, TcpStream>>),
+}
+
+impl std::io::Read for Stream {
+    fn read(&mut self, buffer: &mut [u8]) -> std::io::Result<usize> {
+        match self {
+            Stream::Plain(stream) => stream.read(buffer),
+            Stream::Tls(stream) => stream.read(buffer),
+        }
+    }
+}
+
+impl std::io::Write for Stream {
+    fn write(&mut self, bytes: &[u8]) -> std::io::Result<usize> {
+        match self {
+            Stream::Plain(stream) => stream.write(bytes),
+            Stream::Tls(stream) => stream.write(bytes),
+        }
+    }
+
+    fn flush(&mut self) -> std::io::Result<()> {
+        match self {
+            Stream::Plain(stream) => stream.flush(),
+            Stream::Tls(stream) => stream.flush(),
+        }
+    }
+}
+
+/// TLS over `stream` to host `name`, trusting the certificate its spec names (relative to `folder`) and
+/// checking it is `server`'s.
+fn tls_client(
+    name: &str,
+    spec: &HostSpec,
+    folder: &Path,
+    server: &str,
+    stream: TcpStream,
+) -> anyhow::Result<rustls::StreamOwned<rustls::ClientConnection, TcpStream>> {
+    use rustls::pki_types::pem::PemObject as _;
+    use rustls::pki_types::{CertificateDer, ServerName};
+    let Some(certificate) = &spec.certificate else {
+        bail!(
+            "host '{name}': a wss:// endpoint needs the certificate to trust: add certificate: \"FILE.pem\" \
+             to its Host (the host's certificate, or the authority that issued it)"
+        );
+    };
+    let path = folder.join(certificate);
+    let mut roots = rustls::RootCertStore::empty();
+    for trusted in CertificateDer::pem_file_iter(&path).map_err(|e| {
+        anyhow::anyhow!(
+            "host '{name}': cannot read the certificate {}: {e}",
+            path.display()
+        )
+    })? {
+        let trusted = trusted.map_err(|e| {
+            anyhow::anyhow!("host '{name}': {} is not a PEM certificate: {e}", path.display())
+        })?;
+        roots
+            .add(trusted)
+            .map_err(|e| anyhow::anyhow!("host '{name}': {}: {e}", path.display()))?;
+    }
+    let config = rustls::ClientConfig::builder_with_provider(std::sync::Arc::new(
+        rustls::crypto::ring::default_provider(),
+    ))
+    .with_safe_default_protocol_versions()?
+    .with_root_certificates(roots)
+    .with_no_client_auth();
+    let server = server.trim_start_matches('[').trim_end_matches(']');
+    let server_name = ServerName::try_from(server.to_owned())
+        .map_err(|e| anyhow::anyhow!("host '{name}': {server} cannot name a TLS server: {e}"))?;
+    let connection = rustls::ClientConnection::new(std::sync::Arc::new(config), server_name)?;
+    Ok(rustls::StreamOwned::new(connection, stream))
 }
 
 impl std::fmt::Debug for Host {
@@ -357,13 +434,12 @@ impl Host {
             .and_then(|rest| rest.split('/').next())
             .unwrap_or_default()
             .to_owned();
-        if spec.endpoint.starts_with("wss://") {
-            bail!("host '{name}': wss:// endpoints are not part of this version; use ws://");
-        }
+        let secure = spec.endpoint.starts_with("wss://");
         let resolved = std::net::ToSocketAddrs::to_socket_addrs(&address.as_str())
             .ok()
             .and_then(|mut addresses| addresses.next());
         if token.is_some()
+            && !secure
             && !reach.clear_text_tokens
             && resolved.is_some_and(|address| !address.ip().is_loopback())
         {
@@ -378,11 +454,27 @@ impl Host {
             .and_then(|address| TcpStream::connect_timeout(&address, wait).ok())
             .with_context(|| format!("host '{name}' is unreachable at {}", spec.endpoint))?;
         stream.set_read_timeout(Some(HOST_WAIT))?;
-        let (socket, _) = tungstenite::client(spec.endpoint.as_str(), MaybeTlsStream::Plain(stream))
-            .map_err(|e| anyhow::anyhow!("host '{name}' at {}: {e}", spec.endpoint))?;
+        let tcp = stream.try_clone()?;
+        let stream = if secure {
+            let host = address
+                .rsplit_once(':')
+                .map_or(address.as_str(), |(host, _)| host);
+            Stream::Tls(Box::new(tls_client(name, spec, folder, host, stream)?))
+        } else {
+            Stream::Plain(stream)
+        };
+        let (socket, _) = tungstenite::client(spec.endpoint.as_str(), stream).map_err(|e| {
+            let hint = if secure && e.to_string().contains("certificate") {
+                "; is `certificate` the host's own (its --tls-cert) or the authority that issued it?"
+            } else {
+                ""
+            };
+            anyhow::anyhow!("host '{name}' at {}: {e}{hint}", spec.endpoint)
+        })?;
         let mut host = Host {
             name: name.to_owned(),
             socket,
+            tcp,
             next_id: 1,
         };
         host.call(RequestBody::Hello {
@@ -403,9 +495,7 @@ impl Host {
     }
 
     fn set_wait(&mut self, wait: Duration) -> anyhow::Result<()> {
-        if let MaybeTlsStream::Plain(stream) = self.socket.get_mut() {
-            stream.set_read_timeout(Some(wait))?;
-        }
+        self.tcp.set_read_timeout(Some(wait))?;
         Ok(())
     }
 

@@ -79,13 +79,14 @@ fn line(name: &str, spec: &HostSpec, reach: &Reach) -> String {
 /// # Errors
 ///
 /// A diagram that cannot be read or names no hosts.
-pub fn print(target: &str, token_file: Option<&Path>) -> anyhow::Result<bool> {
+pub fn print(target: &str, token_file: Option<&Path>, certificate: Option<&Path>) -> anyhow::Result<bool> {
     let mut reached_all = true;
     if target.starts_with("ws://") || target.starts_with("wss://") {
         let spec = HostSpec {
             endpoint: target.to_owned(),
             token_file: token_file.map(|p| p.display().to_string()),
             zenoh: None,
+            certificate: certificate.map(|p| p.display().to_string()),
         };
         let text = line("runtime", &spec, &Reach::new(Path::new("."), true));
         reached_all &= !text.contains("NOT REACHED");

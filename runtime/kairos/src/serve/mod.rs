@@ -11,7 +11,7 @@ mod session;
 mod shm;
 
 use std::net::{SocketAddr, ToSocketAddrs as _};
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::sync::Arc;
 
@@ -49,6 +49,8 @@ pub struct ServeOptions {
     pub clock_master: Option<String>,
     /// Follow the clock master at this UDP address.
     pub clock_slave_of: Option<String>,
+    /// Serve over TLS with this certificate chain and private key (PEM files).
+    pub tls: Option<(PathBuf, PathBuf)>,
 }
 
 /// What every session shares.
@@ -72,10 +74,11 @@ fn token(path: Option<&PathBuf>, what: &str) -> anyhow::Result<Option<Token>> {
 
 /// Runs `kairos serve` until Ctrl-C or SIGTERM (or, with `stop_with_stdin`, until standard input closes).
 pub fn serve(registry: Registry, options: &ServeOptions) -> anyhow::Result<ExitCode> {
+    let scheme = if options.tls.is_some() { "wss" } else { "ws" };
     serve_with(registry, options, |bound| {
         use std::io::Write as _;
         // The one line scripts read to find the port (with --listen HOST:0).
-        println!("listening on ws://{bound}");
+        println!("listening on {scheme}://{bound}");
         let _ = std::io::stdout().flush();
     })
 }
@@ -107,22 +110,17 @@ pub fn serve_with(
              one with `openssl rand -hex 32 > FILE`)"
         );
     }
+    let tls = options
+        .tls
+        .as_ref()
+        .map(|(cert, key)| tls_acceptor(cert, key))
+        .transpose()?;
     let runtime = Runtime::new(registry);
     synchronise_clock(&runtime, options)?;
-    if let Some(path) = &options.diagram {
-        let text =
-            std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
-        if let Err(error) = runtime.deploy(&text, None) {
-            eprintln!("{}: {}", path.display(), error.message);
-            return Ok(ExitCode::from(1));
-        }
-        if options.start {
-            if let Err(error) = runtime.start() {
-                eprintln!("{}: {}", path.display(), error.message);
-                return Ok(ExitCode::from(1));
-            }
-            tracing::info!("started {}", path.display());
-        }
+    if let Some(path) = &options.diagram
+        && !deploy_at_boot(&runtime, path, options.start)?
+    {
+        return Ok(ExitCode::from(1));
     }
     let shared = Arc::new(Shared {
         runtime: Arc::clone(&runtime),
@@ -144,7 +142,8 @@ pub fn serve_with(
         let bound = listener.local_addr().context("the listening address")?;
         on_listening(bound);
         tracing::info!(
-            "serving on ws://{bound}{}",
+            "serving on {}://{bound}{}",
+            if tls.is_some() { "wss" } else { "ws" },
             if shared.access.requires_token() {
                 " (token required)"
             } else {
@@ -161,8 +160,9 @@ pub fn serve_with(
                     let shared = Arc::clone(&shared);
                     match Arc::clone(&slots).try_acquire_owned() {
                         Ok(slot) => {
+                            let tls = tls.clone();
                             tokio::spawn(async move {
-                                session::run(stream, peer, shared).await;
+                                serve_connection(stream, peer, shared, tls).await;
                                 drop(slot);
                             });
                         }
@@ -184,6 +184,69 @@ pub fn serve_with(
     }
     tracing::info!("stopped");
     result.map(|()| ExitCode::SUCCESS)
+}
+
+/// `--diagram` (and `--start`): whether it was deployed (and started); why not is printed.
+fn deploy_at_boot(runtime: &Runtime, path: &Path, start: bool) -> anyhow::Result<bool> {
+    let text = std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
+    if let Err(error) = runtime.deploy(&text, None) {
+        eprintln!("{}: {}", path.display(), error.message);
+        return Ok(false);
+    }
+    if start {
+        if let Err(error) = runtime.start() {
+            eprintln!("{}: {}", path.display(), error.message);
+            return Ok(false);
+        }
+        tracing::info!("started {}", path.display());
+    }
+    Ok(true)
+}
+
+/// Serves one accepted connection, over TLS when `tls`.
+async fn serve_connection(
+    stream: tokio::net::TcpStream,
+    peer: SocketAddr,
+    shared: Arc<Shared>,
+    tls: Option<tokio_rustls::TlsAcceptor>,
+) {
+    match tls {
+        Some(acceptor) => match acceptor.accept(stream).await {
+            Ok(stream) => session::run(stream, peer, shared).await,
+            Err(e) => tracing::warn!("{peer}: TLS handshake refused: {e}"),
+        },
+        None => session::run(stream, peer, shared).await,
+    }
+}
+
+/// The TLS side of `--tls-cert` and `--tls-key`: the certificate chain and key read, or why not.
+fn tls_acceptor(cert: &Path, key: &Path) -> anyhow::Result<tokio_rustls::TlsAcceptor> {
+    use rustls::pki_types::pem::PemObject as _;
+    use rustls::pki_types::{CertificateDer, PrivateKeyDer};
+    let chain: Vec<CertificateDer<'static>> = CertificateDer::pem_file_iter(cert)
+        .and_then(Iterator::collect)
+        .map_err(|e| anyhow::anyhow!("--tls-cert {}: not a PEM certificate chain: {e}", cert.display()))?;
+    anyhow::ensure!(
+        !chain.is_empty(),
+        "--tls-cert {}: no certificate in the file",
+        cert.display()
+    );
+    let private = PrivateKeyDer::from_pem_file(key)
+        .map_err(|e| anyhow::anyhow!("--tls-key {}: not a PEM private key: {e}", key.display()))?;
+    let config =
+        rustls::ServerConfig::builder_with_provider(Arc::new(rustls::crypto::ring::default_provider()))
+            .with_safe_default_protocol_versions()
+            .context("TLS protocol versions")?
+            .with_no_client_auth()
+            .with_single_cert(chain, private)
+            .with_context(|| {
+                format!(
+                    "--tls-cert {} and --tls-key {} do not make a usable pair",
+                    cert.display(),
+                    key.display()
+                )
+            })?;
+    Ok(tokio_rustls::TlsAcceptor::from(Arc::new(config)))
 }
 
 /// What turns true when the server is to stop: Ctrl-C or SIGTERM, and the end of standard input when
@@ -217,7 +280,7 @@ fn stop_when_stdin_closes(stop: tokio::sync::watch::Sender<bool>) -> anyhow::Res
 }
 
 /// Removes a token made for one run, and its folder when nothing else is in it.
-fn remove_temporary_token(path: &std::path::Path) {
+fn remove_temporary_token(path: &Path) {
     if let Err(error) = std::fs::remove_file(path)
         && error.kind() != std::io::ErrorKind::NotFound
     {

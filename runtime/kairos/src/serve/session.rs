@@ -17,7 +17,6 @@ use kairos_protocol::{
     ServerMessage, Status, TelemetrySubscribed, Token, Welcome, decode_request,
 };
 use kairos_sdk::{Timestamp, Value};
-use tokio::net::TcpStream;
 use tokio::sync::mpsc;
 use tokio::sync::mpsc::error::TrySendError;
 use tokio::task::JoinHandle;
@@ -59,7 +58,10 @@ fn too_large(size: Option<usize>) -> ProtocolError {
 }
 
 /// Serves one connection until the client leaves or misbehaves.
-pub async fn run(stream: TcpStream, peer: SocketAddr, shared: Arc<Shared>) {
+pub async fn run<S>(stream: S, peer: SocketAddr, shared: Arc<Shared>)
+where
+    S: tokio::io::AsyncRead + tokio::io::AsyncWrite + Unpin + Send + 'static,
+{
     let websocket = match tokio_tungstenite::accept_async_with_config(stream, Some(websocket_config())).await
     {
         Ok(websocket) => websocket,
