@@ -1309,6 +1309,27 @@ impl Drop for Namespaces {
     }
 }
 
+/// A sine on host a, doubled on host b, written on host a: both ways across the veth pair. Host a's
+/// endpoint is trusted through its certificate `a.pem`.
+fn namespace_diagram(a_url: &str, b_url: &str, address_a: &str, address_b: &str) -> String {
+    format!(
+        r#"Diagram(format: 1,
+            hosts: {{
+                "a": Host(endpoint: "{a_url}", token_file: "a.token", zenoh: "tcp/{address_a}:7447", certificate: "a.pem"),
+                "b": Host(endpoint: "{b_url}", token_file: "b.token", zenoh: "tcp/{address_b}:7447"),
+            }},
+            components: [
+                Component(id: "sine", type: "core.sine", host: "a", properties: {{"rate": 100.0}}),
+                Component(id: "gain", type: "core.gain", host: "b", properties: {{"gain": 2.0}}),
+                Component(id: "csv", type: "core.csv_writer", host: "a", properties: {{"path": "back.csv"}}),
+            ],
+            connections: [
+                Connection(from: "sine.out", to: "gain.in"),
+                Connection(from: "gain.out", to: "csv.in1"),
+            ])"#
+    )
+}
+
 #[test]
 fn across_two_network_namespaces_a_cut_link_is_reported_and_the_part_resumes_when_it_returns() {
     let _machine = whole_machine();
@@ -1321,13 +1342,25 @@ fn across_two_network_namespaces_a_cut_link_is_reported_and_the_part_resumes_whe
         tempfile::tempdir().unwrap(),
     );
     let (address_a, address_b) = (namespaces.address(1), namespaces.address(2));
+    // Host a serves over TLS; host b in clear text, which deploying refuses until told otherwise.
+    if !make_certificate(here.path(), "a", &address_a) {
+        return;
+    }
+    let (cert, key) = (here.path().join("a.pem"), here.path().join("a.key"));
+    let tls = [
+        "--tls-cert",
+        cert.to_str().unwrap(),
+        "--tls-key",
+        key.to_str().unwrap(),
+    ];
     let a = serve_in(
         Some(&namespaces.names[0]),
         dir_a.path(),
         &format!("{address_a}:7400"),
-        &[],
+        &tls,
         &[],
     );
+    assert!(a.url.starts_with("wss://"), "{}", a.url);
     let b = serve_in(
         Some(&namespaces.names[1]),
         dir_b.path(),
@@ -1337,24 +1370,7 @@ fn across_two_network_namespaces_a_cut_link_is_reported_and_the_part_resumes_whe
     );
     std::fs::write(here.path().join("a.token"), &a.token).unwrap();
     std::fs::write(here.path().join("b.token"), &b.token).unwrap();
-    // A sine on host a, doubled on host b, written on host a: both ways across the veth pair.
-    let diagram = format!(
-        r#"Diagram(format: 1,
-            hosts: {{
-                "a": Host(endpoint: "{}", token_file: "a.token", zenoh: "tcp/{address_a}:7447"),
-                "b": Host(endpoint: "{}", token_file: "b.token", zenoh: "tcp/{address_b}:7447"),
-            }},
-            components: [
-                Component(id: "sine", type: "core.sine", host: "a", properties: {{"rate": 100.0}}),
-                Component(id: "gain", type: "core.gain", host: "b", properties: {{"gain": 2.0}}),
-                Component(id: "csv", type: "core.csv_writer", host: "a", properties: {{"path": "back.csv"}}),
-            ],
-            connections: [
-                Connection(from: "sine.out", to: "gain.in"),
-                Connection(from: "gain.out", to: "csv.in1"),
-            ])"#,
-        a.url, b.url
-    );
+    let diagram = namespace_diagram(&a.url, &b.url, &address_a, &address_b);
     let path = here.path().join("namespaces.ron");
     std::fs::write(&path, diagram).unwrap();
     let deploy = |extra: &[&str], log: &Path| {
@@ -1374,11 +1390,16 @@ fn across_two_network_namespaces_a_cut_link_is_reported_and_the_part_resumes_whe
             .spawn()
             .unwrap()
     };
-    // Off loopback, a token is not sent in clear text unless the user says so.
+    // Off loopback, a token is not sent in clear text unless the user says so: b's is refused (a's goes
+    // over TLS).
     let refused_log = here.path().join("refused.log");
     let refused = deploy(&["--for", "1s"], &refused_log).wait_with_output().unwrap();
     assert!(!refused.status.success());
-    wait_for_log(&refused_log, "in clear text", Duration::from_secs(1));
+    wait_for_log(
+        &refused_log,
+        "host 'b': its token would cross the network in clear text",
+        Duration::from_secs(1),
+    );
 
     let log = here.path().join("deploy.log");
     let mut deploying = deploy(&["--for", "9s", "--allow-clear-text-tokens"], &log);
@@ -1520,9 +1541,9 @@ fn fusion_spread_over_three_hosts_gives_the_one_host_output_by_timestamp() {
     }
 }
 
-/// A self-signed certificate for 127.0.0.1 and its key, made with `openssl`, as `NAME.pem` and
+/// A self-signed certificate for the IP address `ip` and its key, made with `openssl`, as `NAME.pem` and
 /// `NAME.key` in `dir`; false (saying why) where `openssl` is missing.
-fn make_certificate(dir: &Path, name: &str) -> bool {
+fn make_certificate(dir: &Path, name: &str, ip: &str) -> bool {
     let made = Command::new("openssl")
         .args([
             "req",
@@ -1535,12 +1556,8 @@ fn make_certificate(dir: &Path, name: &str) -> bool {
             "-days",
             "2",
         ])
-        .args([
-            "-subj",
-            "/CN=kairos test",
-            "-addext",
-            "subjectAltName=IP:127.0.0.1",
-        ])
+        .args(["-subj", "/CN=kairos test", "-addext"])
+        .arg(format!("subjectAltName=IP:{ip}"))
         .args(["-addext", "basicConstraints=critical,CA:FALSE"])
         .arg("-keyout")
         .arg(dir.join(format!("{name}.key")))
@@ -1561,7 +1578,9 @@ fn make_certificate(dir: &Path, name: &str) -> bool {
 fn deploy_over_tls_trusts_the_named_certificate_and_refuses_another() {
     let _machine = shared_machine();
     let (dir_a, here) = (tempfile::tempdir().unwrap(), tempfile::tempdir().unwrap());
-    if !make_certificate(here.path(), "host") || !make_certificate(here.path(), "other") {
+    if !make_certificate(here.path(), "host", "127.0.0.1")
+        || !make_certificate(here.path(), "other", "127.0.0.1")
+    {
         return;
     }
     let (cert, key) = (here.path().join("host.pem"), here.path().join("host.key"));

@@ -171,6 +171,9 @@ pub enum Command {
         /// With a wss:// endpoint: the certificate to trust (PEM).
         #[arg(long)]
         certificate: Option<PathBuf>,
+        /// Send tokens over plain ws:// to runtimes off this machine (see `deploy`).
+        #[arg(long)]
+        allow_clear_text_tokens: bool,
     },
     /// Generate a pack or a component from the templates.
     #[command(subcommand)]
@@ -396,8 +399,14 @@ pub fn execute(cli: Cli) -> anyhow::Result<ExitCode> {
             target,
             token_file,
             certificate,
+            allow_clear_text_tokens,
         } => {
-            let reached_all = crate::status::print(&target, token_file.as_deref(), certificate.as_deref())?;
+            let reached_all = crate::status::print(
+                &target,
+                token_file.as_deref(),
+                certificate.as_deref(),
+                allow_clear_text_tokens,
+            )?;
             Ok(if reached_all {
                 ExitCode::SUCCESS
             } else {

@@ -79,7 +79,12 @@ fn line(name: &str, spec: &HostSpec, reach: &Reach) -> String {
 /// # Errors
 ///
 /// A diagram that cannot be read or names no hosts.
-pub fn print(target: &str, token_file: Option<&Path>, certificate: Option<&Path>) -> anyhow::Result<bool> {
+pub fn print(
+    target: &str,
+    token_file: Option<&Path>,
+    certificate: Option<&Path>,
+    clear_text_tokens: bool,
+) -> anyhow::Result<bool> {
     let mut reached_all = true;
     if target.starts_with("ws://") || target.starts_with("wss://") {
         let spec = HostSpec {
@@ -88,7 +93,7 @@ pub fn print(target: &str, token_file: Option<&Path>, certificate: Option<&Path>
             zenoh: None,
             certificate: certificate.map(|p| p.display().to_string()),
         };
-        let text = line("runtime", &spec, &Reach::new(Path::new("."), true));
+        let text = line("runtime", &spec, &Reach::new(Path::new("."), clear_text_tokens));
         reached_all &= !text.contains("NOT REACHED");
         println!("{text}");
         return Ok(reached_all);
@@ -102,7 +107,7 @@ pub fn print(target: &str, token_file: Option<&Path>, certificate: Option<&Path>
     );
     let folder = path.parent().unwrap_or_else(|| Path::new("."));
     for (name, spec) in hosts {
-        let text = line(name, spec, &Reach::new(folder, true));
+        let text = line(name, spec, &Reach::new(folder, clear_text_tokens));
         reached_all &= !text.contains("NOT REACHED");
         println!("{text}");
     }
