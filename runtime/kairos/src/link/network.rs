@@ -134,6 +134,17 @@ pub fn leave() {
 }
 
 fn open(spec: &LinkNetwork) -> anyhow::Result<zenoh::Session> {
+    if let Some(secure) = spec
+        .listen
+        .iter()
+        .chain(&spec.connect)
+        .find(|e| e.starts_with("tls/"))
+    {
+        anyhow::bail!(
+            "the link endpoint {secure}: Zenoh's TLS transport is not built into this kairos; use tcp/ (the \
+             control protocol can be TLS with wss://, the links' samples then cross in clear)"
+        );
+    }
     let mut config = zenoh::Config::default();
     let settings = [
         ("mode", "\"peer\"".to_owned()),
@@ -299,4 +310,19 @@ pub fn ends() -> Vec<LinkEnd> {
         matched: true,
     });
     senders.chain(receivers).collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_tls_link_endpoint_is_refused_with_the_reason_until_zenoh_tls_is_built_in() {
+        let spec = LinkNetwork {
+            listen: vec!["tls/127.0.0.1:17447".to_owned()],
+            connect: Vec::new(),
+        };
+        let error = open(&spec).err().map(|e| e.to_string()).unwrap_or_default();
+        assert!(error.contains("TLS transport is not built"), "{error}");
+    }
 }
