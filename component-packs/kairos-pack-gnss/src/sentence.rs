@@ -237,16 +237,19 @@ fn number<T: std::str::FromStr>(text: &str, what: &str) -> Result<Option<T>, Sen
         .map_err(|_| SentenceError::Malformed(format!("{what} {text:?} is not a number")))
 }
 
+/// The numbers of `text`'s first three pairs of digits (`hh mm ss`, `dd mm yy`).
+fn digit_pairs(text: &str) -> Option<[u32; 3]> {
+    let pair = |start: usize| text.get(start..start + 2)?.parse().ok();
+    Some([pair(0)?, pair(2)?, pair(4)?])
+}
+
 /// `hhmmss.sss`.
 fn time_of(text: &str) -> Result<Option<NaiveTime>, SentenceError> {
     if text.is_empty() {
         return Ok(None);
     }
     let bad = || SentenceError::Malformed(format!("time {text:?} is not hhmmss.sss"));
-    let digits = |range: std::ops::Range<usize>| -> Result<u32, SentenceError> {
-        text.get(range).and_then(|d| d.parse().ok()).ok_or_else(bad)
-    };
-    let (hours, minutes, seconds) = (digits(0..2)?, digits(2..4)?, digits(4..6)?);
+    let [hours, minutes, seconds] = digit_pairs(text).ok_or_else(bad)?;
     let nanos = match text.get(6..) {
         Some("") | None => 0,
         Some(fraction) => {
@@ -268,13 +271,10 @@ fn date_of(text: &str) -> Result<Option<NaiveDate>, SentenceError> {
         return Ok(None);
     }
     let bad = || SentenceError::Malformed(format!("date {text:?} is not ddmmyy"));
-    let digits = |range: std::ops::Range<usize>| -> Result<u32, SentenceError> {
-        text.get(range).and_then(|d| d.parse().ok()).ok_or_else(bad)
-    };
     if text.len() != 6 {
         return Err(bad());
     }
-    let (day, month, year) = (digits(0..2)?, digits(2..4)?, digits(4..6)?);
+    let [day, month, year] = digit_pairs(text).ok_or_else(bad)?;
     let year = if year < 80 { 2000 + year } else { 1900 + year };
     NaiveDate::from_ymd_opt(i32::try_from(year).map_err(|_| bad())?, month, day)
         .ok_or_else(bad)

@@ -60,6 +60,15 @@ pub fn raw_bytes(payload: &Payload) -> Result<&[u8], ComponentError> {
     }
 }
 
+/// The name a sender's samples travel under: the output feeding the component's first input, or the
+/// component's input itself when nothing does.
+pub fn source_name(ctx: &Context) -> String {
+    ctx.inputs()
+        .first()
+        .and_then(|input| input.source())
+        .map_or_else(|| format!("{}.in", ctx.id()), str::to_owned)
+}
+
 /// The sending end of a Kairos-sample link: the name its samples travel under, and one frame buffer
 /// reused for every sample.
 #[derive(Debug)]
@@ -72,13 +81,8 @@ impl SampleSender {
     /// A sender naming its samples after the output feeding the component's first input (or the
     /// component itself when nothing does).
     pub fn of(ctx: &Context) -> Self {
-        let output = ctx
-            .inputs()
-            .first()
-            .and_then(|input| input.source())
-            .map_or_else(|| format!("{}.in", ctx.id()), str::to_owned);
         SampleSender {
-            output,
+            output: source_name(ctx),
             frame: Vec::new(),
         }
     }

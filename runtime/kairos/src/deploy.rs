@@ -254,11 +254,7 @@ pub type Networks = BTreeMap<Option<String>, LinkNetwork>;
 /// to those after it (so each pair is joined once); the deploying machine listens nowhere and connects to
 /// them all.
 pub fn networks(diagram: &Diagram, plan: &Plan) -> BTreeMap<Option<String>, LinkNetwork> {
-    let has_links = |part: &Diagram| {
-        part.components
-            .iter()
-            .any(|c| c.type_name == crate::link::SENDER || c.type_name == crate::link::RECEIVER)
-    };
+    let has_links = |part: &Diagram| part.components.iter().any(|c| crate::link::is_link(&c.type_name));
     let linked: Vec<(&String, String)> = plan
         .parts
         .iter()

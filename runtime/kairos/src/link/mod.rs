@@ -97,6 +97,20 @@ fn receiver_base(data_type: DataType) -> ComponentInfo {
     .build()
 }
 
+/// Whether `type_name` is one end of a link between hosts.
+pub fn is_link(type_name: &str) -> bool {
+    type_name == SENDER || type_name == RECEIVER
+}
+
+/// The end `found` under `key`, or why there is none.
+fn declared<T>(found: Option<T>, key: &str) -> Result<T, ComponentError> {
+    found.ok_or_else(|| {
+        ComponentError::failed(format_args!(
+            "no link is declared under {key}: links are placed and declared by `kairos deploy`"
+        ))
+    })
+}
+
 /// `sample` as one frame for Zenoh: the start copied, the payload's bytes shared where the payload holds
 /// them (pixels, bytes), so a camera's frames travel without a copy on the sending side.
 fn frame_of(output: &str, sample: &kairos_sdk::Sample) -> ZBytes {
@@ -145,18 +159,10 @@ pub struct LinkSender {
 impl Component for LinkSender {
     fn birth(&mut self, ctx: &mut Context) -> ComponentResult {
         let key = ctx.text_property("key")?;
-        let end = network::sender(&key).ok_or_else(|| {
-            ComponentError::failed(format_args!(
-                "no link is declared under {key}: links are placed and declared by `kairos deploy`"
-            ))
-        })?;
+        let end = declared(network::sender(&key), &key)?;
         self.matched = network::matched(&end);
         self.end = Some(end);
-        self.output = ctx
-            .inputs()
-            .first()
-            .and_then(|input| input.source())
-            .map_or_else(|| format!("{}.in", ctx.id()), str::to_owned);
+        self.output = kairos_pack_net::encoding::source_name(ctx);
         Ok(())
     }
 
@@ -222,12 +228,7 @@ pub struct LinkReceiver {
 impl Component for LinkReceiver {
     fn birth(&mut self, ctx: &mut Context) -> ComponentResult {
         let key = ctx.text_property("key")?;
-        let end = network::receiver(&key).ok_or_else(|| {
-            ComponentError::failed(format_args!(
-                "no link is declared under {key}: links are placed and declared by `kairos deploy`"
-            ))
-        })?;
-        self.end = Some(end);
+        self.end = Some(declared(network::receiver(&key), &key)?);
         self.samples = SampleReceiver::expecting(DataType::from_name(&ctx.text_property("data_type")?));
         Ok(())
     }
@@ -251,16 +252,14 @@ impl Component for LinkReceiver {
             }
         }
         if self.published.ready(STATUS_PERIOD) {
-            let mut status = serde_json::json!({
+            let status = serde_json::json!({
                 "kind": "link", "from": end.peer,
                 "last_sample_age_ms": self.last.map(|at| at.elapsed().as_millis()),
             });
-            if let (Some(status), serde_json::Value::Object(figures)) =
-                (status.as_object_mut(), self.samples.status())
-            {
-                status.extend(figures);
-            }
-            ctx.set_status(status);
+            ctx.set_status(kairos_pack_net::encoding::status_with(
+                status,
+                Some(&self.samples),
+            ));
         }
         Ok(())
     }

@@ -20,7 +20,7 @@ use zenoh::pubsub::{Publisher, Subscriber};
 use zenoh::qos::CongestionControl;
 use zenoh::sample::Sample as ZenohSample;
 
-use super::{RECEIVER, SENDER};
+use super::SENDER;
 
 /// How long a silent link lives before Zenoh declares it dead: short, so a cut cable or a killed host is
 /// noticed within about a second (keep-alives go four times per lease).
@@ -185,7 +185,7 @@ pub fn prepare(diagram: &Diagram) -> anyhow::Result<()> {
     let links: Vec<_> = diagram
         .components
         .iter()
-        .filter(|c| c.type_name == SENDER || c.type_name == RECEIVER)
+        .filter(|c| super::is_link(&c.type_name))
         .collect();
     let Some(network) = slot.as_mut() else {
         if let Some(first) = links.first() {
