@@ -168,6 +168,9 @@ fn sample_request(kind: RequestKind, id: u64) -> Value {
         RequestKind::SubscribeSamples => json!({"outputs": ["sine1.out"]}),
         RequestKind::PlayerSeek => json!({"component": "gain1", "seconds": 1.0}),
         RequestKind::PlayerSpeed => json!({"component": "gain1", "factor": 2.0}),
+        RequestKind::InstallPack => {
+            json!({"name": "x", "version": "0.1.0", "platform": "none", "size": 0, "offset": 0, "data": ""})
+        }
         RequestKind::RecordStart
         | RequestKind::RecordStop
         | RequestKind::RecordSplit
@@ -1068,6 +1071,102 @@ fn deploy_starts_nothing_when_a_host_is_unreachable_or_refuses() {
             "nothing started here either"
         );
     }
+}
+
+/// The C++ example pack (`cpp` 0.1.0, `cpp.clamp`) compiled into `folder`.
+fn cpp_pack_in(folder: &Path) {
+    std::fs::create_dir_all(folder).unwrap();
+    let output = folder.join(format!(
+        "{}kairos_pack_cpp{}",
+        std::env::consts::DLL_PREFIX,
+        std::env::consts::DLL_SUFFIX
+    ));
+    let status = Command::new("c++")
+        .args(["-shared", "-fPIC", "-O1", "-std=c++17", "-I"])
+        .arg(repo_root().join("component-sdk/include"))
+        .arg(repo_root().join("component-packs/cpp-clamp/clamp.cpp"))
+        .arg("-o")
+        .arg(&output)
+        .status()
+        .unwrap();
+    assert!(status.success(), "c++ failed on the example pack");
+}
+
+fn clamp_on_host_b(b: &Server) -> String {
+    format!(
+        r#"Diagram(format: 1,
+            hosts: {{"b": Host(endpoint: "{}", token_file: "b.token")}},
+            components: [
+                Component(id: "sine", type: "core.sine", host: "b", properties: {{"frequency": 5.0}}),
+                Component(id: "clamp", type: "cpp.clamp", host: "b", properties: {{"min": -0.5, "max": 0.5}}),
+                Component(id: "csv", type: "core.csv_writer", host: "b", properties: {{"path": "b.csv"}}),
+            ],
+            connections: [Connection(from: "sine.out", to: "clamp.in"), Connection(from: "clamp.out", to: "csv.in1")])"#,
+        b.url
+    )
+}
+
+#[test]
+fn a_pack_a_host_lacks_is_shipped_and_one_for_another_platform_is_refused() {
+    let _machine = shared_machine();
+    let (dir_b, shipped, here) = (
+        tempfile::tempdir().unwrap(),
+        tempfile::tempdir().unwrap(),
+        tempfile::tempdir().unwrap(),
+    );
+    // The pack is beside the diagram here, and nowhere on host b.
+    cpp_pack_in(&here.path().join("packs"));
+    let b = serve(
+        dir_b.path(),
+        &["--shipped-pack-dir", shipped.path().to_str().unwrap()],
+    );
+    std::fs::write(here.path().join("b.token"), &b.token).unwrap();
+    let diagram = here.path().join("clamp_on_b.ron");
+    std::fs::write(&diagram, clamp_on_host_b(&b)).unwrap();
+    let deploy = || common::kairos(here.path(), &["deploy", diagram.to_str().unwrap(), "--for", "1s"]);
+    let deployed = deploy();
+    let (stdout, stderr) = text(&deployed);
+    assert!(deployed.status.success(), "{stdout}{stderr}");
+    assert!(stdout.contains("shipped pack cpp 0.1.0 to host 'b'"), "{stdout}");
+    let values = csv_values(&dir_b.path().join("b.csv"));
+    assert!(values.len() > 10, "{values:?}\n{stderr}");
+    assert!(values.iter().all(|(_, v)| (-0.5..=0.5).contains(v)), "clamped on b: {values:?}");
+    assert!(values.iter().any(|(_, v)| (*v - 0.5).abs() < 1e-9), "{values:?}");
+    let written: Vec<_> = std::fs::read_dir(shipped.path()).unwrap().collect();
+    assert_eq!(written.len(), 1, "the library written to --shipped-pack-dir");
+    // Deployed again: the host has it now.
+    let again = deploy();
+    let (stdout, stderr) = text(&again);
+    assert!(again.status.success(), "{stderr}");
+    assert!(!stdout.contains("shipped pack"), "{stdout}");
+
+    // A host of another platform: refused, with both platforms named, and nothing started.
+    let dir_c = tempfile::tempdir().unwrap();
+    let c = serve_with_env(dir_c.path(), &[], &[("KAIROS_TEST_PLATFORM", "linux-riscv64")]);
+    std::fs::write(here.path().join("b.token"), &c.token).unwrap();
+    std::fs::write(&diagram, clamp_on_host_b(&c)).unwrap();
+    let refused = deploy();
+    let (_, stderr) = text(&refused);
+    assert!(!refused.status.success());
+    assert!(
+        stderr.contains("host 'b' lacks pack 'cpp' 0.1.0")
+            && stderr.contains("cannot load on that host (linux-riscv64)")
+            && stderr.contains("build the pack for linux-riscv64"),
+        "{stderr}"
+    );
+    let mut socket = operator(&c);
+    assert_eq!(state(&mut socket), "empty", "nothing deployed on c: {stderr}");
+    // And the host itself refuses a library announced for another platform, whoever sends it.
+    let reply = call(
+        &mut socket,
+        &json!({"id": 9, "type": "install_pack", "name": "cpp", "version": "0.1.0", "platform": "linux-x86_64",
+                "size": 4, "offset": 0, "data": "AAAAAA=="}),
+    );
+    assert_eq!(reply["ok"], false, "{reply}");
+    assert!(
+        reply["error"]["message"].as_str().unwrap().contains("this machine is linux-riscv64"),
+        "{reply}"
+    );
 }
 
 #[test]

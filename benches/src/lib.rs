@@ -458,6 +458,7 @@ pub fn start_kairos_serve() -> Option<std::net::SocketAddr> {
             clock_master: None,
             clock_slave_of: None,
             tls: None,
+            shipped_pack_folder: None,
         };
         let _ = kairos::serve::serve_with(kairos::builtin_registry(), &options, move |address| {
             let _ = tx.send(address);

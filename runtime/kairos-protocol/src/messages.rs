@@ -173,6 +173,24 @@ requests! {
     } => DeployResult, Operator;
     /// The deployed diagram's links to other hosts: each end, and whether its far end has matched.
     Links = "links" => LinkList, Monitor;
+    /// Installs a pack library this runtime lacks (what `kairos deploy` does before deploying a part that
+    /// needs it), sent in chunks of at most [`PACK_CHUNK_BYTES`]; the chunk that completes it loads it.
+    /// Refused when the library was built for another platform than [`this_platform`], when a pack of that
+    /// name is already loaded, or when the library's own name and version are not the ones announced.
+    InstallPack = "install_pack" {
+        /// The pack's name.
+        name: String,
+        /// The pack's version.
+        version: String,
+        /// The platform the library was built for (`linux-x86_64`).
+        platform: String,
+        /// The library's size in bytes.
+        size: u64,
+        /// Where this chunk starts in the library.
+        offset: u64,
+        /// The chunk, in base64 (RFC 4648, with padding).
+        data: String,
+    } => PackInstall, Operator;
     /// Starts the deployed diagram: now, or at an instant on the runtime's clock (several runtimes whose
     /// clocks follow one master start together); the reply comes once it has started.
     Start = "start" {
@@ -558,6 +576,36 @@ pub struct Welcome {
     /// `shared_pixels` frames through `/proc/PID/fd`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub pid: Option<u32>,
+    /// The server's platform ([`this_platform`]): which pack libraries it can load.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub platform: Option<String>,
+}
+
+/// The most bytes of a pack library one `install_pack` carries (before base64), well under
+/// [`crate::MAX_MESSAGE_BYTES`] once encoded.
+pub const PACK_CHUNK_BYTES: usize = 2 << 20;
+
+/// This machine's platform as pack libraries are built for it: operating system and architecture
+/// (`linux-x86_64`). A library built for one platform does not load on another.
+pub fn this_platform() -> String {
+    // A documented test-only setting: a runtime that says it is another platform, so that refusing a pack
+    // built for the wrong one can be tested on one machine.
+    std::env::var("KAIROS_TEST_PLATFORM")
+        .ok()
+        .filter(|p| !p.is_empty())
+        .unwrap_or_else(|| format!("{}-{}", std::env::consts::OS, std::env::consts::ARCH))
+}
+
+/// The result of `install_pack`.
+#[derive(Debug, Clone, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct PackInstall {
+    /// The bytes received so far.
+    pub received: u64,
+    /// Whether the library is complete, loaded and its components registered.
+    pub installed: bool,
+    /// Where it was written, once installed.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub path: Option<String>,
 }
 
 /// This machine's boot id (Linux), which tells whether a client and a server share a machine.

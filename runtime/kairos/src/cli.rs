@@ -118,6 +118,10 @@ pub enum Command {
         /// The certificate's private key (PEM).
         #[arg(long, value_name = "FILE", requires = "tls_cert")]
         tls_key: Option<PathBuf>,
+        /// Where to write packs that a deploying machine ships here (default
+        /// `~/.local/share/kairos/shipped-packs`).
+        #[arg(long, value_name = "DIR")]
+        shipped_pack_dir: Option<PathBuf>,
     },
     /// Check diagrams against the component library; exit 0 when all are valid.
     Validate {
@@ -334,6 +338,7 @@ pub fn execute(cli: Cli) -> anyhow::Result<ExitCode> {
             clock_slave_of,
             tls_cert,
             tls_key,
+            shipped_pack_dir,
         } => crate::serve::serve(
             registry,
             &crate::serve::ServeOptions {
@@ -348,6 +353,7 @@ pub fn execute(cli: Cli) -> anyhow::Result<ExitCode> {
                 clock_master,
                 clock_slave_of,
                 tls: tls_cert.zip(tls_key),
+                shipped_pack_folder: shipped_pack_dir,
             },
         ),
         Command::Inspect { file, json } => {

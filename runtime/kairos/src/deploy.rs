@@ -6,7 +6,7 @@
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
 use std::net::TcpStream;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 use anyhow::{Context as _, bail};
@@ -27,6 +27,42 @@ pub struct Plan {
     pub parts: BTreeMap<Option<String>, Diagram>,
     /// Those connections.
     pub links: Vec<CrossLink>,
+    /// The packs each part needs, as loaded here: shipped to a host that lacks them.
+    pub packs: BTreeMap<Option<String>, Vec<PackNeed>>,
+}
+
+/// A pack a part needs, as the deploying machine has it.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct PackNeed {
+    /// Its name.
+    pub name: String,
+    /// Its version.
+    pub version: String,
+    /// The library it was loaded from here; `None` for a pack built into `kairos`.
+    pub library: Option<PathBuf>,
+}
+
+/// The packs of `part`'s components, as `library` has them.
+fn packs_needed(part: &Diagram, library: &kairos_diagram::LibraryInfo) -> Vec<PackNeed> {
+    let mut needs: Vec<PackNeed> = Vec::new();
+    for component in &part.components {
+        let Some(pack) = library
+            .components
+            .get(&component.type_name)
+            .and_then(|c| library.packs.get(&c.pack))
+        else {
+            continue;
+        };
+        if needs.iter().any(|n| n.name == pack.name) {
+            continue;
+        }
+        needs.push(PackNeed {
+            name: pack.name.clone(),
+            version: pack.version.clone(),
+            library: (pack.origin != "built-in").then(|| PathBuf::from(&pack.origin)),
+        });
+    }
+    needs
 }
 
 /// A connection between two hosts.
@@ -149,6 +185,12 @@ pub fn split(diagram: &Diagram, registry: &Registry, deployment: &str) -> anyhow
             .collect();
         part.packs.retain(|pack| used.contains(&pack.name.as_str()));
     }
+    let library = registry.library_info();
+    plan.packs = plan
+        .parts
+        .iter()
+        .map(|(host, part)| (host.clone(), packs_needed(part, &library)))
+        .collect();
     Ok(plan)
 }
 
@@ -296,7 +338,7 @@ pub fn deployment_name() -> String {
 /// go over plain ws:// to a host off this machine only with `clear_text_tokens`.
 #[derive(Debug, Clone)]
 pub struct Reach {
-    folder: std::path::PathBuf,
+    folder: PathBuf,
     clear_text_tokens: bool,
 }
 
@@ -317,6 +359,8 @@ pub struct Host {
     /// The connection under it, for its timeouts.
     tcp: TcpStream,
     next_id: u64,
+    /// The host's platform, from its welcome (`linux-x86_64`).
+    platform: Option<String>,
 }
 
 /// What a host's WebSocket runs on: TCP, or TLS over TCP for a `wss://` endpoint.
@@ -472,13 +516,15 @@ impl Host {
             socket,
             tcp,
             next_id: 1,
+            platform: None,
         };
-        host.call(RequestBody::Hello {
+        let welcome = host.call(RequestBody::Hello {
             protocol: PROTOCOL_VERSION,
             client: format!("kairos deploy {}", env!("CARGO_PKG_VERSION")),
             token,
             role: Some(Role::Operator),
         })?;
+        host.platform = welcome["platform"].as_str().map(str::to_owned);
         Ok(host)
     }
 
@@ -561,6 +607,10 @@ pub fn deploy_remote(
     }
     for host in &mut hosts {
         let key = Some(host.name().to_owned());
+        ship_packs(host, plan.packs.get(&key).map_or(&[], Vec::as_slice))?;
+    }
+    for host in &mut hosts {
+        let key = Some(host.name().to_owned());
         let part = plan.parts.get(&key).map(Diagram::to_ron).unwrap_or_default();
         host.call(RequestBody::Deploy {
             diagram: part,
@@ -568,6 +618,85 @@ pub fn deploy_remote(
         })?;
     }
     Ok(hosts)
+}
+
+/// Sends `host` every pack of `needs` it lacks, or fails naming the pack and the reason: another version
+/// loaded there, a pack built into `kairos` missing there (another build of `kairos`), or another platform.
+pub fn ship_packs(host: &mut Host, needs: &[PackNeed]) -> anyhow::Result<()> {
+    if needs.is_empty() {
+        return Ok(());
+    }
+    let library: kairos_diagram::LibraryInfo = serde_json::from_value(host.call(RequestBody::Library)?)
+        .with_context(|| format!("host '{}': its component library is unreadable", host.name))?;
+    for need in needs {
+        let (name, version) = (&need.name, &need.version);
+        if let Some(there) = library.packs.get(name) {
+            if there.version == *version {
+                continue;
+            }
+            bail!(
+                "host '{}' has pack '{name}' {} (from {}), and this diagram needs {version}{}: put {version} on \
+                 that host's pack path and restart its kairos serve",
+                host.name,
+                there.version,
+                there.origin,
+                need.library
+                    .as_ref()
+                    .map(|p| format!(" (from {} here)", p.display()))
+                    .unwrap_or_default()
+            );
+        }
+        let Some(path) = &need.library else {
+            bail!(
+                "host '{}' lacks pack '{name}', which is built into this kairos {}: it runs another build of \
+                 kairos; install the same kairos there",
+                host.name,
+                env!("CARGO_PKG_VERSION")
+            );
+        };
+        let platform = kairos_protocol::this_platform();
+        if let Some(theirs) = host.platform.as_ref().filter(|p| **p != platform) {
+            bail!(
+                "host '{}' lacks pack '{name}' {version}, and the library here ({}) was built for {platform}, \
+                 which cannot load on that host ({theirs}): build the pack for {theirs} and put it on that \
+                 host's pack path",
+                host.name,
+                path.display()
+            );
+        }
+        let bytes = std::fs::read(path)
+            .with_context(|| format!("pack '{name}': cannot read its library {}", path.display()))?;
+        send_pack(host, need, &platform, &bytes)?;
+        println!(
+            "shipped pack {name} {version} to host '{}' ({} KiB)",
+            host.name,
+            bytes.len().div_ceil(1024)
+        );
+    }
+    Ok(())
+}
+
+/// Sends one pack library to `host` in `install_pack` chunks.
+fn send_pack(host: &mut Host, need: &PackNeed, platform: &str, bytes: &[u8]) -> anyhow::Result<()> {
+    use base64::Engine as _;
+    let mut offset = 0;
+    // An empty library still takes one (empty) chunk, which the host then refuses as no library.
+    loop {
+        let end = bytes.len().min(offset + kairos_protocol::PACK_CHUNK_BYTES);
+        host.call(RequestBody::InstallPack {
+            name: need.name.clone(),
+            version: need.version.clone(),
+            platform: platform.to_owned(),
+            size: bytes.len() as u64,
+            offset: offset as u64,
+            data: base64::engine::general_purpose::STANDARD.encode(&bytes[offset..end]),
+        })
+        .with_context(|| format!("shipping pack '{}' {}", need.name, need.version))?;
+        offset = end;
+        if offset >= bytes.len() {
+            return Ok(());
+        }
+    }
 }
 
 /// How long the links between hosts may take to match once every part is deployed.
@@ -836,6 +965,7 @@ impl Watch {
             .with_context(|| format!("no host '{name}'"))?;
         let mut host = Host::reach_within(name, spec, &self.reach, RETRY_PERIOD)?;
         let key = Some(name.to_owned());
+        ship_packs(&mut host, self.plan.packs.get(&key).map_or(&[], Vec::as_slice))?;
         let part = self.plan.parts.get(&key).map(Diagram::to_ron).unwrap_or_default();
         host.call(RequestBody::Deploy {
             diagram: part,

@@ -51,6 +51,23 @@ pub struct ServeOptions {
     pub clock_slave_of: Option<String>,
     /// Serve over TLS with this certificate chain and private key (PEM files).
     pub tls: Option<(PathBuf, PathBuf)>,
+    /// Where packs shipped by a deploying machine are written ([`default_shipped_pack_folder`] when
+    /// `None`).
+    pub shipped_pack_folder: Option<PathBuf>,
+}
+
+/// Where packs shipped here are written unless told otherwise: `$XDG_DATA_HOME/kairos/shipped-packs`, else
+/// `~/.local/share/kairos/shipped-packs`, else a folder in the temporary directory. They are loaded when
+/// shipped, never at boot: each deployment ships what it needs, so a stale version is never picked up.
+pub fn default_shipped_pack_folder() -> PathBuf {
+    let data = std::env::var_os("XDG_DATA_HOME")
+        .filter(|d| !d.is_empty())
+        .map(PathBuf::from)
+        .or_else(|| std::env::var_os("HOME").map(|home| PathBuf::from(home).join(".local/share")));
+    data.map_or_else(
+        || std::env::temp_dir().join("kairos-shipped-packs"),
+        |d| d.join("kairos/shipped-packs"),
+    )
 }
 
 /// What every session shares.
@@ -58,6 +75,7 @@ pub(crate) struct Shared {
     runtime: Arc<Runtime>,
     access: Access,
     server_name: String,
+    shipped_pack_folder: PathBuf,
 }
 
 fn token(path: Option<&PathBuf>, what: &str) -> anyhow::Result<Option<Token>> {
@@ -126,6 +144,10 @@ pub fn serve_with(
         runtime: Arc::clone(&runtime),
         access: Access::new(operator, monitor),
         server_name: format!("kairos {}", env!("CARGO_PKG_VERSION")),
+        shipped_pack_folder: options
+            .shipped_pack_folder
+            .clone()
+            .unwrap_or_else(default_shipped_pack_folder),
     });
     let network = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)

@@ -4,7 +4,8 @@
 //! the component's answer) run on blocking threads, never on the server's network threads.
 
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
-use std::sync::{Arc, Mutex, MutexGuard, PoisonError, TryLockError};
+use std::path::{Path, PathBuf};
+use std::sync::{Arc, Mutex, MutexGuard, PoisonError, RwLock, RwLockReadGuard, TryLockError};
 
 use kairos_diagram::{Diagnostic, Diagram, Value};
 use kairos_protocol::{
@@ -25,7 +26,8 @@ struct Deployment {
 
 /// The shared runtime state of a server.
 pub struct Runtime {
-    registry: Registry,
+    /// Grows when a pack is shipped here (`install_pack`); never shrinks.
+    registry: RwLock<Registry>,
     deployment: Mutex<Deployment>,
     /// Changes whenever the engine is replaced: sample subscriptions re-attach when it does. Outside the
     /// lock, so their frequent checks never wait behind a control operation.
@@ -147,7 +149,7 @@ impl Runtime {
     /// A runtime with nothing deployed.
     pub fn new(registry: Registry) -> Arc<Self> {
         Arc::new(Runtime {
-            registry,
+            registry: RwLock::new(registry),
             deployment: Mutex::new(Deployment::default()),
             generation: AtomicU64::new(0),
             clock: Mutex::new(None),
@@ -217,16 +219,87 @@ impl Runtime {
         }
     }
 
+    fn registry(&self) -> RwLockReadGuard<'_, Registry> {
+        self.registry.read().unwrap_or_else(PoisonError::into_inner)
+    }
+
+    /// Writes `library` (pack `name` at `version`, shipped by a deploying machine) into `folder`, loads it
+    /// and registers its components. Already loaded at that version: nothing to do.
+    ///
+    /// # Errors
+    ///
+    /// Another version of the pack is loaded, the library cannot be written or loaded, or it is not the
+    /// pack announced.
+    pub fn install_pack(
+        &self,
+        name: &str,
+        version: &str,
+        library: &[u8],
+        folder: &Path,
+    ) -> Result<PathBuf, ProtocolError> {
+        let mut registry = self.registry.write().unwrap_or_else(PoisonError::into_inner);
+        if let Some(loaded) = registry.packs().find(|p| p.name == name) {
+            if loaded.version == version {
+                return Ok(PathBuf::from(&loaded.origin));
+            }
+            return Err(error(
+                ErrorCode::WrongState,
+                format!(
+                    "pack '{name}' {} is already loaded here (from {}); a second version cannot be loaded \
+                     beside it: replace it with {version} on this machine's pack path and restart kairos serve",
+                    loaded.version, loaded.origin
+                ),
+            ));
+        }
+        let file = folder.join(format!(
+            "{}{name}-{version}{}",
+            std::env::consts::DLL_PREFIX,
+            std::env::consts::DLL_SUFFIX
+        ));
+        let written = std::fs::create_dir_all(folder)
+            .and_then(|()| {
+                // Written aside then renamed, so a half-written library is never loaded.
+                let partial = file.with_extension(format!("partial-{}", std::process::id()));
+                std::fs::write(&partial, library)?;
+                std::fs::rename(&partial, &file)
+            })
+            .map_err(|e| {
+                error(
+                    ErrorCode::Internal,
+                    format!("cannot write pack '{name}' to {}: {e}", file.display()),
+                )
+            });
+        written?;
+        let pack = kairos_runtime::pack_host::load_pack(&file).map_err(|e| {
+            error(
+                ErrorCode::InvalidValue,
+                format!("pack '{name}' {version} does not load here: {e}"),
+            )
+        })?;
+        if pack.name != name || pack.version != version {
+            return Err(error(
+                ErrorCode::InvalidValue,
+                format!(
+                    "the library sent as pack '{name}' {version} is pack '{}' {}",
+                    pack.name, pack.version
+                ),
+            ));
+        }
+        pack.register(&mut registry);
+        tracing::info!("installed pack {name} {version}, shipped to {}", file.display());
+        Ok(file)
+    }
+
     /// The component library as plain data.
     pub fn library(&self) -> kairos_diagram::LibraryInfo {
-        self.registry.library_info()
+        self.registry().library_info()
     }
 
     /// Describes the instances of `text` whose ports depend on their properties.
     pub fn describe_instances(&self, text: &str) -> Result<kairos_protocol::Described, ProtocolError> {
         let parsed = kairos_diagram::parse(text).map_err(|diagnostics| invalid(text, diagnostics))?;
         let mut described = kairos_protocol::Described::default();
-        for (id, result) in self.registry.instance_infos(&parsed.diagram) {
+        for (id, result) in self.registry().instance_infos(&parsed.diagram) {
             match result {
                 Ok(info) => {
                     described.instances.insert(id, info);
@@ -251,11 +324,11 @@ impl Runtime {
         network: Option<&kairos_protocol::LinkNetwork>,
     ) -> Result<DeployResult, ProtocolError> {
         let parsed = kairos_diagram::parse(text).map_err(|diagnostics| invalid(text, diagnostics))?;
-        let diagnostics = self.registry.validate(&parsed.diagram, Some(&parsed.source_map));
+        let diagnostics = self.registry().validate(&parsed.diagram, Some(&parsed.source_map));
         if diagnostics.iter().any(Diagnostic::is_error) {
             return Err(invalid(text, diagnostics));
         }
-        let engine = Engine::build(&parsed.diagram, &self.registry, self.clock_for(&parsed.diagram))
+        let engine = Engine::build(&parsed.diagram, &self.registry(), self.clock_for(&parsed.diagram))
             .map_err(|e| error(ErrorCode::InvalidDiagram, e.to_string()))?;
         let mut deployment = self.lock();
         if let Some(mut old) = deployment.engine.take() {
@@ -294,7 +367,7 @@ impl Runtime {
             .as_ref()
             .is_none_or(|e| e.state() == EngineState::Stopped);
         if stale {
-            let engine = Engine::build(&diagram, &self.registry, self.clock_for(&diagram))
+            let engine = Engine::build(&diagram, &self.registry(), self.clock_for(&diagram))
                 .map_err(|e| error(ErrorCode::InvalidDiagram, e.to_string()))?;
             deployment.engine = Some(engine);
             deployment.previous = None;
@@ -392,7 +465,7 @@ impl Runtime {
             let mut problems: Vec<Diagnostic> = Vec::new();
             long_wait(&mut || {
                 problems = self
-                    .registry
+                    .registry()
                     .validate(&changed, None)
                     .into_iter()
                     .filter(Diagnostic::is_error)

@@ -89,6 +89,7 @@ where
         log: None,
         samples: BTreeMap::new(),
         shared_samples: BTreeMap::new(),
+        upload: None,
     };
     tracing::debug!("{peer}: connected");
     while let Some(message) = source.next().await {
@@ -137,6 +138,19 @@ struct Session {
     samples: BTreeMap<String, JoinHandle<()>>,
     /// Outputs published in shared memory for this client; dropping one stops it.
     shared_samples: BTreeMap<String, super::shm::ShmPublication>,
+    /// A pack library being received, chunk by chunk (`install_pack`).
+    upload: Option<PackUpload>,
+}
+
+/// The most bytes a shipped pack library may have.
+const MAX_PACK_BYTES: u64 = 512 << 20;
+
+/// A pack library partly received.
+struct PackUpload {
+    name: String,
+    version: String,
+    size: u64,
+    bytes: Vec<u8>,
 }
 
 /// `message` as JSON text. A reply holds its result as a JSON value already (`Reply::success` made a result
@@ -161,6 +175,88 @@ fn send(out: &mpsc::Sender<Message>, message: &ServerMessage) -> bool {
 impl Session {
     fn runtime(&self) -> Arc<Runtime> {
         Arc::clone(&self.shared.runtime)
+    }
+
+    /// Adds one chunk of a pack library to the upload `announced` (offset 0 starts one); the chunk that
+    /// completes it installs the pack.
+    fn install_pack_chunk(
+        &mut self,
+        announced: PackUpload,
+        platform: &str,
+        offset: u64,
+        data: &str,
+    ) -> Result<kairos_protocol::PackInstall, ProtocolError> {
+        use base64::Engine as _;
+        let (name, version, size) = (announced.name.clone(), announced.version.clone(), announced.size);
+        let here = kairos_protocol::this_platform();
+        if platform != here {
+            return Err(ProtocolError::new(
+                ErrorCode::InvalidValue,
+                format!(
+                    "pack '{name}' {version} was built for {platform}, and this machine is {here}: build the \
+                     pack for {here} and put it on this machine's pack path (--pack-path) instead"
+                ),
+            ));
+        }
+        if size > MAX_PACK_BYTES {
+            return Err(ProtocolError::new(
+                ErrorCode::TooLarge,
+                format!("pack '{name}' is {size} bytes; the most a shipped pack may have is {MAX_PACK_BYTES}"),
+            ));
+        }
+        let chunk = base64::engine::general_purpose::STANDARD
+            .decode(data)
+            .map_err(|e| ProtocolError::new(ErrorCode::BadRequest, format!("install_pack: `data` is not base64: {e}")))?;
+        if offset == 0 {
+            self.upload = Some(announced);
+        }
+        let expected = self.upload.as_ref().map_or(0, |u| u.bytes.len() as u64);
+        let upload = match self.upload.as_mut() {
+            Some(upload)
+                if upload.name == name && upload.version == version && upload.size == size && offset == expected =>
+            {
+                upload
+            }
+            _ => {
+                return Err(ProtocolError::new(
+                    ErrorCode::BadRequest,
+                    format!(
+                        "install_pack: a chunk at offset {offset} of pack '{name}' {version}, where {expected} was \
+                         expected; start again at offset 0"
+                    ),
+                ));
+            }
+        };
+        if expected + chunk.len() as u64 > upload.size {
+            self.upload = None;
+            return Err(ProtocolError::new(
+                ErrorCode::BadRequest,
+                format!("install_pack: the chunks of pack '{name}' {version} run past its size of {size} bytes"),
+            ));
+        }
+        upload.bytes.extend_from_slice(&chunk);
+        let received = upload.bytes.len() as u64;
+        if received < upload.size {
+            return Ok(kairos_protocol::PackInstall {
+                received,
+                installed: false,
+                path: None,
+            });
+        }
+        let Some(complete) = self.upload.take() else {
+            return Err(ProtocolError::new(ErrorCode::Internal, "install_pack: the upload vanished"));
+        };
+        let folder = self.shared.shipped_pack_folder.clone();
+        let path = tokio::task::block_in_place(|| {
+            self.shared
+                .runtime
+                .install_pack(&complete.name, &complete.version, &complete.bytes, &folder)
+        })?;
+        Ok(kairos_protocol::PackInstall {
+            received,
+            installed: true,
+            path: Some(path.display().to_string()),
+        })
     }
 
     fn reply(&self, id: u64, result: &ReplyBody) -> bool {
@@ -303,6 +399,7 @@ impl Session {
             role,
             shared_memory_host: kairos_protocol::this_host(),
             pid: Some(std::process::id()),
+            platform: Some(kairos_protocol::this_platform()),
         })
     }
 
@@ -340,6 +437,24 @@ impl Session {
                 self.blocking(move |r| r.deploy(&diagram, network.as_ref()))
                     .await?,
             ),
+            RequestBody::InstallPack {
+                name,
+                version,
+                platform,
+                size,
+                offset,
+                data,
+            } => ReplyBody::InstallPack(self.install_pack_chunk(
+                PackUpload {
+                    name,
+                    version,
+                    size,
+                    bytes: Vec::new(),
+                },
+                &platform,
+                offset,
+                &data,
+            )?),
             RequestBody::Links => ReplyBody::Links(kairos_protocol::LinkList {
                 links: tokio::task::block_in_place(crate::link::network::ends),
             }),
