@@ -1130,7 +1130,10 @@ fn a_pack_a_host_lacks_is_shipped_and_one_for_another_platform_is_refused() {
     assert!(stdout.contains("shipped pack cpp 0.1.0 to host 'b'"), "{stdout}");
     let values = csv_values(&dir_b.path().join("b.csv"));
     assert!(values.len() > 10, "{values:?}\n{stderr}");
-    assert!(values.iter().all(|(_, v)| (-0.5..=0.5).contains(v)), "clamped on b: {values:?}");
+    assert!(
+        values.iter().all(|(_, v)| (-0.5..=0.5).contains(v)),
+        "clamped on b: {values:?}"
+    );
     assert!(values.iter().any(|(_, v)| (*v - 0.5).abs() < 1e-9), "{values:?}");
     let written: Vec<_> = std::fs::read_dir(shipped.path()).unwrap().collect();
     assert_eq!(written.len(), 1, "the library written to --shipped-pack-dir");
@@ -1164,7 +1167,10 @@ fn a_pack_a_host_lacks_is_shipped_and_one_for_another_platform_is_refused() {
     );
     assert_eq!(reply["ok"], false, "{reply}");
     assert!(
-        reply["error"]["message"].as_str().unwrap().contains("this machine is linux-riscv64"),
+        reply["error"]["message"]
+            .as_str()
+            .unwrap()
+            .contains("this machine is linux-riscv64"),
         "{reply}"
     );
 }
@@ -1409,12 +1415,13 @@ impl Drop for Namespaces {
 }
 
 /// A sine on host a, doubled on host b, written on host a: both ways across the veth pair. Host a's
-/// endpoint is trusted through its certificate `a.pem`.
+/// endpoints, control and links, take TLS and are trusted through its certificate `a.pem`: b connects to
+/// a's `tls/` link endpoint.
 fn namespace_diagram(a_url: &str, b_url: &str, address_a: &str, address_b: &str) -> String {
     format!(
         r#"Diagram(format: 1,
             hosts: {{
-                "a": Host(endpoint: "{a_url}", token_file: "a.token", zenoh: "tcp/{address_a}:7447", certificate: "a.pem"),
+                "a": Host(endpoint: "{a_url}", token_file: "a.token", zenoh: "tls/{address_a}:7447", certificate: "a.pem"),
                 "b": Host(endpoint: "{b_url}", token_file: "b.token", zenoh: "tcp/{address_b}:7447"),
             }},
             components: [

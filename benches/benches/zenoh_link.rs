@@ -137,7 +137,7 @@ fn free_port() -> u16 {
 fn child_main(port: u16) {
     let spec = LinkNetwork {
         listen: vec![format!("tcp/127.0.0.1:{port}")],
-        connect: Vec::new(),
+        ..LinkNetwork::default()
     };
     prepare(
         &spec,
@@ -349,8 +349,8 @@ fn main() {
         .unwrap();
     assert_eq!(line.trim(), "ready");
     let spec = LinkNetwork {
-        listen: Vec::new(),
         connect: vec![format!("tcp/127.0.0.1:{port}")],
+        ..LinkNetwork::default()
     };
     prepare(
         &spec,

@@ -57,7 +57,8 @@ pub const DEFAULT_ZENOH_PORT: u16 = 7447;
 
 impl HostSpec {
     /// The Zenoh endpoint the host listens on and the others connect to: `zenoh`, or the control
-    /// endpoint's address with port [`DEFAULT_ZENOH_PORT`].
+    /// endpoint's address with port [`DEFAULT_ZENOH_PORT`], over TLS (`tls/`) when the control endpoint
+    /// is (`wss://`), else TCP.
     pub fn zenoh_endpoint(&self) -> String {
         if let Some(explicit) = &self.zenoh {
             return explicit.clone();
@@ -71,7 +72,12 @@ impl HostSpec {
         let address = authority
             .rsplit_once(':')
             .map_or(authority, |(address, _)| address);
-        format!("tcp/{address}:{DEFAULT_ZENOH_PORT}")
+        let transport = if self.endpoint.starts_with("wss://") {
+            "tls"
+        } else {
+            "tcp"
+        };
+        format!("{transport}/{address}:{DEFAULT_ZENOH_PORT}")
     }
 }
 

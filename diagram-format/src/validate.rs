@@ -925,6 +925,15 @@ mod tests {
             certificate: None,
         };
         assert_eq!(spec.zenoh_endpoint(), "tcp/10.0.0.2:7447");
+        let secure = HostSpec {
+            endpoint: "wss://car.local:7600".to_owned(),
+            ..spec
+        };
+        assert_eq!(
+            secure.zenoh_endpoint(),
+            "tls/car.local:7447",
+            "secure control, secure links"
+        );
     }
 
     #[test]

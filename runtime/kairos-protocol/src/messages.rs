@@ -847,6 +847,9 @@ pub struct LinkNetwork {
     /// The other hosts' endpoints this runtime connects to.
     #[serde(default)]
     pub connect: Vec<String>,
+    /// The certificates (PEM) to trust on `tls/` endpoints: those of the hosts section.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub trusted_certificates: Vec<String>,
 }
 
 /// The result of `links`.

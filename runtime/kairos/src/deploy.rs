@@ -292,10 +292,18 @@ fn place_link(
 /// Each part's link network, by host (`None`: the deploying machine).
 pub type Networks = BTreeMap<Option<String>, LinkNetwork>;
 
-/// The Zenoh network of each part with links: every such host listens on its own endpoint and connects
-/// to those after it (so each pair is joined once); the deploying machine listens nowhere and connects to
-/// them all.
-pub fn networks(diagram: &Diagram, plan: &Plan) -> BTreeMap<Option<String>, LinkNetwork> {
+/// Each part's link network: every host with links listens on its own Zenoh endpoint and connects to the
+/// hosts after it, or to those before it that take TLS where it does not; this machine, when its part has links, connects to them all. Whoever connects to a
+/// `tls/` endpoint trusts the certificates of the hosts section (read from `folder`, the diagram's).
+///
+/// # Errors
+///
+/// A `tls/` endpoint of a host without a `certificate`, or a certificate file that cannot be read.
+pub fn networks(
+    diagram: &Diagram,
+    plan: &Plan,
+    folder: &Path,
+) -> anyhow::Result<BTreeMap<Option<String>, LinkNetwork>> {
     let has_links = |part: &Diagram| part.components.iter().any(|c| crate::link::is_link(&c.type_name));
     let linked: Vec<(&String, String)> = plan
         .parts
@@ -304,13 +312,46 @@ pub fn networks(diagram: &Diagram, plan: &Plan) -> BTreeMap<Option<String>, Link
         .filter_map(|(host, _)| host.as_ref())
         .filter_map(|host| diagram.hosts.get(host).map(|spec| (host, spec.zenoh_endpoint())))
         .collect();
+    let mut trusted = Vec::new();
+    for (host, endpoint) in linked.iter().filter(|(_, e)| e.starts_with("tls/")) {
+        let Some(file) = diagram
+            .hosts
+            .get(*host)
+            .and_then(|spec| spec.certificate.as_ref())
+        else {
+            bail!(
+                "host '{host}' takes its links over TLS ({endpoint}) but has no `certificate` to trust in the \
+                 hosts section: give it the host's certificate (its kairos serve --tls-cert), or a tcp/ zenoh \
+                 endpoint"
+            );
+        };
+        let path = folder.join(file);
+        let pem = std::fs::read_to_string(&path)
+            .with_context(|| format!("host '{host}': cannot read its certificate {}", path.display()))?;
+        if !trusted.contains(&pem) {
+            trusted.push(pem);
+        }
+    }
+    // Each pair is joined once. The side that connects chooses the transport, so a host that asked for
+    // TLS is the one connected to: its samples never cross in clear because the other side listens on TCP.
+    let is_tls = |index: usize| linked[index].1.starts_with("tls/");
     let mut networks = BTreeMap::new();
     for (index, (host, endpoint)) in linked.iter().enumerate() {
+        let connect = (0..linked.len())
+            .filter(|&other| other != index)
+            .filter(|&other| match (is_tls(index), is_tls(other)) {
+                (false, true) => true,
+                (true, false) => false,
+                _ => other > index,
+            })
+            .map(|other| linked[other].1.clone())
+            .collect();
         networks.insert(
             Some((*host).clone()),
             LinkNetwork {
                 listen: vec![endpoint.clone()],
-                connect: linked.iter().skip(index + 1).map(|(_, e)| e.clone()).collect(),
+                connect,
+                trusted_certificates: trusted.clone(),
             },
         );
     }
@@ -320,10 +361,11 @@ pub fn networks(diagram: &Diagram, plan: &Plan) -> BTreeMap<Option<String>, Link
             LinkNetwork {
                 listen: Vec::new(),
                 connect: linked.iter().map(|(_, e)| e.clone()).collect(),
+                trusted_certificates: trusted,
             },
         );
     }
-    networks
+    Ok(networks)
 }
 
 /// A name for this deployment's keys: the deploying process and the time it started.
@@ -1013,5 +1055,48 @@ pub fn stop_all(hosts: &mut [Host]) {
             Ok(_) => tracing::info!("host '{}' stopped", host.name()),
             Err(error) => tracing::warn!("{error}"),
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_host_that_takes_tls_is_the_one_connected_to() {
+        let source = r#"Diagram(format: 1,
+            hosts: {
+                "a": Host(endpoint: "ws://10.0.0.1:7600", zenoh: "tcp/10.0.0.1:7447"),
+                "b": Host(endpoint: "wss://10.0.0.2:7600", certificate: "b.pem"),
+                "c": Host(endpoint: "ws://10.0.0.3:7600"),
+            },
+            components: [], connections: [])"#;
+        let diagram = kairos_diagram::parse(source)
+            .map(|parsed| parsed.diagram)
+            .unwrap();
+        let linked_part = Diagram {
+            components: vec![kairos_diagram::ComponentInstance::new("out", crate::link::SENDER)],
+            ..diagram.clone()
+        };
+        let plan = Plan {
+            parts: ["a", "b", "c"]
+                .into_iter()
+                .map(|host| (Some(host.to_owned()), linked_part.clone()))
+                .collect(),
+            ..Plan::default()
+        };
+        let folder = tempfile::tempdir().unwrap();
+        // Without the certificate to trust, b's TLS endpoint is refused with the fix.
+        let error = networks(&diagram, &plan, folder.path()).unwrap_err().to_string();
+        assert!(error.contains("cannot read its certificate"), "{error}");
+        std::fs::write(folder.path().join("b.pem"), "PEM").unwrap();
+        let networks = networks(&diagram, &plan, folder.path()).unwrap();
+        let connects = |host: &str| networks[&Some(host.to_owned())].connect.clone();
+        assert_eq!(networks[&Some("b".to_owned())].listen, ["tls/10.0.0.2:7447"]);
+        // a and c reach b over TLS; b, taking TLS, connects to no clear-text host; a joins c once.
+        assert_eq!(connects("a"), ["tls/10.0.0.2:7447", "tcp/10.0.0.3:7447"]);
+        assert!(connects("b").is_empty());
+        assert_eq!(connects("c"), ["tls/10.0.0.2:7447"]);
+        assert_eq!(networks[&Some("c".to_owned())].trusted_certificates, ["PEM"]);
     }
 }

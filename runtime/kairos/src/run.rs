@@ -197,8 +197,8 @@ fn deploy_parts(
     options: DeployOptions,
 ) -> anyhow::Result<(kairos_diagram::Diagram, crate::deploy::Watch)> {
     let plan = crate::deploy::split(diagram, registry, &crate::deploy::deployment_name())?;
-    let networks = crate::deploy::networks(diagram, &plan);
     let folder = path.parent().unwrap_or_else(|| Path::new("."));
+    let networks = crate::deploy::networks(diagram, &plan, folder)?;
     let reach = crate::deploy::Reach::new(folder, options.clear_text_tokens);
     let mut hosts = crate::deploy::deploy_remote(diagram, &plan, &networks, &reach)?;
     let here = plan.parts.get(&None).cloned().unwrap_or_default();

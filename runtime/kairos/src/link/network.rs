@@ -8,6 +8,7 @@
 //! link components take them at birth.
 
 use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
 use std::time::Duration;
 
@@ -98,6 +99,15 @@ struct Network {
 
 static NETWORK: Mutex<Option<Network>> = Mutex::new(None);
 
+/// This runtime's certificate chain and private key (PEM files), for listening on a `tls/` endpoint:
+/// `kairos serve`'s `--tls-cert` and `--tls-key`, the same identity as its `wss://` endpoint.
+static IDENTITY: Mutex<Option<(PathBuf, PathBuf)>> = Mutex::new(None);
+
+/// Listens on `tls/` link endpoints with this certificate chain and key from now on.
+pub fn set_identity(certificate: &Path, key: &Path) {
+    *IDENTITY.lock().unwrap_or_else(PoisonError::into_inner) = Some((certificate.to_owned(), key.to_owned()));
+}
+
 fn network() -> MutexGuard<'static, Option<Network>> {
     NETWORK.lock().unwrap_or_else(PoisonError::into_inner)
 }
@@ -133,18 +143,46 @@ pub fn leave() {
     }
 }
 
-fn open(spec: &LinkNetwork) -> anyhow::Result<zenoh::Session> {
-    if let Some(secure) = spec
-        .listen
-        .iter()
-        .chain(&spec.connect)
-        .find(|e| e.starts_with("tls/"))
-    {
-        anyhow::bail!(
-            "the link endpoint {secure}: Zenoh's TLS transport is not built into this kairos; use tcp/ (the \
-             control protocol can be TLS with wss://, the links' samples then cross in clear)"
-        );
+/// The TLS settings of `spec`: this runtime's identity where it listens on `tls/`, and the certificates
+/// to trust where it connects to one.
+fn tls_settings(spec: &LinkNetwork) -> anyhow::Result<Vec<(&'static str, String)>> {
+    use base64::Engine as _;
+    let is_tls = |e: &&String| e.starts_with("tls/");
+    let mut settings = Vec::new();
+    if let Some(endpoint) = spec.listen.iter().find(is_tls) {
+        let identity = IDENTITY.lock().unwrap_or_else(PoisonError::into_inner).clone();
+        let Some((certificate, key)) = identity else {
+            anyhow::bail!(
+                "this host's link endpoint is {endpoint}, but this kairos serve has no certificate to listen \
+                 with: start it with --tls-cert and --tls-key, or give the host a tcp/ zenoh endpoint"
+            );
+        };
+        settings.push((
+            "transport/link/tls/listen_certificate",
+            serde_json::to_string(&certificate.display().to_string())?,
+        ));
+        settings.push((
+            "transport/link/tls/listen_private_key",
+            serde_json::to_string(&key.display().to_string())?,
+        ));
     }
+    if let Some(endpoint) = spec.connect.iter().find(is_tls) {
+        if spec.trusted_certificates.is_empty() {
+            anyhow::bail!(
+                "the link endpoint {endpoint} is TLS, and no certificate to trust came with it: give that host \
+                 its `certificate` in the hosts section"
+            );
+        }
+        let bundle = spec.trusted_certificates.concat();
+        settings.push((
+            "transport/link/tls/root_ca_certificate_base64",
+            serde_json::to_string(&base64::engine::general_purpose::STANDARD.encode(bundle))?,
+        ));
+    }
+    Ok(settings)
+}
+
+fn open(spec: &LinkNetwork) -> anyhow::Result<zenoh::Session> {
     let mut config = zenoh::Config::default();
     let settings = [
         ("mode", "\"peer\"".to_owned()),
@@ -160,7 +198,7 @@ fn open(spec: &LinkNetwork) -> anyhow::Result<zenoh::Session> {
         ),
         ("transport/link/tx/lease", LEASE_MS.to_string()),
     ];
-    for (key, value) in settings {
+    for (key, value) in settings.into_iter().chain(tls_settings(spec)?) {
         config
             .insert_json5(key, &value)
             .map_err(|e| anyhow::anyhow!("the links' Zenoh setting {key} = {value}: {e}"))?;
@@ -317,12 +355,34 @@ mod tests {
     use super::*;
 
     #[test]
-    fn a_tls_link_endpoint_is_refused_with_the_reason_until_zenoh_tls_is_built_in() {
-        let spec = LinkNetwork {
+    fn a_tls_endpoint_needs_an_identity_to_listen_and_certificates_to_trust() {
+        let listening = LinkNetwork {
             listen: vec!["tls/127.0.0.1:17447".to_owned()],
-            connect: Vec::new(),
+            ..LinkNetwork::default()
         };
-        let error = open(&spec).err().map(|e| e.to_string()).unwrap_or_default();
-        assert!(error.contains("TLS transport is not built"), "{error}");
+        let error = tls_settings(&listening)
+            .err()
+            .map(|e| e.to_string())
+            .unwrap_or_default();
+        assert!(
+            error.contains("start it with --tls-cert and --tls-key"),
+            "{error}"
+        );
+        let connecting = LinkNetwork {
+            connect: vec!["tls/127.0.0.1:17447".to_owned()],
+            ..LinkNetwork::default()
+        };
+        let error = tls_settings(&connecting)
+            .err()
+            .map(|e| e.to_string())
+            .unwrap_or_default();
+        assert!(error.contains("give that host its `certificate`"), "{error}");
+        let trusting = LinkNetwork {
+            trusted_certificates: vec!["-----BEGIN CERTIFICATE-----\n".to_owned()],
+            ..connecting
+        };
+        let settings = tls_settings(&trusting).unwrap_or_default();
+        assert_eq!(settings.len(), 1, "{settings:?}");
+        assert_eq!(settings[0].0, "transport/link/tls/root_ca_certificate_base64");
     }
 }

@@ -101,6 +101,15 @@ pub fn serve(registry: Registry, options: &ServeOptions) -> anyhow::Result<ExitC
     })
 }
 
+/// The address `--listen` names.
+fn listen_address(listen: &str) -> anyhow::Result<SocketAddr> {
+    listen
+        .to_socket_addrs()
+        .with_context(|| format!("--listen {listen}: not an address (use HOST:PORT, e.g. {DEFAULT_LISTEN})"))?
+        .next()
+        .with_context(|| format!("--listen {listen}: the name resolves to no address"))
+}
+
 /// Like [`serve`], calling `on_listening` with the bound address once connections are accepted (for
 /// embedding a server in another program, such as the benchmarks).
 pub fn serve_with(
@@ -108,17 +117,7 @@ pub fn serve_with(
     options: &ServeOptions,
     on_listening: impl FnOnce(SocketAddr) + Send,
 ) -> anyhow::Result<ExitCode> {
-    let address: SocketAddr = options
-        .listen
-        .to_socket_addrs()
-        .with_context(|| {
-            format!(
-                "--listen {}: not an address (use HOST:PORT, e.g. {DEFAULT_LISTEN})",
-                options.listen
-            )
-        })?
-        .next()
-        .with_context(|| format!("--listen {}: the name resolves to no address", options.listen))?;
+    let address = listen_address(&options.listen)?;
     let operator = token(options.token_file.as_ref(), "operator")?;
     let monitor = token(options.monitor_token_file.as_ref(), "monitor")?;
     if !address.ip().is_loopback() && operator.is_none() {
@@ -131,7 +130,11 @@ pub fn serve_with(
     let tls = options
         .tls
         .as_ref()
-        .map(|(cert, key)| tls_acceptor(cert, key))
+        .map(|(certificate, key)| {
+            // Links on a tls/ endpoint listen with the same identity as the control endpoint.
+            crate::link::network::set_identity(certificate, key);
+            tls_acceptor(certificate, key)
+        })
         .transpose()?;
     let runtime = Runtime::new(registry);
     synchronise_clock(&runtime, options)?;

@@ -3,8 +3,8 @@
 //! One lock guards the deployment; operations that may block (start, stop, a property change waiting for
 //! the component's answer) run on blocking threads, never on the server's network threads.
 
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard, PoisonError, RwLock, RwLockReadGuard, TryLockError};
 
 use kairos_diagram::{Diagnostic, Diagram, Value};
@@ -324,7 +324,9 @@ impl Runtime {
         network: Option<&kairos_protocol::LinkNetwork>,
     ) -> Result<DeployResult, ProtocolError> {
         let parsed = kairos_diagram::parse(text).map_err(|diagnostics| invalid(text, diagnostics))?;
-        let diagnostics = self.registry().validate(&parsed.diagram, Some(&parsed.source_map));
+        let diagnostics = self
+            .registry()
+            .validate(&parsed.diagram, Some(&parsed.source_map));
         if diagnostics.iter().any(Diagnostic::is_error) {
             return Err(invalid(text, diagnostics));
         }

@@ -201,19 +201,29 @@ impl Session {
         if size > MAX_PACK_BYTES {
             return Err(ProtocolError::new(
                 ErrorCode::TooLarge,
-                format!("pack '{name}' is {size} bytes; the most a shipped pack may have is {MAX_PACK_BYTES}"),
+                format!(
+                    "pack '{name}' is {size} bytes; the most a shipped pack may have is {MAX_PACK_BYTES}"
+                ),
             ));
         }
         let chunk = base64::engine::general_purpose::STANDARD
             .decode(data)
-            .map_err(|e| ProtocolError::new(ErrorCode::BadRequest, format!("install_pack: `data` is not base64: {e}")))?;
+            .map_err(|e| {
+                ProtocolError::new(
+                    ErrorCode::BadRequest,
+                    format!("install_pack: `data` is not base64: {e}"),
+                )
+            })?;
         if offset == 0 {
             self.upload = Some(announced);
         }
         let expected = self.upload.as_ref().map_or(0, |u| u.bytes.len() as u64);
         let upload = match self.upload.as_mut() {
             Some(upload)
-                if upload.name == name && upload.version == version && upload.size == size && offset == expected =>
+                if upload.name == name
+                    && upload.version == version
+                    && upload.size == size
+                    && offset == expected =>
             {
                 upload
             }
@@ -231,7 +241,9 @@ impl Session {
             self.upload = None;
             return Err(ProtocolError::new(
                 ErrorCode::BadRequest,
-                format!("install_pack: the chunks of pack '{name}' {version} run past its size of {size} bytes"),
+                format!(
+                    "install_pack: the chunks of pack '{name}' {version} run past its size of {size} bytes"
+                ),
             ));
         }
         upload.bytes.extend_from_slice(&chunk);
@@ -244,7 +256,10 @@ impl Session {
             });
         }
         let Some(complete) = self.upload.take() else {
-            return Err(ProtocolError::new(ErrorCode::Internal, "install_pack: the upload vanished"));
+            return Err(ProtocolError::new(
+                ErrorCode::Internal,
+                "install_pack: the upload vanished",
+            ));
         };
         let folder = self.shared.shipped_pack_folder.clone();
         let path = tokio::task::block_in_place(|| {
