@@ -1820,3 +1820,134 @@ fn a_start_instant_too_far_ahead_is_refused_and_one_in_the_past_starts_at_once()
     assert_eq!(past["ok"], true, "{past}");
     assert_eq!(state(&mut socket), "running");
 }
+
+/// The coordinator's telemetry of a sine and gain on host b written to a CSV here: b's components, b's
+/// state, and the link's counts, the consumer's buffer named as in the diagram.
+fn assert_spread_telemetry(telemetry: &Value) {
+    let ids: Vec<&str> = telemetry["components"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter_map(|c| c["id"].as_str())
+        .collect();
+    assert!(
+        ids.contains(&"sine") && ids.contains(&"gain") && ids.contains(&"csv"),
+        "{ids:?}"
+    );
+    assert!(
+        !ids.iter().any(|id| id.starts_with("link_")),
+        "link ends are counted as cross links: {ids:?}"
+    );
+    assert_eq!(telemetry["hosts"][0]["name"], "b", "{telemetry}");
+    assert_eq!(telemetry["hosts"][0]["answering"], true, "{telemetry}");
+    let link = &telemetry["cross_links"][0];
+    assert_eq!(link["from"], "gain.out", "{link}");
+    assert_eq!(link["to"], "csv.in1", "{link}");
+    assert_eq!(link["from_host"], "b", "{link}");
+    assert_eq!(link["matched"], true, "{link}");
+    assert_eq!(link["lost"], 0, "{link}");
+    let link_names: Vec<&str> = telemetry["links"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter_map(|l| l["link"].as_str())
+        .collect();
+    assert!(
+        link_names.contains(&"gain.out -> csv.in1"),
+        "the consumer's buffer named as in the diagram: {link_names:?}"
+    );
+}
+
+#[test]
+fn a_runtime_given_a_spread_diagram_coordinates_its_hosts_as_the_studio_runs_it() {
+    let _machine = shared_machine();
+    let (dir_coordinator, dir_b, here) = (
+        tempfile::tempdir().unwrap(),
+        tempfile::tempdir().unwrap(),
+        tempfile::tempdir().unwrap(),
+    );
+    let (coordinator, b) = (serve(dir_coordinator.path(), &[]), serve(dir_b.path(), &[]));
+    std::fs::write(here.path().join("b.token"), &b.token).unwrap();
+    // A sine and its gain on host b, written to a CSV by the coordinating runtime.
+    let diagram = format!(
+        r#"Diagram(format: 1,
+            hosts: {{"b": Host(endpoint: "{}", token_file: "b.token", zenoh: "tcp/127.0.0.1:{}")}},
+            components: [
+                Component(id: "sine", type: "core.sine", host: "b", properties: {{"rate": 100.0}}),
+                Component(id: "gain", type: "core.gain", host: "b", properties: {{"gain": 1.0}}),
+                Component(id: "csv", type: "core.csv_writer", properties: {{"path": "spread.csv"}}),
+            ],
+            connections: [
+                Connection(from: "sine.out", to: "gain.in"),
+                Connection(from: "gain.out", to: "csv.in1"),
+            ])"#,
+        b.url,
+        free_tcp_port()
+    );
+    let mut socket = operator(&coordinator);
+    let folder = here.path().display().to_string();
+    // Without the folder holding b's token, b refuses, and the reason says which host.
+    let refused = call(
+        &mut socket,
+        &json!({"id": 1, "type": "deploy", "diagram": diagram, "folder": dir_b.path().join("none").display().to_string()}),
+    );
+    assert_eq!(refused["ok"], false, "{refused}");
+    assert!(
+        refused["error"]["message"]
+            .as_str()
+            .unwrap_or_default()
+            .contains("host 'b'"),
+        "{refused}"
+    );
+    let deployed = call(
+        &mut socket,
+        &json!({"id": 2, "type": "deploy", "diagram": diagram, "folder": folder}),
+    );
+    assert_eq!(deployed["ok"], true, "{deployed}");
+    let started = call(&mut socket, &json!({"id": 3, "type": "start"}));
+    assert_eq!(started["ok"], true, "{started}");
+    let mut b_socket = operator(&b);
+    let b_status = call(&mut b_socket, &json!({"id": 1, "type": "status"}));
+    assert_eq!(b_status["result"]["state"], "running", "{b_status}");
+
+    // The coordinator's telemetry holds b's components, b's state and clock, and the link's counts.
+    let deadline = Instant::now() + Duration::from_secs(5);
+    let telemetry = loop {
+        let status = call(&mut socket, &json!({"id": 4, "type": "status"}));
+        let telemetry = status["result"]["telemetry"].clone();
+        let received = telemetry["cross_links"][0]["received"].as_u64().unwrap_or(0);
+        if received > 20 {
+            break telemetry;
+        }
+        assert!(Instant::now() < deadline, "no samples across: {status}");
+        std::thread::sleep(Duration::from_millis(100));
+    };
+    assert_spread_telemetry(&telemetry);
+
+    // A property of a component on b, changed through the coordinator, takes effect there.
+    let changed = call(
+        &mut socket,
+        &json!({"id": 5, "type": "set_property", "component": "gain", "property": "gain", "value": 10.0}),
+    );
+    assert_eq!(changed["ok"], true, "{changed}");
+    let refused = call(
+        &mut socket,
+        &json!({"id": 6, "type": "set_property", "component": "gain", "property": "no_such", "value": 1.0}),
+    );
+    assert_eq!(refused["ok"], false, "{refused}");
+    let whole = call(&mut socket, &json!({"id": 7, "type": "get_diagram"}));
+    let text = whole["result"]["diagram"].as_str().unwrap_or_default();
+    assert!(text.contains("host: \"b\"") && text.contains("10.0"), "{text}");
+    std::thread::sleep(Duration::from_millis(600));
+    let stopped = call(&mut socket, &json!({"id": 8, "type": "stop"}));
+    assert_eq!(stopped["ok"], true, "{stopped}");
+    let b_status = call(&mut b_socket, &json!({"id": 2, "type": "status"}));
+    assert_ne!(b_status["result"]["state"], "running", "stop stops b: {b_status}");
+    let values = csv_values(&dir_coordinator.path().join("spread.csv"));
+    let largest = values.iter().map(|(_, v)| v.abs()).fold(0.0, f64::max);
+    assert!(
+        largest > 2.0,
+        "the gain set on b through the coordinator applied: largest {largest} of {}",
+        values.len()
+    );
+}

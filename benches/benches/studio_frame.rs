@@ -116,6 +116,8 @@ fn telemetry(diagram: &Diagram, tick: u64) -> kairos_protocol::Telemetry {
             })
             .collect(),
         clock: None,
+        hosts: Vec::new(),
+        cross_links: Vec::new(),
     }
 }
 

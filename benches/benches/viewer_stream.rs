@@ -231,6 +231,7 @@ fn main() {
     let deploy = control.request(RequestBody::Deploy {
         diagram,
         network: None,
+        folder: None,
     });
     let deployed = wait_for_reply(&control, deploy).is_some();
     let start = control.request(RequestBody::Start { at_ns: None });

@@ -261,6 +261,18 @@ fn input_ui(ui: &egui::Ui, frame: &Frame<'_>, component: &str, spot: &PortSpot, 
 }
 
 /// What hovering a connection says: its ends, its policy, its figures.
+/// A link between hosts in a few words: its losses in transit and the age of its last sample, or that
+/// its far end is missing.
+fn cross_link_figures(counts: &kairos_protocol::CrossLinkTelemetry) -> String {
+    if !counts.matched {
+        return "not matched".to_owned();
+    }
+    let age = counts
+        .last_sample_age_ms
+        .map_or_else(String::new, |ms| format!(" · {ms} ms ago"));
+    format!("{} lost{age}", counts.lost)
+}
+
 fn connection_hover(
     connection: &Connection,
     policy: Option<ReaderPolicy>,
@@ -418,8 +430,13 @@ impl Canvas {
             host_of(&connection.from.component),
             host_of(&connection.to.component),
         );
-        let between_hosts = (from_host != to_host)
-            .then(|| format!("{} -> {}", from_host.unwrap_or("here"), to_host.unwrap_or("here")));
+        let crossing = frame.shown.monitor.cross_link(&connection.from, &connection.to);
+        let between_hosts = (from_host != to_host).then(|| {
+            let hosts = format!("{} -> {}", from_host.unwrap_or("here"), to_host.unwrap_or("here"));
+            crossing.map_or(hosts.clone(), |counts| {
+                format!("{hosts} · {}", cross_link_figures(counts))
+            })
+        });
         let look = ConnectionLook {
             color: document
                 .output_type(&connection.from, library)
@@ -434,7 +451,22 @@ impl Canvas {
         };
         paint::paint_connection(frame.painter, ui.visuals(), from, to, &look);
         if response.hovered() {
-            response.on_hover_text(connection_hover(connection, policy, look.figures));
+            let mut hover = connection_hover(connection, policy, look.figures);
+            if let Some(counts) = crossing {
+                let _ = write!(
+                    hover,
+                    "\nbetween hosts, over Zenoh: {} sent, {} received, {} lost in transit{}",
+                    counts.sent,
+                    counts.received,
+                    counts.lost,
+                    if counts.matched {
+                        ""
+                    } else {
+                        "; the far end is not matched"
+                    }
+                );
+            }
+            response.on_hover_text(hover);
         }
     }
 

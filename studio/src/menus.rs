@@ -167,6 +167,33 @@ fn connection_state_ui(ui: &mut egui::Ui, session: &Session) {
                 clock.references
             ));
     }
+    for host in session.hosts() {
+        let (text, color) = host_words(host);
+        ui.label(RichText::new(text).color(color));
+    }
+}
+
+/// A host of a spread diagram in the top bar: `car: locked ±4.2 µs`, `car: lost`.
+fn host_words(host: &kairos_protocol::HostTelemetry) -> (String, Color32) {
+    let name = &host.name;
+    if !host.answering {
+        return (format!("{name}: lost"), Color32::LIGHT_RED);
+    }
+    let Some(clock) = &host.clock else {
+        return (format!("{name}: own clock"), Color32::GRAY);
+    };
+    let color = match clock.state.as_str() {
+        "locked" | "master" => Color32::LIGHT_GREEN,
+        "lost" => Color32::LIGHT_RED,
+        _ => Color32::YELLOW,
+    };
+    let error_ns = clock.error_bound_ns.unwrap_or(clock.error_ns);
+    let within = if clock.state == "master" {
+        String::new()
+    } else {
+        format!(" ±{:.1} µs", error_ns.unsigned_abs() as f64 * 1e-3)
+    };
+    (format!("{name}: {}{within}", clock.state), color)
 }
 
 /// The keyboard shortcuts; Save works while typing, the others only when no text field has the keyboard.

@@ -72,6 +72,8 @@ pub struct Monitor {
     pub components: BTreeMap<String, ComponentHistory>,
     /// The problems over the canvas.
     pub notices: Notices,
+    /// With a diagram spread over hosts: each connection between two of them, by link name.
+    pub cross_links: BTreeMap<String, kairos_protocol::CrossLinkTelemetry>,
     /// How many times each component failed in this deployment.
     failures: BTreeMap<String, u64>,
     sort: SortBy,
@@ -84,6 +86,7 @@ impl Default for Monitor {
             links: BTreeMap::new(),
             components: BTreeMap::new(),
             notices: Notices::default(),
+            cross_links: BTreeMap::new(),
             failures: BTreeMap::new(),
             sort: SortBy::Name,
             descending: false,
@@ -104,7 +107,17 @@ impl Monitor {
         self.links.clear();
         self.components.clear();
         self.notices.clear();
+        self.cross_links.clear();
         self.failures.clear();
+    }
+
+    /// The counts of the connection `from -> to` between two hosts, when the diagram is spread.
+    pub fn cross_link(
+        &self,
+        from: &kairos_diagram::PortRef,
+        to: &kairos_diagram::PortRef,
+    ) -> Option<&kairos_protocol::CrossLinkTelemetry> {
+        self.cross_links.get(&format!("{from} -> {to}"))
     }
 
     /// Takes in one telemetry event, raising or updating the notices of its problems (samples lost, a
@@ -113,6 +126,11 @@ impl Monitor {
     pub fn update(&mut self, telemetry: &Telemetry) -> Vec<String> {
         let now = Instant::now();
         let mut raised = Vec::new();
+        self.cross_links = telemetry
+            .cross_links
+            .iter()
+            .map(|link| (format!("{} -> {}", link.from, link.to), link.clone()))
+            .collect();
         for link in &telemetry.links {
             let entry = self
                 .links

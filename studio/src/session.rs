@@ -186,6 +186,8 @@ pub struct Session {
     run_state: RuntimeState,
     /// The runtime clock, when a component disciplines it.
     clock: Option<kairos_protocol::ClockTelemetry>,
+    /// With a diagram spread over hosts: each host's state and clock.
+    hosts: Vec<kairos_protocol::HostTelemetry>,
     /// The devices of the runtime's machine, once asked (`None`: never asked, or asked of another
     /// runtime); `devices_asked` while a request is out.
     devices: Option<Vec<kairos_protocol::DeviceInfo>>,
@@ -227,6 +229,7 @@ impl Session {
             runtime: None,
             run_state: RuntimeState::Empty,
             clock: None,
+            hosts: Vec::new(),
             devices: None,
             devices_asked: false,
             states: BTreeMap::new(),
@@ -283,6 +286,11 @@ impl Session {
     /// The runtime clock, when a component of the running diagram disciplines it.
     pub fn clock(&self) -> Option<&kairos_protocol::ClockTelemetry> {
         self.clock.as_ref()
+    }
+
+    /// The hosts of the running spread diagram, with their state and clock.
+    pub fn hosts(&self) -> &[kairos_protocol::HostTelemetry] {
+        &self.hosts
     }
 
     /// A component's state as the runtime last reported it.
@@ -550,6 +558,7 @@ impl Session {
     fn take_telemetry(&mut self, telemetry: &Telemetry) {
         self.run_state = telemetry.state;
         self.clock.clone_from(&telemetry.clock);
+        self.hosts.clone_from(&telemetry.hosts);
         // A refused deploy's marks stay until the next deploy, whatever runs meanwhile.
         let refused: Vec<(String, NodeState)> = self
             .states
@@ -578,6 +587,12 @@ impl Session {
             RequestBody::Deploy {
                 diagram: self.deploy.text.clone(),
                 network: None,
+                // Token files and certificates of the hosts beside the diagram, when the runtime sees
+                // this machine's files.
+                folder: (self.frames != FramePath::Socket)
+                    .then(|| self.document.path().and_then(Path::parent))
+                    .flatten()
+                    .map(|folder| folder.display().to_string()),
             },
             Pending::Deploy,
         );

@@ -113,6 +113,60 @@ fn a_diagram_built_in_the_studio_runs_on_a_real_runtime() {
 }
 
 #[test]
+fn a_diagram_spread_over_hosts_runs_from_run_and_shows_each_host_and_link() {
+    // Host b is a second runtime on this machine; the studio's own runtime coordinates.
+    let b = LocalRuntime::start_binary(&kairos_binary()).unwrap();
+    let folder = tempfile::tempdir().unwrap();
+    std::fs::write(folder.path().join("b.token"), b.token.reveal()).unwrap();
+    let zenoh_port = std::net::TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port();
+    let path = folder.path().join("spread.ron");
+    std::fs::write(
+        &path,
+        format!(
+            r#"Diagram(format: 1,
+                hosts: {{"b": Host(endpoint: "{}", token_file: "b.token", zenoh: "tcp/127.0.0.1:{zenoh_port}")}},
+                components: [
+                    Component(id: "sine", type: "core.sine", host: "b", position: (x: 0.0, y: 0.0)),
+                    Component(id: "gain", type: "core.gain", position: (x: 300.0, y: 0.0)),
+                ],
+                connections: [Connection(from: "sine.out", to: "gain.in")])"#,
+            b.url
+        ),
+    )
+    .unwrap();
+    let mut harness = studio_on_local_runtime(Document::open(&path).unwrap(), Vec2::new(1280.0, 800.0));
+    harness.get_by_label("Run").click();
+    harness.run_steps(1);
+    run_until(&mut harness, "both parts running", |app| {
+        app.node_state("sine") == Some(&NodeState::Running)
+            && app.node_state("gain") == Some(&NodeState::Running)
+    });
+    run_until(&mut harness, "samples across the link", |app| {
+        let (from, to) = (
+            kairos_diagram::PortRef::new("sine", "out"),
+            kairos_diagram::PortRef::new("gain", "in"),
+        );
+        app.session
+            .monitor
+            .cross_link(&from, &to)
+            .is_some_and(|link| link.matched && link.received > 10 && link.from_host.as_deref() == Some("b"))
+    });
+    // The top bar names the host and its clock.
+    harness.get_by_label("b: own clock");
+    harness.get_by_label("Stop").click();
+    harness.run_steps(1);
+    run_until(
+        &mut harness,
+        "the stop on host b",
+        |app| matches!(app.node_state("sine"), Some(NodeState::Waiting(state)) if state == "stopped"),
+    );
+}
+
+#[test]
 fn the_connect_dialog_connects_to_a_runtime_and_remembers_it() {
     let local = LocalRuntime::start_binary(&kairos_binary()).unwrap();
     let config = tempfile::tempdir().unwrap();
@@ -437,6 +491,7 @@ fn frames_compare_by_socket_and_shared_memory(shared_pixels: bool) {
                   properties: {\"width\": 640, \"height\": 480, \"rate\": 20.0})], connections: [])"
             .to_owned(),
         network: None,
+        folder: None,
     });
     wait_for_reply(&socket, deploy);
     let start = socket.request(RequestBody::Start { at_ns: None });

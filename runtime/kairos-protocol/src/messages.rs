@@ -170,6 +170,12 @@ requests! {
         /// parts travel on (`kairos deploy` sends it). Absent: the diagram has no such links.
         #[serde(default, skip_serializing_if = "Option::is_none")]
         network: Option<LinkNetwork>,
+        /// The folder, on the runtime's machine, that the diagram's relative paths start from (its hosts'
+        /// token files and certificates). Absent: the runtime's working folder. A diagram with hosts
+        /// deployed this way is coordinated by the runtime: it deploys each host's part, starts and stops
+        /// them together, forwards property changes and actions, and reports every host's telemetry.
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        folder: Option<String>,
     } => DeployResult, Operator;
     /// The deployed diagram's links to other hosts: each end, and whether its far end has matched.
     Links = "links" => LinkList, Monitor;
@@ -682,7 +688,7 @@ pub struct Status {
     /// The runtime's state.
     pub state: RuntimeState,
     /// The latest statistics, when a diagram is deployed.
-    pub telemetry: Option<Telemetry>,
+    pub telemetry: Option<Box<Telemetry>>,
     /// Where the runtime's clock stands: the master's it follows (`kairos serve --clock-slave-of`),
     /// whatever is deployed, or else the deployed diagram's time source; absent when it runs on the
     /// machine's own clock.
@@ -811,6 +817,54 @@ pub struct Telemetry {
     /// The runtime clock, when a component of the diagram disciplines it (a GNSS receiver).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub clock: Option<ClockTelemetry>,
+    /// With a diagram spread over hosts and coordinated here: each host's state and clock. Their
+    /// components and links are in `components` and `links` beside this runtime's own.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub hosts: Vec<HostTelemetry>,
+    /// With a diagram spread over hosts: each connection between two of them, as its link ends count it.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub cross_links: Vec<CrossLinkTelemetry>,
+}
+
+/// A host of a spread diagram, as the runtime coordinating it sees it.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct HostTelemetry {
+    /// Its name in the diagram's hosts section.
+    pub name: String,
+    /// Whether it answers; `false`: lost, its part is deployed again when it answers.
+    pub answering: bool,
+    /// Its runtime's state, when it answers.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub state: Option<RuntimeState>,
+    /// Its clock, when it follows a master or disciplines its clock.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub clock: Option<ClockTelemetry>,
+}
+
+/// A connection between two hosts, counted at its ends.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct CrossLinkTelemetry {
+    /// The producer's output, `component.port`.
+    pub from: String,
+    /// The consumer's input, `component.port`.
+    pub to: String,
+    /// The producer's host; absent: the coordinating runtime's.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub from_host: Option<String>,
+    /// The consumer's host; absent: the coordinating runtime's.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub to_host: Option<String>,
+    /// Samples sent by the producer's end.
+    pub sent: u64,
+    /// Samples received by the consumer's end.
+    pub received: u64,
+    /// Samples lost in transit (sequence gaps).
+    pub lost: u64,
+    /// Whether the sender sees its receiver.
+    pub matched: bool,
+    /// How long ago the last sample arrived, ms.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub last_sample_age_ms: Option<u64>,
 }
 
 /// A runtime clock that follows a component of the diagram.

@@ -74,6 +74,12 @@ pub struct CrossLink {
     pub to: String,
     /// The Zenoh key its samples travel under.
     pub key: String,
+    /// The connection it carries.
+    pub connection: Connection,
+    /// The producer's host and the id of the `link.sender` added there.
+    pub sender: (Option<String>, String),
+    /// The consumer's host and the id of the `link.receiver` added there.
+    pub receiver: (Option<String>, String),
 }
 
 /// Where a part runs, in words.
@@ -286,6 +292,9 @@ fn place_link(
         from: from_words,
         to: to_words,
         key,
+        connection: connection.clone(),
+        sender: (from.cloned(), sender_id),
+        receiver: (to.cloned(), receiver_id),
     }
 }
 
@@ -570,10 +579,10 @@ impl Host {
         Ok(host)
     }
 
-    /// Whether the host still answers, within [`HEALTH_WAIT`].
-    pub fn ping(&mut self) -> anyhow::Result<()> {
+    /// Whether the host still answers, within [`HEALTH_WAIT`]: its status.
+    pub fn ping(&mut self) -> anyhow::Result<serde_json::Value> {
         self.set_wait(HEALTH_WAIT)?;
-        let answered = self.call(RequestBody::Status).map(drop);
+        let answered = self.call(RequestBody::Status);
         self.set_wait(HOST_WAIT)?;
         answered
     }
@@ -657,6 +666,7 @@ pub fn deploy_remote(
         host.call(RequestBody::Deploy {
             diagram: part,
             network: networks.get(&key).cloned(),
+            folder: None,
         })?;
     }
     Ok(hosts)
@@ -912,6 +922,10 @@ pub struct Watch {
     /// The hosts lost, with when to try each again.
     lost: BTreeMap<String, std::time::Instant>,
     last_check: std::time::Instant,
+    /// Each answering host's last status (the result of `status`).
+    statuses: BTreeMap<String, serde_json::Value>,
+    /// Whether the parts run: a host that returns is started again only then.
+    running: bool,
 }
 
 impl Watch {
@@ -931,7 +945,74 @@ impl Watch {
             hosts,
             lost: BTreeMap::new(),
             last_check: std::time::Instant::now(),
+            statuses: BTreeMap::new(),
+            running: true,
         }
+    }
+
+    /// Whether the parts run (they do when a watch is made): a host that returns gets its part deployed
+    /// again, and started only while they run.
+    pub fn set_running(&mut self, running: bool) {
+        self.running = running;
+    }
+
+    /// How the diagram was split.
+    pub fn plan(&self) -> &Plan {
+        &self.plan
+    }
+
+    /// Each answering host's status as of the last [`Watch::check`].
+    pub fn statuses(&self) -> &BTreeMap<String, serde_json::Value> {
+        &self.statuses
+    }
+
+    /// The hosts that stopped answering.
+    pub fn lost(&self) -> impl Iterator<Item = &str> {
+        self.lost.keys().map(String::as_str)
+    }
+
+    /// Sends `body` to host `name` and waits for its reply.
+    ///
+    /// # Errors
+    ///
+    /// The host is lost, or refuses (the reason named).
+    pub fn call_on(&mut self, name: &str, body: RequestBody) -> anyhow::Result<serde_json::Value> {
+        let Some(host) = self.hosts.iter_mut().find(|h| h.name() == name) else {
+            bail!("host '{name}' is lost: its part is deployed again when it answers");
+        };
+        host.call(body)
+    }
+
+    /// Changes a property of `component` on host `name`, and in the part deployed there again if the
+    /// host is lost and returns.
+    ///
+    /// # Errors
+    ///
+    /// As [`Watch::call_on`].
+    pub fn set_property(
+        &mut self,
+        name: &str,
+        component: &str,
+        property: &str,
+        value: &Value,
+    ) -> anyhow::Result<()> {
+        self.call_on(
+            name,
+            RequestBody::SetProperty {
+                component: component.to_owned(),
+                property: property.to_owned(),
+                value: value.clone(),
+            },
+        )?;
+        if let Some(instance) = self
+            .plan
+            .parts
+            .get_mut(&Some(name.to_owned()))
+            .and_then(|part| part.component_mut(component))
+        {
+            instance.properties.insert(property.to_owned(), value.clone());
+        }
+        Ok(())
     }
 
     /// Whether any host is part of the deployment.
@@ -959,8 +1040,12 @@ impl Watch {
         let mut answering = Vec::new();
         for mut host in std::mem::take(&mut self.hosts) {
             match host.ping() {
-                Ok(()) => answering.push(host),
+                Ok(status) => {
+                    self.statuses.insert(host.name().to_owned(), status);
+                    answering.push(host);
+                }
                 Err(error) => {
+                    self.statuses.remove(host.name());
                     let links = self.links_of(host.name());
                     let cut = if links.is_empty() {
                         String::new()
@@ -987,7 +1072,12 @@ impl Watch {
         for name in due {
             match self.redeploy(&name) {
                 Ok(host) => {
-                    tracing::info!("host '{name}' is back: its part was deployed and started again");
+                    let again = if self.running {
+                        "deployed and started again"
+                    } else {
+                        "deployed again"
+                    };
+                    tracing::info!("host '{name}' is back: its part was {again}");
                     self.lost.remove(&name);
                     self.hosts.push(host);
                 }
@@ -1012,8 +1102,11 @@ impl Watch {
         host.call(RequestBody::Deploy {
             diagram: part,
             network: self.networks.get(&key).cloned(),
+            folder: None,
         })?;
-        host.call(RequestBody::Start { at_ns: None })?;
+        if self.running {
+            host.call(RequestBody::Start { at_ns: None })?;
+        }
         Ok(host)
     }
 

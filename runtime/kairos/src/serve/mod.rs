@@ -9,6 +9,7 @@ mod runtime;
 mod samples;
 mod session;
 mod shm;
+mod spread;
 
 use std::net::{SocketAddr, ToSocketAddrs as _};
 use std::path::{Path, PathBuf};
@@ -214,7 +215,7 @@ pub fn serve_with(
 /// `--diagram` (and `--start`): whether it was deployed (and started); why not is printed.
 fn deploy_at_boot(runtime: &Runtime, path: &Path, start: bool) -> anyhow::Result<bool> {
     let text = std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
-    if let Err(error) = runtime.deploy(&text, None) {
+    if let Err(error) = runtime.deploy(&text, None, path.parent()) {
         eprintln!("{}: {}", path.display(), error.message);
         return Ok(false);
     }

@@ -10,18 +10,23 @@ use std::sync::{Arc, Mutex, MutexGuard, PoisonError, RwLock, RwLockReadGuard, Tr
 use kairos_diagram::{Diagnostic, Diagram, Value};
 use kairos_protocol::{
     ClockTelemetry, ComponentTelemetry, DeployResult, ErrorCode, LatencyTelemetry, LinkTelemetry,
-    ProtocolError, RuntimeState, Telemetry,
+    ProtocolError, RequestBody, RuntimeState, Telemetry,
 };
 use kairos_runtime::{ComponentState, ControlError, Engine, EngineState, LongWait, StatsSnapshot};
 use kairos_sdk::Registry;
 use kairos_sdk::host::OutputBuffer;
 
+use super::spread::{Spread, is_spread};
+
 /// The deployed diagram, its text as deployed, and the engine built from it.
 #[derive(Default)]
 struct Deployment {
+    /// What runs here: the diagram, or with a spread one, the part without a host.
     diagram: Option<Diagram>,
     engine: Option<Engine>,
     previous: Option<StatsSnapshot>,
+    /// A diagram spread over hosts and coordinated here, as deployed and changed since, and its hosts.
+    spread: Option<(Diagram, Arc<Spread>)>,
 }
 
 /// The shared runtime state of a server.
@@ -127,6 +132,8 @@ fn telemetry(snapshot: &StatsSnapshot, state: RuntimeState) -> Telemetry {
             })
             .collect(),
         clock: snapshot.clock.as_ref().map(clock_telemetry),
+        hosts: Vec::new(),
+        cross_links: Vec::new(),
     }
 }
 
@@ -314,14 +321,21 @@ impl Runtime {
 
     /// The deployed diagram's canonical text.
     pub fn diagram_text(&self) -> Option<String> {
-        self.lock().diagram.as_ref().map(Diagram::to_ron)
+        let deployment = self.lock();
+        match &deployment.spread {
+            Some((whole, _)) => Some(whole.to_ron()),
+            None => deployment.diagram.as_ref().map(Diagram::to_ron),
+        }
     }
 
-    /// Validates `text` and makes it the deployed diagram, stopping and replacing the running one.
+    /// Validates `text` and makes it the deployed diagram, stopping and replacing the running one. A
+    /// diagram placing components on hosts is coordinated from here: each host gets its part (its token
+    /// files and certificates found in `folder`), this runtime runs the rest.
     pub fn deploy(
         &self,
         text: &str,
         network: Option<&kairos_protocol::LinkNetwork>,
+        folder: Option<&Path>,
     ) -> Result<DeployResult, ProtocolError> {
         let parsed = kairos_diagram::parse(text).map_err(|diagnostics| invalid(text, diagnostics))?;
         let diagnostics = self
@@ -330,21 +344,44 @@ impl Runtime {
         if diagnostics.iter().any(Diagnostic::is_error) {
             return Err(invalid(text, diagnostics));
         }
-        let engine = Engine::build(&parsed.diagram, &self.registry(), self.clock_for(&parsed.diagram))
-            .map_err(|e| error(ErrorCode::InvalidDiagram, e.to_string()))?;
+        // The previous deployment's hosts are released before this one reaches them.
+        if let Some((_, old)) = self.lock().spread.take() {
+            old.end();
+        }
+        let (here, spread) = if is_spread(&parsed.diagram) {
+            let folder = folder.map_or_else(|| std::env::current_dir().unwrap_or_default(), Path::to_owned);
+            let (spread, here) = Spread::deploy(&parsed.diagram, &self.registry(), &folder)
+                .map_err(|e| error(ErrorCode::InvalidDiagram, format!("{e:#}")))?;
+            (here, Some((parsed.diagram.clone(), spread)))
+        } else {
+            (parsed.diagram.clone(), None)
+        };
+        let engine = match Engine::build(&here, &self.registry(), self.clock_for(&here)) {
+            Ok(engine) => engine,
+            Err(e) => {
+                if let Some((_, spread)) = &spread {
+                    spread.end();
+                }
+                return Err(error(ErrorCode::InvalidDiagram, e.to_string()));
+            }
+        };
         let mut deployment = self.lock();
         if let Some(mut old) = deployment.engine.take() {
             old.stop();
         }
+        deployment.spread = spread;
         // The part's links to other hosts are declared now, so they match before anything starts.
         if let Some(network) = network {
             crate::link::network::join(network)
                 .map_err(|e| error(ErrorCode::InvalidDiagram, format!("{e:#}")))?;
         }
-        crate::link::network::prepare(&parsed.diagram)
-            .map_err(|e| error(ErrorCode::InvalidDiagram, format!("{e:#}")))?;
+        // A spread diagram's links here were declared, and matched, as it was deployed.
+        if deployment.spread.is_none() {
+            crate::link::network::prepare(&here)
+                .map_err(|e| error(ErrorCode::InvalidDiagram, format!("{e:#}")))?;
+        }
         let components = parsed.diagram.components.len();
-        deployment.diagram = Some(parsed.diagram);
+        deployment.diagram = Some(here);
         deployment.engine = Some(engine);
         deployment.previous = None;
         self.generation.fetch_add(1, Ordering::Release);
@@ -358,6 +395,22 @@ impl Runtime {
     /// Starts the deployed diagram (building it afresh if it ran before).
     pub fn start(&self) -> Result<(), ProtocolError> {
         let mut deployment = self.lock();
+        let Some((_, spread)) = deployment.spread.clone() else {
+            return self.start_here(&mut deployment);
+        };
+        if deployment.engine.as_ref().map(Engine::state) == Some(EngineState::Paused) {
+            return self.resume_with(&mut deployment, Some(&spread));
+        }
+        spread
+            .start(|| {
+                self.start_here(&mut deployment)
+                    .map_err(|e| anyhow::anyhow!("this runtime's part: {}", e.message))
+            })
+            .map_err(|e| error(ErrorCode::WrongState, format!("{e:#}")))
+    }
+
+    /// Starts the part that runs here.
+    fn start_here(&self, deployment: &mut Deployment) -> Result<(), ProtocolError> {
         let Some(diagram) = deployment.diagram.clone() else {
             return Err(error(
                 ErrorCode::WrongState,
@@ -393,35 +446,50 @@ impl Runtime {
         }
     }
 
-    /// Pauses a running diagram.
+    /// Pauses a running diagram (every host's part with it).
     pub fn pause(&self) -> Result<(), ProtocolError> {
         let mut deployment = self.lock();
+        let spread = deployment.spread.as_ref().map(|(_, s)| Arc::clone(s));
         match deployment.engine.as_mut() {
             Some(engine) if engine.state() == EngineState::Running => {
                 engine.pause();
-                Ok(())
+                forward_to_hosts(spread.as_deref(), &RequestBody::Pause)
             }
             _ => Err(error(ErrorCode::WrongState, "nothing is running")),
         }
     }
 
-    /// Resumes a paused diagram.
+    /// Resumes a paused diagram (every host's part with it).
     pub fn resume(&self) -> Result<(), ProtocolError> {
         let mut deployment = self.lock();
+        let spread = deployment.spread.as_ref().map(|(_, s)| Arc::clone(s));
+        self.resume_with(&mut deployment, spread.as_deref())
+    }
+
+    #[allow(clippy::unused_self, reason = "beside start_here, which needs the runtime")]
+    fn resume_with(&self, deployment: &mut Deployment, spread: Option<&Spread>) -> Result<(), ProtocolError> {
         match deployment.engine.as_mut() {
             Some(engine) if engine.state() == EngineState::Paused => {
                 engine.resume();
-                Ok(())
+                forward_to_hosts(spread, &RequestBody::Resume)
             }
             _ => Err(error(ErrorCode::WrongState, "nothing is paused")),
         }
     }
 
-    /// Stops the diagram; it stays deployed and can start again.
+    /// Stops the diagram, on every host at one instant when it is spread; it stays deployed and can start
+    /// again.
     pub fn stop(&self) -> Result<(), ProtocolError> {
         let mut deployment = self.lock();
-        if let Some(engine) = deployment.engine.as_mut() {
-            engine.stop();
+        let spread = deployment.spread.as_ref().map(|(_, s)| Arc::clone(s));
+        let stop_here = |deployment: &mut Deployment| {
+            if let Some(engine) = deployment.engine.as_mut() {
+                engine.stop();
+            }
+        };
+        match spread {
+            Some(spread) => spread.stop(|| stop_here(&mut deployment)),
+            None => stop_here(&mut deployment),
         }
         Ok(())
     }
@@ -438,6 +506,13 @@ impl Runtime {
         value: &Value,
         long_wait: LongWait<'_>,
     ) -> Result<(), ProtocolError> {
+        if let Some((spread, host)) = self.placed_elsewhere(component, long_wait) {
+            let mut outcome = Ok(());
+            long_wait(&mut || outcome = spread.set_property(&host, component, property, value));
+            outcome.map_err(|e| error(ErrorCode::InvalidValue, format!("{e:#}")))?;
+            remember_in_whole(&mut self.lock(), component, property, value);
+            return Ok(());
+        }
         let mut deployment = self.lock_waiting(long_wait);
         let Some(diagram) = deployment.diagram.as_ref() else {
             return Err(error(ErrorCode::WrongState, "no diagram deployed"));
@@ -485,7 +560,15 @@ impl Runtime {
             deployment.engine = None;
         }
         deployment.diagram = Some(changed);
+        remember_in_whole(&mut deployment, component, property, value);
         Ok(())
+    }
+
+    /// The spread and the host `component` runs on, when it runs on another host than this one.
+    fn placed_elsewhere(&self, component: &str, long_wait: LongWait<'_>) -> Option<(Arc<Spread>, String)> {
+        let spread = Arc::clone(&self.lock_waiting(long_wait).spread.as_ref()?.1);
+        let host = spread.host_of(component)?;
+        Some((spread, host))
     }
 
     /// Triggers an action on a running (or ready) component.
@@ -495,6 +578,11 @@ impl Runtime {
         action: &str,
         long_wait: LongWait<'_>,
     ) -> Result<(), ProtocolError> {
+        if let Some((spread, host)) = self.placed_elsewhere(component, long_wait) {
+            let mut outcome = Ok(());
+            long_wait(&mut || outcome = spread.trigger_action(&host, component, action));
+            return outcome.map_err(|e| error(ErrorCode::WrongState, format!("{e:#}")));
+        }
         let deployment = self.lock_waiting(long_wait);
         let Some(engine) = deployment.engine.as_ref() else {
             return Err(error(ErrorCode::WrongState, "no diagram is running"));
@@ -519,7 +607,13 @@ impl Runtime {
             None => snapshot.clone(),
         };
         deployment.previous = Some(snapshot);
-        Some(telemetry(&with_rates, state))
+        let spread = deployment.spread.as_ref().map(|(_, s)| Arc::clone(s));
+        drop(deployment);
+        let mut telemetry = telemetry(&with_rates, state);
+        if let Some(spread) = spread {
+            spread.merge_into(&mut telemetry);
+        }
+        Some(telemetry)
     }
 
     /// The buffer of output `component.output` of the current engine, and the engine's generation.
@@ -541,10 +635,33 @@ impl Runtime {
     /// Stops everything (the server is shutting down).
     pub fn shutdown(&self) {
         let mut deployment = self.lock();
+        if let Some((_, spread)) = deployment.spread.take() {
+            spread.end();
+        }
         if let Some(mut engine) = deployment.engine.take() {
             engine.stop();
         }
     }
+}
+
+/// Keeps a property's new value in the spread diagram, if any, so `get_diagram` returns it.
+fn remember_in_whole(deployment: &mut Deployment, component: &str, property: &str, value: &Value) {
+    if let Some(instance) = deployment
+        .spread
+        .as_mut()
+        .and_then(|(whole, _)| whole.component_mut(component))
+    {
+        instance.properties.insert(property.to_owned(), value.clone());
+    }
+}
+
+/// Sends `body` to every host of `spread`: the first refusal, with its host.
+fn forward_to_hosts(spread: Option<&Spread>, body: &RequestBody) -> Result<(), ProtocolError> {
+    spread.map_or(Ok(()), |spread| {
+        spread
+            .call_all(body)
+            .map_err(|e| error(ErrorCode::WrongState, format!("{e:#}")))
+    })
 }
 
 fn invalid(text: &str, diagnostics: Vec<Diagnostic>) -> ProtocolError {

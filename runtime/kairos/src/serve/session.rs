@@ -7,6 +7,7 @@
 
 use std::collections::BTreeMap;
 use std::net::SocketAddr;
+use std::path::Path;
 use std::sync::Arc;
 use std::time::Duration;
 
@@ -433,7 +434,7 @@ impl Session {
             } => ReplyBody::Hello(self.hello(protocol, &client, token.as_ref(), role)?),
             RequestBody::Library => ReplyBody::Library(self.shared.runtime.library()),
             RequestBody::Devices => ReplyBody::Devices(kairos_protocol::DeviceList {
-                devices: crate::devices::list(std::path::Path::new("/")),
+                devices: crate::devices::list(Path::new("/")),
             }),
             RequestBody::DescribeInstances { diagram } => {
                 ReplyBody::DescribeInstances(tokio::task::block_in_place(|| {
@@ -448,9 +449,15 @@ impl Session {
                 })
                 .await?,
             ),
-            RequestBody::Deploy { diagram, network } => ReplyBody::Deploy(
-                self.blocking(move |r| r.deploy(&diagram, network.as_ref()))
-                    .await?,
+            RequestBody::Deploy {
+                diagram,
+                network,
+                folder,
+            } => ReplyBody::Deploy(
+                self.blocking(move |r| {
+                    r.deploy(&diagram, network.as_ref(), folder.as_deref().map(Path::new))
+                })
+                .await?,
             ),
             RequestBody::InstallPack {
                 name,
@@ -523,7 +530,7 @@ impl Session {
                         clock: r
                             .clock_telemetry()
                             .or_else(|| telemetry.as_ref().and_then(|t| t.clock.clone())),
-                        telemetry,
+                        telemetry: telemetry.map(Box::new),
                     })
                 })
                 .await?,

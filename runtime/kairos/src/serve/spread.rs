@@ -1,0 +1,287 @@
+//! A diagram spread over hosts and coordinated by this runtime: what `kairos deploy` does from a terminal,
+//! done for a client of the control protocol (the studio's Run). This runtime runs the part without a host,
+//! deploys every other part to its host, starts and stops them all at one instant, forwards property
+//! changes and actions to the host of the component, and folds every host's telemetry into its own.
+
+use std::path::Path;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex, MutexGuard, PoisonError, Weak};
+use std::time::Duration;
+
+use kairos_diagram::{Diagram, Value};
+use kairos_protocol::{CrossLinkTelemetry, HostTelemetry, RequestBody, RuntimeState, Telemetry};
+use kairos_sdk::Registry;
+
+use crate::deploy::{self, Watch};
+
+/// How often the hosts are asked for their status (and whether they are there).
+const REFRESH_PERIOD: Duration = Duration::from_millis(250);
+
+/// The clock bound a start checks, as `kairos deploy`'s default `--lock-bound`.
+const LOCK_BOUND: Duration = Duration::from_millis(1);
+
+/// A spread diagram's hosts, watched from here.
+#[derive(Debug)]
+pub struct Spread {
+    watch: Mutex<Watch>,
+    /// Set when the deployment is replaced or the server shuts down: the refresher ends.
+    ended: AtomicBool,
+}
+
+/// Whether `diagram` places any component on a host, so that deploying it here means coordinating it.
+pub fn is_spread(diagram: &Diagram) -> bool {
+    diagram.components.iter().any(|c| c.host.is_some())
+}
+
+impl Spread {
+    /// Splits `whole`, deploys each host's part (shipping the packs it lacks), joins this runtime's links
+    /// and waits for every link to match: the spread, and the part that runs here. Nothing starts.
+    ///
+    /// # Errors
+    ///
+    /// An unreachable host, a refused part or pack, a link that does not match: named with the reason.
+    pub fn deploy(
+        whole: &Diagram,
+        registry: &Registry,
+        folder: &Path,
+    ) -> anyhow::Result<(Arc<Spread>, Diagram)> {
+        let plan = deploy::split(whole, registry, &deploy::deployment_name())?;
+        let networks = deploy::networks(whole, &plan, folder)?;
+        // A studio cannot say the network is trusted: tokens cross it over wss:// or on loopback only.
+        let reach = deploy::Reach::new(folder, false);
+        let mut hosts = deploy::deploy_remote(whole, &plan, &networks, &reach)?;
+        let here = plan.parts.get(&None).cloned().unwrap_or_default();
+        if let Some(network) = networks.get(&None) {
+            crate::link::network::join(network)?;
+        }
+        crate::link::network::prepare(&here)?;
+        deploy::wait_for_links(&plan, &mut hosts, &networks)?;
+        let mut watch = Watch::new(whole.clone(), plan, networks, reach, hosts);
+        // A host that returns while the diagram is stopped gets its part back, not started.
+        watch.set_running(false);
+        let spread = Arc::new(Spread {
+            watch: Mutex::new(watch),
+            ended: AtomicBool::new(false),
+        });
+        let weak = Arc::downgrade(&spread);
+        std::thread::Builder::new()
+            .name("kairos-spread".to_owned())
+            .spawn(move || refresh(&weak))?;
+        Ok((spread, here))
+    }
+
+    fn watch(&self) -> MutexGuard<'_, Watch> {
+        self.watch.lock().unwrap_or_else(PoisonError::into_inner)
+    }
+
+    /// The host `component` runs on, when not here.
+    pub fn host_of(&self, component: &str) -> Option<String> {
+        let watch = self.watch();
+        watch
+            .plan()
+            .parts
+            .iter()
+            .find(|(_, part)| part.component(component).is_some())
+            .and_then(|(host, _)| host.clone())
+    }
+
+    /// Starts every host's part and, with `start_here`, this runtime's, at one instant
+    /// [`deploy::START_LEAD`] ahead, each host on its own clock; refused while a host's clock is not locked
+    /// to its master.
+    ///
+    /// # Errors
+    ///
+    /// A clock not locked, a host refusing or lost, or `start_here` failing: every host is stopped again.
+    pub fn start(&self, start_here: impl FnOnce() -> anyhow::Result<()>) -> anyhow::Result<()> {
+        use kairos_sdk::Clock as _;
+        let mut watch = self.watch();
+        if let Some(lost) = watch.lost().next() {
+            anyhow::bail!(
+                "host '{lost}' is lost, so nothing was started: start it again, or wait for it to answer"
+            );
+        }
+        deploy::check_clocks(&mut watch.hosts, LOCK_BOUND, false)?;
+        let wall = kairos_sdk::RealTimeClock::new();
+        let at = wall.now().after(deploy::START_LEAD);
+        let asked = deploy::start_all_at(&mut watch.hosts, at.as_nanos())?;
+        while wall.now() < at {
+            std::thread::sleep(Duration::from_micros(200));
+        }
+        if let Err(error) = start_here() {
+            deploy::stop_all(&mut watch.hosts);
+            return Err(error);
+        }
+        deploy::confirm_started(&mut watch.hosts, &asked)?;
+        watch.set_running(true);
+        Ok(())
+    }
+
+    /// Stops every host's part and, with `stop_here`, this runtime's, at one instant.
+    pub fn stop(&self, stop_here: impl FnOnce()) {
+        let mut watch = self.watch();
+        watch.set_running(false);
+        watch.stop_together(stop_here);
+    }
+
+    /// Sends `body` to every answering host.
+    ///
+    /// # Errors
+    ///
+    /// The first refusal, with its host; the others are still asked.
+    pub fn call_all(&self, body: &RequestBody) -> anyhow::Result<()> {
+        let mut watch = self.watch();
+        let mut first = None;
+        for host in &mut watch.hosts {
+            if let Err(e) = host.call(body.clone()) {
+                first.get_or_insert(e);
+            }
+        }
+        first.map_or(Ok(()), Err)
+    }
+
+    /// Forwards a property change to `host`, keeping the value for a redeploy there.
+    ///
+    /// # Errors
+    ///
+    /// The host is lost, or refuses the value (its reason).
+    pub fn set_property(
+        &self,
+        host: &str,
+        component: &str,
+        property: &str,
+        value: &Value,
+    ) -> anyhow::Result<()> {
+        self.watch().set_property(host, component, property, value)
+    }
+
+    /// Forwards an action to `host`.
+    ///
+    /// # Errors
+    ///
+    /// The host is lost, or refuses the action (its reason).
+    pub fn trigger_action(&self, host: &str, component: &str, action: &str) -> anyhow::Result<()> {
+        self.watch()
+            .call_on(
+                host,
+                RequestBody::TriggerAction {
+                    component: component.to_owned(),
+                    action: action.to_owned(),
+                },
+            )
+            .map(drop)
+    }
+
+    /// Folds the hosts' telemetry, as of their last status, into this runtime's: their components and
+    /// links (a link end's components left out: they are counted as `cross_links`), each host's state and
+    /// clock, and each connection between hosts.
+    pub fn merge_into(&self, telemetry: &mut Telemetry) {
+        let watch = self.watch();
+        let mut remote: Vec<(String, Telemetry)> = Vec::new();
+        for (name, status) in watch.statuses() {
+            let state: Option<RuntimeState> = serde_json::from_value(status["state"].clone()).ok();
+            telemetry.hosts.push(HostTelemetry {
+                name: name.clone(),
+                answering: true,
+                state,
+                clock: serde_json::from_value(status["clock"].clone()).ok(),
+            });
+            if let Ok(theirs) = serde_json::from_value::<Telemetry>(status["telemetry"].clone()) {
+                remote.push((name.clone(), theirs));
+            }
+        }
+        telemetry.hosts.extend(watch.lost().map(|name| HostTelemetry {
+            name: name.to_owned(),
+            answering: false,
+            state: None,
+            clock: None,
+        }));
+        let plan = watch.plan();
+        let status_of = |host: &Option<String>, id: &str| -> serde_json::Value {
+            let components = match host {
+                None => Some(&telemetry.components),
+                Some(name) => remote.iter().find(|(h, _)| h == name).map(|(_, t)| &t.components),
+            };
+            components
+                .and_then(|list| list.iter().find(|c| c.id == id))
+                .and_then(|c| c.status.clone())
+                .unwrap_or_default()
+        };
+        let count = |status: &serde_json::Value, key: &str| status[key].as_u64().unwrap_or(0);
+        let cross_links: Vec<CrossLinkTelemetry> = plan
+            .links
+            .iter()
+            .map(|link| {
+                let sender = status_of(&link.sender.0, &link.sender.1);
+                let receiver = status_of(&link.receiver.0, &link.receiver.1);
+                CrossLinkTelemetry {
+                    from: link.connection.from.to_string(),
+                    to: link.connection.to.to_string(),
+                    from_host: link.sender.0.clone(),
+                    to_host: link.receiver.0.clone(),
+                    sent: count(&sender, "sent"),
+                    received: count(&receiver, "received"),
+                    lost: count(&receiver, "lost"),
+                    matched: sender["matched"].as_bool().unwrap_or(false),
+                    last_sample_age_ms: receiver["last_sample_age_ms"].as_u64(),
+                }
+            })
+            .collect();
+        // The consumer reads a receiver's output: that buffer is the connection's, named as in the diagram.
+        // A sender's input buffer is the producer's side of the same connection, counted in `cross_links`.
+        let renamed: Vec<(String, String)> = plan
+            .links
+            .iter()
+            .map(|link| {
+                (
+                    format!("{}.{} -> ", link.receiver.1, crate::link::SAMPLES_OUTPUT),
+                    format!("{} -> ", link.connection.from),
+                )
+            })
+            .collect();
+        let sender_inputs: Vec<String> = plan
+            .links
+            .iter()
+            .map(|link| format!(" -> {}.in", link.sender.1))
+            .collect();
+        for (_, theirs) in remote {
+            telemetry.components.extend(theirs.components);
+            telemetry.links.extend(theirs.links);
+        }
+        telemetry
+            .components
+            .retain(|c| !crate::link::is_link(&c.type_name));
+        telemetry
+            .links
+            .retain(|l| !sender_inputs.iter().any(|input| l.link.ends_with(input.as_str())));
+        for link in &mut telemetry.links {
+            if let Some((name, original)) = renamed
+                .iter()
+                .find(|(name, _)| link.link.starts_with(name.as_str()))
+            {
+                link.link = format!("{original}{}", &link.link[name.len()..]);
+            }
+        }
+        telemetry.cross_links = cross_links;
+    }
+
+    /// Stops every host's part and the refresher: the deployment is replaced, or the server shuts down.
+    pub fn end(&self) {
+        self.ended.store(true, Ordering::Release);
+        let mut watch = self.watch();
+        watch.set_running(false);
+        deploy::stop_all(&mut watch.hosts);
+    }
+}
+
+/// Asks the hosts for their status every [`REFRESH_PERIOD`] until the spread ends; a host that stops
+/// answering is reported, and its part deployed again when it answers.
+fn refresh(spread: &Weak<Spread>) {
+    loop {
+        std::thread::sleep(REFRESH_PERIOD);
+        let Some(spread) = spread.upgrade() else { return };
+        if spread.ended.load(Ordering::Acquire) {
+            return;
+        }
+        spread.watch().check();
+    }
+}
