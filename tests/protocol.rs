@@ -1743,7 +1743,7 @@ fn deploy_over_tls_trusts_the_named_certificate_and_refuses_another() {
 }
 
 #[test]
-fn a_slave_whose_clock_is_250_ms_off_locks_to_its_master_within_a_second() {
+fn a_slave_whose_clock_is_250_ms_off_and_drifts_locks_to_its_master_and_learns_its_rate() {
     let _machine = shared_machine();
     let (dir_master, dir_slave) = (tempfile::tempdir().unwrap(), tempfile::tempdir().unwrap());
     let port = std::net::UdpSocket::bind("127.0.0.1:0")
@@ -1756,7 +1756,10 @@ fn a_slave_whose_clock_is_250_ms_off_locks_to_its_master_within_a_second() {
     let slave = serve_with_env(
         dir_slave.path(),
         &["--clock-slave-of", &address],
-        &[("KAIROS_TEST_CLOCK_OFFSET_MS", "250")],
+        &[
+            ("KAIROS_TEST_CLOCK_OFFSET_MS", "250"),
+            ("KAIROS_TEST_CLOCK_DRIFT_PPM", "100"),
+        ],
     );
     let mut socket = operator(&slave);
     let hello = std::fs::read_to_string(example("hello")).unwrap();
@@ -1785,6 +1788,22 @@ fn a_slave_whose_clock_is_250_ms_off_locks_to_its_master_within_a_second() {
     // On one machine the two clocks are the same clock: what remains is the exchange's own error.
     let error_us = clock["error_ns"].as_f64().unwrap().abs() / 1e3;
     assert!(error_us < 500.0, "error {error_us} µs: {clock}");
+    // Its crystal runs 100 ppm fast: once the references span 2 s, the rate is learnt.
+    let clock = loop {
+        let status = call(&mut socket, &json!({"id": 5, "type": "status"}));
+        let clock = status["result"]["clock"].clone();
+        if clock["rate_ppm"].as_f64().is_some_and(|ppm| ppm != 0.0) {
+            break clock;
+        }
+        assert!(started.elapsed() < Duration::from_secs(6), "no rate: {status}");
+        std::thread::sleep(Duration::from_millis(100));
+    };
+    let rate = clock["rate_ppm"].as_f64().unwrap();
+    assert!(
+        (rate + 100.0).abs() < 10.0,
+        "rate {rate} ppm against -100: {clock}"
+    );
+    assert_eq!(clock["state"], "locked", "{clock}");
 }
 
 #[test]

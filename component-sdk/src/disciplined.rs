@@ -8,6 +8,12 @@
 //! more than 0.1 % fast or slow. Among recent references the one that makes the clock latest is trusted:
 //! a reference can only arrive late (serial buffering, a busy thread), never early, so the latest one is
 //! the one delayed least.
+//!
+//! A source that filters its own references (a clock synchronisation keeping its least-delayed exchange)
+//! can also have the clock's *rate* estimated: it hands every raw measurement to [`DisciplinedClock::observe`],
+//! and the slope of those over the last minute keeps the clock on the source's pace between references and
+//! in holdover, instead of re-slewing its drift. (Filtered references repeat an old measurement and would
+//! flatten the slope.)
 
 use std::collections::VecDeque;
 use std::sync::Mutex;
@@ -25,6 +31,15 @@ const WINDOW: usize = 8;
 const HOLDOVER_AFTER: Duration = Duration::from_secs(3);
 /// An error larger than this after lock keeps the state at `slewing` rather than `locked`.
 const LOCKED_WITHIN_NS: i64 = 10_000_000;
+/// The largest rate correction trusted: crystals are within ±100 ppm; more is a wrong estimate.
+const MAX_RATE: f64 = 500e-6;
+/// The references a rate is estimated from, and the span they must cover first.
+const RATE_HISTORY: usize = 240;
+const RATE_MIN_SPAN_NS: i64 = 2_000_000_000;
+/// How fast the error may grow without references, per second of holdover: an estimated rate's wander
+/// (temperature, ageing), or a crystal's whole tolerance when no rate is estimated.
+const WANDER_WITH_RATE: f64 = 2e-6;
+const WANDER_WITHOUT_RATE: f64 = 100e-6;
 
 /// Where a disciplined clock stands.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
@@ -61,21 +76,28 @@ pub struct ClockStatus {
     /// Seconds since the last reference, when there was one.
     pub since_reference_s: Option<f64>,
     /// How far from its source the clock may be, when the source can tell (a clock master: half the
-    /// round trip of the exchange used, the most an asymmetric path can bias it), ns.
+    /// round trip of the exchange used, the most an asymmetric path can bias it), ns; it grows with the
+    /// time since the last reference (2 ppm with an estimated rate, else 100 ppm).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub error_bound_ns: Option<i64>,
+    /// The rate correction applied (the source's pace against this machine's), parts per million, when
+    /// it is estimated.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rate_ppm: Option<f64>,
 }
 
 /// The offset's course: from `from` at monotonic time `anchor`, moving towards `target` at
-/// [`MAX_SLEW`].
+/// [`MAX_SLEW`], both moving on at `rate`.
 #[derive(Debug, Clone, Copy)]
 struct Course {
     /// Nanoseconds of monotonic time.
     anchor: i64,
     /// Nanoseconds of offset, at the anchor.
     from: i64,
-    /// Nanoseconds of offset, where the course ends.
+    /// Nanoseconds of offset wanted at the anchor.
     target: i64,
+    /// Offset gained per nanosecond of monotonic time: the source's pace against this machine's.
+    rate: f64,
 }
 
 impl Course {
@@ -88,7 +110,11 @@ impl Course {
         let elapsed = monotonic_ns.saturating_sub(self.anchor).max(0);
         let most = (elapsed as f64 * MAX_SLEW) as i64;
         let wanted = self.target.saturating_sub(self.from);
-        self.from.saturating_add(wanted.clamp(-most, most))
+        // |rate| + MAX_SLEW < 1: the clock always runs forwards.
+        let paced = (elapsed as f64 * self.rate) as i64;
+        self.from
+            .saturating_add(paced)
+            .saturating_add(wanted.clamp(-most, most))
     }
 }
 
@@ -96,6 +122,10 @@ impl Course {
 struct Discipline {
     /// Recent references as (error against the clock's offset-free time, monotonic time taken).
     recent: VecDeque<(i64, i64)>,
+    /// The raw measurements a rate is estimated from, as `recent`, when it is.
+    history: VecDeque<(i64, i64)>,
+    /// Their slope, once they span [`RATE_MIN_SPAN_NS`].
+    rate: f64,
     references: u64,
     last_reference_ns: Option<i64>,
     last_error_ns: i64,
@@ -112,7 +142,13 @@ pub struct DisciplinedClock {
     anchor_ns: AtomicI64,
     from_ns: AtomicI64,
     target_ns: AtomicI64,
+    /// The course's rate, an `f64`'s bits.
+    rate_bits: AtomicU64,
     discipline: Mutex<Discipline>,
+    /// Whether the rate is estimated from the references.
+    estimates_rate: bool,
+    /// A test-only drift of the machine's own clock, parts per billion.
+    drift_ppb: i64,
     steps_allowed: AtomicBool,
     /// How many recent references the estimate looks at.
     window: usize,
@@ -134,8 +170,13 @@ impl DisciplinedClock {
             anchor_ns: AtomicI64::new(0),
             from_ns: AtomicI64::new(wall),
             target_ns: AtomicI64::new(wall),
+            rate_bits: AtomicU64::new(0.0_f64.to_bits()),
+            estimates_rate: false,
+            drift_ppb: 0,
             discipline: Mutex::new(Discipline {
                 recent: VecDeque::with_capacity(WINDOW),
+                history: VecDeque::new(),
+                rate: 0.0,
                 references: 0,
                 last_reference_ns: None,
                 last_error_ns: 0,
@@ -155,6 +196,29 @@ impl DisciplinedClock {
         self
     }
 
+    /// Estimates the clock's rate from the references (see the module's documentation): for a source
+    /// whose references are precise, such as a clock master's least-delayed exchanges.
+    #[must_use]
+    pub fn estimating_rate(mut self) -> Self {
+        self.estimates_rate = true;
+        self
+    }
+
+    /// Runs the machine's own clock `ppm` parts per million fast (slow when negative): a test-only
+    /// stand-in for a machine whose crystal is off.
+    #[must_use]
+    pub fn drifted_by_ppm(mut self, ppm: f64) -> Self {
+        #[allow(clippy::cast_possible_truncation, reason = "a drift in parts per billion")]
+        let ppb = (ppm * 1e3).round() as i64;
+        self.drift_ppb = ppb;
+        self
+    }
+
+    /// The rate correction now applied (offset gained per nanosecond): 0 until one is estimated.
+    pub fn rate(&self) -> f64 {
+        self.course().rate
+    }
+
     /// Starts `offset_ns` away from the machine's wall clock: a test-only stand-in for a machine whose
     /// clock is wrong.
     #[must_use]
@@ -165,8 +229,12 @@ impl DisciplinedClock {
         self
     }
 
-    fn monotonic_ns(&self) -> i64 {
-        i64::try_from(self.start.elapsed().as_nanos()).unwrap_or(i64::MAX)
+    /// The machine's monotonic time since this clock was made, ns: the uncorrected time the offset is
+    /// added to (the "uncorrected" time of [`ClockStatus::offset_ns`]).
+    pub fn monotonic_ns(&self) -> i64 {
+        let elapsed = i64::try_from(self.start.elapsed().as_nanos()).unwrap_or(i64::MAX);
+        let drift = i128::from(elapsed) * i128::from(self.drift_ppb) / 1_000_000_000;
+        elapsed.saturating_add(i64::try_from(drift).unwrap_or(0))
     }
 
     fn course(&self) -> Course {
@@ -176,6 +244,7 @@ impl DisciplinedClock {
                 anchor: self.anchor_ns.load(Ordering::Acquire),
                 from: self.from_ns.load(Ordering::Acquire),
                 target: self.target_ns.load(Ordering::Acquire),
+                rate: f64::from_bits(self.rate_bits.load(Ordering::Acquire)),
             };
             if before.is_multiple_of(2) && self.version.load(Ordering::Acquire) == before {
                 return course;
@@ -190,6 +259,7 @@ impl DisciplinedClock {
         self.anchor_ns.store(course.anchor, Ordering::Release);
         self.from_ns.store(course.from, Ordering::Release);
         self.target_ns.store(course.target, Ordering::Release);
+        self.rate_bits.store(course.rate.to_bits(), Ordering::Release);
         self.version.fetch_add(1, Ordering::AcqRel);
     }
 
@@ -212,11 +282,18 @@ impl DisciplinedClock {
         while discipline.recent.len() > self.window {
             discipline.recent.pop_front();
         }
-        // A late reference asks for a smaller offset than a prompt one: trust the largest.
+        let rate = discipline.rate;
+        // A late reference asks for a smaller offset than a prompt one: trust the largest, each carried
+        // to now at the rate.
+        #[allow(
+            clippy::cast_possible_truncation,
+            clippy::cast_precision_loss,
+            reason = "ns of drift"
+        )]
         let best = discipline
             .recent
             .iter()
-            .map(|(offset, _)| *offset)
+            .map(|(offset, at)| offset.saturating_add(((now_monotonic - at) as f64 * rate) as i64))
             .max()
             .unwrap_or(wanted_offset);
         let first = discipline.references == 0;
@@ -236,18 +313,43 @@ impl DisciplinedClock {
                 anchor: now_monotonic,
                 from: best,
                 target: best,
+                rate,
             });
         } else {
             self.publish(Course {
                 anchor: now_monotonic,
                 from: offset_then,
                 target: best,
+                rate,
             });
         }
         true
     }
 
-    /// Where the clock stands.
+    /// Takes in one raw measurement from `source` for the rate estimate only (with
+    /// [`DisciplinedClock::estimating_rate`]): at `measured_at` on this clock, the true time was
+    /// `reference`. It takes effect at the next reference.
+    pub fn observe(&self, source: &str, measured_at: Timestamp, reference: Timestamp) {
+        if source != self.source || !self.estimates_rate {
+            return;
+        }
+        let Ok(mut discipline) = self.discipline.lock() else {
+            return;
+        };
+        let now_monotonic = self.monotonic_ns();
+        let measured_monotonic = measured_at
+            .as_nanos()
+            .saturating_sub(self.course().offset_at(now_monotonic));
+        let base = reference.as_nanos().saturating_sub(measured_monotonic);
+        discipline.history.push_back((base, now_monotonic));
+        while discipline.history.len() > RATE_HISTORY {
+            discipline.history.pop_front();
+        }
+        if let Some(rate) = estimate_rate(&discipline.history) {
+            discipline.rate = rate;
+        }
+    }
+
     /// Records how far from its source this clock may be, as the source measured it (see
     /// [`ClockStatus::error_bound_ns`]).
     pub fn set_error_bound(&self, bound_ns: i64) {
@@ -272,6 +374,15 @@ impl DisciplinedClock {
             Some(_) if error_ns.abs() > LOCKED_WITHIN_NS => ClockState::Slewing,
             Some(_) => ClockState::Locked,
         };
+        let wander = if self.estimates_rate {
+            WANDER_WITH_RATE
+        } else {
+            WANDER_WITHOUT_RATE
+        };
+        #[allow(clippy::cast_possible_truncation, reason = "nanoseconds of wander")]
+        let error_bound_ns = Some(self.error_bound_ns.load(Ordering::Relaxed))
+            .filter(|bound| *bound >= 0)
+            .map(|bound| bound.saturating_add((since_reference_s.unwrap_or(0.0) * 1e9 * wander) as i64));
         ClockStatus {
             source: self.source.clone(),
             state,
@@ -280,9 +391,35 @@ impl DisciplinedClock {
             step_ns,
             references,
             since_reference_s,
-            error_bound_ns: Some(self.error_bound_ns.load(Ordering::Relaxed)).filter(|bound| *bound >= 0),
+            error_bound_ns,
+            rate_ppm: self.estimates_rate.then(|| self.course().rate * 1e6),
         }
     }
+}
+
+/// The slope of `history`'s offsets against their times (least squares), once they span
+/// [`RATE_MIN_SPAN_NS`]: the rate that keeps the clock on its source's pace, within [`MAX_RATE`].
+#[allow(
+    clippy::cast_precision_loss,
+    reason = "nanoseconds as f64, relative to the first"
+)]
+fn estimate_rate(history: &VecDeque<(i64, i64)>) -> Option<f64> {
+    let (&(first_offset, first_at), &(_, last_at)) = (history.front()?, history.back()?);
+    if history.len() < 4 || last_at - first_at < RATE_MIN_SPAN_NS {
+        return None;
+    }
+    let count = history.len() as f64;
+    let points = history
+        .iter()
+        .map(|(offset, at)| ((at - first_at) as f64, (offset - first_offset) as f64));
+    let (sum_t, sum_o) = points
+        .clone()
+        .fold((0.0, 0.0), |(t, o), (pt, po)| (t + pt, o + po));
+    let (mean_t, mean_o) = (sum_t / count, sum_o / count);
+    let (covariance, variance) = points.fold((0.0, 0.0), |(c, v), (t, o)| {
+        (c + (t - mean_t) * (o - mean_o), v + (t - mean_t) * (t - mean_t))
+    });
+    (variance > 0.0).then(|| (covariance / variance).clamp(-MAX_RATE, MAX_RATE))
 }
 
 impl Clock for DisciplinedClock {
@@ -381,6 +518,55 @@ mod tests {
         let status = clock.clock_status();
         assert_eq!((status.state, status.step_ns), (ClockState::Slewing, 0));
         assert!(status.error_ns < -DAY / 2);
+    }
+
+    /// The true time, on a clock that does not drift: the wall clock at `start`, then the monotonic clock.
+    fn truth(start: (std::time::Instant, i64)) -> i64 {
+        start.1 + i64::try_from(start.0.elapsed().as_nanos()).unwrap_or(i64::MAX)
+    }
+
+    /// One exact reference: the clock read between two reads of the truth close together.
+    fn exact_reference(clock: &DisciplinedClock, start: (std::time::Instant, i64)) {
+        loop {
+            let (before, measured, after) = (truth(start), clock.now(), truth(start));
+            if after - before < 20_000 {
+                let reference = Timestamp(i64::midpoint(before, after));
+                clock.observe("master", measured, reference);
+                clock.take_reference("master", measured, reference);
+                return;
+            }
+        }
+    }
+
+    #[test]
+    fn a_drifting_machine_has_its_rate_estimated_and_keeps_pace_between_references() {
+        // This machine's crystal runs 100 ppm fast.
+        let clock = DisciplinedClock::new("master")
+            .trusting_each_reference()
+            .estimating_rate()
+            .drifted_by_ppm(100.0);
+        let start = (std::time::Instant::now(), clock.now().0 - 250_000_000);
+        let began = std::time::Instant::now();
+        while began.elapsed() < Duration::from_millis(2500) {
+            exact_reference(&clock, start);
+            std::thread::sleep(Duration::from_millis(50));
+        }
+        let rate_ppm = clock.clock_status().rate_ppm.unwrap_or_default();
+        assert!(
+            (rate_ppm + 100.0).abs() < 2.0,
+            "estimated {rate_ppm} ppm against -100"
+        );
+        // Without references for 300 ms, a clock without the rate would be 30 µs off; this one keeps pace.
+        std::thread::sleep(Duration::from_millis(300));
+        let (before, reading, after) = (truth(start), clock.now().0, truth(start));
+        let error = reading - i64::midpoint(before, after);
+        assert!(
+            error.abs() < 5_000 + (after - before),
+            "{error} ns off after 300 ms of holdover"
+        );
+        // And the bound the status gives grows with the time since the last reference.
+        clock.set_error_bound(1_000);
+        assert!(clock.clock_status().error_bound_ns.unwrap_or_default() > 1_000);
     }
 
     #[test]

@@ -889,6 +889,9 @@ pub struct ClockTelemetry {
     /// round trip of the exchange used), ns.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub error_bound_ns: Option<i64>,
+    /// The rate correction applied (the master's pace against this machine's), ppm, when estimated.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rate_ppm: Option<f64>,
 }
 
 /// Where a runtime's links to other hosts travel: one Zenoh session, listening and connecting on explicit

@@ -27,6 +27,8 @@ use nix::sys::socket::{ControlMessageOwned, MsgFlags, SockaddrStorage, recvmsg, 
 const MAGIC: &[u8; 4] = b"KCS1";
 /// Exchanges whose least delay gives the offset.
 const WINDOW: usize = 8;
+/// An exchange slower than twice the best by more than this is left out of the rate estimate.
+const RATE_DELAY_SLACK_NS: i64 = 20_000;
 /// The name a slave's clock gives its source.
 pub const MASTER_SOURCE: &str = "master";
 
@@ -105,6 +107,8 @@ struct Exchange {
     /// slave's clock, it stays true while the clock is corrected, so an older exchange can still be used.
     base: i64,
     delay: i64,
+    /// The uncorrected time it was made at: with a drifting machine, `base` moves on at the clock's rate.
+    at: i64,
 }
 
 /// Follows the master at `master` (`HOST:PORT`) with `clock`, until the process ends.
@@ -137,14 +141,32 @@ pub fn run_slave(master: SocketAddr, clock: Arc<DisciplinedClock>) -> std::io::R
                             let exchange = Exchange {
                                 base: i64::midpoint(t2 - t1, t3 - t4) + clock.clock_status().offset_ns,
                                 delay: (t4 - t1) - (t3 - t2),
+                                at: clock.monotonic_ns(),
                             };
                             recent.push_back(exchange);
                             while recent.len() > WINDOW {
                                 recent.pop_front();
                             }
+                            // Every exchange not much slower than the best feeds the rate estimate.
+                            let least = recent.iter().map(|e| e.delay).min().unwrap_or(exchange.delay);
+                            if exchange.delay <= least.saturating_mul(2).saturating_add(RATE_DELAY_SLACK_NS) {
+                                let uncorrected = now - clock.clock_status().offset_ns;
+                                clock.observe(
+                                    MASTER_SOURCE,
+                                    Timestamp(now),
+                                    Timestamp(uncorrected + exchange.base),
+                                );
+                            }
                             if let Some(best) = recent.iter().min_by_key(|e| e.delay) {
                                 let now = clock.now().as_nanos();
-                                let master_now = now - clock.clock_status().offset_ns + best.base;
+                                // The least-delayed exchange may be a few old: carried to now at the rate.
+                                #[allow(
+                                    clippy::cast_possible_truncation,
+                                    clippy::cast_precision_loss,
+                                    reason = "ns"
+                                )]
+                                let drifted = ((clock.monotonic_ns() - best.at) as f64 * clock.rate()) as i64;
+                                let master_now = now - clock.clock_status().offset_ns + best.base + drifted;
                                 clock.take_reference(MASTER_SOURCE, Timestamp(now), Timestamp(master_now));
                                 // The offset is exact on a symmetric path; an asymmetric one biases it by at
                                 // most half the round trip.

@@ -357,9 +357,16 @@ fn synchronise_clock(runtime: &Runtime, options: &ServeOptions) -> anyhow::Resul
             .ok()
             .and_then(|ms| ms.parse::<i64>().ok())
             .unwrap_or(0);
+        // And one whose crystal runs this many parts per million fast (slow when negative).
+        let drift_ppm = std::env::var("KAIROS_TEST_CLOCK_DRIFT_PPM")
+            .ok()
+            .and_then(|ppm| ppm.parse::<f64>().ok())
+            .unwrap_or(0.0);
         let clock = Arc::new(
             kairos_sdk::DisciplinedClock::new(crate::clock_sync::MASTER_SOURCE)
                 .trusting_each_reference()
+                .estimating_rate()
+                .drifted_by_ppm(drift_ppm)
                 .shifted_by(shifted.saturating_mul(1_000_000)),
         );
         crate::clock_sync::run_slave(address, Arc::clone(&clock))

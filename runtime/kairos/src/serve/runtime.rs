@@ -149,6 +149,7 @@ fn clock_telemetry(clock: &kairos_sdk::ClockStatus) -> ClockTelemetry {
         references: clock.references,
         since_reference_s: clock.since_reference_s,
         error_bound_ns: clock.error_bound_ns,
+        rate_ppm: clock.rate_ppm,
     }
 }
 
@@ -197,6 +198,7 @@ impl Runtime {
             references: 0,
             since_reference_s: None,
             error_bound_ns: Some(0),
+            rate_ppm: None,
         })
     }
 
