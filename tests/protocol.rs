@@ -1970,3 +1970,46 @@ fn a_runtime_given_a_spread_diagram_coordinates_its_hosts_as_the_studio_runs_it(
         values.len()
     );
 }
+
+/// The runtime's clock as `status` gives it, once `done` holds for it (within 5 s).
+fn clock_once(server: &Server, done: impl Fn(&Value) -> bool) -> Value {
+    let mut socket = operator(server);
+    let started = Instant::now();
+    loop {
+        let status = call(&mut socket, &json!({"id": 1, "type": "status"}));
+        let clock = status["result"]["clock"].clone();
+        if done(&clock) {
+            return clock;
+        }
+        assert!(started.elapsed() < Duration::from_secs(5), "{status}");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}
+
+#[test]
+fn a_runtime_on_its_system_clock_is_measured_against_the_master_and_alarms_past_the_bound() {
+    let _machine = shared_machine();
+    let dirs: Vec<tempfile::TempDir> = (0..3).map(|_| tempfile::tempdir().unwrap()).collect();
+    let port = std::net::UdpSocket::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port();
+    let address = format!("127.0.0.1:{port}");
+    let _master = serve(dirs[0].path(), &["--clock-master", &address]);
+    let calm = serve(dirs[1].path(), &["--clock-system-against", &address]);
+    // One machine has one clock: a bound of a nanosecond is always crossed.
+    let alarmed = serve(
+        dirs[2].path(),
+        &["--clock-system-against", &address, "--clock-alarm", "0.001us"],
+    );
+    let clock = clock_once(&calm, |clock| clock["references"].as_u64().unwrap_or(0) >= 8);
+    assert_eq!(clock["source"], "system", "{clock}");
+    assert_eq!(clock["state"], "locked", "{clock}");
+    assert_eq!(clock["step_ns"], 0, "the system clock is never stepped: {clock}");
+    let error_us = clock["error_ns"].as_f64().unwrap().abs() / 1e3;
+    assert!(error_us < 1000.0, "measured {error_us} µs: {clock}");
+    assert!(clock["error_bound_ns"].as_i64().is_some(), "{clock}");
+    let clock = clock_once(&alarmed, |clock| clock["references"].as_u64().unwrap_or(0) >= 1);
+    assert_eq!(clock["state"], "alarm", "{clock}");
+}

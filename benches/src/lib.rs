@@ -457,6 +457,7 @@ pub fn start_kairos_serve() -> Option<std::net::SocketAddr> {
             temporary_token: false,
             clock_master: None,
             clock_slave_of: None,
+            clock_system: None,
             tls: None,
             shipped_pack_folder: None,
         };

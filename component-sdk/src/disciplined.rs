@@ -55,6 +55,9 @@ pub enum ClockState {
     Holdover,
     /// No reference for 30 s.
     Lost,
+    /// A clock Kairos only measures (the system clock, kept by PTP or chrony) is further from its
+    /// reference than the bound the user set.
+    Alarm,
 }
 
 /// What a clock tells telemetry about itself.

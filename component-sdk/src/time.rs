@@ -167,7 +167,7 @@ impl Clock for RealTimeClock {
 /// Waits until `clock` (one that advances with real time) reaches `deadline`, parked meanwhile, or until
 /// `signal` asks for attention (then `false`). Looks again after each wake-up, so a clock that is slewed or
 /// stepped meanwhile is followed.
-pub(crate) fn wait_in_real_time(clock: &dyn Clock, deadline: Timestamp, signal: &RunSignal) -> bool {
+pub fn wait_in_real_time(clock: &dyn Clock, deadline: Timestamp, signal: &RunSignal) -> bool {
     loop {
         if signal.wants_attention() {
             return false;

@@ -150,7 +150,7 @@ fn connection_state_ui(ui: &mut egui::Ui, session: &Session) {
     if let Some(clock) = session.clock() {
         let color = match clock.state.as_str() {
             "locked" => Color32::LIGHT_GREEN,
-            "lost" => Color32::LIGHT_RED,
+            "lost" | "alarm" => Color32::LIGHT_RED,
             _ => Color32::YELLOW,
         };
         // The bound the master gives (half an exchange's round trip) where there is one.
@@ -184,7 +184,7 @@ fn host_words(host: &kairos_protocol::HostTelemetry) -> (String, Color32) {
     };
     let color = match clock.state.as_str() {
         "locked" | "master" => Color32::LIGHT_GREEN,
-        "lost" => Color32::LIGHT_RED,
+        "lost" | "alarm" => Color32::LIGHT_RED,
         _ => Color32::YELLOW,
     };
     let error_ns = clock.error_bound_ns.unwrap_or(clock.error_ns);

@@ -110,8 +110,16 @@ pub enum Command {
         #[arg(long, value_name = "HOST:PORT", conflicts_with = "clock_slave_of")]
         clock_master: Option<String>,
         /// Follow the clock of the master at this UDP address: every diagram deployed here runs on it.
-        #[arg(long, value_name = "HOST:PORT")]
+        #[arg(long, value_name = "HOST:PORT", conflicts_with = "clock_system_against")]
         clock_slave_of: Option<String>,
+        /// Run on this machine's system clock, kept by PTP or chrony, and only measure it against the
+        /// clock master at this UDP address, raising an alarm past --clock-alarm.
+        #[arg(long, value_name = "HOST:PORT")]
+        clock_system_against: Option<String>,
+        /// How far from its master the system clock may be before the alarm (--clock-system-against):
+        /// `500us`, `1ms`.
+        #[arg(long, value_name = "DURATION", value_parser = parse_duration, default_value = "1ms")]
+        clock_alarm: Duration,
         /// Serve over TLS (wss://) with this certificate chain (PEM); clients trust it or its issuer.
         #[arg(long, value_name = "FILE", requires = "tls_key")]
         tls_cert: Option<PathBuf>,
@@ -336,6 +344,8 @@ pub fn execute(cli: Cli) -> anyhow::Result<ExitCode> {
             temporary_token,
             clock_master,
             clock_slave_of,
+            clock_system_against,
+            clock_alarm,
             tls_cert,
             tls_key,
             shipped_pack_dir,
@@ -352,6 +362,7 @@ pub fn execute(cli: Cli) -> anyhow::Result<ExitCode> {
                 temporary_token,
                 clock_master,
                 clock_slave_of,
+                clock_system: clock_system_against.map(|master| (master, clock_alarm)),
                 tls: tls_cert.zip(tls_key),
                 shipped_pack_folder: shipped_pack_dir,
             },

@@ -12,15 +12,20 @@
 //!
 //! The master's reference is the machine's wall clock (`CLOCK_REALTIME`), which the real-time clock of its
 //! diagrams follows.
+//!
+//! Where the machines' clocks are already kept by PTP or chrony, a runtime runs on its system clock
+//! instead ([`SystemClock`], `--clock-system`) and only measures it against a master with the same
+//! exchange, raising an alarm past a bound: Kairos never fights the daemon that owns the clock.
 
 use std::collections::VecDeque;
 use std::io::IoSliceMut;
 use std::net::{SocketAddr, UdpSocket};
 use std::os::fd::AsRawFd as _;
-use std::sync::Arc;
-use std::time::{Duration, SystemTime, UNIX_EPOCH};
+use std::sync::atomic::{AtomicI64, Ordering};
+use std::sync::{Arc, Mutex, PoisonError};
+use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
-use kairos_sdk::{Clock as _, DisciplinedClock, Timestamp};
+use kairos_sdk::{Clock, ClockState, ClockStatus, DisciplinedClock, RunSignal, Timestamp};
 use nix::sys::socket::{ControlMessageOwned, MsgFlags, SockaddrStorage, recvmsg, setsockopt, sockopt};
 
 /// The first bytes of every clock packet.
@@ -111,83 +116,231 @@ struct Exchange {
     at: i64,
 }
 
-/// Follows the master at `master` (`HOST:PORT`) with `clock`, until the process ends.
-pub fn run_slave(master: SocketAddr, clock: Arc<DisciplinedClock>) -> std::io::Result<()> {
+/// Sends the master one exchange stamped `t1` and waits for its answer: the master's `t2` and `t3`, and
+/// the kernel's wall-clock stamp of the answer's arrival. `None` (warned about, at most once a second)
+/// when it does not answer within the socket's timeout or answers something else.
+fn ask_master(
+    socket: &UdpSocket,
+    master: SocketAddr,
+    t1: i64,
+    warned: &mut kairos_sdk::Throttle,
+) -> Option<(i64, i64, i64)> {
+    let mut ask = MAGIC.to_vec();
+    ask.extend_from_slice(&t1.to_le_bytes());
+    if let Err(e) = socket.send_to(&ask, master) {
+        warned.warn(|| format!("clock master {master}: {e}"));
+    }
+    let mut buffer = [0_u8; 64];
+    match receive_stamped(socket, &mut buffer) {
+        Ok((read, _, received_wall)) => {
+            let packet = &buffer[..read];
+            let fields = (read_i64(packet, 4), read_i64(packet, 12), read_i64(packet, 20));
+            match (packet.get(..4), fields) {
+                (Some(b"KCS1"), (Some(echoed), Some(t2), Some(t3))) if echoed == t1 => {
+                    Some((t2, t3, received_wall))
+                }
+                _ => None,
+            }
+        }
+        Err(e)
+            if matches!(
+                e.kind(),
+                std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut
+            ) =>
+        {
+            warned.warn(|| format!("clock master {master} does not answer; the clock runs on, in holdover"));
+            None
+        }
+        Err(e) => {
+            warned.warn(|| format!("clock master {master}: {e}"));
+            None
+        }
+    }
+}
+
+fn exchange_socket(master: SocketAddr) -> std::io::Result<UdpSocket> {
     let socket = stamped_socket(if master.is_ipv4() { "0.0.0.0:0" } else { "[::]:0" })?;
     socket.set_read_timeout(Some(Duration::from_millis(200)))?;
+    Ok(socket)
+}
+
+/// Follows the master at `master` (`HOST:PORT`) with `clock`, until the process ends.
+pub fn run_slave(master: SocketAddr, clock: Arc<DisciplinedClock>) -> std::io::Result<()> {
+    let socket = exchange_socket(master)?;
     std::thread::Builder::new()
         .name("k:clock".to_owned())
         .spawn(move || {
             let mut recent: VecDeque<Exchange> = VecDeque::with_capacity(WINDOW);
-            let mut buffer = [0_u8; 64];
             let mut warned = kairos_sdk::Throttle::default();
             loop {
                 let t1 = clock.now().as_nanos();
-                let mut ask = MAGIC.to_vec();
-                ask.extend_from_slice(&t1.to_le_bytes());
-                if let Err(e) = socket.send_to(&ask, master) {
-                    warned.warn(|| format!("clock master {master}: {e}"));
-                }
-                match receive_stamped(&socket, &mut buffer) {
-                    Ok((read, _, received_wall)) => {
-                        let packet = &buffer[..read];
-                        let fields = (read_i64(packet, 4), read_i64(packet, 12), read_i64(packet, 20));
-                        if let (Some(b"KCS1"), (Some(echoed), Some(t2), Some(t3))) = (packet.get(..4), fields)
-                            && echoed == t1
-                        {
-                            // The kernel's stamp is wall-clock time; on this clock it was as long ago as on that one.
-                            let now = clock.now().as_nanos();
-                            let t4 = now - (wall_now() - received_wall);
-                            let exchange = Exchange {
-                                base: i64::midpoint(t2 - t1, t3 - t4) + clock.clock_status().offset_ns,
-                                delay: (t4 - t1) - (t3 - t2),
-                                at: clock.monotonic_ns(),
-                            };
-                            recent.push_back(exchange);
-                            while recent.len() > WINDOW {
-                                recent.pop_front();
-                            }
-                            // Every exchange not much slower than the best feeds the rate estimate.
-                            let least = recent.iter().map(|e| e.delay).min().unwrap_or(exchange.delay);
-                            if exchange.delay <= least.saturating_mul(2).saturating_add(RATE_DELAY_SLACK_NS) {
-                                let uncorrected = now - clock.clock_status().offset_ns;
-                                clock.observe(
-                                    MASTER_SOURCE,
-                                    Timestamp(now),
-                                    Timestamp(uncorrected + exchange.base),
-                                );
-                            }
-                            if let Some(best) = recent.iter().min_by_key(|e| e.delay) {
-                                let now = clock.now().as_nanos();
-                                // The least-delayed exchange may be a few old: carried to now at the rate.
-                                #[allow(
-                                    clippy::cast_possible_truncation,
-                                    clippy::cast_precision_loss,
-                                    reason = "ns"
-                                )]
-                                let drifted = ((clock.monotonic_ns() - best.at) as f64 * clock.rate()) as i64;
-                                let master_now = now - clock.clock_status().offset_ns + best.base + drifted;
-                                clock.take_reference(MASTER_SOURCE, Timestamp(now), Timestamp(master_now));
-                                // The offset is exact on a symmetric path; an asymmetric one biases it by at
-                                // most half the round trip.
-                                clock.set_error_bound(best.delay / 2);
-                            }
-                        }
+                if let Some((t2, t3, received_wall)) = ask_master(&socket, master, t1, &mut warned) {
+                    // The kernel's stamp is wall-clock time; on this clock it was as long ago as on that one.
+                    let now = clock.now().as_nanos();
+                    let t4 = now - (wall_now() - received_wall);
+                    let exchange = Exchange {
+                        base: i64::midpoint(t2 - t1, t3 - t4) + clock.clock_status().offset_ns,
+                        delay: (t4 - t1) - (t3 - t2),
+                        at: clock.monotonic_ns(),
+                    };
+                    recent.push_back(exchange);
+                    while recent.len() > WINDOW {
+                        recent.pop_front();
                     }
-                    Err(e)
-                        if matches!(
-                            e.kind(),
-                            std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut
-                        ) =>
-                    {
-                        warned.warn(|| {
-                            format!("clock master {master} does not answer; the clock runs on, in holdover")
-                        });
+                    // Every exchange not much slower than the best feeds the rate estimate.
+                    let least = recent.iter().map(|e| e.delay).min().unwrap_or(exchange.delay);
+                    if exchange.delay <= least.saturating_mul(2).saturating_add(RATE_DELAY_SLACK_NS) {
+                        let uncorrected = now - clock.clock_status().offset_ns;
+                        clock.observe(
+                            MASTER_SOURCE,
+                            Timestamp(now),
+                            Timestamp(uncorrected + exchange.base),
+                        );
                     }
-                    Err(e) => warned.warn(|| format!("clock master {master}: {e}")),
+                    if let Some(best) = recent.iter().min_by_key(|e| e.delay) {
+                        let now = clock.now().as_nanos();
+                        // The least-delayed exchange may be a few old: carried to now at the rate.
+                        #[allow(clippy::cast_possible_truncation, clippy::cast_precision_loss, reason = "ns")]
+                        let drifted = ((clock.monotonic_ns() - best.at) as f64 * clock.rate()) as i64;
+                        let master_now = now - clock.clock_status().offset_ns + best.base + drifted;
+                        clock.take_reference(MASTER_SOURCE, Timestamp(now), Timestamp(master_now));
+                        // The offset is exact on a symmetric path; an asymmetric one biases it by at most
+                        // half the round trip.
+                        clock.set_error_bound(best.delay / 2);
+                    }
                 }
                 let locked = clock.clock_status().references >= WINDOW as u64;
                 std::thread::sleep(Duration::from_millis(if locked { 250 } else { 50 }));
+            }
+        })?;
+    Ok(())
+}
+
+/// The source name a system clock gives in its status.
+pub const SYSTEM_SOURCE: &str = "system";
+
+/// The machine's own clock (`CLOCK_REALTIME`), kept by PTP or chrony, which a runtime runs on without
+/// correcting it; measured against a master when one is named, its state is `alarm` while it is further
+/// from the master than the bound. Read so that it never goes back within a run (a step back of the system
+/// clock holds it still until it catches up).
+#[derive(Debug)]
+pub struct SystemClock {
+    latest: AtomicI64,
+    measured: Mutex<Measured>,
+    alarm_ns: i64,
+}
+
+/// The last measurement against the master.
+#[derive(Debug, Default)]
+struct Measured {
+    /// The master's time minus the system clock's, ns, from the least-delayed recent exchange.
+    offset_ns: i64,
+    /// Half that exchange's round trip, ns.
+    bound_ns: i64,
+    references: u64,
+    last: Option<Instant>,
+    /// Whether the alarm was raised (so it is logged once per crossing).
+    alarmed: bool,
+}
+
+impl SystemClock {
+    /// The system clock, alarming past `alarm` from the master it is measured against.
+    pub fn new(alarm: Duration) -> Self {
+        SystemClock {
+            latest: AtomicI64::new(0),
+            measured: Mutex::new(Measured::default()),
+            alarm_ns: i64::try_from(alarm.as_nanos()).unwrap_or(i64::MAX),
+        }
+    }
+
+    fn record(&self, offset_ns: i64, bound_ns: i64) {
+        let mut measured = self.measured.lock().unwrap_or_else(PoisonError::into_inner);
+        measured.offset_ns = offset_ns;
+        measured.bound_ns = bound_ns;
+        measured.references += 1;
+        measured.last = Some(Instant::now());
+        let beyond = offset_ns.abs() > self.alarm_ns;
+        if beyond && !measured.alarmed {
+            tracing::error!(
+                "the system clock is {:+.3} ms from the clock master, beyond the {:.3} ms alarm bound: check the \
+                 PTP or chrony daemon that keeps it",
+                offset_ns as f64 * 1e-6,
+                self.alarm_ns as f64 * 1e-6
+            );
+        } else if !beyond && measured.alarmed {
+            tracing::info!(
+                "the system clock is back within {:.3} ms of the clock master ({:+.1} µs)",
+                self.alarm_ns as f64 * 1e-6,
+                offset_ns as f64 * 1e-3
+            );
+        }
+        measured.alarmed = beyond;
+    }
+}
+
+impl Clock for SystemClock {
+    fn now(&self) -> Timestamp {
+        let wall = wall_now();
+        let before = self.latest.fetch_max(wall, Ordering::AcqRel);
+        Timestamp(wall.max(before))
+    }
+
+    fn wait_until(&self, deadline: Timestamp, signal: &RunSignal) -> bool {
+        kairos_sdk::wait_in_real_time(self, deadline, signal)
+    }
+
+    fn describe(&self) -> String {
+        "the system clock, kept by PTP or chrony and only measured by Kairos".to_owned()
+    }
+
+    fn status(&self) -> Option<ClockStatus> {
+        let measured = self.measured.lock().unwrap_or_else(PoisonError::into_inner);
+        let since_reference_s = measured.last.map(|at| at.elapsed().as_secs_f64());
+        let state = match since_reference_s {
+            None => ClockState::Acquiring,
+            Some(since) if since > 30.0 => ClockState::Lost,
+            Some(since) if since > 3.0 => ClockState::Holdover,
+            Some(_) if measured.alarmed => ClockState::Alarm,
+            Some(_) => ClockState::Locked,
+        };
+        Some(ClockStatus {
+            source: SYSTEM_SOURCE.to_owned(),
+            state,
+            error_ns: measured.offset_ns,
+            offset_ns: 0,
+            step_ns: 0,
+            references: measured.references,
+            since_reference_s,
+            error_bound_ns: (measured.references > 0).then_some(measured.bound_ns),
+            rate_ppm: None,
+        })
+    }
+}
+
+/// Measures `clock` against the master at `master` every second, until the process ends.
+pub fn run_system_check(master: SocketAddr, clock: Arc<SystemClock>) -> std::io::Result<()> {
+    let socket = exchange_socket(master)?;
+    std::thread::Builder::new()
+        .name("k:clock".to_owned())
+        .spawn(move || {
+            let mut recent: VecDeque<(i64, i64)> = VecDeque::with_capacity(WINDOW);
+            let mut warned = kairos_sdk::Throttle::default();
+            loop {
+                let t1 = wall_now();
+                if let Some((t2, t3, t4)) = ask_master(&socket, master, t1, &mut warned) {
+                    recent.push_back((i64::midpoint(t2 - t1, t3 - t4), (t4 - t1) - (t3 - t2)));
+                    while recent.len() > WINDOW {
+                        recent.pop_front();
+                    }
+                    if let Some((offset, delay)) = recent.iter().min_by_key(|(_, delay)| *delay) {
+                        clock.record(*offset, delay / 2);
+                    }
+                }
+                std::thread::sleep(Duration::from_millis(if recent.len() < WINDOW {
+                    50
+                } else {
+                    1000
+                }));
             }
         })?;
     Ok(())

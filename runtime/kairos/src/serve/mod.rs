@@ -50,6 +50,9 @@ pub struct ServeOptions {
     pub clock_master: Option<String>,
     /// Follow the clock master at this UDP address.
     pub clock_slave_of: Option<String>,
+    /// Run on the system clock (kept by PTP or chrony), measured against the clock master at this UDP
+    /// address, alarming past this bound.
+    pub clock_system: Option<(String, std::time::Duration)>,
     /// Serve over TLS with this certificate chain and private key (PEM files).
     pub tls: Option<(PathBuf, PathBuf)>,
     /// Where packs shipped by a deploying machine are written ([`default_shipped_pack_folder`] when
@@ -345,6 +348,18 @@ fn synchronise_clock(runtime: &Runtime, options: &ServeOptions) -> anyhow::Resul
             .with_context(|| format!("--clock-master {bind}: cannot answer clock exchanges there"))?;
         tracing::info!("clock master: answering on udp://{bound}");
         runtime.set_clock_master();
+    }
+    if let Some((master, alarm)) = &options.clock_system {
+        let address = master
+            .to_socket_addrs()
+            .ok()
+            .and_then(|mut a| a.next())
+            .with_context(|| format!("--clock-system-against {master}: not an address (HOST:PORT)"))?;
+        let clock = Arc::new(crate::clock_sync::SystemClock::new(*alarm));
+        crate::clock_sync::run_system_check(address, Arc::clone(&clock))
+            .with_context(|| format!("--clock-system-against {master}: cannot open the clock socket"))?;
+        runtime.set_clock(clock);
+        tracing::info!("running on the system clock, measured against the clock master at udp://{address}");
     }
     if let Some(master) = &options.clock_slave_of {
         let address = master
