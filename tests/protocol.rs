@@ -1191,7 +1191,21 @@ fn deploy_starts_nothing_while_a_host_clock_is_not_locked_unless_told_to() {
     std::fs::write(here.path().join("a.token"), &a.token).unwrap();
     std::fs::write(here.path().join("b.token"), &b.token).unwrap();
     let diagram = here.path().join("two_hosts.ron");
-    std::fs::write(&diagram, two_host_diagram(&a, &b.url)).unwrap();
+    // Host b records too: a forced start is marked in its recording.
+    let recorded = two_host_diagram(&a, &b.url)
+        .replace(
+            "            ],\n",
+            "                Component(id: \"rec_b\", type: \"recording.recorder\", host: \"b\", properties: {\"path\": \"b.mcap\"}),\n            ],\n",
+        )
+        .replace(
+            "connections: [",
+            "connections: [Connection(from: \"sine_b.out\", to: \"rec_b.in1\"), ",
+        );
+    assert!(
+        recorded.contains("rec_b.in1") && recorded.contains("id: \"rec_b\""),
+        "{recorded}"
+    );
+    std::fs::write(&diagram, recorded).unwrap();
     let refused = common::kairos(here.path(), &["deploy", diagram.to_str().unwrap(), "--for", "1s"]);
     let (_, stderr) = text(&refused);
     assert!(!refused.status.success(), "{stderr}");
@@ -1220,6 +1234,17 @@ fn deploy_starts_nothing_while_a_host_clock_is_not_locked_unless_told_to() {
             .lines()
             .count()
             > 10
+    );
+    let recording = dir_b.path().join("b.mcap");
+    let inspected = common::kairos(here.path(), &["inspect", recording.to_str().unwrap(), "--json"]);
+    let report: Value = serde_json::from_slice(&inspected.stdout).unwrap();
+    let description = report["metadata"]["kairos.clock"]["description"]
+        .as_str()
+        .unwrap_or_default();
+    assert!(
+        description.contains("STARTED WITH CLOCKS NOT LOCKED")
+            && description.contains("host 'b': clock acquiring"),
+        "{description}"
     );
 }
 

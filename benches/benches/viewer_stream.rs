@@ -234,7 +234,10 @@ fn main() {
         folder: None,
     });
     let deployed = wait_for_reply(&control, deploy).is_some();
-    let start = control.request(RequestBody::Start { at_ns: None });
+    let start = control.request(RequestBody::Start {
+        at_ns: None,
+        forced: None,
+    });
     if !deployed || wait_for_reply(&control, start).is_none() {
         eprintln!("the camera diagram did not start");
         return;

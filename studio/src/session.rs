@@ -547,7 +547,10 @@ impl Session {
                 self.port_problems.clear();
                 self.succeeded("deployed");
                 if std::mem::take(&mut self.deploy.start_after) {
-                    self.request(RequestBody::Start { at_ns: None });
+                    self.request(RequestBody::Start {
+                        at_ns: None,
+                        forced: None,
+                    });
                 }
             }
             _ => {}
@@ -1019,7 +1022,10 @@ mod tests {
             after,
             [
                 RequestBody::UnsubscribeSamples { outputs: Vec::new() },
-                RequestBody::Start { at_ns: None }
+                RequestBody::Start {
+                    at_ns: None,
+                    forced: None,
+                }
             ]
         );
         assert!(
@@ -1164,7 +1170,10 @@ mod tests {
     #[test]
     fn without_a_runtime_a_request_is_an_error_in_the_log() {
         let mut session = Session::new(document(), library(), Settings::default());
-        session.request(RequestBody::Start { at_ns: None });
+        session.request(RequestBody::Start {
+            at_ns: None,
+            forced: None,
+        });
         assert!(session.take_effects().is_empty());
         assert!(
             session

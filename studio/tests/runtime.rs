@@ -494,7 +494,10 @@ fn frames_compare_by_socket_and_shared_memory(shared_pixels: bool) {
         folder: None,
     });
     wait_for_reply(&socket, deploy);
-    let start = socket.request(RequestBody::Start { at_ns: None });
+    let start = socket.request(RequestBody::Start {
+        at_ns: None,
+        forced: None,
+    });
     wait_for_reply(&socket, start);
     let subscribe = |client: &mut RuntimeClient, transport, shared_pixels| {
         client.request(RequestBody::SubscribeSamples {

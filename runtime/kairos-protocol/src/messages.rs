@@ -203,6 +203,10 @@ requests! {
         /// When to start, ns since the UNIX epoch on the runtime's clock; absent: now.
         #[serde(default, skip_serializing_if = "Option::is_none")]
         at_ns: Option<i64>,
+        /// Set when the start goes ahead although hosts' clocks are not locked (`kairos deploy
+        /// --start-unlocked`): which, in words. Every recording this start begins says so.
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        forced: Option<String>,
     } => Done, Operator;
     /// Pauses it.
     Pause = "pause" => Done, Operator;

@@ -345,3 +345,55 @@ pub fn run_system_check(master: SocketAddr, clock: Arc<SystemClock>) -> std::io:
         })?;
     Ok(())
 }
+
+/// What a forced start (hosts' clocks not locked, `kairos deploy --start-unlocked`) leaves in the
+/// description of the clock, which recorders write into every file: shared by every clock a runtime
+/// hands its engines, set at each start.
+pub type StartNote = Arc<Mutex<Option<String>>>;
+
+/// A runtime's clock, described with the [`StartNote`] of the run.
+#[derive(Debug)]
+pub struct NotedClock {
+    inner: Arc<dyn Clock>,
+    note: StartNote,
+}
+
+impl NotedClock {
+    /// `inner`, described with `note`.
+    pub fn new(inner: Arc<dyn Clock>, note: StartNote) -> Self {
+        NotedClock { inner, note }
+    }
+}
+
+impl Clock for NotedClock {
+    fn now(&self) -> Timestamp {
+        self.inner.now()
+    }
+
+    fn wait_until(&self, deadline: Timestamp, signal: &RunSignal) -> bool {
+        self.inner.wait_until(deadline, signal)
+    }
+
+    fn describe(&self) -> String {
+        let note = self.note.lock().unwrap_or_else(PoisonError::into_inner).clone();
+        match note {
+            Some(note) => format!(
+                "{}; STARTED WITH CLOCKS NOT LOCKED: {note}",
+                self.inner.describe()
+            ),
+            None => self.inner.describe(),
+        }
+    }
+
+    fn take_reference(&self, source: &str, measured_at: Timestamp, reference: Timestamp) -> bool {
+        self.inner.take_reference(source, measured_at, reference)
+    }
+
+    fn forbid_steps(&self) {
+        self.inner.forbid_steps();
+    }
+
+    fn status(&self) -> Option<ClockStatus> {
+        self.inner.status()
+    }
+}

@@ -816,9 +816,13 @@ pub fn wait_for_links(
 
 /// Checks, before anything starts, that every host whose clock follows a master is locked to it within
 /// `bound`. A host that is not is named with its state and error, and nothing starts, unless
-/// `start_unlocked` (then it is only warned about). A host following no master starts on its own clock,
-/// which is said.
-pub fn check_clocks(hosts: &mut [Host], bound: Duration, start_unlocked: bool) -> anyhow::Result<()> {
+/// `start_unlocked` (then it is only warned about, and the hosts not locked are returned in words, for the
+/// recordings). A host following no master starts on its own clock, which is said.
+pub fn check_clocks(
+    hosts: &mut [Host],
+    bound: Duration,
+    start_unlocked: bool,
+) -> anyhow::Result<Option<String>> {
     let bound_ns = i64::try_from(bound.as_nanos()).unwrap_or(i64::MAX);
     let mut unlocked = Vec::new();
     for host in hosts.iter_mut() {
@@ -856,12 +860,12 @@ pub fn check_clocks(hosts: &mut [Host], bound: Duration, start_unlocked: bool) -
         }
     }
     if unlocked.is_empty() {
-        return Ok(());
+        return Ok(None);
     }
     let list = unlocked.join("; ");
     if start_unlocked {
         tracing::warn!("starting with clocks not locked within {bound:?}, as asked: {list}");
-        return Ok(());
+        return Ok(Some(format!("not locked within {bound:?}: {list}")));
     }
     bail!(
         "not every host's clock is locked to its master within {bound:?}, so nothing was started: {list}; \
@@ -877,10 +881,16 @@ pub const START_LEAD: Duration = Duration::from_millis(500);
 
 /// Asks every host to start at `at` (ns since the UNIX epoch on its clock), without waiting: each answers
 /// once started. Collect the answers with [`confirm_started`].
-pub fn start_all_at(hosts: &mut [Host], at: i64) -> anyhow::Result<Vec<u64>> {
+/// `forced`: the hosts whose clocks are not locked, when the start is forced.
+pub fn start_all_at(hosts: &mut [Host], at: i64, forced: Option<&str>) -> anyhow::Result<Vec<u64>> {
     hosts
         .iter_mut()
-        .map(|host| host.send(RequestBody::Start { at_ns: Some(at) }))
+        .map(|host| {
+            host.send(RequestBody::Start {
+                at_ns: Some(at),
+                forced: forced.map(str::to_owned),
+            })
+        })
         .collect()
 }
 
@@ -1105,7 +1115,10 @@ impl Watch {
             folder: None,
         })?;
         if self.running {
-            host.call(RequestBody::Start { at_ns: None })?;
+            host.call(RequestBody::Start {
+                at_ns: None,
+                forced: None,
+            })?;
         }
         Ok(host)
     }

@@ -2,7 +2,7 @@
 
 use std::path::Path;
 use std::process::ExitCode;
-use std::sync::mpsc;
+use std::sync::{Arc, mpsc};
 use std::time::{Duration, Instant};
 
 use anyhow::{Context as _, bail};
@@ -117,11 +117,10 @@ pub fn run(registry: &Registry, path: &Path, options: &RunOptions) -> anyhow::Re
     })
     .context("installing the Ctrl-C handler")?;
 
-    let mut engine = match Engine::build(
-        &parsed.diagram,
-        registry,
-        kairos_runtime::clock_for(&parsed.diagram),
-    ) {
+    let note = crate::clock_sync::StartNote::default();
+    let clock =
+        crate::clock_sync::NotedClock::new(kairos_runtime::clock_for(&parsed.diagram), Arc::clone(&note));
+    let mut engine = match Engine::build(&parsed.diagram, registry, Arc::new(clock)) {
         Ok(engine) => engine,
         Err(error) => bail!("{error}"),
     };
@@ -129,6 +128,7 @@ pub fn run(registry: &Registry, path: &Path, options: &RunOptions) -> anyhow::Re
         &mut engine,
         watch.as_mut().map_or(&mut [], |w| &mut w.hosts),
         options.deploy.unwrap_or_default(),
+        &note,
     )?;
     tracing::info!(
         "running {} ({} components){}",
@@ -215,20 +215,27 @@ fn deploy_parts(
 }
 
 /// Starts this machine's part, and with hosts, every host's part at one instant, each on its own clock.
+///
+/// A start forced with hosts' clocks not locked (`--start-unlocked`) says so in `note`, which every
+/// recording here and on the hosts carries.
 fn start_everywhere(
     engine: &mut Engine,
     hosts: &mut [crate::deploy::Host],
     deploy: DeployOptions,
+    note: &crate::clock_sync::StartNote,
 ) -> anyhow::Result<()> {
     if hosts.is_empty() {
         engine.start().context("starting the diagram")?;
     } else {
         use kairos_sdk::Clock as _;
-        crate::deploy::check_clocks(hosts, deploy.lock_bound, deploy.start_unlocked)?;
+        let forced = crate::deploy::check_clocks(hosts, deploy.lock_bound, deploy.start_unlocked)?;
+        note.lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+            .clone_from(&forced);
         // Every part starts at one instant, each host on its own clock (synchronised with a master).
         let wall = kairos_sdk::RealTimeClock::new();
         let at = wall.now().after(crate::deploy::START_LEAD);
-        let asked = crate::deploy::start_all_at(hosts, at.as_nanos())?;
+        let asked = crate::deploy::start_all_at(hosts, at.as_nanos(), forced.as_deref())?;
         while wall.now() < at {
             std::thread::sleep(Duration::from_micros(200));
         }

@@ -41,6 +41,8 @@ pub struct Runtime {
     clock: Mutex<Option<Arc<dyn kairos_sdk::Clock>>>,
     /// Whether this runtime is the clock master of others.
     clock_master: AtomicBool,
+    /// How the current run was started when it was forced: in every clock's description.
+    start_note: crate::clock_sync::StartNote,
 }
 
 impl std::fmt::Debug for Runtime {
@@ -162,6 +164,7 @@ impl Runtime {
             generation: AtomicU64::new(0),
             clock: Mutex::new(None),
             clock_master: AtomicBool::new(false),
+            start_note: crate::clock_sync::StartNote::default(),
         })
     }
 
@@ -204,10 +207,14 @@ impl Runtime {
 
     /// The clock a diagram deployed here runs on.
     fn clock_for(&self, diagram: &Diagram) -> Arc<dyn kairos_sdk::Clock> {
-        match self.clock.lock().ok().and_then(|slot| slot.clone()) {
+        let clock = match self.clock.lock().ok().and_then(|slot| slot.clone()) {
             Some(shared) => shared,
             None => kairos_runtime::clock_for(diagram),
-        }
+        };
+        Arc::new(crate::clock_sync::NotedClock::new(
+            clock,
+            Arc::clone(&self.start_note),
+        ))
     }
 
     fn lock(&self) -> MutexGuard<'_, Deployment> {
@@ -395,8 +402,12 @@ impl Runtime {
     }
 
     /// Starts the deployed diagram (building it afresh if it ran before).
-    pub fn start(&self) -> Result<(), ProtocolError> {
+    ///
+    /// `forced`: the hosts whose clocks were not locked when the start was forced, written into every
+    /// recording it begins.
+    pub fn start(&self, forced: Option<&str>) -> Result<(), ProtocolError> {
         let mut deployment = self.lock();
+        *self.start_note.lock().unwrap_or_else(PoisonError::into_inner) = forced.map(str::to_owned);
         let Some((_, spread)) = deployment.spread.clone() else {
             return self.start_here(&mut deployment);
         };

@@ -480,11 +480,11 @@ impl Session {
             RequestBody::Links => ReplyBody::Links(kairos_protocol::LinkList {
                 links: tokio::task::block_in_place(crate::link::network::ends),
             }),
-            RequestBody::Start { at_ns } => {
+            RequestBody::Start { at_ns, forced } => {
                 if let Some(at) = at_ns {
                     self.wait_for_instant(Timestamp(at)).await?;
                 }
-                self.blocking(Runtime::start).await?;
+                self.blocking(move |r| r.start(forced.as_deref())).await?;
                 if let Some(at) = at_ns {
                     let late = self.runtime().now().nanos_since(Timestamp(at));
                     if late > MISSED_START_NS {

@@ -103,7 +103,7 @@ impl Spread {
         deploy::check_clocks(&mut watch.hosts, LOCK_BOUND, false)?;
         let wall = kairos_sdk::RealTimeClock::new();
         let at = wall.now().after(deploy::START_LEAD);
-        let asked = deploy::start_all_at(&mut watch.hosts, at.as_nanos())?;
+        let asked = deploy::start_all_at(&mut watch.hosts, at.as_nanos(), None)?;
         while wall.now() < at {
             std::thread::sleep(Duration::from_micros(200));
         }
