@@ -219,7 +219,7 @@ fn latency(round_trips: usize, repetitions: usize) -> (LatencySeries, LatencySer
         .unwrap();
     let payload = bytes_payload(64);
     let probe = Sample::new(payload.clone(), Timestamp(1_700_000_000_000_000_000));
-    let frame = kairos_pack_net::sample_frame::encode_whole("bench.out", &probe);
+    let frame = kairos::link::frame_of("bench.out", &probe);
     let mut ours = LatencySeries::new(format!("link, 64 B of bytes ({} B frames)", frame.len()));
     let mut baseline = LatencySeries::new(format!("Zenoh alone, the same {} B", frame.len()));
     let clock = RealTimeClock::shared();
@@ -274,10 +274,11 @@ fn throughput(size: usize, count: u64, repetitions: usize) -> (Vec<f64>, Vec<f64
         .wait()
         .unwrap();
     let payload = bytes_payload(size);
-    let frame = zenoh::bytes::ZBytes::from(kairos_pack_net::sample_frame::encode_whole(
+    // The bytes the link puts on Zenoh for such a sample (compact, or header and shared payload).
+    let frame = kairos::link::frame_of(
         "bench.out",
         &Sample::new(payload.clone(), Timestamp(1_700_000_000_000_000_000)),
-    ));
+    );
     let clock = RealTimeClock::shared();
     let writer = Arc::new(RunSignal::new());
     let (mut link_counted, mut raw_counted) = (0_u64, 0_u64);
