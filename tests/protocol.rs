@@ -38,6 +38,11 @@ impl Drop for Server {
     }
 }
 
+/// `N` fresh temporary folders: the runtimes' and the deploying machine's.
+fn folders<const N: usize>() -> [tempfile::TempDir; N] {
+    std::array::from_fn(|_| tempfile::tempdir().unwrap())
+}
+
 fn serve(dir: &Path, extra: &[&str]) -> Server {
     serve_with_env(dir, extra, &[])
 }
@@ -796,11 +801,7 @@ fn two_host_diagram(a: &Server, b: &str) -> String {
 #[test]
 fn deploy_runs_each_part_on_its_host_and_stops_them_all() {
     let _machine = shared_machine();
-    let (dir_a, dir_b, here) = (
-        tempfile::tempdir().unwrap(),
-        tempfile::tempdir().unwrap(),
-        tempfile::tempdir().unwrap(),
-    );
+    let [dir_a, dir_b, here] = folders();
     let (a, b) = (serve(dir_a.path(), &[]), serve(dir_b.path(), &[]));
     std::fs::write(here.path().join("a.token"), &a.token).unwrap();
     std::fs::write(here.path().join("b.token"), &b.token).unwrap();
@@ -872,11 +873,7 @@ fn csv_values(path: &Path) -> Vec<(i64, f64)> {
 #[test]
 fn links_between_hosts_carry_every_sample_with_its_timestamp_over_zenoh() {
     let _machine = shared_machine();
-    let (dir_a, dir_b, here) = (
-        tempfile::tempdir().unwrap(),
-        tempfile::tempdir().unwrap(),
-        tempfile::tempdir().unwrap(),
-    );
+    let [dir_a, dir_b, here] = folders();
     let (a, b) = (serve(dir_a.path(), &[]), serve(dir_b.path(), &[]));
     std::fs::write(here.path().join("a.token"), &a.token).unwrap();
     std::fs::write(here.path().join("b.token"), &b.token).unwrap();
@@ -962,11 +959,7 @@ fn wait_for_log(log: &Path, text: &str, within: Duration) -> Duration {
 #[test]
 fn a_killed_host_is_reported_within_a_second_and_its_part_runs_again_when_it_returns() {
     let _machine = shared_machine();
-    let (dir_a, dir_b, here) = (
-        tempfile::tempdir().unwrap(),
-        tempfile::tempdir().unwrap(),
-        tempfile::tempdir().unwrap(),
-    );
+    let [dir_a, dir_b, here] = folders();
     let b_listen = format!("127.0.0.1:{}", free_tcp_port());
     let a = serve(dir_a.path(), &[]);
     let mut b = serve_on(dir_b.path(), &b_listen, &[], &[]);
@@ -1041,7 +1034,7 @@ fn a_killed_host_is_reported_within_a_second_and_its_part_runs_again_when_it_ret
 #[test]
 fn deploy_starts_nothing_when_a_host_is_unreachable_or_refuses() {
     let _machine = shared_machine();
-    let (dir_a, here) = (tempfile::tempdir().unwrap(), tempfile::tempdir().unwrap());
+    let [dir_a, here] = folders();
     let a = serve(dir_a.path(), &[]);
     std::fs::write(here.path().join("a.token"), &a.token).unwrap();
     std::fs::write(here.path().join("b.token"), "not the token").unwrap();
@@ -1109,11 +1102,7 @@ fn clamp_on_host_b(b: &Server) -> String {
 #[test]
 fn a_pack_a_host_lacks_is_shipped_and_one_for_another_platform_is_refused() {
     let _machine = shared_machine();
-    let (dir_b, shipped, here) = (
-        tempfile::tempdir().unwrap(),
-        tempfile::tempdir().unwrap(),
-        tempfile::tempdir().unwrap(),
-    );
+    let [dir_b, shipped, here] = folders();
     // The pack is beside the diagram here, and nowhere on host b.
     cpp_pack_in(&here.path().join("packs"));
     let b = serve(
@@ -1178,11 +1167,7 @@ fn a_pack_a_host_lacks_is_shipped_and_one_for_another_platform_is_refused() {
 #[test]
 fn deploy_starts_nothing_while_a_host_clock_is_not_locked_unless_told_to() {
     let _machine = shared_machine();
-    let (dir_a, dir_b, here) = (
-        tempfile::tempdir().unwrap(),
-        tempfile::tempdir().unwrap(),
-        tempfile::tempdir().unwrap(),
-    );
+    let [dir_a, dir_b, here] = folders();
     // Host b follows a master that never answers: its clock stays acquiring.
     let silent = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
     let master = silent.local_addr().unwrap().to_string();
@@ -1251,11 +1236,7 @@ fn deploy_starts_nothing_while_a_host_clock_is_not_locked_unless_told_to() {
 #[test]
 fn status_shows_each_host_state_clock_and_links_and_names_the_unreachable() {
     let _machine = shared_machine();
-    let (dir_a, dir_b, here) = (
-        tempfile::tempdir().unwrap(),
-        tempfile::tempdir().unwrap(),
-        tempfile::tempdir().unwrap(),
-    );
+    let [dir_a, dir_b, here] = folders();
     let port = std::net::UdpSocket::bind("127.0.0.1:0")
         .unwrap()
         .local_addr()
@@ -1467,11 +1448,7 @@ fn across_two_network_namespaces_a_cut_link_is_reported_and_the_part_resumes_whe
     let Some(namespaces) = Namespaces::make() else {
         return;
     };
-    let (dir_a, dir_b, here) = (
-        tempfile::tempdir().unwrap(),
-        tempfile::tempdir().unwrap(),
-        tempfile::tempdir().unwrap(),
-    );
+    let [dir_a, dir_b, here] = folders();
     let (address_a, address_b) = (namespaces.address(1), namespaces.address(2));
     // Host a serves over TLS; host b in clear text, which deploying refuses until told otherwise.
     if !make_certificate(here.path(), "a", &address_a) {
@@ -1708,7 +1685,7 @@ fn make_certificate(dir: &Path, name: &str, ip: &str) -> bool {
 #[test]
 fn deploy_over_tls_trusts_the_named_certificate_and_refuses_another() {
     let _machine = shared_machine();
-    let (dir_a, here) = (tempfile::tempdir().unwrap(), tempfile::tempdir().unwrap());
+    let [dir_a, here] = folders();
     if !make_certificate(here.path(), "host", "127.0.0.1")
         || !make_certificate(here.path(), "other", "127.0.0.1")
     {
@@ -1770,7 +1747,7 @@ fn deploy_over_tls_trusts_the_named_certificate_and_refuses_another() {
 #[test]
 fn a_slave_whose_clock_is_250_ms_off_and_drifts_locks_to_its_master_and_learns_its_rate() {
     let _machine = shared_machine();
-    let (dir_master, dir_slave) = (tempfile::tempdir().unwrap(), tempfile::tempdir().unwrap());
+    let [dir_master, dir_slave] = folders();
     let port = std::net::UdpSocket::bind("127.0.0.1:0")
         .unwrap()
         .local_addr()
@@ -1905,11 +1882,7 @@ fn assert_spread_telemetry(telemetry: &Value) {
 #[test]
 fn a_runtime_given_a_spread_diagram_coordinates_its_hosts_as_the_studio_runs_it() {
     let _machine = shared_machine();
-    let (dir_coordinator, dir_b, here) = (
-        tempfile::tempdir().unwrap(),
-        tempfile::tempdir().unwrap(),
-        tempfile::tempdir().unwrap(),
-    );
+    let [dir_coordinator, dir_b, here] = folders();
     let (coordinator, b) = (serve(dir_coordinator.path(), &[]), serve(dir_b.path(), &[]));
     std::fs::write(here.path().join("b.token"), &b.token).unwrap();
     // A sine and its gain on host b, written to a CSV by the coordinating runtime.
