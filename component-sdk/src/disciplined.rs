@@ -10,10 +10,10 @@
 //! the one delayed least.
 //!
 //! A source that filters its own references (a clock synchronisation keeping its least-delayed exchange)
-//! can also have the clock's *rate* estimated: it hands every raw measurement to [`DisciplinedClock::observe`],
-//! and the slope of those over the last minute keeps the clock on the source's pace between references and
-//! in holdover, instead of re-slewing its drift. (Filtered references repeat an old measurement and would
-//! flatten the slope.)
+//! can also have the clock's *rate* estimated: it hands every raw measurement to
+//! [`DisciplinedClock::observe`], and the slope of those over the last minute keeps the clock on the
+//! source's pace between references and in holdover, instead of re-slewing its drift. (Filtered references
+//! repeat an old measurement and would flatten the slope.)
 
 use std::collections::VecDeque;
 use std::sync::Mutex;
@@ -33,7 +33,8 @@ const HOLDOVER_AFTER: Duration = Duration::from_secs(3);
 const LOCKED_WITHIN_NS: i64 = 10_000_000;
 /// The largest rate correction trusted: crystals are within ±100 ppm; more is a wrong estimate.
 const MAX_RATE: f64 = 500e-6;
-/// The references a rate is estimated from, and the span they must cover first.
+/// The raw measurements a rate is estimated from (a minute of a clock master's exchanges), and the span
+/// they must cover first.
 const RATE_HISTORY: usize = 240;
 const RATE_MIN_SPAN_NS: i64 = 2_000_000_000;
 /// How fast the error may grow without references, per second of holdover: an estimated rate's wander
@@ -58,6 +59,20 @@ pub enum ClockState {
     /// A clock Kairos only measures (the system clock, kept by PTP or chrony) is further from its
     /// reference than the bound the user set.
     Alarm,
+}
+
+impl ClockState {
+    /// The state a clock is in for want of references, `since_reference_s` after its last one: acquiring
+    /// (none yet), holdover (none for 3 s) or lost (none for 30 s); `None` while they are fresh.
+    pub fn of_silence(since_reference_s: Option<f64>) -> Option<ClockState> {
+        let holdover = HOLDOVER_AFTER.as_secs_f64();
+        match since_reference_s {
+            None => Some(ClockState::Acquiring),
+            Some(since) if since > 10.0 * holdover => Some(ClockState::Lost),
+            Some(since) if since > holdover => Some(ClockState::Holdover),
+            Some(_) => None,
+        }
+    }
 }
 
 /// What a clock tells telemetry about itself.
@@ -199,8 +214,9 @@ impl DisciplinedClock {
         self
     }
 
-    /// Estimates the clock's rate from the references (see the module's documentation): for a source
-    /// whose references are precise, such as a clock master's least-delayed exchanges.
+    /// Estimates the clock's rate from the raw measurements handed to [`DisciplinedClock::observe`] (see the
+    /// module's documentation): for a source that filters its references, such as a clock master's
+    /// least-delayed exchanges.
     #[must_use]
     pub fn estimating_rate(mut self) -> Self {
         self.estimates_rate = true;
@@ -236,6 +252,10 @@ impl DisciplinedClock {
     /// added to (the "uncorrected" time of [`ClockStatus::offset_ns`]).
     pub fn monotonic_ns(&self) -> i64 {
         let elapsed = i64::try_from(self.start.elapsed().as_nanos()).unwrap_or(i64::MAX);
+        // Every read of the clock comes here: the test-only drift costs nothing when off.
+        if self.drift_ppb == 0 {
+            return elapsed;
+        }
         let drift = i128::from(elapsed) * i128::from(self.drift_ppb) / 1_000_000_000;
         elapsed.saturating_add(i64::try_from(drift).unwrap_or(0))
     }
@@ -369,14 +389,12 @@ impl DisciplinedClock {
         });
         #[allow(clippy::cast_precision_loss, reason = "seconds for display")]
         let since_reference_s = last.map(|at| (monotonic - at) as f64 * 1e-9);
-        let holdover = HOLDOVER_AFTER.as_secs_f64();
-        let state = match since_reference_s {
-            None => ClockState::Acquiring,
-            Some(since) if since > 10.0 * holdover => ClockState::Lost,
-            Some(since) if since > holdover => ClockState::Holdover,
-            Some(_) if error_ns.abs() > LOCKED_WITHIN_NS => ClockState::Slewing,
-            Some(_) => ClockState::Locked,
-        };
+        let state =
+            ClockState::of_silence(since_reference_s).unwrap_or(if error_ns.abs() > LOCKED_WITHIN_NS {
+                ClockState::Slewing
+            } else {
+                ClockState::Locked
+            });
         let wander = if self.estimates_rate {
             WANDER_WITH_RATE
         } else {

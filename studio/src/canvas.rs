@@ -260,7 +260,6 @@ fn input_ui(ui: &egui::Ui, frame: &Frame<'_>, component: &str, spot: &PortSpot, 
     paint::paint_port(frame.painter, ui.visuals(), spot.at, Side::Input, &look);
 }
 
-/// What hovering a connection says: its ends, its policy, its figures.
 /// A link between hosts in a few words: its losses in transit and the age of its last sample, or that
 /// its far end is missing.
 fn cross_link_figures(counts: &kairos_protocol::CrossLinkTelemetry) -> String {
@@ -273,6 +272,7 @@ fn cross_link_figures(counts: &kairos_protocol::CrossLinkTelemetry) -> String {
     format!("{} lost{age}", counts.lost)
 }
 
+/// What hovering a connection says: its ends, its policy, its figures.
 fn connection_hover(
     connection: &Connection,
     policy: Option<ReaderPolicy>,
@@ -433,9 +433,10 @@ impl Canvas {
         let crossing = frame.shown.monitor.cross_link(&connection.from, &connection.to);
         let between_hosts = (from_host != to_host).then(|| {
             let hosts = format!("{} -> {}", from_host.unwrap_or("here"), to_host.unwrap_or("here"));
-            crossing.map_or(hosts.clone(), |counts| {
-                format!("{hosts} · {}", cross_link_figures(counts))
-            })
+            match crossing {
+                Some(counts) => format!("{hosts} · {}", cross_link_figures(counts)),
+                None => hosts,
+            }
         });
         let look = ConnectionLook {
             color: document

@@ -148,11 +148,7 @@ fn connection_state_ui(ui: &mut egui::Ui, session: &Session) {
     ui.label(RichText::new(text).color(color));
     ui.label(format!("— {:?}", session.run_state()).to_lowercase());
     if let Some(clock) = session.clock() {
-        let color = match clock.state.as_str() {
-            "locked" => Color32::LIGHT_GREEN,
-            "lost" | "alarm" => Color32::LIGHT_RED,
-            _ => Color32::YELLOW,
-        };
+        let color = clock_color(&clock.state);
         // The bound the master gives (half an exchange's round trip) where there is one.
         let within = clock.error_bound_ns.map_or_else(String::new, |bound| {
             format!(" ±{:.1} µs", bound.unsigned_abs() as f64 * 1e-3)
@@ -173,6 +169,16 @@ fn connection_state_ui(ui: &mut egui::Ui, session: &Session) {
     }
 }
 
+/// A clock state's colour: green when it agrees with its reference, red when lost or in alarm, yellow on
+/// the way.
+fn clock_color(state: &str) -> Color32 {
+    match state {
+        "locked" | "master" => Color32::LIGHT_GREEN,
+        "lost" | "alarm" => Color32::LIGHT_RED,
+        _ => Color32::YELLOW,
+    }
+}
+
 /// A host of a spread diagram in the top bar: `car: locked ±4.2 µs`, `car: lost`.
 fn host_words(host: &kairos_protocol::HostTelemetry) -> (String, Color32) {
     let name = &host.name;
@@ -182,11 +188,7 @@ fn host_words(host: &kairos_protocol::HostTelemetry) -> (String, Color32) {
     let Some(clock) = &host.clock else {
         return (format!("{name}: own clock"), Color32::GRAY);
     };
-    let color = match clock.state.as_str() {
-        "locked" | "master" => Color32::LIGHT_GREEN,
-        "lost" | "alarm" => Color32::LIGHT_RED,
-        _ => Color32::YELLOW,
-    };
+    let color = clock_color(&clock.state);
     let error_ns = clock.error_bound_ns.unwrap_or(clock.error_ns);
     let within = if clock.state == "master" {
         String::new()

@@ -165,12 +165,20 @@ const COMPACT_BYTES: u8 = 4;
 /// `sample` as one compact frame, for a payload that has one (numbers, booleans, text, bytes); `None`
 /// for the others, which take [`encode`].
 pub fn encode_compact(output: &str, sample: &Sample) -> Option<Vec<u8>> {
-    let (kind, body): (u8, Cow<'_, [u8]>) = match &sample.payload {
-        Payload::F64(value) => (COMPACT_F64, Cow::Owned(value.to_le_bytes().to_vec())),
-        Payload::I64(value) => (COMPACT_I64, Cow::Owned(value.to_le_bytes().to_vec())),
-        Payload::Bool(value) => (COMPACT_BOOL, Cow::Owned(vec![u8::from(*value)])),
-        Payload::Text(text) => (COMPACT_TEXT, Cow::Borrowed(text.as_bytes())),
-        Payload::Bytes(bytes) => (COMPACT_BYTES, Cow::Borrowed(&bytes[..])),
+    // A scalar's bytes live here: a frame is the one allocation per sample.
+    let scalar: [u8; 8];
+    let (kind, body): (u8, &[u8]) = match &sample.payload {
+        Payload::F64(value) => {
+            scalar = value.to_le_bytes();
+            (COMPACT_F64, &scalar)
+        }
+        Payload::I64(value) => {
+            scalar = value.to_le_bytes();
+            (COMPACT_I64, &scalar)
+        }
+        Payload::Bool(value) => (COMPACT_BOOL, if *value { &[1] } else { &[0] }),
+        Payload::Text(text) => (COMPACT_TEXT, text.as_bytes()),
+        Payload::Bytes(bytes) => (COMPACT_BYTES, &bytes[..]),
         _ => return None,
     };
     let name = u16::try_from(output.len()).ok()?;
@@ -182,7 +190,7 @@ pub fn encode_compact(output: &str, sample: &Sample) -> Option<Vec<u8>> {
     frame.extend_from_slice(&sample.timestamp.as_nanos().to_le_bytes());
     frame.extend_from_slice(&sample.time_of_issue.as_nanos().to_le_bytes());
     frame.extend_from_slice(&sample.sequence.to_le_bytes());
-    frame.extend_from_slice(&body);
+    frame.extend_from_slice(body);
     Some(frame)
 }
 

@@ -135,8 +135,8 @@ fn ask_master(
         Ok((read, _, received_wall)) => {
             let packet = &buffer[..read];
             let fields = (read_i64(packet, 4), read_i64(packet, 12), read_i64(packet, 20));
-            match (packet.get(..4), fields) {
-                (Some(b"KCS1"), (Some(echoed), Some(t2), Some(t3))) if echoed == t1 => {
+            match fields {
+                (Some(echoed), Some(t2), Some(t3)) if packet.starts_with(MAGIC) && echoed == t1 => {
                     Some((t2, t3, received_wall))
                 }
                 _ => None,
@@ -178,10 +178,12 @@ pub fn run_slave(master: SocketAddr, clock: Arc<DisciplinedClock>) -> std::io::R
                     // The kernel's stamp is wall-clock time; on this clock it was as long ago as on that one.
                     let now = clock.now().as_nanos();
                     let t4 = now - (wall_now() - received_wall);
+                    // The clock is its uncorrected (monotonic) time plus its offset.
+                    let uncorrected = clock.monotonic_ns();
                     let exchange = Exchange {
-                        base: i64::midpoint(t2 - t1, t3 - t4) + clock.clock_status().offset_ns,
+                        base: i64::midpoint(t2 - t1, t3 - t4) + (now - uncorrected),
                         delay: (t4 - t1) - (t3 - t2),
-                        at: clock.monotonic_ns(),
+                        at: uncorrected,
                     };
                     recent.push_back(exchange);
                     while recent.len() > WINDOW {
@@ -190,7 +192,6 @@ pub fn run_slave(master: SocketAddr, clock: Arc<DisciplinedClock>) -> std::io::R
                     // Every exchange not much slower than the best feeds the rate estimate.
                     let least = recent.iter().map(|e| e.delay).min().unwrap_or(exchange.delay);
                     if exchange.delay <= least.saturating_mul(2).saturating_add(RATE_DELAY_SLACK_NS) {
-                        let uncorrected = now - clock.clock_status().offset_ns;
                         clock.observe(
                             MASTER_SOURCE,
                             Timestamp(now),
@@ -198,11 +199,10 @@ pub fn run_slave(master: SocketAddr, clock: Arc<DisciplinedClock>) -> std::io::R
                         );
                     }
                     if let Some(best) = recent.iter().min_by_key(|e| e.delay) {
-                        let now = clock.now().as_nanos();
                         // The least-delayed exchange may be a few old: carried to now at the rate.
                         #[allow(clippy::cast_possible_truncation, clippy::cast_precision_loss, reason = "ns")]
-                        let drifted = ((clock.monotonic_ns() - best.at) as f64 * clock.rate()) as i64;
-                        let master_now = now - clock.clock_status().offset_ns + best.base + drifted;
+                        let drifted = ((uncorrected - best.at) as f64 * clock.rate()) as i64;
+                        let master_now = uncorrected + best.base + drifted;
                         clock.take_reference(MASTER_SOURCE, Timestamp(now), Timestamp(master_now));
                         // The offset is exact on a symmetric path; an asymmetric one biases it by at most
                         // half the round trip.
@@ -296,13 +296,11 @@ impl Clock for SystemClock {
     fn status(&self) -> Option<ClockStatus> {
         let measured = self.measured.lock().unwrap_or_else(PoisonError::into_inner);
         let since_reference_s = measured.last.map(|at| at.elapsed().as_secs_f64());
-        let state = match since_reference_s {
-            None => ClockState::Acquiring,
-            Some(since) if since > 30.0 => ClockState::Lost,
-            Some(since) if since > 3.0 => ClockState::Holdover,
-            Some(_) if measured.alarmed => ClockState::Alarm,
-            Some(_) => ClockState::Locked,
-        };
+        let state = ClockState::of_silence(since_reference_s).unwrap_or(if measured.alarmed {
+            ClockState::Alarm
+        } else {
+            ClockState::Locked
+        });
         Some(ClockStatus {
             source: SYSTEM_SOURCE.to_owned(),
             state,

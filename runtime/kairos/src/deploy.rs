@@ -302,8 +302,9 @@ fn place_link(
 pub type Networks = BTreeMap<Option<String>, LinkNetwork>;
 
 /// Each part's link network: every host with links listens on its own Zenoh endpoint and connects to the
-/// hosts after it, or to those before it that take TLS where it does not; this machine, when its part has links, connects to them all. Whoever connects to a
-/// `tls/` endpoint trusts the certificates of the hosts section (read from `folder`, the diagram's).
+/// hosts after it, or to those before it that take TLS where it does not; this machine, when its part has
+/// links, connects to them all. Whoever connects to a `tls/` endpoint trusts the certificates of the hosts
+/// section (read from `folder`, the diagram's).
 ///
 /// # Errors
 ///
@@ -641,9 +642,40 @@ impl Host {
     }
 }
 
+/// Splits `diagram` over its hosts, deploys each host's part (shipping the packs it lacks), joins this
+/// machine's links and waits for every link to match: this machine's part, and the hosts to watch. Token
+/// files and certificates are found in `folder`; tokens go over plain `ws://` off this machine only with
+/// `clear_text_tokens`. Nothing is started. Both `kairos deploy` and a server coordinating a diagram for
+/// its client (the studio's Run) deploy this way.
+///
+/// # Errors
+///
+/// An unreachable host, a refused part or pack, a link that does not match: named with the reason.
+pub fn deploy_everywhere(
+    diagram: &Diagram,
+    registry: &Registry,
+    folder: &Path,
+    clear_text_tokens: bool,
+) -> anyhow::Result<(Diagram, Watch)> {
+    let plan = split(diagram, registry, &deployment_name())?;
+    let networks = networks(diagram, &plan, folder)?;
+    let reach = Reach::new(folder, clear_text_tokens);
+    let mut hosts = deploy_remote(diagram, &plan, &networks, &reach)?;
+    let here = plan.parts.get(&None).cloned().unwrap_or_default();
+    if let Some(network) = networks.get(&None) {
+        crate::link::network::join(network)?;
+    }
+    crate::link::network::prepare(&here)?;
+    wait_for_links(&plan, &mut hosts, &networks)?;
+    for link in &plan.links {
+        tracing::info!("linked {} -> {}", link.from, link.to);
+    }
+    Ok((here, Watch::new(diagram.clone(), plan, networks, reach, hosts)))
+}
+
 /// Reaches every host of `plan` and deploys each part with its link network, or fails naming the host
 /// and its reason. Nothing is started.
-pub fn deploy_remote(
+fn deploy_remote(
     diagram: &Diagram,
     plan: &Plan,
     networks: &BTreeMap<Option<String>, LinkNetwork>,
@@ -756,7 +788,7 @@ pub const LINK_MATCH_WAIT: Duration = Duration::from_secs(5);
 
 /// Waits until every link of `plan` has matched (its sender sees its receiver), here and on every host;
 /// a link that does not within [`LINK_MATCH_WAIT`] is an error naming both ends.
-pub fn wait_for_links(
+fn wait_for_links(
     plan: &Plan,
     hosts: &mut [Host],
     networks: &BTreeMap<Option<String>, LinkNetwork>,
@@ -818,11 +850,7 @@ pub fn wait_for_links(
 /// `bound`. A host that is not is named with its state and error, and nothing starts, unless
 /// `start_unlocked` (then it is only warned about, and the hosts not locked are returned in words, for the
 /// recordings). A host following no master starts on its own clock, which is said.
-pub fn check_clocks(
-    hosts: &mut [Host],
-    bound: Duration,
-    start_unlocked: bool,
-) -> anyhow::Result<Option<String>> {
+fn check_clocks(hosts: &mut [Host], bound: Duration, start_unlocked: bool) -> anyhow::Result<Option<String>> {
     let bound_ns = i64::try_from(bound.as_nanos()).unwrap_or(i64::MAX);
     let mut unlocked = Vec::new();
     for host in hosts.iter_mut() {
@@ -879,10 +907,44 @@ pub const STOP_LEAD: Duration = Duration::from_millis(200);
 /// How far ahead of now the hosts are told to start: time for every request to arrive.
 pub const START_LEAD: Duration = Duration::from_millis(500);
 
+/// Starts every host's part and, with `start_here`, this machine's, at one instant [`START_LEAD`] ahead,
+/// each host waiting for it on its own clock. First every host's clock is checked ([`check_clocks`]); a
+/// start forced with clocks not locked hands `start_here` (and every host) the hosts in words, for the
+/// recordings.
+///
+/// # Errors
+///
+/// A clock not locked, a host refusing, or `start_here` failing: every host is stopped again. When a host
+/// refuses after `start_here` succeeded, the caller stops its own part.
+pub fn start_together(
+    hosts: &mut [Host],
+    bound: Duration,
+    start_unlocked: bool,
+    start_here: impl FnOnce(Option<&str>) -> anyhow::Result<()>,
+) -> anyhow::Result<()> {
+    use kairos_sdk::Clock as _;
+    let forced = check_clocks(hosts, bound, start_unlocked)?;
+    let wall = kairos_sdk::RealTimeClock::new();
+    let at = wall.now().after(START_LEAD);
+    let asked = start_all_at(hosts, at.as_nanos(), forced.as_deref())?;
+    while wall.now() < at {
+        std::thread::sleep(Duration::from_micros(200));
+    }
+    if let Err(error) = start_here(forced.as_deref()) {
+        stop_all(hosts);
+        return Err(error);
+    }
+    confirm_started(hosts, &asked)?;
+    for host in hosts.iter() {
+        tracing::info!("host '{}' started its part", host.name());
+    }
+    Ok(())
+}
+
 /// Asks every host to start at `at` (ns since the UNIX epoch on its clock), without waiting: each answers
 /// once started. Collect the answers with [`confirm_started`].
 /// `forced`: the hosts whose clocks are not locked, when the start is forced.
-pub fn start_all_at(hosts: &mut [Host], at: i64, forced: Option<&str>) -> anyhow::Result<Vec<u64>> {
+fn start_all_at(hosts: &mut [Host], at: i64, forced: Option<&str>) -> anyhow::Result<Vec<u64>> {
     hosts
         .iter_mut()
         .map(|host| {
@@ -895,7 +957,7 @@ pub fn start_all_at(hosts: &mut [Host], at: i64, forced: Option<&str>) -> anyhow
 }
 
 /// The hosts' answers to [`start_all_at`]; the first refusal, after stopping every host.
-pub fn confirm_started(hosts: &mut [Host], ids: &[u64]) -> anyhow::Result<()> {
+fn confirm_started(hosts: &mut [Host], ids: &[u64]) -> anyhow::Result<()> {
     let mut refused = None;
     for (host, id) in hosts.iter_mut().zip(ids) {
         if let Err(error) = host.wait(*id) {

@@ -106,7 +106,9 @@ pub fn run(registry: &Registry, path: &Path, options: &RunOptions) -> anyhow::Re
     // diagram run here is this machine's part alone.
     let mut watch = None;
     if let Some(deploy) = options.deploy {
-        let (here, deployed) = deploy_parts(&parsed.diagram, registry, path, deploy)?;
+        let folder = path.parent().unwrap_or_else(|| Path::new("."));
+        let (here, deployed) =
+            crate::deploy::deploy_everywhere(&parsed.diagram, registry, folder, deploy.clear_text_tokens)?;
         parsed.diagram = here;
         watch = Some(deployed);
     }
@@ -188,32 +190,6 @@ pub fn run(registry: &Registry, path: &Path, options: &RunOptions) -> anyhow::Re
     Ok(report_failures(&last))
 }
 
-/// Splits `diagram` over its hosts, deploys each host's part, prepares this machine's links and waits for
-/// every link to match: this machine's part, and the hosts to watch.
-fn deploy_parts(
-    diagram: &kairos_diagram::Diagram,
-    registry: &Registry,
-    path: &Path,
-    options: DeployOptions,
-) -> anyhow::Result<(kairos_diagram::Diagram, crate::deploy::Watch)> {
-    let plan = crate::deploy::split(diagram, registry, &crate::deploy::deployment_name())?;
-    let folder = path.parent().unwrap_or_else(|| Path::new("."));
-    let networks = crate::deploy::networks(diagram, &plan, folder)?;
-    let reach = crate::deploy::Reach::new(folder, options.clear_text_tokens);
-    let mut hosts = crate::deploy::deploy_remote(diagram, &plan, &networks, &reach)?;
-    let here = plan.parts.get(&None).cloned().unwrap_or_default();
-    if let Some(network) = networks.get(&None) {
-        crate::link::network::join(network)?;
-    }
-    crate::link::network::prepare(&here)?;
-    crate::deploy::wait_for_links(&plan, &mut hosts, &networks)?;
-    for link in &plan.links {
-        tracing::info!("linked {} -> {}", link.from, link.to);
-    }
-    let watch = crate::deploy::Watch::new(diagram.clone(), plan, networks, reach, hosts);
-    Ok((here, watch))
-}
-
 /// Starts this machine's part, and with hosts, every host's part at one instant, each on its own clock.
 ///
 /// A start forced with hosts' clocks not locked (`--start-unlocked`) says so in `note`, which every
@@ -227,26 +203,15 @@ fn start_everywhere(
     if hosts.is_empty() {
         engine.start().context("starting the diagram")?;
     } else {
-        use kairos_sdk::Clock as _;
-        let forced = crate::deploy::check_clocks(hosts, deploy.lock_bound, deploy.start_unlocked)?;
-        note.lock()
-            .unwrap_or_else(std::sync::PoisonError::into_inner)
-            .clone_from(&forced);
-        // Every part starts at one instant, each host on its own clock (synchronised with a master).
-        let wall = kairos_sdk::RealTimeClock::new();
-        let at = wall.now().after(crate::deploy::START_LEAD);
-        let asked = crate::deploy::start_all_at(hosts, at.as_nanos(), forced.as_deref())?;
-        while wall.now() < at {
-            std::thread::sleep(Duration::from_micros(200));
-        }
-        engine.start().context("starting the diagram")?;
-        if let Err(error) = crate::deploy::confirm_started(hosts, &asked) {
+        let started =
+            crate::deploy::start_together(hosts, deploy.lock_bound, deploy.start_unlocked, |forced| {
+                *note.lock().unwrap_or_else(std::sync::PoisonError::into_inner) = forced.map(str::to_owned);
+                engine.start().context("starting the diagram")
+            });
+        if started.is_err() {
             engine.stop();
-            return Err(error);
         }
-        for host in hosts.iter() {
-            tracing::info!("host '{}' started its part", host.name());
-        }
+        started?;
     }
     Ok(())
 }

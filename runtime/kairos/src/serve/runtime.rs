@@ -412,14 +412,20 @@ impl Runtime {
             return self.start_here(&mut deployment);
         };
         if deployment.engine.as_ref().map(Engine::state) == Some(EngineState::Paused) {
-            return self.resume_with(&mut deployment, Some(&spread));
+            return resume(&mut deployment, Some(&spread));
         }
-        spread
-            .start(|| {
-                self.start_here(&mut deployment)
-                    .map_err(|e| anyhow::anyhow!("this runtime's part: {}", e.message))
-            })
-            .map_err(|e| error(ErrorCode::WrongState, format!("{e:#}")))
+        let started = spread.start(|| {
+            self.start_here(&mut deployment)
+                .map_err(|e| anyhow::anyhow!("this runtime's part: {}", e.message))
+        });
+        if let Err(refused) = started {
+            // Everything or nothing: this part stops with the hosts.
+            if let Some(engine) = deployment.engine.as_mut() {
+                engine.stop();
+            }
+            return Err(error(ErrorCode::WrongState, format!("{refused:#}")));
+        }
+        Ok(())
     }
 
     /// Starts the part that runs here.
@@ -476,18 +482,7 @@ impl Runtime {
     pub fn resume(&self) -> Result<(), ProtocolError> {
         let mut deployment = self.lock();
         let spread = deployment.spread.as_ref().map(|(_, s)| Arc::clone(s));
-        self.resume_with(&mut deployment, spread.as_deref())
-    }
-
-    #[allow(clippy::unused_self, reason = "beside start_here, which needs the runtime")]
-    fn resume_with(&self, deployment: &mut Deployment, spread: Option<&Spread>) -> Result<(), ProtocolError> {
-        match deployment.engine.as_mut() {
-            Some(engine) if engine.state() == EngineState::Paused => {
-                engine.resume();
-                forward_to_hosts(spread, &RequestBody::Resume)
-            }
-            _ => Err(error(ErrorCode::WrongState, "nothing is paused")),
-        }
+        resume(&mut deployment, spread.as_deref())
     }
 
     /// Stops the diagram, on every host at one instant when it is spread; it stays deployed and can start
@@ -654,6 +649,17 @@ impl Runtime {
         if let Some(mut engine) = deployment.engine.take() {
             engine.stop();
         }
+    }
+}
+
+/// Resumes the paused part here, and every host's of `spread`.
+fn resume(deployment: &mut Deployment, spread: Option<&Spread>) -> Result<(), ProtocolError> {
+    match deployment.engine.as_mut() {
+        Some(engine) if engine.state() == EngineState::Paused => {
+            engine.resume();
+            forward_to_hosts(spread, &RequestBody::Resume)
+        }
+        _ => Err(error(ErrorCode::WrongState, "nothing is paused")),
     }
 }
 

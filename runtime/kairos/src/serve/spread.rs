@@ -45,18 +45,8 @@ impl Spread {
         registry: &Registry,
         folder: &Path,
     ) -> anyhow::Result<(Arc<Spread>, Diagram)> {
-        let plan = deploy::split(whole, registry, &deploy::deployment_name())?;
-        let networks = deploy::networks(whole, &plan, folder)?;
         // A studio cannot say the network is trusted: tokens cross it over wss:// or on loopback only.
-        let reach = deploy::Reach::new(folder, false);
-        let mut hosts = deploy::deploy_remote(whole, &plan, &networks, &reach)?;
-        let here = plan.parts.get(&None).cloned().unwrap_or_default();
-        if let Some(network) = networks.get(&None) {
-            crate::link::network::join(network)?;
-        }
-        crate::link::network::prepare(&here)?;
-        deploy::wait_for_links(&plan, &mut hosts, &networks)?;
-        let mut watch = Watch::new(whole.clone(), plan, networks, reach, hosts);
+        let (here, mut watch) = deploy::deploy_everywhere(whole, registry, folder, false)?;
         // A host that returns while the diagram is stopped gets its part back, not started.
         watch.set_running(false);
         let spread = Arc::new(Spread {
@@ -91,27 +81,16 @@ impl Spread {
     ///
     /// # Errors
     ///
-    /// A clock not locked, a host refusing or lost, or `start_here` failing: every host is stopped again.
+    /// A clock not locked, a host refusing or lost, or `start_here` failing: every host is stopped again
+    /// (the caller stops its own part).
     pub fn start(&self, start_here: impl FnOnce() -> anyhow::Result<()>) -> anyhow::Result<()> {
-        use kairos_sdk::Clock as _;
         let mut watch = self.watch();
         if let Some(lost) = watch.lost().next() {
             anyhow::bail!(
                 "host '{lost}' is lost, so nothing was started: start it again, or wait for it to answer"
             );
         }
-        deploy::check_clocks(&mut watch.hosts, LOCK_BOUND, false)?;
-        let wall = kairos_sdk::RealTimeClock::new();
-        let at = wall.now().after(deploy::START_LEAD);
-        let asked = deploy::start_all_at(&mut watch.hosts, at.as_nanos(), None)?;
-        while wall.now() < at {
-            std::thread::sleep(Duration::from_micros(200));
-        }
-        if let Err(error) = start_here() {
-            deploy::stop_all(&mut watch.hosts);
-            return Err(error);
-        }
-        deploy::confirm_started(&mut watch.hosts, &asked)?;
+        deploy::start_together(&mut watch.hosts, LOCK_BOUND, false, |_| start_here())?;
         watch.set_running(true);
         Ok(())
     }
