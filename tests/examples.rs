@@ -24,6 +24,8 @@ fn every_example_validates() {
         "image_sequence",
         "udp_link",
         "can_replay",
+        "python/threshold",
+        "python/edges",
     ] {
         let path = example(name);
         let output = kairos(&root, &["validate", path.to_str().unwrap()]);

@@ -75,6 +75,15 @@ impl PixelsMut {
         pixels
     }
 
+    /// Where the buffer lies in shared memory, when it does: what another process on this machine (a
+    /// Python component's worker) maps to draw the pixels in place before the buffer is frozen.
+    pub fn shared_reference(&self) -> Option<PixelsReference> {
+        match &self.0 {
+            Writable::Heap(_) => None,
+            Writable::Shared(buffer) => Some(buffer.reference()),
+        }
+    }
+
     /// The finished pixels, to share.
     pub fn freeze(self) -> Pixels {
         match self.0 {

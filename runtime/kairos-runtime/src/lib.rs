@@ -5,6 +5,7 @@
 pub mod engine;
 pub mod pack_host;
 pub mod packs;
+pub mod python_host;
 pub mod scheduling;
 pub mod stats;
 

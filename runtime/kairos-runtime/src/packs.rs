@@ -3,6 +3,7 @@
 use std::path::{Path, PathBuf};
 
 use crate::pack_host::{LoadedPack, load_pack};
+use crate::python_host;
 use kairos_sdk::Registry;
 
 /// A library on the pack path that was not loaded, and why.
@@ -21,8 +22,10 @@ pub struct PackScan {
     pub searched: Vec<PathBuf>,
     /// Packs loaded.
     pub loaded: Vec<LoadedPack>,
-    /// Libraries refused.
+    /// Libraries refused, and Python packs or files of them.
     pub refused: Vec<RefusedLibrary>,
+    /// The Python packs registered, by name.
+    pub python: Vec<String>,
 }
 
 /// The file name ending of shared libraries on this platform.
@@ -43,9 +46,10 @@ pub fn pack_path(explicit: &[PathBuf], diagram: Option<&Path>) -> Vec<PathBuf> {
     folders
 }
 
-/// Loads every library in `folders` (files ending in the platform's library suffix, in name order) and
-/// registers the good ones in `registry` after what is already there, so a built-in component type is
-/// never shadowed: a clash is reported by [`Registry::duplicates`].
+/// Loads every pack in `folders` and registers the good ones in `registry` after what is already there,
+/// so a built-in component type is never shadowed (a clash is reported by [`Registry::duplicates`]): the
+/// libraries (files ending in the platform's library suffix, in name order), then the Python packs (the
+/// folder itself when it holds a `kairos-pack.toml`, and each sub-folder holding one).
 pub fn load_packs(registry: &mut Registry, folders: &[PathBuf]) -> PackScan {
     let mut scan = PackScan {
         searched: folders.to_vec(),
@@ -62,12 +66,12 @@ pub fn load_packs(registry: &mut Registry, folders: &[PathBuf]) -> PackScan {
                 continue;
             }
         };
-        let mut files: Vec<PathBuf> = entries
-            .filter_map(Result::ok)
-            .map(|e| e.path())
+        let mut paths: Vec<PathBuf> = entries.filter_map(Result::ok).map(|e| e.path()).collect();
+        paths.sort();
+        let files = paths
+            .iter()
             .filter(|p| p.is_file() && p.to_string_lossy().ends_with(LIBRARY_SUFFIX))
-            .collect();
-        files.sort();
+            .cloned();
         for file in files {
             match load_pack(&file) {
                 Ok(pack) => {
@@ -91,6 +95,14 @@ pub fn load_packs(registry: &mut Registry, folders: &[PathBuf]) -> PackScan {
                     path: file,
                     reason: error.to_string(),
                 }),
+            }
+        }
+        let python_packs = std::iter::once(folder)
+            .chain(paths.iter().filter(|p| p.is_dir()))
+            .filter(|p| python_host::is_python_pack(p));
+        for pack in python_packs {
+            if let Some(name) = python_host::load_python_pack(registry, pack, &mut scan.refused) {
+                scan.python.push(name);
             }
         }
     }

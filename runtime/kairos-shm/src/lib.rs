@@ -272,7 +272,8 @@ impl SharedBuffer {
     /// The pixels, to write.
     pub fn bytes_mut(&mut self) -> &mut [u8] {
         // SAFETY: as in `bytes`, and `&mut self` makes this the only borrow in this process. Clients map
-        // the file read-only.
+        // the file read-only; the one other writer, a Python component's worker, writes only a buffer the
+        // runtime handed it before freezing, and the runtime reads none of it until the worker has written.
         unsafe { std::slice::from_raw_parts_mut(self.mapping.pixels_ptr(), self.len) }
     }
 

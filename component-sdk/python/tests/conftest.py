@@ -1,0 +1,6 @@
+"""Tests import the package from this checkout, installed or not."""
+
+import os
+import sys
+
+sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))

@@ -1,0 +1,531 @@
+//! The worker protocol's bytes on the runtime's side (docs/python.md; `kairos_sdk/wire.py` is the other
+//! side): frames on a Unix socket, payloads as a tag and little-endian fields.
+
+use std::io::{self, BufReader, Read as _, Write as _};
+use std::os::fd::AsFd as _;
+use std::os::unix::net::UnixStream;
+use std::time::Duration;
+
+use glam::{DQuat, DVec3, Vec3};
+use kairos_sdk::{CanFrame, FixStatus, GnssFix, Imu, Matrix, Payload, PixelFormat, PointCloud, Pose};
+
+pub const PROTOCOL_VERSION: u32 = 1;
+
+/// Frames larger than this are refused: a worker gone wrong must not make the runtime allocate without bound.
+const MAX_FRAME: usize = 1 << 30;
+
+/// Where an image's pixels travel.
+pub const PIXELS_INLINE: u8 = 0;
+pub const PIXELS_SHARED: u8 = 1;
+pub const PIXELS_HELD: u8 = 2;
+
+const FORMATS: [PixelFormat; 6] = [
+    PixelFormat::Gray8,
+    PixelFormat::Gray16,
+    PixelFormat::Rgb8,
+    PixelFormat::Rgba8,
+    PixelFormat::Bgr8,
+    PixelFormat::Bgra8,
+];
+
+const FIX_STATUSES: [FixStatus; 4] = [
+    FixStatus::NoFix,
+    FixStatus::Fix,
+    FixStatus::Differential,
+    FixStatus::RtkFixed,
+];
+
+/// The runtime's end of a worker's socket.
+#[derive(Debug)]
+pub struct Connection {
+    reader: BufReader<UnixStream>,
+    writer: UnixStream,
+    out: Vec<u8>,
+}
+
+impl Connection {
+    pub fn new(stream: UnixStream) -> io::Result<Self> {
+        Ok(Connection {
+            reader: BufReader::with_capacity(1 << 16, stream.try_clone()?),
+            writer: stream,
+            out: Vec::with_capacity(1 << 12),
+        })
+    }
+
+    /// Starts a frame of `kind`; the body is appended to the returned buffer and the length patched by
+    /// [`Connection::end_frame`].
+    pub fn begin_frame(&mut self, kind: u8) -> usize {
+        let start = self.out.len();
+        self.out.extend_from_slice(&[0, 0, 0, 0, kind]);
+        start
+    }
+
+    pub fn body(&mut self) -> &mut Vec<u8> {
+        &mut self.out
+    }
+
+    pub fn end_frame(&mut self, start: usize) {
+        let length = (self.out.len() - start - 4) as u32;
+        if let Some(field) = self.out.get_mut(start..start + 4) {
+            field.copy_from_slice(&length.to_le_bytes());
+        }
+    }
+
+    /// A whole frame at once.
+    pub fn send(&mut self, kind: u8, body: &[u8]) {
+        let start = self.begin_frame(kind);
+        self.out.extend_from_slice(body);
+        self.end_frame(start);
+    }
+
+    pub fn flush(&mut self) -> io::Result<()> {
+        if !self.out.is_empty() {
+            self.writer.write_all(&self.out)?;
+            self.out.clear();
+        }
+        Ok(())
+    }
+
+    /// Whether a frame can be read now, waiting at most `timeout` for one to start arriving.
+    pub fn readable(&mut self, timeout: Duration) -> io::Result<bool> {
+        if !self.reader.buffer().is_empty() {
+            return Ok(true);
+        }
+        let mut fds = [nix::poll::PollFd::new(
+            self.reader.get_ref().as_fd(),
+            nix::poll::PollFlags::POLLIN,
+        )];
+        let millis = u16::try_from(timeout.as_millis()).unwrap_or(u16::MAX);
+        match nix::poll::poll(&mut fds, nix::poll::PollTimeout::from(millis)) {
+            Ok(ready) => Ok(ready > 0),
+            Err(nix::errno::Errno::EINTR) => Ok(false),
+            Err(error) => Err(io::Error::from(error)),
+        }
+    }
+
+    /// Reads one frame into `body`; its kind. `UnexpectedEof` when the worker closed the socket (it ended).
+    pub fn read_frame(&mut self, body: &mut Vec<u8>) -> io::Result<u8> {
+        let mut head = [0_u8; 5];
+        self.reader.read_exact(&mut head)?;
+        let [a, b, c, d, kind] = head;
+        let length = u32::from_le_bytes([a, b, c, d]) as usize;
+        if length == 0 || length > MAX_FRAME {
+            return Err(io::Error::new(
+                io::ErrorKind::InvalidData,
+                format!("a frame of {length} bytes"),
+            ));
+        }
+        body.clear();
+        body.resize(length - 1, 0);
+        self.reader.read_exact(body)?;
+        Ok(kind)
+    }
+}
+
+/// Reads fields off a frame's body in order; a frame that ends early is an error naming what was read.
+#[derive(Debug)]
+pub struct Fields<'a> {
+    data: &'a [u8],
+}
+
+impl<'a> Fields<'a> {
+    pub fn new(data: &'a [u8]) -> Self {
+        Fields { data }
+    }
+
+    pub fn bytes(&mut self, count: usize, what: &str) -> Result<&'a [u8], String> {
+        if self.data.len() < count {
+            return Err(format!("the worker's frame ends inside {what}"));
+        }
+        let (head, rest) = self.data.split_at(count);
+        self.data = rest;
+        Ok(head)
+    }
+
+    fn array<const N: usize>(&mut self, what: &str) -> Result<[u8; N], String> {
+        let bytes = self.bytes(N, what)?;
+        let mut array = [0_u8; N];
+        array.copy_from_slice(bytes);
+        Ok(array)
+    }
+
+    pub fn u8(&mut self, what: &str) -> Result<u8, String> {
+        Ok(self.array::<1>(what)?[0])
+    }
+
+    pub fn u16(&mut self, what: &str) -> Result<u16, String> {
+        Ok(u16::from_le_bytes(self.array(what)?))
+    }
+
+    pub fn u32(&mut self, what: &str) -> Result<u32, String> {
+        Ok(u32::from_le_bytes(self.array(what)?))
+    }
+
+    pub fn u64(&mut self, what: &str) -> Result<u64, String> {
+        Ok(u64::from_le_bytes(self.array(what)?))
+    }
+
+    pub fn i64(&mut self, what: &str) -> Result<i64, String> {
+        Ok(i64::from_le_bytes(self.array(what)?))
+    }
+
+    pub fn f64(&mut self, what: &str) -> Result<f64, String> {
+        Ok(f64::from_le_bytes(self.array(what)?))
+    }
+
+    fn f32(&mut self, what: &str) -> Result<f32, String> {
+        Ok(f32::from_le_bytes(self.array(what)?))
+    }
+
+    fn sized(&mut self, what: &str) -> Result<&'a [u8], String> {
+        let length = self.u32(what)? as usize;
+        self.bytes(length, what)
+    }
+
+    fn dvec3(&mut self, what: &str) -> Result<DVec3, String> {
+        Ok(DVec3::new(self.f64(what)?, self.f64(what)?, self.f64(what)?))
+    }
+
+    fn floats(&mut self, count: usize, what: &str) -> Result<Vec<f64>, String> {
+        let bytes = self.bytes(count.checked_mul(8).ok_or("too many values")?, what)?;
+        Ok(bytes
+            .chunks_exact(8)
+            .map(|c| f64::from_le_bytes(c.try_into().unwrap_or_default()))
+            .collect())
+    }
+}
+
+/// An image as a write names it: its geometry, and where its pixels are.
+#[derive(Debug)]
+pub struct ImageFields<'a> {
+    pub width: u32,
+    pub height: u32,
+    pub stride: u32,
+    pub format: PixelFormat,
+    pub pixels: ImagePixels<'a>,
+}
+
+#[derive(Debug)]
+pub enum ImagePixels<'a> {
+    /// Copied in the frame.
+    Inline(&'a [u8]),
+    /// A buffer the runtime allocated for the worker (`copied`: the worker copied them there).
+    Allocated { handle: u64, copied: bool },
+    /// An input's pixels the runtime holds for the worker.
+    Held(u64),
+}
+
+/// A payload a worker wrote: everything but images decoded whole; an image's pixels to be found by the caller.
+#[derive(Debug)]
+pub enum Written<'a> {
+    Payload(Payload),
+    Image(ImageFields<'a>),
+}
+
+/// Decodes a payload of a write.
+pub fn decode_payload<'a>(fields: &mut Fields<'a>) -> Result<Written<'a>, String> {
+    let tag = fields.u8("the payload's tag")?;
+    let payload = match tag {
+        0 => Payload::F64(fields.f64("a float")?),
+        1 => Payload::I64(fields.i64("an integer")?),
+        2 => Payload::Bool(fields.u8("a boolean")? != 0),
+        3 => {
+            let text = std::str::from_utf8(fields.sized("text")?)
+                .map_err(|_| "text that is not UTF-8".to_owned())?;
+            Payload::Text(text.into())
+        }
+        4 => Payload::Bytes(fields.sized("bytes")?.into()),
+        5 => {
+            let count = fields.u32("a vector's length")? as usize;
+            Payload::Vector(fields.floats(count, "a vector")?.into())
+        }
+        6 => {
+            let rows = fields.u32("a matrix's rows")? as usize;
+            let cols = fields.u32("a matrix's columns")? as usize;
+            let values = fields.floats(rows.checked_mul(cols).ok_or("a matrix too large")?, "a matrix")?;
+            Payload::Matrix(std::sync::Arc::new(Matrix { rows, cols, values }))
+        }
+        7 => return decode_image(fields).map(Written::Image),
+        8..=12 => decode_record(tag, fields)?,
+        13 => {
+            let length = usize::from(fields.u16("a type name")?);
+            let name = std::str::from_utf8(fields.bytes(length, "a type name")?)
+                .map_err(|_| "a type name that is not UTF-8".to_owned())?;
+            Payload::Custom(kairos_sdk::CustomPayload {
+                type_name: name.into(),
+                data: fields.sized("custom data")?.into(),
+            })
+        }
+        other => return Err(format!("an unknown payload tag {other}")),
+    };
+    Ok(Written::Payload(payload))
+}
+
+/// The fixed records: point clouds, IMU readings, fixes, CAN frames, poses.
+fn decode_record(tag: u8, fields: &mut Fields<'_>) -> Result<Payload, String> {
+    Ok(match tag {
+        8 => {
+            let count = fields.u32("a point count")? as usize;
+            let has_intensity = fields.u8("the intensity flag")? != 0;
+            let mut points = Vec::with_capacity(count.min(1 << 24));
+            for _ in 0..count {
+                points.push(Vec3::new(
+                    fields.f32("a point")?,
+                    fields.f32("a point")?,
+                    fields.f32("a point")?,
+                ));
+            }
+            let intensity = if has_intensity {
+                let mut values = Vec::with_capacity(count.min(1 << 24));
+                for _ in 0..count {
+                    values.push(fields.f32("an intensity")?);
+                }
+                Some(values)
+            } else {
+                None
+            };
+            Payload::PointCloud(std::sync::Arc::new(PointCloud { points, intensity }))
+        }
+        9 => {
+            let angular_velocity = fields.dvec3("an IMU reading")?;
+            let linear_acceleration = fields.dvec3("an IMU reading")?;
+            let has_orientation = fields.u8("an IMU reading")? != 0;
+            let q = [
+                fields.f64("")?,
+                fields.f64("")?,
+                fields.f64("")?,
+                fields.f64("an IMU reading")?,
+            ];
+            Payload::Imu(Imu {
+                angular_velocity,
+                linear_acceleration,
+                orientation: has_orientation.then(|| DQuat::from_xyzw(q[0], q[1], q[2], q[3])),
+            })
+        }
+        10 => {
+            let values = [
+                fields.f64("")?,
+                fields.f64("")?,
+                fields.f64("")?,
+                fields.f64("")?,
+                fields.f64("a fix")?,
+            ];
+            let status = *FIX_STATUSES
+                .get(usize::from(fields.u8("a fix status")?))
+                .ok_or("an unknown fix status")?;
+            Payload::GnssFix(GnssFix {
+                latitude_deg: values[0],
+                longitude_deg: values[1],
+                altitude_m: values[2],
+                horizontal_accuracy_m: values[3],
+                vertical_accuracy_m: values[4],
+                status,
+            })
+        }
+        11 => {
+            let id = fields.u32("a CAN id")?;
+            let extended = fields.u8("a CAN frame")? != 0;
+            let length = usize::from(fields.u8("a CAN frame")?);
+            let data = fields.bytes(length, "a CAN frame's data")?;
+            Payload::CanFrame(CanFrame::new(id, extended, data).ok_or("a CAN frame of more than 64 bytes")?)
+        }
+        12 => {
+            let position = fields.dvec3("a pose")?;
+            let q = [
+                fields.f64("")?,
+                fields.f64("")?,
+                fields.f64("")?,
+                fields.f64("a pose")?,
+            ];
+            Payload::Pose(Pose {
+                position,
+                orientation: DQuat::from_xyzw(q[0], q[1], q[2], q[3]),
+            })
+        }
+        _ => return Err(format!("an unknown payload tag {tag}")),
+    })
+}
+
+fn decode_image<'a>(fields: &mut Fields<'a>) -> Result<ImageFields<'a>, String> {
+    let width = fields.u32("an image")?;
+    let height = fields.u32("an image")?;
+    let stride = fields.u32("an image")?;
+    let format = *FORMATS
+        .get(usize::from(fields.u8("an image's format")?))
+        .ok_or("an unknown pixel format")?;
+    let pixels = match fields.u8("where an image's pixels are")? {
+        PIXELS_INLINE => ImagePixels::Inline(fields.sized("an image's pixels")?),
+        PIXELS_SHARED => ImagePixels::Allocated {
+            handle: fields.u64("a buffer handle")?,
+            copied: fields.u8("a buffer handle")? != 0,
+        },
+        PIXELS_HELD => ImagePixels::Held(fields.u64("a held sample's handle")?),
+        other => return Err(format!("pixels in an unknown place {other}")),
+    };
+    Ok(ImageFields {
+        width,
+        height,
+        stride,
+        format,
+        pixels,
+    })
+}
+
+/// Where an image's pixels go in a sample sent to the worker.
+#[derive(Debug)]
+pub enum SentPixels {
+    Inline,
+    /// In the runtime's shared memory: descriptor, buffer id and length.
+    Shared {
+        fd: i32,
+        id: u64,
+        len: u64,
+    },
+}
+
+/// Appends `payload` to `out`; images as `pixels` says.
+pub fn encode_payload(out: &mut Vec<u8>, payload: &Payload, pixels: &SentPixels) {
+    match payload {
+        Payload::F64(v) => {
+            out.push(0);
+            out.extend_from_slice(&v.to_le_bytes());
+        }
+        Payload::I64(v) => {
+            out.push(1);
+            out.extend_from_slice(&v.to_le_bytes());
+        }
+        Payload::Bool(v) => out.extend_from_slice(&[2, u8::from(*v)]),
+        Payload::Text(text) => {
+            out.push(3);
+            sized(out, text.as_bytes());
+        }
+        Payload::Bytes(bytes) => {
+            out.push(4);
+            sized(out, bytes);
+        }
+        Payload::Vector(values) => {
+            out.push(5);
+            out.extend_from_slice(&(values.len() as u32).to_le_bytes());
+            values
+                .iter()
+                .for_each(|v| out.extend_from_slice(&v.to_le_bytes()));
+        }
+        Payload::Matrix(matrix) => {
+            out.push(6);
+            out.extend_from_slice(&(matrix.rows as u32).to_le_bytes());
+            out.extend_from_slice(&(matrix.cols as u32).to_le_bytes());
+            matrix
+                .values
+                .iter()
+                .for_each(|v| out.extend_from_slice(&v.to_le_bytes()));
+        }
+        Payload::Image(image) => {
+            out.push(7);
+            for field in [image.width, image.height, image.stride] {
+                out.extend_from_slice(&field.to_le_bytes());
+            }
+            let format = FORMATS
+                .iter()
+                .position(|f| *f == image.format)
+                .unwrap_or_default() as u8;
+            out.push(format);
+            match pixels {
+                SentPixels::Inline => {
+                    out.push(PIXELS_INLINE);
+                    sized(out, &image.pixels);
+                }
+                SentPixels::Shared { fd, id, len } => {
+                    out.push(PIXELS_SHARED);
+                    out.extend_from_slice(&fd.to_le_bytes());
+                    out.extend_from_slice(&id.to_le_bytes());
+                    out.extend_from_slice(&len.to_le_bytes());
+                }
+            }
+        }
+        Payload::PointCloud(_)
+        | Payload::Imu(_)
+        | Payload::GnssFix(_)
+        | Payload::CanFrame(_)
+        | Payload::Pose(_) => encode_record(out, payload),
+        Payload::Custom(custom) => {
+            out.push(13);
+            out.extend_from_slice(&(custom.type_name.len() as u16).to_le_bytes());
+            out.extend_from_slice(custom.type_name.as_bytes());
+            sized(out, &custom.data);
+        }
+        _ => {
+            // A payload type newer than this protocol: sent as empty bytes rather than not at all.
+            out.push(4);
+            sized(out, &[]);
+        }
+    }
+}
+
+/// The fixed records, as [`decode_record`] reads them.
+fn encode_record(out: &mut Vec<u8>, payload: &Payload) {
+    match payload {
+        Payload::PointCloud(cloud) => {
+            out.push(8);
+            out.extend_from_slice(&(cloud.points.len() as u32).to_le_bytes());
+            out.push(u8::from(cloud.intensity.is_some()));
+            for point in &cloud.points {
+                for v in point.to_array() {
+                    out.extend_from_slice(&v.to_le_bytes());
+                }
+            }
+            for v in cloud.intensity.iter().flatten() {
+                out.extend_from_slice(&v.to_le_bytes());
+            }
+        }
+        Payload::Imu(imu) => {
+            out.push(9);
+            f64s(out, &imu.angular_velocity.to_array());
+            f64s(out, &imu.linear_acceleration.to_array());
+            out.push(u8::from(imu.orientation.is_some()));
+            f64s(out, &imu.orientation.unwrap_or(DQuat::IDENTITY).to_array());
+        }
+        Payload::GnssFix(fix) => {
+            out.push(10);
+            f64s(
+                out,
+                &[
+                    fix.latitude_deg,
+                    fix.longitude_deg,
+                    fix.altitude_m,
+                    fix.horizontal_accuracy_m,
+                    fix.vertical_accuracy_m,
+                ],
+            );
+            out.push(
+                FIX_STATUSES
+                    .iter()
+                    .position(|s| *s == fix.status)
+                    .unwrap_or_default() as u8,
+            );
+        }
+        Payload::CanFrame(frame) => {
+            out.push(11);
+            out.extend_from_slice(&frame.id.to_le_bytes());
+            out.push(u8::from(frame.extended));
+            out.push(frame.data().len() as u8);
+            out.extend_from_slice(frame.data());
+        }
+        Payload::Pose(pose) => {
+            out.push(12);
+            f64s(out, &pose.position.to_array());
+            f64s(out, &pose.orientation.to_array());
+        }
+        _ => {}
+    }
+}
+
+fn sized(out: &mut Vec<u8>, bytes: &[u8]) {
+    out.extend_from_slice(&(bytes.len() as u32).to_le_bytes());
+    out.extend_from_slice(bytes);
+}
+
+fn f64s(out: &mut Vec<u8>, values: &[f64]) {
+    for value in values {
+        out.extend_from_slice(&value.to_le_bytes());
+    }
+}

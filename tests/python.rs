@@ -1,0 +1,669 @@
+//! Components written in Python: packs of `.py` files found on the pack path, each instance running in a
+//! worker process of its own, driven by the engine like any other component.
+//!
+//! These tests need `python3` with numpy first on the `PATH`: `tests/run` puts its virtual environment there.
+#![allow(
+    clippy::unwrap_used,
+    clippy::expect_used,
+    reason = "a failed unwrap is a failed test"
+)]
+#![allow(
+    clippy::float_cmp,
+    reason = "the values compared are small integers times exact factors: equal to the bit"
+)]
+
+mod common;
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use common::{kairos, repo_root, text};
+use kairos_runtime::{ComponentState, Engine, PackScan};
+use kairos_sdk::host::{Reader, ReaderConfig};
+use kairos_sdk::{Payload, ReaderPolicy, RealTimeClock, Registry, RunSignal, Sample, Value};
+
+/// Components that misbehave on purpose, and small ones to check the runtime's side.
+const TEST_COMPONENTS: &str = r#"
+from kairos_sdk import F64, I64, Component, Descriptor, Property
+
+NUMBERS = (F64, I64)
+
+
+class Divide(Component):
+    descriptor = Descriptor("divide", doc="Fails on the fifth sample").input("in", NUMBERS).output("out", F64)
+
+    def birth(self, ctx):
+        self.count = 0
+
+    def core(self, ctx):
+        sample = ctx.read("in")
+        self.count += 1
+        ctx.write_processed("out", sample, sample.data / (5 - self.count))
+
+
+class WritesText(Component):
+    descriptor = Descriptor("writes_text").input("in", NUMBERS).output("out", F64)
+
+    def core(self, ctx):
+        ctx.read("in")
+        ctx.write("out", "not a number")
+
+
+class Endless(Component):
+    descriptor = Descriptor("endless").input("in", NUMBERS)
+
+    def core(self, ctx):
+        ctx.read("in")
+        while True:
+            pass
+
+
+class Waits(Component):
+    descriptor = Descriptor("waits").input("in", NUMBERS)
+
+    def core(self, ctx):
+        ctx.read("in")
+
+
+class Scale(Component):
+    descriptor = (
+        Descriptor("scale").input("in", NUMBERS).output("out", F64)
+        .property(Property.f64("factor", 1.0).range(-10, 10).live())
+        .action("negate")
+    )
+
+    def birth(self, ctx):
+        self.sign = 1.0
+
+    def action(self, name, ctx):
+        self.sign = -self.sign
+
+    def core(self, ctx):
+        sample = ctx.read("in")
+        ctx.write_processed("out", sample, self.sign * ctx.property("factor") * sample.data)
+
+
+class Pair(Component):
+    descriptor = Descriptor("pair").input("a", NUMBERS).input("b", NUMBERS).output("difference", F64)
+
+    def core(self, ctx):
+        a, b = ctx.read_synchronized(["a", "b"], tolerance=0.001)
+        ctx.write_processed("difference", a, float(a.data - b.data))
+"#;
+
+const CONSTANT: &str = r#"
+from kairos_sdk import F64, I64, Component, Descriptor
+
+VALUE = 1.0
+
+
+class Constant(Component):
+    descriptor = Descriptor("constant").input("in", (F64, I64)).output("out", F64)
+
+    def core(self, ctx):
+        ctx.write_processed("out", ctx.read("in"), VALUE)
+"#;
+
+fn require_numpy() {
+    let found = std::process::Command::new("python3")
+        .args(["-c", "import numpy"])
+        .status()
+        .is_ok_and(|s| s.success());
+    assert!(
+        found,
+        "these tests need python3 with numpy first on the PATH: run them with tests/run"
+    );
+}
+
+/// Writes a Python pack `name` into `dir` with `files`; its folder.
+fn write_pack(dir: &Path, name: &str, files: &[(&str, &str)]) -> PathBuf {
+    let folder = dir.join(name);
+    std::fs::create_dir_all(&folder).unwrap();
+    std::fs::write(
+        folder.join("kairos-pack.toml"),
+        format!("[pack]\nname = \"{name}\"\nversion = \"0.1.0\"\n"),
+    )
+    .unwrap();
+    for (file, text) in files {
+        std::fs::write(folder.join(file), text).unwrap();
+    }
+    folder
+}
+
+/// The built-in core and sensors packs and the packs on `folders`.
+fn registry_with(folders: &[PathBuf]) -> (Registry, PackScan) {
+    let mut registry = Registry::new();
+    kairos_pack_core::register(&mut registry);
+    kairos_pack_sensors::register(&mut registry);
+    let scan = kairos_runtime::load_packs(&mut registry, folders);
+    (registry, scan)
+}
+
+fn engine(registry: &Registry, diagram: &str) -> Engine {
+    let parsed = kairos_diagram::parse(diagram).unwrap();
+    Engine::build(&parsed.diagram, registry, RealTimeClock::shared()).unwrap()
+}
+
+/// A reader of every sample (its writer waits for it when it falls behind).
+fn reader(engine: &Engine, component: &str, output: &str) -> Reader {
+    reader_with(engine, component, output, ReaderPolicy::NeverSkipping)
+}
+
+fn reader_with(engine: &Engine, component: &str, output: &str, policy: ReaderPolicy) -> Reader {
+    engine.output_buffer(component, output).unwrap().attach(
+        ReaderConfig::new(policy, format!("{component}.{output} -> test")),
+        Arc::new(RunSignal::new()),
+    )
+}
+
+fn state(engine: &Engine, id: &str) -> ComponentState {
+    engine
+        .snapshot()
+        .components
+        .iter()
+        .find(|c| c.id == id)
+        .unwrap()
+        .state
+        .clone()
+}
+
+fn status(engine: &Engine, id: &str) -> serde_json::Value {
+    let snapshot = engine.snapshot();
+    let component = snapshot.components.iter().find(|c| c.id == id).unwrap();
+    component.status.clone().unwrap_or_default()
+}
+
+fn cycles(engine: &Engine, id: &str) -> u64 {
+    engine
+        .snapshot()
+        .components
+        .iter()
+        .find(|c| c.id == id)
+        .unwrap()
+        .cycles
+}
+
+fn wait_for(timeout: Duration, mut done: impl FnMut() -> bool) -> bool {
+    let started = Instant::now();
+    while started.elapsed() < timeout {
+        if done() {
+            return true;
+        }
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    done()
+}
+
+fn read_n(reader: &mut Reader, count: usize) -> Vec<Sample> {
+    (0..count).map(|_| reader.read(false).unwrap()).collect()
+}
+
+/// The samples of a source, to find the one a Python component's output sample came from: the component
+/// starts after its source, so the first samples may be passed over, and samples are matched by timestamp.
+#[derive(Default)]
+struct Originals(std::collections::HashMap<kairos_sdk::Timestamp, Sample>);
+
+impl Originals {
+    /// The next sample of `through` and the sample of `source` with its timestamp. `source` should be a
+    /// NeverSkipping reader: every sample is then found.
+    fn pair(&mut self, source: &mut Reader, through: &mut Reader) -> (Sample, Sample) {
+        let through = through.read(false).unwrap();
+        while !self.0.contains_key(&through.timestamp) {
+            let original = source.read(false).unwrap();
+            self.0.insert(original.timestamp, original);
+        }
+        (self.0[&through.timestamp].clone(), through)
+    }
+}
+
+fn f64_of(sample: &Sample) -> f64 {
+    sample.payload.as_f64().unwrap()
+}
+
+fn counter_into(component: &str, input: &str, rate: f64) -> String {
+    format!(
+        r#"Diagram(format: 1, components: [
+            Component(id: "counter", type: "core.counter", properties: {{"rate": {rate:?}}}),
+            Component(id: "x", type: "{component}"),
+        ], connections: [Connection(from: "counter.out", to: "x.{input}")])"#
+    )
+}
+
+#[test]
+fn a_python_pass_through_forwards_numbers_with_their_times_and_images_without_a_copy() {
+    require_numpy();
+    let (registry, scan) = registry_with(&[repo_root().join("examples/python/packs")]);
+    assert!(scan.refused.is_empty(), "{:?}", scan.refused);
+    let mut engine = engine(
+        &registry,
+        r#"Diagram(format: 1, components: [
+            Component(id: "counter", type: "core.counter", properties: {"rate": 200.0}),
+            Component(id: "numbers", type: "py_vision.pass_through"),
+            Component(id: "camera", type: "sensors.camera", properties: {"rate": 30.0, "width": 1280, "height": 720}),
+            Component(id: "images", type: "py_vision.pass_through"),
+            Component(id: "threshold", type: "py_vision.threshold", properties: {"green_min": 100}),
+        ], connections: [
+            Connection(from: "counter.out", to: "numbers.in"),
+            Connection(from: "camera.image", to: "images.in"),
+            Connection(from: "camera.image", to: "threshold.image"),
+        ])"#,
+    );
+    let mut counted = reader(&engine, "counter", "out");
+    let mut passed = reader(&engine, "numbers", "out");
+    // Readers that never slow the camera: the test reads the three streams one after the other.
+    let mut camera = reader_with(&engine, "camera", "image", ReaderPolicy::Fifo);
+    let mut images = reader_with(&engine, "images", "out", ReaderPolicy::Fifo);
+    let mut masks = reader_with(&engine, "threshold", "mask", ReaderPolicy::Fifo);
+    engine.start().unwrap();
+
+    let mut originals = Originals::default();
+    for _ in 0..50 {
+        let (original, through) = originals.pair(&mut counted, &mut passed);
+        assert_eq!(
+            through.payload, original.payload,
+            "the timestamp travels unchanged with its value"
+        );
+        assert!(through.time_of_issue >= original.time_of_issue);
+    }
+    let mut shot = Vec::new();
+    let mut matched = 0;
+    for _ in 0..10 {
+        shot.push(camera.read(false).unwrap());
+        let through = images.read(false).unwrap();
+        let Some(original) = shot.iter().find(|s| s.timestamp == through.timestamp) else {
+            continue;
+        };
+        let (Payload::Image(original), Payload::Image(through)) = (&original.payload, &through.payload)
+        else {
+            panic!("images in, images out");
+        };
+        assert!(
+            original.pixels.ptr_eq(&through.pixels),
+            "the pass-through writes the very pixels it read"
+        );
+        matched += 1;
+    }
+    assert!(matched >= 5, "{matched} of 10 images found among the camera's");
+    for mask in read_n(&mut masks, 5) {
+        let Payload::Image(mask) = &mask.payload else {
+            panic!("a mask is an image");
+        };
+        assert_eq!(
+            (mask.width, mask.height, mask.format),
+            (1280, 720, kairos_sdk::PixelFormat::Gray8)
+        );
+        assert!(mask.pixels.shared_reference().is_some(), "drawn in shared memory");
+        assert!(mask.pixels.iter().all(|p| *p == 0 || *p == 255));
+        assert!(
+            mask.pixels.contains(&255) && mask.pixels.contains(&0),
+            "the scene is partly green"
+        );
+    }
+    assert!(wait_for(Duration::from_secs(2), || {
+        status(&engine, "images")["python"]["images"]
+            .as_u64()
+            .is_some_and(|n| n >= 10)
+    }));
+    for id in ["images", "threshold"] {
+        assert_eq!(
+            status(&engine, id)["python"]["pixels_copied_bytes"],
+            0,
+            "{id}: no pixel copied either way"
+        );
+    }
+    engine.stop();
+    for id in ["numbers", "images", "threshold"] {
+        assert_eq!(state(&engine, id), ComponentState::Stopped, "{id}");
+    }
+}
+
+#[test]
+fn properties_actions_and_synchronised_reads_reach_the_python_code() {
+    require_numpy();
+    let dir = tempfile::tempdir().unwrap();
+    write_pack(dir.path(), "py_test", &[("components.py", TEST_COMPONENTS)]);
+    let (registry, scan) = registry_with(&[dir.path().to_owned()]);
+    assert!(scan.refused.is_empty(), "{:?}", scan.refused);
+    let mut engine = engine(
+        &registry,
+        r#"Diagram(format: 1, components: [
+            Component(id: "counter", type: "core.counter", properties: {"rate": 200.0, "start": 1}),
+            Component(id: "scale", type: "py_test.scale", properties: {"factor": 2.0}),
+            Component(id: "pair", type: "py_test.pair"),
+        ], connections: [
+            Connection(from: "counter.out", to: "scale.in"),
+            Connection(from: "counter.out", to: "pair.a"),
+            Connection(from: "counter.out", to: "pair.b"),
+        ])"#,
+    );
+    let mut counted = reader(&engine, "counter", "out");
+    let mut scaled = reader(&engine, "scale", "out");
+    let mut differences = reader(&engine, "pair", "difference");
+    engine.start().unwrap();
+    let mut originals = Originals::default();
+    let first: Vec<(f64, f64)> = (0..5)
+        .map(|_| {
+            let (original, through) = originals.pair(&mut counted, &mut scaled);
+            (f64_of(&original), f64_of(&through))
+        })
+        .collect();
+    assert!(first.iter().all(|(c, s)| *s == 2.0 * c), "{first:?}");
+
+    engine.set_property("scale", "factor", &Value::F64(3.0)).unwrap();
+    engine.trigger_action("scale", "negate").unwrap();
+    assert!(
+        wait_for(Duration::from_secs(3), || {
+            let (original, through) = originals.pair(&mut counted, &mut scaled);
+            let (c, s) = (f64_of(&original), f64_of(&through));
+            s == -3.0 * c
+        }),
+        "the new factor and the action apply"
+    );
+    for difference in read_n(&mut differences, 20) {
+        assert_eq!(f64_of(&difference), 0.0, "matched samples of one stream");
+    }
+    engine.stop();
+}
+
+#[test]
+fn an_exception_in_core_fails_that_component_alone_with_its_traceback() {
+    require_numpy();
+    let dir = tempfile::tempdir().unwrap();
+    let folder = write_pack(dir.path(), "py_test", &[("components.py", TEST_COMPONENTS)]);
+    let (registry, _) = registry_with(&[dir.path().to_owned()]);
+    let mut engine = engine(
+        &registry,
+        r#"Diagram(format: 1, components: [
+            Component(id: "counter", type: "core.counter", properties: {"rate": 200.0}),
+            Component(id: "divide", type: "py_test.divide"),
+            Component(id: "text", type: "py_test.writes_text"),
+            Component(id: "gain", type: "core.gain"),
+        ], connections: [
+            Connection(from: "counter.out", to: "divide.in"),
+            Connection(from: "counter.out", to: "text.in"),
+            Connection(from: "counter.out", to: "gain.in"),
+        ])"#,
+    );
+    engine.start().unwrap();
+    assert!(wait_for(Duration::from_secs(5), || {
+        matches!(state(&engine, "divide"), ComponentState::Failed(_))
+            && matches!(state(&engine, "text"), ComponentState::Failed(_))
+    }));
+    let ComponentState::Failed(error) = state(&engine, "divide") else {
+        unreachable!()
+    };
+    let file = folder.join("components.py").canonicalize().unwrap();
+    assert!(error.contains("ZeroDivisionError"), "{error}");
+    assert!(error.contains("Traceback (most recent call last)"), "{error}");
+    let line = line_of(TEST_COMPONENTS, "sample.data / (5 - self.count)");
+    assert!(
+        error.contains(&format!("{}:{line}", file.display())) && error.contains("in core"),
+        "the file and line where it happened: {error}"
+    );
+    assert!(
+        !error.contains("kairos_sdk"),
+        "the SDK's own frames are left out: {error}"
+    );
+    let ComponentState::Failed(error) = state(&engine, "text") else {
+        unreachable!()
+    };
+    assert!(
+        error.contains("output 'out' carries f64: got str 'not a number'"),
+        "the port and the type named: {error}"
+    );
+    let before = cycles(&engine, "gain");
+    assert!(
+        wait_for(Duration::from_secs(2), || cycles(&engine, "gain") > before + 20),
+        "the rest keeps running"
+    );
+    assert_eq!(state(&engine, "gain"), ComponentState::Running);
+    engine.stop();
+}
+
+#[test]
+fn an_endless_loop_in_python_does_not_hold_the_stop_and_its_process_is_ended() {
+    require_numpy();
+    let dir = tempfile::tempdir().unwrap();
+    write_pack(dir.path(), "py_test", &[("components.py", TEST_COMPONENTS)]);
+    let (registry, _) = registry_with(&[dir.path().to_owned()]);
+    let mut engine = engine(&registry, &counter_into("py_test.endless", "in", 100.0));
+    engine.start().unwrap();
+    let pid = wait_for_pid(&engine, "x");
+    std::thread::sleep(Duration::from_millis(300));
+    let stopping = Instant::now();
+    engine.stop();
+    let took = stopping.elapsed();
+    assert!(
+        took < Duration::from_secs(4),
+        "stopped in {took:?}: the grace period is 2 s"
+    );
+    assert!(
+        took >= Duration::from_secs(2),
+        "the code was given its grace period: {took:?}"
+    );
+    assert!(!process_exists(pid), "the worker process {pid} was ended");
+}
+
+#[test]
+fn a_python_process_killed_fails_its_component_within_a_second() {
+    require_numpy();
+    let dir = tempfile::tempdir().unwrap();
+    write_pack(dir.path(), "py_test", &[("components.py", TEST_COMPONENTS)]);
+    let (registry, _) = registry_with(&[dir.path().to_owned()]);
+    // One sample every 10 s: the component sits waiting for data, the hardest place to notice a death.
+    let mut engine = engine(&registry, &counter_into("py_test.waits", "in", 0.1));
+    engine.start().unwrap();
+    let pid = wait_for_pid(&engine, "x");
+    std::thread::sleep(Duration::from_millis(200));
+    nix::sys::signal::kill(
+        nix::unistd::Pid::from_raw(pid as i32),
+        nix::sys::signal::Signal::SIGKILL,
+    )
+    .unwrap();
+    let killed = Instant::now();
+    assert!(wait_for(Duration::from_secs(1), || matches!(
+        state(&engine, "x"),
+        ComponentState::Failed(_)
+    )));
+    let noticed = killed.elapsed();
+    let ComponentState::Failed(error) = state(&engine, "x") else {
+        panic!("failed within 1 s");
+    };
+    assert!(error.contains("was killed by SIGKILL"), "{error}");
+    assert!(noticed < Duration::from_secs(1), "{noticed:?}");
+    assert_eq!(state(&engine, "counter"), ComponentState::Running);
+    engine.stop();
+}
+
+#[test]
+fn editing_a_component_file_while_it_runs_reloads_that_component_alone() {
+    require_numpy();
+    let dir = tempfile::tempdir().unwrap();
+    let folder = write_pack(dir.path(), "py_live", &[("constant.py", CONSTANT)]);
+    let (registry, _) = registry_with(&[dir.path().to_owned()]);
+    let mut engine = engine(
+        &registry,
+        r#"Diagram(format: 1, components: [
+            Component(id: "counter", type: "core.counter", properties: {"rate": 100.0}),
+            Component(id: "constant", type: "py_live.constant"),
+            Component(id: "gain", type: "core.gain"),
+        ], connections: [
+            Connection(from: "counter.out", to: "constant.in"),
+            Connection(from: "counter.out", to: "gain.in"),
+        ])"#,
+    );
+    let mut constant = reader(&engine, "constant", "out");
+    engine.start().unwrap();
+    assert_eq!(f64_of(&constant.read(false).unwrap()), 1.0);
+    let first_pid = wait_for_pid(&engine, "constant");
+    let gain_before = cycles(&engine, "gain");
+
+    std::fs::write(
+        folder.join("constant.py"),
+        CONSTANT.replace("VALUE = 1.0", "VALUE = 2.0"),
+    )
+    .unwrap();
+    assert!(
+        wait_for(Duration::from_secs(5), || f64_of(&constant.read(false).unwrap())
+            == 2.0),
+        "the edited code runs"
+    );
+    assert!(
+        wait_for(Duration::from_secs(2), || wait_for_pid(&engine, "constant")
+            != first_pid),
+        "in a new process: {first_pid} then {}",
+        status(&engine, "constant")
+    );
+    assert!(!process_exists(first_pid), "the old one ended");
+    assert_eq!(state(&engine, "gain"), ComponentState::Running);
+    assert!(cycles(&engine, "gain") > gain_before, "the rest kept running");
+
+    // Code that does not load leaves the running code in place.
+    std::fs::write(folder.join("constant.py"), "VALUE = (\n").unwrap();
+    std::thread::sleep(Duration::from_millis(1500));
+    assert_eq!(state(&engine, "constant"), ComponentState::Running);
+    let values: Vec<f64> = read_n(&mut constant, 20).iter().map(f64_of).collect();
+    assert!(values.iter().all(|v| *v == 2.0), "{values:?}");
+    engine.stop();
+}
+
+#[test]
+fn a_file_that_does_not_import_is_listed_with_its_line_and_the_rest_of_the_pack_loads() {
+    require_numpy();
+    let dir = tempfile::tempdir().unwrap();
+    write_pack(
+        dir.path(),
+        "py_mixed",
+        &[
+            ("good.py", CONSTANT),
+            ("broken.py", "import os\n\ndef f(:\n    pass\n"),
+            ("missing.py", "import os\nimport no_such_module_here\n"),
+        ],
+    );
+    let (registry, scan) = registry_with(&[dir.path().to_owned()]);
+    assert!(registry.component("py_mixed.constant").is_some());
+    let reasons: Vec<String> = scan
+        .refused
+        .iter()
+        .map(|r| format!("{}: {}", r.path.display(), r.reason))
+        .collect();
+    assert_eq!(reasons.len(), 2, "{reasons:?}");
+    assert!(
+        reasons[0].contains("broken.py: line 3: SyntaxError"),
+        "{reasons:?}"
+    );
+    assert!(
+        reasons[1].contains("missing.py: line 2: ModuleNotFoundError: No module named 'no_such_module_here'"),
+        "{reasons:?}"
+    );
+
+    // As a user sees it.
+    let output = kairos(dir.path(), &["packs", "--pack-path", "."]);
+    let (stdout, stderr) = text(&output);
+    assert!(output.status.success(), "{stderr}");
+    assert!(
+        stdout.contains("py_mixed 0.1.0") && stdout.contains("    py_mixed.constant"),
+        "{stdout}"
+    );
+    assert!(stdout.contains("broken.py: line 3: SyntaxError"), "{stdout}");
+}
+
+#[test]
+fn a_missing_interpreter_or_virtual_environment_is_named() {
+    let dir = tempfile::tempdir().unwrap();
+    for (name, interpreter, expected) in [
+        (
+            "py_venv",
+            "empty_venv",
+            "empty_venv' is a folder without bin/python3: not a virtual environment",
+        ),
+        (
+            "py_path",
+            ".venv/bin/python",
+            "py_path/.venv/bin/python' does not exist",
+        ),
+        (
+            "py_command",
+            "python3.99",
+            "the Python interpreter 'python3.99' is not on the PATH",
+        ),
+    ] {
+        let folder = write_pack(dir.path(), name, &[("good.py", CONSTANT)]);
+        std::fs::write(
+            folder.join("kairos-pack.toml"),
+            format!("[pack]\nname = \"{name}\"\nversion = \"0.1.0\"\n\n[python]\ninterpreter = \"{interpreter}\"\n"),
+        )
+        .unwrap();
+        if interpreter.starts_with("empty") {
+            std::fs::create_dir(folder.join(interpreter)).unwrap();
+        }
+        let (registry, scan) = registry_with(std::slice::from_ref(&folder));
+        assert!(registry.component(&format!("{name}.constant")).is_none());
+        let reason = &scan.refused.first().unwrap().reason;
+        assert!(reason.contains(expected), "{reason}");
+        assert!(reason.contains(&format!("pack '{name}'")), "{reason}");
+        assert!(
+            reason.contains("set `interpreter` under [python]"),
+            "the fix: {reason}"
+        );
+    }
+}
+
+#[test]
+fn a_failing_python_component_shows_its_traceback_and_prints_in_the_log() {
+    require_numpy();
+    let dir = tempfile::tempdir().unwrap();
+    let source = TEST_COMPONENTS.replace(
+        "        self.count += 1\n",
+        "        self.count += 1\n        print(f\"dividing sample {self.count}\")\n",
+    );
+    write_pack(
+        &dir.path().join("packs"),
+        "py_test",
+        &[("components.py", &source)],
+    );
+    std::fs::write(
+        dir.path().join("d.ron"),
+        counter_into("py_test.divide", "in", 100.0),
+    )
+    .unwrap();
+    let output = kairos(dir.path(), &["run", "d.ron", "--for", "1s"]);
+    let (_, stderr) = text(&output);
+    assert!(
+        stderr.contains("x: dividing sample 4"),
+        "what Python prints is logged: {stderr}"
+    );
+    assert!(stderr.contains("ZeroDivisionError: division by zero"), "{stderr}");
+    let line = line_of(&source, "sample.data / (5 - self.count)");
+    assert!(
+        stderr.contains(&format!("components.py\", line {line}, in core")),
+        "{stderr}"
+    );
+}
+
+/// The line of `text` (from 1) holding `needle`.
+fn line_of(text: &str, needle: &str) -> usize {
+    text.lines().position(|l| l.contains(needle)).unwrap() + 1
+}
+
+fn wait_for_pid(engine: &Engine, id: &str) -> u32 {
+    let mut pid = None;
+    assert!(wait_for(Duration::from_secs(5), || {
+        pid = status(engine, id)["python"]["pid"].as_u64();
+        pid.is_some()
+    }));
+    pid.unwrap() as u32
+}
+
+fn process_exists(pid: u32) -> bool {
+    // A zombie is ended too: only its exit status waits to be read.
+    std::fs::read_to_string(format!("/proc/{pid}/stat")).is_ok_and(|stat| {
+        !stat
+            .rsplit(')')
+            .next()
+            .unwrap_or_default()
+            .trim_start()
+            .starts_with('Z')
+    })
+}
