@@ -365,3 +365,62 @@ fn a_generated_cpp_pack_builds_with_make_and_runs() {
     );
     assert!(ticks >= 5, "the periodic C++ component ticks at 10 Hz: {csv}");
 }
+
+#[test]
+fn a_generated_python_pack_passes_its_tests_and_runs() {
+    let dir = tempfile::tempdir().unwrap();
+    let made = kairos(dir.path(), &["new", "pack", "py_made", "--lang", "python"]);
+    assert!(made.status.success(), "{}", text(&made).1);
+    let pack = dir.path().join("py_made");
+    for args in [
+        &[
+            "smoother", "--input", "in:f64", "--output", "out:f64", "--action", "reset",
+        ][..],
+        &["ticker", "--mode", "periodic", "--output", "out:text"][..],
+        &["sink", "--input", "in:any"][..],
+    ] {
+        let mut command = vec!["new", "component"];
+        command.extend_from_slice(args);
+        command.extend_from_slice(&["--pack", "py_made", "--lang", "python"]);
+        let output = kairos(dir.path(), &command);
+        assert!(output.status.success(), "{args:?}: {}", text(&output).1);
+    }
+    let mismatch = kairos(
+        dir.path(),
+        &["new", "component", "other", "--pack", "py_made", "--lang", "rust"],
+    );
+    assert!(!mismatch.status.success());
+    assert!(
+        text(&mismatch).1.contains("is a Python pack, not Rust"),
+        "{}",
+        text(&mismatch).1
+    );
+
+    // The generated tests pass on the offline harness.
+    let sdk = common::repo_root().join("component-sdk/python");
+    let pytest = Command::new("python3")
+        .args(["-m", "pytest", "-q"])
+        .current_dir(&pack)
+        .env("PYTHONPATH", &sdk)
+        .output()
+        .unwrap();
+    let (stdout, stderr) = text(&pytest);
+    assert!(pytest.status.success(), "{stdout}{stderr}");
+    assert!(stdout.contains("4 passed"), "{stdout}");
+
+    // And the pack runs in a diagram: a constant scaled by the example component, printed.
+    let diagram = r#"Diagram(format: 1, components: [
+        Component(id: "counter", type: "core.constant", properties: {"rate": 50.0, "value": 1.5}),
+        Component(id: "scale", type: "py_made.scale"),
+        Component(id: "console", type: "core.console", properties: {"every": 1}),
+    ], connections: [
+        Connection(from: "counter.out", to: "scale.in"),
+        Connection(from: "scale.out", to: "console.in"),
+    ])"#;
+    std::fs::write(dir.path().join("d.ron"), diagram).unwrap();
+    let run = kairos(dir.path(), &["run", "d.ron", "--pack-path", ".", "--for", "1s"]);
+    let (stdout, stderr) = text(&run);
+    assert!(run.status.success(), "{stderr}");
+    let printed = stdout + &stderr;
+    assert!(printed.contains(" 3\n"), "1.5 scaled by 2.0: {printed}");
+}

@@ -52,7 +52,7 @@ pub enum Stage {
 pub struct NewComponentDialog {
     /// The pack's folder; made with `kairos new pack` when it does not exist.
     pub pack: String,
-    /// A new pack's language: `rust` or `cpp`.
+    /// A new pack's language: `rust`, `cpp` or `python`.
     pub lang: String,
     /// The component's name.
     pub name: String,
@@ -201,7 +201,9 @@ impl NewComponentDialog {
 
     fn pack_exists(&self) -> bool {
         let folder = Path::new(self.pack.trim());
-        folder.join("src/lib.rs").is_file() || folder.join("src/pack.cpp").is_file()
+        folder.join("src/lib.rs").is_file()
+            || folder.join("src/pack.cpp").is_file()
+            || folder.join(PYTHON_MANIFEST).is_file()
     }
 
     /// What checking the answers runs: the dry-run arguments, and the pack to make in a scratch folder
@@ -370,10 +372,15 @@ impl NewComponentDialog {
             ui.end_row();
             let language_label = ui.label("New pack in");
             let _ = egui::ComboBox::new("new pack language", "")
-                .selected_text(if self.lang == "cpp" { "C++" } else { "Rust" })
+                .selected_text(match self.lang.as_str() {
+                    "cpp" => "C++",
+                    "python" => "Python",
+                    _ => "Rust",
+                })
                 .show_ui(ui, |ui| {
                     ui.selectable_value(&mut self.lang, "rust".to_owned(), "Rust");
                     ui.selectable_value(&mut self.lang, "cpp".to_owned(), "C++");
+                    ui.selectable_value(&mut self.lang, "python".to_owned(), "Python");
                 })
                 .response
                 .labelled_by(language_label.id);
@@ -449,9 +456,15 @@ impl NewComponentDialog {
     }
 }
 
-/// Builds the pack at `pack`: `cargo build --release` for a Rust pack, `make` for a C++ one. Returns the
-/// folder holding the library, or the errors with their places.
+/// A Python pack's manifest: such a pack has nothing to build, and its own folder goes on the pack path.
+const PYTHON_MANIFEST: &str = "kairos-pack.toml";
+
+/// Builds the pack at `pack`: `cargo build --release` for a Rust pack, `make` for a C++ one, nothing for a
+/// Python one. Returns the folder to put on the pack path, or the errors with their places.
 fn build(pack: &Path) -> Result<PathBuf, (String, Vec<BuildMessage>)> {
+    if pack.join(PYTHON_MANIFEST).is_file() {
+        return Ok(pack.to_owned());
+    }
     let cpp = pack.join("Makefile").is_file();
     let mut command = if cpp {
         Command::new("make")

@@ -96,7 +96,9 @@ class WorkerContext(ContextBase):
         return reply, body
 
     def _release_later(self, handle, address):
-        self._held.pop(address, None)
+        # A newer array may sit at the same address (the runtime recycled the buffer): leave it.
+        if self._held.get(address, (None,))[0] == handle:
+            del self._held[address]
         self._releases.append(handle)
 
     # ----- inputs -----

@@ -205,7 +205,8 @@ pub enum NewCommand {
         /// The kairos-sdk to depend on (default: this installation's).
         #[arg(long, value_name = "PATH")]
         sdk: Option<PathBuf>,
-        /// The pack's language: a Rust crate, or C++ against the C header of the pack ABI.
+        /// The pack's language: a Rust crate, C++ against the C header of the pack ABI, or Python
+        /// (`.py` files, nothing to build).
         #[arg(long, value_enum, default_value = "rust")]
         lang: crate::wizard::Lang,
         /// Overwrite files that exist.
@@ -235,6 +236,9 @@ pub enum NewCommand {
         /// How it runs.
         #[arg(long, value_enum, default_value = "threaded")]
         mode: crate::wizard::Mode,
+        /// The pack's language, checked against the pack (which decides it).
+        #[arg(long, value_enum)]
+        lang: Option<crate::wizard::Lang>,
         /// Overwrite the component's file if it exists.
         #[arg(long)]
         force: bool,
@@ -454,6 +458,31 @@ pub fn execute(cli: Cli) -> anyhow::Result<ExitCode> {
     }
 }
 
+/// What to do with a pack `kairos new pack` made.
+fn print_pack_next_steps(
+    lang: crate::wizard::Lang,
+    name: &str,
+    folder: &std::path::Path,
+    path: &std::path::Path,
+) {
+    if lang == crate::wizard::Lang::Python {
+        println!("  cd {} && python3 -m pytest", folder.display());
+        println!("  kairos --pack-path {} components {name}.", path.display());
+    } else if lang == crate::wizard::Lang::Cpp {
+        println!("  cd {} && make", folder.display());
+        println!(
+            "  kairos --pack-path {}/build components {name}.",
+            folder.display()
+        );
+    } else {
+        println!("  cd {} && cargo test && cargo build --release", folder.display());
+        println!(
+            "  kairos --pack-path {}/target/release components {name}.",
+            folder.display()
+        );
+    }
+}
+
 /// `kairos new`: prints what was made, or why nothing was.
 fn new(what: NewCommand, registry: &Registry) -> ExitCode {
     let result = match what {
@@ -468,19 +497,7 @@ fn new(what: NewCommand, registry: &Registry) -> ExitCode {
             let library = registry.library_info();
             crate::wizard::new_pack(&name, &path, &sdk, &library, lang, force).map(|(folder, notes)| {
                 println!("made the pack '{name}' in {}", folder.display());
-                if lang == crate::wizard::Lang::Cpp {
-                    println!("  cd {} && make", folder.display());
-                    println!(
-                        "  kairos --pack-path {}/build components {name}.",
-                        folder.display()
-                    );
-                } else {
-                    println!("  cd {} && cargo test && cargo build --release", folder.display());
-                    println!(
-                        "  kairos --pack-path {}/target/release components {name}.",
-                        folder.display()
-                    );
-                }
+                print_pack_next_steps(lang, &name, &folder, &path);
                 notes
             })
         }
@@ -492,6 +509,7 @@ fn new(what: NewCommand, registry: &Registry) -> ExitCode {
             properties,
             actions,
             mode,
+            lang,
             force,
             dry_run,
         } => {
@@ -516,6 +534,19 @@ fn new(what: NewCommand, registry: &Registry) -> ExitCode {
                 },
             };
             let name = spec.name.clone();
+            if let (Some(wanted), Some(found)) = (lang, crate::wizard::pack_lang(&pack))
+                && wanted != found
+            {
+                eprintln!(
+                    "error: the pack at {} is a {} pack, not {}: make a {} pack with `kairos new pack NAME --lang {}`",
+                    pack.display(),
+                    found.name(),
+                    wanted.name(),
+                    wanted.name(),
+                    format!("{wanted:?}").to_lowercase()
+                );
+                return ExitCode::from(1);
+            }
             if dry_run {
                 return match crate::wizard::check_component(&spec, &pack, &registry.library_info(), force) {
                     Ok(()) => {
@@ -529,15 +560,12 @@ fn new(what: NewCommand, registry: &Registry) -> ExitCode {
                 };
             }
             crate::wizard::new_component(&spec, &pack, &registry.library_info(), force).inspect(|_| {
-                let extension = if pack.join("src/pack.cpp").is_file() {
-                    "cpp"
-                } else {
-                    "rs"
+                let file = match crate::wizard::pack_lang(&pack) {
+                    Some(crate::wizard::Lang::Python) => pack.join(format!("{name}.py")),
+                    Some(crate::wizard::Lang::Cpp) => pack.join("src").join(format!("{name}.cpp")),
+                    _ => pack.join("src").join(format!("{name}.rs")),
                 };
-                println!(
-                    "made the component '{name}' in {}",
-                    pack.join("src").join(format!("{name}.{extension}")).display()
-                );
+                println!("made the component '{name}' in {}", file.display());
             })
         }
     };

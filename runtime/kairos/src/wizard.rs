@@ -18,6 +18,10 @@ const CPP_README: &str = include_str!("../../../templates/cpp/pack/README.md.j2"
 const CPP_PACK: &str = include_str!("../../../templates/cpp/pack/pack.cpp.j2");
 const CPP_UTIL: &str = include_str!("../../../templates/cpp/pack/kairos_util.hpp.j2");
 const CPP_COMPONENT: &str = include_str!("../../../templates/cpp/component.cpp.j2");
+const PYTHON_MANIFEST: &str = include_str!("../../../templates/python/pack/kairos-pack.toml.j2");
+const PYTHON_README: &str = include_str!("../../../templates/python/pack/README.md.j2");
+const PYTHON_COMPONENT: &str = include_str!("../../../templates/python/component.py.j2");
+const PYTHON_TEST: &str = include_str!("../../../templates/python/test_component.py.j2");
 
 /// Where `kairos new component` adds a module to a pack's `lib.rs`, and where it registers the component;
 /// and the same two places in a C++ pack's `pack.cpp`.
@@ -32,9 +36,25 @@ pub enum Lang {
     Rust,
     /// C++ against the C header of the pack ABI, built with make.
     Cpp,
+    /// Python: `.py` files and a `kairos-pack.toml`, nothing to build (docs/python.md).
+    Python,
+}
+
+impl Lang {
+    /// How users name it.
+    pub fn name(self) -> &'static str {
+        match self {
+            Lang::Rust => "Rust",
+            Lang::Cpp => "C++",
+            Lang::Python => "Python",
+        }
+    }
 }
 
 const REGISTER_MARKER: &str = "// kairos new: registrations above this line";
+
+/// A Python pack's manifest (the runtime's `python_host::MANIFEST`).
+const PYTHON_MANIFEST_FILE: &str = kairos_runtime::python_host::MANIFEST;
 
 /// Rust's keywords (2024 edition, strict and reserved): not usable as names.
 const KEYWORDS: &[&str] = &[
@@ -293,6 +313,8 @@ struct PropertyView {
     name: String,
     builder: String,
     getter: String,
+    /// The same property with the Python SDK's builder.
+    python: String,
 }
 
 fn type_expr(data_type: &DataType) -> String {
@@ -402,10 +424,18 @@ fn property_view(text: &str) -> Result<PropertyView, Refusal> {
             ));
         }
     };
+    let python = match kind {
+        "bool" => format!(
+            "Property.bool(\"{name}\", {})",
+            if default.trim() == "true" { "True" } else { "False" }
+        ),
+        _ => builder.replacen("Property::", "Property.", 1),
+    };
     Ok(PropertyView {
         name: name.to_owned(),
         builder,
         getter: getter.to_owned(),
+        python,
     })
 }
 
@@ -422,6 +452,10 @@ fn environment() -> Result<Environment<'static>, String> {
         ("cpp/pack.cpp", CPP_PACK),
         ("cpp/kairos_util.hpp", CPP_UTIL),
         ("cpp/component.cpp", CPP_COMPONENT),
+        ("python/kairos-pack.toml", PYTHON_MANIFEST),
+        ("python/README.md", PYTHON_README),
+        ("python/component.py", PYTHON_COMPONENT),
+        ("python/test_component.py", PYTHON_TEST),
     ] {
         env.add_template(name, source)
             .map_err(|e| format!("the template {name} is broken: {e}"))?;
@@ -489,28 +523,35 @@ pub fn new_pack(
 ) -> Result<(PathBuf, Vec<String>), String> {
     check_name("pack", name).map_err(|r| r.to_string())?;
     check_pack_name_free(name, library)?;
-    if !sdk.join("Cargo.toml").is_file() {
+    if lang != Lang::Python && !sdk.join("Cargo.toml").is_file() {
         return Err(format!(
             "no kairos-sdk at {} (it is found beside the sources kairos was built from); give --sdk PATH",
             sdk.display()
         ));
     }
     let folder = parent.join(name);
-    let exists = folder.join("Cargo.toml").exists() || folder.join("Makefile").exists();
+    let exists = folder.join("Cargo.toml").exists()
+        || folder.join("Makefile").exists()
+        || folder.join(PYTHON_MANIFEST_FILE).exists();
     if exists && !force {
         return Err(format!(
             "{} already holds a pack; --force overwrites it",
             folder.display()
         ));
     }
-    std::fs::create_dir_all(folder.join("src"))
-        .map_err(|e| format!("cannot create {}: {e}", folder.display()))?;
+    let sources = if lang == Lang::Python {
+        folder.clone()
+    } else {
+        folder.join("src")
+    };
+    std::fs::create_dir_all(&sources).map_err(|e| format!("cannot create {}: {e}", folder.display()))?;
     let crate_name = format!("kairos-pack-{}", name.replace('_', "-"));
     let values = context! {
         pack_name => name,
         crate_name => crate_name,
         sdk_path => sdk.display().to_string(),
         include_path => sdk.join("include").display().to_string(),
+        parent => parent.display().to_string(),
     };
     let files: &[(&str, &str)] = match lang {
         Lang::Rust => &[
@@ -523,6 +564,10 @@ pub fn new_pack(
             ("README.md", "cpp/README.md"),
             ("src/pack.cpp", "cpp/pack.cpp"),
             ("src/kairos_util.hpp", "cpp/kairos_util.hpp"),
+        ],
+        Lang::Python => &[
+            (PYTHON_MANIFEST_FILE, "python/kairos-pack.toml"),
+            ("README.md", "python/README.md"),
         ],
     };
     for (file, template) in files {
@@ -537,7 +582,7 @@ pub fn new_pack(
         mode: Mode::Threaded,
     };
     let notes = new_component(&example, &folder, &kairos_diagram::LibraryInfo::default(), force)?;
-    if lang == Lang::Cpp {
+    if lang != Lang::Rust {
         return Ok((folder, Vec::new()));
     }
     Ok((folder, notes))
@@ -600,7 +645,7 @@ fn pack_name(lib: &str) -> Option<String> {
 /// Where a new component goes: the pack's index file (`lib.rs` or `pack.cpp`) and the component's file.
 #[derive(Debug)]
 struct Target {
-    cpp: bool,
+    lang: Lang,
     index_path: PathBuf,
     index: String,
     pack_name: String,
@@ -617,6 +662,9 @@ fn locate(
     force: bool,
 ) -> Result<Target, String> {
     check_name("component", &spec.name).map_err(|r| r.to_string())?;
+    if pack.join(PYTHON_MANIFEST_FILE).is_file() {
+        return locate_python(spec, pack, library, force);
+    }
     let cpp = pack.join("src/pack.cpp").is_file();
     let (index_path, markers) = if cpp {
         (
@@ -663,13 +711,67 @@ fn locate(
         ));
     }
     Ok(Target {
-        cpp,
+        lang: if cpp { Lang::Cpp } else { Lang::Rust },
         index_path,
         index,
         pack_name,
         type_name,
         module_path,
         registered,
+    })
+}
+
+/// [`locate`] for a Python pack: its manifest names it, and a component is a file of its own.
+fn locate_python(
+    spec: &ComponentSpec,
+    pack: &Path,
+    library: &kairos_diagram::LibraryInfo,
+    force: bool,
+) -> Result<Target, String> {
+    let index_path = pack.join(PYTHON_MANIFEST_FILE);
+    let index = std::fs::read_to_string(&index_path)
+        .map_err(|e| format!("cannot read {}: {e}", index_path.display()))?;
+    // `name = "..."` under [pack]: the manifest's only `name`.
+    let pack_name = index
+        .lines()
+        .map(str::trim)
+        .find_map(|line| {
+            line.strip_prefix("name")?
+                .trim_start()
+                .strip_prefix('=')?
+                .trim()
+                .strip_prefix('"')?
+                .split('"')
+                .next()
+        })
+        .map(str::to_owned)
+        .ok_or_else(|| {
+            format!(
+                "{} has no pack name (name = \"...\" under [pack])",
+                index_path.display()
+            )
+        })?;
+    let type_name = format!("{pack_name}.{}", spec.name);
+    if library.component(&type_name).is_some() && !force {
+        return Err(format!(
+            "the component library already has a type '{type_name}'; choose another name"
+        ));
+    }
+    let module_path = pack.join(format!("{}.py", spec.name));
+    if module_path.exists() && !force {
+        return Err(format!(
+            "the pack {pack_name} already has a component '{}'; choose another name (or --force)",
+            spec.name
+        ));
+    }
+    Ok(Target {
+        lang: Lang::Python,
+        index_path,
+        index,
+        pack_name,
+        type_name,
+        module_path,
+        registered: true,
     })
 }
 
@@ -889,6 +991,135 @@ fn write_rust(
         .collect())
 }
 
+/// The language of the pack at `pack`, as `kairos new component` finds it.
+pub fn pack_lang(pack: &Path) -> Option<Lang> {
+    if pack.join(PYTHON_MANIFEST_FILE).is_file() {
+        Some(Lang::Python)
+    } else if pack.join("src/pack.cpp").is_file() {
+        Some(Lang::Cpp)
+    } else if pack.join("src/lib.rs").is_file() {
+        Some(Lang::Rust)
+    } else {
+        None
+    }
+}
+
+fn check_python_mode(spec: &ComponentSpec, target: &Target) -> Result<(), String> {
+    if target.lang == Lang::Python && spec.mode == Mode::Reactive {
+        return Err(
+            "a Python component runs threaded or periodic (a reactive one would run Python in its producer's thread): \
+             use --mode threaded"
+                .to_owned(),
+        );
+    }
+    Ok(())
+}
+
+/// The SDK constant naming a data type in Python (`F64`, `POINT_CLOUD`, `ANY`).
+fn python_type(type_name: &str) -> String {
+    type_name.to_ascii_uppercase()
+}
+
+/// What a Python source writes, by type.
+fn python_source(type_name: &str) -> Option<&'static str> {
+    Some(match type_name {
+        "f64" => "float(self.count)",
+        "i64" => "self.count",
+        "bool" => "self.count % 2 == 0",
+        "text" => "f\"sample {self.count}\"",
+        "bytes" => "bytes([self.count % 256])",
+        "vector" => "[float(self.count)] * 3",
+        _ => return None,
+    })
+}
+
+/// Writes a Python component and its pytest test beside it: the pack reads every `.py` file, so nothing
+/// else changes.
+fn write_python(
+    spec: &ComponentSpec,
+    target: &Target,
+    plan: &Plan,
+    force: bool,
+) -> Result<Vec<String>, String> {
+    check_python_mode(spec, target)?;
+    let mut imports = BTreeSet::from(["Component".to_owned(), "Descriptor".to_owned()]);
+    if !plan.properties.is_empty() {
+        imports.insert("Property".to_owned());
+    }
+    let port = |p: &PortView| {
+        let py_type = python_type(&p.type_name);
+        serde_json::json!({"name": p.name, "py_type": py_type})
+    };
+    let inputs: Vec<_> = plan.inputs.iter().map(port).collect();
+    let outputs: Vec<_> = plan.outputs.iter().map(port).collect();
+    for view in plan.inputs.iter().chain(&plan.outputs) {
+        imports.insert(python_type(&view.type_name));
+    }
+    let input_type = plan.first_input().map(|i| i.type_name.as_str());
+    let test_value = match input_type {
+        Some("f64" | "any") => Some("1.5"),
+        Some("i64") => Some("3"),
+        Some("bool") => Some("True"),
+        _ => None,
+    };
+    let factor_default = plan.factor.as_ref().and_then(|name| {
+        spec.properties
+            .iter()
+            .find_map(|p| p.strip_prefix(&format!("{name}:f64=")))
+            .and_then(|v| v.parse::<f64>().ok())
+    });
+    let input_value = match input_type {
+        Some("i64") => 3.0,
+        Some("bool") => 1.0,
+        _ => 1.5,
+    };
+    let numeric = plan.numeric.as_ref().map(|_| match &plan.factor {
+        Some(name) => format!("float(sample.data) * ctx.property(\"{name}\")"),
+        None => "float(sample.data)".to_owned(),
+    });
+    let expected = if plan.pass_through {
+        test_value.map(str::to_owned)
+    } else if numeric.is_some() {
+        Some(format!("{:?}", input_value * factor_default.unwrap_or(1.0)))
+    } else {
+        None
+    };
+    let source = plan
+        .first_output()
+        .and_then(|o| python_source(&o.type_name))
+        .filter(|_| plan.first_input().is_none());
+    let values = context! {
+        name => spec.name,
+        type_name => target.type_name,
+        class_name => plan.struct_name,
+        category => target.pack_name,
+        doc => doc_line(spec),
+        periodic => spec.mode == Mode::Periodic,
+        inputs => inputs,
+        outputs => outputs,
+        properties => plan.properties,
+        actions => spec.actions,
+        first_input => plan.first_input().map(port),
+        first_output => plan.first_output().map(port),
+        pass_through => plan.pass_through,
+        numeric => numeric,
+        source => source,
+        test_value => test_value,
+        expected => expected,
+        imports => imports.into_iter().collect::<Vec<_>>().join(", "),
+    };
+    write_new(
+        &target.module_path,
+        &render("python/component.py", values.clone())?,
+        force,
+    )?;
+    let test_path = target
+        .module_path
+        .with_file_name(format!("test_{}.py", spec.name));
+    write_new(&test_path, &render("python/test_component.py", values)?, force)?;
+    Ok(Vec::new())
+}
+
 /// Writes a C++ component and lists it in the pack's `pack.cpp`.
 fn write_cpp(spec: &ComponentSpec, target: &Target, plan: &Plan, force: bool) -> Result<Vec<String>, String> {
     let descriptor = cpp_descriptor(spec, &target.type_name, &target.pack_name)?;
@@ -954,7 +1185,8 @@ pub fn check_component(
     library: &kairos_diagram::LibraryInfo,
     force: bool,
 ) -> Result<(), String> {
-    locate(spec, pack, library, force)?;
+    let target = locate(spec, pack, library, force)?;
+    check_python_mode(spec, &target)?;
     plan(spec).map(|_| ())
 }
 
@@ -968,10 +1200,10 @@ pub fn new_component(
 ) -> Result<Vec<String>, String> {
     let target = locate(spec, pack, library, force)?;
     let plan = plan(spec)?;
-    if target.cpp {
-        write_cpp(spec, &target, &plan, force)
-    } else {
-        write_rust(spec, &target, &plan, force)
+    match target.lang {
+        Lang::Cpp => write_cpp(spec, &target, &plan, force),
+        Lang::Rust => write_rust(spec, &target, &plan, force),
+        Lang::Python => write_python(spec, &target, &plan, force),
     }
 }
 
