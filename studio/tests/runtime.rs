@@ -632,3 +632,47 @@ fn a_component_made_in_the_studio_is_built_loaded_and_in_the_palette() {
     harness.run_steps(2);
     assert!(harness.query_by_label("Smoother").is_some(), "in the palette");
 }
+
+#[test]
+fn a_python_component_made_in_the_studio_is_loaded_without_a_build() {
+    let mut harness = studio_on_local_runtime(Document::default(), Vec2::new(1400.0, 900.0));
+    harness.get_by_label("File").click();
+    harness.run_steps(2);
+    harness.get_by_label("New component…").click();
+    harness.run_steps(2);
+
+    let dir = tempfile::tempdir().unwrap();
+    let pack = dir.path().join("py_lab");
+    type_into(&mut harness, "Pack folder", pack.to_str().unwrap());
+    harness
+        .get_by_role_and_label(egui::accesskit::Role::ComboBox, "New pack in")
+        .click();
+    harness.run_steps(2);
+    harness.get_by_label("Python").click();
+    harness.run_steps(2);
+    type_into(&mut harness, "Name", "doubler");
+    type_into(&mut harness, "Inputs", "in:f64");
+    type_into(&mut harness, "Outputs", "out:f64");
+    harness.get_by_label("Check").click();
+    wait_for_text(&mut harness, "the answers are fine");
+    assert!(!pack.exists(), "checking writes nothing");
+
+    harness.get_by_label("Create, build and load").click();
+    let started = Instant::now();
+    while harness
+        .state()
+        .session
+        .library
+        .component("py_lab.doubler")
+        .is_none()
+    {
+        assert!(
+            started.elapsed() < Duration::from_mins(1),
+            "the new Python component never reached the palette"
+        );
+        std::thread::sleep(Duration::from_millis(100));
+        harness.run_steps(1);
+    }
+    assert!(pack.join("doubler.py").is_file() && pack.join("test_doubler.py").is_file());
+    assert!(pack.join("kairos-pack.toml").is_file());
+}
