@@ -134,33 +134,62 @@ class WorkerContext(ContextBase):
 
     def _sample(self, reader):
         timestamp, time_of_issue, sequence, handle = reader.take(wire.SAMPLE_HEAD)
-        data_type, value, extra = wire.decode_payload(reader, lambda *args: self._input_image(handle, *args))
-        sample = Sample(value, timestamp, time_of_issue, sequence, data_type, _handle=handle)
+        if handle:
+            # Only an image in shared memory is held for the worker: its array is made when first asked for.
+            reader.one(wire.U8)
+            width, height, stride, format_index, _ = reader.take(wire.IMAGE_HEAD)
+            fd, buffer_id, length = reader.take(wire.SHARED_REF)
+            return HeldImageSample(self, handle, (width, height, stride, fd, buffer_id, length),
+                                   timestamp, time_of_issue, sequence, wire.FORMATS[format_index])
+        data_type, value, extra = wire.decode_payload(reader, self._inline_image)
+        sample = Sample(value, timestamp, time_of_issue, sequence, data_type)
         if data_type == IMAGE:
             sample.format = extra
         elif extra is not None:
             sample.intensity = extra
         return sample
 
-    def _input_image(self, handle, width, height, stride, format_, where, reader):
+    @staticmethod
+    def _image_layout(width, height, stride, format_):
         np = numpy()
         dtype = np.uint16 if format_ == "gray16" else np.uint8
         channels = PIXEL_FORMATS[format_]
         shape = (height, width) if channels == 1 else (height, width, channels)
         item = np.dtype(dtype).itemsize
         strides = (stride, item) if channels == 1 else (stride, channels * item, item)
-        if where == wire.PIXELS_INLINE:
-            pixels = bytes(reader.sized())
-            return np.ndarray(shape, dtype, buffer=pixels, strides=strides)
-        fd, buffer_id, length = reader.take(wire.SHARED_REF)
+        return dtype, shape, strides
+
+    def _inline_image(self, width, height, stride, format_, where, reader):
+        dtype, shape, strides = self._image_layout(width, height, stride, format_)
+        return numpy().ndarray(shape, dtype, buffer=bytes(reader.sized()), strides=strides)
+
+    def _held_array(self, handle, geometry, format_):
+        """The numpy view of a held image's pixels."""
+        width, height, stride, fd, buffer_id, length = geometry
+        dtype, shape, strides = self._image_layout(width, height, stride, format_)
         # Read-only: other readers share these pixels; a component that wants to change them copies them.
-        array = np.ndarray(shape, dtype, buffer=self._map(fd, buffer_id, length), offset=BUFFER_HEADER_LEN,
-                           strides=strides)
+        array = numpy().ndarray(shape, dtype, buffer=self._map(fd, buffer_id, length), offset=BUFFER_HEADER_LEN,
+                                strides=strides)
         address = array.__array_interface__["data"][0]
         self._held[address] = (handle, stride)
         # The runtime holds the sample until this array and every view of it are gone.
         weakref.finalize(array, self._release_later, handle, address)
         return array
+
+    def forward(self, output, sample):
+        """Passes `sample` on unchanged but for its time of issue (images: the same pixels, no copy)."""
+        if isinstance(sample, HeldImageSample) and sample.untouched():
+            # The pixels were never looked at: name them again without making an array.
+            index = self.output_index(output)
+            port = self.descriptor.outputs[index]
+            if "follows_input" in port or port["data_type"] == IMAGE:
+                width, height, stride = sample.geometry[:3]
+                body = struct.pack("<HBq", index, 1, sample.timestamp) + wire.U8.pack(wire.TAGS[IMAGE])
+                body += wire.IMAGE_HEAD.pack(width, height, stride, wire.FORMATS.index(sample.format),
+                                             wire.PIXELS_HELD)
+                self._conn.send("w", body + struct.pack("<Q", sample._handle))
+                return
+        super().forward(output, sample)
 
     def _map(self, fd, buffer_id, length, writable=False):
         """A buffer of the runtime, mapped: read-only for an input's pixels (other readers share them),
@@ -273,6 +302,42 @@ class WorkerContext(ContextBase):
     def set_status(self, status):
         """What the component shows in telemetry and the studio: anything JSON can carry."""
         self._conn.send("g", json.dumps(status).encode())
+
+
+class HeldImageSample(Sample):
+    """An input image whose pixels stay in the runtime's shared memory: `data` maps them as a numpy array
+    the first time it is read, and the runtime holds them until that array (or, if none was made, this
+    sample) is gone."""
+
+    def __init__(self, ctx, handle, geometry, timestamp, time_of_issue, sequence, format_):
+        self._ctx = ctx
+        self._array = None
+        self.geometry = geometry
+        super().__init__(None, timestamp, time_of_issue, sequence, IMAGE, format_, None, handle)
+
+    @property
+    def data(self):
+        if self._array is None and self._ctx is not None:
+            self._array = self._ctx._held_array(self._handle, self.geometry, self.format)
+        return self._array
+
+    @data.setter
+    def data(self, value):
+        if value is None:
+            return  # the dataclass's __init__
+        # A component replacing the pixels it never looked at: the runtime may let them go now.
+        if self._array is None and self._ctx is not None:
+            self._ctx._release_later(self._handle, None)
+        self._array = value
+        self._ctx = None
+
+    def untouched(self):
+        return self._array is None and self._ctx is not None
+
+    def __del__(self):
+        # With an array made, the array's own finalizer releases the pixels.
+        if self._array is None and self._ctx is not None:
+            self._ctx._release_later(self._handle, None)
 
 
 def _load(hello):
