@@ -112,6 +112,18 @@ def infer_type(value):
     raise WrongType(f"cannot tell which data type {_describe(value)} is")
 
 
+def image_geometry(width, height, format_):
+    """(dtype, shape) of a numpy image of `format_`: height × width, × channels but for grey."""
+    np = numpy()
+    if format_ not in PIXEL_FORMATS:
+        raise ValueError(f"pixel format {format_!r} is not one of {', '.join(PIXEL_FORMATS)}")
+    if width <= 0 or height <= 0:
+        raise ValueError(f"an image of {width}x{height} pixels is empty")
+    channels = PIXEL_FORMATS[format_]
+    dtype = np.dtype(np.uint16 if format_ == "gray16" else np.uint8)
+    return dtype, (height, width) if channels == 1 else (height, width, channels)
+
+
 def image_format(array, format_):
     """The pixel format of a numpy image, from `format_` or from its dtype and channels."""
     np = numpy()

@@ -21,10 +21,11 @@ import collections
 import json
 
 from .component import (
-    ContextBase, EndOfStream, Interrupted, Stopped, WrongType, _describe, infer_type, normalize, numpy,
+    ContextBase, EndOfStream, Interrupted, Stopped, WrongType, _describe, image_geometry, infer_type, normalize,
+    numpy,
 )
 from .descriptor import Descriptor
-from .types import ANY, IMAGE, PIXEL_FORMATS, POINT_CLOUD, Sample
+from .types import ANY, IMAGE, POINT_CLOUD, Sample
 
 #: The spacing of pushed samples given no timestamp.
 DEFAULT_SPACING_NS = 1_000_000
@@ -216,15 +217,8 @@ class HarnessContext(ContextBase):
 
     def new_image(self, width, height, format="rgb8"):  # noqa: A002 - the keyword users write
         """A writable image of `height` × `width` (× channels), zeros."""
-        np = numpy()
-        if format not in PIXEL_FORMATS:
-            raise ValueError(f"pixel format {format!r} is not one of {', '.join(PIXEL_FORMATS)}")
-        if width <= 0 or height <= 0:
-            raise ValueError(f"an image of {width}x{height} pixels is empty")
-        dtype = np.uint16 if format == "gray16" else np.uint8
-        channels = PIXEL_FORMATS[format]
-        shape = (height, width) if channels == 1 else (height, width, channels)
-        return np.zeros(shape, dtype)
+        dtype, shape = image_geometry(width, height, format)
+        return numpy().zeros(shape, dtype)
 
     def write(self, output, data, timestamp=None, format=None, intensity=None):  # noqa: A002
         """Writes `data` on `output`; `timestamp` (ns) when the data originated, else now. Checked against

@@ -19,7 +19,7 @@ import weakref
 
 from . import wire
 from .component import (
-    ComponentFailed, ContextBase, EndOfStream, Interrupted, Stopped, numpy,
+    ComponentFailed, ContextBase, EndOfStream, Interrupted, Stopped, image_geometry, numpy,
 )
 from .types import IMAGE, PIXEL_FORMATS, Sample
 
@@ -151,12 +151,9 @@ class WorkerContext(ContextBase):
 
     @staticmethod
     def _image_layout(width, height, stride, format_):
-        np = numpy()
-        dtype = np.uint16 if format_ == "gray16" else np.uint8
-        channels = PIXEL_FORMATS[format_]
-        shape = (height, width) if channels == 1 else (height, width, channels)
-        item = np.dtype(dtype).itemsize
-        strides = (stride, item) if channels == 1 else (stride, channels * item, item)
+        dtype, shape = image_geometry(width, height, format_)
+        item = dtype.itemsize
+        strides = (stride, item) if len(shape) == 2 else (stride, shape[2] * item, item)
         return dtype, shape, strides
 
     def _inline_image(self, width, height, stride, format_, where, reader):
@@ -216,14 +213,8 @@ class WorkerContext(ContextBase):
         """A writable image of `height` × `width` (× channels) in the runtime's shared memory: written on
         an output, it reaches the readers without a copy. Its pixels start as zeros or an older frame's."""
         np = numpy()
-        if format not in PIXEL_FORMATS:
-            raise ValueError(f"pixel format {format!r} is not one of {', '.join(PIXEL_FORMATS)}")
-        if width <= 0 or height <= 0:
-            raise ValueError(f"an image of {width}x{height} pixels is empty")
-        dtype = np.uint16 if format == "gray16" else np.uint8
-        channels = PIXEL_FORMATS[format]
-        shape = (height, width) if channels == 1 else (height, width, channels)
-        length = width * height * channels * np.dtype(dtype).itemsize
+        dtype, shape = image_geometry(width, height, format)
+        length = width * height * PIXEL_FORMATS[format] * dtype.itemsize
         if length < SHARED_FROM_BYTES:
             return np.zeros(shape, dtype)
         handle, fd, buffer_id = self._allocate(length)
