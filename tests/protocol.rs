@@ -2011,3 +2011,62 @@ fn a_runtime_on_its_system_clock_is_measured_against_the_master_and_alarms_past_
     let clock = clock_once(&alarmed, |clock| clock["references"].as_u64().unwrap_or(0) >= 1);
     assert_eq!(clock["state"], "alarm", "{clock}");
 }
+
+#[test]
+fn a_coordinated_start_refused_for_an_unlocked_clock_goes_ahead_when_asked_to() {
+    let _machine = shared_machine();
+    let [dir_coordinator, dir_b, here] = folders();
+    // b follows a clock master that never answers: its clock stays unlocked.
+    let port = std::net::UdpSocket::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port();
+    let silent_master = format!("127.0.0.1:{port}");
+    let (coordinator, b) = (
+        serve(dir_coordinator.path(), &[]),
+        serve(dir_b.path(), &["--clock-slave-of", &silent_master]),
+    );
+    std::fs::write(here.path().join("b.token"), &b.token).unwrap();
+    let diagram = format!(
+        r#"Diagram(format: 1,
+            hosts: {{"b": Host(endpoint: "{}", token_file: "b.token", zenoh: "tcp/127.0.0.1:{}")}},
+            components: [
+                Component(id: "sine", type: "core.sine", host: "b", properties: {{"rate": 100.0}}),
+                Component(id: "console", type: "core.console", properties: {{"every": 50}}),
+            ],
+            connections: [Connection(from: "sine.out", to: "console.in")])"#,
+        b.url,
+        free_tcp_port()
+    );
+    let mut socket = operator(&coordinator);
+    let folder = here.path().display().to_string();
+    let deployed = call(
+        &mut socket,
+        &json!({"id": 1, "type": "deploy", "diagram": diagram, "folder": folder}),
+    );
+    assert_eq!(deployed["ok"], true, "{deployed}");
+    let refused = call(&mut socket, &json!({"id": 2, "type": "start"}));
+    assert_eq!(refused["ok"], false, "{refused}");
+    let message = refused["error"]["message"].as_str().unwrap_or_default();
+    assert!(
+        message.contains("clock is locked to its master") && message.contains("host 'b'"),
+        "{refused}"
+    );
+    let mut b_socket = operator(&b);
+    let b_status = call(&mut b_socket, &json!({"id": 1, "type": "status"}));
+    assert_ne!(
+        b_status["result"]["state"], "running",
+        "nothing started: {b_status}"
+    );
+
+    let started = call(
+        &mut socket,
+        &json!({"id": 3, "type": "start", "start_unlocked": true}),
+    );
+    assert_eq!(started["ok"], true, "{started}");
+    let b_status = call(&mut b_socket, &json!({"id": 2, "type": "status"}));
+    assert_eq!(b_status["result"]["state"], "running", "{b_status}");
+    let stopped = call(&mut socket, &json!({"id": 4, "type": "stop"}));
+    assert_eq!(stopped["ok"], true, "{stopped}");
+}

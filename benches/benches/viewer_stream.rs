@@ -237,6 +237,7 @@ fn main() {
     let start = control.request(RequestBody::Start {
         at_ns: None,
         forced: None,
+        start_unlocked: false,
     });
     if !deployed || wait_for_reply(&control, start).is_none() {
         eprintln!("the camera diagram did not start");

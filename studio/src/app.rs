@@ -378,6 +378,7 @@ impl StudioApp {
                 self.canvas.fit(&self.session.document, &self.session.library);
             }
             Command::Run => self.session.deploy_and_start(),
+            Command::StartUnlocked => self.session.start_unlocked(),
             Command::Request(body) => self.session.request(body),
             Command::SetProperty {
                 component,

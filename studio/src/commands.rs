@@ -64,6 +64,8 @@ pub enum Command {
     TidyLayout,
     /// Deploy the diagram and start it.
     Run,
+    /// Start the deployed diagram although some hosts' clocks are not locked.
+    StartUnlocked,
     /// Send this request to the runtime (pause, resume, stop, the transport strip's controls).
     Request(RequestBody),
     /// Set a component's property.

@@ -55,6 +55,9 @@ pub fn menu_bar_ui(
         });
         ui.separator();
         run_controls_ui(ui, session.run_state(), commands);
+        if let Some(refusal) = session.unlocked_refusal() {
+            start_anyway_ui(ui, refusal, commands);
+        }
         ui.separator();
         connection_state_ui(ui, session);
     });
@@ -133,6 +136,21 @@ pub fn run_controls_ui(ui: &mut egui::Ui, state: RuntimeState, commands: &mut Ve
         if ui.add_enabled(enabled, egui::Button::new(label)).clicked() {
             commands.push(Command::Request(request));
         }
+    }
+}
+
+/// After a start refused for hosts' clocks not locked: the way to start regardless.
+fn start_anyway_ui(ui: &mut egui::Ui, refusal: &str, commands: &mut Vec<Command>) {
+    let button = egui::Button::new(RichText::new("Start anyway").color(Color32::from_rgb(0xff, 0xb0, 0x40)));
+    if ui
+        .add(button)
+        .on_hover_text(format!(
+            "{refusal}\n\nStarts now although those clocks are not locked: their samples' times may be off by \
+             the error shown, and every recording this start begins says so."
+        ))
+        .clicked()
+    {
+        commands.push(Command::StartUnlocked);
     }
 }
 

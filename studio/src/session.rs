@@ -72,6 +72,8 @@ enum Pending {
     Deploy,
     /// The devices of the runtime's machine.
     Devices,
+    /// A start: refused while some hosts' clocks are not locked, it may be asked again anyway.
+    Start,
     /// Anything whose answer only matters when it is an error.
     Other,
 }
@@ -204,7 +206,13 @@ pub struct Session {
     effects: Vec<Effect>,
     /// Dropped events as last reported.
     dropped: DroppedEvents,
+    /// Why the last start was refused, when it was for hosts' clocks not locked: "Start anyway" offers
+    /// to start regardless.
+    unlocked_refusal: Option<String>,
 }
+
+/// What the runtime's refusal says when hosts' clocks are not locked (`deploy::check_clocks`).
+const CLOCKS_NOT_LOCKED: &str = "clock is locked to its master";
 
 /// Whether a count going from `before` to `now` passed 1, 2, 4, 8 ...: when a growing count is worth a
 /// line in the log.
@@ -226,6 +234,7 @@ impl Session {
             settings,
             port_problems: BTreeMap::new(),
             field_notes: BTreeMap::new(),
+            unlocked_refusal: None,
             runtime: None,
             run_state: RuntimeState::Empty,
             clock: None,
@@ -497,6 +506,9 @@ impl Session {
                 self.devices_asked = false;
                 self.devices = Some(Vec::new());
             }
+            Some(Pending::Start) if error.message.contains(CLOCKS_NOT_LOCKED) => {
+                self.unlocked_refusal = Some(error.message.clone());
+            }
             Some(Pending::Describe) => {
                 // A diagram the runtime cannot parse yet: the editor keeps the type's ports.
                 self.described.awaiting = false;
@@ -546,11 +558,16 @@ impl Session {
                 self.subscribe_viewers();
                 self.port_problems.clear();
                 self.succeeded("deployed");
+                self.unlocked_refusal = None;
                 if std::mem::take(&mut self.deploy.start_after) {
-                    self.request(RequestBody::Start {
-                        at_ns: None,
-                        forced: None,
-                    });
+                    self.request_for(
+                        RequestBody::Start {
+                            at_ns: None,
+                            forced: None,
+                            start_unlocked: false,
+                        },
+                        Pending::Start,
+                    );
                 }
             }
             _ => {}
@@ -577,6 +594,30 @@ impl Session {
         self.states.extend(refused);
         for notice in self.monitor.update(telemetry) {
             self.note(LogLevel::Warn, notice);
+        }
+    }
+
+    /// Why the last start was refused when some hosts' clocks were not locked: the studio then offers
+    /// to start anyway.
+    pub fn unlocked_refusal(&self) -> Option<&str> {
+        self.unlocked_refusal.as_deref()
+    }
+
+    /// Starts the deployed diagram although some hosts' clocks are not locked (every recording says so).
+    pub fn start_unlocked(&mut self) {
+        if self.unlocked_refusal.take().is_some() {
+            self.note(
+                LogLevel::Warn,
+                "starting with hosts' clocks not locked, as asked: the recordings say so".to_owned(),
+            );
+            self.request_for(
+                RequestBody::Start {
+                    at_ns: None,
+                    forced: None,
+                    start_unlocked: true,
+                },
+                Pending::Start,
+            );
         }
     }
 
@@ -1025,6 +1066,7 @@ mod tests {
                 RequestBody::Start {
                     at_ns: None,
                     forced: None,
+                    start_unlocked: false,
                 }
             ]
         );
@@ -1168,11 +1210,45 @@ mod tests {
     }
 
     #[test]
+    fn a_start_refused_for_clocks_not_locked_can_be_asked_again_anyway() {
+        let mut session = connected();
+        session.deploy_and_start();
+        let deploy = sent(&mut session);
+        session.handle(ok(&deploy[0], json!({"diagnostics": [], "components": 2})));
+        let start = sent(&mut session)
+            .into_iter()
+            .find(|r| matches!(r.body, RequestBody::Start { .. }))
+            .unwrap();
+        assert!(session.unlocked_refusal().is_none());
+        let refusal = "not every host's clock is locked to its master within 1ms, so nothing was started: \
+                       host 'b': clock acquiring, error +3.000 ms";
+        session.handle(from_runtime(
+            json!({"type": "reply", "id": start.id, "ok": false, "error": {
+            "code": "wrong_state", "message": refusal}}),
+        ));
+        assert_eq!(session.unlocked_refusal(), Some(refusal));
+        session.start_unlocked();
+        let again: Vec<RequestBody> = sent(&mut session).into_iter().map(|r| r.body).collect();
+        assert_eq!(
+            again,
+            [RequestBody::Start {
+                at_ns: None,
+                forced: None,
+                start_unlocked: true,
+            }]
+        );
+        assert!(session.unlocked_refusal().is_none(), "offered once per refusal");
+        session.start_unlocked();
+        assert!(sent(&mut session).is_empty());
+    }
+
+    #[test]
     fn without_a_runtime_a_request_is_an_error_in_the_log() {
         let mut session = Session::new(document(), library(), Settings::default());
         session.request(RequestBody::Start {
             at_ns: None,
             forced: None,
+            start_unlocked: false,
         });
         assert!(session.take_effects().is_empty());
         assert!(

@@ -497,6 +497,7 @@ fn frames_compare_by_socket_and_shared_memory(shared_pixels: bool) {
     let start = socket.request(RequestBody::Start {
         at_ns: None,
         forced: None,
+        start_unlocked: false,
     });
     wait_for_reply(&socket, start);
     let subscribe = |client: &mut RuntimeClient, transport, shared_pixels| {

@@ -207,6 +207,10 @@ requests! {
         /// --start-unlocked`): which, in words. Every recording this start begins says so.
         #[serde(default, skip_serializing_if = "Option::is_none")]
         forced: Option<String>,
+        /// For a runtime coordinating a diagram spread over hosts: start although some hosts' clocks are
+        /// not locked to their master (the studio's "Start anyway"); the recordings say so.
+        #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+        start_unlocked: bool,
     } => Done, Operator;
     /// Pauses it.
     Pause = "pause" => Done, Operator;

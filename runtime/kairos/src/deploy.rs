@@ -951,6 +951,7 @@ fn start_all_at(hosts: &mut [Host], at: i64, forced: Option<&str>) -> anyhow::Re
             host.send(RequestBody::Start {
                 at_ns: Some(at),
                 forced: forced.map(str::to_owned),
+                start_unlocked: false,
             })
         })
         .collect()
@@ -1180,6 +1181,7 @@ impl Watch {
             host.call(RequestBody::Start {
                 at_ns: None,
                 forced: None,
+                start_unlocked: false,
             })?;
         }
         Ok(host)

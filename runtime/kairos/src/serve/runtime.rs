@@ -404,8 +404,9 @@ impl Runtime {
     /// Starts the deployed diagram (building it afresh if it ran before).
     ///
     /// `forced`: the hosts whose clocks were not locked when the start was forced, written into every
-    /// recording it begins.
-    pub fn start(&self, forced: Option<&str>) -> Result<(), ProtocolError> {
+    /// recording it begins. `start_unlocked`: for a diagram this runtime coordinates over hosts, start
+    /// although some hosts' clocks are not locked (their names then go into the recordings instead).
+    pub fn start(&self, forced: Option<&str>, start_unlocked: bool) -> Result<(), ProtocolError> {
         let mut deployment = self.lock();
         *self.start_note.lock().unwrap_or_else(PoisonError::into_inner) = forced.map(str::to_owned);
         let Some((_, spread)) = deployment.spread.clone() else {
@@ -414,7 +415,10 @@ impl Runtime {
         if deployment.engine.as_ref().map(Engine::state) == Some(EngineState::Paused) {
             return resume(&mut deployment, Some(&spread));
         }
-        let started = spread.start(|| {
+        let started = spread.start(start_unlocked, |unlocked| {
+            if let Some(unlocked) = unlocked {
+                *self.start_note.lock().unwrap_or_else(PoisonError::into_inner) = Some(unlocked.to_owned());
+            }
             self.start_here(&mut deployment)
                 .map_err(|e| anyhow::anyhow!("this runtime's part: {}", e.message))
         });

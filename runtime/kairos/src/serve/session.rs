@@ -480,11 +480,16 @@ impl Session {
             RequestBody::Links => ReplyBody::Links(kairos_protocol::LinkList {
                 links: tokio::task::block_in_place(crate::link::network::ends),
             }),
-            RequestBody::Start { at_ns, forced } => {
+            RequestBody::Start {
+                at_ns,
+                forced,
+                start_unlocked,
+            } => {
                 if let Some(at) = at_ns {
                     self.wait_for_instant(Timestamp(at)).await?;
                 }
-                self.blocking(move |r| r.start(forced.as_deref())).await?;
+                self.blocking(move |r| r.start(forced.as_deref(), start_unlocked))
+                    .await?;
                 if let Some(at) = at_ns {
                     let late = self.runtime().now().nanos_since(Timestamp(at));
                     if late > MISSED_START_NS {

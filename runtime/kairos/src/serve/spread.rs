@@ -77,20 +77,26 @@ impl Spread {
 
     /// Starts every host's part and, with `start_here`, this runtime's, at one instant
     /// [`deploy::START_LEAD`] ahead, each host on its own clock; refused while a host's clock is not locked
-    /// to its master.
+    /// to its master, unless `start_unlocked`.
     ///
     /// # Errors
     ///
     /// A clock not locked, a host refusing or lost, or `start_here` failing: every host is stopped again
     /// (the caller stops its own part).
-    pub fn start(&self, start_here: impl FnOnce() -> anyhow::Result<()>) -> anyhow::Result<()> {
+    /// `start_unlocked` starts although hosts' clocks are not locked; `start_here` is then told which, in
+    /// words, for the recordings.
+    pub fn start(
+        &self,
+        start_unlocked: bool,
+        start_here: impl FnOnce(Option<&str>) -> anyhow::Result<()>,
+    ) -> anyhow::Result<()> {
         let mut watch = self.watch();
         if let Some(lost) = watch.lost().next() {
             anyhow::bail!(
                 "host '{lost}' is lost, so nothing was started: start it again, or wait for it to answer"
             );
         }
-        deploy::start_together(&mut watch.hosts, LOCK_BOUND, false, |_| start_here())?;
+        deploy::start_together(&mut watch.hosts, LOCK_BOUND, start_unlocked, start_here)?;
         watch.set_running(true);
         Ok(())
     }
