@@ -2050,7 +2050,8 @@ fn a_coordinated_start_refused_for_an_unlocked_clock_goes_ahead_when_asked_to() 
     assert_eq!(refused["ok"], false, "{refused}");
     let message = refused["error"]["message"].as_str().unwrap_or_default();
     assert!(
-        message.contains("clock is locked to its master") && message.contains("host 'b'"),
+        message.contains("clock is locked to its master")
+            && message.contains("host 'b': clock acquiring (no exchange with its master yet)"),
         "{refused}"
     );
     let mut b_socket = operator(&b);

@@ -208,7 +208,8 @@ fn host_words(host: &kairos_protocol::HostTelemetry) -> (String, Color32) {
     };
     let color = clock_color(&clock.state);
     let error_ns = clock.error_bound_ns.unwrap_or(clock.error_ns);
-    let within = if clock.state == "master" {
+    // A master has no error, and a clock still acquiring has no measurement to show yet.
+    let within = if clock.state == "master" || clock.state == "acquiring" {
         String::new()
     } else {
         format!(" ±{:.1} µs", error_ns.unsigned_abs() as f64 * 1e-3)

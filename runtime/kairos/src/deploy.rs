@@ -879,6 +879,11 @@ fn check_clocks(hosts: &mut [Host], bound: Duration, start_unlocked: bool) -> an
                 host.name(),
                 error_ns.unsigned_abs() as f64 * 1e-3
             );
+        } else if state == "acquiring" {
+            unlocked.push(format!(
+                "host '{}': clock acquiring (no exchange with its master yet)",
+                host.name()
+            ));
         } else {
             unlocked.push(format!(
                 "host '{}': clock {state}, error {:+.3} ms",
