@@ -854,6 +854,18 @@ impl Synchronizer {
     /// The next matched set, one sample per input in the order given at construction.
     pub fn read(&mut self, ctx: &mut Context) -> Result<Vec<Sample>, ComponentError> {
         loop {
+            if let Some(matched) = self.try_read(ctx)? {
+                return Ok(matched);
+            }
+            ctx.wait_for_data()?;
+        }
+    }
+
+    /// The next matched set if the inputs hold one now, without waiting; `None` to wait for more data
+    /// (a component with something else to wait on as well waits its own way, then calls it again).
+    /// [`ComponentError::EndOfStream`] when an input that lacks a sample has ended.
+    pub fn try_read(&mut self, ctx: &mut Context) -> Result<Option<Vec<Sample>>, ComponentError> {
+        loop {
             let mut missing = false;
             for (slot, index) in self.pending.iter_mut().zip(&self.inputs) {
                 if slot.is_none() {
@@ -867,11 +879,11 @@ impl Synchronizer {
                     .iter()
                     .zip(&self.pending)
                     .any(|(index, slot)| slot.is_none() && ctx.is_input_exhausted(*index));
-                if ended {
-                    return Err(ComponentError::EndOfStream);
-                }
-                ctx.wait_for_data()?;
-                continue;
+                return if ended {
+                    Err(ComponentError::EndOfStream)
+                } else {
+                    Ok(None)
+                };
             }
             let stamps: Vec<i64> = self
                 .pending
@@ -884,7 +896,7 @@ impl Synchronizer {
                 continue;
             };
             if newest - oldest <= self.tolerance_nanos {
-                return Ok(self.pending.iter_mut().filter_map(Option::take).collect());
+                return Ok(Some(self.pending.iter_mut().filter_map(Option::take).collect()));
             }
             // Timestamps only grow per input: a sample older than the newest minus the tolerance can
             // never be matched, so drop it and read on.

@@ -11,7 +11,7 @@ use kairos_sdk::host::ContextHost;
 use kairos_sdk::pixels::SHARED_FROM_BYTES;
 use kairos_sdk::{
     Component, ComponentError, ComponentResult, Context, Image, Payload, Pixels, PixelsMut, STATUS_PERIOD,
-    Sample, Throttle, Timestamp, Value,
+    Sample, Synchronizer, Throttle, Timestamp, Value,
 };
 
 use super::ComponentSpec;
@@ -279,7 +279,8 @@ struct Session {
     /// Shared buffers the worker is drawing into.
     allocated: VecDeque<(u64, PixelsMut)>,
     next_handle: u64,
-    synchronised: Vec<SyncRead>,
+    /// One synchroniser per set of inputs the worker reads together, keeping what it has not matched yet.
+    synchronised: Vec<(Vec<usize>, Synchronizer)>,
     any_rotation: usize,
     /// A write the runtime refused: answered at the worker's next request and at the command's end.
     refused_write: Option<ComponentError>,
@@ -613,16 +614,18 @@ impl Session {
         inputs: Vec<usize>,
         tolerance: i64,
     ) -> Result<Vec<Sample>, ComponentError> {
-        let at = if let Some(at) = self.synchronised.iter().position(|s| s.inputs == inputs) {
+        let at = if let Some(at) = self.synchronised.iter().position(|(read, _)| *read == inputs) {
             at
         } else {
-            self.synchronised.push(SyncRead::new(inputs));
+            let synchronizer = Synchronizer::new(inputs.clone(), Duration::ZERO);
+            self.synchronised.push((inputs, synchronizer));
             self.synchronised.len() - 1
         };
         loop {
-            let sync = &mut self.synchronised[at];
-            sync.tolerance_nanos = tolerance.max(0);
-            if let Some(samples) = sync.try_match(ctx)? {
+            let synchronizer = &mut self.synchronised[at].1;
+            synchronizer.set_tolerance(Duration::from_nanos(tolerance.max(0) as u64));
+            // The SDK's matching, with this session's waiting, which the monitor can interrupt.
+            if let Some(samples) = synchronizer.try_read(ctx)? {
                 return Ok(samples);
             }
             self.wait(ctx)?;
@@ -742,62 +745,4 @@ fn indices(fields: &mut Fields<'_>) -> Result<Vec<usize>, String> {
     (0..count)
         .map(|_| fields.u16("a list of inputs").map(usize::from))
         .collect()
-}
-
-/// Samples of several inputs matched by timestamp, as the SDK's `Synchronizer` matches them, with this
-/// session's own waiting (which the monitor can interrupt).
-struct SyncRead {
-    inputs: Vec<usize>,
-    tolerance_nanos: i64,
-    pending: Vec<Option<Sample>>,
-}
-
-impl SyncRead {
-    fn new(inputs: Vec<usize>) -> Self {
-        let pending = vec![None; inputs.len()];
-        SyncRead {
-            inputs,
-            tolerance_nanos: 0,
-            pending,
-        }
-    }
-
-    /// One sample per input within the tolerance, or `None` to wait for more data.
-    fn try_match(&mut self, ctx: &mut Context) -> Result<Option<Vec<Sample>>, ComponentError> {
-        loop {
-            let mut missing = false;
-            for (slot, index) in self.pending.iter_mut().zip(&self.inputs) {
-                if slot.is_none() {
-                    *slot = ctx.try_read(*index)?;
-                    missing |= slot.is_none();
-                }
-            }
-            if missing {
-                let ended =
-                    self.inputs.iter().zip(&self.pending).any(|(index, slot)| {
-                        slot.is_none() && ContextHost::is_input_exhausted(&*ctx, *index)
-                    });
-                return if ended {
-                    Err(ComponentError::EndOfStream)
-                } else {
-                    Ok(None)
-                };
-            }
-            let stamps = self.pending.iter().flatten().map(|s| s.timestamp.as_nanos());
-            let (newest, oldest) = stamps.fold((i64::MIN, i64::MAX), |(hi, lo), t| (hi.max(t), lo.min(t)));
-            if newest - oldest <= self.tolerance_nanos {
-                return Ok(Some(self.pending.iter_mut().filter_map(Option::take).collect()));
-            }
-            // Timestamps only grow per input: a sample older than the newest by more than the tolerance
-            // can never be matched.
-            for slot in &mut self.pending {
-                if slot
-                    .as_ref()
-                    .is_some_and(|s| newest - s.timestamp.as_nanos() > self.tolerance_nanos)
-                {
-                    *slot = None;
-                }
-            }
-        }
-    }
 }
