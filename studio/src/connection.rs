@@ -60,8 +60,8 @@ impl Connection {
                 url: l.url.clone(),
                 token: l.token.clone(),
             }),
+            pack_paths: local.as_ref().map(|l| l.packs.clone()).unwrap_or_default(),
             local,
-            pack_paths: Vec::new(),
             kairos: crate::local::kairos_binary(),
             restart: None,
         }

@@ -16,6 +16,8 @@ pub struct LocalRuntime {
     pub url: String,
     /// Its token (whose `Debug` does not show it).
     pub token: kairos_protocol::Token,
+    /// The folders it loads packs from besides its own.
+    pub packs: Vec<PathBuf>,
     folder: PathBuf,
 }
 
@@ -50,11 +52,22 @@ impl LocalRuntime {
 
     /// Starts `kairos serve` and waits until it listens.
     pub fn start() -> Result<LocalRuntime, String> {
+        Self::start_for(None)
+    }
+
+    /// Starts `kairos serve` for `diagram`: with the `packs/` folder beside it, as `kairos run` finds it.
+    pub fn start_for(diagram: Option<&std::path::Path>) -> Result<LocalRuntime, String> {
         let binary = kairos_binary().ok_or_else(|| {
             "cannot find the `kairos` runtime beside the studio or on PATH; build it with `cargo build --release`"
                 .to_owned()
         })?;
-        Self::start_binary(&binary)
+        let beside: Vec<PathBuf> = diagram
+            .and_then(std::path::Path::parent)
+            .map(|folder| folder.join("packs"))
+            .filter(|packs| packs.is_dir())
+            .into_iter()
+            .collect();
+        Self::start_with_packs(&binary, &beside)
     }
 
     /// Starts `binary serve` (a `kairos` at a known place) and waits until it listens.
@@ -126,6 +139,7 @@ impl LocalRuntime {
             _lifeline: lifeline,
             url,
             token,
+            packs: packs.to_vec(),
             folder,
         })
     }

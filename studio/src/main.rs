@@ -114,7 +114,7 @@ fn main() -> ExitCode {
             });
             (None, Some(url.clone()), token)
         }
-        None => match LocalRuntime::start() {
+        None => match LocalRuntime::start_for(arguments.file.as_deref()) {
             Ok(local) => {
                 let (url, token) = (local.url.clone(), local.token.clone());
                 (Some(local), Some(url), Some(token))
