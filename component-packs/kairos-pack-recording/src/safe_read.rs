@@ -215,10 +215,17 @@ pub struct Walk {
 }
 
 impl Walk {
-    /// The damage in one line, or `None` for an intact file.
+    /// The damage in one line, or `None` for an intact file. A file that stops between two whole
+    /// records (a writer killed right after a chunk) is damaged too: its data section never ended.
     pub fn summary(&self) -> Option<String> {
         let mut parts: Vec<String> = self.damaged.iter().map(ToString::to_string).collect();
         parts.extend(self.cut_short.clone());
+        if self.cut_short.is_none() && !self.data_end {
+            parts.push(
+                "the file stops after its last whole record without a data end (it was not closed?)"
+                    .to_owned(),
+            );
+        }
         (!parts.is_empty()).then(|| parts.join("; "))
     }
 

@@ -300,3 +300,17 @@ fn drop_counts_are_in_the_file_before_it_is_closed() {
     );
     drop(harness);
 }
+
+#[test]
+fn a_file_cut_between_two_whole_chunks_is_still_reported_unclosed() {
+    // A writer killed right after it wrote a chunk: no record is cut, but the data never ended.
+    let whole = many_chunks();
+    let (offset, length, _) = blocks(whole)[2];
+    let bytes = &whole[..usize::try_from(offset + length).unwrap()];
+    let walked = walk(bytes, Catalog::default(), |_| {}, |_| {}, |_| {}).unwrap();
+    assert!(walked.cut_short.is_none() && walked.damaged.is_empty());
+    let summary = walked.summary().expect("an unclosed file is not intact");
+    assert!(summary.contains("without a data end"), "{summary}");
+    let report = inspect_bytes("cut at a chunk", bytes).unwrap();
+    assert!(!report.complete && report.damage.is_some(), "{report:?}");
+}
