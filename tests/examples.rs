@@ -26,6 +26,7 @@ fn every_example_validates() {
         "can_replay",
         "python/threshold",
         "python/edges",
+        "vision/lanes",
     ] {
         let path = example(name);
         let output = kairos(&root, &["validate", path.to_str().unwrap()]);
@@ -56,6 +57,26 @@ fn replay_fuses_a_recording_as_if_the_sensors_were_live() {
         let (a, b): (i64, i64) = (row[imu].parse().unwrap(), row[gnss].parse().unwrap());
         assert!((a - b).abs() <= 5_000_000, "matched within 5 ms: {row:?}");
     }
+}
+
+#[test]
+fn the_lane_marking_chain_runs_at_the_camera_s_rate() {
+    let root = common::repo_root();
+    let path = example("vision/lanes");
+    let output = kairos(&root, &["run", path.to_str().unwrap(), "--for", "2s", "--stats"]);
+    let (_, stderr) = text(&output);
+    assert!(output.status.success(), "{stderr}");
+    // Every stage handled frames, the overlay as many as the Hough stage gave it lines for.
+    for stage in ["grey", "blur", "edges", "lines", "overlay"] {
+        let row = stderr
+            .lines()
+            .rev()
+            .find(|l| l.split_whitespace().next() == Some(stage))
+            .unwrap_or_else(|| panic!("{stage} in the stats: {stderr}"));
+        let cycles: u64 = row.split_whitespace().nth(3).unwrap().parse().unwrap();
+        assert!(cycles >= 20, "{row}");
+    }
+    assert!(!stderr.contains("failed"), "{stderr}");
 }
 
 #[test]

@@ -10,7 +10,7 @@
 use std::process::Command;
 
 const GUI_CRATES: [&str; 5] = ["egui", "eframe", "wgpu", "winit", "glutin"];
-const HEADLESS: [&str; 17] = [
+const HEADLESS: [&str; 18] = [
     "kairos-shm",
     "kairos-test-pack-faulty",
     "kairos-sdk",
@@ -28,6 +28,7 @@ const HEADLESS: [&str; 17] = [
     "kairos-pack-net",
     "kairos-pack-lidar",
     "kairos-pack-can",
+    "kairos-pack-vision",
 ];
 
 #[test]
@@ -67,7 +68,7 @@ fn headless_crates_depend_on_no_gui_crate() {
 
 /// The floors, bottom up, and what each crate of ours may depend on (normal and build dependencies).
 /// A crate missing from the table fails the test: a new crate takes its place here first.
-const RULES: [(&str, &[&str]); 19] = [
+const RULES: [(&str, &[&str]); 20] = [
     // Bottom floor: plain data, and the shared-memory layout both the runtime side and clients need.
     ("kairos-diagram", &[]),
     ("kairos-shm", &[]),
@@ -84,6 +85,7 @@ const RULES: [(&str, &[&str]); 19] = [
     ("kairos-pack-net", &["kairos-sdk", "kairos-protocol"]),
     ("kairos-pack-lidar", &["kairos-sdk"]),
     ("kairos-pack-can", &["kairos-sdk"]),
+    ("kairos-pack-vision", &["kairos-sdk"]),
     // A sensor pack reads through the serial pack's links.
     ("kairos-pack-gnss", &["kairos-sdk", "kairos-pack-serial"]),
     ("kairos-pack-filters", &["kairos-sdk"]),
@@ -107,6 +109,7 @@ const RULES: [(&str, &[&str]); 19] = [
             "kairos-pack-net",
             "kairos-pack-lidar",
             "kairos-pack-can",
+            "kairos-pack-vision",
         ],
     ),
     // The studio speaks the protocol and edits diagrams; it never links the engine or a pack.
@@ -129,6 +132,7 @@ const RULES: [(&str, &[&str]); 19] = [
             "kairos-pack-can",
             "kairos-pack-lidar",
             "kairos-pack-net",
+            "kairos-pack-vision",
         ],
     ),
 ];

@@ -125,6 +125,7 @@ pub struct Harness {
     policies: BTreeMap<String, ReaderPolicy>,
     pending: Vec<(usize, Sample)>,
     clock: Arc<ManualClock>,
+    output_capacity: usize,
     running: Option<Running>,
 }
 
@@ -173,6 +174,7 @@ impl Harness {
             policies: BTreeMap::new(),
             pending: Vec::new(),
             clock: Arc::new(ManualClock::new(Timestamp::ZERO)),
+            output_capacity: OUTPUT_CAPACITY,
             running: None,
         }
     }
@@ -206,6 +208,15 @@ impl Harness {
             })?;
         }
         Ok(self)
+    }
+
+    /// How many samples each output's buffer keeps (4096 unless set; at least 1; set before the first
+    /// run). Collected samples stay in the buffer until overwritten, as in a diagram: a benchmark of an
+    /// image component keeps a few, so its pixel buffers are recycled through the pool as they are when
+    /// it runs in a diagram instead of being made anew each time.
+    pub fn set_output_capacity(&mut self, capacity: usize) -> &mut Self {
+        self.output_capacity = capacity.max(1);
+        self
     }
 
     /// Reads `input` with `policy` instead of the input's default (before the first run).
@@ -270,7 +281,7 @@ impl Harness {
         for output in &self.info.outputs {
             let buffer = OutputBuffer::new(
                 format!("{}.{}", self.info.type_name, output.name),
-                OUTPUT_CAPACITY,
+                self.output_capacity,
             );
             let reader = buffer.attach(
                 ReaderConfig::new(ReaderPolicy::Fifo, format!("{} -> harness", output.name)),

@@ -135,6 +135,11 @@ impl fmt::Debug for PixelsMut {
 trait Storage: Send + Sync {
     fn bytes(&self) -> &[u8];
 
+    /// The buffer, writable again, when this storage can give it up without a copy.
+    fn take_writable(&mut self) -> Option<Writable> {
+        None
+    }
+
     fn shared_reference(&self) -> Option<PixelsReference> {
         None
     }
@@ -143,6 +148,10 @@ trait Storage: Send + Sync {
 impl Storage for Vec<u8> {
     fn bytes(&self) -> &[u8] {
         self
+    }
+
+    fn take_writable(&mut self) -> Option<Writable> {
+        Some(Writable::Heap(std::mem::take(self)))
     }
 }
 
@@ -163,6 +172,14 @@ impl Storage for SharedPixels {
     fn shared_reference(&self) -> Option<PixelsReference> {
         self.0.as_ref().map(SharedBuffer::reference)
     }
+
+    fn take_writable(&mut self) -> Option<Writable> {
+        let mut buffer = self.0.take()?;
+        // Writing again is what recycling through the pool does; readers elsewhere see the new
+        // generation exactly as they would for a recycled buffer.
+        buffer.begin_write();
+        Some(Writable::Shared(buffer))
+    }
 }
 
 impl Drop for SharedPixels {
@@ -182,6 +199,16 @@ impl Pixels {
     /// of receiving a copy.
     pub fn shared_reference(&self) -> Option<PixelsReference> {
         self.0.shared_reference()
+    }
+
+    /// The buffer to write into in place, when this value alone holds it (no clone anywhere: not in a
+    /// buffer, a sample or a viewer); otherwise the value back, unchanged. An operation that transforms
+    /// pixels one for one tries this before it allocates.
+    pub fn try_into_mut(mut self) -> Result<PixelsMut, Pixels> {
+        match Arc::get_mut(&mut self.0).and_then(Storage::take_writable) {
+            Some(writable) => Ok(PixelsMut(writable)),
+            None => Err(self),
+        }
     }
 
     /// Whether two values share one buffer (not merely equal bytes).
@@ -247,6 +274,24 @@ impl From<PixelsMut> for Pixels {
 #[cfg(test)]
 mod tests {
     use super::{Pixels, PixelsMut, SHARED_FROM_BYTES};
+
+    #[test]
+    fn pixels_held_once_are_written_in_place_and_shared_ones_are_not() {
+        for len in [16, SHARED_FROM_BYTES] {
+            let mut first = PixelsMut::new(len);
+            first.fill(3);
+            let address = first.as_ptr();
+            let pixels = first.freeze();
+            let clone = pixels.clone();
+            let pixels = pixels.try_into_mut().expect_err("a clone shares it");
+            drop(clone);
+            let mut again = pixels.try_into_mut().expect("held once");
+            assert_eq!(again.as_ptr(), address, "the same buffer, not a copy");
+            again[0] = 7;
+            let pixels = again.freeze();
+            assert_eq!((pixels[0], pixels[1]), (7, 3));
+        }
+    }
 
     #[test]
     fn small_buffers_stay_on_the_heap_and_large_ones_are_shared_on_linux() {

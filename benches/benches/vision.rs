@@ -1,0 +1,202 @@
+//! Benchmark 20: the vision pack's image operations against OpenCV on the same machine, same run, same
+//! images (see BENCHMARKS.md). Each Kairos figure is the time through the component in the offline
+//! harness (read, kernel, new image from the pool, write; no thread hop); OpenCV's is `cv2` called from
+//! Python with one thread, whose call overhead (about 1 µs) is within the noise.
+//!
+//! `cargo bench -p kairos-benches --bench vision` with a `python3` that has `opencv-python-headless`
+//! and numpy first on PATH (`tests/run` puts one in `target/test-python/bin`).
+
+use std::collections::BTreeMap;
+use std::process::Command;
+use std::time::Instant;
+
+use kairos_pack_vision::{codecs, images};
+use kairos_sdk::harness::Harness;
+use kairos_sdk::{Component, ComponentInfo, Image, Payload, PixelFormat, Timestamp};
+
+const ITERATIONS: usize = 40;
+const ROUNDS: usize = 3;
+
+/// A smooth scene with hard edges: gradients, a bright rectangle and a dark disc.
+fn scene(width: usize, height: usize) -> Vec<u8> {
+    let mut pixels = vec![0_u8; width * height * 3];
+    for y in 0..height {
+        for x in 0..width {
+            let at = (y * width + x) * 3;
+            let mut colour = [
+                (x * 255 / width) as u8,
+                (y * 255 / height) as u8,
+                ((x + y) % 256) as u8,
+            ];
+            if (width / 4..width / 2).contains(&x) && (height / 4..height / 2).contains(&y) {
+                colour = [250, 250, 250];
+            }
+            let (dx, dy) = (x as f64 - 0.7 * width as f64, y as f64 - 0.6 * height as f64);
+            if dx.hypot(dy) < height as f64 / 6.0 {
+                colour = [20, 30, 40];
+            }
+            pixels[at..at + 3].copy_from_slice(&colour);
+        }
+    }
+    pixels
+}
+
+fn median_us(mut run: impl FnMut()) -> f64 {
+    for _ in 0..5 {
+        run();
+    }
+    let mut times: Vec<f64> = (0..ITERATIONS)
+        .map(|_| {
+            let start = Instant::now();
+            run();
+            start.elapsed().as_secs_f64() * 1e6
+        })
+        .collect();
+    times.sort_by(f64::total_cmp);
+    times[times.len() / 2]
+}
+
+/// The median time of one image through `component` with `properties`.
+fn through(
+    info: ComponentInfo,
+    component: impl Component,
+    properties: &[(&str, kairos_sdk::Value)],
+    image: &Image,
+) -> f64 {
+    let mut harness = Harness::new(info, component);
+    // A diagram's output keeps a few samples; so does this one, so pixel buffers recycle as they do there.
+    harness.set_output_capacity(4);
+    for (name, value) in properties {
+        harness
+            .set_property(name, value.clone())
+            .expect("a valid property");
+    }
+    let mut t = 0;
+    median_us(|| {
+        t += 1;
+        harness.push("in", Payload::Image(image.clone()), Timestamp::from_millis(t));
+        let out = harness.run().expect("the component runs");
+        assert!(!out.all().values().all(Vec::is_empty), "an output");
+    })
+}
+
+fn ours(rgb: &Image, grey: &Image) -> BTreeMap<&'static str, f64> {
+    let mut times = BTreeMap::new();
+    times.insert(
+        "rgb_to_gray",
+        through(
+            images::Convert::info(),
+            images::Convert,
+            &[("to", "gray".into())],
+            rgb,
+        ),
+    );
+    times.insert(
+        "rgb_to_bgr",
+        through(
+            images::Convert::info(),
+            images::Convert,
+            &[("to", "bgr".into())],
+            rgb,
+        ),
+    );
+    times.insert(
+        "resize_half_bilinear",
+        through(
+            images::Resize::info(),
+            images::Resize::default(),
+            &[("scale", 0.5.into())],
+            rgb,
+        ),
+    );
+    times.insert(
+        "gaussian_blur_5x5",
+        through(images::GaussianBlur::info(), images::GaussianBlur, &[], rgb),
+    );
+    times.insert(
+        "canny",
+        through(images::Canny::info(), images::Canny::default(), &[], grey),
+    );
+    times.insert(
+        "jpeg_encode_q90",
+        through(
+            codecs::JpegEncode::info(),
+            codecs::JpegEncode::default(),
+            &[("quality", 90_i64.into())],
+            rgb,
+        ),
+    );
+    times
+}
+
+fn opencv(raw: &std::path::Path, width: usize, height: usize) -> Option<BTreeMap<String, f64>> {
+    let script = concat!(env!("CARGO_MANIFEST_DIR"), "/peers/opencv/ops.py");
+    let output = Command::new("python3")
+        .args([
+            script,
+            &raw.display().to_string(),
+            &width.to_string(),
+            &height.to_string(),
+            &ITERATIONS.to_string(),
+        ])
+        .output()
+        .ok()?;
+    if !output.status.success() {
+        eprintln!(
+            "OpenCV side failed (is opencv-python-headless installed?): {}",
+            String::from_utf8_lossy(&output.stderr)
+        );
+        return None;
+    }
+    serde_json::from_slice(&output.stdout).ok()
+}
+
+fn main() {
+    let dir = tempfile::tempdir().expect("a temporary folder");
+    println!("benchmark 20: vision operations, Kairos component vs OpenCV (one thread), median µs per image");
+    for (width, height) in [(640_usize, 480_usize), (1920, 1080)] {
+        let pixels = scene(width, height);
+        let raw = dir.path().join(format!("scene{width}.rgb"));
+        std::fs::write(&raw, &pixels).expect("writing the image");
+        let rgb =
+            Image::packed(width as u32, height as u32, PixelFormat::Rgb8, pixels.clone()).expect("an image");
+        // The grey input is the same for both: the BT.601 weights, which both sides use.
+        let grey_pixels: Vec<u8> = pixels
+            .chunks_exact(3)
+            .map(|p| {
+                ((u32::from(p[0]) * 4899 + u32::from(p[1]) * 9617 + u32::from(p[2]) * 1868 + 8192) >> 14)
+                    as u8
+            })
+            .collect();
+        let grey =
+            Image::packed(width as u32, height as u32, PixelFormat::Gray8, grey_pixels).expect("an image");
+        let mut ratios: BTreeMap<&str, Vec<(f64, f64, f64)>> = BTreeMap::new();
+        for _ in 0..ROUNDS {
+            let kairos = ours(&rgb, &grey);
+            let Some(cv) = opencv(&raw, width, height) else {
+                return;
+            };
+            for (name, time) in &kairos {
+                if let Some(theirs) = cv.get(*name) {
+                    ratios
+                        .entry(name)
+                        .or_default()
+                        .push((*time, *theirs, time / theirs));
+                }
+            }
+        }
+        println!(
+            "\n{width}×{height} RGB          Kairos µs   OpenCV µs   ratio (3 rounds: median [min–max])"
+        );
+        for (name, rounds) in ratios {
+            let mut by_ratio = rounds.clone();
+            by_ratio.sort_by(|a, b| a.2.total_cmp(&b.2));
+            let (k, c, r) = by_ratio[by_ratio.len() / 2];
+            println!(
+                "{name:<22} {k:>9.1} {c:>11.1}   {r:.2}× [{:.2}–{:.2}]",
+                by_ratio[0].2,
+                by_ratio[by_ratio.len() - 1].2
+            );
+        }
+    }
+}

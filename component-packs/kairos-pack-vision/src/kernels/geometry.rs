@@ -1,0 +1,282 @@
+//! Geometry: resize, crop, flip and rotate. Resizing is `fast_image_resize`'s SIMD code; the rest moves
+//! whole rows or pixels.
+
+use fast_image_resize::images::{Image as ResizeTarget, ImageRef};
+use fast_image_resize::{FilterType, PixelType, ResizeAlg, ResizeOptions, Resizer};
+
+use multiversion::multiversion;
+
+use super::View;
+
+/// How [`Resize`] samples the source.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Interpolation {
+    /// The nearest source pixel.
+    Nearest,
+    /// Bilinear between the four nearest pixels (OpenCV's `INTER_LINEAR`).
+    Bilinear,
+    /// The mean of the source pixels each destination pixel covers (OpenCV's `INTER_AREA` when
+    /// shrinking): no aliasing.
+    Area,
+}
+
+/// Why a resize did not happen.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("cannot resize: {0}")]
+pub struct ResizeError(String);
+
+/// A resizer that keeps its buffers from one frame to the next.
+#[derive(Default)]
+pub struct Resize {
+    resizer: Resizer,
+    packed: Vec<u8>,
+}
+
+impl std::fmt::Debug for Resize {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Resize").finish_non_exhaustive()
+    }
+}
+
+impl Resize {
+    /// Resizes `src` into the packed `dst` of `width × height` pixels with the same channels.
+    pub fn run(
+        &mut self,
+        src: &View<'_>,
+        (width, height): (usize, usize),
+        interpolation: Interpolation,
+        dst: &mut [u8],
+    ) -> Result<(), ResizeError> {
+        let pixel_type = match src.channels {
+            1 => PixelType::U8,
+            2 => PixelType::U8x2,
+            3 => PixelType::U8x3,
+            4 => PixelType::U8x4,
+            other => return Err(ResizeError(format!("{other} bytes per pixel are not supported"))),
+        };
+        if interpolation != Interpolation::Nearest && 2 * width == src.width && 2 * height == src.height {
+            // Halving: bilinear sampling at the centres of the new pixels and the area mean are both the
+            // mean of each 2×2 block, which a plain loop does faster than a general resampler.
+            halve(src, dst);
+            return Ok(());
+        }
+        let source = if let Some(pixels) = src.pixels() {
+            pixels
+        } else {
+            // Rows with padding between them: pack them once.
+            self.packed.clear();
+            for y in 0..src.height {
+                self.packed.extend_from_slice(src.row(y));
+            }
+            &self.packed
+        };
+        let size = |v: usize| u32::try_from(v).map_err(|_| ResizeError(format!("{v} pixels is too large")));
+        let from = ImageRef::new(size(src.width)?, size(src.height)?, source, pixel_type)
+            .map_err(|e| ResizeError(e.to_string()))?;
+        let mut to = ResizeTarget::from_slice_u8(size(width)?, size(height)?, dst, pixel_type)
+            .map_err(|e| ResizeError(e.to_string()))?;
+        let algorithm = match interpolation {
+            Interpolation::Nearest => ResizeAlg::Nearest,
+            Interpolation::Bilinear => ResizeAlg::Interpolation(FilterType::Bilinear),
+            Interpolation::Area => ResizeAlg::Convolution(FilterType::Box),
+        };
+        self.resizer
+            .resize(&from, &mut to, &ResizeOptions::new().resize_alg(algorithm))
+            .map_err(|e| ResizeError(e.to_string()))
+    }
+}
+
+/// `src` at half its width and height into the packed `dst`: each pixel the rounded mean of a 2×2 block.
+fn halve(src: &View<'_>, dst: &mut [u8]) {
+    let channels = src.channels;
+    let out_row = src.width / 2 * channels;
+    if out_row == 0 {
+        return;
+    }
+    let mut pairs = vec![0_u16; src.width * channels];
+    for (y, out) in dst.chunks_exact_mut(out_row).take(src.height / 2).enumerate() {
+        add_rows(src.row(2 * y), src.row(2 * y + 1), &mut pairs);
+        match channels {
+            1 => halve_row::<1>(&pairs, out),
+            3 => halve_row::<3>(&pairs, out),
+            4 => halve_row::<4>(&pairs, out),
+            _ => halve_row_any(&pairs, channels, out),
+        }
+    }
+}
+
+#[multiversion(targets("x86_64+avx2+fma", "x86_64+sse4.1"))]
+fn add_rows(a: &[u8], b: &[u8], sums: &mut [u16]) {
+    let n = sums.len();
+    let (a, b) = (&a[..n], &b[..n]);
+    for i in 0..n {
+        sums[i] = u16::from(a[i]) + u16::from(b[i]);
+    }
+}
+
+#[multiversion(targets("x86_64+avx2+fma", "x86_64+sse4.1"))]
+fn halve_row<const C: usize>(sums: &[u16], out: &mut [u8]) {
+    for (pair, to) in sums.chunks_exact(2 * C).zip(out.chunks_exact_mut(C)) {
+        for c in 0..C {
+            to[c] = ((pair[c] + pair[C + c] + 2) >> 2) as u8;
+        }
+    }
+}
+
+fn halve_row_any(sums: &[u16], channels: usize, out: &mut [u8]) {
+    for (pair, to) in sums
+        .chunks_exact(2 * channels)
+        .zip(out.chunks_exact_mut(channels))
+    {
+        for c in 0..channels {
+            to[c] = ((pair[c] + pair[channels + c] + 2) >> 2) as u8;
+        }
+    }
+}
+
+/// Copies the `width × height` region whose top-left pixel is (`x`, `y`) into the packed `dst`. The
+/// region must lie inside `src`.
+pub fn crop(src: &View<'_>, (x, y): (usize, usize), (width, height): (usize, usize), dst: &mut [u8]) {
+    let row_bytes = width * src.channels;
+    if row_bytes == 0 {
+        return;
+    }
+    for (row, out) in dst.chunks_exact_mut(row_bytes).take(height).enumerate() {
+        let line = src.row(y + row);
+        if let Some(part) = line.get(x * src.channels..x * src.channels + row_bytes) {
+            out.copy_from_slice(part);
+        }
+    }
+}
+
+/// A flip or a rotation by a quarter turn.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Orientation {
+    /// Mirror left–right.
+    FlipHorizontal,
+    /// Mirror top–bottom.
+    FlipVertical,
+    /// A quarter turn clockwise.
+    Rotate90,
+    /// A half turn.
+    Rotate180,
+    /// A quarter turn anticlockwise.
+    Rotate270,
+}
+
+impl Orientation {
+    /// The size of the result for a `width × height` source.
+    pub fn size(self, width: usize, height: usize) -> (usize, usize) {
+        match self {
+            Orientation::Rotate90 | Orientation::Rotate270 => (height, width),
+            _ => (width, height),
+        }
+    }
+}
+
+/// `src` flipped or rotated into the packed `dst` (of [`Orientation::size`]).
+pub fn orient(src: &View<'_>, orientation: Orientation, dst: &mut [u8]) {
+    let (width, height, channels) = (src.width, src.height, src.channels);
+    let (out_width, _) = orientation.size(width, height);
+    let out_row = out_width * channels;
+    if out_row == 0 {
+        return;
+    }
+    match orientation {
+        Orientation::FlipVertical => {
+            for (y, out) in dst.chunks_exact_mut(out_row).take(height).enumerate() {
+                out.copy_from_slice(src.row(height - 1 - y));
+            }
+        }
+        Orientation::FlipHorizontal | Orientation::Rotate180 => {
+            for (y, out) in dst.chunks_exact_mut(out_row).take(height).enumerate() {
+                let from = if orientation == Orientation::Rotate180 {
+                    height - 1 - y
+                } else {
+                    y
+                };
+                mirror_row(src.row(from), channels, out);
+            }
+        }
+        Orientation::Rotate90 | Orientation::Rotate270 => {
+            // Output row r is source column c read bottom-up (clockwise) or top-down (anticlockwise).
+            for (r, out) in dst.chunks_exact_mut(out_row).enumerate() {
+                let column = if orientation == Orientation::Rotate90 {
+                    r
+                } else {
+                    width - 1 - r
+                };
+                for (k, pixel) in out.chunks_exact_mut(channels).enumerate() {
+                    let y = if orientation == Orientation::Rotate90 {
+                        height - 1 - k
+                    } else {
+                        k
+                    };
+                    let from = &src.row(y)[column * channels..][..channels];
+                    pixel.copy_from_slice(from);
+                }
+            }
+        }
+    }
+}
+
+fn mirror_row(row: &[u8], channels: usize, out: &mut [u8]) {
+    for (pixel, to) in row
+        .chunks_exact(channels)
+        .rev()
+        .zip(out.chunks_exact_mut(channels))
+    {
+        to.copy_from_slice(pixel);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::{Interpolation, Orientation, Resize, View, crop, orient};
+
+    #[test]
+    fn rotations_move_a_corner_where_expected_and_four_quarter_turns_come_back() {
+        // 3 × 2 grey: 1 2 3 / 4 5 6.
+        let pixels = [1, 2, 3, 4, 5, 6];
+        let view = View::packed(3, 2, 1, &pixels).unwrap();
+        let turned = |o: Orientation| {
+            let mut out = vec![0; 6];
+            orient(&view, o, &mut out);
+            out
+        };
+        assert_eq!(turned(Orientation::Rotate90), [4, 1, 5, 2, 6, 3]);
+        assert_eq!(turned(Orientation::Rotate270), [3, 6, 2, 5, 1, 4]);
+        assert_eq!(turned(Orientation::Rotate180), [6, 5, 4, 3, 2, 1]);
+        assert_eq!(turned(Orientation::FlipHorizontal), [3, 2, 1, 6, 5, 4]);
+        assert_eq!(turned(Orientation::FlipVertical), [4, 5, 6, 1, 2, 3]);
+        let mut out = vec![0; 2];
+        crop(&view, (1, 0), (1, 2), &mut out);
+        assert_eq!(out, [2, 5]);
+    }
+
+    #[test]
+    fn halving_averages_and_every_interpolation_keeps_a_flat_image_flat() {
+        let pixels: Vec<u8> = (0..16 * 16 * 3)
+            .map(|i| if (i / 3) % 2 == 0 { 0 } else { 200 })
+            .collect();
+        let view = View::packed(16, 16, 3, &pixels).unwrap();
+        let mut out = vec![0; 8 * 8 * 3];
+        Resize::default()
+            .run(&view, (8, 8), Interpolation::Area, &mut out)
+            .unwrap();
+        assert!(out.iter().all(|v| *v == 100), "{out:?}");
+        let flat = vec![77_u8; 10 * 10];
+        let view = View::packed(10, 10, 1, &flat).unwrap();
+        for interpolation in [
+            Interpolation::Nearest,
+            Interpolation::Bilinear,
+            Interpolation::Area,
+        ] {
+            let mut out = vec![0; 23 * 7];
+            Resize::default()
+                .run(&view, (23, 7), interpolation, &mut out)
+                .unwrap();
+            assert!(out.iter().all(|v| *v == 77), "{interpolation:?}");
+        }
+    }
+}
