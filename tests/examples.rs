@@ -27,6 +27,8 @@ fn every_example_validates() {
         "python/threshold",
         "python/edges",
         "vision/lanes",
+        "fusion/gnss_imu",
+        "lidar/obstacles",
     ] {
         let path = example(name);
         let output = kairos(&root, &["validate", path.to_str().unwrap()]);

@@ -10,7 +10,7 @@
 use std::process::Command;
 
 const GUI_CRATES: [&str; 5] = ["egui", "eframe", "wgpu", "winit", "glutin"];
-const HEADLESS: [&str; 18] = [
+const HEADLESS: [&str; 19] = [
     "kairos-shm",
     "kairos-test-pack-faulty",
     "kairos-sdk",
@@ -29,6 +29,7 @@ const HEADLESS: [&str; 18] = [
     "kairos-pack-lidar",
     "kairos-pack-can",
     "kairos-pack-vision",
+    "kairos-pack-fusion",
 ];
 
 #[test]
@@ -68,7 +69,7 @@ fn headless_crates_depend_on_no_gui_crate() {
 
 /// The floors, bottom up, and what each crate of ours may depend on (normal and build dependencies).
 /// A crate missing from the table fails the test: a new crate takes its place here first.
-const RULES: [(&str, &[&str]); 20] = [
+const RULES: [(&str, &[&str]); 21] = [
     // Bottom floor: plain data, and the shared-memory layout both the runtime side and clients need.
     ("kairos-diagram", &[]),
     ("kairos-shm", &[]),
@@ -86,6 +87,7 @@ const RULES: [(&str, &[&str]); 20] = [
     ("kairos-pack-lidar", &["kairos-sdk"]),
     ("kairos-pack-can", &["kairos-sdk"]),
     ("kairos-pack-vision", &["kairos-sdk"]),
+    ("kairos-pack-fusion", &["kairos-sdk"]),
     // A sensor pack reads through the serial pack's links.
     ("kairos-pack-gnss", &["kairos-sdk", "kairos-pack-serial"]),
     ("kairos-pack-filters", &["kairos-sdk"]),
@@ -110,6 +112,7 @@ const RULES: [(&str, &[&str]); 20] = [
             "kairos-pack-lidar",
             "kairos-pack-can",
             "kairos-pack-vision",
+            "kairos-pack-fusion",
         ],
     ),
     // The studio speaks the protocol and edits diagrams; it never links the engine or a pack.
@@ -133,6 +136,7 @@ const RULES: [(&str, &[&str]); 20] = [
             "kairos-pack-lidar",
             "kairos-pack-net",
             "kairos-pack-vision",
+            "kairos-pack-fusion",
         ],
     ),
 ];

@@ -139,7 +139,7 @@ fn measure(
     viewers.open(output.to_owned(), data_type);
     let ctx = egui::Context::default();
     let frame = |ctx: &egui::Context, viewers: &mut Viewers| {
-        let output = ctx.run_ui(egui::RawInput::default(), |ui| viewers.show_docked(ui));
+        let output = ctx.run_ui(egui::RawInput::default(), |ui| viewers.show_docked(ui, &[]));
         std::hint::black_box(ctx.tessellate(output.shapes, output.pixels_per_point));
     };
     // Warm up: the stream flowing, the texture made.

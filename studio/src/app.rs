@@ -233,7 +233,10 @@ impl StudioApp {
             egui::Panel::right("viewers")
                 .default_size(470.0)
                 .size_range(300.0..=900.0)
-                .show(ui, |ui| self.session.viewers.show_docked(ui));
+                .show(ui, |ui| {
+                    let choices = self.session.outputs_with_types();
+                    self.session.viewers.show_docked(ui, &choices);
+                });
         }
         let not_applied = self.session.not_applied();
         if !not_applied.is_empty() {
@@ -265,7 +268,8 @@ impl StudioApp {
             .response
             .rect;
         self.session.monitor.show_notices(ui.ctx(), canvas_rect);
-        self.session.viewers.show_floating(ui.ctx());
+        let choices = self.session.outputs_with_types();
+        self.session.viewers.show_floating(ui.ctx(), &choices);
     }
 
     /// Whichever dialogs are open.

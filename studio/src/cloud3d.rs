@@ -157,7 +157,10 @@ fn vs(@builtin(vertex_index) corner_index: u32, @location(0) point: vec4<f32>) -
     clip = vec4<f32>(clip.xy + corner * u.viewport.z / u.viewport.xy * clip.w, clip.zw);
     var out: Out;
     out.position = clip;
-    if (u.viewport.w < 0.5) {
+    if (point.w < 0.0) {
+        // A marker (a box's edges): the same colour in every mode, one neither ramp uses.
+        out.color = vec3<f32>(1.0, 0.2, 1.0);
+    } else if (u.viewport.w < 0.5) {
         let span = max(u.z_range.y - u.z_range.x, 0.001);
         out.color = ramp((point.z - u.z_range.x) / span);
     } else {

@@ -674,19 +674,61 @@ impl Session {
         );
     }
 
-    /// What the command line asked for, once the library is known: viewers, and a run.
+    /// Every output of the diagram with the name of its type (`camera.image`, `image`), in diagram order.
+    pub fn outputs_with_types(&self) -> Vec<(String, String)> {
+        let diagram = self.document.diagram();
+        diagram
+            .components
+            .iter()
+            .filter_map(|c| self.library.component_of(c).map(|info| (c, info)))
+            .flat_map(|(c, info)| {
+                info.outputs.iter().filter_map(|o| {
+                    let port = PortRef {
+                        component: c.id.clone(),
+                        port: o.name.clone(),
+                    };
+                    let data_type = self.document.output_type(&port, &self.library)?;
+                    Some((format!("{}.{}", c.id, o.name), data_type.name().to_owned()))
+                })
+            })
+            .collect()
+    }
+
+    /// The type of the output named `component.port`, when the diagram has it.
+    fn output_type_named(&self, output: &str) -> Option<kairos_diagram::DataType> {
+        PortRef::parse(output).and_then(|p| self.document.output_type(&p, &self.library))
+    }
+
+    /// What the command line asked for, once the library is known: viewers (`a.out+b.out` draws `b.out`
+    /// over `a.out`'s viewer), and a run.
     fn start_up(&mut self) {
         let Startup { views, run } = std::mem::take(&mut self.startup);
-        for output in views {
-            let port = PortRef::parse(&output);
-            match port.and_then(|p| self.document.output_type(&p, &self.library)) {
-                Some(data_type) => self.viewers.open(output, data_type.name()),
-                None => self.note(
+        for view in views {
+            let mut outputs = view.split('+').map(str::to_owned);
+            let Some(output) = outputs.next() else { continue };
+            let Some(data_type) = self.output_type_named(&output) else {
+                self.note(
                     LogLevel::Error,
                     format!(
                         "--view {output}: no such output in the diagram (outputs are named component.port)"
                     ),
-                ),
+                );
+                continue;
+            };
+            self.viewers.open(output.clone(), data_type.name());
+            let index = self.viewers.list.len() - 1;
+            for over in outputs {
+                let over_type = self.output_type_named(&over);
+                let added =
+                    over_type.is_some_and(|t| self.viewers.add_overlay(index, over.clone(), t.name()));
+                if !added {
+                    self.note(
+                        LogLevel::Error,
+                        format!(
+                            "--view {view}: {over} cannot be drawn over {output} (a GNSS track takes more GNSS fixes, a 3D view boxes as a matrix of 6 columns)"
+                        ),
+                    );
+                }
             }
         }
         if run {
@@ -1190,7 +1232,10 @@ mod tests {
     #[test]
     fn the_command_lines_viewers_open_once_the_library_is_known() {
         let mut session = Session::new(document(), LibraryInfo::default(), Settings::default());
-        session.set_startup(vec!["counter1.out".to_owned(), "nobody.out".to_owned()], false);
+        session.set_startup(
+            vec!["counter1.out+nobody.out".to_owned(), "nobody.out".to_owned()],
+            false,
+        );
         session.connecting("runtime".to_owned(), "ws://robot:7400");
         assert!(session.viewers.list.is_empty());
         let welcome = json!({"protocol": 1, "server": "kairos 0.1.0", "role": "operator"});
@@ -1207,6 +1252,12 @@ mod tests {
                 .lines()
                 .any(|l| l.level == LogLevel::Error && l.text.starts_with("--view nobody.out"))
         );
+        // What cannot be drawn over a viewer is said, and the viewer opens without it.
+        assert!(session.viewers.list[0].also.is_empty());
+        assert!(session.log.lines().any(|l| l.level == LogLevel::Error
+            && l.text.starts_with(
+                "--view counter1.out+nobody.out: nobody.out cannot be drawn over counter1.out"
+            )));
     }
 
     #[test]

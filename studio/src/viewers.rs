@@ -8,7 +8,7 @@ use std::collections::VecDeque;
 use std::sync::Arc;
 
 use egui::{Color32, ColorImage, RichText, TextureHandle, TextureOptions, Vec2};
-use egui_plot::{Line, Plot, PlotPoints, Points};
+use egui_plot::{Legend, Line, Plot, PlotPoints, Points};
 use kairos_protocol::frame::SampleHeader;
 
 use crate::cloud3d::{CloudCallback, ColorBy, GpuCloud, OrbitCamera};
@@ -63,6 +63,15 @@ impl ViewerKind {
             "point_cloud" => ViewerKind::Cloud,
             _ => ViewerKind::Table,
         }
+    }
+
+    /// Whether outputs of `data_type` can be drawn over this viewer's: more fixes on a GNSS track,
+    /// boxes (a matrix of rows min x, y, z, max x, y, z) in a point cloud.
+    pub fn overlays(self, data_type: &str) -> bool {
+        matches!(
+            (self, data_type),
+            (ViewerKind::Track, "gnss_fix") | (ViewerKind::Cloud, "matrix")
+        )
     }
 
     /// The viewers that can show a data type, the usual one first.
@@ -125,6 +134,15 @@ pub struct Viewer {
     series: Vec<(String, VecDeque<[f64; 2]>)>,
     track: Vec<[f64; 2]>,
     origin: Option<(f64, f64)>,
+    /// Outputs drawn over the main one: more GNSS tracks on a track, boxes in a 3D view.
+    pub also: Vec<String>,
+    /// The tracks of the outputs in `also`, on the main track's plane.
+    more_tracks: Vec<(String, Vec<[f64; 2]>)>,
+    /// A 3D viewer's cloud as received, before boxes are drawn into it.
+    base_points: Vec<[f32; 4]>,
+    /// Boxes (min x, y, z, max x, y, z) from each output in `also`.
+    boxes: Vec<(String, Vec<[f32; 6]>)>,
+    generation: u64,
     rows: VecDeque<(u64, i64, i64, String)>,
     cloud: Arc<GpuCloud>,
     /// A pose viewer's positions so far.
@@ -313,6 +331,11 @@ impl Viewer {
             series: Vec::new(),
             track: Vec::new(),
             origin: None,
+            also: Vec::new(),
+            more_tracks: Vec::new(),
+            base_points: Vec::new(),
+            boxes: Vec::new(),
+            generation: 0,
             rows: VecDeque::new(),
             cloud: Arc::new(GpuCloud::default()),
             path: VecDeque::new(),
@@ -379,8 +402,15 @@ impl Viewer {
                 }
             }
             ViewerKind::Plot => self.plot_sample(header, &value),
-            ViewerKind::Track => self.track_sample(&value),
-            ViewerKind::Cloud => self.cloud = Arc::new(cloud_of(header.intensity, payload, self.received)),
+            ViewerKind::Track => {
+                if let Some(point) = self.track_point(&value) {
+                    push_bounded(&mut self.track, point);
+                }
+            }
+            ViewerKind::Cloud => {
+                self.base_points = cloud_of(header.intensity, payload, 0).points;
+                self.rebuild_cloud();
+            }
             ViewerKind::Trajectory => self.pose_sample(&value),
             ViewerKind::Table => self.table_sample(header, &value, payload),
         }
@@ -408,22 +438,57 @@ impl Viewer {
         }
     }
 
-    fn track_sample(&mut self, value: &serde_json::Value) {
-        let (Some(lat), Some(lon)) = (
-            value.get("latitude_deg").and_then(serde_json::Value::as_f64),
-            value.get("longitude_deg").and_then(serde_json::Value::as_f64),
-        ) else {
-            return;
-        };
+    /// A fix as metres east and north of the first fix any track received.
+    fn track_point(&mut self, value: &serde_json::Value) -> Option<[f64; 2]> {
+        let lat = value.get("latitude_deg").and_then(serde_json::Value::as_f64)?;
+        let lon = value.get("longitude_deg").and_then(serde_json::Value::as_f64)?;
         // Equirectangular around the first fix: metres east and north, exact enough over the
         // few kilometres a test drive covers.
         let (lat0, lon0) = *self.origin.get_or_insert((lat, lon));
         let east = EARTH_RADIUS_M * (lon - lon0).to_radians() * lat0.to_radians().cos();
         let north = EARTH_RADIUS_M * (lat - lat0).to_radians();
-        if self.track.len() == SERIES_POINTS {
-            self.track.remove(0);
+        Some([east, north])
+    }
+
+    /// A sample of an output drawn over the main one.
+    fn receive_overlay(&mut self, header: &SampleHeader, value: &serde_json::Value) {
+        if self.paused {
+            return;
         }
-        self.track.push([east, north]);
+        match self.kind {
+            ViewerKind::Track => {
+                if let Some(point) = self.track_point(value) {
+                    let index = entry_of(&mut self.more_tracks, &header.output);
+                    push_bounded(&mut self.more_tracks[index].1, point);
+                }
+            }
+            ViewerKind::Cloud => {
+                let index = entry_of(&mut self.boxes, &header.output);
+                self.boxes[index].1 = boxes_of(value);
+                self.rebuild_cloud();
+            }
+            _ => {}
+        }
+    }
+
+    /// The cloud to draw: the received points, and the edges of every box as points of the marker
+    /// colour (intensity −1).
+    fn rebuild_cloud(&mut self) {
+        self.generation += 1;
+        let mut points = self.base_points.clone();
+        let (mut low, mut high) = (f32::INFINITY, f32::NEG_INFINITY);
+        for p in &points {
+            low = low.min(p[2]);
+            high = high.max(p[2]);
+        }
+        for b in self.boxes.iter().flat_map(|(_, boxes)| boxes) {
+            box_edges(b, &mut points);
+        }
+        self.cloud = Arc::new(GpuCloud {
+            generation: self.generation,
+            points,
+            z_range: if low <= high { (low, high) } else { (0.0, 1.0) },
+        });
     }
 
     fn pose_sample(&mut self, value: &serde_json::Value) {
@@ -467,7 +532,12 @@ impl Viewer {
     }
 
     fn title(&self) -> String {
-        format!("{} — {}", self.output, self.kind.name())
+        let mut outputs = self.output.clone();
+        for over in &self.also {
+            outputs.push_str(" + ");
+            outputs.push_str(over);
+        }
+        format!("{outputs} — {}", self.kind.name())
     }
 
     /// Whether it sits in the dock beside the canvas (or floats in a window).
@@ -475,8 +545,9 @@ impl Viewer {
         self.docked
     }
 
-    fn contents(&mut self, ui: &mut egui::Ui) {
-        self.status(ui);
+    /// Draws the viewer; returns an output (of `choices`: output and type) the user chose to draw over it.
+    fn contents(&mut self, ui: &mut egui::Ui, choices: &[(String, String)]) -> Option<(String, String)> {
+        let chosen = self.status(ui, choices);
         match self.kind {
             ViewerKind::Image => self.image(ui),
             ViewerKind::Plot => self.plot(ui),
@@ -484,6 +555,7 @@ impl Viewer {
             ViewerKind::Cloud | ViewerKind::Trajectory => self.cloud_view(ui),
             ViewerKind::Table => self.table(ui),
         }
+        chosen
     }
 
     fn cloud_view(&mut self, ui: &mut egui::Ui) {
@@ -531,8 +603,30 @@ impl Viewer {
         ));
     }
 
-    fn status(&mut self, ui: &mut egui::Ui) {
+    fn status(&mut self, ui: &mut egui::Ui, choices: &[(String, String)]) -> Option<(String, String)> {
+        let mut chosen = None;
         ui.horizontal(|ui| {
+            let fitting: Vec<&(String, String)> = choices
+                .iter()
+                .filter(|(output, data_type)| {
+                    self.kind.overlays(data_type) && *output != self.output && !self.also.contains(output)
+                })
+                .collect();
+            if !fitting.is_empty() {
+                ui.menu_button("Draw over", |ui| {
+                    for (output, data_type) in fitting {
+                        if ui.button(output).clicked() {
+                            chosen = Some((output.clone(), data_type.clone()));
+                            ui.close();
+                        }
+                    }
+                })
+                .response
+                .on_hover_text(match self.kind {
+                    ViewerKind::Track => "another GNSS output's track, on the same map",
+                    _ => "boxes (min x, y, z, max x, y, z) from a matrix output, in the marker colour",
+                });
+            }
             let label = if self.paused { "Resume" } else { "Pause" };
             if ui.button(label).clicked() {
                 self.paused = !self.paused;
@@ -550,6 +644,7 @@ impl Viewer {
                 ));
             }
         });
+        chosen
     }
 
     fn image(&mut self, ui: &mut egui::Ui) {
@@ -702,13 +797,18 @@ impl Viewer {
 
     fn track_view(&self, ui: &mut egui::Ui) {
         Plot::new(("track", self.id))
+            .legend(Legend::default())
             .data_aspect(1.0)
             .height(300.0)
             .x_axis_label("east, m")
             .y_axis_label("north, m")
             .show(ui, |plot_ui| {
                 let points: PlotPoints<'_> = self.track.iter().copied().collect();
-                plot_ui.line(Line::new("track", points));
+                plot_ui.line(Line::new(self.output.as_str(), points));
+                for (index, (output, track)) in self.more_tracks.iter().enumerate() {
+                    let points: PlotPoints<'_> = track.iter().copied().collect();
+                    plot_ui.line(Line::new(output.as_str(), points).color(series_color(index + 1)));
+                }
                 if let Some(last) = self.track.last() {
                     plot_ui.points(
                         Points::new("now", vec![*last])
@@ -757,6 +857,79 @@ impl Viewer {
 }
 
 /// The colour of a plot's series by its place.
+/// The index of `name`'s entry in `list`, added empty when missing.
+fn entry_of<T: Default>(list: &mut Vec<(String, T)>, name: &str) -> usize {
+    list.iter().position(|(n, _)| n == name).unwrap_or_else(|| {
+        list.push((name.to_owned(), T::default()));
+        list.len() - 1
+    })
+}
+
+fn push_bounded(track: &mut Vec<[f64; 2]>, point: [f64; 2]) {
+    if track.len() == SERIES_POINTS {
+        track.remove(0);
+    }
+    track.push(point);
+}
+
+/// Boxes from a matrix sample's value: rows of min x, y, z, max x, y, z.
+fn boxes_of(value: &serde_json::Value) -> Vec<[f32; 6]> {
+    let cols = value.get("cols").and_then(serde_json::Value::as_u64).unwrap_or(0);
+    let Some(values) = value.get("values").and_then(serde_json::Value::as_array) else {
+        return Vec::new();
+    };
+    if cols < 6 {
+        return Vec::new();
+    }
+    let numbers: Vec<f32> = values
+        .iter()
+        .map(|v| v.as_f64().unwrap_or(f64::NAN) as f32)
+        .collect();
+    numbers
+        .chunks_exact(cols as usize)
+        .filter_map(|row| row.get(..6).and_then(|r| <[f32; 6]>::try_from(r).ok()))
+        .filter(|b| b.iter().all(|v| v.is_finite()))
+        .collect()
+}
+
+/// The twelve edges of a box as points 5 cm apart, in the marker colour (intensity −1).
+fn box_edges(b: &[f32; 6], points: &mut Vec<[f32; 4]>) {
+    let corner = |i: usize| {
+        [
+            if i & 1 == 0 { b[0] } else { b[3] },
+            if i & 2 == 0 { b[1] } else { b[4] },
+            if i & 4 == 0 { b[2] } else { b[5] },
+        ]
+    };
+    for (a, z) in [
+        (0, 1),
+        (2, 3),
+        (4, 5),
+        (6, 7),
+        (0, 2),
+        (1, 3),
+        (4, 6),
+        (5, 7),
+        (0, 4),
+        (1, 5),
+        (2, 6),
+        (3, 7),
+    ] {
+        let (p, q) = (corner(a), corner(z));
+        let length = ((q[0] - p[0]).powi(2) + (q[1] - p[1]).powi(2) + (q[2] - p[2]).powi(2)).sqrt();
+        let steps = ((length / 0.05).ceil() as usize).clamp(1, 2000);
+        for k in 0..=steps {
+            let t = k as f32 / steps as f32;
+            points.push([
+                p[0] + (q[0] - p[0]) * t,
+                p[1] + (q[1] - p[1]) * t,
+                p[2] + (q[2] - p[2]) * t,
+                -1.0,
+            ]);
+        }
+    }
+}
+
 fn series_color(index: usize) -> Color32 {
     SERIES_COLORS[index % SERIES_COLORS.len()]
 }
@@ -787,7 +960,12 @@ impl Viewers {
 
     /// The outputs the viewers show, each once.
     pub fn outputs(&self) -> Vec<String> {
-        let mut outputs: Vec<String> = self.list.iter().map(|v| v.output.clone()).collect();
+        let mut outputs: Vec<String> = self
+            .list
+            .iter()
+            .flat_map(|v| std::iter::once(&v.output).chain(&v.also))
+            .cloned()
+            .collect();
         outputs.sort();
         outputs.dedup();
         outputs
@@ -800,9 +978,28 @@ impl Viewers {
 
     /// Hands a sample to every viewer of its output.
     pub fn receive(&mut self, header: &SampleHeader, payload: &[u8]) {
-        for viewer in self.list.iter_mut().filter(|v| v.output == header.output) {
-            viewer.receive(header, payload);
+        for viewer in &mut self.list {
+            if viewer.output == header.output {
+                viewer.receive(header, payload);
+            } else if viewer.also.contains(&header.output) {
+                let value = header.value.clone().unwrap_or(serde_json::Value::Null);
+                viewer.receive_overlay(header, &value);
+            }
         }
+    }
+
+    /// Draws `output` over the viewer `index` shows, when its type fits that viewer (see
+    /// [`ViewerKind::overlays`]); returns whether it does.
+    pub fn add_overlay(&mut self, index: usize, output: String, data_type: &str) -> bool {
+        let Some(viewer) = self.list.get_mut(index) else {
+            return false;
+        };
+        if !viewer.kind.overlays(data_type) || viewer.output == output || viewer.also.contains(&output) {
+            return false;
+        }
+        viewer.also.push(output);
+        self.changed = true;
+        true
     }
 
     /// Whether any viewer is docked (the studio then shows the dock).
@@ -811,9 +1008,10 @@ impl Viewers {
     }
 
     /// The docked viewers, one under the other, each with its title and buttons to float or close it.
-    pub fn show_docked(&mut self, ui: &mut egui::Ui) {
+    pub fn show_docked(&mut self, ui: &mut egui::Ui, choices: &[(String, String)]) {
+        let mut chosen = None;
         egui::ScrollArea::vertical().show(ui, |ui| {
-            for viewer in self.list.iter_mut().filter(|v| v.docked) {
+            for (index, viewer) in self.list.iter_mut().enumerate().filter(|(_, v)| v.docked) {
                 ui.push_id(("docked viewer", viewer.id), |ui| {
                     ui.horizontal(|ui| {
                         ui.strong(viewer.title());
@@ -830,17 +1028,23 @@ impl Viewers {
                             }
                         });
                     });
-                    viewer.contents(ui);
+                    if let Some(choice) = viewer.contents(ui, choices) {
+                        chosen = Some((index, choice));
+                    }
                     ui.separator();
                 });
             }
         });
+        if let Some((index, (output, data_type))) = chosen {
+            self.add_overlay(index, output, &data_type);
+        }
         self.forget_closed();
     }
 
     /// The floating viewers, each in a window of its own.
-    pub fn show_floating(&mut self, ctx: &egui::Context) {
+    pub fn show_floating(&mut self, ctx: &egui::Context, choices: &[(String, String)]) {
         let screen = ctx.content_rect();
+        let mut chosen = None;
         for (index, viewer) in self.list.iter_mut().enumerate().filter(|(_, v)| !v.docked) {
             let mut open = viewer.open;
             let step = (index % 8) as f32 * 32.0;
@@ -857,12 +1061,17 @@ impl Viewers {
                         .button("Dock")
                         .on_hover_text("put it back beside the canvas")
                         .clicked();
-                    viewer.contents(ui);
+                    if let Some(choice) = viewer.contents(ui, choices) {
+                        chosen = Some((index, choice));
+                    }
                 });
             viewer.open = open;
             if dock {
                 viewer.docked = true;
             }
+        }
+        if let Some((index, (output, data_type))) = chosen {
+            self.add_overlay(index, output, &data_type);
         }
         self.forget_closed();
     }
@@ -966,6 +1175,67 @@ mod tests {
             color_image(&layout("yuv", 6), &[0; 6]).is_none(),
             "unknown format"
         );
+    }
+
+    fn header(output: &str, data_type: &str, value: serde_json::Value) -> SampleHeader {
+        SampleHeader {
+            output: output.to_owned(),
+            data_type: data_type.to_owned(),
+            timestamp_ns: 1,
+            time_of_issue_ns: 1,
+            sequence: 0,
+            skipped: 0,
+            value: Some(value),
+            image: None,
+            intensity: false,
+        }
+    }
+
+    #[test]
+    fn a_second_gnss_output_is_drawn_as_a_track_of_its_own_on_the_same_map() {
+        let mut viewers = Viewers::default();
+        viewers.open("gnss.fix".to_owned(), "gnss_fix");
+        assert!(
+            !viewers.add_overlay(0, "camera.image".to_owned(), "image"),
+            "only fixes go on a track"
+        );
+        assert!(viewers.add_overlay(0, "ekf.fix".to_owned(), "gnss_fix"));
+        assert!(!viewers.add_overlay(0, "ekf.fix".to_owned(), "gnss_fix"), "once");
+        assert_eq!(
+            viewers.outputs(),
+            ["ekf.fix", "gnss.fix"],
+            "both are subscribed to"
+        );
+        let fix = |lat: f64| serde_json::json!({"latitude_deg": lat, "longitude_deg": 2.0});
+        viewers.receive(&header("gnss.fix", "gnss_fix", fix(48.0)), &[]);
+        viewers.receive(&header("ekf.fix", "gnss_fix", fix(48.0001)), &[]);
+        let viewer = &viewers.list[0];
+        assert_eq!(viewer.track().len(), 1);
+        assert_eq!(viewer.more_tracks.len(), 1);
+        let north = viewer.more_tracks[0].1[0][1];
+        assert!((north - 11.1).abs() < 0.1, "on the first track's plane: {north}");
+    }
+
+    #[test]
+    fn boxes_from_a_matrix_are_drawn_into_the_cloud_in_the_marker_colour() {
+        let mut viewers = Viewers::default();
+        viewers.open("lidar.points".to_owned(), "point_cloud");
+        assert!(viewers.add_overlay(0, "clusters.boxes".to_owned(), "matrix"));
+        let point: Vec<u8> = [1.0_f32, 2.0, 3.0].iter().flat_map(|v| v.to_le_bytes()).collect();
+        let mut cloud = header("lidar.points", "point_cloud", serde_json::Value::Null);
+        cloud.value = None;
+        viewers.receive(&cloud, &point);
+        let boxes = serde_json::json!({"rows": 1, "cols": 6, "values": [0.0, 0.0, 0.0, 1.0, 1.0, 1.0]});
+        viewers.receive(&header("clusters.boxes", "matrix", boxes), &[]);
+        let drawn = &viewers.list[0].cloud.points;
+        let first = drawn[0].map(|v| (v * 10.0).round() as i32);
+        assert_eq!(first, [10, 20, 30, 5], "the cloud's own point first");
+        let markers = drawn.iter().filter(|p| p[3] < 0.0).count();
+        assert_eq!(markers, 12 * 21, "twelve edges of 1 m, a point every 5 cm");
+        // A new cloud keeps the boxes until new boxes come.
+        viewers.receive(&cloud, &point);
+        assert_eq!(viewers.list[0].cloud.points.len(), 1 + 12 * 21);
+        assert!(boxes_of(&serde_json::json!({"rows": 1, "cols": 4, "values": [0, 0, 1, 1]})).is_empty());
     }
 
     #[test]

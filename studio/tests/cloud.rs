@@ -53,7 +53,7 @@ fn the_gpu_draws_the_points_of_a_cloud() {
     let mut harness = Harness::builder()
         .with_size(Vec2::new(640.0, 560.0))
         .renderer(renderer)
-        .build_ui_state(|ui, viewers: &mut Viewers| viewers.show_docked(ui), viewers);
+        .build_ui_state(|ui, viewers: &mut Viewers| viewers.show_docked(ui, &[]), viewers);
     harness.run_steps(3);
     let image = harness.render().unwrap();
     // The view is dark (grey 12) where no point falls; points are coloured. Count clearly coloured pixels

@@ -28,7 +28,7 @@ fn studio() -> Harness<'static, StudioApp> {
     );
     let mut harness = Harness::new_ui_state(|ui, app: &mut StudioApp| app.show(ui), app);
     // Tall enough for the whole palette, the viewer entry at its end included.
-    harness.set_size(Vec2::new(1280.0, 1700.0));
+    harness.set_size(Vec2::new(1280.0, 2400.0));
     harness.run_steps(2);
     harness
 }
@@ -296,7 +296,7 @@ fn an_unreadable_token_file_is_said_in_the_log_and_the_dialog_stays() {
     .with_config_dir(config.path().to_owned());
     let mut harness = Harness::new_ui_state(|ui, app: &mut StudioApp| app.show(ui), app);
     // Tall enough for the whole palette, the viewer entry at its end included.
-    harness.set_size(Vec2::new(1280.0, 1700.0));
+    harness.set_size(Vec2::new(1280.0, 2400.0));
     harness.run_steps(2);
     harness.get_by_label("File").click();
     harness.run_steps(2);

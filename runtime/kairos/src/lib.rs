@@ -31,6 +31,7 @@ pub fn builtin_registry() -> Registry {
     kairos_pack_lidar::register(&mut registry);
     kairos_pack_can::register(&mut registry);
     kairos_pack_vision::register(&mut registry);
+    kairos_pack_fusion::register(&mut registry);
     link::register(&mut registry);
     registry
 }
