@@ -170,6 +170,24 @@ fn hardware_stand_in(
             vec![("interface", Value::Text("vcan0".to_owned()))]
         }
         "video.v4l2_camera" => vec![("device", Value::Text("/dev/video0".to_owned()))],
+        "fusion.frame_transform" => {
+            let frames = dir.join("stand-in-frames.toml");
+            std::fs::write(
+                &frames,
+                "[frame.lidar]\nparent = \"vehicle\"\ntranslation = [1.0, 0.0, 1.8]\n",
+            )
+            .unwrap();
+            vec![("frames_file", Value::Text(frames.display().to_string()))]
+        }
+        "vision.undistort" => {
+            let calibration = dir.join("stand-in-camera.toml");
+            std::fs::write(
+                &calibration,
+                "width = 64\nheight = 48\nfx = 50.0\nfy = 50.0\ncx = 32.0\ncy = 24.0\nk1 = -0.1\n",
+            )
+            .unwrap();
+            vec![("calibration", Value::Text(calibration.display().to_string()))]
+        }
         "can.candump_reader" => {
             let log = dir.join("stand-in.log");
             std::fs::write(

@@ -656,3 +656,59 @@ impl Component for Motion {
         Ok(())
     }
 }
+
+/// `vision.undistort`: removes lens distortion with a calibration file.
+#[derive(Debug, Default)]
+pub struct Undistort {
+    table: Option<crate::kernels::undistort::Undistortion>,
+}
+
+impl Undistort {
+    /// The descriptor.
+    pub fn info() -> ComponentInfo {
+        Descriptor::new(
+            "vision.undistort",
+            "image filters",
+            "Removes lens distortion: pinhole camera with radial and tangential distortion (OpenCV's model), from a calibration file",
+        )
+        .label("Undistort (lens)")
+        .input("in", images(), "An 8-bit image of the size the calibration is for")
+        .output("out", DataType::Image, "The image a distortion-free camera with the same intrinsics would take; same timestamp")
+        .property(
+            Property::path("calibration", "camera.toml")
+                .doc("Calibration file (TOML): width, height, fx, fy, cx, cy, and k1, k2, k3, p1, p2"),
+        )
+        .build()
+    }
+}
+
+impl Component for Undistort {
+    fn birth(&mut self, ctx: &mut Context) -> ComponentResult {
+        let path = std::path::PathBuf::from(ctx.text_property("calibration")?);
+        let calibration =
+            crate::kernels::undistort::Calibration::load(&path).map_err(ComponentError::failed)?;
+        self.table = Some(crate::kernels::undistort::Undistortion::new(&calibration));
+        Ok(())
+    }
+
+    fn core(&mut self, ctx: &mut Context) -> ComponentResult {
+        let sample = ctx.read("in")?;
+        let image = image_of(&sample, "in")?;
+        let (view, layout) = view_of(image, "vision.undistort")?;
+        let Some(table) = &self.table else {
+            return Err(ComponentError::failed("no calibration loaded"));
+        };
+        let (width, height) = table.size();
+        if (view.width, view.height) != (width, height) {
+            return Err(ComponentError::failed(format_args!(
+                "the calibration is for {width}×{height} images, this one is {}×{}: calibrate at this size, or resize the images first",
+                view.width, view.height
+            )));
+        }
+        let out = made(width, height, format_of(layout), |dst| {
+            table.apply(&view, dst);
+            Ok(())
+        })?;
+        ctx.write_processed("out", &sample, Payload::Image(out))
+    }
+}

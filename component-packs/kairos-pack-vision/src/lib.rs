@@ -13,7 +13,9 @@
 //! | `vision.morphology` | erode, dilate, open, close |
 //! | `vision.equalize_histogram` | contrast spread over the whole range |
 //! | `vision.motion` | frame difference as a motion mask |
+//! | `vision.undistort` | lens distortion removed, from a calibration file |
 //! | `vision.jpeg_encode` / `vision.jpeg_decode` | JPEG bytes and back |
+//! | `vision.from_yuv` / `vision.to_yuv` | raw YUYV and NV12 frames and back |
 //! | `vision.hough_lines` | straight segments in an edge mask |
 //! | `vision.overlay` | segments, boxes and a label drawn onto a copy |
 //!
@@ -43,8 +45,11 @@ pub fn register(registry: &mut Registry) {
         .component::<images::Morphology>(images::Morphology::info())
         .component::<images::EqualizeHistogram>(images::EqualizeHistogram::info())
         .component::<images::Motion>(images::Motion::info())
+        .component::<images::Undistort>(images::Undistort::info())
         .component::<codecs::JpegEncode>(codecs::JpegEncode::info())
         .component::<codecs::JpegDecode>(codecs::JpegDecode::info())
+        .component::<codecs::FromYuv>(codecs::FromYuv::info())
+        .component::<codecs::ToYuv>(codecs::ToYuv::info())
         .component::<lines::HoughLines>(lines::HoughLines::info())
         .component::<lines::Overlay>(lines::Overlay::info());
 }

@@ -149,14 +149,14 @@ impl Overlay {
         Descriptor::new(
             "vision.overlay",
             "image features",
-            "Draws segments, boxes and a label onto a copy of an image, each image with the drawings of its own time",
+            "Draws segments, polylines, boxes and a label onto a copy of an image, each image with the drawings of its own time",
         )
         .label("Overlay (lines, boxes, text)")
         .input("image", TypeFilter::only(DataType::Image), "The image to draw on")
         .input(
             "lines",
             TypeFilter::only(DataType::Matrix),
-            "Segments: rows of x1, y1, x2, y2 in pixels (optional)",
+            "Segments and polylines: rows of x1, y1, x2, y2, … in pixels; NaN ends a row early (optional)",
         )
         .input(
             "boxes",
@@ -240,13 +240,16 @@ impl Component for Overlay {
                 channels: view.channels,
                 pixels: dst,
             };
-            for segment in lines.iter().flat_map(|m| m.values.chunks_exact(m.cols.max(1))) {
-                canvas.line(
-                    (segment[0], segment[1]),
-                    (segment[2], segment[3]),
-                    thickness,
-                    &pen,
-                );
+            for polyline in lines.iter().flat_map(|m| m.values.chunks_exact(m.cols.max(1))) {
+                // x1, y1, x2, y2, … up to the row's end or its first NaN.
+                let points: Vec<(f64, f64)> = polyline
+                    .chunks_exact(2)
+                    .map(|p| (p[0], p[1]))
+                    .take_while(|(x, y)| !x.is_nan() && !y.is_nan())
+                    .collect();
+                for leg in points.windows(2) {
+                    canvas.line(leg[0], leg[1], thickness, &pen);
+                }
             }
             for bounds in boxes.iter().flat_map(|m| m.values.chunks_exact(m.cols.max(1))) {
                 canvas.rectangle((bounds[0], bounds[1]), (bounds[2], bounds[3]), thickness, &pen);

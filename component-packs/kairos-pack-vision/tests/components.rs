@@ -147,6 +147,40 @@ fn a_lane_chain_finds_both_markings_and_draws_them() {
 }
 
 #[test]
+fn a_polyline_is_drawn_leg_by_leg_up_to_its_first_nan() {
+    // A polyline: an L from (10, 10) down to (10, 100) and across to (100, 100); NaN ends the row.
+    let mut overlay = Harness::new(lines::Overlay::info(), lines::Overlay::default());
+    let polyline = kairos_sdk::Matrix {
+        rows: 1,
+        cols: 8,
+        values: vec![10.0, 10.0, 10.0, 100.0, 100.0, 100.0, f64::NAN, 0.0],
+    };
+    overlay.push(
+        "lines",
+        Payload::Matrix(polyline.into()),
+        Timestamp::from_millis(40),
+    );
+    let no_boxes = kairos_sdk::Matrix {
+        rows: 0,
+        cols: 4,
+        values: Vec::new(),
+    };
+    overlay.push(
+        "boxes",
+        Payload::Matrix(no_boxes.into()),
+        Timestamp::from_millis(40),
+    );
+    overlay.push("image", Payload::Image(road()), Timestamp::from_millis(40));
+    let drawn = overlay.run().unwrap();
+    let drawn = image(&drawn.samples("out")[0]).clone();
+    let red = |x: usize, y: usize| drawn.pixels[(y * 320 + x) * 3..][..3] == [255, 0, 0];
+    assert!(
+        red(10, 50) && red(50, 100) && !red(50, 50),
+        "both legs, nothing across"
+    );
+}
+
+#[test]
 fn images_of_the_wrong_format_are_failed_with_the_reason_and_the_fix() {
     let error = through(
         images::Canny::info(),
@@ -336,4 +370,122 @@ fn a_threshold_on_pixels_held_once_works_in_place_and_motion_shows_what_moved() 
         .map(|(i, _)| i)
         .collect();
     assert_eq!(moved, [0, 5]);
+}
+
+#[test]
+fn undistortion_refuses_a_bad_calibration_file_and_an_image_of_another_size() {
+    let dir = tempfile::tempdir().unwrap();
+    let calibration = dir.path().join("camera.toml");
+    std::fs::write(
+        &calibration,
+        "width = 320\nheight = 240\nfx = 250.0\nfy = 250.0\ncx = 160.0\ncy = 120.0\nk1 = -0.2\n",
+    )
+    .unwrap();
+    let path = calibration.display().to_string();
+    let out = through(
+        images::Undistort::info(),
+        images::Undistort::default(),
+        &[("calibration", path.clone().into())],
+        "in",
+        Payload::Image(road()),
+    )
+    .unwrap();
+    assert_eq!((image(&out).width, image(&out).height), (320, 240));
+    let small = Image::packed(160, 120, PixelFormat::Rgb8, vec![0_u8; 160 * 120 * 3]).unwrap();
+    let error = through(
+        images::Undistort::info(),
+        images::Undistort::default(),
+        &[("calibration", path.into())],
+        "in",
+        Payload::Image(small),
+    )
+    .unwrap_err();
+    assert!(
+        error.contains("for 320×240 images, this one is 160×120"),
+        "{error}"
+    );
+    std::fs::write(
+        &calibration,
+        "width = 320\nheight = 240\nfx = 0.0\nfy = 250.0\ncx = 160.0\ncy = 120.0\n",
+    )
+    .unwrap();
+    let error = through(
+        images::Undistort::info(),
+        images::Undistort::default(),
+        &[("calibration", calibration.display().to_string().into())],
+        "in",
+        Payload::Image(road()),
+    )
+    .unwrap_err();
+    assert!(
+        error.contains("camera.toml:3:6") && error.contains("must be positive"),
+        "{error}"
+    );
+}
+
+#[test]
+fn yuv_frames_convert_both_ways_and_a_short_frame_is_refused_with_the_sizes() {
+    for format in ["yuyv", "nv12"] {
+        let frame = through(
+            codecs::ToYuv::info(),
+            codecs::ToYuv::default(),
+            &[("format", format.into())],
+            "in",
+            Payload::Image(road()),
+        )
+        .unwrap();
+        let Payload::Bytes(bytes) = &frame.payload else {
+            panic!()
+        };
+        let expected = if format == "nv12" {
+            320 * 240 * 3 / 2
+        } else {
+            320 * 240 * 2
+        };
+        assert_eq!(bytes.len(), expected, "{format}");
+        let sizes: [(&str, kairos_sdk::Value); 3] = [
+            ("format", format.into()),
+            ("width", 320_i64.into()),
+            ("height", 240_i64.into()),
+        ];
+        let back = through(
+            codecs::FromYuv::info(),
+            codecs::FromYuv,
+            &sizes,
+            "in",
+            frame.payload.clone(),
+        )
+        .unwrap();
+        let back = image(&back);
+        // The sky, away from any edge, comes back within a few levels.
+        let sky = &back.pixels[(10 * 320 + 10) * 3..][..3];
+        assert!(
+            sky.iter().zip([90, 140, 220]).all(|(a, b)| a.abs_diff(b) <= 3),
+            "{format}: {sky:?}"
+        );
+    }
+    let sizes: [(&str, kairos_sdk::Value); 3] = [
+        ("format", "nv12".into()),
+        ("width", 320_i64.into()),
+        ("height", 240_i64.into()),
+    ];
+    let error = through(
+        codecs::FromYuv::info(),
+        codecs::FromYuv,
+        &sizes,
+        "in",
+        Payload::Bytes(vec![0_u8; 1000].into()),
+    )
+    .unwrap_err();
+    assert!(error.contains("needs 115200 bytes, this one has 1000"), "{error}");
+    let odd = Image::packed(3, 2, PixelFormat::Rgb8, vec![0_u8; 18]).unwrap();
+    let error = through(
+        codecs::ToYuv::info(),
+        codecs::ToYuv::default(),
+        &[],
+        "in",
+        Payload::Image(odd),
+    )
+    .unwrap_err();
+    assert!(error.contains("even sides"), "{error}");
 }

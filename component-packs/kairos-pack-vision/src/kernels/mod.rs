@@ -12,6 +12,8 @@ pub mod filter;
 pub mod geometry;
 pub mod hough;
 pub mod jpeg;
+pub mod undistort;
+pub mod yuv;
 
 /// Borrowed pixels: `height` rows of `width × channels` bytes, `stride` bytes apart.
 #[derive(Debug, Clone, Copy)]
