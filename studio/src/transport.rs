@@ -120,6 +120,29 @@ impl Transport {
                     action: "rewind".to_owned(),
                 });
             }
+            let has_markers = status
+                .get("markers")
+                .and_then(serde_json::Value::as_array)
+                .is_some_and(|m| !m.is_empty());
+            for (label, action, hint) in [
+                (
+                    "Previous mark",
+                    "previous_marker",
+                    "jump back to the marker before",
+                ),
+                ("Next mark", "next_marker", "jump to the next marker"),
+            ] {
+                if ui
+                    .add_enabled(has_markers, egui::Button::new(label))
+                    .on_hover_text(hint)
+                    .clicked()
+                {
+                    requests.push(RequestBody::TriggerAction {
+                        component: component.clone(),
+                        action: action.to_owned(),
+                    });
+                }
+            }
             let speed = number(status, "speed");
             egui::ComboBox::new(("speed", id), "speed")
                 .width(70.0)
@@ -237,6 +260,7 @@ impl Transport {
                 .clone()
                 .on_hover_text(format!("{} more tracks not drawn", tracks.len() - LANES));
         }
+        draw_markers(&painter, &response, status, (bar, rect), x_of);
         let shown = self.scrubbing.get(id).copied().unwrap_or(position);
         let x = x_of(shown);
         painter.line_segment(
@@ -289,7 +313,23 @@ fn recorder_row(ui: &mut egui::Ui, id: &str, status: &serde_json::Value, request
             .on_hover_text("close this file and go on in a new one")
             .clicked()
         {
-            requests.push(RequestBody::RecordSplit { component });
+            requests.push(RequestBody::RecordSplit {
+                component: component.clone(),
+            });
+        }
+        if ui
+            .add_enabled(recording, egui::Button::new("Mark"))
+            .on_hover_text("write a marker into the recording now (its text is the recorder's marker_text)")
+            .clicked()
+        {
+            requests.push(RequestBody::TriggerAction {
+                component,
+                action: "mark".to_owned(),
+            });
+        }
+        let markers = number(status, "markers");
+        if markers > 0.0 {
+            ui.weak(format!("{markers} markers"));
         }
         if let Some(path) = status.get("path").and_then(serde_json::Value::as_str) {
             ui.monospace(format!("{path}  {:.1} MB", number(status, "bytes") / 1e6));
@@ -300,6 +340,53 @@ fn recorder_row(ui: &mut egui::Ui, id: &str, status: &serde_json::Value, request
         }
     });
 }
+
+/// A tick per marker across the timeline, and the text of the one under the pointer.
+fn draw_markers(
+    painter: &egui::Painter,
+    response: &egui::Response,
+    status: &serde_json::Value,
+    (bar, rect): (Rect, Rect),
+    x_of: impl Fn(f64) -> f32,
+) {
+    // Markers: a tick each across the whole timeline, their texts on hover.
+    let markers: Vec<(f64, &str)> = status
+        .get("markers")
+        .and_then(serde_json::Value::as_array)
+        .map_or(&[][..], Vec::as_slice)
+        .iter()
+        .map(|m| {
+            (
+                number(m, "t_s"),
+                m.get("text").and_then(serde_json::Value::as_str).unwrap_or(""),
+            )
+        })
+        .collect();
+    for (at, _) in &markers {
+        let x = x_of(*at);
+        painter.line_segment(
+            [Pos2::new(x, bar.top()), Pos2::new(x, rect.bottom())],
+            Stroke::new(1.5, MARKER_COLOR),
+        );
+    }
+    if let Some(pointer) = response.hover_pos()
+        && let Some((at, text)) = markers
+            .iter()
+            .filter(|(at, _)| (x_of(*at) - pointer.x).abs() <= 4.0)
+            .min_by(|a, b| {
+                (x_of(a.0) - pointer.x)
+                    .abs()
+                    .total_cmp(&(x_of(b.0) - pointer.x).abs())
+            })
+    {
+        response
+            .clone()
+            .on_hover_text(format!("marker at {}: {text}", clock(*at)));
+    }
+}
+
+/// The colour of markers on the timeline.
+const MARKER_COLOR: Color32 = Color32::from_rgb(230, 90, 230);
 
 /// Seconds as `m:ss.s`.
 fn clock(seconds: f64) -> String {

@@ -35,6 +35,9 @@ const PAUSED_RECHECK: std::time::Duration = std::time::Duration::from_millis(100
 
 /// How far back a seek looks for each channel's last sample before the target, in blocks.
 const RESTORE_BLOCKS: usize = 256;
+/// "Previous marker" skips a marker this close behind the replay (the one it stands on), so pressing it
+/// again moves on to the one before.
+const MARKER_BACK_NANOS: i64 = 1_000_000;
 
 /// One output to be: a channel of one of the recordings.
 struct PlannedOutput {
@@ -219,6 +222,8 @@ pub struct Player {
     reached: i64,
     /// One per output: its name, the recording it comes from and its message count (the status's tracks).
     tracks: Vec<(String, usize, u64)>,
+    /// The recordings' markers on the timeline, in time order.
+    markers: Vec<(i64, String)>,
     /// When the status was last published, and whether the replay reached its end.
     published: Option<std::time::Instant>,
     ended: bool,
@@ -290,6 +295,8 @@ impl Player {
         .action("pause", "Pause")
         .action("step", "Emit the next sample, then pause")
         .action("rewind", "Jump back to the start")
+        .action("next_marker", "Jump to the next marker after where the replay stands")
+        .action("previous_marker", "Jump to the marker before where the replay stands")
         .build()
     }
 
@@ -463,6 +470,11 @@ impl Player {
             "loop": self.looping,
             "files": files,
             "tracks": tracks,
+            "markers": self
+                .markers
+                .iter()
+                .map(|(at, text)| serde_json::json!({"t_s": seconds(*at), "text": text}))
+                .collect::<Vec<_>>(),
         }));
     }
 
@@ -477,6 +489,21 @@ impl Player {
         let advanced = (now.nanos_since(anchor.wall) as f64 * self.speed) as i64;
         Some(anchor.timeline.saturating_add(advanced))
     }
+}
+
+/// Every recording's markers on the common timeline, in time order.
+fn markers_of(sources: &[Source]) -> Vec<(i64, String)> {
+    let mut markers: Vec<(i64, String)> = sources
+        .iter()
+        .flat_map(|s| {
+            s.index
+                .markers()
+                .iter()
+                .map(|(at, text)| (to_timeline(*at, s.shift), text.clone()))
+        })
+        .collect();
+    markers.sort_by_key(|(at, _)| *at);
+    markers
 }
 
 impl Component for Player {
@@ -545,6 +572,7 @@ impl Component for Player {
             .max()
             .unwrap_or(0);
         self.timeline = (first, last);
+        self.markers = markers_of(&self.sources);
         let start = first.saturating_add(seconds_to_nanos(ctx.f64_property("start_s")?));
         let end_s = ctx.f64_property("end_s")?;
         let end = if end_s > 0.0 {
@@ -694,6 +722,25 @@ impl Player {
             "rewind" => {
                 self.seek(self.range.0)?;
                 self.reached = self.range.0;
+            }
+            "next_marker" | "previous_marker" => {
+                // Back: to the marker behind the replay; standing on one, to the one before it.
+                let target = if name == "next_marker" {
+                    self.markers
+                        .iter()
+                        .map(|(at, _)| *at)
+                        .find(|at| *at > self.reached)
+                } else {
+                    self.markers
+                        .iter()
+                        .rev()
+                        .map(|(at, _)| *at)
+                        .find(|at| *at < self.reached.saturating_sub(MARKER_BACK_NANOS))
+                };
+                if let Some(target) = target {
+                    self.seek(target)?;
+                    self.reached = target.clamp(self.range.0, self.range.1);
+                }
             }
             other => return Err(ComponentError::failed(format_args!("no action named '{other}'"))),
         }

@@ -18,6 +18,18 @@ use crate::encode::{encode, schema_for};
 /// How many inputs a recorder offers.
 pub const RECORDER_INPUTS: usize = 8;
 const INPUT_NAMES: [&str; RECORDER_INPUTS] = ["in1", "in2", "in3", "in4", "in5", "in6", "in7", "in8"];
+/// The input whose samples are markers, after the recorded ones.
+const MARK_INPUT: usize = RECORDER_INPUTS;
+/// The channel markers are written on (text messages), for the player's timeline and for Foxglove.
+pub const MARKERS_TOPIC: &str = "kairos.markers";
+
+fn input_name(index: usize) -> &'static str {
+    if index == MARK_INPUT {
+        "mark"
+    } else {
+        INPUT_NAMES.get(index).copied().unwrap_or("in")
+    }
+}
 const SPACE_CHECK_PERIOD: Duration = Duration::from_secs(1);
 /// The free-space check never runs more often than once per this many bytes written.
 const SPACE_CHECK_MIN_BYTES: u64 = 64 * 1024;
@@ -48,6 +60,8 @@ pub struct Recorder {
     /// When the status was last published, and the files closed so far.
     published: Option<Instant>,
     closed_files: u32,
+    /// Markers written since the start.
+    markers: u64,
 }
 
 impl std::fmt::Debug for Recorder {
@@ -118,6 +132,12 @@ impl Recorder {
                 descriptor.input_with_policy(name, TypeFilter::Any, ReaderPolicy::Fifo, "A stream to record");
         }
         descriptor
+            .input_with_policy(
+                "mark",
+                TypeFilter::Any,
+                ReaderPolicy::Fifo,
+                "Each sample writes a marker (a trigger such as a threshold's output): its text when it is text, else marker_text",
+            )
             .property(
                 Property::path("path", "recording.mcap")
                     .doc("The file; later parts of a split are named <stem>_001.mcap, ..."),
@@ -162,6 +182,12 @@ impl Recorder {
                 Property::bool("record_at_start", true)
                     .doc("Record from the start; otherwise wait for the start action"),
             )
+            .property(
+                Property::text("marker_text", "mark")
+                    .live()
+                    .doc("The text of markers written by the mark action, or by a mark sample that is not text"),
+            )
+            .action("mark", "Write a marker into the recording, at this instant")
             .action("start", "Start recording (a new file if one was closed)")
             .action("stop", "Stop recording and close the file")
             .action(
@@ -262,7 +288,7 @@ impl Recorder {
             ) else {
                 continue;
             };
-            let name = INPUT_NAMES.get(*index).copied().unwrap_or("in");
+            let name = input_name(*index);
             drops.insert(
                 format!("{name} {source}"),
                 format!(
@@ -327,15 +353,13 @@ impl Recorder {
                 id
             };
             let source = ctx.inputs().get(input).and_then(kairos_sdk::InputPort::source);
-            let topic = source.map_or_else(
-                || INPUT_NAMES.get(input).copied().unwrap_or("in").to_owned(),
-                str::to_owned,
-            );
+            let topic = if input == MARK_INPUT {
+                MARKERS_TOPIC.to_owned()
+            } else {
+                source.map_or_else(|| input_name(input).to_owned(), str::to_owned)
+            };
             let metadata = BTreeMap::from([
-                (
-                    "input".to_owned(),
-                    INPUT_NAMES.get(input).copied().unwrap_or("in").to_owned(),
-                ),
+                ("input".to_owned(), input_name(input).to_owned()),
                 ("kairos.type".to_owned(), sample.payload.data_type().to_string()),
             ]);
             let id = file
@@ -377,6 +401,28 @@ impl Recorder {
                     .map_err(|e| failed(&path, "cannot write to", with_causes(&e)))?;
             }
         }
+        Ok(())
+    }
+
+    /// Writes a marker stamped `at`: a text message on the markers channel. While not recording there is
+    /// no file to mark; that is said, and nothing fails.
+    fn mark(&mut self, ctx: &Context, text: &str, at: kairos_sdk::Timestamp) -> ComponentResult {
+        if !self.recording {
+            tracing::warn!(
+                "{}: marker '{text}' not written: the recorder is not recording",
+                ctx.id()
+            );
+            return Ok(());
+        }
+        let marker = Sample {
+            payload: kairos_sdk::Payload::Text(text.into()),
+            timestamp: at,
+            time_of_issue: at,
+            sequence: self.markers,
+        };
+        self.record(ctx, MARK_INPUT, &marker)?;
+        self.markers += 1;
+        tracing::info!("{}: marker '{text}'", ctx.id());
         Ok(())
     }
 
@@ -433,7 +479,7 @@ impl Recorder {
 
 impl Component for Recorder {
     fn birth(&mut self, ctx: &mut Context) -> ComponentResult {
-        self.connected = (0..RECORDER_INPUTS).filter(|i| ctx.is_connected(*i)).collect();
+        self.connected = (0..=MARK_INPUT).filter(|i| ctx.is_connected(*i)).collect();
         self.recording = ctx.bool_property("record_at_start")?;
         if self.recording {
             self.open(ctx)?;
@@ -487,6 +533,7 @@ impl Recorder {
             "path": path,
             "bytes": bytes,
             "files_closed": self.closed_files,
+            "markers": self.markers,
         }));
     }
 
@@ -500,6 +547,13 @@ impl Recorder {
             return Ok(());
         }
         let input = inputs.get(position).copied().unwrap_or(0);
+        if input == MARK_INPUT {
+            let text = match &sample.payload {
+                kairos_sdk::Payload::Text(text) => text.to_string(),
+                _ => ctx.text_property("marker_text")?,
+            };
+            return self.mark(ctx, &text, sample.timestamp);
+        }
         self.record(ctx, input, &sample)?;
         if self.split_due(ctx)? {
             self.split_requested = false;
@@ -530,8 +584,12 @@ impl Recorder {
                 }
                 Ok(())
             }
+            "mark" => {
+                let text = ctx.text_property("marker_text")?;
+                self.mark(ctx, &text, ctx.now())
+            }
             other => Err(ComponentError::failed(format_args!(
-                "no action '{other}' (start, stop, split)"
+                "no action '{other}' (start, stop, split, mark)"
             ))),
         }
     }

@@ -62,6 +62,8 @@ pub struct RecordingIndex {
     channels: Vec<ChannelEntry>,
     blocks: Vec<Block>,
     damage: Option<String>,
+    /// Markers: log time and text, in time order.
+    markers: Vec<(u64, String)>,
 }
 
 type CacheKey = (PathBuf, u64, Option<SystemTime>);
@@ -110,7 +112,9 @@ impl RecordingIndex {
             channels: Vec::new(),
             blocks: Vec::new(),
             damage: None,
+            markers: Vec::new(),
         };
+        let mut markers = Vec::new();
         let mut channels: BTreeMap<u16, ChannelEntry> = BTreeMap::new();
         let mut blocks = Vec::new();
         let walked = walk(
@@ -133,6 +137,14 @@ impl RecordingIndex {
                             messages: 0,
                         })
                         .messages += 1;
+                    if channel.topic == crate::recorder::MARKERS_TOPIC {
+                        let schema = channel.schema.as_ref().map_or("", |s| s.name.as_str());
+                        if let Ok(kairos_sdk::Payload::Text(text)) =
+                            crate::decode::decode(schema, &message.data)
+                        {
+                            markers.push((message.log_time, text.to_string()));
+                        }
+                    }
                     let (first, last) = times.get_or_insert((message.log_time, message.log_time));
                     *first = (*first).min(message.log_time);
                     *last = (*last).max(message.log_time);
@@ -151,6 +163,8 @@ impl RecordingIndex {
         )
         .map_err(|e| format!("cannot read {shown}: {e}"))?;
         index.blocks = blocks;
+        markers.sort_by_key(|(at, _)| *at);
+        index.markers = markers;
         index.damage = walked.summary();
         index.catalog = walked.catalog;
         index.channels = channels.into_values().collect();
@@ -163,6 +177,12 @@ impl RecordingIndex {
     /// The file.
     pub fn path(&self) -> &Path {
         &self.path
+    }
+
+    /// The markers in the file (written by a recorder's mark action or input): log time and text, in
+    /// time order.
+    pub fn markers(&self) -> &[(u64, String)] {
+        &self.markers
     }
 
     /// The channels that have intact messages, by topic.

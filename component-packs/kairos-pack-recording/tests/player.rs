@@ -285,3 +285,80 @@ fn a_missing_or_foreign_file_is_refused_naming_the_property() {
         error.message
     );
 }
+
+#[test]
+fn markers_written_by_action_and_input_are_on_the_timeline_and_the_player_jumps_to_them() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("marked.mcap");
+    let mut recorder = Harness::new(Recorder::info(), Recorder::default());
+    recorder.set_property("path", path.display().to_string()).unwrap();
+    recorder.set_property("marker_text", "button").unwrap();
+    for step in 0..100_i64 {
+        recorder.push(
+            "in1",
+            Payload::F64(step as f64),
+            Timestamp::from_millis(1_000 + step * 10),
+        );
+        if step == 30 {
+            // A trigger input: its text is the marker's.
+            recorder.push(
+                "mark",
+                Payload::Text(Arc::from("braking")),
+                Timestamp::from_millis(1_300),
+            );
+        }
+        if step == 70 {
+            recorder.run().unwrap();
+            // The action: marker_text, at the harness clock (the last sample's time).
+            recorder.action("mark").unwrap();
+        }
+    }
+    recorder.run().unwrap();
+    assert_eq!(recorder.status().unwrap()["markers"], 2);
+    recorder.finish().unwrap();
+
+    let (mut harness, outputs) = player(&[
+        ("path", path_value(&path)),
+        ("mode", Value::from("as_fast_as_possible")),
+    ]);
+    assert!(
+        outputs.iter().any(|o| o.contains("markers")),
+        "markers replay as text: {outputs:?}"
+    );
+    run(&mut harness, 1);
+    let status = harness.status().unwrap();
+    let markers = status["markers"].as_array().unwrap();
+    assert_eq!(markers.len(), 2, "{status}");
+    assert_eq!(markers[0]["text"], "braking");
+    assert_eq!(markers[1]["text"], "button");
+    assert!(
+        (markers[0]["t_s"].as_f64().unwrap() - 0.3).abs() < 1e-6,
+        "{status}"
+    );
+    // Next marker: the replay goes on from 1.3 s (after each output's last sample before it).
+    harness.action("next_marker").unwrap();
+    let after = run(&mut harness, 3);
+    let marker = after
+        .iter()
+        .find(|(o, _)| o.contains("markers"))
+        .expect("the marker itself is replayed");
+    assert_eq!(marker.1.payload, Payload::Text(Arc::from("braking")));
+    harness.action("next_marker").unwrap();
+    run(&mut harness, 3);
+    let reached = harness.status().unwrap()["position_s"].as_f64().unwrap();
+    assert!((reached - 0.7).abs() < 0.02, "at the second marker: {reached}");
+    // Back: to the marker just played past, then, standing on it, to the one before.
+    run(&mut harness, 10);
+    harness.action("previous_marker").unwrap();
+    let reached = harness.status().unwrap()["position_s"].as_f64().unwrap();
+    assert!(
+        (reached - 0.7).abs() < 1e-6,
+        "back at the second marker: {reached}"
+    );
+    harness.action("previous_marker").unwrap();
+    let reached = harness.status().unwrap()["position_s"].as_f64().unwrap();
+    assert!(
+        (reached - 0.3).abs() < 1e-6,
+        "back at the first marker: {reached}"
+    );
+}
