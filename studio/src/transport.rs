@@ -287,9 +287,18 @@ impl Transport {
 fn recorder_row(ui: &mut egui::Ui, id: &str, status: &serde_json::Value, requests: &mut Vec<RequestBody>) {
     let component = id.to_owned();
     let recording = flag(status, "recording");
+    let pre_trigger = status.get("mode").and_then(serde_json::Value::as_str) == Some("pre_trigger");
+    let writing = recording && (!pre_trigger || flag(status, "in_event"));
     ui.horizontal(|ui| {
         ui.strong(id).on_hover_text("a recorder");
-        if recording {
+        if recording && !writing {
+            ui.label(
+                RichText::new("ARMED")
+                    .color(Color32::from_rgb(230, 160, 60))
+                    .strong(),
+            )
+            .on_hover_text("keeping the last seconds in memory, waiting for a trigger");
+        } else if recording {
             ui.label(
                 RichText::new("REC")
                     .color(Color32::from_rgb(230, 60, 60))
@@ -309,7 +318,7 @@ fn recorder_row(ui: &mut egui::Ui, id: &str, status: &serde_json::Value, request
             });
         }
         if ui
-            .add_enabled(recording, egui::Button::new("Split"))
+            .add_enabled(writing && !pre_trigger, egui::Button::new("Split"))
             .on_hover_text("close this file and go on in a new one")
             .clicked()
         {
@@ -318,7 +327,7 @@ fn recorder_row(ui: &mut egui::Ui, id: &str, status: &serde_json::Value, request
             });
         }
         if ui
-            .add_enabled(recording, egui::Button::new("Mark"))
+            .add_enabled(writing, egui::Button::new("Mark"))
             .on_hover_text("write a marker into the recording now (its text is the recorder's marker_text)")
             .clicked()
         {
@@ -330,6 +339,9 @@ fn recorder_row(ui: &mut egui::Ui, id: &str, status: &serde_json::Value, request
         let markers = number(status, "markers");
         if markers > 0.0 {
             ui.weak(format!("{markers} markers"));
+        }
+        if pre_trigger {
+            pre_trigger_controls(ui, id, status, requests);
         }
         if let Some(path) = status.get("path").and_then(serde_json::Value::as_str) {
             ui.monospace(format!("{path}  {:.1} MB", number(status, "bytes") / 1e6));
@@ -382,6 +394,39 @@ fn draw_markers(
         response
             .clone()
             .on_hover_text(format!("marker at {}: {text}", clock(*at)));
+    }
+}
+
+/// A pre-trigger recorder's trigger button, what its memory holds, its events and its last error.
+fn pre_trigger_controls(
+    ui: &mut egui::Ui,
+    id: &str,
+    status: &serde_json::Value,
+    requests: &mut Vec<RequestBody>,
+) {
+    if ui
+        .button("Trigger")
+        .on_hover_text("write the seconds kept in memory and the seconds that follow")
+        .clicked()
+    {
+        requests.push(RequestBody::TriggerAction {
+            component: id.to_owned(),
+            action: "trigger".to_owned(),
+        });
+    }
+    let state = if flag(status, "in_event") {
+        "writing an event"
+    } else {
+        "waiting for a trigger"
+    };
+    ui.weak(format!(
+        "{state} · {:.1} s in memory ({:.1} MB) · {} events",
+        number(status, "ring_s"),
+        number(status, "ring_bytes") / 1e6,
+        number(status, "events")
+    ));
+    if let Some(error) = status.get("last_error").and_then(serde_json::Value::as_str) {
+        ui.colored_label(Color32::from_rgb(230, 90, 90), error);
     }
 }
 

@@ -11,6 +11,7 @@ pub mod decode;
 pub mod encode;
 pub mod inspect;
 pub mod player;
+pub mod pretrigger;
 pub mod recorder;
 pub mod recover;
 pub mod safe_read;

@@ -20,14 +20,27 @@ pub const RECORDER_INPUTS: usize = 8;
 const INPUT_NAMES: [&str; RECORDER_INPUTS] = ["in1", "in2", "in3", "in4", "in5", "in6", "in7", "in8"];
 /// The input whose samples are markers, after the recorded ones.
 const MARK_INPUT: usize = RECORDER_INPUTS;
+/// The input whose samples are triggers (pre-trigger mode).
+const TRIGGER_INPUT: usize = RECORDER_INPUTS + 1;
 /// The channel markers are written on (text messages), for the player's timeline and for Foxglove.
 pub const MARKERS_TOPIC: &str = "kairos.markers";
 
 fn input_name(index: usize) -> &'static str {
-    if index == MARK_INPUT {
-        "mark"
-    } else {
-        INPUT_NAMES.get(index).copied().unwrap_or("in")
+    match index {
+        MARK_INPUT => "mark",
+        TRIGGER_INPUT => "trigger",
+        _ => INPUT_NAMES.get(index).copied().unwrap_or("in"),
+    }
+}
+
+/// Whether a trigger input's sample is a trigger: any sample but `false` and zero (a threshold's output
+/// going low is not an event).
+fn is_trigger(payload: &kairos_sdk::Payload) -> bool {
+    match payload {
+        kairos_sdk::Payload::Bool(on) => *on,
+        kairos_sdk::Payload::F64(v) => *v != 0.0,
+        kairos_sdk::Payload::I64(v) => *v != 0,
+        _ => true,
     }
 }
 const SPACE_CHECK_PERIOD: Duration = Duration::from_secs(1);
@@ -62,6 +75,12 @@ pub struct Recorder {
     closed_files: u32,
     /// Markers written since the start.
     markers: u64,
+    /// Pre-trigger mode: the ring, the end of the event being written, and the events so far.
+    pre_trigger: bool,
+    ring: crate::pretrigger::Ring,
+    event_until: Option<kairos_sdk::Timestamp>,
+    events: u64,
+    last_error: Option<String>,
 }
 
 impl std::fmt::Debug for Recorder {
@@ -131,12 +150,18 @@ impl Recorder {
             descriptor =
                 descriptor.input_with_policy(name, TypeFilter::Any, ReaderPolicy::Fifo, "A stream to record");
         }
-        descriptor
+        pre_trigger_properties(descriptor)
             .input_with_policy(
                 "mark",
                 TypeFilter::Any,
                 ReaderPolicy::Fifo,
                 "Each sample writes a marker (a trigger such as a threshold's output): its text when it is text, else marker_text",
+            )
+            .input_with_policy(
+                "trigger",
+                TypeFilter::Any,
+                ReaderPolicy::Fifo,
+                "Pre-trigger mode: each sample (but false or 0) writes the seconds before it and after it",
             )
             .property(
                 Property::path("path", "recording.mcap")
@@ -187,6 +212,7 @@ impl Recorder {
                     .live()
                     .doc("The text of markers written by the mark action, or by a mark sample that is not text"),
             )
+            .action("trigger", "Pre-trigger mode: write the seconds before now and after it")
             .action("mark", "Write a marker into the recording, at this instant")
             .action("start", "Start recording (a new file if one was closed)")
             .action("stop", "Stop recording and close the file")
@@ -404,6 +430,90 @@ impl Recorder {
         Ok(())
     }
 
+    /// Pre-trigger mode: a sample goes to the event being written, or to the ring; a trigger starts or
+    /// extends an event; a mark is written while an event is.
+    fn pre_trigger_sample(&mut self, ctx: &Context, input: usize, sample: Sample) -> ComponentResult {
+        let at = sample.timestamp;
+        if self.event_until.is_some_and(|until| at > until) {
+            self.end_event(ctx)?;
+        }
+        match input {
+            TRIGGER_INPUT => {
+                if is_trigger(&sample.payload) {
+                    self.trigger(ctx, at)?;
+                }
+                Ok(())
+            }
+            MARK_INPUT => {
+                let text = match &sample.payload {
+                    kairos_sdk::Payload::Text(text) => text.to_string(),
+                    _ => ctx.text_property("marker_text")?,
+                };
+                self.mark(ctx, &text, at)
+            }
+            _ if self.event_until.is_some() => self.record(ctx, input, &sample),
+            _ => {
+                let keep = seconds_to_nanos(ctx.f64_property("pre_trigger_s")?);
+                let max_bytes = (ctx.f64_property("ring_mb")? * 1e6) as usize;
+                self.ring.push(input, sample, keep, max_bytes);
+                Ok(())
+            }
+        }
+    }
+
+    /// A trigger at `at`: a new event writes the ring's seconds before `at`; one under way is extended.
+    /// A write that fails keeps what it did not write in the ring and names the error; the recorder
+    /// goes on.
+    fn trigger(&mut self, ctx: &Context, at: kairos_sdk::Timestamp) -> ComponentResult {
+        let until = at.after(Duration::from_secs_f64(ctx.f64_property("post_trigger_s")?));
+        if let Some(current) = self.event_until {
+            self.event_until = Some(current.max(until));
+            return Ok(());
+        }
+        let before = seconds_to_nanos(ctx.f64_property("pre_trigger_s")?);
+        let kept = self
+            .ring
+            .take_from(kairos_sdk::Timestamp(at.as_nanos().saturating_sub(before)));
+        if self.file.is_none()
+            && let Err(error) = self.open(ctx)
+        {
+            self.ring.restore(kept.into_iter());
+            self.write_failed(ctx, &error);
+            return Ok(());
+        }
+        self.events += 1;
+        self.event_until = Some(until);
+        let mut kept = kept.into_iter();
+        while let Some((input, sample)) = kept.next() {
+            if let Err(error) = self.record(ctx, input, &sample) {
+                let unwritten: Vec<(usize, Sample)> = std::iter::once((input, sample)).chain(kept).collect();
+                self.ring.restore(unwritten.into_iter());
+                self.event_until = None;
+                self.write_failed(ctx, &error);
+                return Ok(());
+            }
+        }
+        tracing::info!("{}: event {}", ctx.id(), self.events);
+        Ok(())
+    }
+
+    /// The event is over: its file closes (a file per event), or stays open for the next one.
+    fn end_event(&mut self, ctx: &Context) -> ComponentResult {
+        self.event_until = None;
+        if ctx.text_property("event_files")? == "one_per_event" {
+            self.close(ctx)?;
+        }
+        Ok(())
+    }
+
+    fn write_failed(&mut self, ctx: &Context, error: &ComponentError) {
+        let message = format!("{error}; the last seconds are still in memory, for the next trigger");
+        tracing::error!("{}: {message}", ctx.id());
+        self.last_error = Some(message);
+        // The file may be half written: let it go, keeping the ring.
+        self.file = None;
+    }
+
     /// Writes a marker stamped `at`: a text message on the markers channel. While not recording there is
     /// no file to mark; that is said, and nothing fails.
     fn mark(&mut self, ctx: &Context, text: &str, at: kairos_sdk::Timestamp) -> ComponentResult {
@@ -479,9 +589,11 @@ impl Recorder {
 
 impl Component for Recorder {
     fn birth(&mut self, ctx: &mut Context) -> ComponentResult {
-        self.connected = (0..=MARK_INPUT).filter(|i| ctx.is_connected(*i)).collect();
-        self.recording = ctx.bool_property("record_at_start")?;
-        if self.recording {
+        self.connected = (0..=TRIGGER_INPUT).filter(|i| ctx.is_connected(*i)).collect();
+        self.pre_trigger = ctx.text_property("mode")? == "pre_trigger";
+        self.recording = ctx.bool_property("record_at_start")? || self.pre_trigger;
+        // In pre-trigger mode the first file opens with the first event.
+        if self.recording && !self.pre_trigger {
             self.open(ctx)?;
         }
         self.publish_status(ctx, true);
@@ -529,11 +641,19 @@ impl Recorder {
             .map_or((None, 0), |f| (Some(f.path.display().to_string()), f.bytes));
         ctx.set_status(serde_json::json!({
             "kind": "recorder",
-            "recording": self.recording && self.file.is_some(),
+            // Pre-trigger mode: armed (keeping seconds in memory), whether or not an event is being written.
+            "recording": self.recording && (self.file.is_some() || self.pre_trigger),
             "path": path,
             "bytes": bytes,
             "files_closed": self.closed_files,
             "markers": self.markers,
+            "mode": if self.pre_trigger { "pre_trigger" } else { "continuous" },
+            "events": self.events,
+            "in_event": self.event_until.is_some(),
+            "ring_s": self.ring.span_s(),
+            "ring_bytes": self.ring.bytes(),
+            "ring_dropped": self.ring.dropped,
+            "last_error": self.last_error,
         }));
     }
 
@@ -547,6 +667,9 @@ impl Recorder {
             return Ok(());
         }
         let input = inputs.get(position).copied().unwrap_or(0);
+        if self.pre_trigger {
+            return self.pre_trigger_sample(ctx, input, sample);
+        }
         if input == MARK_INPUT {
             let text = match &sample.payload {
                 kairos_sdk::Payload::Text(text) => text.to_string(),
@@ -568,7 +691,8 @@ impl Recorder {
             "start" => {
                 if !self.recording {
                     self.recording = true;
-                    if self.file.is_none() {
+                    // Pre-trigger mode arms: its files open with events.
+                    if self.file.is_none() && !self.pre_trigger {
                         self.open(ctx)?;
                     }
                 }
@@ -588,9 +712,52 @@ impl Recorder {
                 let text = ctx.text_property("marker_text")?;
                 self.mark(ctx, &text, ctx.now())
             }
+            "trigger" if self.pre_trigger => self.trigger(ctx, ctx.now()),
+            "trigger" => Err(ComponentError::failed(
+                "trigger is for pre-trigger mode: set mode = \"pre_trigger\" (the recorder now writes everything)",
+            )),
             other => Err(ComponentError::failed(format_args!(
-                "no action '{other}' (start, stop, split, mark)"
+                "no action '{other}' (start, stop, split, mark, trigger)"
             ))),
         }
     }
+}
+
+/// The properties of pre-trigger mode.
+fn pre_trigger_properties(descriptor: Descriptor) -> Descriptor {
+    descriptor
+            .property(
+                Property::choice("mode", &["continuous", "pre_trigger"], "continuous").doc(
+                    "continuous: everything to the file; pre_trigger: the last seconds kept in memory, written around each trigger",
+                ),
+            )
+            .property(
+                Property::f64("pre_trigger_s", 10.0)
+                    .unit("s")
+                    .range(0.0, 3600.0)
+                    .live()
+                    .doc("Pre-trigger mode: seconds kept before a trigger"),
+            )
+            .property(
+                Property::f64("post_trigger_s", 10.0)
+                    .unit("s")
+                    .range(0.0, 3600.0)
+                    .live()
+                    .doc("Pre-trigger mode: seconds written after a trigger (a trigger meanwhile extends the event)"),
+            )
+            .property(
+                Property::f64("ring_mb", 256.0)
+                    .unit("MB")
+                    .range(1.0, 1e6)
+                    .live()
+                    .doc("Pre-trigger mode: most memory the kept seconds may take; the oldest samples go first"),
+            )
+            .property(
+                Property::choice("event_files", &["one_per_event", "single_file"], "one_per_event")
+                    .doc("Pre-trigger mode: a file per event (<stem>_001.mcap, ...), or every event in one file"),
+            )
+}
+
+fn seconds_to_nanos(seconds: f64) -> i64 {
+    (seconds * 1e9) as i64
 }
