@@ -601,3 +601,56 @@ umount disk"#
         assert!(report["messages"].as_u64().unwrap() > 0, "{report}");
     }
 }
+
+#[test]
+fn recordings_of_two_runs_on_unlocked_clocks_merge_only_when_allowed_and_then_say_so() {
+    let _serial = one_at_a_time();
+    let dir = tempfile::tempdir().unwrap();
+    let (car, roadside) = (dir.path().join("car.mcap"), dir.path().join("rsu.mcap"));
+    for file in [&car, &roadside] {
+        let output = record_for(dir.path(), file, "600ms", &[]);
+        assert!(output.status.success(), "{}", text(&output).1);
+    }
+    let one = dir.path().join("one.mcap");
+    let args = |extra: &'static [&'static str]| {
+        let mut args = vec![
+            "merge".to_owned(),
+            car.display().to_string(),
+            format!("roadside={}", roadside.display()),
+            "-o".to_owned(),
+            one.display().to_string(),
+        ];
+        args.extend(extra.iter().map(|s| (*s).to_owned()));
+        args
+    };
+    let refused = args(&[]);
+    let output = kairos(
+        dir.path(),
+        &refused.iter().map(String::as_str).collect::<Vec<_>>(),
+    );
+    let (_, stderr) = text(&output);
+    assert!(!output.status.success());
+    assert!(
+        stderr.contains("not made on synchronised clocks") && stderr.contains("car.mcap (car): clock free"),
+        "{stderr}"
+    );
+    let allowed = args(&["--allow-unsynchronised"]);
+    let output = kairos(
+        dir.path(),
+        &allowed.iter().map(String::as_str).collect::<Vec<_>>(),
+    );
+    let (stdout, stderr) = text(&output);
+    assert!(output.status.success(), "{stderr}");
+    assert!(
+        stdout.contains("car/camera.image") && stdout.contains("roadside/imu.imu"),
+        "{stdout}"
+    );
+    let (code, report) = inspect(dir.path(), &one);
+    assert_eq!(code, Some(0), "{report}");
+    assert!(
+        report["metadata"]["kairos.merge"]["UNSYNCHRONISED CLOCKS"]
+            .as_str()
+            .is_some_and(|s| s.contains("rsu.mcap (roadside)")),
+        "{report}"
+    );
+}

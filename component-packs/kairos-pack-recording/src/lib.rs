@@ -10,6 +10,7 @@
 pub mod decode;
 pub mod encode;
 pub mod inspect;
+pub mod merge;
 pub mod player;
 pub mod pretrigger;
 pub mod recorder;

@@ -25,6 +25,14 @@ const TRIGGER_INPUT: usize = RECORDER_INPUTS + 1;
 /// The channel markers are written on (text messages), for the player's timeline and for Foxglove.
 pub const MARKERS_TOPIC: &str = "kairos.markers";
 
+/// Whether `topic` carries markers: the recorder's own, or one prefixed by `kairos merge` (`car/kairos.markers`).
+pub fn is_markers_topic(topic: &str) -> bool {
+    topic == MARKERS_TOPIC
+        || topic
+            .strip_suffix(MARKERS_TOPIC)
+            .is_some_and(|host| host.ends_with('/'))
+}
+
 fn input_name(index: usize) -> &'static str {
     match index {
         MARK_INPUT => "mark",

@@ -43,6 +43,11 @@ impl fmt::Debug for Catalog {
 }
 
 impl Catalog {
+    /// The channel of id `id`, with its schema.
+    pub fn channel(&self, id: u16) -> Option<&Arc<Channel<'static>>> {
+        self.channels.get(&id)
+    }
+
     /// A catalog holding the schemas and channels of a file's summary.
     pub fn from_summary(summary: &mcap::read::Summary) -> Self {
         Catalog {

@@ -64,6 +64,8 @@ pub struct RecordingIndex {
     damage: Option<String>,
     /// Markers: log time and text, in time order.
     markers: Vec<(u64, String)>,
+    /// The last `kairos.clock` metadata record: the recording clock's source and state.
+    clock: Option<BTreeMap<String, String>>,
 }
 
 type CacheKey = (PathBuf, u64, Option<SystemTime>);
@@ -113,7 +115,9 @@ impl RecordingIndex {
             blocks: Vec::new(),
             damage: None,
             markers: Vec::new(),
+            clock: None,
         };
+        let mut clock = None;
         let mut markers = Vec::new();
         let mut channels: BTreeMap<u16, ChannelEntry> = BTreeMap::new();
         let mut blocks = Vec::new();
@@ -137,7 +141,7 @@ impl RecordingIndex {
                             messages: 0,
                         })
                         .messages += 1;
-                    if channel.topic == crate::recorder::MARKERS_TOPIC {
+                    if crate::recorder::is_markers_topic(&channel.topic) {
                         let schema = channel.schema.as_ref().map_or("", |s| s.name.as_str());
                         if let Ok(kairos_sdk::Payload::Text(text)) =
                             crate::decode::decode(schema, &message.data)
@@ -158,11 +162,16 @@ impl RecordingIndex {
                     });
                 }
             },
-            |_| {},
+            |metadata| {
+                if metadata.name == "kairos.clock" {
+                    clock = Some(metadata.metadata);
+                }
+            },
             |_| {},
         )
         .map_err(|e| format!("cannot read {shown}: {e}"))?;
         index.blocks = blocks;
+        index.clock = clock;
         markers.sort_by_key(|(at, _)| *at);
         index.markers = markers;
         index.damage = walked.summary();
@@ -183,6 +192,17 @@ impl RecordingIndex {
     /// time order.
     pub fn markers(&self) -> &[(u64, String)] {
         &self.markers
+    }
+
+    /// The recording clock as the file last recorded it (`kairos.clock`: source, state, error), when it
+    /// says.
+    pub fn clock(&self) -> Option<&BTreeMap<String, String>> {
+        self.clock.as_ref()
+    }
+
+    /// The full definition (schema included) of channel `id`.
+    pub fn channel_definition(&self, id: u16) -> Option<&Arc<mcap::Channel<'static>>> {
+        self.catalog.channel(id)
     }
 
     /// The channels that have intact messages, by topic.

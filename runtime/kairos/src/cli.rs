@@ -152,6 +152,19 @@ pub enum Command {
         /// Where to write the complete one.
         output: PathBuf,
     },
+    /// Merge recordings made on several hosts into one file on one timeline, each channel prefixed by its
+    /// host (`car/camera.image`).
+    Merge {
+        /// The recordings: FILE (its host is the file's name) or HOST=FILE.
+        #[arg(required = true, num_args = 2..)]
+        inputs: Vec<String>,
+        /// The merged file.
+        #[arg(short, long)]
+        output: PathBuf,
+        /// Merge recordings whose clocks were not locked all the same (the merged file says so).
+        #[arg(long)]
+        allow_unsynchronised: bool,
+    },
     /// List the packs: built-in and loaded from the pack path, with the libraries refused and why.
     Packs {
         /// Print JSON instead of text.
@@ -302,6 +315,7 @@ pub fn execute(cli: Cli) -> anyhow::Result<ExitCode> {
         | Command::New(_)
         | Command::Inspect { .. }
         | Command::Recover { .. }
+        | Command::Merge { .. }
         | Command::Devices { .. }
         | Command::Status { .. } => Vec::new(),
     };
@@ -386,6 +400,28 @@ pub fn execute(cli: Cli) -> anyhow::Result<ExitCode> {
             } else {
                 ExitCode::SUCCESS
             })
+        }
+        Command::Merge {
+            inputs,
+            output,
+            allow_unsynchronised,
+        } => {
+            let inputs: Vec<_> = inputs
+                .iter()
+                .map(|a| kairos_pack_recording::merge::MergeInput::parse(a))
+                .collect();
+            let merged = kairos_pack_recording::merge::merge(&inputs, &output, allow_unsynchronised)?;
+            println!(
+                "{}: {} messages on {} channels ({})",
+                output.display(),
+                merged.messages,
+                merged.channels.len(),
+                merged.channels.join(", ")
+            );
+            for warning in &merged.unsynchronised {
+                println!("merged although not synchronised: {warning}");
+            }
+            Ok(ExitCode::SUCCESS)
         }
         Command::Recover { input, output } => {
             let recovered = kairos_pack_recording::recover(&input, &output)?;

@@ -1,0 +1,298 @@
+//! `kairos merge`: recordings made on several hosts into one file on one timeline, each channel
+//! prefixed by its host (`car/camera.image`). Messages stream through in log-time order, a block of
+//! each file at a time, so files far larger than memory merge.
+
+use std::collections::{BTreeMap, HashMap, VecDeque};
+use std::fs::File;
+use std::io::BufWriter;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use mcap::records::{MessageHeader, Metadata};
+
+use crate::timeline::{RawMessage, RecordingIndex};
+
+/// Why a merge was refused.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("{0}")]
+pub struct MergeError(pub String);
+
+/// What a merge wrote.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Merged {
+    /// Messages written.
+    pub messages: u64,
+    /// The channels written, prefixed.
+    pub channels: Vec<String>,
+    /// Files whose clock was not locked, with their state, when the merge was allowed anyway.
+    pub unsynchronised: Vec<String>,
+}
+
+/// One input: its host name (the channels' prefix) and its file.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct MergeInput {
+    /// The prefix.
+    pub host: String,
+    /// The recording.
+    pub path: PathBuf,
+}
+
+impl MergeInput {
+    /// `HOST=FILE`, or `FILE` (the host is then the file's stem).
+    pub fn parse(argument: &str) -> MergeInput {
+        match argument.split_once('=') {
+            Some((host, path)) if !host.is_empty() && !host.contains('/') => MergeInput {
+                host: host.to_owned(),
+                path: PathBuf::from(path),
+            },
+            _ => {
+                let path = PathBuf::from(argument);
+                let host = path
+                    .file_stem()
+                    .map_or_else(|| "recording".to_owned(), |s| s.to_string_lossy().into_owned());
+                MergeInput { host, path }
+            }
+        }
+    }
+}
+
+struct Source {
+    host: String,
+    index: Arc<RecordingIndex>,
+    next_block: usize,
+    pending: VecDeque<RawMessage>,
+}
+
+impl Source {
+    /// The log time of the next message, reading the next block when the last one is used up.
+    fn peek(&mut self) -> Result<Option<u64>, MergeError> {
+        while self.pending.is_empty() && self.next_block < self.index.block_count() {
+            let block = self.index.read_block(self.next_block).map_err(MergeError)?;
+            self.next_block += 1;
+            self.pending.extend(block);
+        }
+        Ok(self.pending.front().map(|m| m.log_time))
+    }
+}
+
+/// Merges `inputs` into `output`. Recordings from different hosts must have been made with locked
+/// clocks (or by one runtime, on one clock), or the merge is refused naming each file and its clock's
+/// state, unless `allow_unsynchronised` (the merged file then says so in its `kairos.merge` record).
+pub fn merge(inputs: &[MergeInput], output: &Path, allow_unsynchronised: bool) -> Result<Merged, MergeError> {
+    check_names(inputs, output)?;
+    let (mut sources, unsynchronised) = open_sources(inputs)?;
+    if !unsynchronised.is_empty() && !allow_unsynchronised {
+        return Err(MergeError(format!(
+            "the recordings were not made on synchronised clocks, so their times do not line up: {}. Record with the hosts' clocks locked (kairos deploy with a clock master), or pass --allow-unsynchronised to merge anyway (the merged file says so)",
+            unsynchronised.join("; ")
+        )));
+    }
+    let file =
+        File::create(output).map_err(|e| MergeError(format!("cannot create {}: {e}", output.display())))?;
+    let writer = mcap::WriteOptions::new()
+        .compression(Some(mcap::Compression::Zstd))
+        .profile("kairos")
+        .create(BufWriter::new(file))
+        .map_err(|e| write_error(output, &e))?;
+    let mut out = Output {
+        path: output,
+        writer,
+        channels: HashMap::new(),
+        schemas: HashMap::new(),
+        topics: Vec::new(),
+        sequences: HashMap::new(),
+    };
+    let mut messages = 0;
+    while let Some(at) = earliest(&mut sources)? {
+        let Some(message) = sources[at].pending.pop_front() else {
+            break;
+        };
+        if out.write(&sources[at], at, &message)? {
+            messages += 1;
+        }
+    }
+    let mut about = BTreeMap::new();
+    for (source, input) in sources.iter().zip(inputs) {
+        let clock = source.index.clock().map_or_else(
+            || "unknown".to_owned(),
+            |c| {
+                c.iter()
+                    .map(|(k, v)| format!("{k}={v}"))
+                    .collect::<Vec<_>>()
+                    .join(" ")
+            },
+        );
+        about.insert(
+            format!("host {}", source.host),
+            format!("{} · clock {clock}", input.path.display()),
+        );
+    }
+    if !unsynchronised.is_empty() {
+        about.insert("UNSYNCHRONISED CLOCKS".to_owned(), unsynchronised.join("; "));
+    }
+    out.writer
+        .write_metadata(&Metadata {
+            name: "kairos.merge".to_owned(),
+            metadata: about,
+        })
+        .map_err(|e| write_error(output, &e))?;
+    out.writer.finish().map_err(|e| write_error(output, &e))?;
+    Ok(Merged {
+        messages,
+        channels: out.topics,
+        unsynchronised,
+    })
+}
+
+fn write_error(path: &Path, error: &mcap::McapError) -> MergeError {
+    MergeError(format!("cannot write {}: {error}", path.display()))
+}
+
+/// Refuses two inputs under one host name, and an output that is an input.
+fn check_names(inputs: &[MergeInput], output: &Path) -> Result<(), MergeError> {
+    if inputs.len() < 2 {
+        return Err(MergeError("give at least two recordings to merge".to_owned()));
+    }
+    let mut hosts: BTreeMap<&str, &Path> = BTreeMap::new();
+    for input in inputs {
+        if let Some(first) = hosts.insert(&input.host, &input.path) {
+            return Err(MergeError(format!(
+                "{} and {} would both put their channels under '{}/': name them, e.g. car={} roadside={}",
+                first.display(),
+                input.path.display(),
+                input.host,
+                first.display(),
+                input.path.display()
+            )));
+        }
+        if input
+            .path
+            .canonicalize()
+            .ok()
+            .is_some_and(|p| output.canonicalize().ok() == Some(p))
+        {
+            return Err(MergeError(format!(
+                "{} is an input: choose another output",
+                output.display()
+            )));
+        }
+    }
+    Ok(())
+}
+
+/// The inputs' indexes, and those whose clocks do not line up with the others' (with their state).
+fn open_sources(inputs: &[MergeInput]) -> Result<(Vec<Source>, Vec<String>), MergeError> {
+    let mut sources = Vec::new();
+    let mut unsynchronised = Vec::new();
+    for input in inputs {
+        let index = RecordingIndex::open(&input.path).map_err(MergeError)?;
+        let state = index
+            .clock()
+            .and_then(|c| c.get("state").cloned())
+            .unwrap_or_else(|| "unknown".to_owned());
+        if state != "locked" {
+            unsynchronised.push(format!(
+                "{} ({}): clock {state}",
+                input.path.display(),
+                input.host
+            ));
+        }
+        sources.push(Source {
+            host: input.host.clone(),
+            index,
+            next_block: 0,
+            pending: VecDeque::new(),
+        });
+    }
+    // Recordings made by one runtime share its clock (the same description, down to the epoch it read
+    // at start): their times line up whatever its state.
+    let descriptions: Vec<Option<&String>> = sources
+        .iter()
+        .map(|s| s.index.clock().and_then(|c| c.get("description")))
+        .collect();
+    if descriptions.iter().all(|d| d.is_some() && *d == descriptions[0]) {
+        unsynchronised.clear();
+    }
+    Ok((sources, unsynchronised))
+}
+
+/// The source whose next message was logged first.
+fn earliest(sources: &mut [Source]) -> Result<Option<usize>, MergeError> {
+    let mut best: Option<(usize, u64)> = None;
+    for (at, source) in sources.iter_mut().enumerate() {
+        if let Some(time) = source.peek()?
+            && best.is_none_or(|(_, t)| time < t)
+        {
+            best = Some((at, time));
+        }
+    }
+    Ok(best.map(|(at, _)| at))
+}
+
+/// The merged file, and the channels and schemas written to it so far.
+struct Output<'a> {
+    path: &'a Path,
+    writer: mcap::Writer<BufWriter<File>>,
+    /// (source, channel) → the merged file's channel id; schema (name, data) → its id.
+    channels: HashMap<(usize, u16), u16>,
+    schemas: HashMap<(String, Vec<u8>), u16>,
+    topics: Vec<String>,
+    sequences: HashMap<u16, u32>,
+}
+
+impl Output<'_> {
+    /// Writes `message` of `source` (number `at`), defining its channel on first use; false when the
+    /// source does not define the channel.
+    fn write(&mut self, source: &Source, at: usize, message: &RawMessage) -> Result<bool, MergeError> {
+        let channel = if let Some(id) = self.channels.get(&(at, message.channel)) {
+            *id
+        } else {
+            let Some(definition) = source.index.channel_definition(message.channel) else {
+                return Ok(false);
+            };
+            let id = self.define(source, definition)?;
+            self.channels.insert((at, message.channel), id);
+            id
+        };
+        let sequence = self.sequences.entry(channel).or_insert(0);
+        *sequence = sequence.wrapping_add(1);
+        let header = MessageHeader {
+            channel_id: channel,
+            sequence: *sequence,
+            log_time: message.log_time,
+            publish_time: message.publish_time,
+        };
+        self.writer
+            .write_to_known_channel(&header, &message.data)
+            .map_err(|e| write_error(self.path, &e))?;
+        Ok(true)
+    }
+
+    fn define(&mut self, source: &Source, definition: &mcap::Channel<'static>) -> Result<u16, MergeError> {
+        let schema = match &definition.schema {
+            Some(schema) => {
+                let key = (schema.name.clone(), schema.data.to_vec());
+                if let Some(id) = self.schemas.get(&key) {
+                    *id
+                } else {
+                    let id = self
+                        .writer
+                        .add_schema(&schema.name, &schema.encoding, &schema.data)
+                        .map_err(|e| write_error(self.path, &e))?;
+                    self.schemas.insert(key, id);
+                    id
+                }
+            }
+            None => 0,
+        };
+        let topic = format!("{}/{}", source.host, definition.topic);
+        let mut metadata = definition.metadata.clone();
+        metadata.insert("kairos.host".to_owned(), source.host.clone());
+        let id = self
+            .writer
+            .add_channel(schema, &topic, &definition.message_encoding, &metadata)
+            .map_err(|e| write_error(self.path, &e))?;
+        self.topics.push(topic);
+        Ok(id)
+    }
+}
