@@ -654,3 +654,36 @@ fn recordings_of_two_runs_on_unlocked_clocks_merge_only_when_allowed_and_then_sa
         "{report}"
     );
 }
+
+#[test]
+fn lz4_and_uncompressed_chunks_are_read_by_inspect_the_player_and_python() {
+    let _serial = one_at_a_time();
+    let dir = tempfile::tempdir().unwrap();
+    for compression in ["lz4", "none"] {
+        let file = dir.path().join(format!("{compression}.mcap"));
+        let setting = format!("recorder.compression={compression}");
+        let output = record_for(dir.path(), &file, "600ms", &[&setting]);
+        assert!(output.status.success(), "{}", text(&output).1);
+        let (code, report) = inspect(dir.path(), &file);
+        assert_eq!(code, Some(0), "{report}");
+        let checked = Command::new("python3")
+            .arg(repo_root().join("tests/recording/check_mcap.py"))
+            .arg(&file)
+            .output()
+            .expect("python3");
+        let (stdout, stderr) = text(&checked);
+        assert!(checked.status.success(), "{compression}: {stderr}");
+        let topics: serde_json::Value = serde_json::from_str(&stdout).unwrap();
+        assert_eq!(
+            topics["imu.imu"]["count"],
+            channel(&report, "imu.imu")["messages"],
+            "{compression}"
+        );
+        // The player replays every IMU sample of it.
+        let index = kairos_pack_recording::timeline::RecordingIndex::open(&file).unwrap();
+        let blocks: usize = (0..index.block_count())
+            .map(|b| index.read_block(b).unwrap().len())
+            .sum();
+        assert_eq!(Some(blocks as u64), report["messages"].as_u64(), "{compression}");
+    }
+}

@@ -491,6 +491,21 @@ impl Player {
     }
 }
 
+/// Says so when `file` comes from a host that followed a clock master and was recorded while that clock
+/// was not locked: its times may not line up with the other hosts'.
+fn warn_if_unlocked(ctx: &Context, file: &RecordingIndex) {
+    let Some(clock) = file.clock() else { return };
+    let state = clock.get("state").map_or("unknown", String::as_str);
+    let source = clock.get("source").map_or("unknown", String::as_str);
+    if state != "locked" && source != "this machine" {
+        tracing::warn!(
+            "{}: {} was recorded while its clock was {state} (following {source}): its times may not line up with other hosts' recordings",
+            ctx.id(),
+            file.path().display()
+        );
+    }
+}
+
 /// Every recording's markers on the common timeline, in time order.
 fn markers_of(sources: &[Source]) -> Vec<(i64, String)> {
     let mut markers: Vec<(i64, String)> = sources
@@ -510,6 +525,7 @@ impl Component for Player {
     fn birth(&mut self, ctx: &mut Context) -> ComponentResult {
         let files = open_files(ctx.properties()).map_err(|e| ComponentError::failed(e.message))?;
         for file in &files {
+            warn_if_unlocked(ctx, file);
             if let Some(damage) = file.damage() {
                 tracing::warn!(
                     "{}: {} is damaged: {damage}; replaying its {} intact blocks",
