@@ -397,12 +397,23 @@ pub fn bare_mcap_rate<'p>(
     count: usize,
     pixels: impl Fn(usize) -> &'p [u8],
 ) -> Option<f64> {
+    bare_mcap_rate_compressed(path, (width, height), count, pixels, None)
+}
+
+/// [`bare_mcap_rate`] with chunks compressed by `compression`: message bytes per second.
+pub fn bare_mcap_rate_compressed<'p>(
+    path: &std::path::Path,
+    (width, height): (u32, u32),
+    count: usize,
+    pixels: impl Fn(usize) -> &'p [u8],
+    compression: Option<mcap::Compression>,
+) -> Option<f64> {
     use foxglove::Encode as _;
     let _ = std::fs::remove_file(path);
     let file = std::fs::File::create(path).ok()?;
     let started = Instant::now();
     let mut writer = mcap::WriteOptions::new()
-        .compression(None)
+        .compression(compression)
         .create(std::io::BufWriter::new(file))
         .ok()?;
     let schema = foxglove::schemas::RawImage::get_schema()?;
