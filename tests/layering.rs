@@ -81,7 +81,8 @@ const RULES: [(&str, &[&str]); 21] = [
     ("kairos-pack-sensors", &["kairos-sdk"]),
     ("kairos-pack-recording", &["kairos-sdk"]),
     ("kairos-pack-serial", &["kairos-sdk"]),
-    ("kairos-pack-video", &["kairos-sdk"]),
+    // The video pack converts camera frames with the vision pack's kernels.
+    ("kairos-pack-video", &["kairos-sdk", "kairos-pack-vision"]),
     // The network pack carries whole samples in the protocol's frame format.
     ("kairos-pack-net", &["kairos-sdk", "kairos-protocol"]),
     ("kairos-pack-lidar", &["kairos-sdk"]),

@@ -40,6 +40,7 @@ pub mod sample;
 pub mod signal;
 pub mod stats;
 mod sync;
+pub mod text;
 mod throttle;
 pub mod time;
 

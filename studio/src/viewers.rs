@@ -138,8 +138,9 @@ pub struct Viewer {
     pub also: Vec<String>,
     /// The tracks of the outputs in `also`, on the main track's plane.
     more_tracks: Vec<(String, Vec<[f64; 2]>)>,
-    /// A 3D viewer's cloud as received, before boxes are drawn into it.
-    base_points: Vec<[f32; 4]>,
+    /// A 3D viewer's cloud as received, before boxes are drawn into it (shared with `cloud` when there
+    /// are none, so an ordinary cloud is never copied).
+    received_cloud: Arc<GpuCloud>,
     /// Boxes (min x, y, z, max x, y, z) from each output in `also`.
     boxes: Vec<(String, Vec<[f32; 6]>)>,
     generation: u64,
@@ -333,7 +334,7 @@ impl Viewer {
             origin: None,
             also: Vec::new(),
             more_tracks: Vec::new(),
-            base_points: Vec::new(),
+            received_cloud: Arc::new(GpuCloud::default()),
             boxes: Vec::new(),
             generation: 0,
             rows: VecDeque::new(),
@@ -408,7 +409,8 @@ impl Viewer {
                 }
             }
             ViewerKind::Cloud => {
-                self.base_points = cloud_of(header.intensity, payload, 0).points;
+                self.generation += 1;
+                self.received_cloud = Arc::new(cloud_of(header.intensity, payload, self.generation));
                 self.rebuild_cloud();
             }
             ViewerKind::Trajectory => self.pose_sample(&value),
@@ -474,20 +476,19 @@ impl Viewer {
     /// The cloud to draw: the received points, and the edges of every box as points of the marker
     /// colour (intensity −1).
     fn rebuild_cloud(&mut self) {
-        self.generation += 1;
-        let mut points = self.base_points.clone();
-        let (mut low, mut high) = (f32::INFINITY, f32::NEG_INFINITY);
-        for p in &points {
-            low = low.min(p[2]);
-            high = high.max(p[2]);
+        if self.boxes.iter().all(|(_, boxes)| boxes.is_empty()) {
+            self.cloud = Arc::clone(&self.received_cloud);
+            return;
         }
+        self.generation += 1;
+        let mut points = self.received_cloud.points.clone();
         for b in self.boxes.iter().flat_map(|(_, boxes)| boxes) {
             box_edges(b, &mut points);
         }
         self.cloud = Arc::new(GpuCloud {
             generation: self.generation,
             points,
-            z_range: if low <= high { (low, high) } else { (0.0, 1.0) },
+            z_range: self.received_cloud.z_range,
         });
     }
 

@@ -89,14 +89,6 @@ pub struct Frames {
     parents: BTreeMap<String, (String, Transform)>,
 }
 
-/// Line and column (from 1) of byte `offset` in `text`.
-fn line_column(text: &str, offset: usize) -> (usize, usize) {
-    let before = &text[..offset.min(text.len())];
-    let line = before.matches('\n').count() + 1;
-    let column = before.rfind('\n').map_or(before.len(), |n| before.len() - n - 1) + 1;
-    (line, column)
-}
-
 impl Frames {
     /// Reads and checks the frames file at `path`.
     pub fn load(path: &Path) -> Result<Frames, FramesError> {
@@ -108,7 +100,7 @@ impl Frames {
     /// Parses and checks `text`; errors are located as `shown:line:column`.
     pub fn parse(text: &str, shown: &str) -> Result<Frames, FramesError> {
         let at = |offset: usize, what: String| {
-            let (line, column) = line_column(text, offset);
+            let (line, column) = kairos_sdk::text::line_column(text, offset);
             FramesError(format!("{shown}:{line}:{column}: {what}"))
         };
         let file: FileFormat = toml::from_str(text).map_err(|e| {

@@ -178,7 +178,7 @@ fn to_timeline(log_time: u64, shift: i64) -> i64 {
     i64::try_from(log_time).unwrap_or(i64::MAX).saturating_add(shift)
 }
 
-fn seconds_to_nanos(seconds: f64) -> i64 {
+pub(crate) fn seconds_to_nanos(seconds: f64) -> i64 {
     #[allow(
         clippy::cast_possible_truncation,
         reason = "property ranges keep it far inside i64"

@@ -14,6 +14,7 @@ use kairos_sdk::{
 use mcap::records::{MessageHeader, Metadata};
 
 use crate::encode::{encode, schema_for};
+use crate::player::seconds_to_nanos;
 
 /// How many inputs a recorder offers.
 pub const RECORDER_INPUTS: usize = 8;
@@ -764,8 +765,4 @@ fn pre_trigger_properties(descriptor: Descriptor) -> Descriptor {
                 Property::choice("event_files", &["one_per_event", "single_file"], "one_per_event")
                     .doc("Pre-trigger mode: a file per event (<stem>_001.mcap, ...), or every event in one file"),
             )
-}
-
-fn seconds_to_nanos(seconds: f64) -> i64 {
-    (seconds * 1e9) as i64
 }

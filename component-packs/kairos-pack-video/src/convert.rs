@@ -1,7 +1,8 @@
 //! Camera pixel formats to RGB, as pure functions: YUYV (YUV 4:2:2, the format most USB cameras send
-//! uncompressed) and MJPEG (a JPEG per frame). Both write into a buffer from the shared pixel pool, so a
-//! frame is converted once and then only shared.
+//! uncompressed; converted by the vision pack's kernel) and MJPEG (a JPEG per frame). Both write into a
+//! buffer from the shared pixel pool, so a frame is converted once and then only shared.
 
+use kairos_pack_vision::kernels::yuv::{self, Yuv};
 use kairos_sdk::{Image, PixelFormat, PixelsMut};
 
 /// Why a frame does not convert.
@@ -25,27 +26,6 @@ pub enum ConvertError {
     /// The JPEG does not decode.
     #[error("the JPEG frame does not decode: {0}")]
     Jpeg(String),
-}
-
-/// One pixel from BT.601 limited-range YUV (the range cameras use): R, G, B.
-#[inline]
-fn rgb_of(luma: u8, blue_diff: u8, red_diff: u8) -> [u8; 3] {
-    // Integer form of R = 1.164 (Y − 16) + 1.596 (V − 128), G = 1.164 (Y − 16) − 0.392 (U − 128) −
-    // 0.813 (V − 128), B = 1.164 (Y − 16) + 2.017 (U − 128), scaled by 256 and rounded.
-    let luma = 298 * (i32::from(luma) - 16);
-    let blue_diff = i32::from(blue_diff) - 128;
-    let red_diff = i32::from(red_diff) - 128;
-    #[allow(
-        clippy::cast_possible_truncation,
-        clippy::cast_sign_loss,
-        reason = "clamped to a byte"
-    )]
-    let clamp = |value: i32| ((value + 128) >> 8).clamp(0, 255) as u8;
-    [
-        clamp(luma + 409 * red_diff),
-        clamp(luma - 100 * blue_diff - 208 * red_diff),
-        clamp(luma + 516 * blue_diff),
-    ]
 }
 
 /// A YUYV frame (`Y0 U Y1 V` for each pair of pixels; `stride` bytes per row, at least `2 × width`) as
@@ -73,13 +53,8 @@ pub fn yuyv_to_rgb(yuyv: &[u8], width: u32, height: u32, stride: u32) -> Result<
         });
     }
     let mut rgb = PixelsMut::new(w * h * 3);
-    for (row, out) in rgb.chunks_exact_mut((w * 3).max(1)).take(h).enumerate() {
-        let line = yuyv.get(row * stride..row * stride + 2 * w).unwrap_or_default();
-        for (pair, pixels) in line.chunks_exact(4).zip(out.chunks_exact_mut(6)) {
-            let [y0, u, y1, v] = [pair[0], pair[1], pair[2], pair[3]];
-            pixels[..3].copy_from_slice(&rgb_of(y0, u, v));
-            pixels[3..].copy_from_slice(&rgb_of(y1, u, v));
-        }
+    if w > 0 {
+        yuv::to_rgb(yuyv, Yuv::Yuyv, (w, h, stride), &mut rgb);
     }
     Image::packed(width, height, PixelFormat::Rgb8, rgb.freeze())
         .map_err(|e| ConvertError::Jpeg(e.to_string()))

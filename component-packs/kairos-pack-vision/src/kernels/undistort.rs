@@ -72,13 +72,6 @@ pub struct Calibration {
     pub tangential: [f64; 2],
 }
 
-fn line_column(text: &str, offset: usize) -> (usize, usize) {
-    let before = &text[..offset.min(text.len())];
-    let line = before.matches('\n').count() + 1;
-    let column = before.rfind('\n').map_or(before.len(), |n| before.len() - n - 1) + 1;
-    (line, column)
-}
-
 impl Calibration {
     /// Reads and checks the calibration file at `path`.
     pub fn load(path: &Path) -> Result<Calibration, CalibrationError> {
@@ -94,7 +87,7 @@ impl Calibration {
     /// Parses and checks `text`; errors are located as `shown:line:column`.
     pub fn parse(text: &str, shown: &str) -> Result<Calibration, CalibrationError> {
         let at = |offset: usize, what: &str| {
-            let (line, column) = line_column(text, offset);
+            let (line, column) = kairos_sdk::text::line_column(text, offset);
             CalibrationError(format!("{shown}:{line}:{column}: {what}"))
         };
         let file: FileFormat =
