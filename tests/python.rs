@@ -667,3 +667,50 @@ fn process_exists(pid: u32) -> bool {
             .starts_with('Z')
     })
 }
+
+#[test]
+fn ctrl_c_in_the_terminal_stops_python_components_in_order() {
+    use std::io::Read as _;
+    use std::os::unix::process::CommandExt as _;
+    require_numpy();
+    let dir = tempfile::tempdir().unwrap();
+    let diagram = repo_root().join("examples/python/threshold.ron");
+    // As in a terminal: kairos leads a process group, and Ctrl-C signals the whole group.
+    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_kairos"))
+        .args([
+            "run",
+            diagram.to_str().unwrap(),
+            "--stats",
+            "--stats-interval",
+            "10s",
+        ])
+        .current_dir(dir.path())
+        .process_group(0)
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let group = nix::unistd::Pid::from_raw(i32::try_from(child.id()).unwrap());
+    std::thread::sleep(Duration::from_secs(3));
+    nix::sys::signal::killpg(group, nix::sys::signal::Signal::SIGINT).unwrap();
+    let started = Instant::now();
+    let exit = loop {
+        if let Some(exit) = child.try_wait().unwrap() {
+            break exit;
+        }
+        assert!(
+            started.elapsed() < Duration::from_secs(10),
+            "kairos did not stop after Ctrl-C"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    let mut stderr = String::new();
+    child.stderr.take().unwrap().read_to_string(&mut stderr).unwrap();
+    assert!(exit.success(), "{stderr}");
+    assert!(stderr.contains("=== final"), "{stderr}");
+    assert!(
+        !stderr.contains("FAILED"),
+        "the worker is not killed by the terminal's signal: {stderr}"
+    );
+    assert!(!stderr.contains("KeyboardInterrupt"), "{stderr}");
+}

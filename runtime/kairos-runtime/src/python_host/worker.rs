@@ -6,6 +6,7 @@ use std::collections::VecDeque;
 use std::io::{BufRead as _, BufReader};
 use std::os::fd::{AsFd as _, OwnedFd};
 use std::os::unix::net::UnixStream;
+use std::os::unix::process::CommandExt as _;
 use std::path::Path;
 use std::process::{Child, Command, ExitStatus, Stdio};
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -69,6 +70,9 @@ impl Worker {
             UnixStream::pair().map_err(|e| format!("cannot make the worker's socket: {e}"))?;
         let mut child = Command::new(&spec.interpreter)
             .args(["-m", "kairos_sdk.worker", "--component", id])
+            // A group of its own: Ctrl-C in the terminal (sent to the whole foreground group) reaches
+            // the runtime, which stops the worker in order, and never kills the worker under it.
+            .process_group(0)
             .current_dir(&spec.folder)
             .env("PYTHONPATH", python_path(&spec.sdk))
             // Lines printed by the component reach the log as they are printed.
