@@ -471,6 +471,8 @@ pub fn start_kairos_serve() -> Option<std::net::SocketAddr> {
             clock_system: None,
             tls: None,
             shipped_pack_folder: None,
+            foxglove: None,
+            foxglove_backlog: kairos::serve::DEFAULT_FOXGLOVE_BACKLOG,
         };
         let _ = kairos::serve::serve_with(kairos::builtin_registry(), &options, move |address| {
             let _ = tx.send(address);

@@ -276,6 +276,17 @@ requests! {
         #[serde(default)]
         outputs: Vec<String>,
     } => Done, Monitor;
+    /// Publishes outputs live to Foxglove (or stops publishing them), in the schemas recordings use, on the
+    /// runtime's Foxglove WebSocket server: the one `kairos serve --foxglove` started, or one started now on
+    /// loopback (`ws://127.0.0.1:8765`, or the next free port).
+    FoxglovePublish = "foxglove_publish" {
+        /// The outputs (`camera.image`).
+        outputs: Vec<String>,
+        /// Publish them (true) or stop (false).
+        publish: bool,
+    } => FoxgloveState, Operator;
+    /// What is published to Foxglove, and where.
+    Foxglove = "foxglove" => FoxgloveState, Monitor;
     /// Log events at `level` and above.
     SubscribeLog = "subscribe_log" {
         /// The least important level sent.
@@ -915,6 +926,23 @@ pub struct LinkNetwork {
     /// The certificates (PEM) to trust on `tls/` endpoints: those of the hosts section.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub trusted_certificates: Vec<String>,
+}
+
+/// The result of `foxglove_publish` and `foxglove`.
+#[derive(Debug, Clone, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct FoxgloveState {
+    /// Where Foxglove connects (`ws://127.0.0.1:8765`); absent when no server runs.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub address: Option<String>,
+    /// Every output of the deployed diagram is published.
+    #[serde(default)]
+    pub all: bool,
+    /// The outputs published, when not `all`.
+    #[serde(default)]
+    pub outputs: Vec<String>,
+    /// Foxglove clients connected now.
+    #[serde(default)]
+    pub clients: usize,
 }
 
 /// The result of `links`.

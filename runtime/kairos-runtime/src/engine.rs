@@ -1001,6 +1001,11 @@ impl Engine {
         }
     }
 
+    /// Every output's name (`component.port`).
+    pub fn output_names(&self) -> Vec<String> {
+        self.buffers.iter().map(|b| b.output().to_owned()).collect()
+    }
+
     /// The output buffer of `component.output`, to attach extra readers (viewers, recorders).
     pub fn output_buffer(&self, component: &str, output: &str) -> Option<&OutputBuffer> {
         let name = format!("{component}.{output}");

@@ -5,6 +5,7 @@
 //! threads, so clients (slow, flooding, vanishing) never share a thread with a component.
 
 mod auth;
+mod foxglove;
 mod runtime;
 mod samples;
 mod session;
@@ -22,6 +23,9 @@ use kairos_sdk::Registry;
 use tokio_tungstenite::tungstenite::Message;
 
 pub use auth::{Access, load_or_create_token};
+pub use foxglove::{
+    DEFAULT_BACKLOG as DEFAULT_FOXGLOVE_BACKLOG, DEFAULT_FOXGLOVE_ADDRESS, Foxglove, Selection,
+};
 pub use runtime::Runtime;
 
 /// The address `kairos serve` listens on unless told otherwise.
@@ -58,6 +62,22 @@ pub struct ServeOptions {
     /// Where packs shipped by a deploying machine are written ([`default_shipped_pack_folder`] when
     /// `None`).
     pub shipped_pack_folder: Option<PathBuf>,
+    /// Publish to Foxglove from boot.
+    pub foxglove: Option<FoxgloveOptions>,
+    /// Messages queued per Foxglove client before the oldest are dropped (also for a server started later
+    /// by `foxglove_publish`).
+    pub foxglove_backlog: usize,
+}
+
+/// `--foxglove`: where, and what.
+#[derive(Debug, Clone)]
+pub struct FoxgloveOptions {
+    /// Where to listen (`127.0.0.1:8765`).
+    pub address: String,
+    /// What to publish.
+    pub selection: Selection,
+    /// Listening off loopback was asked for explicitly (Foxglove's protocol carries no token).
+    pub open_to_network: bool,
 }
 
 /// Where packs shipped here are written unless told otherwise: `$XDG_DATA_HOME/kairos/shipped-packs`, else
@@ -80,6 +100,95 @@ pub(crate) struct Shared {
     access: Access,
     server_name: String,
     shipped_pack_folder: PathBuf,
+    /// The Foxglove server, once started (at boot, or by the first `foxglove_publish`).
+    foxglove: std::sync::Mutex<Option<Arc<Foxglove>>>,
+    foxglove_backlog: usize,
+}
+
+impl Shared {
+    /// What is published to Foxglove now.
+    fn foxglove_state(&self) -> kairos_protocol::FoxgloveState {
+        let foxglove = self
+            .foxglove
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+            .clone();
+        foxglove.map_or_else(kairos_protocol::FoxgloveState::default, |f| foxglove_state_of(&f))
+    }
+
+    /// Publishes `outputs` to Foxglove, or stops (`publish` false); the first publication starts a server on
+    /// loopback, at Foxglove's usual port when it is free.
+    fn foxglove_publish(
+        &self,
+        outputs: &[String],
+        publish: bool,
+    ) -> Result<kairos_protocol::FoxgloveState, ProtocolError> {
+        let existing = self.runtime.output_names();
+        if !existing.is_empty()
+            && let Some(unknown) = outputs.iter().find(|o| !existing.contains(o))
+        {
+            return Err(ProtocolError::new(
+                ErrorCode::NotFound,
+                format!(
+                    "no output '{unknown}' in the deployed diagram; its outputs are: {}",
+                    existing.join(", ")
+                ),
+            ));
+        }
+        let mut slot = self
+            .foxglove
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        if slot.is_none() {
+            if !publish {
+                return Ok(kairos_protocol::FoxgloveState::default());
+            }
+            *slot = Some(self.start_foxglove_on_loopback()?);
+        }
+        let foxglove = slot
+            .clone()
+            .ok_or_else(|| ProtocolError::new(ErrorCode::Internal, "no Foxglove server"))?;
+        drop(slot);
+        foxglove.choose(outputs, publish, &existing);
+        tracing::info!(
+            "Foxglove: {} {} on ws://{}",
+            if publish {
+                "publishing"
+            } else {
+                "no longer publishing"
+            },
+            outputs.join(", "),
+            foxglove.address()
+        );
+        Ok(foxglove_state_of(&foxglove))
+    }
+
+    fn start_foxglove_on_loopback(&self) -> Result<Arc<Foxglove>, ProtocolError> {
+        let usual: SocketAddr = DEFAULT_FOXGLOVE_ADDRESS
+            .parse()
+            .map_err(|_| ProtocolError::new(ErrorCode::Internal, "the default Foxglove address"))?;
+        let start = |address| {
+            Foxglove::start(
+                Arc::clone(&self.runtime),
+                address,
+                Selection::default(),
+                self.foxglove_backlog,
+            )
+        };
+        start(usual)
+            .or_else(|_| start(SocketAddr::new(usual.ip(), 0)))
+            .map_err(|e| ProtocolError::new(ErrorCode::Internal, format!("{e:#}")))
+    }
+}
+
+fn foxglove_state_of(foxglove: &Foxglove) -> kairos_protocol::FoxgloveState {
+    let selection = foxglove.selection();
+    kairos_protocol::FoxgloveState {
+        address: Some(format!("ws://{}", foxglove.address())),
+        all: selection.all,
+        outputs: selection.chosen.into_iter().collect(),
+        clients: foxglove.clients(),
+    }
 }
 
 fn token(path: Option<&PathBuf>, what: &str) -> anyhow::Result<Option<Token>> {
@@ -122,15 +231,7 @@ pub fn serve_with(
     on_listening: impl FnOnce(SocketAddr) + Send,
 ) -> anyhow::Result<ExitCode> {
     let address = listen_address(&options.listen)?;
-    let operator = token(options.token_file.as_ref(), "operator")?;
-    let monitor = token(options.monitor_token_file.as_ref(), "monitor")?;
-    if !address.ip().is_loopback() && operator.is_none() {
-        bail!(
-            "refusing to listen on {address} without a token: anyone who can reach it could run code on this \
-             machine. Give --token-file FILE (a fresh token is written there if FILE does not exist; or make \
-             one with `openssl rand -hex 32 > FILE`)"
-        );
-    }
+    let access = access_for(address, options)?;
     let tls = options
         .tls
         .as_ref()
@@ -147,15 +248,23 @@ pub fn serve_with(
     {
         return Ok(ExitCode::from(1));
     }
+    let foxglove = options
+        .foxglove
+        .as_ref()
+        .map(|f| start_foxglove(&runtime, f, options.foxglove_backlog))
+        .transpose()?;
     let shared = Arc::new(Shared {
+        foxglove: std::sync::Mutex::new(foxglove.clone()),
+        foxglove_backlog: options.foxglove_backlog,
         runtime: Arc::clone(&runtime),
-        access: Access::new(operator, monitor),
+        access,
         server_name: format!("kairos {}", env!("CARGO_PKG_VERSION")),
         shipped_pack_folder: options
             .shipped_pack_folder
             .clone()
             .unwrap_or_else(default_shipped_pack_folder),
     });
+    let shared_for_exit = Arc::clone(&shared);
     let network = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)
         .thread_name("k:net")
@@ -205,6 +314,9 @@ pub fn serve_with(
         Ok(())
     });
     network.shutdown_timeout(std::time::Duration::from_secs(1));
+    if let Some(foxglove) = foxglove_of(&shared_for_exit) {
+        foxglove.shutdown();
+    }
     runtime.shutdown();
     if options.temporary_token
         && let Some(path) = &options.token_file
@@ -213,6 +325,74 @@ pub fn serve_with(
     }
     tracing::info!("stopped");
     result.map(|()| ExitCode::SUCCESS)
+}
+
+/// Who may connect: the tokens read or made; refused off loopback without an operator token.
+fn access_for(address: SocketAddr, options: &ServeOptions) -> anyhow::Result<Access> {
+    let operator = token(options.token_file.as_ref(), "operator")?;
+    let monitor = token(options.monitor_token_file.as_ref(), "monitor")?;
+    if !address.ip().is_loopback() && operator.is_none() {
+        bail!(
+            "refusing to listen on {address} without a token: anyone who can reach it could run code on this \
+             machine. Give --token-file FILE (a fresh token is written there if FILE does not exist; or make \
+             one with `openssl rand -hex 32 > FILE`)"
+        );
+    }
+    Ok(Access::new(operator, monitor))
+}
+
+/// `--foxglove`: the server, listening; refused off loopback unless asked for explicitly.
+fn start_foxglove(
+    runtime: &Arc<Runtime>,
+    options: &FoxgloveOptions,
+    backlog: usize,
+) -> anyhow::Result<Arc<Foxglove>> {
+    let address = options
+        .address
+        .to_socket_addrs()
+        .ok()
+        .and_then(|mut a| a.next())
+        .with_context(|| {
+            format!(
+                "--foxglove {}: not an address (use HOST:PORT, e.g. {DEFAULT_FOXGLOVE_ADDRESS})",
+                options.address
+            )
+        })?;
+    check_foxglove_outputs(runtime, &options.selection)?;
+    if !address.ip().is_loopback() && !options.open_to_network {
+        bail!(
+            "refusing to publish to Foxglove on {address}: its protocol carries no token, so anyone who can \
+             reach that address would see the published outputs. Keep it on loopback (reach it through an SSH \
+             tunnel: ssh -L 8765:127.0.0.1:8765 HOST), or add --foxglove-open-to-network to accept the risk"
+        );
+    }
+    let foxglove = Foxglove::start(Arc::clone(runtime), address, options.selection.clone(), backlog)?;
+    println!("foxglove on ws://{}", foxglove.address());
+    Ok(foxglove)
+}
+
+/// `--foxglove-output`s that the `--diagram` lacks are refused, naming what it has.
+fn check_foxglove_outputs(runtime: &Runtime, selection: &Selection) -> anyhow::Result<()> {
+    let existing = runtime.output_names();
+    if existing.is_empty() {
+        // Nothing deployed yet: the outputs are looked for in whatever is deployed later.
+        return Ok(());
+    }
+    if let Some(unknown) = selection.chosen.iter().find(|o| !existing.contains(o)) {
+        bail!(
+            "--foxglove-output {unknown}: no such output in the diagram; its outputs are: {}",
+            existing.join(", ")
+        );
+    }
+    Ok(())
+}
+
+fn foxglove_of(shared: &Shared) -> Option<Arc<Foxglove>> {
+    shared
+        .foxglove
+        .lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner)
+        .clone()
 }
 
 /// `--diagram` (and `--start`): whether it was deployed (and started); why not is printed.

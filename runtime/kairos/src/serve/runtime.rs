@@ -639,6 +639,14 @@ impl Runtime {
         Some((buffer, self.generation.load(Ordering::Acquire)))
     }
 
+    /// Every output of the current engine (`component.port`); none when nothing is deployed.
+    pub fn output_names(&self) -> Vec<String> {
+        self.lock()
+            .engine
+            .as_ref()
+            .map_or_else(Vec::new, Engine::output_names)
+    }
+
     /// Which engine is current: changes when one is replaced.
     pub fn generation(&self) -> u64 {
         self.generation.load(Ordering::Acquire)

@@ -554,6 +554,13 @@ impl Session {
                 }
                 ReplyBody::UnsubscribeTelemetry(Done {})
             }
+            RequestBody::FoxglovePublish { outputs, publish } => {
+                let shared = Arc::clone(&self.shared);
+                ReplyBody::FoxglovePublish(tokio::task::block_in_place(|| {
+                    shared.foxglove_publish(&outputs, publish)
+                })?)
+            }
+            RequestBody::Foxglove => ReplyBody::Foxglove(self.shared.foxglove_state()),
             RequestBody::SubscribeLog { level } => {
                 if let Some(old) = self.log.replace(self.log_task(level)) {
                     old.abort();
