@@ -264,6 +264,9 @@ impl StudioApp {
                         .viewers
                         .open_kind(request.output.to_string(), request.kind);
                 }
+                if let Some((output, publish)) = canvas.take_foxglove_request() {
+                    session.publish_to_foxglove(&output.to_string(), publish);
+                }
             })
             .response
             .rect;

@@ -96,6 +96,8 @@ pub struct Shown<'a> {
     pub monitor: &'a Monitor,
     /// Problems the runtime found with ports.
     pub port_problems: &'a BTreeMap<PortRef, String>,
+    /// What the runtime publishes to Foxglove.
+    pub foxglove: &'a kairos_protocol::FoxgloveState,
 }
 
 /// What one frame of the scene works from: the diagram as the frame began, where its parts are, and
@@ -131,6 +133,8 @@ pub struct Canvas {
     rubber_band: Option<RubberBand>,
     /// An output the user asked to watch, until the studio takes it.
     viewer_request: Option<ViewerRequest>,
+    /// An output to publish to Foxglove (true) or no longer (false), asked in its context menu.
+    foxglove_request: Option<(PortRef, bool)>,
     /// The size of the canvas on the screen last frame, to keep the zoom when it changes.
     view_size: Option<Vec2>,
     /// Frames left in which a fit follows the canvas's size instead of keeping the zoom: the panels
@@ -151,6 +155,7 @@ impl Default for Canvas {
             to_screen: egui::emath::TSTransform::IDENTITY,
             rubber_band: None,
             viewer_request: None,
+            foxglove_request: None,
             view_size: None,
             fit_frames: 0,
         }
@@ -612,6 +617,23 @@ impl Canvas {
                     ui.close();
                 }
             }
+            ui.separator();
+            let foxglove = frame.shown.foxglove;
+            let mut published = foxglove.all || foxglove.outputs.contains(&port.to_string());
+            if ui
+                .checkbox(&mut published, "Publish to Foxglove")
+                .on_hover_text(
+                    "Send this output live to Foxglove, in the schemas recordings use. The runtime serves \
+                     it on loopback; in Foxglove, open a connection (Foxglove WebSocket) to the address shown.",
+                )
+                .clicked()
+            {
+                self.foxglove_request = Some((port.clone(), published));
+                ui.close();
+            }
+            if published && let Some(address) = &foxglove.address {
+                ui.label(egui::RichText::new(address).weak());
+            }
         });
         let look = PortLook {
             name: &spot.name,
@@ -729,6 +751,11 @@ impl Canvas {
     /// The output the user asked to open a viewer on, with the viewer's kind, if any since the last call.
     pub fn take_viewer_request(&mut self) -> Option<ViewerRequest> {
         self.viewer_request.take()
+    }
+
+    /// An output to publish to Foxglove (true) or no longer (false), if one was asked for since the last call.
+    pub fn take_foxglove_request(&mut self) -> Option<(PortRef, bool)> {
+        self.foxglove_request.take()
     }
 
     /// Where a point of the canvas (a node's or port's accessible bounds, which are in canvas coordinates)

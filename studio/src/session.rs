@@ -74,6 +74,8 @@ enum Pending {
     Devices,
     /// A start: refused while some hosts' clocks are not locked, it may be asked again anyway.
     Start,
+    /// What the runtime publishes to Foxglove (asked, or changed).
+    Foxglove,
     /// Anything whose answer only matters when it is an error.
     Other,
 }
@@ -209,10 +211,16 @@ pub struct Session {
     /// Why the last start was refused, when it was for hosts' clocks not locked: "Start anyway" offers
     /// to start regardless.
     unlocked_refusal: Option<String>,
+    /// What the runtime publishes to Foxglove, as it last said.
+    foxglove: kairos_protocol::FoxgloveState,
 }
 
 /// What the runtime's refusal says when hosts' clocks are not locked (`deploy::check_clocks`).
 const CLOCKS_NOT_LOCKED: &str = "clock is locked to its master";
+
+fn join(outputs: &[&String]) -> String {
+    outputs.iter().map(|o| o.as_str()).collect::<Vec<_>>().join(", ")
+}
 
 /// Whether a count going from `before` to `now` passed 1, 2, 4, 8 ...: when a growing count is worth a
 /// line in the log.
@@ -235,6 +243,7 @@ impl Session {
             port_problems: BTreeMap::new(),
             field_notes: BTreeMap::new(),
             unlocked_refusal: None,
+            foxglove: kairos_protocol::FoxgloveState::default(),
             runtime: None,
             run_state: RuntimeState::Empty,
             clock: None,
@@ -321,6 +330,7 @@ impl Session {
                 states: &self.states,
                 monitor: &self.monitor,
                 port_problems: &self.port_problems,
+                foxglove: &self.foxglove,
             },
         )
     }
@@ -347,6 +357,7 @@ impl Session {
         self.run_state = RuntimeState::Empty;
         self.frames = FramePath::Socket;
         self.dropped = DroppedEvents::default();
+        self.foxglove = kairos_protocol::FoxgloveState::default();
         self.note(LogLevel::Info, format!("connecting to {url}"));
     }
 
@@ -471,6 +482,55 @@ impl Session {
         self.request(RequestBody::SubscribeLog {
             level: LogLevel::Info,
         });
+        self.request_for(RequestBody::Foxglove, Pending::Foxglove);
+    }
+
+    /// What the runtime publishes to Foxglove.
+    pub fn foxglove(&self) -> &kairos_protocol::FoxgloveState {
+        &self.foxglove
+    }
+
+    /// Publishes `output` live to Foxglove, or stops (the runtime starts its Foxglove server on loopback
+    /// the first time).
+    pub fn publish_to_foxglove(&mut self, output: &str, publish: bool) {
+        self.request_for(
+            RequestBody::FoxglovePublish {
+                outputs: vec![output.to_owned()],
+                publish,
+            },
+            Pending::Foxglove,
+        );
+    }
+
+    /// The runtime's answer about Foxglove: the log says what changed, and where to connect.
+    fn foxglove_changed(&mut self, now: kairos_protocol::FoxgloveState) {
+        let before = std::mem::replace(&mut self.foxglove, now);
+        let address = self.foxglove.address.clone().unwrap_or_default();
+        let added: Vec<&String> = self
+            .foxglove
+            .outputs
+            .iter()
+            .filter(|o| !before.outputs.contains(o))
+            .collect();
+        let removed: Vec<&String> = before
+            .outputs
+            .iter()
+            .filter(|o| !self.foxglove.outputs.contains(o))
+            .collect();
+        let mut lines = Vec::new();
+        if !added.is_empty() {
+            lines.push(format!(
+                "Foxglove: publishing {} on {address}. In Foxglove, open a connection (Foxglove WebSocket) to \
+                 that address.",
+                join(&added)
+            ));
+        }
+        if !removed.is_empty() {
+            lines.push(format!("Foxglove: no longer publishing {}", join(&removed)));
+        }
+        for line in lines {
+            self.succeeded(line);
+        }
     }
 
     /// The answer to one of our requests.
@@ -538,6 +598,10 @@ impl Session {
                     self.effects.push(Effect::ReadShared(services));
                 }
             }
+            (
+                Some(Pending::Foxglove),
+                ReplyBody::FoxglovePublish(state) | ReplyBody::Foxglove(state),
+            ) => self.foxglove_changed(state),
             (Some(Pending::Devices), ReplyBody::Devices(list)) => {
                 self.devices_asked = false;
                 self.devices = Some(list.devices);
@@ -1034,7 +1098,8 @@ mod tests {
                 RequestBody::SubscribeTelemetry { interval_ms: 250 },
                 RequestBody::SubscribeLog {
                     level: LogLevel::Info
-                }
+                },
+                RequestBody::Foxglove,
             ]
         ));
         let library = serde_json::to_value(library()).unwrap();

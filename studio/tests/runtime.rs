@@ -77,7 +77,7 @@ fn studio_on_local_runtime(document: Document, size: Vec2) -> Harness<'static, S
 }
 
 #[test]
-fn a_diagram_built_in_the_studio_runs_on_a_real_runtime() {
+fn a_diagram_built_in_the_studio_runs_on_a_real_runtime_and_publishes_to_foxglove() {
     let mut harness = studio_on_local_runtime(Document::default(), Vec2::new(1280.0, 800.0));
     run_until(&mut harness, "the library", |app| {
         app.session.library.component("core.counter").is_some()
@@ -103,6 +103,32 @@ fn a_diagram_built_in_the_studio_runs_on_a_real_runtime() {
         app.node_state("counter1") == Some(&NodeState::Running)
             && app.node_state("console1") == Some(&NodeState::Running)
     });
+
+    // The output's context menu publishes it live to Foxglove: the runtime starts its server on loopback.
+    context_menu_entry(&mut harness, "output counter1.out (i64)", "Publish to Foxglove");
+    run_until(&mut harness, "the output published to Foxglove", |app| {
+        app.session.foxglove().outputs == ["counter1.out"] && app.session.foxglove().address.is_some()
+    });
+    let address = harness.state().session.foxglove().address.clone().unwrap();
+    let listening = address.strip_prefix("ws://").unwrap();
+    assert!(
+        std::net::TcpStream::connect(listening).is_ok(),
+        "Foxglove connects to {address}"
+    );
+    assert!(
+        harness
+            .state()
+            .session
+            .log
+            .lines()
+            .any(|l| l.text.contains("Foxglove: publishing counter1.out on ws://")),
+        "the log says where to connect"
+    );
+    context_menu_entry(&mut harness, "output counter1.out (i64)", "Publish to Foxglove");
+    run_until(&mut harness, "the output no longer published", |app| {
+        app.session.foxglove().outputs.is_empty()
+    });
+
     harness.get_by_label("Stop").click();
     harness.run_steps(1);
     run_until(
@@ -228,6 +254,11 @@ fn the_connect_dialog_connects_to_a_runtime_and_remembers_it() {
 
 /// Opens a viewer on `output` through its context menu on the canvas.
 fn open_viewer(harness: &mut Harness<'_, StudioApp>, output: &str, menu_entry: &str) {
+    context_menu_entry(harness, output, menu_entry);
+}
+
+/// Clicks `menu_entry` in the context menu of `output` on the canvas.
+fn context_menu_entry(harness: &mut Harness<'_, StudioApp>, output: &str, menu_entry: &str) {
     let port = harness.get_by_label(output).rect().center();
     let at = harness.state().canvas.to_screen(port);
     harness.hover_at(at);
