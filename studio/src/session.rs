@@ -598,10 +598,9 @@ impl Session {
                     self.effects.push(Effect::ReadShared(services));
                 }
             }
-            (
-                Some(Pending::Foxglove),
-                ReplyBody::FoxglovePublish(state) | ReplyBody::Foxglove(state),
-            ) => self.foxglove_changed(state),
+            (Some(Pending::Foxglove), ReplyBody::FoxglovePublish(state) | ReplyBody::Foxglove(state)) => {
+                self.foxglove_changed(state)
+            }
             (Some(Pending::Devices), ReplyBody::Devices(list)) => {
                 self.devices_asked = false;
                 self.devices = Some(list.devices);
