@@ -602,6 +602,85 @@ umount disk"#
     }
 }
 
+/// A camera kept in a pre-trigger ring, a trigger every 2 s (from 2 s on), events into `disk/`.
+const PRE_TRIGGER_ON_DISK: &str = r#"Diagram(
+    format: 1,
+    components: [
+        Component(id: "camera", type: "sensors.camera", properties: {"width": 160, "height": 120, "rate": 30.0}),
+        Component(id: "every_2s", type: "core.counter", properties: {"rate": 0.5}),
+        Component(id: "recorder", type: "recording.recorder", properties: {
+            "mode": "pre_trigger", "pre_trigger_s": 1.0, "post_trigger_s": 0.5,
+            "path": "disk/event.mcap", "compression": "none", "min_free_mb": 0.0,
+        }),
+    ],
+    connections: [
+        Connection(from: "camera.image", to: "recorder.in1"),
+        Connection(from: "every_2s.out", to: "recorder.trigger"),
+    ],
+)"#;
+
+#[test]
+fn a_disk_filling_during_a_pre_trigger_write_names_the_error_and_keeps_the_ring() {
+    let _serial = one_at_a_time();
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::write(dir.path().join("pretrigger.ron"), PRE_TRIGGER_ON_DISK).unwrap();
+    // An 8 MB disk that something else has nearly filled when the first trigger comes (2 s); the space is
+    // freed at 3.2 s, before the second (4 s). One second of the camera is 1.7 MB. Then again with the
+    // free-space guard at 2 MB, on a disk with 3 MB free: the first event stops cleanly when it passes
+    // the guard, the next is refused before it opens a file.
+    let script = r#"mkdir -p disk full guarded
+mount -t tmpfs -o size=8m tmpfs disk
+head -c 7900k /dev/zero > disk/filler
+"$KAIROS" run pretrigger.ron --for 7s --stats > out-full.txt 2> err-full.txt &
+sleep 3.2
+rm disk/filler
+wait $! || echo $? > code-full.txt
+cp disk/*.mcap full/
+rm -f disk/*
+head -c 5000k /dev/zero > disk/filler
+"$KAIROS" run pretrigger.ron --for 5s --stats --set recorder.min_free_mb=2 > out-guard.txt 2> err-guard.txt   || echo $? > code-guard.txt
+cp disk/*.mcap guarded/
+umount disk"#;
+    let output = with_a_small_disk(dir.path(), script);
+    let (_, stderr) = text(&output);
+    assert!(output.status.success(), "{stderr}");
+
+    let log = std::fs::read_to_string(dir.path().join("err-full.txt")).unwrap();
+    assert!(
+        !dir.path().join("code-full.txt").exists(),
+        "the recorder does not fail: {log}"
+    );
+    assert!(
+        log.contains("No space left on device") && log.contains("still in memory"),
+        "the error is named: {log}"
+    );
+    let recorder = log.lines().rev().find(|l| l.starts_with("recorder ")).unwrap();
+    assert!(recorder.contains("stopped"), "{recorder}");
+    // The second event, written once there was room, holds the second before its trigger: the ring
+    // was kept through the failure.
+    let second = dir.path().join("full/event_002.mcap");
+    let (code, report) = inspect(dir.path(), &second);
+    assert_eq!(code, Some(0), "{report}");
+    let camera = channel(&report, "camera.image");
+    assert!(camera["messages"].as_u64().unwrap() >= 40, "{camera}");
+    assert!(report["duration_s"].as_f64().unwrap() >= 1.3, "{report}");
+
+    let log = std::fs::read_to_string(dir.path().join("err-guard.txt")).unwrap();
+    assert!(!dir.path().join("code-guard.txt").exists(), "{log}");
+    assert!(
+        log.contains("stopped writing disk/event_001.mcap")
+            && log.contains("below min_free_mb = 2")
+            && log.contains("kept in memory"),
+        "{log}"
+    );
+    assert!(
+        log.contains("no event written to disk/event.mcap"),
+        "the next trigger is refused before it opens a file: {log}"
+    );
+    let (code, report) = inspect(dir.path(), &dir.path().join("guarded/event_001.mcap"));
+    assert_eq!(code, Some(0), "closed and valid: {report}");
+}
+
 #[test]
 fn recordings_of_two_runs_on_unlocked_clocks_merge_only_when_allowed_and_then_say_so() {
     let _serial = one_at_a_time();

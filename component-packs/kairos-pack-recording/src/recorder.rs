@@ -460,14 +460,30 @@ impl Recorder {
                 };
                 self.mark(ctx, &text, at)
             }
-            _ if self.event_until.is_some() => self.record(ctx, input, &sample),
-            _ => {
-                let keep = seconds_to_nanos(ctx.f64_property("pre_trigger_s")?);
-                let max_bytes = (ctx.f64_property("ring_mb")? * 1e6) as usize;
-                self.ring.push(input, sample, keep, max_bytes);
-                Ok(())
+            _ if self.event_until.is_some() => {
+                if let Err(error) = self.record(ctx, input, &sample) {
+                    // The disk filled, say: the event ends, the sample stays in memory with the others.
+                    self.event_until = None;
+                    self.write_failed(ctx, &error);
+                    self.keep_in_ring(ctx, input, sample)?;
+                    return Ok(());
+                }
+                self.end_event_if_short_of_space(ctx)
             }
+            _ => self.keep_in_ring(ctx, input, sample),
         }
+    }
+
+    fn keep_in_ring(&mut self, ctx: &Context, input: usize, sample: Sample) -> ComponentResult {
+        let keep = seconds_to_nanos(ctx.f64_property("pre_trigger_s")?);
+        #[allow(
+            clippy::cast_possible_truncation,
+            clippy::cast_sign_loss,
+            reason = "a positive byte count, far below usize::MAX"
+        )]
+        let max_bytes = (ctx.f64_property("ring_mb")? * 1e6) as usize;
+        self.ring.push(input, sample, keep, max_bytes);
+        Ok(())
     }
 
     /// A trigger at `at`: a new event writes the ring's seconds before `at`; one under way is extended.
@@ -484,7 +500,7 @@ impl Recorder {
             .ring
             .take_from(kairos_sdk::Timestamp(at.as_nanos().saturating_sub(before)));
         if self.file.is_none()
-            && let Err(error) = self.open(ctx)
+            && let Err(error) = Self::room_for_an_event(ctx)?.and_then(|()| self.open(ctx))
         {
             self.ring.restore(kept.into_iter());
             self.write_failed(ctx, &error);
@@ -556,26 +572,35 @@ impl Recorder {
 
     /// Stops cleanly, before the disk is full: the file is closed and valid, and the error names it.
     fn check_free_space(&mut self, ctx: &Context) -> ComponentResult {
-        // Once a second, and sooner when a fast writer could use half the margin left before then.
+        let Some((path, free_mb, minimum)) = self.short_of_space(ctx)? else {
+            return Ok(());
+        };
+        self.close(ctx)?;
+        self.recording = false;
+        Err(ComponentError::failed(format_args!(
+            "stopped recording {}: {free_mb:.0} MB free on its disk, below min_free_mb = {minimum}; the file is closed and valid",
+            path.display()
+        )))
+    }
+
+    /// The open file's path, the MB free on its disk and `min_free_mb`, when the disk has less free than
+    /// that. Looked at once a second, and sooner when a fast writer could use half the margin left
+    /// before then.
+    fn short_of_space(&mut self, ctx: &Context) -> Result<Option<(PathBuf, f64, f64)>, ComponentError> {
         if self
             .last_space_check
             .is_some_and(|t| t.elapsed() < SPACE_CHECK_PERIOD)
             && self.written_since_check < self.check_budget
         {
-            return Ok(());
+            return Ok(None);
         }
         self.last_space_check = Some(Instant::now());
         self.written_since_check = 0;
-        let Some(file) = &self.file else { return Ok(()) };
+        let Some(file) = &self.file else { return Ok(None) };
         let path = file.path.clone();
-        let folder = path
-            .parent()
-            .filter(|p| !p.as_os_str().is_empty())
-            .unwrap_or(Path::new("."));
-        let Ok(stats) = nix::sys::statvfs::statvfs(folder) else {
-            return Ok(());
+        let Some(free_mb) = free_mb_beside(&path) else {
+            return Ok(None);
         };
-        let free_mb = (stats.blocks_available() as f64) * (stats.fragment_size() as f64) / 1e6;
         let minimum = ctx.f64_property("min_free_mb")?;
         #[allow(
             clippy::cast_possible_truncation,
@@ -584,16 +609,49 @@ impl Recorder {
         )]
         let budget = ((free_mb - minimum).max(0.0) * 1e6 / 2.0) as u64;
         self.check_budget = budget.max(SPACE_CHECK_MIN_BYTES);
-        if free_mb < minimum {
-            self.close(ctx)?;
-            self.recording = false;
-            return Err(ComponentError::failed(format_args!(
-                "stopped recording {}: {free_mb:.0} MB free on its disk, below min_free_mb = {minimum}; the file is closed and valid",
-                path.display()
-            )));
-        }
+        Ok((free_mb < minimum).then_some((path, free_mb, minimum)))
+    }
+
+    /// Pre-trigger mode: a disk short of space ends the event being written, its file closed and valid;
+    /// the recorder stays armed, keeping the last seconds in memory for the next trigger.
+    fn end_event_if_short_of_space(&mut self, ctx: &Context) -> ComponentResult {
+        let Some((path, free_mb, minimum)) = self.short_of_space(ctx)? else {
+            return Ok(());
+        };
+        self.event_until = None;
+        self.close(ctx)?;
+        let message = format!(
+            "stopped writing {}: {free_mb:.1} MB free on its disk, below min_free_mb = {minimum}; the file is \
+             closed and valid, and the last seconds are kept in memory for the next trigger",
+            path.display()
+        );
+        tracing::error!("{}: {message}", ctx.id());
+        self.last_error = Some(message);
         Ok(())
     }
+
+    /// Pre-trigger mode: whether the disk of `path` has `min_free_mb` free before an event starts there.
+    fn room_for_an_event(ctx: &Context) -> Result<Result<(), ComponentError>, ComponentError> {
+        let path = PathBuf::from(ctx.text_property("path")?);
+        let minimum = ctx.f64_property("min_free_mb")?;
+        Ok(match free_mb_beside(&path) {
+            Some(free_mb) if free_mb < minimum => Err(ComponentError::failed(format_args!(
+                "no event written to {}: {free_mb:.1} MB free on its disk, below min_free_mb = {minimum}",
+                path.display()
+            ))),
+            _ => Ok(()),
+        })
+    }
+}
+
+/// The MB free on the disk that holds (or will hold) `path`; `None` when it cannot be told.
+fn free_mb_beside(path: &Path) -> Option<f64> {
+    let folder = path
+        .parent()
+        .filter(|p| !p.as_os_str().is_empty())
+        .unwrap_or(Path::new("."));
+    let stats = nix::sys::statvfs::statvfs(folder).ok()?;
+    Some((stats.blocks_available() as f64) * (stats.fragment_size() as f64) / 1e6)
 }
 
 impl Component for Recorder {
@@ -601,6 +659,10 @@ impl Component for Recorder {
         self.connected = (0..=TRIGGER_INPUT).filter(|i| ctx.is_connected(*i)).collect();
         self.pre_trigger = ctx.text_property("mode")? == "pre_trigger";
         self.recording = ctx.bool_property("record_at_start")? || self.pre_trigger;
+        if self.pre_trigger && ctx.text_property("event_files")? == "one_per_event" {
+            // Events are numbered from the first: event_001.mcap, event_002.mcap, ...
+            self.part = self.part.max(1);
+        }
         // In pre-trigger mode the first file opens with the first event.
         if self.recording && !self.pre_trigger {
             self.open(ctx)?;

@@ -162,15 +162,14 @@ fn a_trigger_storm_is_one_event_and_memory_stays_within_its_bound() {
 #[test]
 fn a_file_that_cannot_be_written_names_the_error_and_keeps_the_ring() {
     let dir = tempfile::tempdir().unwrap();
-    // A folder where the file should be: it cannot be created.
-    let blocked = dir.path().join("blocked.mcap");
-    std::fs::create_dir(&blocked).unwrap();
-    let mut harness = recorder(&blocked, &[]);
+    // A folder where the first event's file should be: it cannot be created.
+    std::fs::create_dir(dir.path().join("blocked_001.mcap")).unwrap();
+    let mut harness = recorder(&dir.path().join("blocked.mcap"), &[]);
     drive(&mut harness, 3, &[2.0]);
     let status = harness.status().unwrap();
     let error = status["last_error"].as_str().unwrap_or_default();
     assert!(
-        error.contains("blocked.mcap") && error.contains("still in memory"),
+        error.contains("blocked_001.mcap") && error.contains("still in memory"),
         "{status}"
     );
     assert!(
