@@ -59,9 +59,26 @@ pub struct Report {
     pub damaged_chunks: Vec<DamagedRegion>,
     /// The damage in one line: each damaged chunk, and where a file that was not closed stops.
     pub damage: Option<String>,
+    /// Said when the file comes from a host that followed a clock master and was recorded while that
+    /// clock was not locked: its times may not line up with other hosts' recordings.
+    pub clock_warning: Option<String>,
     /// How a file that was not closed ends (the last part of `damage`).
     #[serde(skip)]
     ending: Option<String>,
+}
+
+/// What to say of a recording's `kairos.clock` record when its clock followed a master (or another
+/// source) without being locked to it: `recorded while its clock was acquiring (following master
+/// 10.0.0.1:7401)`. Nothing for a clock that was locked, or that was this machine's own.
+pub fn unlocked_clock(clock: &BTreeMap<String, String>) -> Option<String> {
+    let state = clock.get("state").map_or("unknown", String::as_str);
+    let source = clock.get("source").map_or("unknown", String::as_str);
+    (state != "locked" && source != "this machine").then(|| {
+        format!(
+            "recorded while its clock was {state} (following {source}): its times may not line up with \
+             other hosts' recordings"
+        )
+    })
 }
 
 /// `value` rounded to `1 / scale` (1e3: thousandths), so reports print figures a person reads, not
@@ -246,6 +263,7 @@ fn inspect_bytes_with_progress(
         end_ns,
         duration_s: round_to(end_ns.saturating_sub(start_ns) as f64 * 1e-9, 1e6),
         channels,
+        clock_warning: metadata.get("kairos.clock").and_then(unlocked_clock),
         metadata,
         summary_messages: summary.and_then(|s| s.stats).map(|stats| stats.message_count),
         messages_left_out: walked.messages_left_out(),
@@ -268,6 +286,9 @@ impl Report {
             if self.complete { "complete" } else { "NOT complete" }
         );
         let _ = writeln!(out, "{} messages over {:.3} s", self.messages, self.duration_s);
+        if let Some(warning) = &self.clock_warning {
+            let _ = writeln!(out, "warning: {warning}");
+        }
         let width = self
             .channels
             .iter()
@@ -329,5 +350,46 @@ impl Report {
             let _ = writeln!(out, "\ndamage: {ending}");
         }
         out
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use std::collections::BTreeMap;
+
+    use super::inspect_bytes;
+
+    /// An MCAP file in memory holding one `kairos.clock` record.
+    fn recording_with_clock(source: &str, state: &str) -> Vec<u8> {
+        let mut bytes = std::io::Cursor::new(Vec::new());
+        let mut writer = mcap::Writer::new(&mut bytes).unwrap();
+        writer
+            .write_metadata(&mcap::records::Metadata {
+                name: "kairos.clock".to_owned(),
+                metadata: BTreeMap::from([
+                    ("source".to_owned(), source.to_owned()),
+                    ("state".to_owned(), state.to_owned()),
+                ]),
+            })
+            .unwrap();
+        writer.finish().unwrap();
+        drop(writer);
+        bytes.into_inner()
+    }
+
+    #[test]
+    fn a_recording_made_on_a_clock_not_locked_to_its_master_says_so() {
+        let acquiring = recording_with_clock("master 10.0.0.1:7401", "acquiring");
+        let report = inspect_bytes("car.mcap", &acquiring).unwrap();
+        let warning = report.clock_warning.clone().unwrap();
+        assert!(
+            warning.contains("clock was acquiring (following master 10.0.0.1:7401)"),
+            "{warning}"
+        );
+        assert!(report.text().contains(&format!("warning: {warning}")));
+        for (source, state) in [("master 10.0.0.1:7401", "locked"), ("this machine", "free")] {
+            let report = inspect_bytes("car.mcap", &recording_with_clock(source, state)).unwrap();
+            assert_eq!(report.clock_warning, None, "{source}: {state}");
+        }
     }
 }

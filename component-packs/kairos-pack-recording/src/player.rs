@@ -494,15 +494,8 @@ impl Player {
 /// Says so when `file` comes from a host that followed a clock master and was recorded while that clock
 /// was not locked: its times may not line up with the other hosts'.
 fn warn_if_unlocked(ctx: &Context, file: &RecordingIndex) {
-    let Some(clock) = file.clock() else { return };
-    let state = clock.get("state").map_or("unknown", String::as_str);
-    let source = clock.get("source").map_or("unknown", String::as_str);
-    if state != "locked" && source != "this machine" {
-        tracing::warn!(
-            "{}: {} was recorded while its clock was {state} (following {source}): its times may not line up with other hosts' recordings",
-            ctx.id(),
-            file.path().display()
-        );
+    if let Some(warning) = file.clock().and_then(crate::inspect::unlocked_clock) {
+        tracing::warn!("{}: {} was {warning}", ctx.id(), file.path().display());
     }
 }
 
