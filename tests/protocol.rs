@@ -1177,6 +1177,70 @@ fn a_pack_a_host_lacks_is_shipped_and_one_for_another_platform_is_refused() {
 }
 
 #[test]
+fn a_python_pack_a_host_lacks_is_shipped_without_this_machine_s_environment() {
+    let _machine = shared_machine();
+    let [dir_b, shipped, here] = folders();
+    // A Python pack beside the diagram here, with a virtual environment and compiled files of this
+    // machine's that must stay here.
+    let pack = here.path().join("packs/py_ship");
+    std::fs::create_dir_all(pack.join(".venv/bin")).unwrap();
+    std::fs::write(pack.join(".venv/pyvenv.cfg"), "home = /usr/bin\n").unwrap();
+    std::fs::create_dir_all(pack.join("__pycache__")).unwrap();
+    std::fs::write(pack.join("__pycache__/stale.pyc"), "junk").unwrap();
+    std::fs::write(
+        pack.join("kairos-pack.toml"),
+        "[pack]\nname = \"py_ship\"\nversion = \"0.2.0\"\n",
+    )
+    .unwrap();
+    std::fs::write(
+        pack.join("double.py"),
+        r#"from kairos_sdk import F64, Component, Descriptor
+
+
+class Double(Component):
+    descriptor = Descriptor("double", doc="Twice its input").input("in", F64).output("out", F64)
+
+    def core(self, ctx):
+        sample = ctx.read("in")
+        ctx.write_processed("out", sample, 2.0 * sample.data)
+"#,
+    )
+    .unwrap();
+    let b = serve(
+        dir_b.path(),
+        &["--shipped-pack-dir", shipped.path().to_str().unwrap()],
+    );
+    std::fs::write(here.path().join("b.token"), &b.token).unwrap();
+    let diagram = here.path().join("double_on_b.ron");
+    std::fs::write(
+        &diagram,
+        clamp_on_host_b(&b)
+            .replace("\"cpp.clamp\"", "\"py_ship.double\"")
+            .replace(", properties: {\"min\": -0.5, \"max\": 0.5}", ""),
+    )
+    .unwrap();
+    let deployed = common::kairos(here.path(), &["deploy", diagram.to_str().unwrap(), "--for", "2s"]);
+    let (stdout, stderr) = text(&deployed);
+    assert!(deployed.status.success(), "{stdout}{stderr}");
+    assert!(
+        stdout.contains("shipped Python pack py_ship 0.2.0 to host 'b'"),
+        "{stdout}"
+    );
+    let values = csv_values(&dir_b.path().join("b.csv"));
+    assert!(values.len() > 10, "{values:?}\n{stderr}");
+    assert!(
+        values.iter().any(|(_, v)| *v > 1.5) && values.iter().all(|(_, v)| v.abs() <= 2.0 + 1e-9),
+        "doubled on b: {values:?}"
+    );
+    let unpacked = shipped.path().join("py_ship-0.2.0");
+    assert!(unpacked.join("double.py").is_file() && unpacked.join("kairos-pack.toml").is_file());
+    assert!(
+        !unpacked.join(".venv").exists() && !unpacked.join("__pycache__/stale.pyc").exists(),
+        "this machine's environment stays here"
+    );
+}
+
+#[test]
 fn deploy_starts_nothing_while_a_host_clock_is_not_locked_unless_told_to() {
     let _machine = shared_machine();
     let [dir_a, dir_b, here] = folders();

@@ -32,10 +32,10 @@ pub use kairos_shm as shared_pixels;
 pub use messages::{
     ClockTelemetry, ComponentState, ComponentTelemetry, CrossLinkTelemetry, DeployResult, Described,
     DeviceInfo, DeviceList, DiagramReply, Done, ErrorCode, FoxgloveState, HostTelemetry, LatencyTelemetry,
-    LinkEnd, LinkList, LinkNetwork, LinkTelemetry, LogLevel, LogRecord, PACK_CHUNK_BYTES, PackInstall,
-    ProtocolError, Reply, ReplyBody, Request, RequestBody, RequestKind, Role, RuntimeState, SampleTransport,
-    SamplesSubscribed, ServerMessage, Status, Telemetry, TelemetrySubscribed, Welcome, decode_request,
-    this_host, this_platform,
+    LinkEnd, LinkList, LinkNetwork, LinkTelemetry, LogLevel, LogRecord, PACK_CHUNK_BYTES,
+    PYTHON_PACK_PLATFORM, PackInstall, ProtocolError, Reply, ReplyBody, Request, RequestBody, RequestKind,
+    Role, RuntimeState, SampleTransport, SamplesSubscribed, ServerMessage, Status, Telemetry,
+    TelemetrySubscribed, Welcome, decode_request, this_host, this_platform,
 };
 
 /// The protocol version this crate speaks. A client with another version is refused at `hello`, with

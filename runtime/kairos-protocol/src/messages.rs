@@ -179,10 +179,12 @@ requests! {
     } => DeployResult, Operator;
     /// The deployed diagram's links to other hosts: each end, and whether its far end has matched.
     Links = "links" => LinkList, Monitor;
-    /// Installs a pack library this runtime lacks (what `kairos deploy` does before deploying a part that
-    /// needs it), sent in chunks of at most [`PACK_CHUNK_BYTES`]; the chunk that completes it loads it.
-    /// Refused when the library was built for another platform than [`this_platform`], when a pack of that
-    /// name is already loaded, or when the library's own name and version are not the ones announced.
+    /// Installs a pack this runtime lacks (what `kairos deploy` does before deploying a part that needs it),
+    /// sent in chunks of at most [`PACK_CHUNK_BYTES`]; the chunk that completes it loads it. A pack library
+    /// is refused when it was built for another platform than [`this_platform`]; a Python pack (platform
+    /// [`PYTHON_PACK_PLATFORM`]) travels as a tar archive of its folder and loads on any platform. Either is
+    /// refused when a pack of that name is already loaded, or when its own name and version are not the
+    /// ones announced.
     InstallPack = "install_pack" {
         /// The pack's name.
         name: String,
@@ -609,6 +611,10 @@ pub struct Welcome {
 /// The most bytes of a pack library one `install_pack` carries (before base64), well under
 /// [`crate::MAX_MESSAGE_BYTES`] once encoded.
 pub const PACK_CHUNK_BYTES: usize = 2 << 20;
+
+/// The `platform` of a Python pack shipped by `install_pack`: its folder's `kairos-pack.toml`, `.py` files
+/// and other files, as a tar archive.
+pub const PYTHON_PACK_PLATFORM: &str = "python";
 
 /// This machine's platform as pack libraries are built for it: operating system and architecture
 /// (`linux-x86_64`). A library built for one platform does not load on another.

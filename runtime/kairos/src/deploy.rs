@@ -738,6 +738,17 @@ pub fn ship_packs(host: &mut Host, needs: &[PackNeed]) -> anyhow::Result<()> {
                 env!("CARGO_PKG_VERSION")
             );
         };
+        if kairos_runtime::python_host::is_python_pack(path) {
+            let archive = python_pack_archive(path)
+                .with_context(|| format!("pack '{name}': cannot pack its folder {}", path.display()))?;
+            send_pack(host, need, kairos_protocol::PYTHON_PACK_PLATFORM, &archive)?;
+            println!(
+                "shipped Python pack {name} {version} to host '{}' ({} KiB)",
+                host.name,
+                archive.len().div_ceil(1024)
+            );
+            continue;
+        }
         let platform = kairos_protocol::this_platform();
         if let Some(theirs) = host.platform.as_ref().filter(|p| **p != platform) {
             bail!(
@@ -758,6 +769,35 @@ pub fn ship_packs(host: &mut Host, needs: &[PackNeed]) -> anyhow::Result<()> {
         );
     }
     Ok(())
+}
+
+/// The files of the Python pack in `folder` as a tar archive: its manifest, code and data, without what
+/// belongs to this machine alone (virtual environments, `__pycache__`, hidden folders such as `.venv` or
+/// `.git`). The host runs it with its own interpreter, as the manifest names it there.
+fn python_pack_archive(folder: &Path) -> std::io::Result<Vec<u8>> {
+    let mut archive = tar::Builder::new(Vec::new());
+    archive.follow_symlinks(true);
+    let mut pending = vec![PathBuf::new()];
+    while let Some(relative) = pending.pop() {
+        let mut entries: Vec<std::fs::DirEntry> =
+            std::fs::read_dir(folder.join(&relative))?.collect::<Result<_, _>>()?;
+        entries.sort_by_key(std::fs::DirEntry::file_name);
+        for entry in entries {
+            let name = entry.file_name();
+            let inside = relative.join(&name);
+            let path = entry.path();
+            let hidden = name.to_string_lossy().starts_with('.');
+            if path.is_dir() {
+                let environment = path.join("pyvenv.cfg").is_file();
+                if !hidden && !environment && name != "__pycache__" {
+                    pending.push(inside);
+                }
+            } else if path.is_file() && !hidden {
+                archive.append_path_with_name(&path, &inside)?;
+            }
+        }
+    }
+    archive.into_inner()
 }
 
 /// Sends one pack library to `host` in `install_pack` chunks.

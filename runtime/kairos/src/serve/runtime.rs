@@ -306,6 +306,75 @@ impl Runtime {
         Ok(file)
     }
 
+    /// Installs a Python pack shipped as a tar archive of its folder: unpacked into
+    /// `folder/NAME-VERSION` (aside first, so a half-written pack is never loaded), then loaded as a pack
+    /// found on the pack path would be.
+    pub fn install_python_pack(
+        &self,
+        name: &str,
+        version: &str,
+        archive: &[u8],
+        folder: &Path,
+    ) -> Result<PathBuf, ProtocolError> {
+        let mut registry = self.registry.write().unwrap_or_else(PoisonError::into_inner);
+        if let Some(loaded) = registry.packs().find(|p| p.name == name) {
+            if loaded.version == version {
+                return Ok(PathBuf::from(&loaded.origin));
+            }
+            return Err(error(
+                ErrorCode::WrongState,
+                format!(
+                    "pack '{name}' {} is already loaded here (from {}); a second version cannot be loaded \
+                     beside it: replace it with {version} on this machine's pack path and restart kairos serve",
+                    loaded.version, loaded.origin
+                ),
+            ));
+        }
+        let target = folder.join(format!("{name}-{version}"));
+        let unpacked = unpack_python_pack(archive, &target).map_err(|e| {
+            error(
+                ErrorCode::Internal,
+                format!("cannot write pack '{name}' to {}: {e}", target.display()),
+            )
+        })?;
+        let mut refused = Vec::new();
+        let loaded = kairos_runtime::python_host::load_python_pack(&mut registry, &unpacked, &mut refused);
+        let reasons: Vec<String> = refused
+            .iter()
+            .map(|r| format!("{}: {}", r.path.display(), r.reason))
+            .collect();
+        let Some(loaded) = loaded else {
+            return Err(error(
+                ErrorCode::InvalidValue,
+                format!(
+                    "Python pack '{name}' {version} does not load here: {}",
+                    reasons.join("; ")
+                ),
+            ));
+        };
+        for reason in &reasons {
+            tracing::warn!("shipped pack {name}: {reason}");
+        }
+        let found = registry
+            .packs()
+            .find(|p| p.name == loaded)
+            .map(|p| p.version.clone());
+        if loaded != name || found.as_deref() != Some(version) {
+            return Err(error(
+                ErrorCode::InvalidValue,
+                format!(
+                    "the folder sent as pack '{name}' {version} is pack '{loaded}' {}",
+                    found.unwrap_or_default()
+                ),
+            ));
+        }
+        tracing::info!(
+            "installed Python pack {name} {version}, shipped to {}",
+            unpacked.display()
+        );
+        Ok(unpacked)
+    }
+
     /// The component library as plain data.
     pub fn library(&self) -> kairos_diagram::LibraryInfo {
         self.registry().library_info()
@@ -706,4 +775,18 @@ fn invalid(text: &str, diagnostics: Vec<Diagnostic>) -> ProtocolError {
     );
     refused.diagnostics = diagnostics;
     refused
+}
+
+/// Unpacks a shipped Python pack into `target`, replacing an earlier copy; the folder it is in.
+fn unpack_python_pack(archive: &[u8], target: &Path) -> std::io::Result<PathBuf> {
+    let parent = target.parent().unwrap_or(Path::new("."));
+    std::fs::create_dir_all(parent)?;
+    let partial = target.with_extension(format!("partial-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&partial);
+    std::fs::create_dir_all(&partial)?;
+    // `unpack` writes nothing outside `partial`, whatever the paths in the archive say.
+    tar::Archive::new(archive).unpack(&partial)?;
+    let _ = std::fs::remove_dir_all(target);
+    std::fs::rename(&partial, target)?;
+    Ok(target.to_owned())
 }

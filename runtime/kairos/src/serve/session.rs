@@ -190,7 +190,8 @@ impl Session {
         use base64::Engine as _;
         let (name, version, size) = (announced.name.clone(), announced.version.clone(), announced.size);
         let here = kairos_protocol::this_platform();
-        if platform != here {
+        let python = platform == kairos_protocol::PYTHON_PACK_PLATFORM;
+        if platform != here && !python {
             return Err(ProtocolError::new(
                 ErrorCode::InvalidValue,
                 format!(
@@ -264,9 +265,12 @@ impl Session {
         };
         let folder = self.shared.shipped_pack_folder.clone();
         let path = tokio::task::block_in_place(|| {
-            self.shared
-                .runtime
-                .install_pack(&complete.name, &complete.version, &complete.bytes, &folder)
+            let runtime = &self.shared.runtime;
+            if python {
+                runtime.install_python_pack(&complete.name, &complete.version, &complete.bytes, &folder)
+            } else {
+                runtime.install_pack(&complete.name, &complete.version, &complete.bytes, &folder)
+            }
         })?;
         Ok(kairos_protocol::PackInstall {
             received,
