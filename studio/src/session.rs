@@ -599,7 +599,7 @@ impl Session {
                 }
             }
             (Some(Pending::Foxglove), ReplyBody::FoxglovePublish(state) | ReplyBody::Foxglove(state)) => {
-                self.foxglove_changed(state)
+                self.foxglove_changed(state);
             }
             (Some(Pending::Devices), ReplyBody::Devices(list)) => {
                 self.devices_asked = false;
