@@ -5,7 +5,11 @@
 //! t1 the slave sends, t2 the master receives, t3 the master answers, t4 the slave receives.
 //! offset = ((t2 − t1) + (t3 − t4)) / 2, round-trip delay = (t4 − t1) − (t3 − t2).
 //!
-//! Both receptions are stamped by the kernel (`SO_TIMESTAMPNS`), so neither side's scheduling delays count.
+//! Both receptions are stamped by the kernel (`SO_TIMESTAMPNS`), and so are both departures where the kernel
+//! offers software transmit stamps (`SO_TIMESTAMPING`, read back from the socket's error queue): the
+//! slave's t1 is then the moment its request left, and the master, which learns t3 only after its answer
+//! has left, sends it in a follow-up packet (PTP's two-step). Neither side's scheduling or system calls
+//! then count; without transmit stamps the times read just before sending stand in.
 //! Of the last 8 exchanges the one with the least delay gives the offset (a queued packet only ever
 //! lengthens the delay, and an asymmetric one biases the offset by half of it). The slave's clock is a
 //! [`DisciplinedClock`]: stepped at its first lock, slewed afterwards, never backwards.
@@ -44,9 +48,25 @@ fn wall_now() -> i64 {
         .map_or(0, |d| i64::try_from(d.as_nanos()).unwrap_or(i64::MAX))
 }
 
+/// The first bytes of the master's follow-up, which carries the kernel's stamp of its answer's departure.
+const FOLLOW_UP_MAGIC: &[u8; 4] = b"KCF1";
+/// How long a slave waits for a follow-up its master announced.
+const FOLLOW_UP_WAIT: Duration = Duration::from_millis(20);
+/// Bytes for the control messages of one received packet: every form of stamp the kernel may attach, and
+/// the error record a transmit stamp comes in (a truncated set is refused whole).
+const CONTROL_SPACE: usize = 256;
+/// How long after a send its kernel transmit stamp may take to appear in the error queue.
+const DEPARTURE_WAIT: Duration = Duration::from_millis(1);
+
+fn nanos_of(time: &nix::sys::time::TimeSpec) -> i64 {
+    time.tv_sec() * 1_000_000_000 + time.tv_nsec()
+}
+
 /// Receives one packet into `buffer`: its length, sender and kernel reception time (wall clock, ns).
 fn receive_stamped(socket: &UdpSocket, buffer: &mut [u8]) -> std::io::Result<(usize, SocketAddr, i64)> {
-    let mut space = nix::cmsg_space!(nix::sys::time::TimeSpec);
+    // Room for both forms of the stamp: with transmit stamps on, the kernel may report receptions in
+    // `SO_TIMESTAMPING`'s form as well.
+    let mut space = vec![0_u8; CONTROL_SPACE];
     let mut slices = [IoSliceMut::new(buffer)];
     let message = recvmsg::<SockaddrStorage>(
         socket.as_raw_fd(),
@@ -57,8 +77,12 @@ fn receive_stamped(socket: &UdpSocket, buffer: &mut [u8]) -> std::io::Result<(us
     .map_err(std::io::Error::from)?;
     let mut stamped = None;
     for control in message.cmsgs().map_err(std::io::Error::from)? {
-        if let ControlMessageOwned::ScmTimestampns(time) = control {
-            stamped = Some(time.tv_sec() * 1_000_000_000 + time.tv_nsec());
+        match control {
+            ControlMessageOwned::ScmTimestampns(time) => stamped = Some(nanos_of(&time)),
+            ControlMessageOwned::ScmTimestampsns(times) if stamped.is_none() && times.system.tv_sec() > 0 => {
+                stamped = Some(nanos_of(&times.system));
+            }
+            _ => {}
         }
     }
     let from = message
@@ -69,10 +93,63 @@ fn receive_stamped(socket: &UdpSocket, buffer: &mut [u8]) -> std::io::Result<(us
     Ok((message.bytes, from, stamped.unwrap_or_else(wall_now)))
 }
 
-fn stamped_socket(bind: &str) -> std::io::Result<UdpSocket> {
+/// A UDP socket whose receptions, and where the kernel can, departures, are stamped; whether departures
+/// are.
+fn stamped_socket(bind: &str) -> std::io::Result<(UdpSocket, bool)> {
+    use nix::sys::socket::TimestampingFlag as Flag;
     let socket = UdpSocket::bind(bind)?;
     setsockopt(&socket, sockopt::ReceiveTimestampns, &true).map_err(std::io::Error::from)?;
-    Ok(socket)
+    // Transmit stamps only refine the exchange: a kernel without them leaves the times read before sending.
+    let departures = Flag::SOF_TIMESTAMPING_SOFTWARE
+        | Flag::SOF_TIMESTAMPING_TX_SOFTWARE
+        | Flag::SOF_TIMESTAMPING_OPT_TSONLY;
+    let stamped = setsockopt(&socket, sockopt::Timestamping, &departures).is_ok();
+    Ok((socket, stamped))
+}
+
+/// The next transmit stamp in `socket`'s error queue (wall clock, ns): `Err` when the queue is empty,
+/// `Ok(None)` for an entry that holds none.
+fn next_departure(socket: &UdpSocket) -> Result<Option<i64>, ()> {
+    // The stamp, the error record that carries it, and the reception-style stamp of the same packet.
+    let mut space = vec![0_u8; CONTROL_SPACE];
+    let mut buffer = [0_u8; 64];
+    let mut slices = [IoSliceMut::new(&mut buffer)];
+    let message = recvmsg::<SockaddrStorage>(
+        socket.as_raw_fd(),
+        &mut slices,
+        Some(&mut space),
+        MsgFlags::MSG_ERRQUEUE | MsgFlags::MSG_DONTWAIT,
+    )
+    .map_err(|_| ())?;
+    let mut cmsgs = message.cmsgs().map_err(|_| ())?;
+    let stamp = cmsgs.find_map(|control| match control {
+        ControlMessageOwned::ScmTimestampsns(times) if times.system.tv_sec() > 0 => {
+            Some(nanos_of(&times.system))
+        }
+        _ => None,
+    });
+    Ok(stamp)
+}
+
+/// Forgets the transmit stamps of earlier sends, so the next one read is the next send's.
+fn forget_departures(socket: &UdpSocket) {
+    while next_departure(socket).is_ok() {}
+}
+
+/// The kernel's stamp of the departure of the packet just sent, which `sent_after` (read before sending)
+/// precedes; `None` when there is none within [`DEPARTURE_WAIT`].
+fn departure_of_last_send(socket: &UdpSocket, sent_after: i64) -> Option<i64> {
+    let deadline = Instant::now() + DEPARTURE_WAIT;
+    loop {
+        match next_departure(socket) {
+            // An earlier send's stamp, left over: passed by.
+            Ok(Some(stamp)) if stamp < sent_after => {}
+            Ok(Some(stamp)) => return (stamp - sent_after < 1_000_000_000).then_some(stamp),
+            Ok(None) => {}
+            Err(()) if Instant::now() < deadline => std::thread::sleep(Duration::from_micros(20)),
+            Err(()) => return None,
+        }
+    }
 }
 
 fn read_i64(bytes: &[u8], at: usize) -> Option<i64> {
@@ -81,7 +158,7 @@ fn read_i64(bytes: &[u8], at: usize) -> Option<i64> {
 
 /// Answers slaves on `bind` (`0.0.0.0:7401`) until the process ends.
 pub fn run_master(bind: &str) -> std::io::Result<SocketAddr> {
-    let socket = stamped_socket(bind)?;
+    let (socket, departures_stamped) = stamped_socket(bind)?;
     let address = socket.local_addr()?;
     std::thread::Builder::new()
         .name("k:clock".to_owned())
@@ -94,15 +171,42 @@ pub fn run_master(bind: &str) -> std::io::Result<SocketAddr> {
                 let (Some(b"KCS1"), Some(t1)) = (buffer.get(..4), read_i64(&buffer[..read], 4)) else {
                     continue;
                 };
-                let mut answer = Vec::with_capacity(28);
+                if departures_stamped {
+                    forget_departures(&socket);
+                }
+                let t3 = wall_now();
+                let mut answer = Vec::with_capacity(29);
                 answer.extend_from_slice(MAGIC);
                 answer.extend_from_slice(&t1.to_le_bytes());
                 answer.extend_from_slice(&received.to_le_bytes());
-                answer.extend_from_slice(&wall_now().to_le_bytes());
-                let _ = socket.send_to(&answer, from);
+                answer.extend_from_slice(&t3.to_le_bytes());
+                // Announces a follow-up with the answer's kernel departure stamp.
+                answer.push(u8::from(departures_stamped));
+                if socket.send_to(&answer, from).is_err() || !departures_stamped {
+                    continue;
+                }
+                if let Some(departed) = departure_of_last_send(&socket, t3) {
+                    let mut follow_up = Vec::with_capacity(20);
+                    follow_up.extend_from_slice(FOLLOW_UP_MAGIC);
+                    follow_up.extend_from_slice(&t1.to_le_bytes());
+                    follow_up.extend_from_slice(&departed.to_le_bytes());
+                    let _ = socket.send_to(&follow_up, from);
+                }
             }
         })?;
     Ok(address)
+}
+
+/// One exchange as the slave saw it, every time on the wall clock (ns): t1 its request left, t2 the
+/// master received it, t3 the master's answer left, t4 the answer arrived.
+#[derive(Debug, Clone, Copy)]
+struct Stamps {
+    t1: i64,
+    t2: i64,
+    t3: i64,
+    t4: i64,
+    /// Whether the kernel stamped both departures (else a time read before sending stands in).
+    kernel_departures: bool,
 }
 
 /// One exchange's result.
@@ -116,68 +220,151 @@ struct Exchange {
     at: i64,
 }
 
-/// Sends the master one exchange stamped `t1` and waits for its answer: the master's `t2` and `t3`, and
-/// the kernel's wall-clock stamp of the answer's arrival. `None` (warned about, at most once a second)
-/// when it does not answer within the socket's timeout or answers something else.
+/// One exchange with the master: its four times, or `None` (warned about, at most once a second) when it
+/// does not answer within the socket's timeout or answers something else.
 fn ask_master(
     socket: &UdpSocket,
+    departures_stamped: bool,
     master: SocketAddr,
-    t1: i64,
     warned: &mut kairos_sdk::Throttle,
-) -> Option<(i64, i64, i64)> {
+) -> Option<Stamps> {
+    if departures_stamped {
+        forget_departures(socket);
+    }
+    // Also what the answer echoes, to tell it from a late answer to an earlier request.
+    let asked = wall_now();
     let mut ask = MAGIC.to_vec();
-    ask.extend_from_slice(&t1.to_le_bytes());
+    ask.extend_from_slice(&asked.to_le_bytes());
     if let Err(e) = socket.send_to(&ask, master) {
         warned.warn(|| format!("clock master {master}: {e}"));
+        return None;
     }
-    let mut buffer = [0_u8; 64];
-    match receive_stamped(socket, &mut buffer) {
-        Ok((read, _, received_wall)) => {
-            let packet = &buffer[..read];
-            let fields = (read_i64(packet, 4), read_i64(packet, 12), read_i64(packet, 20));
-            match fields {
-                (Some(echoed), Some(t2), Some(t3)) if packet.starts_with(MAGIC) && echoed == t1 => {
-                    Some((t2, t3, received_wall))
-                }
-                _ => None,
-            }
-        }
-        Err(e)
-            if matches!(
-                e.kind(),
-                std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut
-            ) =>
-        {
-            warned.warn(|| format!("clock master {master} does not answer; the clock runs on, in holdover"));
-            None
-        }
+    let departed = departures_stamped
+        .then(|| departure_of_last_send(socket, asked))
+        .flatten();
+    let answer = match receive_reply(socket, *MAGIC, asked, None) {
+        Ok(answer) => answer,
         Err(e) => {
-            warned.warn(|| format!("clock master {master}: {e}"));
-            None
+            warned.warn(|| {
+                if matches!(
+                    e.kind(),
+                    std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut
+                ) {
+                    format!("clock master {master} does not answer; the clock runs on, in holdover")
+                } else {
+                    format!("clock master {master}: {e}")
+                }
+            });
+            return None;
         }
+    };
+    let (packet, t4) = answer;
+    let (Some(t2), Some(said_t3)) = (read_i64(&packet, 12), read_i64(&packet, 20)) else {
+        return None;
+    };
+    let follow_up_coming = packet.get(28) == Some(&1);
+    // Two-step: the kernel's stamp of the answer's departure, when the master sends it.
+    let answer_departed = follow_up_coming
+        .then(|| receive_reply(socket, *FOLLOW_UP_MAGIC, asked, Some(FOLLOW_UP_WAIT)).ok())
+        .flatten()
+        .and_then(|(follow_up, _)| read_i64(&follow_up, 12));
+    Some(Stamps {
+        t1: departed.unwrap_or(asked),
+        t2,
+        t3: answer_departed.unwrap_or(said_t3),
+        t4,
+        kernel_departures: departed.is_some() && answer_departed.is_some(),
+    })
+}
+
+/// The next packet starting with `magic` and echoing `asked` (others, late or foreign, are passed by),
+/// with its kernel arrival stamp; waits at most the socket's timeout, or `within` when given.
+fn receive_reply(
+    socket: &UdpSocket,
+    magic: [u8; 4],
+    asked: i64,
+    within: Option<Duration>,
+) -> std::io::Result<(Vec<u8>, i64)> {
+    let timeout = socket.read_timeout()?;
+    if within.is_some() {
+        socket.set_read_timeout(within)?;
+    }
+    let deadline = Instant::now() + within.or(timeout).unwrap_or(Duration::from_secs(1));
+    let mut buffer = [0_u8; 64];
+    let result = loop {
+        match receive_stamped(socket, &mut buffer) {
+            Ok((read, _, arrived)) => {
+                let packet = &buffer[..read];
+                if packet.starts_with(&magic) && read_i64(packet, 4) == Some(asked) {
+                    break Ok((packet.to_vec(), arrived));
+                }
+                if Instant::now() >= deadline {
+                    break Err(std::io::ErrorKind::TimedOut.into());
+                }
+            }
+            Err(e) => break Err(e),
+        }
+    };
+    if within.is_some() {
+        socket.set_read_timeout(timeout)?;
+    }
+    result
+}
+
+fn exchange_socket(master: SocketAddr) -> std::io::Result<(UdpSocket, bool)> {
+    let (socket, departures_stamped) = stamped_socket(if master.is_ipv4() { "0.0.0.0:0" } else { "[::]:0" })?;
+    socket.set_read_timeout(Some(Duration::from_millis(200)))?;
+    Ok((socket, departures_stamped))
+}
+
+/// Says once, and again whenever it changes, whether the exchanges' departures are stamped by the kernel.
+#[derive(Debug, Default)]
+struct HowStamped(Option<bool>);
+
+impl HowStamped {
+    fn say(&mut self, kernel_departures: bool, master: SocketAddr) {
+        if self.0 == Some(kernel_departures) {
+            return;
+        }
+        if kernel_departures {
+            tracing::info!("clock exchanges with {master}: both departures stamped by the kernel");
+        } else {
+            tracing::warn!(
+                "clock exchanges with {master}: departures read before sending, not stamped by the kernel (the \
+                 master runs an older kairos, or a kernel without software transmit stamps): expect the offset \
+                 to be a few microseconds off"
+            );
+        }
+        self.0 = Some(kernel_departures);
     }
 }
 
-fn exchange_socket(master: SocketAddr) -> std::io::Result<UdpSocket> {
-    let socket = stamped_socket(if master.is_ipv4() { "0.0.0.0:0" } else { "[::]:0" })?;
-    socket.set_read_timeout(Some(Duration::from_millis(200)))?;
-    Ok(socket)
+/// The slave clock's reading minus the wall clock's, now: what turns the exchange's wall-clock stamps
+/// into times on the slave's clock.
+fn clock_minus_wall(clock: &DisciplinedClock) -> i64 {
+    let before = wall_now();
+    let now = clock.now().as_nanos();
+    let after = wall_now();
+    now - i64::midpoint(before, after)
 }
 
 /// Follows the master at `master` (`HOST:PORT`) with `clock`, until the process ends.
 pub fn run_slave(master: SocketAddr, clock: Arc<DisciplinedClock>) -> std::io::Result<()> {
-    let socket = exchange_socket(master)?;
+    let (socket, departures_stamped) = exchange_socket(master)?;
     std::thread::Builder::new()
         .name("k:clock".to_owned())
         .spawn(move || {
             let mut recent: VecDeque<Exchange> = VecDeque::with_capacity(WINDOW);
             let mut warned = kairos_sdk::Throttle::default();
+            let mut said_how_stamped = HowStamped::default();
             loop {
-                let t1 = clock.now().as_nanos();
-                if let Some((t2, t3, received_wall)) = ask_master(&socket, master, t1, &mut warned) {
-                    // The kernel's stamp is wall-clock time; on this clock it was as long ago as on that one.
+                if let Some(stamps) = ask_master(&socket, departures_stamped, master, &mut warned) {
+                    said_how_stamped.say(stamps.kernel_departures, master);
+                    // The kernel's stamps are wall-clock times: on this clock they were as long ago as on
+                    // that one.
+                    let shift = clock_minus_wall(&clock);
+                    let (t1, t2, t3, t4) = (stamps.t1 + shift, stamps.t2, stamps.t3, stamps.t4 + shift);
                     let now = clock.now().as_nanos();
-                    let t4 = now - (wall_now() - received_wall);
                     // The clock is its uncorrected (monotonic) time plus its offset.
                     let uncorrected = clock.monotonic_ns();
                     let exchange = Exchange {
@@ -317,15 +504,23 @@ impl Clock for SystemClock {
 
 /// Measures `clock` against the master at `master` every second, until the process ends.
 pub fn run_system_check(master: SocketAddr, clock: Arc<SystemClock>) -> std::io::Result<()> {
-    let socket = exchange_socket(master)?;
+    let (socket, departures_stamped) = exchange_socket(master)?;
     std::thread::Builder::new()
         .name("k:clock".to_owned())
         .spawn(move || {
             let mut recent: VecDeque<(i64, i64)> = VecDeque::with_capacity(WINDOW);
             let mut warned = kairos_sdk::Throttle::default();
+            let mut said_how_stamped = HowStamped::default();
             loop {
-                let t1 = wall_now();
-                if let Some((t2, t3, t4)) = ask_master(&socket, master, t1, &mut warned) {
+                if let Some(Stamps {
+                    t1,
+                    t2,
+                    t3,
+                    t4,
+                    kernel_departures,
+                }) = ask_master(&socket, departures_stamped, master, &mut warned)
+                {
+                    said_how_stamped.say(kernel_departures, master);
                     recent.push_back((i64::midpoint(t2 - t1, t3 - t4), (t4 - t1) - (t3 - t2)));
                     while recent.len() > WINDOW {
                         recent.pop_front();
@@ -393,5 +588,27 @@ impl Clock for NotedClock {
 
     fn status(&self) -> Option<ClockStatus> {
         self.inner.status()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    #![allow(clippy::unwrap_used, reason = "a failed unwrap is a failed test")]
+
+    use super::{ask_master, exchange_socket, run_master};
+
+    #[test]
+    fn an_exchange_takes_both_departures_from_the_kernel() {
+        let master = run_master("127.0.0.1:0").unwrap();
+        let (socket, departures_stamped) = exchange_socket(master).unwrap();
+        assert!(departures_stamped, "Linux stamps departures on loopback");
+        let mut warned = kairos_sdk::Throttle::default();
+        let stamps = ask_master(&socket, true, master, &mut warned).unwrap();
+        eprintln!("{stamps:?}");
+        assert!(stamps.kernel_departures, "{stamps:?}");
+        assert!(
+            stamps.t1 < stamps.t2 && stamps.t2 <= stamps.t3 && stamps.t3 < stamps.t4,
+            "{stamps:?}"
+        );
     }
 }
