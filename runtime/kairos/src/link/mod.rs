@@ -31,6 +31,9 @@ pub const RECEIVER: &str = "link.receiver";
 /// The receiver's output.
 pub const SAMPLES_OUTPUT: &str = SAMPLES;
 
+/// The most samples one `core` call of a receiver takes, so stop and control requests get through a flood.
+const BURST: usize = 64;
+
 /// How long one wait for a sample lasts, so stop and control requests get through.
 const RECEIVE_WAIT: Duration = Duration::from_millis(50);
 
@@ -248,8 +251,14 @@ impl Component for LinkReceiver {
         match end.incoming.recv_timeout(RECEIVE_WAIT) {
             Ok(Some(sample)) => {
                 self.last = Some(Instant::now());
-                let frame = sample.payload().to_bytes();
-                self.samples.take(&frame, &end.peer, ctx)?;
+                self.samples.take(&sample.payload().to_bytes(), &end.peer, ctx)?;
+                // What has arrived meanwhile goes in the same call: one wake-up for a burst.
+                for _ in 1..BURST {
+                    let Ok(Some(sample)) = end.incoming.try_recv() else {
+                        break;
+                    };
+                    self.samples.take(&sample.payload().to_bytes(), &end.peer, ctx)?;
+                }
             }
             Ok(None) => {}
             Err(e) => {

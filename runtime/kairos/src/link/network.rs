@@ -54,6 +54,15 @@ impl std::fmt::Debug for Incoming {
 }
 
 impl Incoming {
+    /// The next sample if one is queued, without waiting; `Err` once the session is closed.
+    pub fn try_recv(&self) -> Result<Option<ZenohSample>, String> {
+        match self {
+            Incoming::Fifo(subscriber) => subscriber.try_recv(),
+            Incoming::Ring(subscriber) => subscriber.try_recv(),
+        }
+        .map_err(|e| e.to_string())
+    }
+
     /// The next sample, waiting at most `wait`; `Err` once the session is closed.
     pub fn recv_timeout(&self, wait: Duration) -> Result<Option<ZenohSample>, String> {
         match self {
