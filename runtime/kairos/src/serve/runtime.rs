@@ -254,18 +254,8 @@ impl Runtime {
         folder: &Path,
     ) -> Result<PathBuf, ProtocolError> {
         let mut registry = self.registry.write().unwrap_or_else(PoisonError::into_inner);
-        if let Some(loaded) = registry.packs().find(|p| p.name == name) {
-            if loaded.version == version {
-                return Ok(PathBuf::from(&loaded.origin));
-            }
-            return Err(error(
-                ErrorCode::WrongState,
-                format!(
-                    "pack '{name}' {} is already loaded here (from {}); a second version cannot be loaded \
-                     beside it: replace it with {version} on this machine's pack path and restart kairos serve",
-                    loaded.version, loaded.origin
-                ),
-            ));
+        if let Some(loaded) = already_loaded(&registry, name, version) {
+            return loaded;
         }
         let file = folder.join(format!(
             "{}{name}-{version}{}",
@@ -317,18 +307,8 @@ impl Runtime {
         folder: &Path,
     ) -> Result<PathBuf, ProtocolError> {
         let mut registry = self.registry.write().unwrap_or_else(PoisonError::into_inner);
-        if let Some(loaded) = registry.packs().find(|p| p.name == name) {
-            if loaded.version == version {
-                return Ok(PathBuf::from(&loaded.origin));
-            }
-            return Err(error(
-                ErrorCode::WrongState,
-                format!(
-                    "pack '{name}' {} is already loaded here (from {}); a second version cannot be loaded \
-                     beside it: replace it with {version} on this machine's pack path and restart kairos serve",
-                    loaded.version, loaded.origin
-                ),
-            ));
+        if let Some(loaded) = already_loaded(&registry, name, version) {
+            return loaded;
         }
         let target = folder.join(format!("{name}-{version}"));
         let unpacked = unpack_python_pack(archive, &target).map_err(|e| {
@@ -789,4 +769,22 @@ fn unpack_python_pack(archive: &[u8], target: &Path) -> std::io::Result<PathBuf>
     let _ = std::fs::remove_dir_all(target);
     std::fs::rename(&partial, target)?;
     Ok(target.to_owned())
+}
+
+/// For a pack about to be installed: where it was loaded from when this version is loaded already, or why
+/// it cannot be when another version is; `None` when no pack of that name is loaded.
+fn already_loaded(registry: &Registry, name: &str, version: &str) -> Option<Result<PathBuf, ProtocolError>> {
+    let loaded = registry.packs().find(|p| p.name == name)?;
+    Some(if loaded.version == version {
+        Ok(PathBuf::from(&loaded.origin))
+    } else {
+        Err(error(
+            ErrorCode::WrongState,
+            format!(
+                "pack '{name}' {} is already loaded here (from {}); a second version cannot be loaded beside \
+                 it: replace it with {version} on this machine's pack path and restart kairos serve",
+                loaded.version, loaded.origin
+            ),
+        ))
+    })
 }
