@@ -27,7 +27,7 @@ use crate::session::NodeState;
 use crate::viewers::ViewerKind;
 use hit_test::{Layout, NODE_WIDTH, PolicyLabel, PortSpot, Side, port_hit_rect};
 pub use paint::type_color;
-use paint::{ConnectionLook, NodeLook, PortLook};
+use paint::{ConnectionLook, NodeLook, PortLook, PortRings};
 
 /// Below this zoom the canvas leaves out port names, type names, policies and live figures.
 const DETAIL_SCALE: f32 = 0.45;
@@ -257,8 +257,10 @@ fn input_ui(ui: &egui::Ui, frame: &Frame<'_>, component: &str, spot: &PortSpot, 
     let look = PortLook {
         name: &spot.name,
         color: paint::filter_color(&input.filter),
-        problem: problem.is_some(),
-        viewer_hover: false,
+        rings: PortRings {
+            problem: problem.is_some(),
+            ..PortRings::default()
+        },
         fit,
         detail: frame.detail,
     };
@@ -607,6 +609,13 @@ impl Canvas {
                 kind: ViewerKind::for_type(&type_name),
             });
         }
+        let foxglove = frame.shown.foxglove;
+        let published = foxglove.all || foxglove.outputs.contains(&port.to_string());
+        if published && let Some(address) = &foxglove.address {
+            response
+                .clone()
+                .on_hover_text(format!("Published to Foxglove on {address}"));
+        }
         response.context_menu(|ui| {
             for kind in ViewerKind::choices(&type_name) {
                 if ui.button(format!("Open a viewer ({})", kind.name())).clicked() {
@@ -618,8 +627,7 @@ impl Canvas {
                 }
             }
             ui.separator();
-            let foxglove = frame.shown.foxglove;
-            let mut published = foxglove.all || foxglove.outputs.contains(&port.to_string());
+            let mut published = published;
             if ui
                 .checkbox(&mut published, "Publish to Foxglove")
                 .on_hover_text(
@@ -638,8 +646,11 @@ impl Canvas {
         let look = PortLook {
             name: &spot.name,
             color: type_color(&type_name),
-            problem: problem.is_some(),
-            viewer_hover,
+            rings: PortRings {
+                problem: problem.is_some(),
+                viewer_hover,
+                published,
+            },
             fit: None,
             detail: frame.detail,
         };

@@ -16,6 +16,8 @@ pub const DROP_COLOR: Color32 = Color32::from_rgb(240, 110, 60);
 pub const PROBLEM_COLOR: Color32 = Color32::from_rgb(230, 90, 80);
 /// The ring of an input that would take the connection being dragged.
 const FIT_COLOR: Color32 = Color32::from_rgb(110, 210, 120);
+/// The ring of an output published to Foxglove.
+const PUBLISHED_COLOR: Color32 = Color32::from_rgb(160, 120, 255);
 
 /// A reader policy in a few letters, for connections too short for its name.
 pub fn short_policy(policy: ReaderPolicy) -> &'static str {
@@ -277,14 +279,23 @@ pub struct PortLook<'a> {
     pub name: &'a str,
     /// Its dot's colour.
     pub color: Color32,
-    /// Whether the runtime found a problem with it.
-    pub problem: bool,
-    /// Whether a viewer being dragged from the palette hovers it.
-    pub viewer_hover: bool,
+    /// The rings around its dot.
+    pub rings: PortRings,
     /// While a connection is dragged: whether this input would take it (highlighted) or not (dimmed).
     pub fit: Option<bool>,
     /// Whether there is room for its name.
     pub detail: bool,
+}
+
+/// What a port's rings say.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct PortRings {
+    /// The runtime found a problem with it.
+    pub problem: bool,
+    /// A viewer being dragged from the palette hovers it.
+    pub viewer_hover: bool,
+    /// The output is published live to Foxglove.
+    pub published: bool,
 }
 
 /// A port's dot, its name inside the node (right of an input, left of an output) and its rings.
@@ -295,10 +306,13 @@ pub fn paint_port(
     side: super::hit_test::Side,
     look: &PortLook<'_>,
 ) {
-    if look.problem {
+    if look.rings.problem {
         painter.circle_stroke(at, PORT_RADIUS + 3.0, Stroke::new(2.0, PROBLEM_COLOR));
     }
-    if look.viewer_hover {
+    if look.rings.published {
+        painter.circle_stroke(at, PORT_RADIUS + 5.5, Stroke::new(1.5, PUBLISHED_COLOR));
+    }
+    if look.rings.viewer_hover {
         painter.circle_stroke(
             at,
             PORT_RADIUS + 4.0,
