@@ -2306,6 +2306,21 @@ fn foxglove_gets_outputs_in_the_recordings_schemas_and_a_viewer_that_never_reads
         grown_mib < 60,
         "the runtime grew by {grown_mib} MiB while a viewer did not read"
     );
+    // `kairos status` tells where Foxglove connects and how many are connected.
+    let shown = common::kairos(
+        dir.path(),
+        &[
+            "status",
+            &server.url,
+            "--token-file",
+            dir.path().join("token.txt").to_str().unwrap(),
+        ],
+    );
+    let (stdout, _) = text(&shown);
+    assert!(
+        stdout.contains(&format!("Foxglove on {url} (every output, 2 client(s))")),
+        "{stdout}"
+    );
     drop(stuck);
 }
 

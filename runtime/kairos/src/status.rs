@@ -5,12 +5,12 @@ use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
 use kairos_diagram::HostSpec;
-use kairos_protocol::{LinkList, RequestBody};
+use kairos_protocol::{FoxgloveState, LinkList, RequestBody};
 
 use crate::deploy::{Host, Reach};
 
 /// One host's line: `car (ws://10.0.0.2:7400): running, 4 components, clock locked ±4.2 µs, links 2 of 2
-/// matched`.
+/// matched, Foxglove on ws://127.0.0.1:8765 (every output, 1 client(s))`.
 fn line(name: &str, spec: &HostSpec, reach: &Reach) -> String {
     let mut host = match Host::reach(name, spec, reach) {
         Ok(host) => host,
@@ -69,6 +69,22 @@ fn line(name: &str, spec: &HostSpec, reach: &Reach) -> String {
         for link in senders.iter().filter(|l| !l.matched) {
             let _ = write!(text, "\n    NOT MATCHED: {} -> {}", link.component, link.peer);
         }
+    }
+    if let Ok(foxglove) = host
+        .call(RequestBody::Foxglove)
+        .and_then(|value| serde_json::from_value::<FoxgloveState>(value).map_err(Into::into))
+        && let Some(address) = &foxglove.address
+    {
+        let what = if foxglove.all {
+            "every output".to_owned()
+        } else {
+            format!("{} output(s)", foxglove.outputs.len())
+        };
+        let _ = write!(
+            text,
+            ", Foxglove on {address} ({what}, {} client(s))",
+            foxglove.clients
+        );
     }
     text
 }
