@@ -18,7 +18,7 @@ use kairos_sdk::{
 };
 
 use crate::decode::{data_type_of, decode};
-use crate::timeline::{RawMessage, RecordingIndex};
+use crate::timeline::{RawMessage, RecordingIndex, seconds_to_nanos};
 
 /// The properties naming the recordings, in the order their channels become outputs.
 pub const FILE_PROPERTIES: [&str; 4] = ["path", "path2", "path3", "path4"];
@@ -176,15 +176,6 @@ impl Source {
 
 fn to_timeline(log_time: u64, shift: i64) -> i64 {
     i64::try_from(log_time).unwrap_or(i64::MAX).saturating_add(shift)
-}
-
-pub(crate) fn seconds_to_nanos(seconds: f64) -> i64 {
-    #[allow(
-        clippy::cast_possible_truncation,
-        reason = "property ranges keep it far inside i64"
-    )]
-    let nanos = (seconds * 1e9).round() as i64;
-    nanos
 }
 
 /// Whether the player runs.

@@ -14,7 +14,8 @@ use kairos_sdk::{
 use mcap::records::{MessageHeader, Metadata};
 
 use crate::encode::{encode, schema_for};
-use crate::player::seconds_to_nanos;
+use crate::timeline::seconds_to_nanos;
+pub use crate::timeline::{MARKERS_TOPIC, is_markers_topic};
 
 /// How many inputs a recorder offers.
 pub const RECORDER_INPUTS: usize = 8;
@@ -23,16 +24,6 @@ const INPUT_NAMES: [&str; RECORDER_INPUTS] = ["in1", "in2", "in3", "in4", "in5",
 const MARK_INPUT: usize = RECORDER_INPUTS;
 /// The input whose samples are triggers (pre-trigger mode).
 const TRIGGER_INPUT: usize = RECORDER_INPUTS + 1;
-/// The channel markers are written on (text messages), for the player's timeline and for Foxglove.
-pub const MARKERS_TOPIC: &str = "kairos.markers";
-
-/// Whether `topic` carries markers: the recorder's own, or one prefixed by `kairos merge` (`car/kairos.markers`).
-pub fn is_markers_topic(topic: &str) -> bool {
-    topic == MARKERS_TOPIC
-        || topic
-            .strip_suffix(MARKERS_TOPIC)
-            .is_some_and(|host| host.ends_with('/'))
-}
 
 fn input_name(index: usize) -> &'static str {
     match index {

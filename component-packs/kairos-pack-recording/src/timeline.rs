@@ -141,7 +141,7 @@ impl RecordingIndex {
                             messages: 0,
                         })
                         .messages += 1;
-                    if crate::recorder::is_markers_topic(&channel.topic) {
+                    if is_markers_topic(&channel.topic) {
                         let schema = channel.schema.as_ref().map_or("", |s| s.name.as_str());
                         if let Ok(kairos_sdk::Payload::Text(text)) =
                             crate::decode::decode(schema, &message.data)
@@ -282,4 +282,25 @@ impl RecordingIndex {
         messages.sort_by_key(|m| m.log_time);
         Ok(messages)
     }
+}
+
+/// The channel markers are written on (text messages), for the player's timeline and for Foxglove.
+pub const MARKERS_TOPIC: &str = "kairos.markers";
+
+/// Whether `topic` carries markers: the recorder's own, or one prefixed by `kairos merge` (`car/kairos.markers`).
+pub fn is_markers_topic(topic: &str) -> bool {
+    topic == MARKERS_TOPIC
+        || topic
+            .strip_suffix(MARKERS_TOPIC)
+            .is_some_and(|host| host.ends_with('/'))
+}
+
+/// Seconds (a property's value) as nanoseconds on a recording's timeline.
+pub(crate) fn seconds_to_nanos(seconds: f64) -> i64 {
+    #[allow(
+        clippy::cast_possible_truncation,
+        reason = "property ranges keep it far inside i64"
+    )]
+    let nanos = (seconds * 1e9).round() as i64;
+    nanos
 }
