@@ -2444,3 +2444,39 @@ fn foxglove_publish_starts_a_server_for_chosen_outputs_and_stops_publishing_them
         }
     }
 }
+
+#[test]
+fn kairos_run_publishes_to_foxglove_too() {
+    let _machine = shared_machine();
+    let dir = tempfile::tempdir().unwrap();
+    let diagram = dir.path().join("sensors.ron");
+    std::fs::write(&diagram, CAMERA_AND_IMU).unwrap();
+    let mut child = Command::new(env!("CARGO_BIN_EXE_kairos"))
+        .args(["run", diagram.to_str().unwrap(), "--for", "20s"])
+        .args(["--foxglove", "127.0.0.1:0", "--foxglove-output", "imu.imu"])
+        .current_dir(dir.path())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    let mut lines = BufReader::new(child.stdout.take().unwrap()).lines();
+    let url = loop {
+        let line = lines.next().expect("run printed the Foxglove address").unwrap();
+        if let Some(url) = line.strip_prefix("foxglove on ") {
+            break url.to_owned();
+        }
+    };
+    std::thread::spawn(move || for _ in lines {});
+    let mut viewer = foxglove_client(&url, "foxglove.sdk.v1").unwrap();
+    let channels = foxglove_channels(&mut viewer, &["imu.imu"]);
+    assert_eq!(channels.len(), 1, "only the chosen output: {channels:?}");
+    foxglove_subscribe(&mut viewer, 1, &channels["imu.imu"]);
+    let (_, _, payload) = foxglove_message(&mut viewer);
+    let schema = channels["imu.imu"]["schemaName"].as_str().unwrap();
+    assert!(matches!(
+        kairos_pack_recording::decode::decode(schema, &payload),
+        Ok(kairos_sdk::Payload::Imu(_))
+    ));
+    let _ = child.kill();
+    let _ = child.wait();
+}

@@ -49,6 +49,53 @@ pub struct RunArgs {
     /// diagram's `clock_source`.
     #[arg(long, value_name = "ID")]
     clock_source: Option<String>,
+    #[command(flatten)]
+    foxglove: FoxgloveArgs,
+}
+
+/// Live in Foxglove, for `kairos serve` and `kairos run`.
+#[derive(Debug, Clone, clap::Args)]
+pub struct FoxgloveArgs {
+    /// Publish outputs live to Foxglove (its WebSocket protocol) on this address, loopback by default
+    /// (`127.0.0.1:8765`): every output of the diagram, or those given with --foxglove-output. Nothing is
+    /// encoded for an output no Foxglove client subscribes to.
+    #[arg(
+        long,
+        value_name = "HOST:PORT",
+        num_args = 0..=1,
+        default_missing_value = crate::serve::DEFAULT_FOXGLOVE_ADDRESS
+    )]
+    foxglove: Option<String>,
+    /// Publish only this output to Foxglove (`camera.image`); give it once per output.
+    #[arg(
+        long = "foxglove-output",
+        value_name = "COMPONENT.OUTPUT",
+        requires = "foxglove"
+    )]
+    foxglove_outputs: Vec<String>,
+    /// Let --foxglove listen off loopback. Foxglove's protocol carries no token: anyone who can reach the
+    /// address sees the published outputs.
+    #[arg(long, requires = "foxglove")]
+    foxglove_open_to_network: bool,
+    /// Messages queued per Foxglove client before the oldest are dropped: what a slow viewer can hold.
+    #[arg(long, value_name = "MESSAGES", default_value_t = crate::serve::DEFAULT_FOXGLOVE_BACKLOG)]
+    foxglove_backlog: usize,
+}
+
+impl FoxgloveArgs {
+    /// What `--foxglove` asks for, if it was given.
+    fn options(self) -> Option<crate::serve::FoxgloveOptions> {
+        let backlog = self.foxglove_backlog;
+        self.foxglove.map(|address| crate::serve::FoxgloveOptions {
+            address,
+            selection: crate::serve::Selection {
+                all: self.foxglove_outputs.is_empty(),
+                chosen: self.foxglove_outputs.into_iter().collect(),
+            },
+            open_to_network: self.foxglove_open_to_network,
+            backlog,
+        })
+    }
 }
 
 /// What `deploy` takes.
@@ -130,30 +177,8 @@ pub enum Command {
         /// `~/.local/share/kairos/shipped-packs`).
         #[arg(long, value_name = "DIR")]
         shipped_pack_dir: Option<PathBuf>,
-        /// Publish outputs live to Foxglove (its WebSocket protocol) on this address, loopback by default
-        /// (`127.0.0.1:8765`): every output of the deployed diagram, or those given with --foxglove-output.
-        /// Nothing is encoded for an output no Foxglove client subscribes to.
-        #[arg(
-            long,
-            value_name = "HOST:PORT",
-            num_args = 0..=1,
-            default_missing_value = crate::serve::DEFAULT_FOXGLOVE_ADDRESS
-        )]
-        foxglove: Option<String>,
-        /// Publish only this output to Foxglove (`camera.image`); give it once per output.
-        #[arg(
-            long = "foxglove-output",
-            value_name = "COMPONENT.OUTPUT",
-            requires = "foxglove"
-        )]
-        foxglove_outputs: Vec<String>,
-        /// Let --foxglove listen off loopback. Foxglove's protocol carries no token: anyone who can reach
-        /// the address sees the published outputs.
-        #[arg(long, requires = "foxglove")]
-        foxglove_open_to_network: bool,
-        /// Messages queued per Foxglove client before the oldest are dropped: what a slow viewer can hold.
-        #[arg(long, value_name = "MESSAGES", default_value_t = crate::serve::DEFAULT_FOXGLOVE_BACKLOG)]
-        foxglove_backlog: usize,
+        #[command(flatten)]
+        foxglove: FoxgloveArgs,
     },
     /// Check diagrams against the component library; exit 0 when all are valid.
     Validate {
@@ -392,9 +417,6 @@ pub fn execute(cli: Cli) -> anyhow::Result<ExitCode> {
             tls_key,
             shipped_pack_dir,
             foxglove,
-            foxglove_outputs,
-            foxglove_open_to_network,
-            foxglove_backlog,
         } => crate::serve::serve(
             registry,
             &crate::serve::ServeOptions {
@@ -411,15 +433,8 @@ pub fn execute(cli: Cli) -> anyhow::Result<ExitCode> {
                 clock_system: clock_system_against.map(|master| (master, clock_alarm)),
                 tls: tls_cert.zip(tls_key),
                 shipped_pack_folder: shipped_pack_dir,
-                foxglove: foxglove.map(|address| crate::serve::FoxgloveOptions {
-                    address,
-                    selection: crate::serve::Selection {
-                        all: foxglove_outputs.is_empty(),
-                        chosen: foxglove_outputs.into_iter().collect(),
-                    },
-                    open_to_network: foxglove_open_to_network,
-                }),
-                foxglove_backlog,
+                foxglove_backlog: foxglove.foxglove_backlog,
+                foxglove: foxglove.options(),
             },
         ),
         Command::Inspect { file, json } => {
@@ -810,6 +825,7 @@ fn run_with(
             clock_source: args.clock_source,
             searched: searched.to_vec(),
             deploy,
+            foxglove: args.foxglove.options(),
         },
     )
 }

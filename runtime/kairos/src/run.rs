@@ -25,6 +25,8 @@ pub struct RunOptions {
     pub searched: Vec<std::path::PathBuf>,
     /// `kairos deploy`: the components with a `host` go to that host's `kairos serve`, the rest runs here.
     pub deploy: Option<DeployOptions>,
+    /// Publish outputs live to Foxglove.
+    pub foxglove: Option<crate::serve::FoxgloveOptions>,
 }
 
 /// What `kairos deploy` adds to `kairos run`.
@@ -81,13 +83,18 @@ fn apply_options(parsed: &mut kairos_diagram::ParsedDiagram, options: &RunOption
     Ok(())
 }
 
-/// Runs the diagram at `path` with the components of `registry`.
-pub fn run(registry: &Registry, path: &Path, options: &RunOptions) -> anyhow::Result<ExitCode> {
+/// The diagram at `path` with `options` applied, checked against `registry`; `None` when it cannot be read
+/// or has errors (printed, located).
+fn load_checked(
+    registry: &Registry,
+    path: &Path,
+    options: &RunOptions,
+) -> anyhow::Result<Option<kairos_diagram::ParsedDiagram>> {
     let (source, mut parsed) = match kairos_diagram::load(path) {
         Ok(loaded) => loaded,
         Err(error) => {
             eprint!("{}", error.render());
-            return Ok(ExitCode::from(1));
+            return Ok(None);
         }
     };
     apply_options(&mut parsed, options)?;
@@ -98,9 +105,14 @@ pub fn run(registry: &Registry, path: &Path, options: &RunOptions) -> anyhow::Re
             kairos_diagram::render_all(&diagnostics, &path.display().to_string(), &source)
         );
     }
-    if diagnostics.iter().any(kairos_diagram::Diagnostic::is_error) {
+    Ok((!diagnostics.iter().any(kairos_diagram::Diagnostic::is_error)).then_some(parsed))
+}
+
+/// Runs the diagram at `path` with the components of `registry`.
+pub fn run(registry: &Registry, path: &Path, options: &RunOptions) -> anyhow::Result<ExitCode> {
+    let Some(mut parsed) = load_checked(registry, path, options)? else {
         return Ok(ExitCode::from(1));
-    }
+    };
 
     // Deploying: every host's part is deployed and started before this machine's part starts; then the
     // diagram run here is this machine's part alone.
@@ -126,6 +138,11 @@ pub fn run(registry: &Registry, path: &Path, options: &RunOptions) -> anyhow::Re
         Ok(engine) => engine,
         Err(error) => bail!("{error}"),
     };
+    let foxglove = options
+        .foxglove
+        .as_ref()
+        .map(|f| crate::serve::start_foxglove(Arc::new(crate::serve::EngineOutputs::of(&engine)), f))
+        .transpose()?;
     start_everywhere(
         &mut engine,
         watch.as_mut().map_or(&mut [], |w| &mut w.hosts),
@@ -178,6 +195,9 @@ pub fn run(registry: &Registry, path: &Path, options: &RunOptions) -> anyhow::Re
     match &mut watch {
         Some(watch) => watch.stop_together(|| engine.stop()),
         None => engine.stop(),
+    }
+    if let Some(foxglove) = foxglove {
+        foxglove.shutdown();
     }
     let last = engine.snapshot().with_rates_since(&first);
     if options.stats.is_some() {

@@ -17,7 +17,7 @@ use std::time::Duration;
 use anyhow::Context as _;
 use foxglove::{PartialMetadata, RawChannel, Schema, WebSocketServerHandle};
 use kairos_pack_recording::encode::{encode, schema_for};
-use kairos_sdk::host::{Reader, ReaderConfig};
+use kairos_sdk::host::{OutputBuffer, Reader, ReaderConfig};
 use kairos_sdk::{DataType, ReaderPolicy, RunSignal, Sample};
 
 use super::runtime::Runtime;
@@ -32,6 +32,66 @@ pub const DEFAULT_BACKLOG: usize = 64;
 
 /// How often the publishing thread looks at subscriptions and the deployed diagram when no sample wakes it.
 const LOOK_PERIOD: Duration = Duration::from_millis(50);
+
+/// Where the publisher finds outputs: a `kairos serve` runtime, whose diagram may be replaced, or the
+/// engine of `kairos run`.
+pub trait Outputs: Send + Sync {
+    /// Changes whenever the outputs are replaced (a new diagram deployed).
+    fn generation(&self) -> u64;
+    /// Every output's name (`component.port`).
+    fn output_names(&self) -> Vec<String>;
+    /// The buffer of `output` (`component.port`).
+    fn output(&self, output: &str) -> Option<OutputBuffer>;
+}
+
+impl Outputs for Runtime {
+    fn generation(&self) -> u64 {
+        Runtime::generation(self)
+    }
+
+    fn output_names(&self) -> Vec<String> {
+        Runtime::output_names(self)
+    }
+
+    fn output(&self, output: &str) -> Option<OutputBuffer> {
+        let (component, port) = output.rsplit_once('.')?;
+        Runtime::output(self, component, port).map(|(buffer, _)| buffer)
+    }
+}
+
+/// The outputs of one engine, for its whole life (`kairos run`).
+#[derive(Debug)]
+pub struct EngineOutputs(Vec<OutputBuffer>);
+
+impl EngineOutputs {
+    /// Every output of `engine`.
+    pub fn of(engine: &kairos_runtime::Engine) -> Self {
+        EngineOutputs(
+            engine
+                .output_names()
+                .iter()
+                .filter_map(|name| {
+                    let (component, port) = name.rsplit_once('.')?;
+                    engine.output_buffer(component, port).cloned()
+                })
+                .collect(),
+        )
+    }
+}
+
+impl Outputs for EngineOutputs {
+    fn generation(&self) -> u64 {
+        0
+    }
+
+    fn output_names(&self) -> Vec<String> {
+        self.0.iter().map(|b| b.output().to_owned()).collect()
+    }
+
+    fn output(&self, output: &str) -> Option<OutputBuffer> {
+        self.0.iter().find(|b| b.output() == output).cloned()
+    }
+}
 
 /// Which outputs are published.
 #[derive(Debug, Clone, Default, PartialEq, Eq)]
@@ -83,7 +143,7 @@ impl Foxglove {
     /// Listens on `address` and publishes `selection` of what `runtime` deploys, keeping at most `backlog`
     /// messages per client.
     pub fn start(
-        runtime: Arc<Runtime>,
+        outputs: Arc<dyn Outputs>,
         address: SocketAddr,
         selection: Selection,
         backlog: usize,
@@ -125,7 +185,7 @@ impl Foxglove {
             let foxglove = Arc::clone(&foxglove);
             std::thread::Builder::new()
                 .name("k:foxglove pub".to_owned())
-                .spawn(move || Publisher::new(runtime, context).run(&foxglove))
+                .spawn(move || Publisher::new(outputs, context).run(&foxglove))
                 .context("cannot start the Foxglove publishing thread")?
         };
         *lock(&foxglove.thread) = Some(thread);
@@ -203,7 +263,7 @@ struct Published {
 
 /// The publishing thread's state.
 struct Publisher {
-    runtime: Arc<Runtime>,
+    source: Arc<dyn Outputs>,
     context: Arc<foxglove::Context>,
     outputs: BTreeMap<String, Published>,
     generation: u64,
@@ -212,9 +272,9 @@ struct Publisher {
 }
 
 impl Publisher {
-    fn new(runtime: Arc<Runtime>, context: Arc<foxglove::Context>) -> Self {
+    fn new(source: Arc<dyn Outputs>, context: Arc<foxglove::Context>) -> Self {
         Publisher {
-            runtime,
+            source,
             context,
             outputs: BTreeMap::new(),
             generation: u64::MAX,
@@ -248,12 +308,12 @@ impl Publisher {
     /// Matches the published outputs to the deployed diagram and the selection, and each output's reader to
     /// whether a client subscribes to its channel.
     fn follow(&mut self, foxglove: &Foxglove) {
-        let generation = self.runtime.generation();
+        let generation = self.source.generation();
         let version = foxglove.selection_version.load(Ordering::Acquire);
         if generation != self.generation || version != self.selection_version {
             let selection = foxglove.selection();
             let wanted: BTreeSet<String> = self
-                .runtime
+                .source
                 .output_names()
                 .into_iter()
                 .filter(|o| selection.includes(o))
@@ -292,7 +352,7 @@ impl Publisher {
                 } else {
                     ReaderPolicy::LastOrNext
                 };
-                published.reader = attach(&self.runtime, &published.output, policy, &foxglove.wake);
+                published.reader = attach(&*self.source, &published.output, policy, &foxglove.wake);
             } else if !watched && published.reader.is_some() {
                 published.reader = None;
             }
@@ -326,9 +386,13 @@ impl Publisher {
     }
 }
 
-fn attach(runtime: &Runtime, output: &str, policy: ReaderPolicy, wake: &Arc<RunSignal>) -> Option<Reader> {
-    let (component, port) = output.rsplit_once('.')?;
-    let (buffer, _) = runtime.output(component, port)?;
+fn attach(
+    outputs: &dyn Outputs,
+    output: &str,
+    policy: ReaderPolicy,
+    wake: &Arc<RunSignal>,
+) -> Option<Reader> {
+    let buffer = outputs.output(output)?;
     Some(buffer.attach(
         ReaderConfig::new(policy, format!("{output} -> foxglove")),
         Arc::clone(wake),

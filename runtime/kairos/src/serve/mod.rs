@@ -24,7 +24,8 @@ use tokio_tungstenite::tungstenite::Message;
 
 pub use auth::{Access, load_or_create_token};
 pub use foxglove::{
-    DEFAULT_BACKLOG as DEFAULT_FOXGLOVE_BACKLOG, DEFAULT_FOXGLOVE_ADDRESS, Foxglove, Selection,
+    DEFAULT_BACKLOG as DEFAULT_FOXGLOVE_BACKLOG, DEFAULT_FOXGLOVE_ADDRESS, EngineOutputs, Foxglove, Outputs,
+    Selection,
 };
 pub use runtime::Runtime;
 
@@ -78,6 +79,8 @@ pub struct FoxgloveOptions {
     pub selection: Selection,
     /// Listening off loopback was asked for explicitly (Foxglove's protocol carries no token).
     pub open_to_network: bool,
+    /// Messages queued per client before the oldest are dropped.
+    pub backlog: usize,
 }
 
 /// Where packs shipped here are written unless told otherwise: `$XDG_DATA_HOME/kairos/shipped-packs`, else
@@ -169,7 +172,7 @@ impl Shared {
             .map_err(|_| ProtocolError::new(ErrorCode::Internal, "the default Foxglove address"))?;
         let start = |address| {
             Foxglove::start(
-                Arc::clone(&self.runtime),
+                Arc::clone(&self.runtime) as Arc<dyn Outputs>,
                 address,
                 Selection::default(),
                 self.foxglove_backlog,
@@ -251,7 +254,7 @@ pub fn serve_with(
     let foxglove = options
         .foxglove
         .as_ref()
-        .map(|f| start_foxglove(&runtime, f, options.foxglove_backlog))
+        .map(|f| start_foxglove(Arc::clone(&runtime) as Arc<dyn Outputs>, f))
         .transpose()?;
     let shared = Arc::new(Shared {
         foxglove: std::sync::Mutex::new(foxglove.clone()),
@@ -342,11 +345,12 @@ fn access_for(address: SocketAddr, options: &ServeOptions) -> anyhow::Result<Acc
 }
 
 /// `--foxglove`: the server, listening; refused off loopback unless asked for explicitly.
-fn start_foxglove(
-    runtime: &Arc<Runtime>,
-    options: &FoxgloveOptions,
-    backlog: usize,
-) -> anyhow::Result<Arc<Foxglove>> {
+///
+/// # Errors
+///
+/// Not an address, off loopback without `open_to_network`, an output `outputs` lacks, or the address
+/// cannot be listened on.
+pub fn start_foxglove(outputs: Arc<dyn Outputs>, options: &FoxgloveOptions) -> anyhow::Result<Arc<Foxglove>> {
     let address = options
         .address
         .to_socket_addrs()
@@ -358,7 +362,7 @@ fn start_foxglove(
                 options.address
             )
         })?;
-    check_foxglove_outputs(runtime, &options.selection)?;
+    check_foxglove_outputs(&*outputs, &options.selection)?;
     if !address.ip().is_loopback() && !options.open_to_network {
         bail!(
             "refusing to publish to Foxglove on {address}: its protocol carries no token, so anyone who can \
@@ -366,14 +370,14 @@ fn start_foxglove(
              tunnel: ssh -L 8765:127.0.0.1:8765 HOST), or add --foxglove-open-to-network to accept the risk"
         );
     }
-    let foxglove = Foxglove::start(Arc::clone(runtime), address, options.selection.clone(), backlog)?;
+    let foxglove = Foxglove::start(outputs, address, options.selection.clone(), options.backlog)?;
     println!("foxglove on ws://{}", foxglove.address());
     Ok(foxglove)
 }
 
-/// `--foxglove-output`s that the `--diagram` lacks are refused, naming what it has.
-fn check_foxglove_outputs(runtime: &Runtime, selection: &Selection) -> anyhow::Result<()> {
-    let existing = runtime.output_names();
+/// `--foxglove-output`s that the diagram lacks are refused, naming what it has.
+fn check_foxglove_outputs(outputs: &dyn Outputs, selection: &Selection) -> anyhow::Result<()> {
+    let existing = outputs.output_names();
     if existing.is_empty() {
         // Nothing deployed yet: the outputs are looked for in whatever is deployed later.
         return Ok(());
