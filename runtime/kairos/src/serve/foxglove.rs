@@ -140,8 +140,8 @@ impl std::fmt::Debug for Foxglove {
 }
 
 impl Foxglove {
-    /// Listens on `address` and publishes `selection` of what `runtime` deploys, keeping at most `backlog`
-    /// messages per client.
+    /// Listens on `address` and publishes `selection` of `outputs`, keeping at most `backlog` messages per
+    /// client.
     pub fn start(
         outputs: Arc<dyn Outputs>,
         address: SocketAddr,
