@@ -213,10 +213,23 @@ pub struct Session {
     unlocked_refusal: Option<String>,
     /// What the runtime publishes to Foxglove, as it last said.
     foxglove: kairos_protocol::FoxgloveState,
+    /// The runtime's host as its address names it (`robot`), when it runs on another machine.
+    remote_host: Option<String>,
 }
 
 /// What the runtime's refusal says when hosts' clocks are not locked (`deploy::check_clocks`).
 const CLOCKS_NOT_LOCKED: &str = "clock is locked to its master";
+
+/// The host of a runtime's address (`ws://robot:7400` gives `robot`).
+fn host_of(url: &str) -> Option<String> {
+    let rest = url.split_once("://").map_or(url, |(_, rest)| rest);
+    let authority = rest.split('/').next()?;
+    let host = match authority.rsplit_once(':') {
+        Some((host, port)) if port.chars().all(|c| c.is_ascii_digit()) => host,
+        _ => authority,
+    };
+    (!host.is_empty()).then(|| host.trim_matches(['[', ']']).to_owned())
+}
 
 fn join(outputs: &[&String]) -> String {
     outputs.iter().map(|o| o.as_str()).collect::<Vec<_>>().join(", ")
@@ -244,6 +257,7 @@ impl Session {
             field_notes: BTreeMap::new(),
             unlocked_refusal: None,
             foxglove: kairos_protocol::FoxgloveState::default(),
+            remote_host: None,
             runtime: None,
             run_state: RuntimeState::Empty,
             clock: None,
@@ -358,6 +372,7 @@ impl Session {
         self.frames = FramePath::Socket;
         self.dropped = DroppedEvents::default();
         self.foxglove = kairos_protocol::FoxgloveState::default();
+        self.remote_host = host_of(url);
         self.note(LogLevel::Info, format!("connecting to {url}"));
     }
 
@@ -466,6 +481,9 @@ impl Session {
         let pixels = welcome
             .pid
             .is_some_and(kairos_protocol::shared_pixels::can_map_buffers_of);
+        if same_host {
+            self.remote_host = None;
+        }
         self.frames = match (same_host, pixels) {
             (false, _) => FramePath::Socket,
             (true, false) => FramePath::SharedMemory,
@@ -519,9 +537,17 @@ impl Session {
             .collect();
         let mut lines = Vec::new();
         if !added.is_empty() {
+            let port = address.rsplit(':').next().unwrap_or("8765");
+            let reach = match &self.remote_host {
+                // The runtime's loopback is not this machine's.
+                Some(host) if address.starts_with("ws://127.") => format!(
+                    " It listens on the runtime's machine, on loopback: forward it first (ssh -L \
+                     {port}:127.0.0.1:{port} {host}), then open ws://127.0.0.1:{port} in Foxglove."
+                ),
+                _ => " In Foxglove, open a connection (Foxglove WebSocket) to that address.".to_owned(),
+            };
             lines.push(format!(
-                "Foxglove: publishing {} on {address}. In Foxglove, open a connection (Foxglove WebSocket) to \
-                 that address.",
+                "Foxglove: publishing {} on {address}.{reach}",
                 join(&added)
             ));
         }
@@ -1109,6 +1135,30 @@ mod tests {
         assert!(matches!(describe[0].body, RequestBody::DescribeInstances { .. }));
         session.handle(ok(&describe[0], json!({"instances": {}, "problems": {}})));
         session
+    }
+
+    #[test]
+    fn publishing_to_foxglove_on_another_machine_says_how_to_reach_it() {
+        let mut session = connected();
+        session.publish_to_foxglove("gain1.out", true);
+        let requests = sent(&mut session);
+        assert!(matches!(
+            &requests[0].body,
+            RequestBody::FoxglovePublish { outputs, publish: true } if outputs == &["gain1.out"]
+        ));
+        let state =
+            json!({"address": "ws://127.0.0.1:8765", "all": false, "outputs": ["gain1.out"], "clients": 0});
+        session.handle(ok(&requests[0], state));
+        assert_eq!(session.foxglove().outputs, ["gain1.out"]);
+        assert!(
+            session.log.lines().any(|l| l
+                .text
+                .contains("forward it first (ssh -L 8765:127.0.0.1:8765 robot)")),
+            "the runtime's loopback is not this machine's"
+        );
+        assert_eq!(super::host_of("ws://robot:7400").as_deref(), Some("robot"));
+        assert_eq!(super::host_of("wss://[::1]:7400/").as_deref(), Some("::1"));
+        assert_eq!(super::host_of("ws://10.0.0.2").as_deref(), Some("10.0.0.2"));
     }
 
     #[test]
