@@ -2427,6 +2427,20 @@ fn foxglove_publish_starts_a_server_for_chosen_outputs_and_stops_publishing_them
     let reply = call(&mut admin, &json!({"id": 13, "type": "foxglove"}));
     assert_eq!(reply["result"]["clients"], 1, "{reply}");
 
+    // Deployed again: the old channel goes, and the output is published again from the new diagram.
+    deploy_and_start(&mut admin, &std::fs::read_to_string(example("hello")).unwrap());
+    let mut taken_back = false;
+    let channel = loop {
+        if let Message::Text(text) = viewer.read().unwrap() {
+            let message: Value = serde_json::from_str(text.as_str()).unwrap();
+            taken_back |= message["op"] == "unadvertise" && message["channelIds"] == json!([channel["id"]]);
+            if message["op"] == "advertise" && taken_back {
+                break message["channels"][0].clone();
+            }
+        }
+    };
+    assert_eq!(channel["topic"], "gain1.out", "{channel}");
+
     let reply = call(
         &mut admin,
         &json!({"id": 14, "type": "foxglove_publish", "outputs": ["gain1.out"], "publish": false}),
