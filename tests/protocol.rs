@@ -2494,3 +2494,51 @@ fn kairos_run_publishes_to_foxglove_too() {
     let _ = child.kill();
     let _ = child.wait();
 }
+
+#[test]
+fn camera_frames_from_another_host_arrive_whole_in_a_recording_here() {
+    let _machine = shared_machine();
+    let [dir_b, here] = folders();
+    let b = serve(dir_b.path(), &[]);
+    std::fs::write(here.path().join("b.token"), &b.token).unwrap();
+    let diagram = here.path().join("camera_on_b.ron");
+    // 640×480 RGB frames (921 600 bytes) cross in many Zenoh fragments.
+    std::fs::write(
+        &diagram,
+        format!(
+            r#"Diagram(format: 1,
+            hosts: {{"b": Host(endpoint: "{}", token_file: "b.token")}},
+            components: [
+                Component(id: "camera", type: "sensors.camera", host: "b", properties: {{"width": 640, "height": 480, "rate": 10.0}}),
+                Component(id: "recorder", type: "recording.recorder", properties: {{"path": "here.mcap", "compression": "none"}}),
+            ],
+            connections: [Connection(from: "camera.image", to: "recorder.in1")])"#,
+            b.url
+        ),
+    )
+    .unwrap();
+    let deployed = common::kairos(here.path(), &["deploy", diagram.to_str().unwrap(), "--for", "2s"]);
+    let (stdout, stderr) = text(&deployed);
+    assert!(deployed.status.success(), "{stdout}{stderr}");
+    let mut frames = 0;
+    let bytes = std::fs::read(here.path().join("here.mcap")).unwrap();
+    let summary = mcap::Summary::read(&bytes).unwrap().unwrap();
+    for message in mcap::MessageStream::new(&bytes).unwrap() {
+        let message = message.unwrap();
+        // Recorded under the link's end on this machine (`link_from_camera_image.samples`).
+        if message.channel.topic.starts_with("link_from_camera_image") {
+            let schema = message.channel.schema.as_ref().unwrap().name.clone();
+            let kairos_sdk::Payload::Image(image) =
+                kairos_pack_recording::decode::decode(&schema, &message.data).unwrap()
+            else {
+                panic!("not an image")
+            };
+            assert_eq!(
+                (image.width, image.height, image.pixels.len()),
+                (640, 480, 921_600)
+            );
+            frames += 1;
+        }
+    }
+    assert!(frames >= 10, "{frames} frames in 2 s at 10 Hz ({summary:?})");
+}

@@ -152,7 +152,22 @@ impl SampleReceiver {
     /// Takes one frame from `peer`: writes its sample on [`SAMPLES`] when it decodes, has the expected type
     /// and comes in order; counts it otherwise.
     pub fn take(&mut self, frame: &[u8], peer: &str, ctx: &mut Context) -> ComponentResult {
-        let received = match sample_frame::decode(frame) {
+        self.take_decoded(sample_frame::decode(frame), peer, ctx)
+    }
+
+    /// [`Self::take`] for a frame that arrived in pieces (a large one, fragmented on its way): an image's
+    /// pixels go from the pieces straight into the shared pixel pool, without first joining them.
+    pub fn take_pieces(&mut self, pieces: &[&[u8]], peer: &str, ctx: &mut Context) -> ComponentResult {
+        self.take_decoded(sample_frame::decode_pieces(pieces), peer, ctx)
+    }
+
+    fn take_decoded(
+        &mut self,
+        decoded: Result<sample_frame::Received, String>,
+        peer: &str,
+        ctx: &mut Context,
+    ) -> ComponentResult {
+        let received = match decoded {
             Ok(received) => received,
             Err(reason) => {
                 self.malformed += 1;

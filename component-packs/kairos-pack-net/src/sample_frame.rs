@@ -253,6 +253,58 @@ pub fn decode(bytes: &[u8]) -> Result<Received, String> {
     })
 }
 
+/// [`decode`] for a frame in pieces, in order. An image whose header lies whole in the first piece has its
+/// pixels copied from the pieces straight into the shared pixel pool; any other frame is joined first.
+pub fn decode_pieces(pieces: &[&[u8]]) -> Result<Received, String> {
+    match pieces {
+        [] => decode(&[]),
+        [whole] => decode(whole),
+        [first, rest @ ..] => {
+            if let Ok((header, head_of_body)) = frame::decode(first)
+                && DataType::from_name(&header.data_type) == DataType::Image
+            {
+                let body = std::iter::once(head_of_body).chain(rest.iter().copied());
+                let payload = image_of(&header, body)?;
+                let mut sample = Sample::new(payload, Timestamp(header.timestamp_ns));
+                sample.time_of_issue = Timestamp(header.time_of_issue_ns);
+                return Ok(Received {
+                    output: header.output,
+                    sequence: header.sequence,
+                    sample,
+                });
+            }
+            decode(&pieces.concat())
+        }
+    }
+}
+
+/// An image frame's payload from its header and its pixels, which may come in several pieces: copied into
+/// the shared pixel pool, so the image goes on through the diagram without another copy.
+fn image_of<'b>(
+    header: &SampleHeader,
+    body: impl Iterator<Item = &'b [u8]> + Clone,
+) -> Result<Payload, String> {
+    let layout = header.image.as_ref().ok_or("an image frame without its layout")?;
+    let format =
+        format_of(&layout.format).ok_or_else(|| format!("an unknown pixel format {:?}", layout.format))?;
+    let length = body.clone().map(<[u8]>::len).sum();
+    let mut pixels = PixelsMut::new(length);
+    let mut at = 0;
+    for piece in body {
+        pixels[at..at + piece.len()].copy_from_slice(piece);
+        at += piece.len();
+    }
+    Image::with_stride(
+        layout.width,
+        layout.height,
+        format,
+        layout.stride,
+        pixels.freeze(),
+    )
+    .map(Payload::Image)
+    .map_err(|e| e.to_string())
+}
+
 fn number(value: &Json) -> Result<f64, String> {
     match value {
         // JSON has no NaN: a NaN was sent as null.
@@ -378,24 +430,7 @@ fn payload_of(header: &SampleHeader, body: &[u8]) -> Result<Payload, String> {
             })
         }
         DataType::Bytes => Payload::Bytes(Arc::from(body)),
-        DataType::Image => {
-            let layout = header.image.as_ref().ok_or("an image frame without its layout")?;
-            let format = format_of(&layout.format)
-                .ok_or_else(|| format!("an unknown pixel format {:?}", layout.format))?;
-            // Into the shared pixel pool, so the image goes on through the diagram without another copy.
-            let mut pixels = PixelsMut::new(body.len());
-            pixels.copy_from_slice(body);
-            Payload::Image(
-                Image::with_stride(
-                    layout.width,
-                    layout.height,
-                    format,
-                    layout.stride,
-                    pixels.freeze(),
-                )
-                .map_err(|e| e.to_string())?,
-            )
-        }
+        DataType::Image => image_of(header, std::iter::once(body))?,
         DataType::PointCloud => {
             let stride = if header.intensity { 16 } else { 12 };
             if !body.len().is_multiple_of(stride) {
@@ -543,6 +578,29 @@ mod tests {
                 data: Arc::from(&b"track"[..]),
             }),
         ]
+    }
+
+    #[test]
+    fn a_frame_in_pieces_decodes_as_the_whole_frame_does() {
+        for payload in every_payload() {
+            let mut sample = Sample::new(payload.clone(), Timestamp(1_700_000_000_123_456_789));
+            sample.time_of_issue = Timestamp(1_700_000_000_223_456_789);
+            let frame = encode_whole("camera.image", &sample);
+            let whole = decode(&frame).unwrap();
+            // Cut everywhere: inside the header, and inside the payload.
+            for cut in [5, frame.len() - 7, frame.len() - 1] {
+                let (a, b) = frame.split_at(cut);
+                let (b, c) = b.split_at(b.len() / 2);
+                let pieces = super::decode_pieces(&[a, b, c]).unwrap();
+                assert_eq!(pieces.output, whole.output);
+                assert_eq!(
+                    pieces.sample.payload, whole.sample.payload,
+                    "{payload:?}, cut at {cut}"
+                );
+                assert_eq!(pieces.sample.timestamp, whole.sample.timestamp);
+                assert_eq!(pieces.sample.time_of_issue, whole.sample.time_of_issue);
+            }
+        }
     }
 
     #[test]

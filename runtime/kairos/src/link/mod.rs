@@ -236,6 +236,18 @@ pub struct LinkReceiver {
     published: Throttle,
 }
 
+impl LinkReceiver {
+    /// One sample from Zenoh: a frame in one piece as it is, a fragmented one piece by piece.
+    fn take(&mut self, sample: &zenoh::sample::Sample, peer: &str, ctx: &mut Context) -> ComponentResult {
+        let payload = sample.payload();
+        if payload.slices().nth(1).is_some() {
+            let pieces: Vec<&[u8]> = payload.slices().collect();
+            return self.samples.take_pieces(&pieces, peer, ctx);
+        }
+        self.samples.take(&payload.to_bytes(), peer, ctx)
+    }
+}
+
 impl Component for LinkReceiver {
     fn birth(&mut self, ctx: &mut Context) -> ComponentResult {
         let key = ctx.text_property("key")?;
@@ -251,13 +263,13 @@ impl Component for LinkReceiver {
         match end.incoming.recv_timeout(RECEIVE_WAIT) {
             Ok(Some(sample)) => {
                 self.last = Some(Instant::now());
-                self.samples.take(&sample.payload().to_bytes(), &end.peer, ctx)?;
+                self.take(&sample, &end.peer, ctx)?;
                 // What has arrived meanwhile goes in the same call: one wake-up for a burst.
                 for _ in 1..BURST {
                     let Ok(Some(sample)) = end.incoming.try_recv() else {
                         break;
                     };
-                    self.samples.take(&sample.payload().to_bytes(), &end.peer, ctx)?;
+                    self.take(&sample, &end.peer, ctx)?;
                 }
             }
             Ok(None) => {}
