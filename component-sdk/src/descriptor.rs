@@ -111,6 +111,7 @@ impl Descriptor {
             follows_input: None,
             default_buffer_size: buffer_size.max(1),
             doc: doc.to_owned(),
+            known_as: None,
         });
         self
     }
@@ -123,6 +124,7 @@ impl Descriptor {
             follows_input: Some(input.to_owned()),
             default_buffer_size: DEFAULT_BUFFER_SIZE,
             doc: doc.to_owned(),
+            known_as: None,
         });
         self
     }

@@ -501,6 +501,11 @@ pub struct OutputInfo {
     pub default_buffer_size: usize,
     /// One line of documentation.
     pub doc: String,
+    /// The name its samples go by, when not `component.port`: the end of a link from another host
+    /// carries its producer's (`camera.image`), so recorders, viewers and statistics on this host name
+    /// them as the diagram does.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub known_as: Option<String>,
 }
 
 /// One property.

@@ -303,6 +303,7 @@ impl Player {
                 follows_input: None,
                 default_buffer_size: DEFAULT_BUFFER_SIZE,
                 doc: planned.doc,
+                known_as: None,
             })
             .collect();
         Ok(info)

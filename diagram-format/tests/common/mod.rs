@@ -21,6 +21,7 @@ fn output(name: &str, data_type: DataType) -> OutputInfo {
         follows_input: None,
         default_buffer_size: 16,
         doc: String::new(),
+        known_as: None,
     }
 }
 

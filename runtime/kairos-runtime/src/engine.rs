@@ -468,8 +468,11 @@ impl Engine {
                     })
                     .flatten()
                     .fold(size, usize::max);
-                let buffer =
-                    OutputBuffer::with_slots(format!("{}.{}", instance.id, output.name), size, slots);
+                let name = output
+                    .known_as
+                    .clone()
+                    .unwrap_or_else(|| format!("{}.{}", instance.id, output.name));
+                let buffer = OutputBuffer::with_slots(name, size, slots);
                 buffers.insert((instance.id.clone(), output.name.clone()), buffer.clone());
                 let subsampling = settings.and_then(|s| s.subsampling).unwrap_or(1);
                 let data_type = output.follows_input.is_none().then(|| output.data_type.clone());

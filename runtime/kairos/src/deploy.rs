@@ -282,6 +282,9 @@ fn place_link(
         .properties
         .insert("data_type".to_owned(), Value::Text(data_type.to_owned()));
     receiver.properties.insert("queue".to_owned(), Value::I64(queue));
+    receiver
+        .properties
+        .insert("origin".to_owned(), Value::Text(connection.from.to_string()));
     consuming.components.push(receiver);
     consuming.connections.push(Connection {
         from: PortRef::new(&receiver_id, crate::link::SAMPLES_OUTPUT),

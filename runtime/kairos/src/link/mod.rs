@@ -73,13 +73,16 @@ pub fn receiver_descriptor() -> ComponentInfo {
     receiver_base(DataType::F64)
 }
 
-/// The descriptor of one `link.receiver`: an output of its `data_type`.
+/// The descriptor of one `link.receiver`: an output of its `data_type`, whose samples go by the name of
+/// the output they come from (`origin`), as in the diagram.
 pub fn describe_receiver(properties: &BTreeMap<String, Value>) -> Result<ComponentInfo, DescribeError> {
-    let name = properties
-        .get("data_type")
-        .and_then(Value::as_text)
-        .unwrap_or("f64");
-    Ok(receiver_base(DataType::from_name(name)))
+    let text = |name| properties.get(name).and_then(Value::as_text);
+    let mut info = receiver_base(DataType::from_name(text("data_type").unwrap_or("f64")));
+    if let (Some(origin), Some(output)) = (text("origin").filter(|o| !o.is_empty()), info.outputs.first_mut())
+    {
+        output.known_as = Some(origin.to_owned());
+    }
+    Ok(info)
 }
 
 fn receiver_base(data_type: DataType) -> ComponentInfo {
@@ -92,6 +95,10 @@ fn receiver_base(data_type: DataType) -> ComponentInfo {
     .label("Link from another host")
     .output(SAMPLES, data_type, "Each sample received, with both its times")
     .property(Property::text("data_type", "f64").doc("The type of the samples the sender sends"))
+    .property(
+        Property::text("origin", "")
+            .doc("The output the samples come from (`camera.image`), which they are known by on this host"),
+    )
     .property(
         Property::i64("queue", 64)
             .int_range(1, 65_536)
