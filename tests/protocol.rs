@@ -2017,6 +2017,24 @@ fn a_runtime_given_a_spread_diagram_coordinates_its_hosts_as_the_studio_runs_it(
     };
     assert_spread_telemetry(&telemetry);
 
+    // An output of b linked here is known here by its own name: a viewer gets it from the coordinator.
+    let subscribed = call(
+        &mut socket,
+        &json!({"id": 40, "type": "subscribe_samples", "outputs": ["gain.out"], "max_rate_hz": 20}),
+    );
+    assert_eq!(subscribed["ok"], true, "{subscribed}");
+    let deadline = Instant::now() + Duration::from_secs(5);
+    loop {
+        assert!(Instant::now() < deadline, "no frame of gain.out");
+        if let Message::Binary(frame) = socket.read().unwrap() {
+            let (header, _) = kairos_protocol::frame::decode(&frame).unwrap();
+            assert_eq!(header.output, "gain.out");
+            break;
+        }
+    }
+    let unsubscribed = call(&mut socket, &json!({"id": 41, "type": "unsubscribe_samples"}));
+    assert_eq!(unsubscribed["ok"], true, "{unsubscribed}");
+
     // A property of a component on b, changed through the coordinator, takes effect there.
     let changed = call(
         &mut socket,
