@@ -610,7 +610,9 @@ impl Canvas {
             });
         }
         let foxglove = frame.shown.foxglove;
-        let published = foxglove.all || foxglove.outputs.contains(&port.to_string());
+        // Most frames publish nothing: no name is made for the comparison then.
+        let published =
+            foxglove.all || (!foxglove.outputs.is_empty() && foxglove.outputs.contains(&port.to_string()));
         if published && let Some(address) = &foxglove.address {
             response
                 .clone()

@@ -444,13 +444,7 @@ impl Recorder {
                 }
                 Ok(())
             }
-            MARK_INPUT => {
-                let text = match &sample.payload {
-                    kairos_sdk::Payload::Text(text) => text.to_string(),
-                    _ => ctx.text_property("marker_text")?,
-                };
-                self.mark(ctx, &text, at)
-            }
+            MARK_INPUT => self.mark_sample(ctx, &sample),
             _ if self.event_until.is_some() => {
                 if let Err(error) = self.record(ctx, input, &sample) {
                     // The disk filled, say: the event ends, the sample stays in memory with the others.
@@ -491,7 +485,7 @@ impl Recorder {
             .ring
             .take_from(kairos_sdk::Timestamp(at.as_nanos().saturating_sub(before)));
         if self.file.is_none()
-            && let Err(error) = Self::room_for_an_event(ctx)?.and_then(|()| self.open(ctx))
+            && let Err(error) = Self::room_for_an_event(ctx).and_then(|()| self.open(ctx))
         {
             self.ring.restore(kept.into_iter());
             self.write_failed(ctx, &error);
@@ -528,6 +522,15 @@ impl Recorder {
         self.last_error = Some(message);
         // The file may be half written: let it go, keeping the ring.
         self.file = None;
+    }
+
+    /// A sample on the `mark` input: a marker with its text when it is text, else `marker_text`.
+    fn mark_sample(&mut self, ctx: &Context, sample: &Sample) -> ComponentResult {
+        let text = match &sample.payload {
+            kairos_sdk::Payload::Text(text) => text.to_string(),
+            _ => ctx.text_property("marker_text")?,
+        };
+        self.mark(ctx, &text, sample.timestamp)
     }
 
     /// Writes a marker stamped `at`: a text message on the markers channel. While not recording there is
@@ -622,16 +625,16 @@ impl Recorder {
     }
 
     /// Pre-trigger mode: whether the disk of `path` has `min_free_mb` free before an event starts there.
-    fn room_for_an_event(ctx: &Context) -> Result<Result<(), ComponentError>, ComponentError> {
+    fn room_for_an_event(ctx: &Context) -> ComponentResult {
         let path = PathBuf::from(ctx.text_property("path")?);
         let minimum = ctx.f64_property("min_free_mb")?;
-        Ok(match free_mb_beside(&path) {
+        match free_mb_beside(&path) {
             Some(free_mb) if free_mb < minimum => Err(ComponentError::failed(format_args!(
                 "no event written to {}: {free_mb:.1} MB free on its disk, below min_free_mb = {minimum}",
                 path.display()
             ))),
             _ => Ok(()),
-        })
+        }
     }
 }
 
@@ -733,11 +736,7 @@ impl Recorder {
             return self.pre_trigger_sample(ctx, input, sample);
         }
         if input == MARK_INPUT {
-            let text = match &sample.payload {
-                kairos_sdk::Payload::Text(text) => text.to_string(),
-                _ => ctx.text_property("marker_text")?,
-            };
-            return self.mark(ctx, &text, sample.timestamp);
+            return self.mark_sample(ctx, &sample);
         }
         self.record(ctx, input, &sample)?;
         if self.split_due(ctx)? {

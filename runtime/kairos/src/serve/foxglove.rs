@@ -93,6 +93,18 @@ impl Outputs for EngineOutputs {
     }
 }
 
+/// The first of `wanted` that `existing` (the outputs of a deployed diagram) lacks; none while nothing is
+/// deployed, as the outputs are then looked for in whatever is deployed later.
+pub fn unknown_output<'w>(
+    existing: &[String],
+    wanted: impl IntoIterator<Item = &'w String>,
+) -> Option<&'w String> {
+    if existing.is_empty() {
+        return None;
+    }
+    wanted.into_iter().find(|o| !existing.contains(o))
+}
+
 /// Which outputs are published.
 #[derive(Debug, Clone, Default, PartialEq, Eq)]
 pub struct Selection {
@@ -227,6 +239,17 @@ impl Foxglove {
         now
     }
 
+    /// What is published, where, and to how many clients, as the control protocol says it.
+    pub fn state(&self) -> kairos_protocol::FoxgloveState {
+        let selection = self.selection();
+        kairos_protocol::FoxgloveState {
+            address: Some(format!("ws://{}", self.address)),
+            all: selection.all,
+            outputs: selection.chosen.into_iter().collect(),
+            clients: self.clients(),
+        }
+    }
+
     /// How many Foxglove clients are connected.
     pub fn clients(&self) -> usize {
         lock(&self.server)
@@ -298,11 +321,7 @@ impl Publisher {
                 foxglove.wake.disarm();
             }
         }
-        for (_, published) in std::mem::take(&mut self.outputs) {
-            if let Some((channel, _)) = published.channel {
-                channel.close();
-            }
-        }
+        self.close_all();
     }
 
     /// Matches the published outputs to the deployed diagram and the selection, and each output's reader to

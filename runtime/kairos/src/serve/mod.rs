@@ -116,7 +116,7 @@ impl Shared {
             .lock()
             .unwrap_or_else(std::sync::PoisonError::into_inner)
             .clone();
-        foxglove.map_or_else(kairos_protocol::FoxgloveState::default, |f| foxglove_state_of(&f))
+        foxglove.map_or_else(kairos_protocol::FoxgloveState::default, |f| f.state())
     }
 
     /// Publishes `outputs` to Foxglove, or stops (`publish` false); the first publication starts a server on
@@ -127,9 +127,7 @@ impl Shared {
         publish: bool,
     ) -> Result<kairos_protocol::FoxgloveState, ProtocolError> {
         let existing = self.runtime.output_names();
-        if !existing.is_empty()
-            && let Some(unknown) = outputs.iter().find(|o| !existing.contains(o))
-        {
+        if let Some(unknown) = foxglove::unknown_output(&existing, outputs) {
             return Err(ProtocolError::new(
                 ErrorCode::NotFound,
                 format!(
@@ -163,7 +161,7 @@ impl Shared {
             outputs.join(", "),
             foxglove.address()
         );
-        Ok(foxglove_state_of(&foxglove))
+        Ok(foxglove.state())
     }
 
     fn start_foxglove_on_loopback(&self) -> Result<Arc<Foxglove>, ProtocolError> {
@@ -181,16 +179,6 @@ impl Shared {
         start(usual)
             .or_else(|_| start(SocketAddr::new(usual.ip(), 0)))
             .map_err(|e| ProtocolError::new(ErrorCode::Internal, format!("{e:#}")))
-    }
-}
-
-fn foxglove_state_of(foxglove: &Foxglove) -> kairos_protocol::FoxgloveState {
-    let selection = foxglove.selection();
-    kairos_protocol::FoxgloveState {
-        address: Some(format!("ws://{}", foxglove.address())),
-        all: selection.all,
-        outputs: selection.chosen.into_iter().collect(),
-        clients: foxglove.clients(),
     }
 }
 
@@ -378,11 +366,7 @@ pub fn start_foxglove(outputs: Arc<dyn Outputs>, options: &FoxgloveOptions) -> a
 /// `--foxglove-output`s that the diagram lacks are refused, naming what it has.
 fn check_foxglove_outputs(outputs: &dyn Outputs, selection: &Selection) -> anyhow::Result<()> {
     let existing = outputs.output_names();
-    if existing.is_empty() {
-        // Nothing deployed yet: the outputs are looked for in whatever is deployed later.
-        return Ok(());
-    }
-    if let Some(unknown) = selection.chosen.iter().find(|o| !existing.contains(o)) {
+    if let Some(unknown) = foxglove::unknown_output(&existing, &selection.chosen) {
         bail!(
             "--foxglove-output {unknown}: no such output in the diagram; its outputs are: {}",
             existing.join(", ")
