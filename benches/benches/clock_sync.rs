@@ -1,4 +1,4 @@
-//! Benchmark 16 — clock synchronisation on loopback: a master and a slave (`kairos::clock_sync`, the code
+//! Benchmark 16 — clock synchronisation on loopback: a master and a slave (`kairos_clock_sync`, the code
 //! `kairos serve --clock-master` / `--clock-slave-of` runs), each run in a process of its own (this
 //! benchmark run again with `KAIROS_CLOCK_BENCH_RUN` set), the slave started 250 ms off.
 //! On one machine the true offset is known: the slave's clock minus the wall clock the master answers
@@ -24,16 +24,16 @@ fn wall_now() -> i64 {
 /// One run in this process: a fresh master and slave drifting `drift_ppm`; the time to lock (ms) and the
 /// |offset error| percentiles (ns) over `seconds`.
 fn one_run(drift_ppm: f64, seconds: u64) -> (f64, Percentiles) {
-    let master = kairos::clock_sync::run_master("127.0.0.1:0").unwrap();
+    let master = kairos_clock_sync::run_master("127.0.0.1:0").unwrap();
     let clock = Arc::new(
-        DisciplinedClock::new(kairos::clock_sync::MASTER_SOURCE)
+        DisciplinedClock::new(kairos_clock_sync::MASTER_SOURCE)
             .trusting_each_reference()
             .estimating_rate()
             .drifted_by_ppm(drift_ppm)
             .shifted_by(250_000_000),
     );
     let started = Instant::now();
-    kairos::clock_sync::run_slave(master, Arc::clone(&clock)).unwrap();
+    kairos_clock_sync::run_slave(master, Arc::clone(&clock)).unwrap();
     while clock.clock_status().state != ClockState::Locked || clock.clock_status().references < 8 {
         std::thread::sleep(Duration::from_millis(1));
     }

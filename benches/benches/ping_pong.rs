@@ -80,14 +80,17 @@ fn run_ours(plan: Plan, spin: bool) -> Percentiles {
     let ready = Arc::new(Barrier::new(2));
     let echo = {
         let (ba, ready) = (ba.clone(), Arc::clone(&ready));
-        thread::spawn(move || {
-            kairos_benches::pin_current_thread(true);
-            signal_b.bind_current_thread();
-            ready.wait();
-            while let Some(sample) = take(&mut from_a, spin) {
-                let _ = ba.write(sample, &signal_b);
-            }
-        })
+        thread::Builder::new()
+            .name("ping_pong".to_owned())
+            .spawn(move || {
+                kairos_benches::pin_current_thread(true);
+                signal_b.bind_current_thread();
+                ready.wait();
+                while let Some(sample) = take(&mut from_a, spin) {
+                    let _ = ba.write(sample, &signal_b);
+                }
+            })
+            .expect("starting a thread")
     };
     ready.wait();
     let result = time_rounds(plan, |i| {
@@ -104,21 +107,24 @@ fn run_condvar(plan: Plan) -> Percentiles {
     let shared = Arc::new((Mutex::new(0_u64), Condvar::new(), Condvar::new()));
     let echo = {
         let shared = Arc::clone(&shared);
-        thread::spawn(move || {
-            kairos_benches::pin_current_thread(true);
-            let (mutex, to_a, to_b) = &*shared;
-            let mut turn = mutex.lock().unwrap_or_else(PoisonError::into_inner);
-            loop {
-                if *turn == u64::MAX {
-                    break;
+        thread::Builder::new()
+            .name("ping_pong".to_owned())
+            .spawn(move || {
+                kairos_benches::pin_current_thread(true);
+                let (mutex, to_a, to_b) = &*shared;
+                let mut turn = mutex.lock().unwrap_or_else(PoisonError::into_inner);
+                loop {
+                    if *turn == u64::MAX {
+                        break;
+                    }
+                    if *turn % 2 == 1 {
+                        *turn += 1;
+                        to_a.notify_one();
+                    }
+                    turn = to_b.wait(turn).unwrap_or_else(PoisonError::into_inner);
                 }
-                if *turn % 2 == 1 {
-                    *turn += 1;
-                    to_a.notify_one();
-                }
-                turn = to_b.wait(turn).unwrap_or_else(PoisonError::into_inner);
-            }
-        })
+            })
+            .expect("starting a thread")
     };
     let (mutex, to_a, to_b) = &*shared;
     let result = time_rounds(plan, |i| {
@@ -141,25 +147,28 @@ fn run_atomic(plan: Plan, spin: bool) -> Percentiles {
     let main_thread = thread::current();
     let echo = {
         let turn = Arc::clone(&turn);
-        thread::spawn(move || {
-            kairos_benches::pin_current_thread(true);
-            loop {
-                let now = turn.load(Ordering::Acquire);
-                if now == u64::MAX {
-                    break;
-                }
-                if now % 2 == 1 {
-                    turn.store(now + 1, Ordering::Release);
-                    if !spin {
-                        main_thread.unpark();
+        thread::Builder::new()
+            .name("ping_pong".to_owned())
+            .spawn(move || {
+                kairos_benches::pin_current_thread(true);
+                loop {
+                    let now = turn.load(Ordering::Acquire);
+                    if now == u64::MAX {
+                        break;
                     }
-                } else if spin {
-                    spin_loop();
-                } else {
-                    thread::park();
+                    if now % 2 == 1 {
+                        turn.store(now + 1, Ordering::Release);
+                        if !spin {
+                            main_thread.unpark();
+                        }
+                    } else if spin {
+                        spin_loop();
+                    } else {
+                        thread::park();
+                    }
                 }
-            }
-        })
+            })
+            .expect("starting a thread")
     };
     let echo_thread = echo.thread().clone();
     let result = time_rounds(plan, |i| {

@@ -240,7 +240,7 @@ fn latency(kind: &str, round_trips: usize, repetitions: usize) -> (LatencySeries
     let writer = Arc::new(RunSignal::new());
     // The raw baseline sends the very bytes the Kairos link sends.
     let probe = Sample::new(payload(kind), Timestamp(1_700_000_000_000_000_000));
-    let bytes = kairos_pack_net::sample_frame::encode_whole("bench.out", &probe);
+    let bytes = kairos_sample_frame::encode_whole("bench.out", &probe);
     let raw = UdpSocket::bind("127.0.0.1:0").unwrap();
     raw.connect(("127.0.0.1", raw_port)).unwrap();
     let mut buffer = vec![0; 65_536];

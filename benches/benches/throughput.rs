@@ -17,7 +17,6 @@
 
 use std::hint::{black_box, spin_loop};
 use std::sync::{Arc, Barrier};
-use std::thread;
 use std::time::Instant;
 
 use kairos_benches::{Goal, Ratios, Spread, Table, header, rate, size};
@@ -89,11 +88,14 @@ fn on_both_cores<H, S: Send + 'static>(
     let ready = Arc::new(Barrier::new(2));
     let spawned = {
         let ready = Arc::clone(&ready);
-        thread::spawn(move || {
-            kairos_benches::pin_current_thread(!here_reads);
-            ready.wait();
-            spawned()
-        })
+        std::thread::Builder::new()
+            .name("throughput".to_owned())
+            .spawn(move || {
+                kairos_benches::pin_current_thread(!here_reads);
+                ready.wait();
+                spawned()
+            })
+            .expect("starting a thread")
     };
     kairos_benches::pin_current_thread(here_reads);
     ready.wait();

@@ -52,16 +52,19 @@ fn run_ours(plan: &Plan, clock: &Arc<RealTimeClock>) -> Vec<f64> {
     let ready = Arc::new(Barrier::new(2));
     let reader_thread = {
         let (clock, ready) = (Arc::clone(clock), Arc::clone(&ready));
-        thread::spawn(move || {
-            kairos_benches::pin_current_thread(true);
-            reader_signal.bind_current_thread();
-            ready.wait();
-            let mut latencies = Vec::new();
-            while let Ok(sample) = reader.read(false) {
-                latencies.push(clock.now().nanos_since(sample.timestamp));
-            }
-            latencies
-        })
+        thread::Builder::new()
+            .name("wake_idle".to_owned())
+            .spawn(move || {
+                kairos_benches::pin_current_thread(true);
+                reader_signal.bind_current_thread();
+                ready.wait();
+                let mut latencies = Vec::new();
+                while let Ok(sample) = reader.read(false) {
+                    latencies.push(clock.now().nanos_since(sample.timestamp));
+                }
+                latencies
+            })
+            .expect("starting a thread")
     };
     ready.wait();
     let mut sequence = 0;
@@ -83,22 +86,25 @@ fn run_condvar(plan: &Plan, clock: &Arc<RealTimeClock>) -> Vec<f64> {
     let shared = Arc::new((Mutex::new((VecDeque::<i64>::new(), false)), Condvar::new()));
     let reader_thread = {
         let (clock, shared) = (Arc::clone(clock), Arc::clone(&shared));
-        thread::spawn(move || {
-            kairos_benches::pin_current_thread(true);
-            let (mutex, condvar) = &*shared;
-            let mut latencies = Vec::new();
-            let mut guard = mutex.lock().unwrap_or_else(PoisonError::into_inner);
-            loop {
-                if let Some(written) = guard.0.pop_front() {
-                    latencies.push(clock.now().as_nanos() - written);
-                } else if guard.1 {
-                    break;
-                } else {
-                    guard = condvar.wait(guard).unwrap_or_else(PoisonError::into_inner);
+        thread::Builder::new()
+            .name("wake_idle".to_owned())
+            .spawn(move || {
+                kairos_benches::pin_current_thread(true);
+                let (mutex, condvar) = &*shared;
+                let mut latencies = Vec::new();
+                let mut guard = mutex.lock().unwrap_or_else(PoisonError::into_inner);
+                loop {
+                    if let Some(written) = guard.0.pop_front() {
+                        latencies.push(clock.now().as_nanos() - written);
+                    } else if guard.1 {
+                        break;
+                    } else {
+                        guard = condvar.wait(guard).unwrap_or_else(PoisonError::into_inner);
+                    }
                 }
-            }
-            latencies
-        })
+                latencies
+            })
+            .expect("starting a thread")
     };
     let (mutex, condvar) = &*shared;
     write_paced(plan, clock, |now| {
@@ -136,30 +142,33 @@ fn run_park(plan: &Plan, clock: &Arc<RealTimeClock>) -> Vec<f64> {
     });
     let reader_thread = {
         let (clock, ring) = (Arc::clone(clock), Arc::clone(&ring));
-        thread::spawn(move || {
-            kairos_benches::pin_current_thread(true);
-            let mut latencies = Vec::new();
-            let mut next = 0;
-            loop {
-                let published = ring.published.load(Ordering::Acquire);
-                if next < published {
-                    let now = clock.now().as_nanos();
-                    while next < published {
-                        if let Some(slot) = ring.slot(next) {
-                            latencies.push(now - slot.load(Ordering::Relaxed));
+        thread::Builder::new()
+            .name("wake_idle".to_owned())
+            .spawn(move || {
+                kairos_benches::pin_current_thread(true);
+                let mut latencies = Vec::new();
+                let mut next = 0;
+                loop {
+                    let published = ring.published.load(Ordering::Acquire);
+                    if next < published {
+                        let now = clock.now().as_nanos();
+                        while next < published {
+                            if let Some(slot) = ring.slot(next) {
+                                latencies.push(now - slot.load(Ordering::Relaxed));
+                            }
+                            next += 1;
                         }
-                        next += 1;
+                    } else if ring.done.load(Ordering::Acquire) {
+                        if ring.published.load(Ordering::Acquire) == next {
+                            break;
+                        }
+                    } else {
+                        thread::park();
                     }
-                } else if ring.done.load(Ordering::Acquire) {
-                    if ring.published.load(Ordering::Acquire) == next {
-                        break;
-                    }
-                } else {
-                    thread::park();
                 }
-            }
-            latencies
-        })
+                latencies
+            })
+            .expect("starting a thread")
     };
     let reader = reader_thread.thread().clone();
     let mut sequence = 0;

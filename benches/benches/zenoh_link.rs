@@ -25,11 +25,11 @@ use std::process::{Child, Command, Stdio};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use kairos::link::{LinkReceiver, LinkSender, network};
 use kairos_benches::{
     Goal, LatencySeries, Percentiles, Ratios, component_context, header, nanos, print_latency, size,
 };
 use kairos_diagram::{ComponentInstance, Diagram};
+use kairos_pack_link::{LinkReceiver, LinkSender, network};
 use kairos_protocol::LinkNetwork;
 use kairos_sdk::host::{OutputBuffer, ReaderConfig};
 use kairos_sdk::{
@@ -86,7 +86,7 @@ fn sender(key: &str, feed: Option<&OutputBuffer>) -> (LinkSender, Context, Outpu
         Arc::new(RunSignal::new()),
     );
     let (mut ctx, _) = component_context(
-        &kairos::link::sender_descriptor(),
+        &kairos_pack_link::sender_descriptor(),
         &[("key", Value::Text(key.into()))],
         vec![Some(reader)],
     );
@@ -99,7 +99,7 @@ fn sender(key: &str, feed: Option<&OutputBuffer>) -> (LinkSender, Context, Outpu
 fn receiver(key: &str, data_type: &str) -> (LinkReceiver, Context, OutputBuffer) {
     let properties =
         std::collections::BTreeMap::from([("data_type".to_owned(), Value::Text(data_type.into()))]);
-    let info = kairos::link::describe_receiver(&properties).unwrap();
+    let info = kairos_pack_link::describe_receiver(&properties).unwrap();
     let (mut ctx, mut buffers) = component_context(
         &info,
         &[
@@ -142,9 +142,9 @@ fn child_main(port: u16) {
     prepare(
         &spec,
         vec![
-            link(kairos::link::RECEIVER, THERE, false, "bytes"),
-            link(kairos::link::SENDER, BACK, false, "bytes"),
-            link(kairos::link::RECEIVER, STREAM, true, "bytes"),
+            link(kairos_pack_link::RECEIVER, THERE, false, "bytes"),
+            link(kairos_pack_link::SENDER, BACK, false, "bytes"),
+            link(kairos_pack_link::RECEIVER, STREAM, true, "bytes"),
         ],
     );
     let session = network::session().unwrap();
@@ -219,7 +219,7 @@ fn latency(round_trips: usize, repetitions: usize) -> (LatencySeries, LatencySer
         .unwrap();
     let payload = bytes_payload(64);
     let probe = Sample::new(payload.clone(), Timestamp(1_700_000_000_000_000_000));
-    let frame = kairos::link::frame_of("bench.out", &probe);
+    let frame = kairos_pack_link::frame_of("bench.out", &probe);
     let mut ours = LatencySeries::new(format!("link, 64 B of bytes ({} B frames)", frame.len()));
     let mut baseline = LatencySeries::new(format!("Zenoh alone, the same {} B", frame.len()));
     let clock = RealTimeClock::shared();
@@ -275,7 +275,7 @@ fn throughput(size: usize, count: u64, repetitions: usize) -> (Vec<f64>, Vec<f64
         .unwrap();
     let payload = bytes_payload(size);
     // The bytes the link puts on Zenoh for such a sample (compact, or header and shared payload).
-    let frame = kairos::link::frame_of(
+    let frame = kairos_pack_link::frame_of(
         "bench.out",
         &Sample::new(payload.clone(), Timestamp(1_700_000_000_000_000_000)),
     );
@@ -356,9 +356,9 @@ fn main() {
     prepare(
         &spec,
         vec![
-            link(kairos::link::SENDER, THERE, false, "bytes"),
-            link(kairos::link::RECEIVER, BACK, false, "bytes"),
-            link(kairos::link::SENDER, STREAM, true, "bytes"),
+            link(kairos_pack_link::SENDER, THERE, false, "bytes"),
+            link(kairos_pack_link::RECEIVER, BACK, false, "bytes"),
+            link(kairos_pack_link::SENDER, STREAM, true, "bytes"),
         ],
     );
     // Wait for the other process's subscribers to match.

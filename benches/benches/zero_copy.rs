@@ -40,14 +40,17 @@ fn stage(
         ReaderConfig::new(ReaderPolicy::Fifo, format!("stage{index}.in")),
         Arc::clone(&signal),
     );
-    thread::spawn(move || {
-        signal.bind_current_thread();
-        while let Ok(mut sample) = reader.read(false) {
-            sample.time_of_issue = clock.now();
-            let _ = output.write(sample, &signal);
-        }
-        output.close();
-    })
+    thread::Builder::new()
+        .name("zero_copy".to_owned())
+        .spawn(move || {
+            signal.bind_current_thread();
+            while let Ok(mut sample) = reader.read(false) {
+                sample.time_of_issue = clock.now();
+                let _ = output.write(sample, &signal);
+            }
+            output.close();
+        })
+        .expect("starting a thread")
 }
 
 fn run_chain(plan: Plan, payload: &Payload, clock: &Arc<RealTimeClock>) -> Percentiles {

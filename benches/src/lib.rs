@@ -456,28 +456,31 @@ pub fn bare_mcap_rate_compressed<'p>(
 /// returns its address once it listens.
 pub fn start_kairos_serve() -> Option<std::net::SocketAddr> {
     let (tx, rx) = std::sync::mpsc::channel();
-    std::thread::spawn(move || {
-        let options = kairos::serve::ServeOptions {
-            listen: "127.0.0.1:0".to_owned(),
-            token_file: None,
-            monitor_token_file: None,
-            diagram: None,
-            start: false,
-            max_connections: 16,
-            stop_with_stdin: false,
-            temporary_token: false,
-            clock_master: None,
-            clock_slave_of: None,
-            clock_system: None,
-            tls: None,
-            shipped_pack_folder: None,
-            foxglove: None,
-            foxglove_backlog: kairos::serve::DEFAULT_FOXGLOVE_BACKLOG,
-        };
-        let _ = kairos::serve::serve_with(kairos::builtin_registry(), &options, move |address| {
-            let _ = tx.send(address);
-        });
-    });
+    std::thread::Builder::new()
+        .name("lib".to_owned())
+        .spawn(move || {
+            let options = kairos_server::ServeOptions {
+                listen: "127.0.0.1:0".to_owned(),
+                token_file: None,
+                monitor_token_file: None,
+                diagram: None,
+                start: false,
+                max_connections: 16,
+                stop_with_stdin: false,
+                temporary_token: false,
+                clock_master: None,
+                clock_slave_of: None,
+                clock_system: None,
+                tls: None,
+                shipped_pack_folder: None,
+                foxglove: None,
+                foxglove_backlog: kairos_server::DEFAULT_FOXGLOVE_BACKLOG,
+            };
+            let _ = kairos_server::serve_with(kairos::builtin_registry(), &options, move |address| {
+                let _ = tx.send(address);
+            });
+        })
+        .expect("starting a thread");
     rx.recv_timeout(Duration::from_secs(10)).ok()
 }
 

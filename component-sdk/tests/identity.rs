@@ -39,7 +39,7 @@ proptest! {
             config.subsampling = subsampling;
             let mut reader = buffer.attach(config, Arc::clone(&signal));
             let pause_micros = reader_pauses.get(index % reader_pauses.len()).copied().unwrap_or(0) * 50;
-            consumers.push(thread::spawn(move || {
+            consumers.push(thread::Builder::new().name("identity".to_owned()).spawn(move || {
                 signal.bind_current_thread();
                 let mut last_sequence = None;
                 let mut last_counters = reader.counters();
@@ -69,7 +69,7 @@ proptest! {
                         thread::sleep(Duration::from_micros(pause_micros));
                     }
                 }
-            }));
+            }).expect("starting a thread"));
         }
         let writer = Arc::new(RunSignal::new());
         writer.bind_current_thread();

@@ -32,6 +32,22 @@ fn reader(buffer: &OutputBuffer, policy: ReaderPolicy) -> kairos_sdk::host::Read
     buffer.attach(ReaderConfig::new(policy, "test"), Arc::new(RunSignal::new()))
 }
 
+/// Waits until `buffer` has had `count` samples written (at once on a fast machine, at most 5 s), then
+/// checks the writer stays there a while.
+fn written_stays_at(buffer: &OutputBuffer, count: u64, why: &str) {
+    let started = std::time::Instant::now();
+    while buffer.written() < count {
+        assert!(
+            started.elapsed() < Duration::from_secs(5),
+            "{} of {count} written in 5 s",
+            buffer.written()
+        );
+        thread::sleep(Duration::from_millis(1));
+    }
+    thread::sleep(Duration::from_millis(50));
+    assert_eq!(buffer.written(), count, "{why}");
+}
+
 fn counts(c: LinkCounters) -> [u64; 5] {
     assert!(c.balanced(), "identity broken: {c:?}");
     [c.written, c.read, c.skipped, c.overwritten, c.queued]
@@ -79,11 +95,14 @@ fn wait_for_next_behind_ignores_everything_pending_and_waits() {
         Arc::clone(&signal),
     );
     write_range(&buffer, &writer, 0..10);
-    let waiting = thread::spawn(move || {
-        signal.bind_current_thread();
-        let got = r.read(false).unwrap().sequence;
-        (got, r.counters())
-    });
+    let waiting = thread::Builder::new()
+        .name("policies".to_owned())
+        .spawn(move || {
+            signal.bind_current_thread();
+            let got = r.read(false).unwrap().sequence;
+            (got, r.counters())
+        })
+        .expect("starting a thread");
     // Let the reader discard the pending ten and go to sleep.
     thread::sleep(Duration::from_millis(50));
     write_range(&buffer, &writer, 10..11);
@@ -113,14 +132,16 @@ fn never_skipping_blocks_the_writer_until_the_reader_makes_room() {
     let mut r = reader(&buffer, ReaderPolicy::NeverSkipping);
     let producer = {
         let buffer = buffer.clone();
-        thread::spawn(move || {
-            let writer = Arc::new(RunSignal::new());
-            writer.bind_current_thread();
-            write_range(&buffer, &writer, 0..10);
-        })
+        thread::Builder::new()
+            .name("policies".to_owned())
+            .spawn(move || {
+                let writer = Arc::new(RunSignal::new());
+                writer.bind_current_thread();
+                write_range(&buffer, &writer, 0..10);
+            })
+            .expect("starting a thread")
     };
-    thread::sleep(Duration::from_millis(100));
-    assert_eq!(buffer.written(), 4, "the writer must wait for room");
+    written_stays_at(&buffer, 4, "the writer must wait for room");
     let mut got = Vec::new();
     while got.len() < 10 {
         match r.try_read() {
@@ -141,14 +162,17 @@ fn a_stop_releases_a_writer_blocked_by_never_skipping() {
     let producer = {
         let buffer = buffer.clone();
         let writer = Arc::clone(&writer);
-        thread::spawn(move || {
-            writer.bind_current_thread();
-            (0..10)
-                .map(|s| buffer.write(sample(s), &writer))
-                .find(Result::is_err)
-        })
+        thread::Builder::new()
+            .name("policies".to_owned())
+            .spawn(move || {
+                writer.bind_current_thread();
+                (0..10)
+                    .map(|s| buffer.write(sample(s), &writer))
+                    .find(Result::is_err)
+            })
+            .expect("starting a thread")
     };
-    thread::sleep(Duration::from_millis(50));
+    written_stays_at(&buffer, 2, "the writer waits for room until the stop");
     writer.request_stop();
     let failure = producer.join().unwrap();
     assert_eq!(failure, Some(Err(kairos_sdk::host::WriteError::Stopped)));
@@ -191,18 +215,21 @@ fn paced(policy: ReaderPolicy, count: u64) -> (Vec<u64>, LinkCounters) {
     let mut r = buffer.attach(ReaderConfig::new(policy, "test"), Arc::clone(&signal));
     let (ready, about_to_read) = std::sync::mpsc::channel::<()>();
     let watchdog = Arc::clone(&signal);
-    let consumer = thread::spawn(move || {
-        signal.bind_current_thread();
-        let mut got = Vec::new();
-        while got.last() != Some(&(count - 1)) {
-            let _ = ready.send(());
-            match r.read(false) {
-                Ok(sample) => got.push(sample.sequence),
-                Err(error) => panic!("{policy}: after {got:?}, {error:?}"),
+    let consumer = thread::Builder::new()
+        .name("policies".to_owned())
+        .spawn(move || {
+            signal.bind_current_thread();
+            let mut got = Vec::new();
+            while got.last() != Some(&(count - 1)) {
+                let _ = ready.send(());
+                match r.read(false) {
+                    Ok(sample) => got.push(sample.sequence),
+                    Err(error) => panic!("{policy}: after {got:?}, {error:?}"),
+                }
             }
-        }
-        (got, r.counters())
-    });
+            (got, r.counters())
+        })
+        .expect("starting a thread");
     let writer = Arc::new(RunSignal::new());
     for sequence in 0..count {
         // The reader may have skipped ahead already and be waiting for a later sample: don't wait for it.
@@ -484,10 +511,13 @@ fn a_stop_wakes_a_blocked_reader() {
     let mut r = buffer.attach(ReaderConfig::new(ReaderPolicy::Fifo, "test"), Arc::clone(&signal));
     let waiting = {
         let signal = Arc::clone(&signal);
-        thread::spawn(move || {
-            signal.bind_current_thread();
-            r.read(true)
-        })
+        thread::Builder::new()
+            .name("policies".to_owned())
+            .spawn(move || {
+                signal.bind_current_thread();
+                r.read(true)
+            })
+            .expect("starting a thread")
     };
     thread::sleep(Duration::from_millis(30));
     signal.request_stop();
@@ -502,9 +532,12 @@ fn a_reader_whose_signal_was_never_bound_is_still_woken() {
         Arc::new(RunSignal::new()),
     );
     let (done, finished) = std::sync::mpsc::channel();
-    thread::spawn(move || {
-        let _ = done.send(r.read(false).map(|s| s.sequence));
-    });
+    thread::Builder::new()
+        .name("policies".to_owned())
+        .spawn(move || {
+            let _ = done.send(r.read(false).map(|s| s.sequence));
+        })
+        .expect("starting a thread");
     // Long enough for the reader to go to sleep.
     thread::sleep(Duration::from_millis(50));
     buffer.write(sample(7), &Arc::new(RunSignal::new())).unwrap();

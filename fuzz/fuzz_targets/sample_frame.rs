@@ -2,7 +2,7 @@
 //! refused with a reason, never a panic; a frame that decodes encodes back to one that decodes the same.
 #![no_main]
 
-use kairos_pack_net::sample_frame::{decode, encode_whole};
+use kairos_sample_frame::{decode, encode_whole};
 use libfuzzer_sys::fuzz_target;
 
 fuzz_target!(|data: &[u8]| {

@@ -9,18 +9,17 @@
 //! its next frame.
 
 use std::collections::BTreeMap;
-use std::net::TcpStream;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::mpsc::{Receiver, Sender, SyncSender, TryRecvError, TrySendError, channel, sync_channel};
 use std::time::Duration;
 
+use kairos_client::{CallError, ConnectError, ConnectOptions, Connection};
 use kairos_protocol::{
-    ErrorCode, LogRecord, PROTOCOL_VERSION, ProtocolError, Reply, ReplyBody, Request, RequestBody,
-    RequestKind, Role, RuntimeState, ServerMessage, Telemetry, Token, Welcome,
+    ErrorCode, LogRecord, ProtocolError, Reply, ReplyBody, Request, RequestBody, RequestKind, RuntimeState,
+    ServerMessage, Telemetry, Token, Welcome,
 };
-use tungstenite::stream::MaybeTlsStream;
-use tungstenite::{Message, WebSocket};
+use tungstenite::Message;
 
 /// How many events wait for the interface at most. A frame of the interface takes them all; 256 covers
 /// several seconds of a stalled interface at the rates the studio subscribes to (4 telemetry events a
@@ -224,6 +223,20 @@ impl RuntimeClient {
         token: Option<Token>,
         wake: impl Fn() + Send + Sync + 'static,
     ) -> RuntimeClient {
+        let options = ConnectOptions {
+            token,
+            ..ConnectOptions::operator(format!("kairos-studio {}", env!("CARGO_PKG_VERSION")))
+        };
+        Self::connect_with(url, options, wake)
+    }
+
+    /// [`RuntimeClient::connect`] with every option: the certificate to trust for a `wss://` address, and
+    /// whether a token may cross the network in clear text.
+    pub fn connect_with(
+        url: &str,
+        options: ConnectOptions,
+        wake: impl Fn() + Send + Sync + 'static,
+    ) -> RuntimeClient {
         let (outgoing, requests) = channel::<Request>();
         let (sender, incoming) = sync_channel(EVENT_QUEUE);
         let events = EventSender::new(sender, Arc::new(wake));
@@ -232,7 +245,7 @@ impl RuntimeClient {
         let spawned = std::thread::Builder::new()
             .name("studio:net".to_owned())
             .spawn(move || {
-                let reason = run(&address, token, &requests, &thread_events);
+                let reason = run(&address, &options, &requests, &thread_events);
                 thread_events.send(ClientEvent::Disconnected(reason));
             });
         if let Err(error) = spawned {
@@ -320,40 +333,10 @@ impl RuntimeClient {
     }
 }
 
-/// A request as the text message that carries it; an error says which request could not be encoded.
-fn encode(request: &Request) -> Result<String, String> {
-    serde_json::to_string(request).map_err(|e| {
-        format!(
-            "a '{}' request was not sent: it cannot be encoded: {e}",
-            request.body.kind().name()
-        )
-    })
-}
-
-/// The id of the `hello` request; [`RuntimeClient::request`] numbers the others from 2.
-const HELLO_ID: u64 = 1;
-
-/// What the runtime's answer to `hello` means: the session's start, or why it ends.
-fn answer_to_hello(reply: Reply, url: &str) -> Result<ClientEvent, String> {
-    let refused = !reply.ok;
-    match reply.decode(RequestKind::Hello) {
-        Ok(ReplyBody::Hello(welcome)) => Ok(ClientEvent::Connected(welcome)),
-        Err(error) if refused => Err(format!(
-            "the runtime at {url} refused the studio: {}",
-            error.message
-        )),
-        Err(error) => Err(format!(
-            "the runtime at {url} answered hello strangely: {}",
-            error.message
-        )),
-        Ok(_) => Err(format!("the runtime at {url} answered hello strangely")),
-    }
-}
-
 /// Sends every request the interface queued, remembering what each asked so that its reply can be read
 /// as that request's result; `Err` says why the session ends.
 fn send_requests(
-    socket: &mut WebSocket<MaybeTlsStream<TcpStream>>,
+    socket: &mut Connection,
     requests: &Receiver<Request>,
     awaiting: &mut BTreeMap<u64, RequestKind>,
     events: &EventSender,
@@ -362,15 +345,14 @@ fn send_requests(
     let closed = || "the studio closed the connection".to_owned();
     loop {
         match requests.try_recv() {
-            Ok(request) => match encode(&request) {
-                Ok(text) => {
+            Ok(request) => match socket.send_request(&request) {
+                Ok(()) => {
                     awaiting.insert(request.id, request.body.kind());
-                    socket
-                        .send(Message::text(text))
-                        .map_err(|e| format!("lost the runtime at {url}: {e}"))?;
                 }
+                Err(CallError::Lost(e)) => return Err(format!("lost the runtime at {url}: {e}")),
                 Err(error) => {
-                    let record = studio_record(kairos_protocol::LogLevel::Error, error);
+                    let message = format!("a request was not sent: {error}");
+                    let record = studio_record(kairos_protocol::LogLevel::Error, message);
                     if !events.send(ClientEvent::Log(record)) {
                         return Err(closed());
                     }
@@ -382,39 +364,28 @@ fn send_requests(
     }
 }
 
-/// The connection's thread: connects, says hello, then sends requests and hands on what arrives until the
-/// connection ends; returns why it ended.
-fn run(url: &str, token: Option<Token>, requests: &Receiver<Request>, events: &EventSender) -> String {
-    let mut socket: WebSocket<MaybeTlsStream<TcpStream>> = match tungstenite::connect(url) {
-        Ok((socket, _)) => socket,
+/// How the studio's user allows a token over plain ws:// off this machine, for the refusal to say.
+pub const CLEAR_TEXT_OPT_IN: &str = "start the studio with --allow-clear-text-token";
+
+/// The connection's thread: connects and says hello (through the one protocol client, which holds the TLS
+/// and clear-text-token rules), then sends requests and hands on what arrives until the connection ends;
+/// returns why it ended.
+fn run(url: &str, options: &ConnectOptions, requests: &Receiver<Request>, events: &EventSender) -> String {
+    let mut socket = match Connection::open(url, options, CLEAR_TEXT_OPT_IN) {
+        Ok(socket) => socket,
+        Err(ConnectError::Refused(error)) => {
+            return format!("the runtime at {url} refused the studio: {}", error.message);
+        }
         Err(e) => return format!("cannot connect to {url}: {e}"),
     };
-    if let MaybeTlsStream::Plain(stream) = socket.get_ref() {
-        // Without the timeout the thread would wait on reads and never send requests.
-        if let Err(e) = stream.set_read_timeout(Some(POLL)) {
-            return format!("cannot set up the connection to {url}: {e}");
-        }
-        // Nagle's delay only slows small requests down; without it everything still works.
-        let _ = stream.set_nodelay(true);
-    }
-    let hello = Request {
-        id: HELLO_ID,
-        body: RequestBody::Hello {
-            protocol: PROTOCOL_VERSION,
-            client: format!("kairos-studio {}", env!("CARGO_PKG_VERSION")),
-            token,
-            role: Some(Role::Operator),
-        },
-    };
-    match encode(&hello) {
-        Ok(text) => {
-            if let Err(e) = socket.send(Message::text(text)) {
-                return format!("cannot talk to {url}: {e}");
-            }
-        }
-        Err(e) => return e,
+    // Without the timeout the thread would wait on reads and never send requests.
+    if let Err(e) = socket.set_read_timeout(Some(POLL)) {
+        return format!("cannot set up the connection to {url}: {e}");
     }
     let closed = "the studio closed the connection".to_owned();
+    if !events.send(ClientEvent::Connected(socket.welcome().clone())) {
+        return closed;
+    }
     let mut not_understood: u64 = 0;
     // What each request awaiting its reply asked, to read the reply as that request's result.
     let mut awaiting: BTreeMap<u64, RequestKind> = BTreeMap::new();
@@ -445,12 +416,6 @@ fn run(url: &str, token: Option<Token>, requests: &Receiver<Request>, events: &E
                     }
                 };
                 let event = match message {
-                    ServerMessage::Reply(reply) if reply.id == Some(HELLO_ID) => {
-                        match answer_to_hello(reply, url) {
-                            Ok(event) => event,
-                            Err(why) => return why,
-                        }
-                    }
                     ServerMessage::Reply(reply) => {
                         let kind = reply.id.and_then(|id| awaiting.remove(&id));
                         ClientEvent::Reply(Answer::of(reply, kind))

@@ -91,24 +91,27 @@ fn studio(display: &Display, arguments: &[&str]) -> Studio {
         .unwrap();
     let stderr = process.stderr.take().unwrap();
     let (sender, frames) = mpsc::channel();
-    std::thread::spawn(move || {
-        for line in BufReader::new(stderr).lines().map_while(Result::ok) {
-            // "studio frame 12 at 3456 ms (what asked for it)"
-            let at = line
-                .strip_prefix("studio frame ")
-                .and_then(|rest| rest.split_once(" at "))
-                .and_then(|(_, rest)| rest.split_once(" ms"))
-                .and_then(|(ms, _)| ms.parse::<u64>().ok());
-            match at {
-                Some(at) => {
-                    if sender.send(at).is_err() {
-                        return;
+    std::thread::Builder::new()
+        .name("window".to_owned())
+        .spawn(move || {
+            for line in BufReader::new(stderr).lines().map_while(Result::ok) {
+                // "studio frame 12 at 3456 ms (what asked for it)"
+                let at = line
+                    .strip_prefix("studio frame ")
+                    .and_then(|rest| rest.split_once(" at "))
+                    .and_then(|(_, rest)| rest.split_once(" ms"))
+                    .and_then(|(ms, _)| ms.parse::<u64>().ok());
+                match at {
+                    Some(at) => {
+                        if sender.send(at).is_err() {
+                            return;
+                        }
                     }
+                    None => eprintln!("studio: {line}"),
                 }
-                None => eprintln!("studio: {line}"),
             }
-        }
-    });
+        })
+        .expect("starting a thread");
     Studio { process, frames }
 }
 

@@ -151,7 +151,10 @@ fn tcp_reconnects_when_the_receiver_drops_the_connection() {
     assert_eq!(out.samples("fix").len(), 2);
     // It connects again within a second or so and goes on.
     listener.set_nonblocking(false).unwrap();
-    let server = std::thread::spawn(move || listener.accept().unwrap().0);
+    let server = std::thread::Builder::new()
+        .name("receiver".to_owned())
+        .spawn(move || listener.accept().unwrap().0)
+        .expect("starting a thread");
     let started = Instant::now();
     while !server.is_finished() && started.elapsed() < Duration::from_secs(5) {
         harness.run().unwrap();

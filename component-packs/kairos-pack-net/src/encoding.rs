@@ -12,7 +12,7 @@ use kairos_sdk::{
 };
 
 use crate::framing;
-use crate::sample_frame::{self, SequenceTracker};
+use kairos_sample_frame::{self as sample_frame, SequenceTracker};
 
 /// The output of a receiver in Kairos mode.
 pub const SAMPLES: &str = "samples";

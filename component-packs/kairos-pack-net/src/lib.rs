@@ -14,7 +14,7 @@
 
 pub mod encoding;
 pub mod framing;
-pub mod sample_frame;
+
 pub mod tcp;
 pub mod udp;
 

@@ -111,7 +111,10 @@ fn a_tcp_client_reads_lines_counts_a_line_cut_off_and_connects_again() {
     assert_eq!(bytes_of(&out, "line"), [b"one".to_vec(), b"two".to_vec()]);
     drop(server);
     // The half line is not joined to what the next connection sends.
-    let accepted = std::thread::spawn(move || listener.accept().unwrap().0);
+    let accepted = std::thread::Builder::new()
+        .name("sockets".to_owned())
+        .spawn(move || listener.accept().unwrap().0)
+        .expect("starting a thread");
     let started = Instant::now();
     while !accepted.is_finished() && started.elapsed() < Duration::from_secs(5) {
         harness.run().unwrap();
@@ -193,7 +196,7 @@ fn a_tcp_sender_serves_every_client_and_a_client_sender_reaches_its_server() {
 
 #[test]
 fn a_kairos_receiver_counts_garbage_other_types_gaps_and_late_samples_and_passes_the_rest_on() {
-    use kairos_pack_net::sample_frame::encode_whole;
+    use kairos_sample_frame::encode_whole;
     use kairos_sdk::Sample;
 
     let port = UdpSocket::bind("127.0.0.1:0")

@@ -7,7 +7,7 @@
 
 use std::sync::Arc;
 use std::thread::sleep;
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use kairos_diagram::{ComponentInstance, Connection, Diagram, PackRequirement, PortRef, Value};
 use kairos_runtime::{ComponentState, ControlError, Engine, EngineState, StatsSnapshot};
@@ -182,6 +182,33 @@ fn written(snapshot: &StatsSnapshot, link: &str) -> u64 {
         .written
 }
 
+fn cycles(snapshot: &StatsSnapshot, id: &str) -> u64 {
+    snapshot.components.iter().find(|c| c.id == id).unwrap().cycles
+}
+
+/// Waits until `done` holds: at once on a fast machine, failing only after 30 s. Counts that must grow
+/// are waited for, never timed: speed is for the benchmarks.
+fn eventually(what: &str, mut done: impl FnMut() -> bool) {
+    let deadline = Instant::now() + Duration::from_secs(30);
+    while !done() {
+        assert!(Instant::now() < deadline, "not within 30 s: {what}");
+        sleep(Duration::from_millis(5));
+    }
+}
+
+/// The first sample `tap` gives that `wanted` accepts, waited for.
+fn sample_from(
+    tap: &mut kairos_sdk::host::Reader,
+    wanted: impl Fn(&kairos_sdk::Sample) -> bool,
+) -> kairos_sdk::Sample {
+    let mut found = None;
+    eventually("the sample wanted", || {
+        found = tap.try_read().filter(&wanted);
+        found.is_some()
+    });
+    found.unwrap()
+}
+
 #[test]
 fn a_panicking_constructor_fails_its_component_alone() {
     let d = diagram(
@@ -194,7 +221,11 @@ fn a_panicking_constructor_fails_its_component_alone() {
     );
     let mut engine = Engine::build(&d, &registry(), RealTimeClock::shared()).unwrap();
     engine.start().unwrap();
-    sleep(Duration::from_millis(200));
+    eventually("'unmade' fails and the source writes", || {
+        let snapshot = engine.snapshot();
+        matches!(state_of(&snapshot, "unmade"), ComponentState::Failed(_))
+            && written(&snapshot, "source.out -> gain.in") > 10
+    });
     let snapshot = engine.snapshot();
     match state_of(&snapshot, "unmade") {
         ComponentState::Failed(message) => assert!(
@@ -204,12 +235,11 @@ fn a_panicking_constructor_fails_its_component_alone() {
         other => panic!("expected failed, got {other:?}"),
     }
     assert_eq!(state_of(&snapshot, "gain"), ComponentState::Running);
-    assert!(written(&snapshot, "source.out -> gain.in") > 10);
     engine.stop();
 }
 
 #[test]
-fn a_panicking_component_fails_alone_and_the_rest_keeps_its_rate() {
+fn a_panicking_component_fails_alone_and_the_rest_keeps_running() {
     let rate = Value::F64(200.0);
     let d = diagram(
         vec![
@@ -222,22 +252,28 @@ fn a_panicking_component_fails_alone_and_the_rest_keeps_its_rate() {
     );
     let mut engine = Engine::build(&d, &registry(), RealTimeClock::shared()).unwrap();
     engine.start().unwrap();
-    sleep(Duration::from_millis(400));
-    let before = engine.snapshot();
+    eventually("'bad' fails on its third sample", || {
+        matches!(state_of(&engine.snapshot(), "bad"), ComponentState::Failed(_))
+    });
+    // The healthy chain and the failed one's producer run on: 50 more cycles each (a quarter of a second
+    // at 200 Hz on a fast machine), waited for twice, the first time for the failed reader to leave.
+    let ran_on = |since: &StatsSnapshot| {
+        let mut now = engine.snapshot();
+        eventually("the rest runs on", || {
+            now = engine.snapshot();
+            written(&now, "other.out -> gain.in") > written(since, "other.out -> gain.in") + 50
+                && ["source", "other", "gain"]
+                    .into_iter()
+                    .all(|id| cycles(&now, id) > cycles(since, id) + 50)
+        });
+        now
+    };
+    let before = ran_on(&engine.snapshot());
     match state_of(&before, "bad") {
         ComponentState::Failed(message) => assert!(message.contains("third sample"), "{message}"),
         other => panic!("expected failed, got {other:?}"),
     }
-    sleep(Duration::from_millis(500));
-    let after = engine.snapshot();
-    // 200 Hz for 0.5 s: about 100 more cycles on the healthy chain and on the failed one's producer.
-    let grown = written(&after, "other.out -> gain.in") - written(&before, "other.out -> gain.in");
-    assert!(grown > 50, "the healthy link grew by {grown} only");
-    let cycles = |s: &StatsSnapshot, id: &str| s.components.iter().find(|c| c.id == id).unwrap().cycles;
-    for id in ["source", "other", "gain"] {
-        let grown = cycles(&after, id) - cycles(&before, id);
-        assert!(grown > 50, "{id} ran {grown} cycles only");
-    }
+    let after = ran_on(&before);
     assert_eq!(state_of(&after, "gain"), ComponentState::Running);
     // The failed reader left its link: its counts froze where it failed.
     assert_eq!(
@@ -273,12 +309,10 @@ fn live_property_changes_apply_and_bad_values_keep_the_old_one() {
         Arc::new(kairos_sdk::RunSignal::new()),
     );
     engine.start().unwrap();
-    sleep(Duration::from_millis(100));
-    assert_eq!(tap.try_read().unwrap().payload, Payload::F64(2.0));
+    assert_eq!(sample_from(&mut tap, |_| true).payload, Payload::F64(2.0));
 
     engine.set_property("gain", "gain", &Value::F64(5.0)).unwrap();
-    sleep(Duration::from_millis(100));
-    assert_eq!(tap.try_read().unwrap().payload, Payload::F64(5.0));
+    let applied = sample_from(&mut tap, |s| s.payload == Payload::F64(5.0));
 
     // A value of the wrong type, an unknown property, a property that is not live: refused, nothing changes.
     assert!(matches!(
@@ -297,8 +331,9 @@ fn live_property_changes_apply_and_bad_values_keep_the_old_one() {
         engine.set_property("avg", "window", &Value::I64(0)),
         Err(ControlError::InvalidValue { .. })
     ));
-    sleep(Duration::from_millis(50));
-    assert_eq!(tap.try_read().unwrap().payload, Payload::F64(5.0));
+    // A sample made after them still has the gain of 5.
+    let later = sample_from(&mut tap, |s| s.sequence > applied.sequence);
+    assert_eq!(later.payload, Payload::F64(5.0));
     engine.stop();
 }
 
@@ -322,9 +357,14 @@ fn actions_reach_the_component() {
         .unwrap()
         .attach(tap_config, Arc::new(kairos_sdk::RunSignal::new()));
     engine.start().unwrap();
-    sleep(Duration::from_millis(200));
+    eventually("the counter counts past 11", || {
+        cycles(&engine.snapshot(), "counter") > 11
+    });
     engine.trigger_action("counter", "reset").unwrap();
-    sleep(Duration::from_millis(50));
+    let reset_at = cycles(&engine.snapshot(), "counter");
+    eventually("the counter counts again", || {
+        cycles(&engine.snapshot(), "counter") > reset_at + 2
+    });
     engine.stop();
     let values: Vec<i64> = std::iter::from_fn(|| tap.try_read())
         .map(|s| if let Payload::I64(v) = s.payload { v } else { -1 })
@@ -355,7 +395,9 @@ fn pause_holds_sources_and_resume_restarts_them() {
     sleep(Duration::from_millis(100));
     engine.pause();
     assert_eq!(engine.state(), EngineState::Paused);
-    sleep(Duration::from_millis(150));
+    eventually("the sine pauses", || {
+        state_of(&engine.snapshot(), "sine") == ComponentState::Paused
+    });
     let paused = written(&engine.snapshot(), "sine.out -> gain.in");
     sleep(Duration::from_millis(200));
     assert_eq!(
@@ -365,8 +407,9 @@ fn pause_holds_sources_and_resume_restarts_them() {
     );
     assert_eq!(state_of(&engine.snapshot(), "sine"), ComponentState::Paused);
     engine.resume();
-    sleep(Duration::from_millis(200));
-    assert!(written(&engine.snapshot(), "sine.out -> gain.in") > paused + 20);
+    eventually("the sine writes again", || {
+        written(&engine.snapshot(), "sine.out -> gain.in") > paused + 20
+    });
     engine.stop();
     assert_eq!(engine.state(), EngineState::Stopped);
 }
@@ -463,7 +506,10 @@ fn reactive_components_run_in_their_producer_and_output_subsampling_applies() {
         .unwrap()
         .attach(tap_config, Arc::new(kairos_sdk::RunSignal::new()));
     engine.start().unwrap();
-    sleep(Duration::from_millis(300));
+    // 42 samples doubled, of which 21 are kept.
+    eventually("the double runs 42 cycles", || {
+        cycles(&engine.snapshot(), "double") >= 42
+    });
     engine.stop();
     let values: Vec<f64> = std::iter::from_fn(|| tap.try_read())
         .filter_map(|s| s.payload.as_f64())
@@ -490,7 +536,9 @@ fn missed_periodic_ticks_are_counted() {
     );
     let mut engine = Engine::build(&d, &registry(), RealTimeClock::shared()).unwrap();
     engine.start().unwrap();
-    sleep(Duration::from_millis(300));
+    eventually("the slow component runs 11 cycles", || {
+        cycles(&engine.snapshot(), "slow") > 10
+    });
     let snapshot = engine.snapshot();
     engine.stop();
     let missed = |id: &str| {
@@ -515,8 +563,13 @@ fn missed_periodic_ticks_are_counted() {
         slow_missed >= 2 * slow_cycles && slow_cycles > 10,
         "{slow_cycles} cycles, {slow_missed} missed"
     );
-    // A 100 Hz sine keeps its rate (a tick or two lost to a loaded machine is tolerated).
-    assert!(missed("source") <= 2, "{}", missed("source"));
+    // A 100 Hz sine with short cycles misses fewer (how many a loaded machine costs it is for the
+    // benchmarks).
+    assert!(
+        missed("source") < slow_missed,
+        "{} missed by the sine, {slow_missed} by the slow one",
+        missed("source")
+    );
     assert!(snapshot.table().contains("missed"), "{}", snapshot.table());
 }
 
@@ -540,19 +593,22 @@ fn an_overloaded_subsampled_reader_of_the_newest_reads_kept_samples_only_and_que
     // The ring holds the newest kept sample whatever the share: one in 3 needs 3 slots.
     assert!(engine.output_buffer("counter", "out").unwrap().slots() >= 3);
     engine.start().unwrap();
+    // Snapshots along the run, until the reader has read 40 values (80 ms of 2 ms cycles on a fast
+    // machine).
     let mut snapshots = Vec::new();
-    for _ in 0..10 {
+    let deadline = Instant::now() + Duration::from_secs(30);
+    while snapshots.len() < 10 || RECORDED.lock().unwrap().len() < 40 {
+        assert!(
+            Instant::now() < deadline,
+            "the reader waited for fresh samples: {} read in 30 s",
+            RECORDED.lock().unwrap().len()
+        );
         sleep(Duration::from_millis(30));
         snapshots.push(engine.snapshot());
     }
     engine.stop();
     let values = RECORDED.lock().unwrap().clone();
-    // Without delay: about one value per 2 ms cycle, never one that subsampling leaves out.
-    assert!(
-        values.len() >= 40,
-        "the reader waited for fresh samples: {} in 300 ms",
-        values.len()
-    );
+    // Never a value that subsampling leaves out, in order.
     assert!(values.iter().all(|v| v % 3 == 0), "{values:?}");
     assert!(values.windows(2).all(|w| w[0] < w[1]), "{values:?}");
     for snapshot in &snapshots {
@@ -604,14 +660,18 @@ fn a_control_request_to_a_component_whose_thread_ended_is_refused_at_once() {
     let d = diagram(vec![component("gain", "core.gain", &[])], Vec::new());
     let mut engine = Engine::build(&d, &registry(), RealTimeClock::shared()).unwrap();
     engine.start().unwrap();
-    sleep(Duration::from_millis(100));
-    let asked = std::time::Instant::now();
-    let refused = engine.set_property("gain", "gain", &Value::F64(3.0)).unwrap_err();
+    eventually("the gain stops", || {
+        state_of(&engine.snapshot(), "gain") == ComponentState::Stopped
+    });
+    let long_waits = std::cell::Cell::new(0);
+    let counting = |wait: &mut dyn FnMut()| {
+        long_waits.set(long_waits.get() + 1);
+        wait();
+    };
+    let refused = engine
+        .set_property_waiting("gain", "gain", &Value::F64(3.0), &counting)
+        .unwrap_err();
     engine.stop();
     assert!(refused.to_string().contains("has stopped"), "{refused}");
-    assert!(
-        asked.elapsed() < Duration::from_millis(500),
-        "{:?}",
-        asked.elapsed()
-    );
+    assert_eq!(long_waits.get(), 0, "refused at once, without a blocking wait");
 }

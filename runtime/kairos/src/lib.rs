@@ -1,15 +1,12 @@
-//! The `kairos` command-line tool: the headless runtime with the built-in packs linked in.
+//! The `kairos` command-line tool: the headless runtime with the built-in packs linked in. The roles live
+//! in libraries of their own (`kairos-runtime` the engine, `kairos-server` the protocol server,
+//! `kairos-coordinator` a diagram over hosts, `kairos-client` the protocol client, `kairos-clock-sync`
+//! synchronised clocks); this crate holds the command line, `kairos run`, `kairos status` and the wizard.
 
 pub mod cli;
-pub mod clock_sync;
-pub mod deploy;
-pub mod devices;
 pub mod duration;
-pub mod link;
-pub mod log_tap;
 pub mod packs;
 pub mod run;
-pub mod serve;
 pub mod status;
 pub mod wizard;
 
@@ -32,7 +29,7 @@ pub fn builtin_registry() -> Registry {
     kairos_pack_can::register(&mut registry);
     kairos_pack_vision::register(&mut registry);
     kairos_pack_fusion::register(&mut registry);
-    link::register(&mut registry);
+    kairos_pack_link::register(&mut registry);
     registry
 }
 

@@ -26,7 +26,7 @@ pub struct RunOptions {
     /// `kairos deploy`: the components with a `host` go to that host's `kairos serve`, the rest runs here.
     pub deploy: Option<DeployOptions>,
     /// Publish outputs live to Foxglove.
-    pub foxglove: Option<crate::serve::FoxgloveOptions>,
+    pub foxglove: Option<kairos_server::FoxgloveOptions>,
 }
 
 /// What `kairos deploy` adds to `kairos run`.
@@ -119,8 +119,12 @@ pub fn run(registry: &Registry, path: &Path, options: &RunOptions) -> anyhow::Re
     let mut watch = None;
     if let Some(deploy) = options.deploy {
         let folder = path.parent().unwrap_or_else(|| Path::new("."));
-        let (here, deployed) =
-            crate::deploy::deploy_everywhere(&parsed.diagram, registry, folder, deploy.clear_text_tokens)?;
+        let (here, deployed) = kairos_coordinator::deploy_everywhere(
+            &parsed.diagram,
+            registry,
+            folder,
+            deploy.clear_text_tokens,
+        )?;
         parsed.diagram = here;
         watch = Some(deployed);
     }
@@ -131,9 +135,9 @@ pub fn run(registry: &Registry, path: &Path, options: &RunOptions) -> anyhow::Re
     })
     .context("installing the Ctrl-C handler")?;
 
-    let note = crate::clock_sync::StartNote::default();
+    let note = kairos_clock_sync::StartNote::default();
     let clock =
-        crate::clock_sync::NotedClock::new(kairos_runtime::clock_for(&parsed.diagram), Arc::clone(&note));
+        kairos_clock_sync::NotedClock::new(kairos_runtime::clock_for(&parsed.diagram), Arc::clone(&note));
     let mut engine = match Engine::build(&parsed.diagram, registry, Arc::new(clock)) {
         Ok(engine) => engine,
         Err(error) => bail!("{error}"),
@@ -141,7 +145,7 @@ pub fn run(registry: &Registry, path: &Path, options: &RunOptions) -> anyhow::Re
     let foxglove = options
         .foxglove
         .as_ref()
-        .map(|f| crate::serve::start_foxglove(Arc::new(crate::serve::EngineOutputs::of(&engine)), f))
+        .map(|f| kairos_server::start_foxglove(Arc::new(kairos_server::EngineOutputs::of(&engine)), f))
         .transpose()?;
     start_everywhere(
         &mut engine,
@@ -175,7 +179,7 @@ pub fn run(registry: &Registry, path: &Path, options: &RunOptions) -> anyhow::Re
         if let Some(watch) = &mut watch {
             watch.check();
         }
-        if engine.all_finished() && watch.as_ref().is_none_or(crate::deploy::Watch::is_empty) {
+        if engine.all_finished() && watch.as_ref().is_none_or(kairos_coordinator::Watch::is_empty) {
             tracing::info!("every component has finished");
             break;
         }
@@ -216,15 +220,15 @@ pub fn run(registry: &Registry, path: &Path, options: &RunOptions) -> anyhow::Re
 /// recording here and on the hosts carries.
 fn start_everywhere(
     engine: &mut Engine,
-    hosts: &mut [crate::deploy::Host],
+    hosts: &mut [kairos_coordinator::Host],
     deploy: DeployOptions,
-    note: &crate::clock_sync::StartNote,
+    note: &kairos_clock_sync::StartNote,
 ) -> anyhow::Result<()> {
     if hosts.is_empty() {
         engine.start().context("starting the diagram")?;
     } else {
         let started =
-            crate::deploy::start_together(hosts, deploy.lock_bound, deploy.start_unlocked, |forced| {
+            kairos_coordinator::start_together(hosts, deploy.lock_bound, deploy.start_unlocked, |forced| {
                 *note.lock().unwrap_or_else(std::sync::PoisonError::into_inner) = forced.map(str::to_owned);
                 engine.start().context("starting the diagram")
             });

@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 use kairos_diagram::HostSpec;
 use kairos_protocol::{FoxgloveState, LinkList, RequestBody};
 
-use crate::deploy::{Host, Reach};
+use kairos_coordinator::{Host, Reach};
 
 /// One host's line: `car (ws://10.0.0.2:7400): running, 4 components, clock locked ±4.2 µs, links 2 of 2
 /// matched, Foxglove on ws://127.0.0.1:8765 (every output, 1 client(s))`.

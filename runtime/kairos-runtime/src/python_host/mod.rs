@@ -15,7 +15,7 @@ mod sdk;
 mod wire;
 mod worker;
 
-use std::io::Read as _;
+use std::io::Read;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::sync::Arc;
@@ -179,20 +179,33 @@ fn describe(spec: &manifest::PythonPackSpec, sdk: &Path) -> Result<Described, St
     // Read both pipes while it runs: a module printing a lot must not block on a full pipe.
     let mut stdout = child.stdout.take();
     let mut stderr = child.stderr.take();
-    let out = std::thread::spawn(move || {
-        let mut text = String::new();
-        if let Some(pipe) = stdout.as_mut() {
-            let _ = pipe.read_to_string(&mut text);
+    let drain = |name: &str, pipe: Option<Box<dyn Read + Send>>| {
+        std::thread::Builder::new().name(name.to_owned()).spawn(move || {
+            let mut text = String::new();
+            if let Some(mut pipe) = pipe {
+                let _ = pipe.read_to_string(&mut text);
+            }
+            text
+        })
+    };
+    let out = drain(
+        "k:describe out",
+        stdout.take().map(|p| Box::new(p) as Box<dyn Read + Send>),
+    );
+    let err = drain(
+        "k:describe err",
+        stderr.take().map(|p| Box::new(p) as Box<dyn Read + Send>),
+    );
+    let (out, err) = match (out, err) {
+        (Ok(out), Ok(err)) => (out, err),
+        (Err(e), _) | (_, Err(e)) => {
+            let _ = child.kill();
+            let _ = child.wait();
+            return Err(format!(
+                "cannot start a thread to read the interpreter's output: {e}"
+            ));
         }
-        text
-    });
-    let err = std::thread::spawn(move || {
-        let mut text = String::new();
-        if let Some(pipe) = stderr.as_mut() {
-            let _ = pipe.read_to_string(&mut text);
-        }
-        text
-    });
+    };
     let started = Instant::now();
     let status = loop {
         match child.try_wait() {

@@ -89,18 +89,30 @@ impl Worker {
             })?;
         let pid = child.id();
         let stderr_tail = Arc::new(Mutex::new(VecDeque::new()));
+        // A pipe nobody drains would block the worker at its first long print: without the thread that
+        // reads it, the worker is not kept.
+        let mut logging = Ok(());
         if let Some(stdout) = child.stdout.take() {
             let id = id.to_owned();
-            let _ = std::thread::Builder::new()
+            logging = std::thread::Builder::new()
                 .name(format!("{id} stdout"))
-                .spawn(move || log_lines(stdout, &id, None));
+                .spawn(move || log_lines(stdout, &id, None))
+                .map(drop);
         }
-        if let Some(stderr) = child.stderr.take() {
+        if let (Ok(()), Some(stderr)) = (&logging, child.stderr.take()) {
             let id = id.to_owned();
             let tail = Arc::clone(&stderr_tail);
-            let _ = std::thread::Builder::new()
+            logging = std::thread::Builder::new()
                 .name(format!("{id} stderr"))
-                .spawn(move || log_lines(stderr, &id, Some(&tail)));
+                .spawn(move || log_lines(stderr, &id, Some(&tail)))
+                .map(drop);
+        }
+        if let Err(e) = logging {
+            let _ = child.kill();
+            let _ = child.wait();
+            return Err(format!(
+                "cannot start the thread that logs the worker's output: {e}"
+            ));
         }
         let watch = Arc::new(Watch::default());
         let (quit_ours, quit_theirs) =

@@ -14,7 +14,7 @@ use std::collections::BTreeMap;
 use std::time::{Duration, Instant};
 
 use kairos_pack_net::encoding::{SAMPLES, SampleReceiver};
-use kairos_pack_net::sample_frame;
+use kairos_sample_frame as sample_frame;
 use kairos_sdk::descriptor::{Descriptor, Property};
 use kairos_sdk::{
     Component, ComponentError, ComponentInfo, ComponentResult, Context, DataType, DescribeError, Payload,

@@ -12,7 +12,7 @@ use kairos_diagram::{Diagram, Value};
 use kairos_protocol::{CrossLinkTelemetry, HostTelemetry, RequestBody, RuntimeState, Telemetry};
 use kairos_sdk::Registry;
 
-use crate::deploy::{self, Watch};
+use kairos_coordinator::{self as deploy, Watch};
 
 /// How often the hosts are asked for their status (and whether they are there).
 const REFRESH_PERIOD: Duration = Duration::from_millis(250);
@@ -218,7 +218,7 @@ impl Spread {
             .iter()
             .map(|link| {
                 (
-                    format!("{}.{} -> ", link.receiver.1, crate::link::SAMPLES_OUTPUT),
+                    format!("{}.{} -> ", link.receiver.1, kairos_pack_link::SAMPLES_OUTPUT),
                     format!("{} -> ", link.connection.from),
                 )
             })
@@ -234,7 +234,7 @@ impl Spread {
         }
         telemetry
             .components
-            .retain(|c| !crate::link::is_link(&c.type_name));
+            .retain(|c| !kairos_pack_link::is_link(&c.type_name));
         telemetry
             .links
             .retain(|l| !sender_inputs.iter().any(|input| l.link.ends_with(input.as_str())));

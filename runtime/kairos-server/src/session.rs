@@ -482,7 +482,7 @@ impl Session {
                 &data,
             )?),
             RequestBody::Links => ReplyBody::Links(kairos_protocol::LinkList {
-                links: tokio::task::block_in_place(crate::link::network::ends),
+                links: tokio::task::block_in_place(kairos_pack_link::network::ends),
             }),
             RequestBody::Start {
                 at_ns,

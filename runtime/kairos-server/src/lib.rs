@@ -5,7 +5,9 @@
 //! threads, so clients (slow, flooding, vanishing) never share a thread with a component.
 
 mod auth;
+pub mod devices;
 mod foxglove;
+pub mod log_tap;
 mod runtime;
 mod samples;
 mod session;
@@ -228,7 +230,7 @@ pub fn serve_with(
         .as_ref()
         .map(|(certificate, key)| {
             // Links on a tls/ endpoint listen with the same identity as the control endpoint.
-            crate::link::network::set_identity(certificate, key);
+            kairos_pack_link::network::set_identity(certificate, key);
             tls_acceptor(certificate, key)
         })
         .transpose()?;
@@ -512,7 +514,7 @@ async fn refuse_busy(stream: tokio::net::TcpStream, limit: usize) {
 /// here on a clock that follows the master's.
 fn synchronise_clock(runtime: &Runtime, options: &ServeOptions) -> anyhow::Result<()> {
     if let Some(bind) = &options.clock_master {
-        let bound = crate::clock_sync::run_master(bind)
+        let bound = kairos_clock_sync::run_master(bind)
             .with_context(|| format!("--clock-master {bind}: cannot answer clock exchanges there"))?;
         tracing::info!("clock master: answering on udp://{bound}");
         runtime.set_clock_master();
@@ -523,8 +525,8 @@ fn synchronise_clock(runtime: &Runtime, options: &ServeOptions) -> anyhow::Resul
             .ok()
             .and_then(|mut a| a.next())
             .with_context(|| format!("--clock-system-against {master}: not an address (HOST:PORT)"))?;
-        let clock = Arc::new(crate::clock_sync::SystemClock::new(*alarm));
-        crate::clock_sync::run_system_check(address, Arc::clone(&clock))
+        let clock = Arc::new(kairos_clock_sync::SystemClock::new(*alarm));
+        kairos_clock_sync::run_system_check(address, Arc::clone(&clock))
             .with_context(|| format!("--clock-system-against {master}: cannot open the clock socket"))?;
         runtime.set_clock(clock);
         tracing::info!("running on the system clock, measured against the clock master at udp://{address}");
@@ -546,13 +548,13 @@ fn synchronise_clock(runtime: &Runtime, options: &ServeOptions) -> anyhow::Resul
             .and_then(|ppm| ppm.parse::<f64>().ok())
             .unwrap_or(0.0);
         let clock = Arc::new(
-            kairos_sdk::DisciplinedClock::new(crate::clock_sync::MASTER_SOURCE)
+            kairos_sdk::DisciplinedClock::new(kairos_clock_sync::MASTER_SOURCE)
                 .trusting_each_reference()
                 .estimating_rate()
                 .drifted_by_ppm(drift_ppm)
                 .shifted_by(shifted.saturating_mul(1_000_000)),
         );
-        crate::clock_sync::run_slave(address, Arc::clone(&clock))
+        kairos_clock_sync::run_slave(address, Arc::clone(&clock))
             .with_context(|| format!("--clock-slave-of {master}: cannot open the clock socket"))?;
         runtime.set_clock(clock);
         tracing::info!("following the clock master at udp://{address}");

@@ -42,7 +42,7 @@ pub struct Runtime {
     /// Whether this runtime is the clock master of others.
     clock_master: AtomicBool,
     /// How the current run was started when it was forced: in every clock's description.
-    start_note: crate::clock_sync::StartNote,
+    start_note: kairos_clock_sync::StartNote,
 }
 
 impl std::fmt::Debug for Runtime {
@@ -164,7 +164,7 @@ impl Runtime {
             generation: AtomicU64::new(0),
             clock: Mutex::new(None),
             clock_master: AtomicBool::new(false),
-            start_note: crate::clock_sync::StartNote::default(),
+            start_note: kairos_clock_sync::StartNote::default(),
         })
     }
 
@@ -211,7 +211,7 @@ impl Runtime {
             Some(shared) => shared,
             None => kairos_runtime::clock_for(diagram),
         };
-        Arc::new(crate::clock_sync::NotedClock::new(
+        Arc::new(kairos_clock_sync::NotedClock::new(
             clock,
             Arc::clone(&self.start_note),
         ))
@@ -430,12 +430,12 @@ impl Runtime {
         deployment.spread = spread;
         // The part's links to other hosts are declared now, so they match before anything starts.
         if let Some(network) = network {
-            crate::link::network::join(network)
+            kairos_pack_link::network::join(network)
                 .map_err(|e| error(ErrorCode::InvalidDiagram, format!("{e:#}")))?;
         }
         // A spread diagram's links here were declared, and matched, as it was deployed.
         if deployment.spread.is_none() {
-            crate::link::network::prepare(&here)
+            kairos_pack_link::network::prepare(&here)
                 .map_err(|e| error(ErrorCode::InvalidDiagram, format!("{e:#}")))?;
         }
         let components = parsed.diagram.components.len();

@@ -3,8 +3,8 @@
 use std::borrow::Cow;
 use std::sync::Arc;
 
-use kairos_pack_net::sample_frame;
 use kairos_protocol::frame::{self, ImageLayout};
+use kairos_sample_frame as sample_frame;
 use kairos_sdk::host::{Reader, ReaderConfig};
 use kairos_sdk::{Image, Payload, ReaderPolicy, RunSignal, Sample};
 

@@ -1,0 +1,91 @@
+//! The coordinated start and stop: every host at one instant on the master's clock.
+
+use std::time::Duration;
+
+use kairos_protocol::RequestBody;
+
+use crate::clocks::check_clocks;
+use crate::host::Host;
+
+/// How far ahead of now the hosts are told to stop: time for every request to arrive.
+pub const STOP_LEAD: Duration = Duration::from_millis(200);
+
+/// How far ahead of now the hosts are told to start: time for every request to arrive.
+pub const START_LEAD: Duration = Duration::from_millis(500);
+
+/// Starts every host's part and, with `start_here`, this machine's, at one instant [`START_LEAD`] ahead,
+/// each host waiting for it on its own clock. First every host's clock is checked ([`check_clocks`]); a
+/// start forced with clocks not locked hands `start_here` (and every host) the hosts in words, for the
+/// recordings.
+///
+/// # Errors
+///
+/// A clock not locked, a host refusing, or `start_here` failing: every host is stopped again. When a host
+/// refuses after `start_here` succeeded, the caller stops its own part.
+pub fn start_together(
+    hosts: &mut [Host],
+    bound: Duration,
+    start_unlocked: bool,
+    start_here: impl FnOnce(Option<&str>) -> anyhow::Result<()>,
+) -> anyhow::Result<()> {
+    use kairos_sdk::Clock as _;
+    let forced = check_clocks(hosts, bound, start_unlocked)?;
+    let wall = kairos_sdk::RealTimeClock::new();
+    let at = wall.now().after(START_LEAD);
+    let asked = start_all_at(hosts, at.as_nanos(), forced.as_deref())?;
+    while wall.now() < at {
+        std::thread::sleep(Duration::from_micros(200));
+    }
+    if let Err(error) = start_here(forced.as_deref()) {
+        stop_all(hosts);
+        return Err(error);
+    }
+    confirm_started(hosts, &asked)?;
+    for host in hosts.iter() {
+        tracing::info!("host '{}' started its part", host.name());
+    }
+    Ok(())
+}
+
+/// Asks every host to start at `at` (ns since the UNIX epoch on its clock), without waiting: each answers
+/// once started. Collect the answers with [`confirm_started`].
+/// `forced`: the hosts whose clocks are not locked, when the start is forced.
+fn start_all_at(hosts: &mut [Host], at: i64, forced: Option<&str>) -> anyhow::Result<Vec<u64>> {
+    hosts
+        .iter_mut()
+        .map(|host| {
+            host.send(RequestBody::Start {
+                at_ns: Some(at),
+                forced: forced.map(str::to_owned),
+                start_unlocked: false,
+            })
+        })
+        .collect()
+}
+
+/// The hosts' answers to [`start_all_at`]; the first refusal, after stopping every host.
+fn confirm_started(hosts: &mut [Host], ids: &[u64]) -> anyhow::Result<()> {
+    let mut refused = None;
+    for (host, id) in hosts.iter_mut().zip(ids) {
+        if let Err(error) = host.wait(*id) {
+            refused.get_or_insert(error);
+        }
+    }
+    match refused {
+        None => Ok(()),
+        Some(error) => {
+            stop_all(hosts);
+            Err(error)
+        }
+    }
+}
+
+/// Stops every host's part, saying which could not be stopped.
+pub fn stop_all(hosts: &mut [Host]) {
+    for host in hosts {
+        match host.call(RequestBody::Stop { at_ns: None }) {
+            Ok(_) => tracing::info!("host '{}' stopped", host.name()),
+            Err(error) => tracing::warn!("{error}"),
+        }
+    }
+}

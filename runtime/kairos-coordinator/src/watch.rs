@@ -1,0 +1,256 @@
+//! Watching a running deployment: hosts lost and back, their links, their statuses.
+
+use std::collections::BTreeMap;
+use std::time::Duration;
+
+use anyhow::{Context as _, bail};
+use kairos_diagram::{Diagram, Value};
+use kairos_protocol::{LinkNetwork, RequestBody};
+
+use crate::host::{Host, Reach};
+use crate::plan::Plan;
+use crate::ship::ship_packs;
+use crate::start::STOP_LEAD;
+
+/// How often the deploying machine asks each host whether it is still there, and how long an answer may
+/// take: a killed host or a cut link is reported within a second.
+const HEALTH_PERIOD: Duration = Duration::from_millis(250);
+/// How often a lost host is tried again, and how long reaching it may take then.
+const RETRY_PERIOD: Duration = Duration::from_secs(1);
+
+/// A running deployment, watched from the deploying machine: a host that stops answering is reported
+/// with the links it cuts while the others keep running; when it answers again, its part is deployed and
+/// started again and its links resume.
+#[derive(Debug)]
+pub struct Watch {
+    diagram: Diagram,
+    plan: Plan,
+    networks: BTreeMap<Option<String>, LinkNetwork>,
+    reach: Reach,
+    /// The hosts answering.
+    pub hosts: Vec<Host>,
+    /// The hosts lost, with when to try each again.
+    lost: BTreeMap<String, std::time::Instant>,
+    last_check: std::time::Instant,
+    /// Each answering host's last status (the result of `status`).
+    statuses: BTreeMap<String, serde_json::Value>,
+    /// Whether the parts run: a host that returns is started again only then.
+    running: bool,
+}
+
+impl Watch {
+    /// Watches `hosts`, all started.
+    pub fn new(
+        diagram: Diagram,
+        plan: Plan,
+        networks: BTreeMap<Option<String>, LinkNetwork>,
+        reach: Reach,
+        hosts: Vec<Host>,
+    ) -> Self {
+        Watch {
+            diagram,
+            plan,
+            networks,
+            reach,
+            hosts,
+            lost: BTreeMap::new(),
+            last_check: std::time::Instant::now(),
+            statuses: BTreeMap::new(),
+            running: true,
+        }
+    }
+
+    /// Whether the parts run (they do when a watch is made): a host that returns gets its part deployed
+    /// again, and started only while they run.
+    pub fn set_running(&mut self, running: bool) {
+        self.running = running;
+    }
+
+    /// How the diagram was split.
+    pub fn plan(&self) -> &Plan {
+        &self.plan
+    }
+
+    /// Each answering host's status as of the last [`Watch::check`].
+    pub fn statuses(&self) -> &BTreeMap<String, serde_json::Value> {
+        &self.statuses
+    }
+
+    /// The hosts that stopped answering.
+    pub fn lost(&self) -> impl Iterator<Item = &str> {
+        self.lost.keys().map(String::as_str)
+    }
+
+    /// Sends `body` to host `name` and waits for its reply.
+    ///
+    /// # Errors
+    ///
+    /// The host is lost, or refuses (the reason named).
+    pub fn call_on(&mut self, name: &str, body: RequestBody) -> anyhow::Result<serde_json::Value> {
+        let Some(host) = self.hosts.iter_mut().find(|h| h.name() == name) else {
+            bail!("host '{name}' is lost: its part is deployed again when it answers");
+        };
+        host.call(body)
+    }
+
+    /// Changes a property of `component` on host `name`, and in the part deployed there again if the
+    /// host is lost and returns.
+    ///
+    /// # Errors
+    ///
+    /// As [`Watch::call_on`].
+    pub fn set_property(
+        &mut self,
+        name: &str,
+        component: &str,
+        property: &str,
+        value: &Value,
+    ) -> anyhow::Result<()> {
+        self.call_on(
+            name,
+            RequestBody::SetProperty {
+                component: component.to_owned(),
+                property: property.to_owned(),
+                value: value.clone(),
+            },
+        )?;
+        if let Some(instance) = self
+            .plan
+            .parts
+            .get_mut(&Some(name.to_owned()))
+            .and_then(|part| part.component_mut(component))
+        {
+            instance.properties.insert(property.to_owned(), value.clone());
+        }
+        Ok(())
+    }
+
+    /// Whether any host is part of the deployment.
+    pub fn is_empty(&self) -> bool {
+        self.hosts.is_empty() && self.lost.is_empty()
+    }
+
+    /// The links that cross to or from `host`, in words.
+    fn links_of(&self, host: &str) -> Vec<String> {
+        let words = format!("host '{host}'");
+        self.plan
+            .links
+            .iter()
+            .filter(|l| l.from.ends_with(&words) || l.to.ends_with(&words))
+            .map(|l| format!("{} -> {}", l.from, l.to))
+            .collect()
+    }
+
+    /// Asks each host whether it is there (at most every [`HEALTH_PERIOD`]) and tries lost ones again.
+    pub fn check(&mut self) {
+        if self.last_check.elapsed() < HEALTH_PERIOD {
+            return;
+        }
+        self.last_check = std::time::Instant::now();
+        let mut answering = Vec::new();
+        for mut host in std::mem::take(&mut self.hosts) {
+            match host.ping() {
+                Ok(status) => {
+                    self.statuses.insert(host.name().to_owned(), status);
+                    answering.push(host);
+                }
+                Err(error) => {
+                    self.statuses.remove(host.name());
+                    let links = self.links_of(host.name());
+                    let cut = if links.is_empty() {
+                        String::new()
+                    } else {
+                        format!("; links cut: {}", links.join(", "))
+                    };
+                    tracing::error!(
+                        "host '{}' is lost ({error:#}){cut}; the other hosts keep running, and its part is \
+                         deployed again when it answers",
+                        host.name()
+                    );
+                    self.lost
+                        .insert(host.name().to_owned(), std::time::Instant::now() + RETRY_PERIOD);
+                }
+            }
+        }
+        self.hosts = answering;
+        let due: Vec<String> = self
+            .lost
+            .iter()
+            .filter(|(_, at)| **at <= std::time::Instant::now())
+            .map(|(name, _)| name.clone())
+            .collect();
+        for name in due {
+            match self.redeploy(&name) {
+                Ok(host) => {
+                    let again = if self.running {
+                        "deployed and started again"
+                    } else {
+                        "deployed again"
+                    };
+                    tracing::info!("host '{name}' is back: its part was {again}");
+                    self.lost.remove(&name);
+                    self.hosts.push(host);
+                }
+                Err(error) => {
+                    tracing::debug!("host '{name}' is still lost: {error:#}");
+                    self.lost.insert(name, std::time::Instant::now() + RETRY_PERIOD);
+                }
+            }
+        }
+    }
+
+    fn redeploy(&self, name: &str) -> anyhow::Result<Host> {
+        let spec = self
+            .diagram
+            .hosts
+            .get(name)
+            .with_context(|| format!("no host '{name}'"))?;
+        let mut host = Host::reach_within(name, spec, &self.reach, RETRY_PERIOD)?;
+        let key = Some(name.to_owned());
+        ship_packs(&mut host, self.plan.packs.get(&key).map_or(&[], Vec::as_slice))?;
+        let part = self.plan.parts.get(&key).map(Diagram::to_ron).unwrap_or_default();
+        host.call(RequestBody::Deploy {
+            diagram: part,
+            network: self.networks.get(&key).cloned(),
+            folder: None,
+        })?;
+        if self.running {
+            host.call(RequestBody::Start {
+                at_ns: None,
+                forced: None,
+                start_unlocked: false,
+            })?;
+        }
+        Ok(host)
+    }
+
+    /// Stops every host's part and, with `stop_here`, this machine's, all at one instant
+    /// [`STOP_LEAD`] ahead, each host on its own clock, as they started.
+    pub fn stop_together(&mut self, stop_here: impl FnOnce()) {
+        use kairos_sdk::Clock as _;
+        let wall = kairos_sdk::RealTimeClock::new();
+        let at = wall.now().after(STOP_LEAD);
+        let asked: Vec<anyhow::Result<u64>> = self
+            .hosts
+            .iter_mut()
+            .map(|host| {
+                host.send(RequestBody::Stop {
+                    at_ns: Some(at.as_nanos()),
+                })
+            })
+            .collect();
+        while wall.now() < at {
+            std::thread::sleep(Duration::from_micros(200));
+        }
+        stop_here();
+        for (host, id) in self.hosts.iter_mut().zip(asked) {
+            match id.and_then(|id| host.wait(id)) {
+                Ok(_) => tracing::info!("host '{}' stopped", host.name()),
+                Err(error) => tracing::warn!("{error:#}"),
+            }
+        }
+        for name in self.lost.keys() {
+            tracing::warn!("host '{name}' was lost and could not be stopped: stop it there");
+        }
+    }
+}

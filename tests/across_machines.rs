@@ -1,0 +1,494 @@
+//! Hosts on separate network stacks (network namespaces joined by veth pairs, made by the test as root):
+//! a cut link reported and resumed, fusion over three hosts, and TLS between hosts.
+#![allow(
+    clippy::unwrap_used,
+    clippy::expect_used,
+    reason = "a failed unwrap is a failed test"
+)]
+
+mod common;
+mod serving;
+
+use common::text;
+use serving::{
+    Server, csv_values, folders, free_tcp_port, serve, serve_in, shared_machine, wait_for_log, whole_machine,
+};
+use std::fmt::Write as _;
+use std::path::Path;
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+/// Two network namespaces joined by a veth pair (10.200.N.1 in the first, .2 in the second), made for a
+/// test and removed after it.
+struct Namespaces {
+    names: [String; 2],
+    veth: String,
+    subnet: u32,
+}
+
+impl Namespaces {
+    /// The pair, or `None` (saying why) where this machine does not allow making them.
+    fn make() -> Option<Self> {
+        let id = std::process::id() % 100_000;
+        let names = [format!("kairos_a{id}"), format!("kairos_b{id}")];
+        let veth = format!("kva{id}");
+        let subnet = id % 250;
+        let made = Namespaces {
+            names: names.clone(),
+            veth: veth.clone(),
+            subnet,
+        };
+        let steps: Vec<Vec<String>> = vec![
+            vec!["netns".into(), "add".into(), names[0].clone()],
+            vec!["netns".into(), "add".into(), names[1].clone()],
+            vec![
+                "link".into(),
+                "add".into(),
+                veth.clone(),
+                "netns".into(),
+                names[0].clone(),
+                "type".into(),
+                "veth".into(),
+                "peer".into(),
+                "name".into(),
+                format!("kvb{id}"),
+                "netns".into(),
+                names[1].clone(),
+            ],
+            vec![
+                "-n".into(),
+                names[0].clone(),
+                "addr".into(),
+                "add".into(),
+                format!("10.200.{subnet}.1/24"),
+                "dev".into(),
+                veth.clone(),
+            ],
+            vec![
+                "-n".into(),
+                names[1].clone(),
+                "addr".into(),
+                "add".into(),
+                format!("10.200.{subnet}.2/24"),
+                "dev".into(),
+                format!("kvb{id}"),
+            ],
+            vec![
+                "-n".into(),
+                names[0].clone(),
+                "link".into(),
+                "set".into(),
+                veth.clone(),
+                "up".into(),
+            ],
+            vec![
+                "-n".into(),
+                names[1].clone(),
+                "link".into(),
+                "set".into(),
+                format!("kvb{id}"),
+                "up".into(),
+            ],
+            vec![
+                "-n".into(),
+                names[0].clone(),
+                "link".into(),
+                "set".into(),
+                "lo".into(),
+                "up".into(),
+            ],
+            vec![
+                "-n".into(),
+                names[1].clone(),
+                "link".into(),
+                "set".into(),
+                "lo".into(),
+                "up".into(),
+            ],
+        ];
+        for step in steps {
+            let done = Command::new("ip").args(&step).stderr(Stdio::piped()).output();
+            match done {
+                Ok(output) if output.status.success() => {}
+                Ok(output) => {
+                    eprintln!(
+                        "skipped: cannot make network namespaces here (ip {}: {})",
+                        step.join(" "),
+                        String::from_utf8_lossy(&output.stderr).trim()
+                    );
+                    return None;
+                }
+                Err(error) => {
+                    eprintln!("skipped: no `ip` command to make network namespaces ({error})");
+                    return None;
+                }
+            }
+        }
+        Some(made)
+    }
+
+    fn address(&self, index: u8) -> String {
+        format!("10.200.{}.{index}", self.subnet)
+    }
+
+    /// Takes the veth link down or up.
+    fn set_link(&self, up: bool) {
+        let state = if up { "up" } else { "down" };
+        let done = Command::new("ip")
+            .args(["-n", &self.names[0], "link", "set", &self.veth, state])
+            .status()
+            .unwrap();
+        assert!(done.success());
+    }
+}
+
+impl Drop for Namespaces {
+    fn drop(&mut self) {
+        for name in &self.names {
+            let _ = Command::new("ip").args(["netns", "del", name]).status();
+        }
+    }
+}
+
+/// A sine on host a, doubled on host b, written on host a: both ways across the veth pair. Host a's
+/// endpoints, control and links, take TLS and are trusted through its certificate `a.pem`: b connects to
+/// a's `tls/` link endpoint.
+fn namespace_diagram(a_url: &str, b_url: &str, address_a: &str, address_b: &str) -> String {
+    format!(
+        r#"Diagram(format: 1,
+            hosts: {{
+                "a": Host(endpoint: "{a_url}", token_file: "a.token", zenoh: "tls/{address_a}:7447", certificate: "a.pem"),
+                "b": Host(endpoint: "{b_url}", token_file: "b.token", zenoh: "tcp/{address_b}:7447"),
+            }},
+            components: [
+                Component(id: "sine", type: "core.sine", host: "a", properties: {{"rate": 100.0}}),
+                Component(id: "gain", type: "core.gain", host: "b", properties: {{"gain": 2.0}}),
+                Component(id: "csv", type: "core.csv_writer", host: "a", properties: {{"path": "back.csv"}}),
+            ],
+            connections: [
+                Connection(from: "sine.out", to: "gain.in"),
+                Connection(from: "gain.out", to: "csv.in1"),
+            ])"#
+    )
+}
+
+/// The rows of a CSV from `core.csv_writer`, without the columns that depend on when a run happened (times
+/// of issue) or how its streams were numbered.
+fn timeless_rows(path: &Path) -> Vec<String> {
+    let text = std::fs::read_to_string(path).unwrap_or_default();
+    let mut lines = text.lines();
+    let header: Vec<&str> = lines.next().unwrap_or_default().split(',').collect();
+    let keep: Vec<usize> = (0..header.len())
+        .filter(|&i| !header[i].ends_with("time_of_issue_ns") && !header[i].ends_with("sequence"))
+        .collect();
+    lines
+        .map(|row| {
+            let fields: Vec<&str> = row.split(',').collect();
+            keep.iter()
+                .filter_map(|&i| fields.get(i).copied())
+                .collect::<Vec<_>>()
+                .join(",")
+        })
+        .collect()
+}
+
+/// A self-signed certificate for the IP address `ip` and its key, made with `openssl`, as `NAME.pem` and
+/// `NAME.key` in `dir`; false (saying why) where `openssl` is missing.
+fn make_certificate(dir: &Path, name: &str, ip: &str) -> bool {
+    let made = Command::new("openssl")
+        .args([
+            "req",
+            "-x509",
+            "-newkey",
+            "ec",
+            "-pkeyopt",
+            "ec_paramgen_curve:prime256v1",
+            "-nodes",
+            "-days",
+            "2",
+        ])
+        .args(["-subj", "/CN=kairos test", "-addext"])
+        .arg(format!("subjectAltName=IP:{ip}"))
+        .args(["-addext", "basicConstraints=critical,CA:FALSE"])
+        .arg("-keyout")
+        .arg(dir.join(format!("{name}.key")))
+        .arg("-out")
+        .arg(dir.join(format!("{name}.pem")))
+        .stderr(Stdio::null())
+        .status();
+    match made {
+        Ok(status) if status.success() => true,
+        other => {
+            eprintln!("skipped: openssl could not make a test certificate ({other:?})");
+            false
+        }
+    }
+}
+
+#[test]
+fn across_two_network_namespaces_a_cut_link_is_reported_and_the_part_resumes_when_it_returns() {
+    let _machine = whole_machine();
+    let Some(namespaces) = Namespaces::make() else {
+        return;
+    };
+    let [dir_a, dir_b, here] = folders();
+    let (address_a, address_b) = (namespaces.address(1), namespaces.address(2));
+    // Host a serves over TLS; host b in clear text, which deploying refuses until told otherwise.
+    if !make_certificate(here.path(), "a", &address_a) {
+        return;
+    }
+    let (cert, key) = (here.path().join("a.pem"), here.path().join("a.key"));
+    let tls = [
+        "--tls-cert",
+        cert.to_str().unwrap(),
+        "--tls-key",
+        key.to_str().unwrap(),
+    ];
+    let a = serve_in(
+        Some(&namespaces.names[0]),
+        dir_a.path(),
+        &format!("{address_a}:7400"),
+        &tls,
+        &[],
+    );
+    assert!(a.url.starts_with("wss://"), "{}", a.url);
+    let b = serve_in(
+        Some(&namespaces.names[1]),
+        dir_b.path(),
+        &format!("{address_b}:7400"),
+        &[],
+        &[],
+    );
+    std::fs::write(here.path().join("a.token"), &a.token).unwrap();
+    std::fs::write(here.path().join("b.token"), &b.token).unwrap();
+    let diagram = namespace_diagram(&a.url, &b.url, &address_a, &address_b);
+    let path = here.path().join("namespaces.ron");
+    std::fs::write(&path, diagram).unwrap();
+    let deploy = |extra: &[&str], log: &Path| {
+        Command::new("ip")
+            .args([
+                "netns",
+                "exec",
+                &namespaces.names[0],
+                env!("CARGO_BIN_EXE_kairos"),
+                "deploy",
+            ])
+            .arg(&path)
+            .args(extra)
+            .current_dir(here.path())
+            .stdout(Stdio::null())
+            .stderr(std::fs::File::create(log).unwrap())
+            .spawn()
+            .unwrap()
+    };
+    // Off loopback, a token is not sent in clear text unless the user says so: b's is refused (a's goes
+    // over TLS).
+    let refused_log = here.path().join("refused.log");
+    let refused = deploy(&["--for", "1s"], &refused_log).wait_with_output().unwrap();
+    assert!(!refused.status.success());
+    wait_for_log(
+        &refused_log,
+        "host 'b': its token would cross the network in clear text",
+        Duration::from_secs(1),
+    );
+
+    let log = here.path().join("deploy.log");
+    // Stopped as Ctrl-C stops it once the samples are back: the --for only bounds a run gone wrong. (`ip
+    // netns exec` runs kairos in its own place: the child is kairos.)
+    let mut deploying = deploy(&["--for", "60s", "--allow-clear-text-tokens"], &log);
+    wait_for_log(&log, "host 'b' started its part", Duration::from_secs(30));
+    std::thread::sleep(Duration::from_millis(1500));
+    namespaces.set_link(false);
+    let reported = wait_for_log(&log, "host 'b' is lost", Duration::from_secs(3));
+    assert!(reported < Duration::from_secs(1), "reported after {reported:?}");
+    std::thread::sleep(Duration::from_secs(1));
+    namespaces.set_link(true);
+    let returned_at = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .unwrap()
+        .as_nanos() as i64;
+    wait_for_log(&log, "host 'b' is back", Duration::from_secs(30));
+    let after = || {
+        csv_values(&dir_a.path().join("back.csv"))
+            .iter()
+            .filter(|(stamp, _)| *stamp > returned_at)
+            .count()
+    };
+    let deadline = Instant::now() + Duration::from_secs(30);
+    while after() == 0 && Instant::now() < deadline && deploying.try_wait().unwrap().is_none() {
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    if deploying.try_wait().unwrap().is_none() {
+        nix::sys::signal::kill(
+            nix::unistd::Pid::from_raw(i32::try_from(deploying.id()).unwrap()),
+            nix::sys::signal::Signal::SIGINT,
+        )
+        .unwrap();
+    }
+    let status = deploying.wait().unwrap();
+    let content = std::fs::read_to_string(&log).unwrap();
+    assert!(status.success(), "{content}");
+    let after = after();
+    assert!(
+        after >= 1,
+        "no sample back on a after the link returned\n{content}"
+    );
+    drop((a, b));
+}
+
+#[test]
+fn fusion_spread_over_three_hosts_gives_the_one_host_output_by_timestamp() {
+    let _machine = shared_machine();
+    let dirs: Vec<tempfile::TempDir> = (0..4).map(|_| tempfile::tempdir().unwrap()).collect();
+    let here = dirs[3].path();
+    // A recording of a simulated IMU (100 Hz) and GNSS (10 Hz): the same input for both runs.
+    let recording = here.join("drive.mcap");
+    std::fs::write(
+        here.join("record.ron"),
+        format!(
+            r#"Diagram(format: 1, components: [
+                Component(id: "imu", type: "sensors.imu", properties: {{"rate": 100.0}}),
+                Component(id: "gnss", type: "sensors.gnss", properties: {{"rate": 10.0}}),
+                Component(id: "recorder", type: "recording.recorder", properties: {{"path": {:?}}}),
+            ], connections: [
+                Connection(from: "imu.imu", to: "recorder.in1", buffer_size: 64),
+                Connection(from: "gnss.fix", to: "recorder.in2"),
+            ])"#,
+            recording.display().to_string()
+        ),
+    )
+    .unwrap();
+    let recorded = common::kairos(here, &["run", "record.ron", "--for", "2s"]);
+    assert!(recorded.status.success(), "{}", text(&recorded).1);
+
+    let fusion = |placed: [&str; 3], hosts: &str, csv: &Path| {
+        let at = |index: usize| {
+            if placed[index].is_empty() {
+                String::new()
+            } else {
+                format!(r#", host: "{}""#, placed[index])
+            }
+        };
+        format!(
+            r#"Diagram(format: 1, {hosts} components: [
+                Component(id: "imu_player", type: "recording.player", properties: {{"path": {rec:?}}}{}),
+                Component(id: "gnss_player", type: "recording.player", properties: {{"path": {rec:?}}}{}),
+                Component(id: "sync", type: "core.synchronizer", properties: {{"tolerance_ms": 5.0}}{}),
+                Component(id: "csv", type: "core.csv_writer", properties: {{"path": {csv:?}, "synchronize": true, "tolerance_ms": 5.0}}{}),
+            ], connections: [
+                Connection(from: "imu_player.imu_imu", to: "sync.in1", policy: NeverSkipping, buffer_size: 256),
+                Connection(from: "gnss_player.gnss_fix", to: "sync.in2", policy: NeverSkipping, buffer_size: 64),
+                Connection(from: "sync.out1", to: "csv.in1", policy: NeverSkipping, buffer_size: 256),
+                Connection(from: "sync.out2", to: "csv.in2", policy: NeverSkipping, buffer_size: 256),
+            ])"#,
+            at(0),
+            at(1),
+            at(2),
+            at(2),
+            rec = recording.display().to_string(),
+            csv = csv.display().to_string(),
+        )
+    };
+    // On one machine.
+    let one_csv = here.join("one.csv");
+    std::fs::write(here.join("one.ron"), fusion(["", "", ""], "", &one_csv)).unwrap();
+    // Room to play the 2 s recording whole, even on a slow machine: the players end with it.
+    let one = common::kairos(here, &["run", "one.ron", "--for", "5s"]);
+    assert!(one.status.success(), "{}", text(&one).1);
+
+    // The IMU's player on host a, the GNSS's on host b, the fusion on host c.
+    let servers: Vec<Server> = dirs[..3].iter().map(|d| serve(d.path(), &[])).collect();
+    let mut hosts = String::from("hosts: {");
+    for (name, server) in ["a", "b", "c"].iter().zip(&servers) {
+        std::fs::write(here.join(format!("{name}.token")), &server.token).unwrap();
+        let _ = write!(
+            hosts,
+            r#""{name}": Host(endpoint: "{}", token_file: "{name}.token", zenoh: "tcp/127.0.0.1:{}"),"#,
+            server.url,
+            free_tcp_port()
+        );
+    }
+    hosts.push_str("},");
+    let spread_csv = dirs[2].path().join("spread.csv");
+    std::fs::write(
+        here.join("spread.ron"),
+        fusion(["a", "b", "c"], &hosts, &spread_csv),
+    )
+    .unwrap();
+    let spread = common::kairos(here, &["deploy", "spread.ron", "--for", "5s"]);
+    assert!(spread.status.success(), "{}", text(&spread).1);
+
+    let (alone, across) = (timeless_rows(&one_csv), timeless_rows(&spread_csv));
+    // One fused row per GNSS fix (10 Hz for 2 s: about 20), each with the IMU sample nearest in time.
+    assert!(!alone.is_empty(), "no fused row on one machine");
+    assert_eq!(
+        across.len(),
+        alone.len(),
+        "as many fused rows across hosts as on one machine"
+    );
+    for (row, (a, b)) in alone.iter().zip(&across).enumerate() {
+        assert_eq!(a, b, "fused row {row} differs");
+    }
+}
+
+#[test]
+fn deploy_over_tls_trusts_the_named_certificate_and_refuses_another() {
+    let _machine = shared_machine();
+    let [dir_a, here] = folders();
+    if !make_certificate(here.path(), "host", "127.0.0.1")
+        || !make_certificate(here.path(), "other", "127.0.0.1")
+    {
+        return;
+    }
+    let (cert, key) = (here.path().join("host.pem"), here.path().join("host.key"));
+    let a = serve(
+        dir_a.path(),
+        &[
+            "--tls-cert",
+            cert.to_str().unwrap(),
+            "--tls-key",
+            key.to_str().unwrap(),
+        ],
+    );
+    assert!(a.url.starts_with("wss://"), "{}", a.url);
+    std::fs::write(here.path().join("a.token"), &a.token).unwrap();
+    let diagram = |certificate: &str| {
+        format!(
+            r#"Diagram(format: 1,
+                hosts: {{"a": Host(endpoint: "{}", token_file: "a.token", certificate: "{certificate}")}},
+                components: [
+                    Component(id: "sine", type: "core.sine", host: "a"),
+                    Component(id: "csv", type: "core.csv_writer", host: "a", properties: {{"path": "a.csv"}}),
+                ],
+                connections: [Connection(from: "sine.out", to: "csv.in1")])"#,
+            a.url
+        )
+    };
+    let path = here.path().join("tls.ron");
+    std::fs::write(&path, diagram("host.pem")).unwrap();
+    let deployed = common::kairos(here.path(), &["deploy", path.to_str().unwrap(), "--for", "1s"]);
+    let (_, stderr) = text(&deployed);
+    assert!(deployed.status.success(), "{stderr}");
+    let rows = csv_values(&dir_a.path().join("a.csv"));
+    assert!(!rows.is_empty(), "no row over TLS\n{stderr}");
+
+    // A certificate that is not the host's: refused with the reason, nothing started.
+    std::fs::remove_file(dir_a.path().join("a.csv")).unwrap();
+    std::fs::write(&path, diagram("other.pem")).unwrap();
+    let refused = common::kairos(here.path(), &["deploy", path.to_str().unwrap(), "--for", "1s"]);
+    let (_, stderr) = text(&refused);
+    assert!(!refused.status.success());
+    assert!(
+        stderr.contains("host 'a' at wss://") && stderr.contains("certificate"),
+        "{stderr}"
+    );
+    assert!(!dir_a.path().join("a.csv").exists(), "nothing started");
+    // And one without any certificate named is told what to add.
+    std::fs::write(&path, diagram("").replace(r#", certificate: """#, "")).unwrap();
+    let unnamed = common::kairos(here.path(), &["deploy", path.to_str().unwrap(), "--for", "1s"]);
+    assert!(
+        text(&unnamed).1.contains("needs the certificate to trust"),
+        "{}",
+        text(&unnamed).1
+    );
+}
