@@ -128,6 +128,13 @@ impl StudioApp {
         self
     }
 
+    /// Reaches runtimes on other machines this way (the connect dialog's connections too).
+    #[must_use]
+    pub fn with_reach(mut self, reach: crate::connection::Reach) -> Self {
+        self.connection.reach = reach;
+        self
+    }
+
     /// A component's state as the runtime last reported it.
     pub fn node_state(&self, id: &str) -> Option<&crate::session::NodeState> {
         self.session.node_state(id)

@@ -14,7 +14,7 @@ use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::mpsc::{Receiver, Sender, SyncSender, TryRecvError, TrySendError, channel, sync_channel};
 use std::time::Duration;
 
-use kairos_client::{CallError, ConnectError, ConnectOptions, Connection};
+use kairos_client::{CallError, ConnectError, ConnectOptions, Connection, Fixes};
 use kairos_protocol::{
     ErrorCode, LogRecord, ProtocolError, Reply, ReplyBody, Request, RequestBody, RequestKind, RuntimeState,
     ServerMessage, Telemetry, Token, Welcome,
@@ -364,14 +364,17 @@ fn send_requests(
     }
 }
 
-/// How the studio's user allows a token over plain ws:// off this machine, for the refusal to say.
-pub const CLEAR_TEXT_OPT_IN: &str = "start the studio with --allow-clear-text-token";
+/// How the studio's user fixes what the client refuses.
+const FIXES: Fixes = Fixes {
+    clear_text_opt_in: "start the studio with --allow-clear-text-token",
+    certificate: "start the studio with --certificate FILE.pem",
+};
 
 /// The connection's thread: connects and says hello (through the one protocol client, which holds the TLS
 /// and clear-text-token rules), then sends requests and hands on what arrives until the connection ends;
 /// returns why it ended.
 fn run(url: &str, options: &ConnectOptions, requests: &Receiver<Request>, events: &EventSender) -> String {
-    let mut socket = match Connection::open(url, options, CLEAR_TEXT_OPT_IN) {
+    let mut socket = match Connection::open(url, options, FIXES) {
         Ok(socket) => socket,
         Err(ConnectError::Refused(error)) => {
             return format!("the runtime at {url} refused the studio: {}", error.message);

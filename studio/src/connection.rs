@@ -20,6 +20,28 @@ pub struct RuntimeAddress {
     pub token: Token,
 }
 
+/// How the studio reaches runtimes on other machines: the certificate to trust for `wss://` addresses, and
+/// whether a token may cross the network in clear text (`--certificate`, `--allow-clear-text-token`).
+#[derive(Debug, Clone, Default)]
+pub struct Reach {
+    /// The certificate to trust (PEM: the runtime's own, or its authority's).
+    pub certificate: Option<PathBuf>,
+    /// Send a token over plain `ws://` to another machine.
+    pub allow_clear_text_token: bool,
+}
+
+impl Reach {
+    /// The client's options for a connection with `token`.
+    pub fn options(&self, token: Option<Token>) -> kairos_client::ConnectOptions {
+        kairos_client::ConnectOptions {
+            token,
+            certificate: self.certificate.clone(),
+            allow_clear_text_token: self.allow_clear_text_token,
+            ..kairos_client::ConnectOptions::operator(format!("kairos-studio {}", env!("CARGO_PKG_VERSION")))
+        }
+    }
+}
+
 /// A local runtime being started with packs, on a thread of its own.
 #[derive(Debug)]
 struct Restart {
@@ -41,6 +63,8 @@ pub struct Connection {
     /// The `kairos` program, which generates components and runs the local runtime.
     pub kairos: Option<PathBuf>,
     restart: Option<Restart>,
+    /// How runtimes on other machines are reached.
+    pub reach: Reach,
 }
 
 /// What the connection calls when an event arrives: one repaint. egui answers an immediate request with two
@@ -64,6 +88,7 @@ impl Connection {
             local,
             kairos: crate::local::kairos_binary(),
             restart: None,
+            reach: Reach::default(),
         }
     }
 
@@ -86,7 +111,8 @@ impl Connection {
         token: Option<Token>,
         label: String,
     ) {
-        self.client = Some(RuntimeClient::connect(url, token, repaint_once(ctx)));
+        let options = self.reach.options(token);
+        self.client = Some(RuntimeClient::connect_with(url, options, repaint_once(ctx)));
         session.connecting(label, url);
     }
 

@@ -1,6 +1,6 @@
-//! `kairos-studio [FILE] [--connect ws://HOST:PORT --token-file FILE] [--view OUTPUT]... [--run]`: the
-//! studio. Without `--connect` it
-//! starts a local runtime (`kairos serve` on loopback with a fresh token) and drives that.
+//! `kairos-studio [FILE] [--connect ws://HOST:PORT --token-file FILE] [--certificate FILE]
+//! [--allow-clear-text-token] [--view OUTPUT]... [--run]`: the studio. Without `--connect` it starts a local
+//! runtime (`kairos serve` on loopback with a fresh token) and drives that.
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -13,6 +13,7 @@ struct Arguments {
     file: Option<PathBuf>,
     connect: Option<String>,
     token_file: Option<PathBuf>,
+    reach: kairos_studio::connection::Reach,
     views: Vec<String>,
     run: bool,
 }
@@ -22,6 +23,7 @@ fn arguments() -> Result<Arguments, String> {
         file: None,
         connect: None,
         token_file: None,
+        reach: kairos_studio::connection::Reach::default(),
         views: Vec::new(),
         run: false,
     };
@@ -32,6 +34,10 @@ fn arguments() -> Result<Arguments, String> {
             "--token-file" => {
                 parsed.token_file = Some(args.next().ok_or("--token-file needs a file")?.into());
             }
+            "--certificate" => {
+                parsed.reach.certificate = Some(args.next().ok_or("--certificate needs a PEM file")?.into());
+            }
+            "--allow-clear-text-token" => parsed.reach.allow_clear_text_token = true,
             "--view" => parsed
                 .views
                 .push(args.next().ok_or("--view needs an output (component.port)")?),
@@ -39,8 +45,13 @@ fn arguments() -> Result<Arguments, String> {
             "-h" | "--help" => {
                 return Err(
                     "usage: kairos-studio [FILE] [--connect ws://HOST:PORT --token-file FILE] \
-                     [--view OUTPUT]... [--run]\n  --view camera.image  opens a viewer on that output\n  \
-                     --run                deploys and starts the diagram once connected"
+                     [--certificate FILE] [--allow-clear-text-token] [--view OUTPUT]... [--run]\n  \
+                     --connect wss://HOST:PORT  a runtime served over TLS: give --certificate, its certificate \
+                     or its authority's (PEM)\n  \
+                     --allow-clear-text-token   send the token over plain ws:// to another machine (a network \
+                     you trust)\n  \
+                     --view camera.image        opens a viewer on that output\n  \
+                     --run                      deploys and starts the diagram once connected"
                         .to_owned(),
                 );
             }
@@ -143,13 +154,14 @@ fn main() -> ExitCode {
         "Kairos studio",
         options,
         Box::new(move |creation| {
-            let (views, run) = (arguments.views, arguments.run);
+            let (views, run, reach) = (arguments.views, arguments.run, arguments.reach);
             if let Some(render_state) = &creation.wgpu_render_state {
                 kairos_studio::cloud3d::install(render_state);
             }
             let ctx = creation.egui_ctx.clone();
             let client = url.map(|url| {
-                RuntimeClient::connect(&url, token, kairos_studio::connection::repaint_once(&ctx))
+                let options = reach.options(token);
+                RuntimeClient::connect_with(&url, options, kairos_studio::connection::repaint_once(&ctx))
             });
             let mut app = StudioApp::new(
                 document,
@@ -158,7 +170,8 @@ fn main() -> ExitCode {
                 label,
                 local,
             )
-            .with_startup(views, run);
+            .with_startup(views, run)
+            .with_reach(reach);
             for note in notes {
                 app.session.note(kairos_protocol::LogLevel::Error, note);
             }

@@ -30,6 +30,16 @@ pub const DEFAULT_WAIT: Duration = Duration::from_secs(5);
 /// The id of the `hello` request; [`Connection::call`] numbers the others from 2.
 pub const HELLO_ID: u64 = 1;
 
+/// How the caller's user fixes what the client refuses, for the refusals to say: each caller has its own
+/// way (a command-line flag, a field of the diagram's hosts section).
+#[derive(Debug, Clone, Copy)]
+pub struct Fixes {
+    /// How to allow a token over plain `ws://` (`pass --allow-clear-text-tokens`).
+    pub clear_text_opt_in: &'static str,
+    /// How to name the certificate to trust (`add certificate: "FILE.pem" to its Host`).
+    pub certificate: &'static str,
+}
+
 /// How to reach a runtime.
 #[derive(Debug, Clone)]
 pub struct ConnectOptions {
@@ -83,10 +93,13 @@ pub enum ConnectError {
     },
     /// A `wss://` endpoint with no certificate to trust.
     #[error(
-        "a wss:// endpoint needs the certificate to trust: add certificate: \"FILE.pem\" to its Host (the \
-         host's certificate, or the authority that issued it)"
+        "a wss:// endpoint needs the certificate to trust (the runtime's own, or the authority that issued \
+         it): {fix}"
     )]
-    NoCertificate,
+    NoCertificate {
+        /// How to name it (`add certificate: "FILE.pem" to its Host`).
+        fix: &'static str,
+    },
     /// The certificate to trust could not be read.
     #[error("cannot use the certificate {path}: {reason}")]
     Certificate {
@@ -299,19 +312,18 @@ impl std::fmt::Debug for Connection {
 }
 
 impl Connection {
-    /// Connects to `endpoint` and says hello. `opt_in` is how this caller's user allows a clear-text
-    /// token (`pass --allow-clear-text-tokens`), for the refusal to say.
-    pub fn open(
-        endpoint: &str,
-        options: &ConnectOptions,
-        opt_in: &'static str,
-    ) -> Result<Self, ConnectError> {
+    /// Connects to `endpoint` and says hello; a refusal says how to fix it in the words of `fixes`.
+    pub fn open(endpoint: &str, options: &ConnectOptions, fixes: Fixes) -> Result<Self, ConnectError> {
         let parsed = Endpoint::parse(endpoint)?;
         let resolved = parsed.resolve();
-        check_clear_text(endpoint, &parsed, resolved, options, opt_in)?;
+        check_clear_text(endpoint, &parsed, resolved, options, fixes.clear_text_opt_in)?;
         let certificate = match (&options.certificate, parsed.secure) {
             (Some(certificate), true) => Some(certificate.as_path()),
-            (None, true) => return Err(ConnectError::NoCertificate),
+            (None, true) => {
+                return Err(ConnectError::NoCertificate {
+                    fix: fixes.certificate,
+                });
+            }
             (_, false) => None,
         };
         let unreachable = || ConnectError::Unreachable {
@@ -459,6 +471,11 @@ mod tests {
 
     use super::*;
 
+    const FIXES: Fixes = Fixes {
+        clear_text_opt_in: "opt in",
+        certificate: "name it",
+    };
+
     #[test]
     fn endpoints_read_as_address_and_scheme() {
         let plain = Endpoint::parse("ws://10.0.0.2:7400").unwrap();
@@ -501,9 +518,13 @@ mod tests {
     #[test]
     fn a_secure_endpoint_without_a_certificate_is_told_what_to_add() {
         let options = ConnectOptions::operator("test");
-        let refused = Connection::open("wss://127.0.0.1:1", &options, "").unwrap_err();
-        assert!(matches!(refused, ConnectError::NoCertificate), "{refused}");
-        assert!(refused.to_string().contains("needs the certificate to trust"));
+        let refused = Connection::open("wss://127.0.0.1:1", &options, FIXES).unwrap_err();
+        assert!(matches!(refused, ConnectError::NoCertificate { .. }), "{refused}");
+        let message = refused.to_string();
+        assert!(
+            message.contains("needs the certificate to trust") && message.contains("name it"),
+            "{message}"
+        );
     }
 
     #[test]
@@ -513,7 +534,7 @@ mod tests {
         drop(listener);
         let mut options = ConnectOptions::operator("test");
         options.wait = Duration::from_millis(300);
-        let refused = Connection::open(&format!("ws://{address}"), &options, "").unwrap_err();
+        let refused = Connection::open(&format!("ws://{address}"), &options, FIXES).unwrap_err();
         assert!(matches!(refused, ConnectError::Unreachable { .. }), "{refused}");
     }
 }

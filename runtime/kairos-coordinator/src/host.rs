@@ -5,7 +5,7 @@ use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 use anyhow::Context as _;
-use kairos_client::{CallError, ConnectError, ConnectOptions, Connection};
+use kairos_client::{CallError, ConnectError, ConnectOptions, Connection, Fixes};
 use kairos_diagram::HostSpec;
 use kairos_protocol::{RequestBody, Token};
 
@@ -15,8 +15,11 @@ pub const HOST_WAIT: Duration = Duration::from_secs(5);
 /// How long a health check's answer may take: a killed host or a cut link is reported within a second.
 pub const HEALTH_WAIT: Duration = Duration::from_millis(600);
 
-/// How `kairos deploy`'s user allows a token over plain ws:// off this machine.
-const CLEAR_TEXT_OPT_IN: &str = "pass --allow-clear-text-tokens";
+/// How `kairos deploy`'s user fixes what the client refuses.
+const FIXES: Fixes = Fixes {
+    clear_text_opt_in: "pass --allow-clear-text-tokens",
+    certificate: "add certificate: \"FILE.pem\" to its Host",
+};
 
 /// How the deploying machine reaches hosts: token files and certificates are relative to `folder` (the
 /// diagram's); tokens go over plain ws:// to a host off this machine only with `clear_text_tokens`.
@@ -93,7 +96,7 @@ impl Host {
             ..ConnectOptions::operator(format!("kairos deploy {}", env!("CARGO_PKG_VERSION")))
         };
         let connection =
-            Connection::open(&spec.endpoint, &options, CLEAR_TEXT_OPT_IN).map_err(|e| unreached(name, &e))?;
+            Connection::open(&spec.endpoint, &options, FIXES).map_err(|e| unreached(name, &e))?;
         connection
             .set_read_timeout(Some(HOST_WAIT))
             .map_err(|e| failed(name, &CallError::Lost(tungstenite_io(e))))?;
