@@ -495,7 +495,7 @@ fn status_shows_each_host_state_clock_and_links_and_names_the_unreachable() {
         std::thread::sleep(Duration::from_millis(200));
     };
     assert!(
-        line_of_b.contains("clock locked ±") && line_of_b.contains("(follows master)"),
+        line_of_b.contains("clock locked (follows master), error ") && line_of_b.contains("error bound ±"),
         "{line_of_b}"
     );
     drop(b);

@@ -118,7 +118,6 @@ fn telemetry_share(address: SocketAddr, clients: usize, window: Duration) -> Opt
     Some(spent as f64 / nanos(started.elapsed()))
 }
 
-#[allow(clippy::too_many_lines, reason = "two measurements in sequence on one server")]
 fn main() {
     let round_trips = size(300, 2_000);
     let window = Duration::from_secs(size(2, 5));

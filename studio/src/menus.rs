@@ -4,7 +4,7 @@
 use std::path::PathBuf;
 
 use egui::{Color32, RichText};
-use kairos_protocol::{RequestBody, RuntimeState};
+use kairos_protocol::{ClockState, RequestBody, RuntimeState};
 
 use crate::commands::Command;
 use crate::session::Session;
@@ -166,7 +166,7 @@ fn connection_state_ui(ui: &mut egui::Ui, session: &Session) {
     ui.label(RichText::new(text).color(color));
     ui.label(format!("— {:?}", session.run_state()).to_lowercase());
     if let Some(clock) = session.clock() {
-        let color = clock_color(&clock.state);
+        let color = clock_color(clock.state);
         // The bound the master gives (half an exchange's round trip) where there is one.
         let within = clock.error_bound_ns.map_or_else(String::new, |bound| {
             format!(" ±{:.1} µs", bound.unsigned_abs() as f64 * 1e-3)
@@ -189,11 +189,13 @@ fn connection_state_ui(ui: &mut egui::Ui, session: &Session) {
 
 /// A clock state's colour: green when it agrees with its reference, red when lost or in alarm, yellow on
 /// the way.
-fn clock_color(state: &str) -> Color32 {
+fn clock_color(state: ClockState) -> Color32 {
     match state {
-        "locked" | "master" => Color32::LIGHT_GREEN,
-        "lost" | "alarm" => Color32::LIGHT_RED,
-        _ => Color32::YELLOW,
+        ClockState::Locked | ClockState::Master => Color32::LIGHT_GREEN,
+        ClockState::Lost | ClockState::Alarm => Color32::LIGHT_RED,
+        ClockState::Acquiring | ClockState::Slewing | ClockState::Holdover | ClockState::Unknown => {
+            Color32::YELLOW
+        }
     }
 }
 
@@ -206,13 +208,13 @@ fn host_words(host: &kairos_protocol::HostTelemetry) -> (String, Color32) {
     let Some(clock) = &host.clock else {
         return (format!("{name}: own clock"), Color32::GRAY);
     };
-    let color = clock_color(&clock.state);
+    let color = clock_color(clock.state);
     let error_ns = clock.error_bound_ns.unwrap_or(clock.error_ns);
     // A master has no error, and a clock still acquiring has no measurement to show yet.
-    let within = if clock.state == "master" || clock.state == "acquiring" {
-        String::new()
-    } else {
+    let within = if clock.state.has_error() {
         format!(" ±{:.1} µs", error_ns.unsigned_abs() as f64 * 1e-3)
+    } else {
+        String::new()
     };
     (format!("{name}: {}{within}", clock.state), color)
 }

@@ -184,10 +184,6 @@ fn encode_raw_image(image: &kairos_sdk::Image, timestamp: Timestamp, frame_id: &
 }
 
 /// Encodes `payload` (of a sample stamped `timestamp`) in its schema's message encoding into `out`.
-#[allow(
-    clippy::too_many_lines,
-    reason = "one arm per payload type; the mapping reads best in one place"
-)]
 pub fn encode(
     payload: &Payload,
     timestamp: Timestamp,

@@ -83,10 +83,6 @@ fn f32s_from(bytes: &[u8]) -> Vec<f32> {
 
 /// Describes `sample` in C terms. Pointers borrow from `sample` and from `scratch` (for payloads that need
 /// re-encoding), so both must outlive the `KSample`.
-#[allow(
-    clippy::too_many_lines,
-    reason = "one arm per payload kind, each a few lines; splitting hides the mapping"
-)]
 pub fn sample_to_c(sample: &Sample, scratch: &mut Vec<u8>) -> KSample {
     let mut k = KSample {
         timestamp_ns: sample.timestamp.as_nanos(),

@@ -892,15 +892,70 @@ pub struct CrossLinkTelemetry {
     pub last_sample_age_ms: Option<u64>,
 }
 
+/// Where a runtime's clock stands against its reference, on the wire as its snake-case name.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ClockState {
+    /// No time from the source yet.
+    Acquiring,
+    /// Following the source, its last error under 10 ms.
+    Locked,
+    /// Following the source, a larger error being slewed away at 1 ms/s.
+    Slewing,
+    /// No time from the source for 3 s: running on at the last rate.
+    Holdover,
+    /// No time from the source for 30 s.
+    Lost,
+    /// A clock Kairos only measures (the system clock, kept by PTP or chrony) further from its reference
+    /// than the bound set.
+    Alarm,
+    /// The clock master itself (`kairos serve --clock-master`): the reference of the others.
+    Master,
+    /// A state of a newer runtime this client does not know.
+    #[serde(other)]
+    Unknown,
+}
+
+impl ClockState {
+    /// Its name, as on the wire: `locked`.
+    pub fn name(self) -> &'static str {
+        match self {
+            ClockState::Acquiring => "acquiring",
+            ClockState::Locked => "locked",
+            ClockState::Slewing => "slewing",
+            ClockState::Holdover => "holdover",
+            ClockState::Lost => "lost",
+            ClockState::Alarm => "alarm",
+            ClockState::Master => "master",
+            ClockState::Unknown => "unknown",
+        }
+    }
+
+    /// Whether the clock agrees with its reference: locked to it, or the reference itself.
+    pub fn agrees(self) -> bool {
+        matches!(self, ClockState::Locked | ClockState::Master)
+    }
+
+    /// Whether an error measured against the reference means something yet (not for the reference
+    /// itself, nor before the first exchange).
+    pub fn has_error(self) -> bool {
+        !matches!(self, ClockState::Master | ClockState::Acquiring)
+    }
+}
+
+impl std::fmt::Display for ClockState {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
 /// A runtime clock that follows a component of the diagram.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct ClockTelemetry {
     /// The component it follows.
     pub source: String,
-    /// `acquiring` (no time from the source yet), `locked` (within 10 ms), `slewing` (a larger error being
-    /// slewed away at 1 ms/s), `holdover` (no time for 3 s) or `lost` (for 30 s); `master` for the clock
-    /// master itself (`kairos serve --clock-master`), which is the reference.
-    pub state: String,
+    /// Where it stands against its source.
+    pub state: ClockState,
     /// The source's time minus the clock's at its last reference, ns.
     pub error_ns: i64,
     /// How far the first reference stepped the clock from the machine's, ns.

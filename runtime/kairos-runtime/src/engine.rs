@@ -388,117 +388,138 @@ pub fn link_name(from: &kairos_diagram::PortRef, to: &kairos_diagram::PortRef) -
     format!("{from} -> {to}")
 }
 
-impl Engine {
-    /// Validates `diagram` against `registry` and builds it; nothing runs until [`Engine::start`].
-    #[allow(
-        clippy::too_many_lines,
-        reason = "one linear pass: components, buffers, readers, contexts; splitting scatters the wiring"
-    )]
-    pub fn build(
-        diagram: &Diagram,
-        registry: &Registry,
-        clock: Arc<dyn Clock>,
-    ) -> Result<Engine, BuildError> {
-        let instances = registry.instance_infos(diagram);
-        let mut diagnostics =
-            kairos_diagram::validate_with(diagram, None, &registry.library_info(), &instances);
-        // An engine runs a diagram on one machine: a part placed elsewhere must not run here unnoticed.
-        for component in &diagram.components {
-            if let Some(host) = &component.host {
-                diagnostics.push(
-                    kairos_diagram::Diagnostic::error(
-                        kairos_diagram::DiagnosticCode::UnknownHost,
-                        format!(
-                            "'{}' is placed on host '{host}': a runtime runs the part of a diagram that is its \
-                             own",
-                            component.id
-                        ),
-                    )
-                    .with_suggestion(Some(format!(
-                        "`kairos deploy` sends each host its part; or remove `host: \"{host}\"` from '{}' to \
-                         run it here",
+/// An engine runs a diagram on one machine: a part placed on another host must not run here unnoticed.
+fn placed_elsewhere(diagram: &Diagram) -> Vec<kairos_diagram::Diagnostic> {
+    diagram
+        .components
+        .iter()
+        .filter_map(|component| {
+            let host = component.host.as_ref()?;
+            Some(
+                kairos_diagram::Diagnostic::error(
+                    kairos_diagram::DiagnosticCode::UnknownHost,
+                    format!(
+                        "'{}' is placed on host '{host}': a runtime runs the part of a diagram that is its own",
                         component.id
-                    ))),
-                );
-            }
-        }
-        if diagnostics.iter().any(kairos_diagram::Diagnostic::is_error) {
-            return Err(BuildError::Invalid(diagnostics));
-        }
+                    ),
+                )
+                .with_suggestion(Some(format!(
+                    "`kairos deploy` sends each host its part; or remove `host: \"{host}\"` from '{}' to run it \
+                     here",
+                    component.id
+                ))),
+            )
+        })
+        .collect()
+}
 
-        let mut pending: Vec<Pending> = Vec::new();
-        let mut buffers: BTreeMap<(String, String), OutputBuffer> = BTreeMap::new();
-        for instance in &diagram.components {
-            let Some(registered) = registry.component(&instance.type_name) else {
-                continue;
-            };
-            let info = match instances.get(&instance.id) {
-                Some(Ok(described)) => described.clone(),
-                _ => registered.info.clone(),
-            };
-            let (signal, reactive) = if info.mode == ExecutionMode::Reactive {
-                let cell: Arc<OnceLock<Weak<ReactiveCell>>> = Arc::new(OnceLock::new());
-                let hook = Arc::clone(&cell);
-                let signal = RunSignal::reactive(move || {
-                    if let Some(cell) = hook.get().and_then(Weak::upgrade) {
-                        cell.on_data();
-                    }
-                });
-                (Arc::new(signal), Some(cell))
-            } else {
-                (Arc::new(RunSignal::new()), None)
-            };
-            let mut outputs = Vec::new();
-            for output in &info.outputs {
-                let settings = instance.outputs.get(&output.name);
-                let size = settings
-                    .and_then(|s| s.buffer_size)
-                    .unwrap_or(output.default_buffer_size);
-                // Room for the largest share a connection from this output asks for, and for the newest
-                // kept sample of a subsampled reader of the newest (one in N needs N slots).
-                let slots = diagram
-                    .connections
-                    .iter()
-                    .filter(|c| c.from.component == instance.id && c.from.port == output.name)
-                    .flat_map(|c| {
-                        let newest_kept = c
-                            .subsampling
-                            .filter(|_| connection_policy(diagram, registry, &instances, c).reads_newest());
-                        [c.buffer_size, newest_kept.map(|n| n as usize)]
-                    })
-                    .flatten()
-                    .fold(size, usize::max);
-                let name = output
-                    .known_as
-                    .clone()
-                    .unwrap_or_else(|| format!("{}.{}", instance.id, output.name));
-                let buffer = OutputBuffer::with_slots(name, size, slots);
-                buffers.insert((instance.id.clone(), output.name.clone()), buffer.clone());
-                let subsampling = settings.and_then(|s| s.subsampling).unwrap_or(1);
-                let data_type = output.follows_input.is_none().then(|| output.data_type.clone());
-                outputs.push(kairos_sdk::host::output_port(
-                    output.name.clone(),
-                    data_type,
-                    buffer,
-                    subsampling,
-                ));
-            }
-            pending.push(Pending {
-                id: instance.id.clone(),
-                properties: kairos_diagram::resolved_properties(instance, &info),
-                component: construct(&instance.id, &registered.factory),
-                info,
-                signal,
-                reactive,
-                inputs: Vec::new(),
-                outputs,
-                thread: instance.thread.clone(),
+/// What building an engine reads from: the diagram, the library and each instance's description.
+struct Wiring<'a> {
+    diagram: &'a Diagram,
+    registry: &'a Registry,
+    instances: &'a InstanceInfos,
+}
+
+impl Wiring<'_> {
+    /// `instance` made, with a buffer for each of its outputs (kept in `buffers` by component and port);
+    /// `None` for a type the library lacks (validation has refused it already).
+    fn pending(
+        &self,
+        instance: &kairos_diagram::ComponentInstance,
+        buffers: &mut BTreeMap<(String, String), OutputBuffer>,
+    ) -> Option<Pending> {
+        let registered = self.registry.component(&instance.type_name)?;
+        let info = match self.instances.get(&instance.id) {
+            Some(Ok(described)) => described.clone(),
+            _ => registered.info.clone(),
+        };
+        let (signal, reactive) = if info.mode == ExecutionMode::Reactive {
+            let cell: Arc<OnceLock<Weak<ReactiveCell>>> = Arc::new(OnceLock::new());
+            let hook = Arc::clone(&cell);
+            let signal = RunSignal::reactive(move || {
+                if let Some(cell) = hook.get().and_then(Weak::upgrade) {
+                    cell.on_data();
+                }
             });
+            (Arc::new(signal), Some(cell))
+        } else {
+            (Arc::new(RunSignal::new()), None)
+        };
+        let mut outputs = Vec::new();
+        for output in &info.outputs {
+            let buffer = self.output_buffer(instance, output);
+            buffers.insert((instance.id.clone(), output.name.clone()), buffer.clone());
+            let subsampling = instance
+                .outputs
+                .get(&output.name)
+                .and_then(|s| s.subsampling)
+                .unwrap_or(1);
+            let data_type = output.follows_input.is_none().then(|| output.data_type.clone());
+            outputs.push(kairos_sdk::host::output_port(
+                output.name.clone(),
+                data_type,
+                buffer,
+                subsampling,
+            ));
         }
+        Some(Pending {
+            id: instance.id.clone(),
+            properties: kairos_diagram::resolved_properties(instance, &info),
+            component: construct(&instance.id, &registered.factory),
+            info,
+            signal,
+            reactive,
+            inputs: Vec::new(),
+            outputs,
+            thread: instance.thread.clone(),
+        })
+    }
 
+    /// The buffer of `instance`'s `output`: its size, with room for the largest share a connection from it
+    /// asks for, and for the newest kept sample of a subsampled reader of the newest (one in N needs N
+    /// slots).
+    fn output_buffer(
+        &self,
+        instance: &kairos_diagram::ComponentInstance,
+        output: &kairos_diagram::OutputInfo,
+    ) -> OutputBuffer {
+        let size = instance
+            .outputs
+            .get(&output.name)
+            .and_then(|s| s.buffer_size)
+            .unwrap_or(output.default_buffer_size);
+        let slots = self
+            .diagram
+            .connections
+            .iter()
+            .filter(|c| c.from.component == instance.id && c.from.port == output.name)
+            .flat_map(|c| {
+                let newest_kept = c.subsampling.filter(|_| self.policy(c).reads_newest());
+                [c.buffer_size, newest_kept.map(|n| n as usize)]
+            })
+            .flatten()
+            .fold(size, usize::max);
+        let name = output
+            .known_as
+            .clone()
+            .unwrap_or_else(|| format!("{}.{}", instance.id, output.name));
+        OutputBuffer::with_slots(name, size, slots)
+    }
+
+    fn policy(&self, connection: &kairos_diagram::Connection) -> ReaderPolicy {
+        connection_policy(self.diagram, self.registry, self.instances, connection)
+    }
+
+    /// Attaches a reader to its producer's buffer for every connection, under the connection's policy, and
+    /// gives each pending component its inputs; the policy of each link, by the link's name.
+    fn attach_inputs(
+        &self,
+        buffers: &BTreeMap<(String, String), OutputBuffer>,
+        pending: &mut [Pending],
+    ) -> BTreeMap<String, ReaderPolicy> {
         let mut policies = BTreeMap::new();
         let mut readers: BTreeMap<(String, String), kairos_sdk::host::Reader> = BTreeMap::new();
-        for connection in &diagram.connections {
+        for connection in &self.diagram.connections {
             let key = (connection.from.component.clone(), connection.from.port.clone());
             let Some(buffer) = buffers.get(&key) else { continue };
             let Some(consumer) = pending.iter().find(|p| p.id == connection.to.component) else {
@@ -507,7 +528,7 @@ impl Engine {
             if consumer.info.input(&connection.to.port).is_none() {
                 continue;
             }
-            let policy = connection_policy(diagram, registry, &instances, connection);
+            let policy = self.policy(connection);
             let link = link_name(&connection.from, &connection.to);
             policies.insert(link.clone(), policy);
             let reader = buffer.attach(
@@ -524,7 +545,7 @@ impl Engine {
                 reader,
             );
         }
-        for component in &mut pending {
+        for component in pending {
             component.inputs = component
                 .info
                 .inputs
@@ -537,45 +558,84 @@ impl Engine {
                 })
                 .collect();
         }
+        policies
+    }
+}
 
-        let diagram_text: Arc<str> = Arc::from(diagram.to_ron());
-        let mut slots = Vec::new();
-        for component in pending {
-            let mut ctx = kairos_sdk::host::context(ContextParts {
-                id: component.id.clone(),
-                inputs: component.inputs,
-                outputs: component.outputs,
-                properties: component.properties,
-                clock: Arc::clone(&clock),
-                signal: Arc::clone(&component.signal),
-            });
-            ctx.set_diagram_text(Arc::clone(&diagram_text));
-            let monitor = Arc::new(Monitor::new(ctx.status_cell()));
-            let driver = match component.reactive {
-                Some(hook) => {
-                    let cell = Arc::new(ReactiveCell {
-                        id: component.id.clone(),
-                        inner: Mutex::new((component.component, ctx)),
-                        monitor: Arc::clone(&monitor),
-                    });
-                    let _ = hook.set(Arc::downgrade(&cell));
-                    Driver::Reactive(cell)
-                }
-                None => Driver::Threaded {
-                    mode: component.info.mode,
-                    pending: Some(Box::new((component.component, ctx))),
-                    handle: None,
-                },
-            };
-            slots.push(Slot {
-                id: component.id,
-                info: component.info,
-                thread: component.thread,
-                signal: component.signal,
-                monitor,
-                driver,
-            });
+impl Pending {
+    /// The slot this component runs in: its context built, in its producer's thread when reactive.
+    fn into_slot(self, clock: &Arc<dyn Clock>, diagram_text: &Arc<str>) -> Slot {
+        let mut ctx = kairos_sdk::host::context(ContextParts {
+            id: self.id.clone(),
+            inputs: self.inputs,
+            outputs: self.outputs,
+            properties: self.properties,
+            clock: Arc::clone(clock),
+            signal: Arc::clone(&self.signal),
+        });
+        ctx.set_diagram_text(Arc::clone(diagram_text));
+        let monitor = Arc::new(Monitor::new(ctx.status_cell()));
+        let driver = match self.reactive {
+            Some(hook) => {
+                let cell = Arc::new(ReactiveCell {
+                    id: self.id.clone(),
+                    inner: Mutex::new((self.component, ctx)),
+                    monitor: Arc::clone(&monitor),
+                });
+                let _ = hook.set(Arc::downgrade(&cell));
+                Driver::Reactive(cell)
+            }
+            None => Driver::Threaded {
+                mode: self.info.mode,
+                pending: Some(Box::new((self.component, ctx))),
+                handle: None,
+            },
+        };
+        Slot {
+            id: self.id,
+            info: self.info,
+            thread: self.thread,
+            signal: self.signal,
+            monitor,
+            driver,
         }
+    }
+}
+
+impl Engine {
+    /// Validates `diagram` against `registry` and builds it; nothing runs until [`Engine::start`]. One pass
+    /// per phase: components with their output buffers, readers attaching inputs to them, then the slots
+    /// the components run in.
+    pub fn build(
+        diagram: &Diagram,
+        registry: &Registry,
+        clock: Arc<dyn Clock>,
+    ) -> Result<Engine, BuildError> {
+        let instances = registry.instance_infos(diagram);
+        let mut diagnostics =
+            kairos_diagram::validate_with(diagram, None, &registry.library_info(), &instances);
+        diagnostics.extend(placed_elsewhere(diagram));
+        if diagnostics.iter().any(kairos_diagram::Diagnostic::is_error) {
+            return Err(BuildError::Invalid(diagnostics));
+        }
+        let wiring = Wiring {
+            diagram,
+            registry,
+            instances: &instances,
+        };
+        let mut pending: Vec<Pending> = Vec::new();
+        let mut buffers: BTreeMap<(String, String), OutputBuffer> = BTreeMap::new();
+        for instance in &diagram.components {
+            if let Some(component) = wiring.pending(instance, &mut buffers) {
+                pending.push(component);
+            }
+        }
+        let policies = wiring.attach_inputs(&buffers, &mut pending);
+        let diagram_text: Arc<str> = Arc::from(diagram.to_ron());
+        let slots = pending
+            .into_iter()
+            .map(|component| component.into_slot(&clock, &diagram_text))
+            .collect();
         Ok(Engine {
             clock,
             clock_source: diagram.clock_source.clone(),

@@ -340,10 +340,6 @@ fn quaternion(value: Option<&Json>) -> Result<DQuat, String> {
     }
 }
 
-#[allow(
-    clippy::too_many_lines,
-    reason = "one arm per payload type, the inverse of `value_of` and `encode`; it reads best in one place"
-)]
 fn payload_of(header: &SampleHeader, body: &[u8]) -> Result<Payload, String> {
     let data_type = DataType::from_name(&header.data_type);
     let value = || {

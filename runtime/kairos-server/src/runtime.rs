@@ -9,7 +9,7 @@ use std::sync::{Arc, Mutex, MutexGuard, PoisonError, RwLock, RwLockReadGuard, Tr
 
 use kairos_diagram::{Diagnostic, Diagram, Value};
 use kairos_protocol::{
-    ClockTelemetry, ComponentTelemetry, DeployResult, ErrorCode, LatencyTelemetry, LinkTelemetry,
+    ClockState, ClockTelemetry, ComponentTelemetry, DeployResult, ErrorCode, LatencyTelemetry, LinkTelemetry,
     ProtocolError, RequestBody, RuntimeState, Telemetry,
 };
 use kairos_runtime::{ComponentState, ControlError, Engine, EngineState, LongWait, StatsSnapshot};
@@ -142,10 +142,14 @@ fn telemetry(snapshot: &StatsSnapshot, state: RuntimeState) -> Telemetry {
 fn clock_telemetry(clock: &kairos_sdk::ClockStatus) -> ClockTelemetry {
     ClockTelemetry {
         source: clock.source.clone(),
-        state: serde_json::to_value(clock.state)
-            .ok()
-            .and_then(|v| v.as_str().map(str::to_owned))
-            .unwrap_or_default(),
+        state: match clock.state {
+            kairos_sdk::ClockState::Acquiring => ClockState::Acquiring,
+            kairos_sdk::ClockState::Locked => ClockState::Locked,
+            kairos_sdk::ClockState::Slewing => ClockState::Slewing,
+            kairos_sdk::ClockState::Holdover => ClockState::Holdover,
+            kairos_sdk::ClockState::Lost => ClockState::Lost,
+            kairos_sdk::ClockState::Alarm => ClockState::Alarm,
+        },
         error_ns: clock.error_ns,
         step_ns: clock.step_ns,
         references: clock.references,
@@ -195,7 +199,7 @@ impl Runtime {
         }
         self.clock_master.load(Ordering::Acquire).then(|| ClockTelemetry {
             source: "this machine".to_owned(),
-            state: "master".to_owned(),
+            state: ClockState::Master,
             error_ns: 0,
             step_ns: 0,
             references: 0,

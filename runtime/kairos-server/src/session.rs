@@ -13,7 +13,7 @@ use std::time::Duration;
 
 use futures_util::{SinkExt as _, StreamExt as _};
 use kairos_protocol::{
-    CLIENT_QUEUE, DiagramReply, Done, ErrorCode, LogLevel, MAX_MESSAGE_BYTES, PROTOCOL_VERSION,
+    CLIENT_QUEUE, DeployResult, DiagramReply, Done, ErrorCode, LogLevel, MAX_MESSAGE_BYTES, PROTOCOL_VERSION,
     ProtocolError, ReplyBody, RequestBody, RequestKind, Role, SampleTransport, SamplesSubscribed,
     ServerMessage, Status, TelemetrySubscribed, Token, Welcome, decode_request,
 };
@@ -423,11 +423,8 @@ impl Session {
         })
     }
 
-    /// Does what `body` asks; the result is the reply of the request's own type.
-    #[allow(
-        clippy::too_many_lines,
-        reason = "one arm per request type: the protocol in one place"
-    )]
+    /// Does what `body` asks; the result is the reply of the request's own type. Each request is one
+    /// call: what it does is in the function it names.
     async fn dispatch(&mut self, body: RequestBody) -> Result<ReplyBody, ProtocolError> {
         Ok(match body {
             RequestBody::Hello {
@@ -445,24 +442,12 @@ impl Session {
                     self.shared.runtime.describe_instances(&diagram)
                 })?)
             }
-            RequestBody::GetDiagram => ReplyBody::GetDiagram(
-                self.blocking(|r| {
-                    Ok(DiagramReply {
-                        diagram: r.diagram_text(),
-                    })
-                })
-                .await?,
-            ),
+            RequestBody::GetDiagram => ReplyBody::GetDiagram(self.get_diagram().await?),
             RequestBody::Deploy {
                 diagram,
                 network,
                 folder,
-            } => ReplyBody::Deploy(
-                self.blocking(move |r| {
-                    r.deploy(&diagram, network.as_ref(), folder.as_deref().map(Path::new))
-                })
-                .await?,
-            ),
+            } => ReplyBody::Deploy(self.deploy(diagram, network, folder).await?),
             RequestBody::InstallPack {
                 name,
                 version,
@@ -488,74 +473,28 @@ impl Session {
                 at_ns,
                 forced,
                 start_unlocked,
-            } => {
-                if let Some(at) = at_ns {
-                    self.wait_for_instant(Timestamp(at)).await?;
-                }
-                self.blocking(move |r| r.start(forced.as_deref(), start_unlocked))
-                    .await?;
-                if let Some(at) = at_ns {
-                    let late = self.runtime().now().nanos_since(Timestamp(at));
-                    if late > MISSED_START_NS {
-                        tracing::warn!("started {:.1} ms after the agreed instant", late as f64 * 1e-6);
-                    } else {
-                        tracing::info!("started at the agreed instant (+{:.0} µs)", late as f64 * 1e-3);
-                    }
-                }
-                ReplyBody::Start(Done {})
-            }
-            RequestBody::Pause => {
-                self.blocking(Runtime::pause).await?;
-                ReplyBody::Pause(Done {})
-            }
-            RequestBody::Resume => {
-                self.blocking(Runtime::resume).await?;
-                ReplyBody::Resume(Done {})
-            }
-            RequestBody::Stop { at_ns } => {
-                if let Some(at) = at_ns {
-                    self.wait_for_instant(Timestamp(at)).await?;
-                }
-                self.blocking(Runtime::stop).await?;
-                ReplyBody::Stop(Done {})
-            }
+            } => ReplyBody::Start(self.start(at_ns, forced, start_unlocked).await?),
+            RequestBody::Pause => ReplyBody::Pause(self.blocking(Runtime::pause).await.map(|()| Done {})?),
+            RequestBody::Resume => ReplyBody::Resume(self.blocking(Runtime::resume).await.map(|()| Done {})?),
+            RequestBody::Stop { at_ns } => ReplyBody::Stop(self.stop(at_ns).await?),
             RequestBody::SetProperty {
                 component,
                 property,
                 value,
-            } => {
-                self.set_property(component, property, value).await?;
-                ReplyBody::SetProperty(Done {})
-            }
-            RequestBody::TriggerAction { component, action } => {
-                self.action(component, action).await?;
-                ReplyBody::TriggerAction(Done {})
-            }
-            RequestBody::Status => ReplyBody::Status(
-                self.blocking(|r| {
-                    let telemetry = r.telemetry();
-                    Ok(Status {
-                        state: r.state(),
-                        clock: r
-                            .clock_telemetry()
-                            .or_else(|| telemetry.as_ref().and_then(|t| t.clock.clone())),
-                        telemetry: telemetry.map(Box::new),
-                    })
-                })
-                .await?,
+            } => ReplyBody::SetProperty(
+                self.set_property(component, property, value)
+                    .await
+                    .map(|()| Done {})?,
             ),
+            RequestBody::TriggerAction { component, action } => {
+                ReplyBody::TriggerAction(self.action(component, action).await.map(|()| Done {})?)
+            }
+            RequestBody::Status => ReplyBody::Status(self.status().await?),
             RequestBody::SubscribeTelemetry { interval_ms } => {
-                let interval_ms = interval_ms.max(MIN_TELEMETRY_MS);
-                let period = Duration::from_millis(interval_ms);
-                if let Some(old) = self.telemetry.replace(self.telemetry_task(period)) {
-                    old.abort();
-                }
-                ReplyBody::SubscribeTelemetry(TelemetrySubscribed { interval_ms })
+                ReplyBody::SubscribeTelemetry(self.subscribe_telemetry(interval_ms))
             }
             RequestBody::UnsubscribeTelemetry => {
-                if let Some(task) = self.telemetry.take() {
-                    task.abort();
-                }
+                abort(self.telemetry.take());
                 ReplyBody::UnsubscribeTelemetry(Done {})
             }
             RequestBody::FoxglovePublish { outputs, publish } => {
@@ -566,15 +505,12 @@ impl Session {
             }
             RequestBody::Foxglove => ReplyBody::Foxglove(self.shared.foxglove_state()),
             RequestBody::SubscribeLog { level } => {
-                if let Some(old) = self.log.replace(self.log_task(level)) {
-                    old.abort();
-                }
+                let task = self.log_task(level);
+                abort(self.log.replace(task));
                 ReplyBody::SubscribeLog(Done {})
             }
             RequestBody::UnsubscribeLog => {
-                if let Some(task) = self.log.take() {
-                    task.abort();
-                }
+                abort(self.log.take());
                 ReplyBody::UnsubscribeLog(Done {})
             }
             RequestBody::SubscribeSamples {
@@ -598,58 +534,135 @@ impl Session {
                 )?)
             }
             RequestBody::UnsubscribeSamples { outputs } => {
-                let names: Vec<String> = if outputs.is_empty() {
-                    self.samples
-                        .keys()
-                        .chain(self.shared_samples.keys())
-                        .cloned()
-                        .collect()
-                } else {
-                    outputs
-                };
-                for name in names {
-                    if let Some(task) = self.samples.remove(&name) {
-                        task.abort();
-                    }
-                    self.shared_samples.remove(&name);
-                }
+                self.unsubscribe_samples(outputs);
                 ReplyBody::UnsubscribeSamples(Done {})
             }
-            RequestBody::RecordStart { component } => {
-                self.action(component, "start".to_owned()).await?;
-                ReplyBody::RecordStart(Done {})
-            }
-            RequestBody::RecordStop { component } => {
-                self.action(component, "stop".to_owned()).await?;
-                ReplyBody::RecordStop(Done {})
-            }
-            RequestBody::RecordSplit { component } => {
-                self.action(component, "split".to_owned()).await?;
-                ReplyBody::RecordSplit(Done {})
-            }
-            RequestBody::PlayerPlay { component } => {
-                self.action(component, "play".to_owned()).await?;
-                ReplyBody::PlayerPlay(Done {})
-            }
-            RequestBody::PlayerPause { component } => {
-                self.action(component, "pause".to_owned()).await?;
-                ReplyBody::PlayerPause(Done {})
-            }
-            RequestBody::PlayerStep { component } => {
-                self.action(component, "step".to_owned()).await?;
-                ReplyBody::PlayerStep(Done {})
-            }
+            body => self.recorder_or_player(body).await?,
+        })
+    }
+
+    /// The recorder's and the player's requests: each an action or a property of the component.
+    async fn recorder_or_player(&mut self, body: RequestBody) -> Result<ReplyBody, ProtocolError> {
+        let (component, action, reply): (String, &str, fn(Done) -> ReplyBody) = match body {
+            RequestBody::RecordStart { component } => (component, "start", ReplyBody::RecordStart),
+            RequestBody::RecordStop { component } => (component, "stop", ReplyBody::RecordStop),
+            RequestBody::RecordSplit { component } => (component, "split", ReplyBody::RecordSplit),
+            RequestBody::PlayerPlay { component } => (component, "play", ReplyBody::PlayerPlay),
+            RequestBody::PlayerPause { component } => (component, "pause", ReplyBody::PlayerPause),
+            RequestBody::PlayerStep { component } => (component, "step", ReplyBody::PlayerStep),
             RequestBody::PlayerSeek { component, seconds } => {
                 self.set_property(component, "seek_s".to_owned(), Value::F64(seconds))
                     .await?;
-                ReplyBody::PlayerSeek(Done {})
+                return Ok(ReplyBody::PlayerSeek(Done {}));
             }
             RequestBody::PlayerSpeed { component, factor } => {
                 self.set_property(component, "speed".to_owned(), Value::F64(factor))
                     .await?;
-                ReplyBody::PlayerSpeed(Done {})
+                return Ok(ReplyBody::PlayerSpeed(Done {}));
             }
+            other => {
+                return Err(ProtocolError::new(
+                    ErrorCode::Internal,
+                    format!("no handler for a '{}' request", other.kind().name()),
+                ));
+            }
+        };
+        self.action(component, action.to_owned()).await?;
+        Ok(reply(Done {}))
+    }
+
+    /// `get_diagram`: the deployed diagram's text.
+    async fn get_diagram(&mut self) -> Result<DiagramReply, ProtocolError> {
+        self.blocking(|r| {
+            Ok(DiagramReply {
+                diagram: r.diagram_text(),
+            })
         })
+        .await
+    }
+
+    /// `deploy`: the diagram replaces the deployed one, joining its link network.
+    async fn deploy(
+        &mut self,
+        diagram: String,
+        network: Option<kairos_protocol::LinkNetwork>,
+        folder: Option<String>,
+    ) -> Result<DeployResult, ProtocolError> {
+        self.blocking(move |r| r.deploy(&diagram, network.as_ref(), folder.as_deref().map(Path::new)))
+            .await
+    }
+
+    /// `start`: now, or at the instant `at_ns` on this runtime's clock, saying how late it was.
+    async fn start(
+        &mut self,
+        at_ns: Option<i64>,
+        forced: Option<String>,
+        start_unlocked: bool,
+    ) -> Result<Done, ProtocolError> {
+        if let Some(at) = at_ns {
+            self.wait_for_instant(Timestamp(at)).await?;
+        }
+        self.blocking(move |r| r.start(forced.as_deref(), start_unlocked))
+            .await?;
+        if let Some(at) = at_ns {
+            let late = self.runtime().now().nanos_since(Timestamp(at));
+            if late > MISSED_START_NS {
+                tracing::warn!("started {:.1} ms after the agreed instant", late as f64 * 1e-6);
+            } else {
+                tracing::info!("started at the agreed instant (+{:.0} µs)", late as f64 * 1e-3);
+            }
+        }
+        Ok(Done {})
+    }
+
+    /// `stop`: now, or at the instant `at_ns` on this runtime's clock.
+    async fn stop(&mut self, at_ns: Option<i64>) -> Result<Done, ProtocolError> {
+        if let Some(at) = at_ns {
+            self.wait_for_instant(Timestamp(at)).await?;
+        }
+        self.blocking(Runtime::stop).await?;
+        Ok(Done {})
+    }
+
+    /// `status`: the runtime's state, its clock and its latest telemetry.
+    async fn status(&mut self) -> Result<Status, ProtocolError> {
+        self.blocking(|r| {
+            let telemetry = r.telemetry();
+            Ok(Status {
+                state: r.state(),
+                clock: r
+                    .clock_telemetry()
+                    .or_else(|| telemetry.as_ref().and_then(|t| t.clock.clone())),
+                telemetry: telemetry.map(Box::new),
+            })
+        })
+        .await
+    }
+
+    /// `subscribe_telemetry`: every `interval_ms` (at least [`MIN_TELEMETRY_MS`]), in place of any earlier.
+    fn subscribe_telemetry(&mut self, interval_ms: u64) -> TelemetrySubscribed {
+        let interval_ms = interval_ms.max(MIN_TELEMETRY_MS);
+        let period = Duration::from_millis(interval_ms);
+        let task = self.telemetry_task(period);
+        abort(self.telemetry.replace(task));
+        TelemetrySubscribed { interval_ms }
+    }
+
+    /// `unsubscribe_samples`: these outputs' streams end, or every stream when none is named.
+    fn unsubscribe_samples(&mut self, outputs: Vec<String>) {
+        let names: Vec<String> = if outputs.is_empty() {
+            self.samples
+                .keys()
+                .chain(self.shared_samples.keys())
+                .cloned()
+                .collect()
+        } else {
+            outputs
+        };
+        for name in names {
+            abort(self.samples.remove(&name));
+            self.shared_samples.remove(&name);
+        }
     }
 
     /// Runs in place without moving the network runtime's other tasks aside first: a component waiting for
@@ -879,4 +892,11 @@ fn sample_task(
             }
         }
     })
+}
+
+/// Ends a task the session no longer wants, if there is one.
+fn abort(task: Option<JoinHandle<()>>) {
+    if let Some(task) = task {
+        task.abort();
+    }
 }

@@ -31,20 +31,22 @@ fn line(name: &str, spec: &HostSpec, reach: &Reach) -> String {
                     let _ = write!(text, " ({failed} FAILED)");
                 }
             }
-            let clock = &status["clock"];
-            match clock["state"].as_str() {
-                Some("master") => text.push_str(", clock master"),
-                Some(state) => {
-                    let error_us = clock["error_bound_ns"]
-                        .as_i64()
-                        .unwrap_or_else(|| clock["error_ns"].as_i64().unwrap_or(0))
-                        .unsigned_abs() as f64
-                        * 1e-3;
-                    let _ = write!(
-                        text,
-                        ", clock {state} ±{error_us:.1} µs (follows {})",
-                        clock["source"].as_str().unwrap_or("?")
-                    );
+            match kairos_coordinator::clocks::clock_of(&status) {
+                Some(clock) if clock.state == kairos_protocol::ClockState::Master => {
+                    text.push_str(", clock master");
+                }
+                Some(clock) => {
+                    let _ = write!(text, ", clock {} (follows {})", clock.state, clock.source);
+                    if clock.state.has_error() {
+                        let _ = write!(text, ", error {:+.1} µs", clock.error_ns as f64 * 1e-3);
+                        if let Some(bound) = clock.error_bound_ns {
+                            let _ = write!(
+                                text,
+                                ", error bound ±{:.1} µs",
+                                bound.unsigned_abs() as f64 * 1e-3
+                            );
+                        }
+                    }
                 }
                 None => text.push_str(", own clock"),
             }
