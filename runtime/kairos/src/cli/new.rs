@@ -78,6 +78,15 @@ fn print_pack_next_steps(
             "  kairos --pack-path {}/build components {name}.",
             folder.display()
         );
+    } else if crate::wizard::is_workspace_member(folder) {
+        let crate_name = folder
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        println!("  cargo test -p {crate_name}        (a member of this workspace, with its lints)");
+        println!(
+            "  to build it into kairos: three lines, in docs/components.md, \"Adding a pack to this repository\"."
+        );
     } else {
         println!("  cd {} && cargo test && cargo build --release", folder.display());
         println!(

@@ -210,6 +210,11 @@ pub fn new_pack(
     Ok((folder, notes))
 }
 
+/// Whether the pack in `folder` is a member of this repository's workspace (made in its `component-packs/`).
+pub fn is_workspace_member(folder: &Path) -> bool {
+    folder.parent().is_some_and(is_workspace_pack_folder)
+}
+
 /// Whether `parent` is the `component-packs/` folder of a workspace that takes every folder in it (this
 /// repository's): a pack made there is one of the workspace's members.
 fn is_workspace_pack_folder(parent: &Path) -> bool {
@@ -347,5 +352,41 @@ mod tests {
         )
         .unwrap_err();
         assert!(error.contains("/opt/packs/libkairos_pack_filters.so"), "{error}");
+    }
+
+    #[test]
+    fn a_pack_made_in_a_workspace_s_component_packs_is_its_member_with_its_lints() {
+        let root = tempfile::tempdir().unwrap();
+        std::fs::write(
+            root.path().join("Cargo.toml"),
+            "[workspace]\nmembers = [\"component-packs/*\"]\n",
+        )
+        .unwrap();
+        let packs = root.path().join("component-packs");
+        std::fs::create_dir(&packs).unwrap();
+        let library = kairos_diagram::LibraryInfo::default();
+        let sdk = default_sdk_path();
+        let (folder, _) = new_pack("radar", &packs, &sdk, &library, Lang::Rust, false).unwrap();
+        assert_eq!(folder, packs.join("kairos-pack-radar"));
+        assert!(is_workspace_member(&folder));
+        let manifest = std::fs::read_to_string(folder.join("Cargo.toml")).unwrap();
+        assert!(
+            manifest.contains("[lints]\nworkspace = true")
+                && manifest.contains("kairos-sdk.workspace = true")
+                && !manifest.contains("[workspace]"),
+            "{manifest}"
+        );
+        // Anywhere else: a workspace of its own, with the same lints written out.
+        let elsewhere = tempfile::tempdir().unwrap();
+        let (folder, _) = new_pack("radar", elsewhere.path(), &sdk, &library, Lang::Rust, false).unwrap();
+        assert_eq!(folder, elsewhere.path().join("radar"));
+        assert!(!is_workspace_member(&folder));
+        let manifest = std::fs::read_to_string(folder.join("Cargo.toml")).unwrap();
+        assert!(
+            manifest.contains("[workspace]")
+                && manifest.contains("pedantic")
+                && manifest.contains("unsafe_code"),
+            "{manifest}"
+        );
     }
 }
