@@ -11,12 +11,13 @@ mod serving;
 
 use common::text;
 use serving::{
-    Server, csv_values, folders, free_tcp_port, serve, serve_in, shared_machine, wait_for_log, whole_machine,
+    Server, csv_values, folders, free_tcp_port, now_ns, samples_after_then_stop, serve, serve_in,
+    shared_machine, wait_for_log, whole_machine,
 };
 use std::fmt::Write as _;
 use std::path::Path;
 use std::process::{Command, Stdio};
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 /// Two network namespaces joined by a veth pair (10.200.N.1 in the first, .2 in the second), made for a
 /// test and removed after it.
@@ -303,32 +304,10 @@ fn across_two_network_namespaces_a_cut_link_is_reported_and_the_part_resumes_whe
     assert!(reported < Duration::from_secs(1), "reported after {reported:?}");
     std::thread::sleep(Duration::from_secs(1));
     namespaces.set_link(true);
-    let returned_at = std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .unwrap()
-        .as_nanos() as i64;
+    let returned_at = now_ns();
     wait_for_log(&log, "host 'b' is back", Duration::from_secs(30));
-    let after = || {
-        csv_values(&dir_a.path().join("back.csv"))
-            .iter()
-            .filter(|(stamp, _)| *stamp > returned_at)
-            .count()
-    };
-    let deadline = Instant::now() + Duration::from_secs(30);
-    while after() == 0 && Instant::now() < deadline && deploying.try_wait().unwrap().is_none() {
-        std::thread::sleep(Duration::from_millis(100));
-    }
-    if deploying.try_wait().unwrap().is_none() {
-        nix::sys::signal::kill(
-            nix::unistd::Pid::from_raw(i32::try_from(deploying.id()).unwrap()),
-            nix::sys::signal::Signal::SIGINT,
-        )
-        .unwrap();
-    }
-    let status = deploying.wait().unwrap();
-    let content = std::fs::read_to_string(&log).unwrap();
-    assert!(status.success(), "{content}");
-    let after = after();
+    let (after, content) =
+        samples_after_then_stop(&mut deploying, &dir_a.path().join("back.csv"), returned_at, &log);
     assert!(
         after >= 1,
         "no sample back on a after the link returned\n{content}"

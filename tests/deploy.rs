@@ -13,8 +13,8 @@ mod serving;
 use common::{repo_root, text};
 use serde_json::{Value, json};
 use serving::{
-    Server, call, csv_values, folders, free_tcp_port, operator, serve, serve_on, serve_with_env,
-    shared_machine, state, two_host_diagram, wait_for_log,
+    Server, call, csv_values, folders, free_tcp_port, now_ns, operator, samples_after_then_stop, serve,
+    serve_on, serve_with_env, shared_machine, state, two_host_diagram, wait_for_log,
 };
 use std::path::Path;
 use std::process::{Command, Stdio};
@@ -265,33 +265,11 @@ fn a_killed_host_is_reported_within_a_second_and_its_part_runs_again_when_it_ret
     assert_eq!(state(&mut socket), "running");
 
     // It comes back: its part is deployed and started again, and samples flow here again.
-    let returned_at = std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .unwrap()
-        .as_nanos() as i64;
+    let returned_at = now_ns();
     b = serve_on(dir_b.path(), &b_listen, &[], &[]);
     wait_for_log(&log, "host 'b' is back", Duration::from_secs(30));
-    let after = || {
-        csv_values(&here.path().join("here.csv"))
-            .iter()
-            .filter(|(stamp, _)| *stamp > returned_at)
-            .count()
-    };
-    let deadline = Instant::now() + Duration::from_secs(30);
-    while after() == 0 && Instant::now() < deadline && deploying.try_wait().unwrap().is_none() {
-        std::thread::sleep(Duration::from_millis(100));
-    }
-    if deploying.try_wait().unwrap().is_none() {
-        nix::sys::signal::kill(
-            nix::unistd::Pid::from_raw(i32::try_from(deploying.id()).unwrap()),
-            nix::sys::signal::Signal::SIGINT,
-        )
-        .unwrap();
-    }
-    let status = deploying.wait().unwrap();
-    let content = std::fs::read_to_string(&log).unwrap();
-    assert!(status.success(), "{content}");
-    let after = after();
+    let (after, content) =
+        samples_after_then_stop(&mut deploying, &here.path().join("here.csv"), returned_at, &log);
     assert!(after >= 1, "no sample after host b returned\n{content}");
     if std::env::var_os("SHOW_LOG").is_some() {
         eprintln!("{content}");

@@ -227,3 +227,42 @@ pub fn wait_for_log(log: &Path, text: &str, within: Duration) -> Duration {
         std::thread::sleep(Duration::from_millis(10));
     }
 }
+
+/// Now, in ns since the UNIX epoch, as samples are stamped.
+pub fn now_ns() -> i64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .unwrap()
+        .as_nanos() as i64
+}
+
+/// Waits (30 s at most) until `csv` holds a sample stamped after `since_ns` or `deploying` ends, then stops
+/// it with Ctrl-C and checks it ended well: how many samples came after `since_ns`, and its log.
+pub fn samples_after_then_stop(
+    deploying: &mut Child,
+    csv: &Path,
+    since_ns: i64,
+    log: &Path,
+) -> (usize, String) {
+    let after = || {
+        csv_values(csv)
+            .iter()
+            .filter(|(stamp, _)| *stamp > since_ns)
+            .count()
+    };
+    let deadline = Instant::now() + Duration::from_secs(30);
+    while after() == 0 && Instant::now() < deadline && deploying.try_wait().unwrap().is_none() {
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    if deploying.try_wait().unwrap().is_none() {
+        nix::sys::signal::kill(
+            nix::unistd::Pid::from_raw(i32::try_from(deploying.id()).unwrap()),
+            nix::sys::signal::Signal::SIGINT,
+        )
+        .unwrap();
+    }
+    let status = deploying.wait().unwrap();
+    let content = std::fs::read_to_string(log).unwrap();
+    assert!(status.success(), "{content}");
+    (after(), content)
+}

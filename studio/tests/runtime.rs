@@ -6,8 +6,11 @@
     reason = "a failed unwrap is a failed test"
 )]
 
+mod common;
+
 use std::time::{Duration, Instant};
 
+use common::kairos_binary;
 use egui::{Pos2, Vec2};
 use egui_kittest::Harness;
 use egui_kittest::kittest::Queryable as _;
@@ -15,22 +18,6 @@ use kairos_studio::client::RuntimeClient;
 use kairos_studio::local::LocalRuntime;
 use kairos_studio::session::NodeState;
 use kairos_studio::{Document, StudioApp};
-
-/// The `kairos` binary of this build (`cargo test` in the workspace builds it before running tests).
-fn kairos_binary() -> std::path::PathBuf {
-    let test = std::env::current_exe().unwrap();
-    let binary = test
-        .parent()
-        .and_then(std::path::Path::parent)
-        .unwrap()
-        .join("kairos");
-    assert!(
-        binary.is_file(),
-        "{} is missing: run the workspace's tests (cargo test), or `cargo build -p kairos` first",
-        binary.display()
-    );
-    binary
-}
 
 fn run_until(harness: &mut Harness<'_, StudioApp>, what: &str, done: impl Fn(&StudioApp) -> bool) {
     let started = Instant::now();

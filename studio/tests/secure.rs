@@ -7,26 +7,17 @@
     reason = "a failed unwrap is a failed test"
 )]
 
+mod common;
+
 use std::io::{BufRead as _, BufReader};
 use std::path::Path;
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
+use common::kairos_binary;
 use kairos_protocol::Token;
 use kairos_studio::client::{ClientEvent, RuntimeClient};
 use kairos_studio::connection::Reach;
-
-/// The `kairos` binary of this build (`cargo test` in the workspace builds it before running tests).
-fn kairos_binary() -> std::path::PathBuf {
-    let test = std::env::current_exe().unwrap();
-    let binary = test.parent().and_then(Path::parent).unwrap().join("kairos");
-    assert!(
-        binary.is_file(),
-        "{} is missing: run `cargo build -p kairos` first",
-        binary.display()
-    );
-    binary
-}
 
 /// A self-signed certificate for 127.0.0.1 and its key, as `NAME.pem` and `NAME.key` in `dir`; false
 /// (saying why) where `openssl` is missing.
