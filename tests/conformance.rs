@@ -12,7 +12,8 @@ use std::time::{Duration, Instant};
 
 use kairos_diagram::{ComponentInstance, Diagram, PropertyKind, Value};
 use kairos_runtime::{ComponentState, Engine};
-use kairos_sdk::RealTimeClock;
+use kairos_sdk_core::RealTimeClock;
+use kairos_sdk_core::host::RegistryValidation as _;
 
 #[test]
 fn every_descriptor_is_sound() {
@@ -250,7 +251,7 @@ fn hardware_stand_in(
 /// A recording of a few numbers, for the player.
 fn small_recording(dir: &std::path::Path) -> String {
     let path = dir.join("small.mcap");
-    let mut harness = kairos_sdk::harness::Harness::new(
+    let mut harness = kairos_sdk_core::harness::Harness::new(
         kairos_pack_recording::recorder::Recorder::info(),
         kairos_pack_recording::recorder::Recorder::default(),
     );
@@ -258,8 +259,8 @@ fn small_recording(dir: &std::path::Path) -> String {
     for i in 0..20 {
         harness.push(
             "in1",
-            kairos_sdk::Payload::F64(f64::from(i)),
-            kairos_sdk::Timestamp::from_millis(i64::from(i) * 10),
+            kairos_sdk_core::Payload::F64(f64::from(i)),
+            kairos_sdk_core::Timestamp::from_millis(i64::from(i) * 10),
         );
     }
     harness.finish().unwrap();

@@ -642,7 +642,7 @@ fn camera_frames_from_another_host_arrive_whole_in_a_recording_here() {
         // Recorded under the name the diagram gives them, though a link's end writes them here.
         if message.channel.topic == "camera.image" {
             let schema = message.channel.schema.as_ref().unwrap().name.clone();
-            let kairos_sdk::Payload::Image(image) =
+            let kairos_sdk_core::Payload::Image(image) =
                 kairos_pack_recording::decode::decode(&schema, &message.data).unwrap()
             else {
                 panic!("not an image")

@@ -133,7 +133,8 @@ fn foxglove_gets_outputs_in_the_recordings_schemas_and_a_viewer_that_never_reads
         }
     };
     let schema = camera["schemaName"].as_str().unwrap();
-    let kairos_sdk::Payload::Image(image) = kairos_pack_recording::decode::decode(schema, &first).unwrap()
+    let kairos_sdk_core::Payload::Image(image) =
+        kairos_pack_recording::decode::decode(schema, &first).unwrap()
     else {
         panic!("not an image")
     };
@@ -167,7 +168,7 @@ fn foxglove_gets_outputs_in_the_recordings_schemas_and_a_viewer_that_never_reads
     assert!(
         matches!(
             kairos_pack_recording::decode::decode(imu_schema, &imu_payload),
-            Ok(kairos_sdk::Payload::Imu(_))
+            Ok(kairos_sdk_core::Payload::Imu(_))
         ),
         "{imu}"
     );
@@ -292,7 +293,7 @@ fn foxglove_publish_starts_a_server_for_chosen_outputs_and_stops_publishing_them
     assert!(
         matches!(
             kairos_pack_recording::decode::decode(schema, &payload),
-            Ok(kairos_sdk::Payload::F64(_))
+            Ok(kairos_sdk_core::Payload::F64(_))
         ),
         "{channel}"
     );
@@ -364,7 +365,7 @@ fn kairos_run_publishes_to_foxglove_too() {
     let schema = channels["imu.imu"]["schemaName"].as_str().unwrap();
     assert!(matches!(
         kairos_pack_recording::decode::decode(schema, &payload),
-        Ok(kairos_sdk::Payload::Imu(_))
+        Ok(kairos_sdk_core::Payload::Imu(_))
     ));
     let _ = child.kill();
     let _ = child.wait();

@@ -428,7 +428,7 @@ fn a_missing_or_mismatched_pack_names_both_versions_and_where_it_looked() {
 
 #[test]
 fn the_c_header_matches_the_rust_abi() {
-    use kairos_sdk::abi;
+    use kairos_sdk_core::abi;
     let dir = tempfile::tempdir().unwrap();
     let program = dir.path().join("layout");
     let status = Command::new("cc")
@@ -446,7 +446,7 @@ fn the_c_header_matches_the_rust_abi() {
         "magic {:x}\nabi {}\nsdk {}\nstr {}\nsample {}\nvalue {}\nerror {}\nhost {}\ncounters {}\nvtable {}\ndescriptor {}\n",
         abi::ABI_MAGIC,
         abi::ABI_VERSION,
-        kairos_sdk::SDK_VERSION,
+        kairos_sdk_core::SDK_VERSION,
         size_of::<abi::KStr>(),
         size_of::<abi::KSample>(),
         size_of::<abi::KValue>(),
@@ -461,10 +461,10 @@ fn the_c_header_matches_the_rust_abi() {
 
 /// Runs `sine → probe` on an engine built from `registry` and returns the first reports the probe
 /// writes, and its last published status.
-fn probe_reports(registry: &kairos_sdk::Registry) -> (Vec<String>, Option<serde_json::Value>) {
+fn probe_reports(registry: &kairos_sdk_core::Registry) -> (Vec<String>, Option<serde_json::Value>) {
     use kairos_diagram::{ComponentInstance, Connection, Diagram, PackRequirement, PortRef, ReaderPolicy};
-    use kairos_sdk::host::ReaderConfig;
-    use kairos_sdk::{Payload, RealTimeClock, RunSignal};
+    use kairos_sdk_core::host::ReaderConfig;
+    use kairos_sdk_core::{Payload, RealTimeClock, RunSignal};
 
     let mut sine = ComponentInstance::new("sine", "core.sine");
     sine.properties
@@ -511,13 +511,13 @@ fn probe_reports(registry: &kairos_sdk::Registry) -> (Vec<String>, Option<serde_
 
 #[test]
 fn a_component_sees_the_same_context_built_in_and_loaded_from_its_library() {
-    let mut built_in = kairos_sdk::Registry::new();
+    let mut built_in = kairos_sdk_core::Registry::new();
     kairos_pack_core::register(&mut built_in);
     kairos_test_pack_faulty::register(&mut built_in);
 
     let dir = tempfile::tempdir().unwrap();
     copy_rust_pack("kairos_test_pack_faulty", dir.path());
-    let mut loaded = kairos_sdk::Registry::new();
+    let mut loaded = kairos_sdk_core::Registry::new();
     kairos_pack_core::register(&mut loaded);
     let scan = kairos_runtime::load_packs(&mut loaded, &[dir.path().to_owned()]);
     assert!(scan.refused.is_empty(), "{:?}", scan.refused);

@@ -387,7 +387,7 @@ fn the_free_space_guard_stops_the_recorder_alone_and_leaves_a_valid_file() {
     assert_eq!(code, Some(0), "the file is closed and valid: {report}");
 }
 
-type Decoded = BTreeMap<String, Vec<(u64, u64, kairos_sdk::Payload)>>;
+type Decoded = BTreeMap<String, Vec<(u64, u64, kairos_sdk_core::Payload)>>;
 
 /// Every message of `file` decoded, by topic: (publish time, log time, payload), in file order.
 fn decoded_messages(file: &Path) -> Decoded {

@@ -15,7 +15,7 @@ use std::sync::Arc;
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
 use kairos_benches::{Percentiles, Spread, header, size};
-use kairos_sdk::{Clock as _, ClockState, DisciplinedClock};
+use kairos_sdk_core::{Clock as _, ClockState, DisciplinedClock};
 
 fn wall_now() -> i64 {
     i64::try_from(SystemTime::now().duration_since(UNIX_EPOCH).unwrap().as_nanos()).unwrap()

@@ -23,8 +23,8 @@ use kairos_benches::{
     print_latency, size,
 };
 use kairos_pack_can::components::readable;
-use kairos_sdk::host::ReaderConfig;
-use kairos_sdk::{Component, Payload, ReaderPolicy, RunSignal, Value};
+use kairos_sdk_core::host::ReaderConfig;
+use kairos_sdk_core::{Component, Payload, ReaderPolicy, RunSignal, Value};
 
 /// Nanoseconds per item of `items` calls of `op`.
 fn per_item(items: usize, mut op: impl FnMut()) -> f64 {

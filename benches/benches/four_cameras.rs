@@ -11,7 +11,7 @@ use std::time::Duration;
 
 use kairos_benches::{Table, header, quick, repetitions, size};
 use kairos_runtime::Engine;
-use kairos_sdk::{RealTimeClock, Registry};
+use kairos_sdk_core::{RealTimeClock, Registry};
 
 const WIDTH: u32 = 1920;
 const HEIGHT: u32 = 1080;

@@ -14,8 +14,8 @@ use std::time::{Duration, Instant};
 use kairos_benches::{Goal, Spread, Table, header, machine, quick, ratio, repetitions, size, time};
 use kairos_diagram::{ComponentInstance, Connection, Diagram, PortRef, ReaderPolicy, Value};
 use kairos_runtime::Engine;
-use kairos_sdk::harness::Harness;
-use kairos_sdk::{Payload, RealTimeClock, Registry, Timestamp};
+use kairos_sdk_core::harness::Harness;
+use kairos_sdk_core::{Payload, RealTimeClock, Registry, Timestamp};
 
 fn library_path() -> Option<PathBuf> {
     let exe = std::env::current_exe().ok()?;

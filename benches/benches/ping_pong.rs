@@ -13,8 +13,8 @@ use std::thread;
 use std::time::Instant;
 
 use kairos_benches::{Goal, LatencySeries, Percentiles, Ratios, header, nanos, print_latency, size};
-use kairos_sdk::host::{OutputBuffer, Reader, ReaderConfig};
-use kairos_sdk::{Payload, ReaderPolicy, RunSignal, Sample, Timestamp};
+use kairos_sdk_core::host::{OutputBuffer, Reader, ReaderConfig};
+use kairos_sdk_core::{Payload, ReaderPolicy, RunSignal, Sample, Timestamp};
 
 #[derive(Clone, Copy)]
 struct Plan {

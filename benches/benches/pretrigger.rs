@@ -13,7 +13,7 @@ use std::time::Duration;
 
 use kairos_benches::{Goal, Ratios, Spread, Table, header, repetitions, size};
 use kairos_runtime::Engine;
-use kairos_sdk::{RealTimeClock, Registry};
+use kairos_sdk_core::{RealTimeClock, Registry};
 
 fn registry() -> Registry {
     let mut registry = Registry::new();

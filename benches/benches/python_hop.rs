@@ -22,8 +22,8 @@ use kairos_benches::{
 };
 use kairos_diagram::{ComponentInstance, Connection, Diagram, PortRef, ReaderPolicy, Value};
 use kairos_runtime::Engine;
-use kairos_sdk::host::ReaderConfig;
-use kairos_sdk::{RealTimeClock, Registry, RunSignal};
+use kairos_sdk_core::host::ReaderConfig;
+use kairos_sdk_core::{RealTimeClock, Registry, RunSignal};
 
 #[derive(Clone, Copy, PartialEq)]
 enum Payload {

@@ -7,8 +7,8 @@ use std::time::Instant;
 
 use kairos_benches::{Goal, Spread, Table, header, machine, quick, ratio, repetitions, size};
 use kairos_pack_recording::recorder::Recorder;
-use kairos_sdk::harness::Harness;
-use kairos_sdk::{Image, Payload, Timestamp};
+use kairos_sdk_core::harness::Harness;
+use kairos_sdk_core::{Image, Payload, Timestamp};
 
 const WIDTH: u32 = 1920;
 const HEIGHT: u32 = 1080;
@@ -31,8 +31,8 @@ fn frames(count: usize) -> Vec<Payload> {
 /// (10 Hz) recorded with each compression, and the ratio to the uncompressed file.
 fn compression_ratios(dir: &std::path::Path) {
     use kairos_pack_sensors::{camera, gnss, imu, lidar};
-    let mut streams: Vec<(&str, kairos_sdk::Sample)> = Vec::new();
-    let mut collect = |input: &'static str, out: kairos_sdk::harness::HarnessOutput, port: &str| {
+    let mut streams: Vec<(&str, kairos_sdk_core::Sample)> = Vec::new();
+    let mut collect = |input: &'static str, out: kairos_sdk_core::harness::HarnessOutput, port: &str| {
         streams.extend(out.samples(port).iter().map(|s| (input, s.clone())));
     };
     let mut cam = Harness::new(camera::descriptor(), kairos_pack_sensors::CameraSensor::default());

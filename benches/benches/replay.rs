@@ -17,9 +17,9 @@ use kairos_benches::{
 };
 use kairos_pack_recording::player::Player;
 use kairos_pack_recording::recorder::Recorder;
-use kairos_sdk::harness::Harness;
-use kairos_sdk::host::{ContextHost as _, ContextParts, OutputBuffer, ReaderConfig};
-use kairos_sdk::{
+use kairos_sdk_core::harness::Harness;
+use kairos_sdk_core::host::{ContextHost as _, ContextParts, OutputBuffer, ReaderConfig};
+use kairos_sdk_core::{
     Component, ComponentError, Payload, ReaderPolicy, RealTimeClock, RunSignal, Timestamp, Value,
 };
 
@@ -60,10 +60,10 @@ fn replay_errors(path: &Path) -> Option<Percentiles> {
             let mut config = ReaderConfig::new(ReaderPolicy::Fifo, format!("player.{} -> bench", o.name));
             config.capacity = Some(1 << 16);
             readers.push(buffer.attach(config, Arc::new(RunSignal::new())));
-            kairos_sdk::host::output_port(o.name.clone(), Some(o.data_type.clone()), buffer, 1)
+            kairos_sdk_core::host::output_port(o.name.clone(), Some(o.data_type.clone()), buffer, 1)
         })
         .collect();
-    let mut ctx = kairos_sdk::host::context(ContextParts {
+    let mut ctx = kairos_sdk_core::host::context(ContextParts {
         id: "player".to_owned(),
         inputs: Vec::new(),
         outputs,

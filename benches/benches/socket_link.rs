@@ -29,8 +29,8 @@ use kairos_benches::{
 };
 use kairos_pack_net::udp::{UdpReceiver, UdpSender};
 use kairos_runtime::Engine;
-use kairos_sdk::host::{OutputBuffer, ReaderConfig};
-use kairos_sdk::{
+use kairos_sdk_core::host::{OutputBuffer, ReaderConfig};
+use kairos_sdk_core::{
     Component, Context, Imu, Payload, ReaderPolicy, RealTimeClock, Registry, RunSignal, Sample, Timestamp,
     Value,
 };
@@ -73,7 +73,7 @@ struct KairosEnds {
     sender_ctx: Context,
     /// The buffer feeding the sender, when it is not `received`.
     to_send: Option<OutputBuffer>,
-    reader: Option<kairos_sdk::host::Reader>,
+    reader: Option<kairos_sdk_core::host::Reader>,
 }
 
 impl KairosEnds {

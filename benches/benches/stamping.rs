@@ -13,8 +13,8 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use kairos_benches::{Goal, LatencySeries, Percentiles, Ratios, header, nanos, print_latency, size};
-use kairos_sdk::host::{ContextParts, OutputBuffer};
-use kairos_sdk::{Clock, Context, DataType, Payload, RealTimeClock, RunSignal, Sample};
+use kairos_sdk_core::host::{ContextParts, OutputBuffer};
+use kairos_sdk_core::{Clock, Context, DataType, Payload, RealTimeClock, RunSignal, Sample};
 
 const BATCH: u32 = 1_000;
 
@@ -35,8 +35,8 @@ fn per_call(batches: usize, mut op: impl FnMut(u64)) -> Percentiles {
 
 fn context(clock: Arc<dyn Clock>) -> Context {
     let output =
-        kairos_sdk::host::output_port("out", Some(DataType::F64), OutputBuffer::new("bench.out", 16), 1);
-    kairos_sdk::host::context(ContextParts {
+        kairos_sdk_core::host::output_port("out", Some(DataType::F64), OutputBuffer::new("bench.out", 16), 1);
+    kairos_sdk_core::host::context(ContextParts {
         id: "bench".to_owned(),
         inputs: Vec::new(),
         outputs: vec![output],

@@ -20,8 +20,8 @@ use std::sync::{Arc, Barrier};
 use std::time::Instant;
 
 use kairos_benches::{Goal, Ratios, Spread, Table, header, rate, size};
-use kairos_sdk::host::{OutputBuffer, ReaderConfig};
-use kairos_sdk::{Payload, ReaderPolicy, RunSignal, Sample, Timestamp};
+use kairos_sdk_core::host::{OutputBuffer, ReaderConfig};
+use kairos_sdk_core::{Payload, ReaderPolicy, RunSignal, Sample, Timestamp};
 
 const CAPACITY: usize = 1024;
 

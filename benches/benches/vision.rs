@@ -11,8 +11,8 @@ use std::process::Command;
 use std::time::Instant;
 
 use kairos_pack_vision::{codecs, images};
-use kairos_sdk::harness::Harness;
-use kairos_sdk::{Component, ComponentInfo, Image, Payload, PixelFormat, Timestamp};
+use kairos_sdk_core::harness::Harness;
+use kairos_sdk_core::{Component, ComponentInfo, Image, Payload, PixelFormat, Timestamp};
 
 const ITERATIONS: usize = 40;
 const ROUNDS: usize = 3;
@@ -60,7 +60,7 @@ fn median_us(mut run: impl FnMut()) -> f64 {
 fn through(
     info: ComponentInfo,
     component: impl Component,
-    properties: &[(&str, kairos_sdk::Value)],
+    properties: &[(&str, kairos_sdk_core::Value)],
     image: &Image,
 ) -> f64 {
     let mut harness = Harness::new(info, component);
@@ -152,7 +152,7 @@ fn opencv(raw: &std::path::Path, width: usize, height: usize) -> Option<BTreeMap
 }
 
 /// A 100 000-point cloud: a ground disc and scattered objects, spread as a spinning lidar's would be.
-fn lidar_cloud() -> kairos_sdk::PointCloud {
+fn lidar_cloud() -> kairos_sdk_core::PointCloud {
     let mut state = 0x2545_f491_u64;
     let mut next = || {
         state ^= state << 13;
@@ -171,7 +171,7 @@ fn lidar_cloud() -> kairos_sdk::PointCloud {
             glam::Vec3::new(range * angle.cos(), range * angle.sin(), z)
         })
         .collect();
-    kairos_sdk::PointCloud {
+    kairos_sdk_core::PointCloud {
         points,
         intensity: None,
     }

@@ -13,8 +13,8 @@ use std::thread;
 use std::time::{Duration, Instant};
 
 use kairos_benches::{Goal, LatencySeries, Percentiles, Ratios, header, print_latency, size, sleep_until};
-use kairos_sdk::host::{OutputBuffer, ReaderConfig};
-use kairos_sdk::{Clock, Payload, ReaderPolicy, RealTimeClock, RunSignal, Sample, Timestamp};
+use kairos_sdk_core::host::{OutputBuffer, ReaderConfig};
+use kairos_sdk_core::{Clock, Payload, ReaderPolicy, RealTimeClock, RunSignal, Sample, Timestamp};
 
 const PERIOD: Duration = Duration::from_millis(1);
 

@@ -31,8 +31,8 @@ use kairos_benches::{
 use kairos_diagram::{ComponentInstance, Diagram};
 use kairos_pack_link::{LinkReceiver, LinkSender, network};
 use kairos_protocol::LinkNetwork;
-use kairos_sdk::host::{OutputBuffer, ReaderConfig};
-use kairos_sdk::{
+use kairos_sdk_core::host::{OutputBuffer, ReaderConfig};
+use kairos_sdk_core::{
     Component, Context, Payload, ReaderPolicy, RealTimeClock, RunSignal, Sample, Timestamp, Value,
 };
 use zenoh::Wait as _;

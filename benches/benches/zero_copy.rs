@@ -14,8 +14,8 @@ use std::thread;
 use std::time::{Duration, Instant};
 
 use kairos_benches::{Goal, LatencySeries, Percentiles, Ratios, header, nanos, print_latency, size, time};
-use kairos_sdk::host::{OutputBuffer, ReaderConfig};
-use kairos_sdk::{Clock, Image, Payload, PixelFormat, ReaderPolicy, RealTimeClock, RunSignal, Sample};
+use kairos_sdk_core::host::{OutputBuffer, ReaderConfig};
+use kairos_sdk_core::{Clock, Image, Payload, PixelFormat, ReaderPolicy, RealTimeClock, RunSignal, Sample};
 
 const STAGES: usize = 5;
 const IMAGE_BYTES: usize = 8 << 20;

@@ -9,8 +9,8 @@ use std::fmt::Write as _;
 use std::sync::{Arc, OnceLock};
 use std::time::{Duration, Instant};
 
-use kairos_sdk::host::{ContextParts, OutputBuffer, Reader};
-use kairos_sdk::{ComponentInfo, Context, RealTimeClock, RunSignal, Value};
+use kairos_sdk_core::host::{ContextParts, OutputBuffer, Reader};
+use kairos_sdk_core::{ComponentInfo, Context, RealTimeClock, RunSignal, Value};
 
 /// Whether the quick (CI-sized) mode was asked for with `KAIROS_BENCH_QUICK=1`.
 pub fn quick() -> bool {
@@ -508,15 +508,17 @@ pub fn component_context(
         .outputs
         .iter()
         .zip(&buffers)
-        .map(|(o, b)| kairos_sdk::host::output_port(o.name.clone(), Some(o.data_type.clone()), b.clone(), 1))
+        .map(|(o, b)| {
+            kairos_sdk_core::host::output_port(o.name.clone(), Some(o.data_type.clone()), b.clone(), 1)
+        })
         .collect();
     let inputs = info
         .inputs
         .iter()
         .zip(inputs)
-        .map(|(i, reader)| kairos_sdk::host::input_port(i.name.clone(), reader))
+        .map(|(i, reader)| kairos_sdk_core::host::input_port(i.name.clone(), reader))
         .collect();
-    let ctx = kairos_sdk::host::context(ContextParts {
+    let ctx = kairos_sdk_core::host::context(ContextParts {
         id: "bench".to_owned(),
         inputs,
         outputs,

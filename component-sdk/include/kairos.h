@@ -14,7 +14,7 @@
  *  - Strings are UTF-8, passed as pointer + length (no terminator needed).
  *  - The library is never unloaded while the runtime runs.
  *
- * This header mirrors component-sdk/src/abi/types.rs and abi/mod.rs; a test compiles it and compares every size and constant.
+ * This header mirrors component-sdk/kairos-sdk-core/src/abi/types.rs and abi/mod.rs; a test compiles it and compares every size and constant.
  */
 #ifndef KAIROS_H
 #define KAIROS_H

@@ -1,78 +1,39 @@
-//! The Kairos component SDK: everything a pack author programs against.
+//! The Kairos component SDK: everything a pack author programs against, and nothing more.
 //!
 //! - [`Sample`] and [`Payload`]: time-stamped data; heavy payloads are shared, never copied.
 //! - [`Component`] and [`Context`]: the lifecycle (birth → core → death), reading under the connection's
 //!   reader policy, writing, properties and actions; [`Synchronizer`] for data fusion.
 //! - [`descriptor`]: builders for component descriptors; [`Registry`]: how packs register components.
 //! - [`harness`]: run one component offline on scripted samples, for unit tests.
-//! - [`export_pack!`]: the same crate as a pack library a runtime loads (the C ABI is in [`abi`]).
+//! - [`export_pack!`]: the same crate as a pack library a runtime loads.
 //! - [`pixels`]: image buffers a camera draws into, shared with local viewers without a copy.
 //! - [`rng`]: a small seeded generator, so simulated components repeat exactly.
 //!
 //! A component behaves the same whether it is linked into a runtime or loaded from a pack library: its
 //! [`Context`] answers the same questions (its id, its inputs' sources and counters, its properties, the
-//! clock) either way. The runtime's half (output buffers and readers, building contexts, the loader's C
-//! types) is the [`host`] module, compiled only with the `host` feature, which `kairos-runtime` enables and
-//! packs never need.
+//! clock) either way.
+//!
+//! The runtime's half of the SDK (output buffers and readers, building contexts, run signals, validating
+//! diagrams, the loader's C conversions) lives in `kairos-sdk-core`, which this crate re-exports only in
+//! part: a pack cannot reach it through this crate, and `tests/sealed.rs` compiles one that tries.
 
-#![warn(missing_docs)]
-#![cfg_attr(
-    not(feature = "host"),
-    allow(
-        dead_code,
-        reason = "the runtime's half of the buffers and contexts is used only with the `host` feature"
-    )
-)]
+pub use kairos_sdk_core::{descriptor, harness, payload, pixels, rng, sample, text};
 
-pub mod abi;
-mod buffer;
-pub mod component;
-pub mod descriptor;
-pub mod disciplined;
-pub mod harness;
-#[cfg(feature = "host")]
-pub mod host;
-pub mod payload;
-pub mod pixels;
-pub mod registry;
-pub mod rng;
-pub mod sample;
-pub mod signal;
-pub mod stats;
-mod sync;
-pub mod text;
-mod throttle;
-pub mod time;
-
-pub use component::{
+pub use kairos_sdk_core::component::{
     Component, ComponentError, ComponentResult, Context, InputPort, OutputPort, PortKey, Synchronizer,
 };
-pub use disciplined::{ClockState, ClockStatus, DisciplinedClock};
-pub use kairos_diagram::{
+pub use kairos_sdk_core::disciplined::{ClockState, ClockStatus};
+pub use kairos_sdk_core::export_pack;
+pub use kairos_sdk_core::{
+    CanFrame, CustomPayload, FixStatus, GnssFix, Image, Imu, Matrix, Payload, PixelFormat, PointCloud, Pose,
+};
+pub use kairos_sdk_core::{
     ComponentInfo, DataType, DescribeError, DeviceKind, ExecutionMode, LibraryInfo, OutputInfo, PackInfo,
     PropertyKind, ReaderPolicy, TypeFilter, Value,
 };
-pub use payload::{
-    CanFrame, CustomPayload, FixStatus, GnssFix, Image, Imu, Matrix, Payload, PixelFormat, PointCloud, Pose,
+pub use kairos_sdk_core::{
+    Describe, Factory, PackRegistrar, RefusedComponent, RegisteredComponent, Registry,
 };
-pub use pixels::{Pixels, PixelsMut};
-pub use registry::{Describe, Factory, PackRegistrar, RefusedComponent, RegisteredComponent, Registry};
-pub use sample::Sample;
-pub use signal::RunSignal;
-pub use stats::{LatencySummary, LinkCounters};
-pub use throttle::{STATUS_PERIOD, Throttle, WARNING_PERIOD};
-pub use time::{Clock, ManualClock, RealTimeClock, Timestamp, wait_in_real_time};
-
-/// The text of a panic payload, for reports.
-pub fn panic_message(payload: &(dyn std::any::Any + Send)) -> String {
-    if let Some(text) = payload.downcast_ref::<&str>() {
-        (*text).to_owned()
-    } else if let Some(text) = payload.downcast_ref::<String>() {
-        text.clone()
-    } else {
-        "a panic with a non-text payload".to_owned()
-    }
-}
-
-/// The SDK's version, checked against packs built with another one.
-pub const SDK_VERSION: &str = env!("CARGO_PKG_VERSION");
+pub use kairos_sdk_core::{LatencySummary, LinkCounters};
+pub use kairos_sdk_core::{Pixels, PixelsMut, Sample};
+pub use kairos_sdk_core::{SDK_VERSION, STATUS_PERIOD, Throttle, Timestamp, WARNING_PERIOD};

@@ -29,7 +29,7 @@ use std::sync::atomic::{AtomicI64, Ordering};
 use std::sync::{Arc, Mutex, PoisonError};
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
-use kairos_sdk::{Clock, ClockState, ClockStatus, DisciplinedClock, RunSignal, Timestamp};
+use kairos_sdk_core::{Clock, ClockState, ClockStatus, DisciplinedClock, RunSignal, Timestamp};
 use nix::sys::socket::{ControlMessageOwned, MsgFlags, SockaddrStorage, recvmsg, setsockopt, sockopt};
 
 /// The first bytes of every clock packet.
@@ -226,7 +226,7 @@ fn ask_master(
     socket: &UdpSocket,
     departures_stamped: bool,
     master: SocketAddr,
-    warned: &mut kairos_sdk::Throttle,
+    warned: &mut kairos_sdk_core::Throttle,
 ) -> Option<Stamps> {
     if departures_stamped {
         forget_departures(socket);
@@ -355,7 +355,7 @@ pub fn run_slave(master: SocketAddr, clock: Arc<DisciplinedClock>) -> std::io::R
         .name("k:clock".to_owned())
         .spawn(move || {
             let mut recent: VecDeque<Exchange> = VecDeque::with_capacity(WINDOW);
-            let mut warned = kairos_sdk::Throttle::default();
+            let mut warned = kairos_sdk_core::Throttle::default();
             let mut said_how_stamped = HowStamped::default();
             loop {
                 if let Some(stamps) = ask_master(&socket, departures_stamped, master, &mut warned) {
@@ -473,7 +473,7 @@ impl Clock for SystemClock {
     }
 
     fn wait_until(&self, deadline: Timestamp, signal: &RunSignal) -> bool {
-        kairos_sdk::wait_in_real_time(self, deadline, signal)
+        kairos_sdk_core::wait_in_real_time(self, deadline, signal)
     }
 
     fn describe(&self) -> String {
@@ -509,7 +509,7 @@ pub fn run_system_check(master: SocketAddr, clock: Arc<SystemClock>) -> std::io:
         .name("k:clock".to_owned())
         .spawn(move || {
             let mut recent: VecDeque<(i64, i64)> = VecDeque::with_capacity(WINDOW);
-            let mut warned = kairos_sdk::Throttle::default();
+            let mut warned = kairos_sdk_core::Throttle::default();
             let mut said_how_stamped = HowStamped::default();
             loop {
                 if let Some(Stamps {
@@ -602,7 +602,7 @@ mod tests {
         let master = run_master("127.0.0.1:0").unwrap();
         let (socket, departures_stamped) = exchange_socket(master).unwrap();
         assert!(departures_stamped, "Linux stamps departures on loopback");
-        let mut warned = kairos_sdk::Throttle::default();
+        let mut warned = kairos_sdk_core::Throttle::default();
         let stamps = ask_master(&socket, true, master, &mut warned).unwrap();
         eprintln!("{stamps:?}");
         assert!(stamps.kernel_departures, "{stamps:?}");

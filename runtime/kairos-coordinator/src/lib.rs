@@ -30,7 +30,7 @@ use std::path::Path;
 use anyhow::bail;
 use kairos_diagram::Diagram;
 use kairos_protocol::{LinkNetwork, RequestBody};
-use kairos_sdk::Registry;
+use kairos_sdk_core::Registry;
 
 pub use host::{Host, Reach};
 pub use links::LINK_MATCH_WAIT;

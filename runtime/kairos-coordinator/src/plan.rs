@@ -7,7 +7,8 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context as _, bail};
 use kairos_diagram::{Connection, Diagram, PortRef, ReaderPolicy, Value};
 use kairos_protocol::LinkNetwork;
-use kairos_sdk::Registry;
+use kairos_sdk_core::Registry;
+use kairos_sdk_core::host::RegistryValidation as _;
 
 /// A diagram split over its hosts.
 #[derive(Debug, Default)]

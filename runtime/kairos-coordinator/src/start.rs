@@ -28,9 +28,9 @@ pub fn start_together(
     start_unlocked: bool,
     start_here: impl FnOnce(Option<&str>) -> anyhow::Result<()>,
 ) -> anyhow::Result<()> {
-    use kairos_sdk::Clock as _;
+    use kairos_sdk_core::Clock as _;
     let forced = check_clocks(hosts, bound, start_unlocked)?;
-    let wall = kairos_sdk::RealTimeClock::new();
+    let wall = kairos_sdk_core::RealTimeClock::new();
     let at = wall.now().after(START_LEAD);
     let asked = start_all_at(hosts, at.as_nanos(), forced.as_deref())?;
     while wall.now() < at {

@@ -227,8 +227,8 @@ impl Watch {
     /// Stops every host's part and, with `stop_here`, this machine's, all at one instant
     /// [`STOP_LEAD`] ahead, each host on its own clock, as they started.
     pub fn stop_together(&mut self, stop_here: impl FnOnce()) {
-        use kairos_sdk::Clock as _;
-        let wall = kairos_sdk::RealTimeClock::new();
+        use kairos_sdk_core::Clock as _;
+        let wall = kairos_sdk_core::RealTimeClock::new();
         let at = wall.now().after(STOP_LEAD);
         let asked: Vec<anyhow::Result<u64>> = self
             .hosts

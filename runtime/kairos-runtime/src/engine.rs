@@ -10,8 +10,10 @@ use std::time::{Duration, Instant};
 use kairos_diagram::{
     ComponentInfo, Diagram, ExecutionMode, InstanceInfos, ReaderPolicy, ThreadSettings, Value,
 };
-use kairos_sdk::host::{ContextHost as _, ContextParts, OutputBuffer, ReaderConfig};
-use kairos_sdk::{
+use kairos_sdk_core::host::{
+    ContextHost as _, ContextParts, OutputBuffer, ReaderConfig, RegistryValidation as _,
+};
+use kairos_sdk_core::{
     Clock, Component, ComponentError, ComponentResult, Context, Registry, RunSignal, Timestamp,
 };
 
@@ -112,7 +114,7 @@ struct Monitor {
     /// Periodic ticks skipped because the component fell more than a period behind.
     missed_ticks: AtomicU64,
     controls: Mutex<VecDeque<ControlRequest>>,
-    status: kairos_sdk::host::StatusCell,
+    status: kairos_sdk_core::host::StatusCell,
 }
 
 fn lock<T>(mutex: &Mutex<T>) -> MutexGuard<'_, T> {
@@ -123,7 +125,7 @@ fn lock<T>(mutex: &Mutex<T>) -> MutexGuard<'_, T> {
 }
 
 impl Monitor {
-    fn new(status: kairos_sdk::host::StatusCell) -> Self {
+    fn new(status: kairos_sdk_core::host::StatusCell) -> Self {
         Monitor {
             state: Mutex::new(ComponentState::Idle),
             cycles: AtomicU64::new(0),
@@ -161,13 +163,13 @@ impl Monitor {
 
 /// Makes a component with its type's factory. A constructor that panics fails that component alone: it
 /// is replaced by one whose `birth` reports the panic, so the diagram still builds and the rest runs.
-fn construct(id: &str, factory: &kairos_sdk::Factory) -> Box<dyn Component> {
+fn construct(id: &str, factory: &kairos_sdk_core::Factory) -> Box<dyn Component> {
     match std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| factory())) {
         Ok(component) => component,
         Err(panic) => {
             let message = format!(
                 "its constructor panicked: {}",
-                kairos_sdk::panic_message(panic.as_ref())
+                kairos_sdk_core::panic_message(panic.as_ref())
             );
             tracing::debug!(component = %id, "{message}");
             Box::new(FailedConstruction { message })
@@ -197,7 +199,7 @@ fn guarded(call: impl FnOnce() -> Result<(), ComponentError>) -> Result<(), Comp
         Ok(result) => result,
         Err(panic) => Err(ComponentError::Failed(format!(
             "panicked: {}",
-            kairos_sdk::panic_message(panic.as_ref())
+            kairos_sdk_core::panic_message(panic.as_ref())
         ))),
     }
 }
@@ -332,8 +334,8 @@ struct Pending {
     component: Box<dyn Component>,
     signal: Arc<RunSignal>,
     reactive: Option<Arc<OnceLock<Weak<ReactiveCell>>>>,
-    inputs: Vec<kairos_sdk::InputPort>,
-    outputs: Vec<kairos_sdk::OutputPort>,
+    inputs: Vec<kairos_sdk_core::InputPort>,
+    outputs: Vec<kairos_sdk_core::OutputPort>,
     properties: BTreeMap<String, Value>,
     thread: ThreadSettings,
 }
@@ -455,7 +457,7 @@ impl Wiring<'_> {
                 .and_then(|s| s.subsampling)
                 .unwrap_or(1);
             let data_type = output.follows_input.is_none().then(|| output.data_type.clone());
-            outputs.push(kairos_sdk::host::output_port(
+            outputs.push(kairos_sdk_core::host::output_port(
                 output.name.clone(),
                 data_type,
                 buffer,
@@ -518,7 +520,7 @@ impl Wiring<'_> {
         pending: &mut [Pending],
     ) -> BTreeMap<String, ReaderPolicy> {
         let mut policies = BTreeMap::new();
-        let mut readers: BTreeMap<(String, String), kairos_sdk::host::Reader> = BTreeMap::new();
+        let mut readers: BTreeMap<(String, String), kairos_sdk_core::host::Reader> = BTreeMap::new();
         for connection in &self.diagram.connections {
             let key = (connection.from.component.clone(), connection.from.port.clone());
             let Some(buffer) = buffers.get(&key) else { continue };
@@ -551,7 +553,7 @@ impl Wiring<'_> {
                 .inputs
                 .iter()
                 .map(|input| {
-                    kairos_sdk::host::input_port(
+                    kairos_sdk_core::host::input_port(
                         input.name.clone(),
                         readers.remove(&(component.id.clone(), input.name.clone())),
                     )
@@ -565,7 +567,7 @@ impl Wiring<'_> {
 impl Pending {
     /// The slot this component runs in: its context built, in its producer's thread when reactive.
     fn into_slot(self, clock: &Arc<dyn Clock>, diagram_text: &Arc<str>) -> Slot {
-        let mut ctx = kairos_sdk::host::context(ContextParts {
+        let mut ctx = kairos_sdk_core::host::context(ContextParts {
             id: self.id.clone(),
             inputs: self.inputs,
             outputs: self.outputs,

@@ -13,7 +13,7 @@ pub use engine::{BuildError, ControlError, Engine, EngineState, LongWait, link_n
 
 use std::sync::Arc;
 
-use kairos_sdk::{Clock, DisciplinedClock, RealTimeClock};
+use kairos_sdk_core::{Clock, DisciplinedClock, RealTimeClock};
 
 /// The clock a diagram runs on: real time, or real time disciplined by its `clock_source`.
 pub fn clock_for(diagram: &kairos_diagram::Diagram) -> Arc<dyn Clock> {

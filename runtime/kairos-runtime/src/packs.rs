@@ -4,7 +4,7 @@ use std::path::{Path, PathBuf};
 
 use crate::pack_host::{LoadedPack, load_pack};
 use crate::python_host;
-use kairos_sdk::Registry;
+use kairos_sdk_core::Registry;
 
 /// A library on the pack path that was not loaded, and why.
 #[derive(Debug, Clone, serde::Serialize)]

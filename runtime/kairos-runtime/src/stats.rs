@@ -3,7 +3,7 @@
 use std::collections::BTreeMap;
 
 use kairos_diagram::ReaderPolicy;
-use kairos_sdk::{LinkCounters, Timestamp};
+use kairos_sdk_core::{LinkCounters, Timestamp};
 use serde::{Deserialize, Serialize};
 
 /// The life state of a component.
@@ -71,7 +71,7 @@ pub struct ComponentStats {
     pub cycle_rate_hz: f64,
     /// Share of one core over the last interval (0.0 to 1.0).
     pub cpu_share: f64,
-    /// What the component last published about itself ([`kairos_sdk::Context::set_status`]).
+    /// What the component last published about itself ([`kairos_sdk_core::Context::set_status`]).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub status: Option<serde_json::Value>,
 }
@@ -87,7 +87,7 @@ pub struct StatsSnapshot {
     pub components: Vec<ComponentStats>,
     /// The clock, when a component of the diagram disciplines it.
     #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub clock: Option<kairos_sdk::ClockStatus>,
+    pub clock: Option<kairos_sdk_core::ClockStatus>,
 }
 
 impl StatsSnapshot {

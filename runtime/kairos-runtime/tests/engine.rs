@@ -11,8 +11,8 @@ use std::time::{Duration, Instant};
 
 use kairos_diagram::{ComponentInstance, Connection, Diagram, PackRequirement, PortRef, Value};
 use kairos_runtime::{ComponentState, ControlError, Engine, EngineState, StatsSnapshot};
-use kairos_sdk::descriptor::Descriptor;
-use kairos_sdk::{
+use kairos_sdk_core::descriptor::Descriptor;
+use kairos_sdk_core::{
     Component, ComponentResult, Context, DataType, Payload, RealTimeClock, Registry, TypeFilter,
 };
 
@@ -106,13 +106,13 @@ fn registry() -> Registry {
         )
         .component::<SlowerThanItsPeriod>(
             Descriptor::new("faulty.slower_than_its_period", "test", "Cycles of 5 ms at 1 kHz")
-                .mode(kairos_sdk::ExecutionMode::Periodic)
+                .mode(kairos_sdk_core::ExecutionMode::Periodic)
                 .build(),
         )
         .component::<BusyCycles>(
             Descriptor::new("faulty.busy", "test", "Cycles of 50 ms")
-                .mode(kairos_sdk::ExecutionMode::Periodic)
-                .property(kairos_sdk::descriptor::Property::f64("level", 1.0).live())
+                .mode(kairos_sdk_core::ExecutionMode::Periodic)
+                .property(kairos_sdk_core::descriptor::Property::f64("level", 1.0).live())
                 .build(),
         )
         .component::<SlowRecorder>(
@@ -198,9 +198,9 @@ fn eventually(what: &str, mut done: impl FnMut() -> bool) {
 
 /// The first sample `tap` gives that `wanted` accepts, waited for.
 fn sample_from(
-    tap: &mut kairos_sdk::host::Reader,
-    wanted: impl Fn(&kairos_sdk::Sample) -> bool,
-) -> kairos_sdk::Sample {
+    tap: &mut kairos_sdk_core::host::Reader,
+    wanted: impl Fn(&kairos_sdk_core::Sample) -> bool,
+) -> kairos_sdk_core::Sample {
     let mut found = None;
     eventually("the sample wanted", || {
         found = tap.try_read().filter(&wanted);
@@ -305,8 +305,8 @@ fn live_property_changes_apply_and_bad_values_keep_the_old_one() {
     );
     let mut engine = Engine::build(&d, &registry(), RealTimeClock::shared()).unwrap();
     let mut tap = engine.output_buffer("gain", "out").unwrap().attach(
-        kairos_sdk::host::ReaderConfig::new(kairos_diagram::ReaderPolicy::Sampling, "tap"),
-        Arc::new(kairos_sdk::RunSignal::new()),
+        kairos_sdk_core::host::ReaderConfig::new(kairos_diagram::ReaderPolicy::Sampling, "tap"),
+        Arc::new(kairos_sdk_core::RunSignal::new()),
     );
     engine.start().unwrap();
     assert_eq!(sample_from(&mut tap, |_| true).payload, Payload::F64(2.0));
@@ -350,12 +350,12 @@ fn actions_reach_the_component() {
     );
     let d = diagram(vec![counter], vec![]);
     let mut engine = Engine::build(&d, &registry(), RealTimeClock::shared()).unwrap();
-    let mut tap_config = kairos_sdk::host::ReaderConfig::new(kairos_diagram::ReaderPolicy::Fifo, "tap");
+    let mut tap_config = kairos_sdk_core::host::ReaderConfig::new(kairos_diagram::ReaderPolicy::Fifo, "tap");
     tap_config.capacity = Some(4096);
     let mut tap = engine
         .output_buffer("counter", "out")
         .unwrap()
-        .attach(tap_config, Arc::new(kairos_sdk::RunSignal::new()));
+        .attach(tap_config, Arc::new(kairos_sdk_core::RunSignal::new()));
     engine.start().unwrap();
     eventually("the counter counts past 11", || {
         cycles(&engine.snapshot(), "counter") > 11
@@ -499,12 +499,12 @@ fn reactive_components_run_in_their_producer_and_output_subsampling_applies() {
         ],
     );
     let mut engine = Engine::build(&d, &registry, RealTimeClock::shared()).unwrap();
-    let mut tap_config = kairos_sdk::host::ReaderConfig::new(kairos_diagram::ReaderPolicy::Fifo, "tap");
+    let mut tap_config = kairos_sdk_core::host::ReaderConfig::new(kairos_diagram::ReaderPolicy::Fifo, "tap");
     tap_config.capacity = Some(4096);
     let mut tap = engine
         .output_buffer("double", "out")
         .unwrap()
-        .attach(tap_config, Arc::new(kairos_sdk::RunSignal::new()));
+        .attach(tap_config, Arc::new(kairos_sdk_core::RunSignal::new()));
     engine.start().unwrap();
     // 42 samples doubled, of which 21 are kept.
     eventually("the double runs 42 cycles", || {

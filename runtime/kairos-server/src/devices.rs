@@ -5,7 +5,7 @@ use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
 pub use kairos_protocol::DeviceInfo as Device;
-use kairos_sdk::DeviceKind;
+use kairos_sdk_core::DeviceKind;
 
 /// The devices under `root` (`/` but in tests), serial ports first, each kind by path.
 pub fn list(root: &Path) -> Vec<Device> {

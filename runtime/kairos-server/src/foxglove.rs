@@ -17,8 +17,8 @@ use std::time::Duration;
 use anyhow::Context as _;
 use foxglove::{PartialMetadata, RawChannel, Schema, WebSocketServerHandle};
 use kairos_pack_recording::encode::{encode, schema_for};
-use kairos_sdk::host::{OutputBuffer, Reader, ReaderConfig};
-use kairos_sdk::{DataType, ReaderPolicy, RunSignal, Sample};
+use kairos_sdk_core::host::{OutputBuffer, Reader, ReaderConfig};
+use kairos_sdk_core::{DataType, ReaderPolicy, RunSignal, Sample};
 
 use super::runtime::Runtime;
 

@@ -21,7 +21,7 @@ use std::sync::Arc;
 
 use anyhow::{Context as _, bail};
 use kairos_protocol::{ErrorCode, ProtocolError, ServerMessage, Token};
-use kairos_sdk::Registry;
+use kairos_sdk_core::Registry;
 use tokio_tungstenite::tungstenite::Message;
 
 pub use auth::{Access, load_or_create_token};
@@ -548,7 +548,7 @@ fn synchronise_clock(runtime: &Runtime, options: &ServeOptions) -> anyhow::Resul
             .and_then(|ppm| ppm.parse::<f64>().ok())
             .unwrap_or(0.0);
         let clock = Arc::new(
-            kairos_sdk::DisciplinedClock::new(kairos_clock_sync::MASTER_SOURCE)
+            kairos_sdk_core::DisciplinedClock::new(kairos_clock_sync::MASTER_SOURCE)
                 .trusting_each_reference()
                 .estimating_rate()
                 .drifted_by_ppm(drift_ppm)

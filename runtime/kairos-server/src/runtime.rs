@@ -13,8 +13,9 @@ use kairos_protocol::{
     ProtocolError, RequestBody, RuntimeState, Telemetry,
 };
 use kairos_runtime::{ComponentState, ControlError, Engine, EngineState, LongWait, StatsSnapshot};
-use kairos_sdk::Registry;
-use kairos_sdk::host::OutputBuffer;
+use kairos_sdk_core::Registry;
+use kairos_sdk_core::host::OutputBuffer;
+use kairos_sdk_core::host::RegistryValidation as _;
 
 use super::spread::{Spread, is_spread};
 
@@ -38,7 +39,7 @@ pub struct Runtime {
     /// lock, so their frequent checks never wait behind a control operation.
     generation: AtomicU64,
     /// The clock every deployed diagram runs on, when this runtime follows a clock master.
-    clock: Mutex<Option<Arc<dyn kairos_sdk::Clock>>>,
+    clock: Mutex<Option<Arc<dyn kairos_sdk_core::Clock>>>,
     /// Whether this runtime is the clock master of others.
     clock_master: AtomicBool,
     /// How the current run was started when it was forced: in every clock's description.
@@ -139,16 +140,16 @@ fn telemetry(snapshot: &StatsSnapshot, state: RuntimeState) -> Telemetry {
     }
 }
 
-fn clock_telemetry(clock: &kairos_sdk::ClockStatus) -> ClockTelemetry {
+fn clock_telemetry(clock: &kairos_sdk_core::ClockStatus) -> ClockTelemetry {
     ClockTelemetry {
         source: clock.source.clone(),
         state: match clock.state {
-            kairos_sdk::ClockState::Acquiring => ClockState::Acquiring,
-            kairos_sdk::ClockState::Locked => ClockState::Locked,
-            kairos_sdk::ClockState::Slewing => ClockState::Slewing,
-            kairos_sdk::ClockState::Holdover => ClockState::Holdover,
-            kairos_sdk::ClockState::Lost => ClockState::Lost,
-            kairos_sdk::ClockState::Alarm => ClockState::Alarm,
+            kairos_sdk_core::ClockState::Acquiring => ClockState::Acquiring,
+            kairos_sdk_core::ClockState::Locked => ClockState::Locked,
+            kairos_sdk_core::ClockState::Slewing => ClockState::Slewing,
+            kairos_sdk_core::ClockState::Holdover => ClockState::Holdover,
+            kairos_sdk_core::ClockState::Lost => ClockState::Lost,
+            kairos_sdk_core::ClockState::Alarm => ClockState::Alarm,
         },
         error_ns: clock.error_ns,
         step_ns: clock.step_ns,
@@ -173,17 +174,17 @@ impl Runtime {
     }
 
     /// Runs every diagram deployed from now on on `clock` (a clock synchronised with a master).
-    pub fn set_clock(&self, clock: Arc<dyn kairos_sdk::Clock>) {
+    pub fn set_clock(&self, clock: Arc<dyn kairos_sdk_core::Clock>) {
         if let Ok(mut slot) = self.clock.lock() {
             *slot = Some(clock);
         }
     }
 
     /// The time on this runtime's clock: the master's, when it follows one; the machine's otherwise.
-    pub fn now(&self) -> kairos_sdk::Timestamp {
+    pub fn now(&self) -> kairos_sdk_core::Timestamp {
         match self.clock.lock().ok().and_then(|slot| slot.clone()) {
             Some(shared) => shared.now(),
-            None => kairos_sdk::Clock::now(&kairos_sdk::RealTimeClock::new()),
+            None => kairos_sdk_core::Clock::now(&kairos_sdk_core::RealTimeClock::new()),
         }
     }
 
@@ -210,7 +211,7 @@ impl Runtime {
     }
 
     /// The clock a diagram deployed here runs on.
-    fn clock_for(&self, diagram: &Diagram) -> Arc<dyn kairos_sdk::Clock> {
+    fn clock_for(&self, diagram: &Diagram) -> Arc<dyn kairos_sdk_core::Clock> {
         let clock = match self.clock.lock().ok().and_then(|slot| slot.clone()) {
             Some(shared) => shared,
             None => kairos_runtime::clock_for(diagram),

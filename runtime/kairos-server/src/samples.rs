@@ -5,8 +5,8 @@ use std::sync::Arc;
 
 use kairos_protocol::frame::{self, ImageLayout};
 use kairos_sample_frame as sample_frame;
-use kairos_sdk::host::{Reader, ReaderConfig};
-use kairos_sdk::{Image, Payload, ReaderPolicy, RunSignal, Sample};
+use kairos_sdk_core::host::{Reader, ReaderConfig};
+use kairos_sdk_core::{Image, Payload, ReaderPolicy, RunSignal, Sample};
 
 use super::runtime::Runtime;
 
@@ -147,7 +147,7 @@ mod tests {
     use std::sync::Arc;
 
     use kairos_protocol::frame;
-    use kairos_sdk::{Image, Payload, PixelFormat, Sample, Timestamp};
+    use kairos_sdk_core::{Image, Payload, PixelFormat, Sample, Timestamp};
 
     use super::{PixelsIn, encode, encode_parts};
 
@@ -169,7 +169,7 @@ mod tests {
     #[test]
     fn shared_pixels_travel_as_a_reference_only_when_asked_and_not_downscaled() {
         let len = 640 * 480 * 3;
-        let mut pixels = kairos_sdk::PixelsMut::new(len);
+        let mut pixels = kairos_sdk_core::PixelsMut::new(len);
         pixels.fill(4);
         let image = Image::packed(640, 480, PixelFormat::Rgb8, pixels.freeze()).unwrap();
         let Some(reference) = image.pixels.shared_reference() else {

@@ -17,7 +17,7 @@ use kairos_protocol::{
     ProtocolError, ReplyBody, RequestBody, RequestKind, Role, SampleTransport, SamplesSubscribed,
     ServerMessage, Status, TelemetrySubscribed, Token, Welcome, decode_request,
 };
-use kairos_sdk::{Timestamp, Value};
+use kairos_sdk_core::{Timestamp, Value};
 use tokio::sync::mpsc;
 use tokio::sync::mpsc::error::TrySendError;
 use tokio::task::JoinHandle;

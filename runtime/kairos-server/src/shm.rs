@@ -6,7 +6,7 @@
 //! the socket or the kernel. Publishers never wait for a slow client: its oldest unread frame is dropped.
 //!
 //! For a client that asked for `shared_pixels`, an image whose pixels already lie in shared memory (a
-//! camera's frames, `kairos_sdk::pixels`) is published as its header alone, naming the runtime's buffer:
+//! camera's frames, `kairos_sdk_core::pixels`) is published as its header alone, naming the runtime's buffer:
 //! the pixels are not copied at all. The publisher holds the sample until it publishes the next one, so
 //! the buffer is not recycled while a client that keeps up is reading it.
 

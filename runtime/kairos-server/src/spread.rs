@@ -10,7 +10,7 @@ use std::time::Duration;
 
 use kairos_diagram::{Diagram, Value};
 use kairos_protocol::{CrossLinkTelemetry, HostTelemetry, RequestBody, RuntimeState, Telemetry};
-use kairos_sdk::Registry;
+use kairos_sdk_core::Registry;
 
 use kairos_coordinator::{self as deploy, Watch};
 

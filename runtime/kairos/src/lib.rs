@@ -13,7 +13,7 @@ pub mod wizard;
 use std::path::{Path, PathBuf};
 
 use kairos_runtime::PackScan;
-use kairos_sdk::Registry;
+use kairos_sdk_core::Registry;
 
 /// A registry holding every built-in pack.
 pub fn builtin_registry() -> Registry {

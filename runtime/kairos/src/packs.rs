@@ -6,7 +6,7 @@ use std::path::PathBuf;
 use anyhow::Context as _;
 use kairos_diagram::{Diagnostic, DiagnosticCode};
 use kairos_runtime::PackScan;
-use kairos_sdk::Registry;
+use kairos_sdk_core::Registry;
 
 /// Prints every pack with its version, origin and components, the refused libraries and the clashes.
 pub fn list(registry: &Registry, scan: &PackScan, json: bool) -> anyhow::Result<()> {

@@ -8,7 +8,8 @@ use std::time::{Duration, Instant};
 use anyhow::{Context as _, bail};
 use kairos_diagram::Value;
 use kairos_runtime::{ComponentState, Engine, StatsSnapshot};
-use kairos_sdk::Registry;
+use kairos_sdk_core::Registry;
+use kairos_sdk_core::host::RegistryValidation as _;
 
 /// How `kairos run` behaves.
 #[derive(Debug, Clone, Default)]

@@ -7,9 +7,9 @@
 
 use std::ffi::c_void;
 
-use kairos_sdk::abi::{KComponentVTable, KError, KLifecycleFn, KNamedFn, KStr};
-use kairos_sdk::host::status_error;
-use kairos_sdk::{Component, ComponentError, ComponentResult, Context, Value};
+use kairos_sdk_core::abi::{KComponentVTable, KError, KLifecycleFn, KNamedFn, KStr};
+use kairos_sdk_core::host::status_error;
+use kairos_sdk_core::{Component, ComponentError, ComponentResult, Context, Value};
 
 use super::functions::{HOST_API, HostFrame};
 

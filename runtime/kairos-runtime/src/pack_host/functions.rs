@@ -11,19 +11,19 @@ use std::ffi::c_void;
 use std::panic::{AssertUnwindSafe, catch_unwind};
 use std::time::Duration;
 
-use kairos_sdk::abi::{
+use kairos_sdk_core::abi::{
     INPUT_CONNECTED, INPUT_EXHAUSTED, INPUT_UNCONNECTED, KError, KHost, KLinkCounters, KSample, KStr, KValue,
     status,
 };
-use kairos_sdk::host::{ContextHost, error_status, sample_from_c, sample_to_c, value_to_c, write_error};
-use kairos_sdk::{Context, Sample, Timestamp};
+use kairos_sdk_core::host::{ContextHost, error_status, sample_from_c, sample_to_c, value_to_c, write_error};
+use kairos_sdk_core::{Context, Sample, Timestamp};
 
 /// What the host keeps for one component between calls: the context of the current call and the samples
 /// the pack borrows.
 pub(super) struct HostFrame {
     pub(super) ctx: *mut Context,
     held: BTreeMap<u32, (Sample, Vec<u8>)>,
-    property_value: kairos_sdk::Value,
+    property_value: kairos_sdk_core::Value,
     /// What `instance_info` returns, made at its first call: the context does not change after that.
     instance_info: Option<String>,
 }
@@ -33,7 +33,7 @@ impl HostFrame {
         HostFrame {
             ctx: std::ptr::null_mut(),
             held: BTreeMap::new(),
-            property_value: kairos_sdk::Value::Bool(false),
+            property_value: kairos_sdk_core::Value::Bool(false),
             instance_info: None,
         }
     }
@@ -262,7 +262,11 @@ unsafe extern "C" fn host_instance_info(frame: *mut c_void) -> KStr {
 
 /// The instance as `instance_info` describes it to the pack side, which builds its context from it.
 fn describe_instance(ctx: &Context) -> String {
-    let sources: Vec<Option<&str>> = ctx.inputs().iter().map(kairos_sdk::InputPort::source).collect();
+    let sources: Vec<Option<&str>> = ctx
+        .inputs()
+        .iter()
+        .map(kairos_sdk_core::InputPort::source)
+        .collect();
     serde_json::json!({
         "id": ctx.id(),
         "input_sources": sources,

@@ -7,11 +7,11 @@
 
 use std::path::{Path, PathBuf};
 
-use kairos_sdk::abi::{
+use kairos_sdk_core::abi::{
     ABI_MAGIC, ABI_VERSION, ENTRY_SYMBOL, KComponentVTable, KHost, KPackDescriptor, KSample, KStr, KValue,
     types::size_u32,
 };
-use kairos_sdk::{ComponentInfo, Registry};
+use kairos_sdk_core::{ComponentInfo, Registry};
 
 use super::dynamic::{CheckedVTable, DynamicComponent};
 
@@ -132,7 +132,7 @@ impl LoadedPack {
 fn sdk_compatible(version: &str) -> bool {
     let (Ok(theirs), Ok(ours)) = (
         semver::Version::parse(version),
-        semver::Version::parse(kairos_sdk::SDK_VERSION),
+        semver::Version::parse(kairos_sdk_core::SDK_VERSION),
     ) else {
         return false;
     };
@@ -246,7 +246,7 @@ pub fn load_pack(path: &Path) -> Result<LoadedPack, PackLoadError> {
     if !sdk_compatible(&sdk_version) {
         return Err(PackLoadError::SdkVersion {
             found: sdk_version,
-            expected: kairos_sdk::SDK_VERSION,
+            expected: kairos_sdk_core::SDK_VERSION,
         });
     }
     let vtables: &'static [KComponentVTable] = if descriptor.component_count == 0 {

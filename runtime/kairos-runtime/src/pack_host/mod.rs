@@ -1,7 +1,7 @@
 //! The host's half of the pack ABI: the loader, which checks a library entirely before calling anything
 //! in it, the host functions a loaded component calls, and [`DynamicComponent`], which drives a component
 //! through its pack's table. The pack's half (the C types and the shim behind `export_pack!`) is in
-//! `kairos_sdk::abi`.
+//! `kairos_sdk_core::abi`.
 
 mod dynamic;
 mod functions;

@@ -7,9 +7,9 @@ use std::collections::{HashMap, VecDeque};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use kairos_sdk::host::ContextHost;
-use kairos_sdk::pixels::SHARED_FROM_BYTES;
-use kairos_sdk::{
+use kairos_sdk_core::host::ContextHost;
+use kairos_sdk_core::pixels::SHARED_FROM_BYTES;
+use kairos_sdk_core::{
     Component, ComponentError, ComponentResult, Context, Image, Payload, Pixels, PixelsMut, STATUS_PERIOD,
     Sample, Synchronizer, Throttle, Timestamp, Value,
 };

@@ -21,7 +21,7 @@ use std::process::{Command, Stdio};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use kairos_sdk::{ComponentInfo, Registry};
+use kairos_sdk_core::{ComponentInfo, Registry};
 use serde::Deserialize;
 
 use crate::packs::RefusedLibrary;

@@ -7,7 +7,7 @@ use std::os::unix::net::UnixStream;
 use std::time::Duration;
 
 use glam::{DQuat, DVec3, Vec3};
-use kairos_sdk::{CanFrame, FixStatus, GnssFix, Imu, Matrix, Payload, PixelFormat, PointCloud, Pose};
+use kairos_sdk_core::{CanFrame, FixStatus, GnssFix, Imu, Matrix, Payload, PixelFormat, PointCloud, Pose};
 
 pub const PROTOCOL_VERSION: u32 = 1;
 
@@ -251,7 +251,7 @@ pub fn decode_payload<'a>(fields: &mut Fields<'a>) -> Result<Written<'a>, String
             let length = usize::from(fields.u16("a type name")?);
             let name = std::str::from_utf8(fields.bytes(length, "a type name")?)
                 .map_err(|_| "a type name that is not UTF-8".to_owned())?;
-            Payload::Custom(kairos_sdk::CustomPayload {
+            Payload::Custom(kairos_sdk_core::CustomPayload {
                 type_name: name.into(),
                 data: fields.sized("custom data")?.into(),
             })

@@ -7,7 +7,8 @@ use std::process::ExitCode;
 use anyhow::Context as _;
 use kairos_diagram::LibraryInfo;
 use kairos_runtime::PackScan;
-use kairos_sdk::Registry;
+use kairos_sdk_core::Registry;
+use kairos_sdk_core::host::RegistryValidation as _;
 
 /// What `kairos validate` takes.
 #[derive(Debug, clap::Args)]

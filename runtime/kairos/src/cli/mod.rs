@@ -12,7 +12,7 @@ use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
 use kairos_runtime::PackScan;
-use kairos_sdk::Registry;
+use kairos_sdk_core::Registry;
 
 pub use library::{ComponentsArgs, DevicesArgs, PacksArgs, ValidateArgs};
 pub use new::NewCommand;

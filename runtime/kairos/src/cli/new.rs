@@ -4,7 +4,7 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use clap::Subcommand;
-use kairos_sdk::Registry;
+use kairos_sdk_core::Registry;
 
 /// What `kairos new` generates.
 #[derive(Debug, Subcommand)]

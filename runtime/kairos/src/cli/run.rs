@@ -4,7 +4,7 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Duration;
 
-use kairos_sdk::Registry;
+use kairos_sdk_core::Registry;
 
 use crate::duration::parse_duration;
 

@@ -21,7 +21,7 @@ pub(super) fn cpp_descriptor(
     type_name: &str,
     pack_name: &str,
 ) -> Result<String, String> {
-    use kairos_sdk::descriptor::{Descriptor, Property};
+    use kairos_sdk_core::descriptor::{Descriptor, Property};
     let mode = match spec.mode {
         Mode::Threaded => kairos_diagram::ExecutionMode::Threaded,
         Mode::Reactive => kairos_diagram::ExecutionMode::Reactive,

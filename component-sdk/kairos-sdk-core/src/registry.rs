@@ -130,7 +130,7 @@ impl Registry {
     /// The descriptors of the diagram's instances whose ports depend on their properties, by id.
     ///
     /// A describe function that panics is reported as that instance's error, never propagated.
-    pub fn instance_infos(&self, diagram: &Diagram) -> InstanceInfos {
+    pub(crate) fn instance_infos(&self, diagram: &Diagram) -> InstanceInfos {
         let mut infos = InstanceInfos::new();
         for instance in &diagram.components {
             let Some(registered) = self.components.get(&instance.type_name) else {
@@ -160,7 +160,7 @@ impl Registry {
 
     /// Validates `diagram` against this registry, instances that describe themselves included; see
     /// [`kairos_diagram::validate_with`].
-    pub fn validate(&self, diagram: &Diagram, source_map: Option<&SourceMap>) -> Vec<Diagnostic> {
+    pub(crate) fn validate(&self, diagram: &Diagram, source_map: Option<&SourceMap>) -> Vec<Diagnostic> {
         kairos_diagram::validate_with(
             diagram,
             source_map,

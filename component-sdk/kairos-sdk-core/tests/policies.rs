@@ -10,8 +10,8 @@ use std::sync::Arc;
 use std::thread;
 use std::time::Duration;
 
-use kairos_sdk::host::{OutputBuffer, ReaderConfig};
-use kairos_sdk::{LinkCounters, Payload, ReaderPolicy, RunSignal, Sample, Timestamp};
+use kairos_sdk_core::host::{OutputBuffer, ReaderConfig};
+use kairos_sdk_core::{LinkCounters, Payload, ReaderPolicy, RunSignal, Sample, Timestamp};
 
 fn sample(sequence: u64) -> Sample {
     Sample {
@@ -28,7 +28,7 @@ fn write_range(buffer: &OutputBuffer, writer: &Arc<RunSignal>, range: std::ops::
     }
 }
 
-fn reader(buffer: &OutputBuffer, policy: ReaderPolicy) -> kairos_sdk::host::Reader {
+fn reader(buffer: &OutputBuffer, policy: ReaderPolicy) -> kairos_sdk_core::host::Reader {
     buffer.attach(ReaderConfig::new(policy, "test"), Arc::new(RunSignal::new()))
 }
 
@@ -53,7 +53,7 @@ fn counts(c: LinkCounters) -> [u64; 5] {
     [c.written, c.read, c.skipped, c.overwritten, c.queued]
 }
 
-fn sequences(reader: &mut kairos_sdk::host::Reader) -> Vec<u64> {
+fn sequences(reader: &mut kairos_sdk_core::host::Reader) -> Vec<u64> {
     std::iter::from_fn(|| reader.try_read())
         .map(|s| s.sequence)
         .collect()
@@ -175,7 +175,7 @@ fn a_stop_releases_a_writer_blocked_by_never_skipping() {
     written_stays_at(&buffer, 2, "the writer waits for room until the stop");
     writer.request_stop();
     let failure = producer.join().unwrap();
-    assert_eq!(failure, Some(Err(kairos_sdk::host::WriteError::Stopped)));
+    assert_eq!(failure, Some(Err(kairos_sdk_core::host::WriteError::Stopped)));
     assert_eq!(buffer.written(), 2);
 }
 
@@ -295,7 +295,7 @@ fn input_subsampling_keeps_one_in_n_and_counts_the_rest_as_skipped() {
     assert_eq!(counts(r.counters()), [10, 4, 6, 0, 0]);
 }
 
-fn subsampled(buffer: &OutputBuffer, policy: ReaderPolicy, one_in: u32) -> kairos_sdk::host::Reader {
+fn subsampled(buffer: &OutputBuffer, policy: ReaderPolicy, one_in: u32) -> kairos_sdk_core::host::Reader {
     let mut config = ReaderConfig::new(policy, "test");
     config.subsampling = one_in;
     buffer.attach(config, Arc::new(RunSignal::new()))
@@ -442,9 +442,10 @@ fn readers_share_the_payload_instead_of_copying_it() {
     let writer = Arc::new(RunSignal::new());
     let mut a = reader(&buffer, ReaderPolicy::Fifo);
     let mut b = reader(&buffer, ReaderPolicy::Fifo);
-    let pixels = kairos_sdk::Pixels::from(vec![7_u8; 1 << 20]);
+    let pixels = kairos_sdk_core::Pixels::from(vec![7_u8; 1 << 20]);
     let image =
-        kairos_sdk::Image::packed(1024, 1024, kairos_sdk::PixelFormat::Gray8, pixels.clone()).unwrap();
+        kairos_sdk_core::Image::packed(1024, 1024, kairos_sdk_core::PixelFormat::Gray8, pixels.clone())
+            .unwrap();
     buffer
         .write(Sample::new(Payload::Image(image), Timestamp::ZERO), &writer)
         .unwrap();
@@ -501,7 +502,7 @@ fn closing_ends_the_stream_after_what_is_left() {
     buffer.close();
     assert_eq!(r.read(false).unwrap().sequence, 0);
     assert_eq!(r.read(false).unwrap().sequence, 1);
-    assert_eq!(r.read(false), Err(kairos_sdk::host::ReadError::EndOfStream));
+    assert_eq!(r.read(false), Err(kairos_sdk_core::host::ReadError::EndOfStream));
 }
 
 #[test]
@@ -521,7 +522,10 @@ fn a_stop_wakes_a_blocked_reader() {
     };
     thread::sleep(Duration::from_millis(30));
     signal.request_stop();
-    assert_eq!(waiting.join().unwrap(), Err(kairos_sdk::host::ReadError::Stopped));
+    assert_eq!(
+        waiting.join().unwrap(),
+        Err(kairos_sdk_core::host::ReadError::Stopped)
+    );
 }
 
 #[test]

@@ -92,7 +92,7 @@ pub mod kind {
 
 /// The C header for C and C++ packs (`component-sdk/include/kairos.h`), kept in step with this module by a
 /// test that compiles it and compares every struct's size and every constant.
-pub const C_HEADER: &str = include_str!("../../include/kairos.h");
+pub const C_HEADER: &str = include_str!("../../../include/kairos.h");
 
 /// Exports a pack from a crate built as a shared library (`crate-type = ["rlib", "cdylib"]`):
 /// `kairos_sdk::export_pack!(my_pack::register);` generates the C entry point, the component shims and

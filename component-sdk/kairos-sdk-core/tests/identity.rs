@@ -10,8 +10,8 @@ use std::sync::Arc;
 use std::thread;
 use std::time::Duration;
 
-use kairos_sdk::host::{OutputBuffer, ReaderConfig};
-use kairos_sdk::{Payload, ReaderPolicy, RunSignal, Sample, Timestamp};
+use kairos_sdk_core::host::{OutputBuffer, ReaderConfig};
+use kairos_sdk_core::{Payload, ReaderPolicy, RunSignal, Sample, Timestamp};
 use proptest::prelude::*;
 
 fn policy() -> impl Strategy<Value = ReaderPolicy> {

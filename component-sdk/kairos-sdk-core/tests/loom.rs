@@ -10,8 +10,8 @@
 
 use std::sync::Arc;
 
-use kairos_sdk::host::{OutputBuffer, ReadError, Reader, ReaderConfig};
-use kairos_sdk::{Payload, ReaderPolicy, RunSignal, Sample, Timestamp};
+use kairos_sdk_core::host::{OutputBuffer, ReadError, Reader, ReaderConfig};
+use kairos_sdk_core::{Payload, ReaderPolicy, RunSignal, Sample, Timestamp};
 
 fn sample(sequence: u64) -> Sample {
     Sample {

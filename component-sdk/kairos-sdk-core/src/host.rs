@@ -1,11 +1,10 @@
 //! The runtime's half of the SDK: output buffers and their readers, building the [`Context`] a component
-//! runs with, and the C conversions the pack loader needs. Compiled only with the `host` feature, which
-//! `kairos-runtime` enables; pack authors never need it, and packs that used it would no longer build on
-//! their own.
+//! runs with, validating a diagram against a [`Registry`], and the C conversions the pack loader needs.
+//! `kairos-sdk` does not re-export this module: a pack cannot name any of it.
 
 use std::sync::Arc;
 
-use kairos_diagram::{DataType, Value};
+use kairos_diagram::{DataType, Diagnostic, Diagram, InstanceInfos, SourceMap, Value};
 
 pub use crate::abi::convert::{
     error_status, sample_from_c, sample_to_c, status_error, value_from_c, value_to_c, write_error,
@@ -13,6 +12,7 @@ pub use crate::abi::convert::{
 pub use crate::buffer::{OutputBuffer, ReadError, Reader, ReaderConfig, WriteError};
 use crate::component::{ComponentError, Context, InputPort, OutputPort};
 pub use crate::component::{ContextParts, StatusCell};
+use crate::registry::Registry;
 use crate::signal::RunSignal;
 use crate::time::Clock;
 
@@ -94,5 +94,26 @@ impl ContextHost for Context {
 
     fn output_buffers(&self) -> Vec<&OutputBuffer> {
         self.outputs().iter().map(OutputPort::buffer).collect()
+    }
+}
+
+/// Checking diagrams against the components a registry holds: the runtime's use of a [`Registry`], kept
+/// out of the methods a pack sees while it registers.
+pub trait RegistryValidation {
+    /// The descriptors of the diagram's instances whose ports depend on their properties, by id. A
+    /// describe function that panics is reported as that instance's error, never propagated.
+    fn instance_infos(&self, diagram: &Diagram) -> InstanceInfos;
+    /// Validates `diagram` against the registry, instances that describe themselves included; see
+    /// [`kairos_diagram::validate_with`].
+    fn validate(&self, diagram: &Diagram, source_map: Option<&SourceMap>) -> Vec<Diagnostic>;
+}
+
+impl RegistryValidation for Registry {
+    fn instance_infos(&self, diagram: &Diagram) -> InstanceInfos {
+        Registry::instance_infos(self, diagram)
+    }
+
+    fn validate(&self, diagram: &Diagram, source_map: Option<&SourceMap>) -> Vec<Diagnostic> {
+        Registry::validate(self, diagram, source_map)
     }
 }
