@@ -313,6 +313,87 @@ fn deploy_starts_nothing_when_a_host_is_unreachable_or_refuses() {
 }
 
 #[test]
+fn a_part_one_host_refuses_changes_no_host() {
+    let _machine = shared_machine();
+    let [dir_a, dir_b, here] = folders();
+    let a = serve(dir_a.path(), &[]);
+    let b = serve(dir_b.path(), &[]);
+    std::fs::write(here.path().join("a.token"), &a.token).unwrap();
+    std::fs::write(here.path().join("b.token"), &b.token).unwrap();
+    // Host a runs a counter into a CSV file, deployed before.
+    let mut socket = operator(&a);
+    let running = r#"Diagram(format: 1, components: [
+        Component(id: "count", type: "core.counter", properties: {"rate": 200.0}),
+        Component(id: "csv", type: "core.csv_writer", properties: {"path": "kept.csv"}),
+    ], connections: [Connection(from: "count.out", to: "csv.in1")])"#;
+    serving::deploy_and_start(&mut socket, running);
+    let deployed_before =
+        call(&mut socket, &json!({"id": 2, "type": "get_diagram"}))["result"]["diagram"].clone();
+
+    // A recording this machine has and host b has not (a relative path, from each one's folder).
+    std::fs::write(
+        here.path().join("record_here.ron"),
+        r#"Diagram(format: 1, components: [
+            Component(id: "sine", type: "core.sine"),
+            Component(id: "recorder", type: "recording.recorder", properties: {"path": "rec.mcap", "min_free_mb": 0.0}),
+        ], connections: [Connection(from: "sine.out", to: "recorder.in1")])"#,
+    )
+    .unwrap();
+    let recorded = common::kairos(here.path(), &["run", "record_here.ron", "--for", "400ms"]);
+    assert!(recorded.status.success(), "{:?}", text(&recorded));
+    assert!(here.path().join("rec.mcap").is_file());
+    let diagram = here.path().join("a_and_b.ron");
+    std::fs::write(
+        &diagram,
+        format!(
+            r#"Diagram(format: 1,
+                hosts: {{"a": Host(endpoint: "{}", token_file: "a.token"), "b": Host(endpoint: "{}", token_file: "b.token")}},
+                components: [
+                    Component(id: "sine_a", type: "core.sine", host: "a"),
+                    Component(id: "csv_a", type: "core.csv_writer", host: "a", properties: {{"path": "replaced.csv"}}),
+                    Component(id: "player", type: "recording.player", host: "b", properties: {{"path": "rec.mcap"}}),
+                ],
+                connections: [Connection(from: "sine_a.out", to: "csv_a.in1")])"#,
+            a.url, b.url
+        ),
+    )
+    .unwrap();
+    let refused = common::kairos(here.path(), &["deploy", diagram.to_str().unwrap(), "--for", "2s"]);
+    let (_, stderr) = text(&refused);
+    assert!(!refused.status.success(), "{stderr}");
+    assert!(
+        stderr.contains("host 'b' refused") && stderr.contains("no host was changed"),
+        "{stderr}"
+    );
+
+    // Host a runs on what it ran, untouched: the same diagram, running, its file growing.
+    assert_eq!(state(&mut socket), "running", "{stderr}");
+    let deployed_after =
+        call(&mut socket, &json!({"id": 3, "type": "get_diagram"}))["result"]["diagram"].clone();
+    assert_eq!(deployed_after, deployed_before);
+    let kept = dir_a.path().join("kept.csv");
+    let before = csv_values(&kept).len();
+    let waiting = Instant::now();
+    while csv_values(&kept).len() <= before {
+        assert!(
+            waiting.elapsed() < Duration::from_secs(10),
+            "host a's file stopped growing at {before} lines"
+        );
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    assert!(
+        !dir_a.path().join("replaced.csv").exists(),
+        "nothing of the refused part ran on a"
+    );
+    let mut on_b = operator(&b);
+    assert_eq!(
+        state(&mut on_b),
+        "empty",
+        "host b was not given the part it refused"
+    );
+}
+
+#[test]
 fn a_pack_a_host_lacks_is_shipped_and_one_for_another_platform_is_refused() {
     let _machine = shared_machine();
     let [dir_b, shipped, here] = folders();

@@ -40,7 +40,8 @@ fn sample_request(kind: RequestKind, id: u64) -> Value {
     let mut request = json!({"id": id, "type": kind.name()});
     let fields = match kind {
         RequestKind::Hello => json!({"protocol": 1, "client": "x"}),
-        RequestKind::Deploy => json!({"diagram": "Diagram(format: 1)"}),
+        RequestKind::Deploy | RequestKind::PrepareDeploy => json!({"diagram": "Diagram(format: 1)"}),
+        RequestKind::CommitDeploy | RequestKind::AbandonDeploy => json!({"ticket": 1}),
         RequestKind::SetProperty => json!({"component": "gain1", "property": "gain", "value": 3.0}),
         RequestKind::TriggerAction => json!({"component": "gain1", "action": "reset"}),
         RequestKind::SubscribeTelemetry => json!({"interval_ms": 1000}),

@@ -41,26 +41,31 @@ pub use watch::Watch;
 
 use links::wait_for_links;
 
-/// Splits `diagram` over its hosts, deploys each host's part (shipping the packs it lacks), joins this
-/// machine's links and waits for every link to match: this machine's part, and the hosts to watch. Token
-/// files and certificates are found in `folder`; tokens go over plain `ws://` off this machine only with
-/// `clear_text_tokens`. Nothing is started. Both `kairos deploy` and a server coordinating a diagram for
-/// its client (the studio's Run) deploy this way.
+/// Splits `diagram` over its hosts, deploys each host's part (shipping the packs it lacks) and prepares
+/// this machine's with `prepare_here`, joins this machine's links and waits for every link to match: what
+/// `prepare_here` made, and the hosts to watch. Token files and certificates are found in `folder`; tokens
+/// go over plain `ws://` off this machine only with `clear_text_tokens`. Nothing is started. Both `kairos
+/// deploy` and a server coordinating a diagram for its client (the studio's Run) deploy this way.
+///
+/// Deploying is in two phases: every host prepares its part (validated and built beside what it runs)
+/// and this machine prepares its own, and only when all are accepted does any host commit. A part refused
+/// anywhere changes no host: each keeps what it ran.
 ///
 /// # Errors
 ///
 /// An unreachable host, a refused part or pack, a link that does not match: named with the reason.
-pub fn deploy_everywhere(
+pub fn deploy_everywhere<T>(
     diagram: &Diagram,
     registry: &Registry,
     folder: &Path,
     clear_text_tokens: bool,
-) -> anyhow::Result<(Diagram, Watch)> {
+    prepare_here: impl FnOnce(&Diagram) -> anyhow::Result<T>,
+) -> anyhow::Result<(T, Watch)> {
     let plan = split(diagram, registry, &deployment_name())?;
     let networks = networks(diagram, &plan, folder)?;
     let reach = Reach::new(folder, clear_text_tokens);
-    let mut hosts = deploy_remote(diagram, &plan, &networks, &reach)?;
     let here = plan.parts.get(&None).cloned().unwrap_or_default();
+    let (mut hosts, prepared) = deploy_remote(diagram, &plan, &networks, &reach, || prepare_here(&here))?;
     if let Some(network) = networks.get(&None) {
         kairos_pack_link::network::join(network)?;
     }
@@ -69,17 +74,22 @@ pub fn deploy_everywhere(
     for link in &plan.links {
         tracing::info!("linked {} -> {}", link.from, link.to);
     }
-    Ok((here, Watch::new(diagram.clone(), plan, networks, reach, hosts)))
+    Ok((
+        prepared,
+        Watch::new(diagram.clone(), plan, networks, reach, hosts),
+    ))
 }
 
-/// Reaches every host of `plan` and deploys each part with its link network, or fails naming the host
-/// and its reason. Nothing is started.
-fn deploy_remote(
+/// Reaches every host of `plan`, ships the packs each lacks, has each prepare its part with its link
+/// network, prepares this machine's part with `prepare_here`, and then commits every host's; or fails
+/// naming the host and its reason, every prepared part abandoned. Nothing is started.
+fn deploy_remote<T>(
     diagram: &Diagram,
     plan: &Plan,
     networks: &BTreeMap<Option<String>, LinkNetwork>,
     reach: &Reach,
-) -> anyhow::Result<Vec<Host>> {
+    prepare_here: impl FnOnce() -> anyhow::Result<T>,
+) -> anyhow::Result<(Vec<Host>, T)> {
     let mut hosts = Vec::new();
     for name in plan.parts.keys().flatten() {
         let Some(spec) = diagram.hosts.get(name) else {
@@ -91,16 +101,66 @@ fn deploy_remote(
         let key = Some(host.name().to_owned());
         ship_packs(host, plan.packs.get(&key).map_or(&[], Vec::as_slice))?;
     }
+    let mut tickets = Vec::new();
     for host in &mut hosts {
         let key = Some(host.name().to_owned());
         let part = plan.parts.get(&key).map(Diagram::to_ron).unwrap_or_default();
-        host.call(RequestBody::Deploy {
+        let prepared = host.call(RequestBody::PrepareDeploy {
             diagram: part,
             network: networks.get(&key).cloned(),
-            folder: None,
-        })?;
+        });
+        match prepared.and_then(|reply| ticket_of(host.name(), &reply)) {
+            Ok(ticket) => tickets.push(ticket),
+            Err(e) => {
+                abandon(&mut hosts, &tickets);
+                return Err(unchanged(&e));
+            }
+        }
     }
-    Ok(hosts)
+    let local = match prepare_here() {
+        Ok(prepared) => prepared,
+        Err(e) => {
+            abandon(&mut hosts, &tickets);
+            return Err(unchanged(&e));
+        }
+    };
+    for (index, (host, ticket)) in hosts.iter_mut().zip(&tickets).enumerate() {
+        if let Err(e) = host.call(RequestBody::CommitDeploy { ticket: *ticket }) {
+            let committed: Vec<_> = plan.parts.keys().flatten().take(index).cloned().collect();
+            abandon(&mut hosts[index + 1..], &tickets[index + 1..]);
+            return Err(if committed.is_empty() {
+                unchanged(&e)
+            } else {
+                e.context(format!(
+                    "committed on {} before it failed: run the deploy again",
+                    committed.join(", ")
+                ))
+            });
+        }
+    }
+    Ok((hosts, local))
+}
+
+/// The ticket of a `prepare_deploy` reply.
+fn ticket_of(host: &str, reply: &serde_json::Value) -> anyhow::Result<u64> {
+    reply["ticket"].as_u64().ok_or_else(|| {
+        anyhow::anyhow!("host '{host}' answered prepare_deploy without a ticket: is it an older kairos?")
+    })
+}
+
+/// Drops the parts `hosts` prepared (in order, one ticket each); a host that does not answer drops its
+/// own when the next prepare replaces it, and never commits it.
+fn abandon(hosts: &mut [Host], tickets: &[u64]) {
+    for (host, ticket) in hosts.iter_mut().zip(tickets) {
+        if let Err(e) = host.call(RequestBody::AbandonDeploy { ticket: *ticket }) {
+            tracing::warn!("{e:#}");
+        }
+    }
+}
+
+/// A refusal before any commit, saying that nothing changed.
+fn unchanged(error: &anyhow::Error) -> anyhow::Error {
+    anyhow::anyhow!("{error:#}\nno host was changed: each keeps the diagram it had, running or not")
 }
 
 #[cfg(test)]

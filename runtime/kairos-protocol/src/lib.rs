@@ -33,8 +33,8 @@ pub use messages::{
     ClockState, ClockTelemetry, ComponentState, ComponentTelemetry, CrossLinkTelemetry, DeployResult,
     Described, DeviceInfo, DeviceList, DiagramReply, Done, ErrorCode, FoxgloveState, HostTelemetry,
     LatencyTelemetry, LinkEnd, LinkList, LinkNetwork, LinkTelemetry, LogLevel, LogRecord, PACK_CHUNK_BYTES,
-    PYTHON_PACK_PLATFORM, PackInstall, ProtocolError, Reply, ReplyBody, Request, RequestBody, RequestKind,
-    Role, RuntimeState, SampleTransport, SamplesSubscribed, ServerMessage, Status, Telemetry,
+    PYTHON_PACK_PLATFORM, PackInstall, Prepared, ProtocolError, Reply, ReplyBody, Request, RequestBody,
+    RequestKind, Role, RuntimeState, SampleTransport, SamplesSubscribed, ServerMessage, Status, Telemetry,
     TelemetrySubscribed, Welcome, decode_request, this_host, this_platform,
 };
 

@@ -177,6 +177,29 @@ requests! {
         #[serde(default, skip_serializing_if = "Option::is_none")]
         folder: Option<String>,
     } => DeployResult, Operator;
+    /// The first phase of deploying one host's part of a diagram spread over several: validates the
+    /// diagram and builds it, as `deploy` would, without touching the deployed one. `commit_deploy` with the
+    /// ticket replied makes it the deployed diagram; `abandon_deploy` drops it. A newer prepare replaces one
+    /// not yet committed. `kairos deploy` prepares every host's part before it commits any, so that a part
+    /// one host refuses changes no host.
+    PrepareDeploy = "prepare_deploy" {
+        /// The diagram file's text.
+        diagram: String,
+        /// As `deploy`'s: the Zenoh network the part's links travel on, joined when committed.
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        network: Option<LinkNetwork>,
+    } => Prepared, Operator;
+    /// Makes the prepared diagram with this ticket the deployed one, stopping and replacing the running one.
+    CommitDeploy = "commit_deploy" {
+        /// The ticket `prepare_deploy` replied.
+        ticket: u64,
+    } => DeployResult, Operator;
+    /// Drops the prepared diagram with this ticket; the deployed one is untouched. An unknown ticket (one
+    /// already committed, abandoned or replaced) is done already.
+    AbandonDeploy = "abandon_deploy" {
+        /// The ticket `prepare_deploy` replied.
+        ticket: u64,
+    } => Done, Operator;
     /// The deployed diagram's links to other hosts: each end, and whether its far end has matched.
     Links = "links" => LinkList, Monitor;
     /// Installs a pack this runtime lacks (what `kairos deploy` does before deploying a part that needs it),
@@ -658,6 +681,17 @@ pub struct DiagramReply {
 #[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
 pub struct DeployResult {
     /// Warnings (errors make the deploy fail with `invalid_diagram`).
+    pub diagnostics: Vec<Diagnostic>,
+    /// How many components the diagram has.
+    pub components: usize,
+}
+
+/// The result of a successful `prepare_deploy`: the diagram is valid and built, not yet deployed.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Prepared {
+    /// What `commit_deploy` and `abandon_deploy` name it by.
+    pub ticket: u64,
+    /// Warnings (errors make the prepare fail with `invalid_diagram`).
     pub diagnostics: Vec<Diagnostic>,
     /// How many components the diagram has.
     pub components: usize,

@@ -28,6 +28,18 @@ struct Deployment {
     previous: Option<StatsSnapshot>,
     /// A diagram spread over hosts and coordinated here, as deployed and changed since, and its hosts.
     spread: Option<(Diagram, Arc<Spread>)>,
+    /// A part prepared by `prepare_deploy`, waiting for its commit; the deployed one runs meanwhile.
+    prepared: Option<(u64, Part)>,
+    /// The ticket the next prepared part gets.
+    next_ticket: u64,
+}
+
+/// A diagram validated and built, not yet deployed.
+struct Part {
+    diagram: Diagram,
+    engine: Engine,
+    diagnostics: Vec<Diagnostic>,
+    network: Option<kairos_protocol::LinkNetwork>,
 }
 
 /// The shared runtime state of a server.
@@ -393,13 +405,101 @@ impl Runtime {
 
     /// Validates `text` and makes it the deployed diagram, stopping and replacing the running one. A
     /// diagram placing components on hosts is coordinated from here: each host gets its part (its token
-    /// files and certificates found in `folder`), this runtime runs the rest.
+    /// files and certificates found in `folder`), this runtime runs the rest; a part a host refuses, or
+    /// this runtime's own, changes no host.
     pub fn deploy(
         &self,
         text: &str,
         network: Option<&kairos_protocol::LinkNetwork>,
         folder: Option<&Path>,
     ) -> Result<DeployResult, ProtocolError> {
+        let (diagram, diagnostics) = self.validated(text)?;
+        if !is_spread(&diagram) {
+            let part = self.build_part(diagram, diagnostics, network.cloned())?;
+            return self.install(part, None);
+        }
+        // The previous deployment's hosts are released before this one reaches them.
+        if let Some((_, old)) = self.lock().spread.take() {
+            old.end();
+        }
+        let folder = folder.map_or_else(|| std::env::current_dir().unwrap_or_default(), Path::to_owned);
+        let (spread, part) = Spread::deploy(&diagram, &self.registry(), &folder, |here| {
+            self.build_part(here.clone(), diagnostics.clone(), None)
+                .map_err(|e| anyhow::anyhow!("this runtime's part: {}", e.message))
+        })
+        .map_err(|e| error(ErrorCode::InvalidDiagram, format!("{e:#}")))?;
+        let components = diagram.components.len();
+        let mut result = self.install(part, Some((diagram, spread)))?;
+        result.components = components;
+        Ok(result)
+    }
+
+    /// The first phase of a deployment over hosts (`prepare_deploy`): `text` validated and built, kept
+    /// until [`Runtime::commit`] or [`Runtime::abandon`]; the deployed diagram runs on meanwhile.
+    pub fn prepare(
+        &self,
+        text: &str,
+        network: Option<&kairos_protocol::LinkNetwork>,
+    ) -> Result<kairos_protocol::Prepared, ProtocolError> {
+        let (diagram, diagnostics) = self.validated(text)?;
+        if is_spread(&diagram) {
+            return Err(error(
+                ErrorCode::InvalidDiagram,
+                "prepare_deploy takes one host's part; a diagram placing components on hosts is deployed \
+                 with `deploy`, which coordinates it",
+            ));
+        }
+        let part = self.build_part(diagram, diagnostics, network.cloned())?;
+        let mut deployment = self.lock();
+        deployment.next_ticket += 1;
+        let ticket = deployment.next_ticket;
+        let prepared = kairos_protocol::Prepared {
+            ticket,
+            diagnostics: part.diagnostics.clone(),
+            components: part.diagram.components.len(),
+        };
+        if let Some((replaced, _)) = deployment.prepared.replace((ticket, part)) {
+            tracing::info!("prepared deployment {replaced} was replaced by {ticket} before its commit");
+        }
+        Ok(prepared)
+    }
+
+    /// Makes the part prepared under `ticket` the deployed diagram (`commit_deploy`).
+    pub fn commit(&self, ticket: u64) -> Result<DeployResult, ProtocolError> {
+        let part = {
+            let mut deployment = self.lock();
+            match deployment.prepared.take() {
+                Some((prepared, part)) if prepared == ticket => part,
+                other => {
+                    deployment.prepared = other;
+                    return Err(error(
+                        ErrorCode::WrongState,
+                        format!(
+                            "no prepared deployment {ticket}: it was committed, abandoned or replaced by a \
+                             newer prepare_deploy; prepare it again"
+                        ),
+                    ));
+                }
+            }
+        };
+        self.install(part, None)
+    }
+
+    /// Drops the part prepared under `ticket` (`abandon_deploy`); the deployed diagram is untouched.
+    pub fn abandon(&self, ticket: u64) {
+        let mut deployment = self.lock();
+        if deployment
+            .prepared
+            .as_ref()
+            .is_some_and(|(prepared, _)| *prepared == ticket)
+        {
+            deployment.prepared = None;
+            tracing::info!("prepared deployment {ticket} abandoned: the deployed diagram is unchanged");
+        }
+    }
+
+    /// `text` parsed and validated against the library: the diagram and its warnings.
+    fn validated(&self, text: &str) -> Result<(Diagram, Vec<Diagnostic>), ProtocolError> {
         let parsed = kairos_diagram::parse(text).map_err(|diagnostics| invalid(text, diagnostics))?;
         let diagnostics = self
             .registry()
@@ -407,50 +507,62 @@ impl Runtime {
         if diagnostics.iter().any(Diagnostic::is_error) {
             return Err(invalid(text, diagnostics));
         }
-        // The previous deployment's hosts are released before this one reaches them.
-        if let Some((_, old)) = self.lock().spread.take() {
-            old.end();
-        }
-        let (here, spread) = if is_spread(&parsed.diagram) {
-            let folder = folder.map_or_else(|| std::env::current_dir().unwrap_or_default(), Path::to_owned);
-            let (spread, here) = Spread::deploy(&parsed.diagram, &self.registry(), &folder)
-                .map_err(|e| error(ErrorCode::InvalidDiagram, format!("{e:#}")))?;
-            (here, Some((parsed.diagram.clone(), spread)))
-        } else {
-            (parsed.diagram.clone(), None)
-        };
-        let engine = match Engine::build(&here, &self.registry(), self.clock_for(&here)) {
-            Ok(engine) => engine,
-            Err(e) => {
-                if let Some((_, spread)) = &spread {
-                    spread.end();
-                }
-                return Err(error(ErrorCode::InvalidDiagram, e.to_string()));
-            }
-        };
+        Ok((parsed.diagram, diagnostics))
+    }
+
+    /// Builds `diagram`'s engine, touching nothing deployed.
+    fn build_part(
+        &self,
+        diagram: Diagram,
+        diagnostics: Vec<Diagnostic>,
+        network: Option<kairos_protocol::LinkNetwork>,
+    ) -> Result<Part, ProtocolError> {
+        let engine = Engine::build(&diagram, &self.registry(), self.clock_for(&diagram))
+            .map_err(|e| error(ErrorCode::InvalidDiagram, e.to_string()))?;
+        Ok(Part {
+            diagram,
+            engine,
+            diagnostics,
+            network,
+        })
+    }
+
+    /// Makes `part` the deployed diagram, stopping and replacing the running one; `spread`: the whole
+    /// diagram it is this runtime's part of, and its hosts.
+    fn install(
+        &self,
+        part: Part,
+        spread: Option<(Diagram, Arc<Spread>)>,
+    ) -> Result<DeployResult, ProtocolError> {
         let mut deployment = self.lock();
         if let Some(mut old) = deployment.engine.take() {
             old.stop();
         }
+        if spread.is_none()
+            && let Some((_, old)) = deployment.spread.take()
+        {
+            old.end();
+        }
+        let coordinated = spread.is_some();
         deployment.spread = spread;
         // The part's links to other hosts are declared now, so they match before anything starts.
-        if let Some(network) = network {
+        if let Some(network) = &part.network {
             kairos_pack_link::network::join(network)
                 .map_err(|e| error(ErrorCode::InvalidDiagram, format!("{e:#}")))?;
         }
-        // A spread diagram's links here were declared, and matched, as it was deployed.
-        if deployment.spread.is_none() {
-            kairos_pack_link::network::prepare(&here)
+        // A coordinated diagram's links here were declared, and matched, as it was deployed.
+        if !coordinated {
+            kairos_pack_link::network::prepare(&part.diagram)
                 .map_err(|e| error(ErrorCode::InvalidDiagram, format!("{e:#}")))?;
         }
-        let components = parsed.diagram.components.len();
-        deployment.diagram = Some(here);
-        deployment.engine = Some(engine);
+        let components = part.diagram.components.len();
+        deployment.diagram = Some(part.diagram);
+        deployment.engine = Some(part.engine);
         deployment.previous = None;
         self.generation.fetch_add(1, Ordering::Release);
         tracing::info!("deployed a diagram of {components} components");
         Ok(DeployResult {
-            diagnostics,
+            diagnostics: part.diagnostics,
             components,
         })
     }

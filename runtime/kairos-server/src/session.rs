@@ -448,6 +448,20 @@ impl Session {
                 network,
                 folder,
             } => ReplyBody::Deploy(self.deploy(diagram, network, folder).await?),
+            RequestBody::PrepareDeploy { diagram, network } => ReplyBody::PrepareDeploy(
+                self.blocking(move |r| r.prepare(&diagram, network.as_ref()))
+                    .await?,
+            ),
+            RequestBody::CommitDeploy { ticket } => {
+                ReplyBody::CommitDeploy(self.blocking(move |r| r.commit(ticket)).await?)
+            }
+            RequestBody::AbandonDeploy { ticket } => ReplyBody::AbandonDeploy(
+                self.blocking(move |r| {
+                    r.abandon(ticket);
+                    Ok(Done {})
+                })
+                .await?,
+            ),
             RequestBody::InstallPack {
                 name,
                 version,

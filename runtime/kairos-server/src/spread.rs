@@ -34,19 +34,22 @@ pub fn is_spread(diagram: &Diagram) -> bool {
 }
 
 impl Spread {
-    /// Splits `whole`, deploys each host's part (shipping the packs it lacks), joins this runtime's links
-    /// and waits for every link to match: the spread, and the part that runs here. Nothing starts.
+    /// Splits `whole`, prepares each host's part (shipping the packs it lacks) and this runtime's with
+    /// `prepare_here`, commits them all, joins this runtime's links and waits for every link to match: the
+    /// spread, and what `prepare_here` made of the part that runs here. Nothing starts.
     ///
     /// # Errors
     ///
-    /// An unreachable host, a refused part or pack, a link that does not match: named with the reason.
-    pub fn deploy(
+    /// An unreachable host, a refused part or pack (then no host was changed), a link that does not
+    /// match: named with the reason.
+    pub fn deploy<T>(
         whole: &Diagram,
         registry: &Registry,
         folder: &Path,
-    ) -> anyhow::Result<(Arc<Spread>, Diagram)> {
+        prepare_here: impl FnOnce(&Diagram) -> anyhow::Result<T>,
+    ) -> anyhow::Result<(Arc<Spread>, T)> {
         // A studio cannot say the network is trusted: tokens cross it over wss:// or on loopback only.
-        let (here, mut watch) = deploy::deploy_everywhere(whole, registry, folder, false)?;
+        let (here, mut watch) = deploy::deploy_everywhere(whole, registry, folder, false, prepare_here)?;
         // A host that returns while the diagram is stopped gets its part back, not started.
         watch.set_running(false);
         let spread = Arc::new(Spread {

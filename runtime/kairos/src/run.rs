@@ -6,7 +6,7 @@ use std::sync::{Arc, mpsc};
 use std::time::{Duration, Instant};
 
 use anyhow::{Context as _, bail};
-use kairos_diagram::Value;
+use kairos_diagram::{Diagram, Value};
 use kairos_runtime::{ComponentState, Engine, StatsSnapshot};
 use kairos_sdk_core::Registry;
 use kairos_sdk_core::host::RegistryValidation as _;
@@ -115,21 +115,6 @@ pub fn run(registry: &Registry, path: &Path, options: &RunOptions) -> anyhow::Re
         return Ok(ExitCode::from(1));
     };
 
-    // Deploying: every host's part is deployed and started before this machine's part starts; then the
-    // diagram run here is this machine's part alone.
-    let mut watch = None;
-    if let Some(deploy) = options.deploy {
-        let folder = path.parent().unwrap_or_else(|| Path::new("."));
-        let (here, deployed) = kairos_coordinator::deploy_everywhere(
-            &parsed.diagram,
-            registry,
-            folder,
-            deploy.clear_text_tokens,
-        )?;
-        parsed.diagram = here;
-        watch = Some(deployed);
-    }
-
     let (stop_tx, stop_rx) = mpsc::sync_channel::<()>(1);
     ctrlc::set_handler(move || {
         let _ = stop_tx.try_send(());
@@ -137,11 +122,28 @@ pub fn run(registry: &Registry, path: &Path, options: &RunOptions) -> anyhow::Re
     .context("installing the Ctrl-C handler")?;
 
     let note = kairos_clock_sync::StartNote::default();
-    let clock =
-        kairos_clock_sync::NotedClock::new(kairos_runtime::clock_for(&parsed.diagram), Arc::clone(&note));
-    let mut engine = match Engine::build(&parsed.diagram, registry, Arc::new(clock)) {
-        Ok(engine) => engine,
-        Err(error) => bail!("{error}"),
+    let build = |diagram: &Diagram| -> anyhow::Result<Engine> {
+        let clock = kairos_clock_sync::NotedClock::new(kairos_runtime::clock_for(diagram), Arc::clone(&note));
+        Engine::build(diagram, registry, Arc::new(clock)).map_err(|error| anyhow::anyhow!("{error}"))
+    };
+    // Deploying: every host's part and this machine's are prepared before any host's is committed, and
+    // all are started together; then the diagram run here is this machine's part alone.
+    let mut watch = None;
+    let mut engine = match options.deploy {
+        Some(deploy) => {
+            let folder = path.parent().unwrap_or_else(|| Path::new("."));
+            let ((engine, here), deployed) = kairos_coordinator::deploy_everywhere(
+                &parsed.diagram,
+                registry,
+                folder,
+                deploy.clear_text_tokens,
+                |here| Ok((build(here)?, here.clone())),
+            )?;
+            parsed.diagram = here;
+            watch = Some(deployed);
+            engine
+        }
+        None => build(&parsed.diagram)?,
     };
     let foxglove = options
         .foxglove
