@@ -165,10 +165,13 @@ fn namespace_diagram(a_url: &str, b_url: &str, address_a: &str, address_b: &str)
                 Component(id: "sine", type: "core.sine", host: "a", properties: {{"rate": 100.0}}),
                 Component(id: "gain", type: "core.gain", host: "b", properties: {{"gain": 2.0}}),
                 Component(id: "csv", type: "core.csv_writer", host: "a", properties: {{"path": "back.csv"}}),
+                Component(id: "count_b", type: "core.counter", host: "b", properties: {{"rate": 100.0}}),
+                Component(id: "csv_b", type: "core.csv_writer", host: "b", properties: {{"path": "kept.csv"}}),
             ],
             connections: [
                 Connection(from: "sine.out", to: "gain.in"),
                 Connection(from: "gain.out", to: "csv.in1"),
+                Connection(from: "count_b.out", to: "csv_b.in1"),
             ])"#
     )
 }
@@ -299,6 +302,7 @@ fn across_two_network_namespaces_a_cut_link_is_reported_and_the_part_resumes_whe
     let mut deploying = deploy(&["--for", "60s", "--allow-clear-text-tokens"], &log);
     wait_for_log(&log, "host 'b' started its part", Duration::from_secs(30));
     std::thread::sleep(Duration::from_millis(1500));
+    let cut_at = now_ns();
     namespaces.set_link(false);
     let reported = wait_for_log(&log, "host 'b' is lost", Duration::from_secs(3));
     assert!(reported < Duration::from_secs(1), "reported after {reported:?}");
@@ -311,6 +315,21 @@ fn across_two_network_namespaces_a_cut_link_is_reported_and_the_part_resumes_whe
     assert!(
         after >= 1,
         "no sample back on a after the link returned\n{content}"
+    );
+    // Host b kept running through the blip: re-attached, not deployed again, its file never truncated.
+    assert!(
+        content.contains("host 'b' is back: its part kept running") && !content.contains("started again"),
+        "{content}"
+    );
+    let kept = csv_values(&dir_b.path().join("kept.csv"));
+    assert!(
+        kept.first().is_some_and(|(t, _)| *t < cut_at),
+        "b's file starts after the blip: {:?}",
+        kept.first()
+    );
+    assert!(
+        kept.iter().enumerate().all(|(i, (_, v))| (*v - i as f64).abs() < 0.5),
+        "b's counter restarted"
     );
     drop((a, b));
 }

@@ -271,6 +271,10 @@ fn a_killed_host_is_reported_within_a_second_and_its_part_runs_again_when_it_ret
     let (after, content) =
         samples_after_then_stop(&mut deploying, &here.path().join("here.csv"), returned_at, &log);
     assert!(after >= 1, "no sample after host b returned\n{content}");
+    assert!(
+        content.contains("host 'b' is back after a restart: its part was deployed and started again"),
+        "{content}"
+    );
     if std::env::var_os("SHOW_LOG").is_some() {
         eprintln!("{content}");
     }
@@ -390,6 +394,66 @@ fn a_part_one_host_refuses_changes_no_host() {
         state(&mut on_b),
         "empty",
         "host b was not given the part it refused"
+    );
+}
+
+#[test]
+fn a_host_another_deployment_takes_leaves_the_first_which_says_so() {
+    let _machine = shared_machine();
+    let [dir_a, here] = folders();
+    let a = serve(dir_a.path(), &[]);
+    std::fs::write(here.path().join("a.token"), &a.token).unwrap();
+    let on_a = |csv: &str| {
+        format!(
+            r#"Diagram(format: 1,
+                hosts: {{"a": Host(endpoint: "{}", token_file: "a.token")}},
+                components: [
+                    Component(id: "count", type: "core.counter", host: "a", properties: {{"rate": 100.0}}),
+                    Component(id: "csv", type: "core.csv_writer", host: "a", properties: {{"path": "{csv}"}}),
+                ],
+                connections: [Connection(from: "count.out", to: "csv.in1")])"#,
+            a.url
+        )
+    };
+    std::fs::write(here.path().join("first.ron"), on_a("first.csv")).unwrap();
+    std::fs::write(here.path().join("second.ron"), on_a("second.csv")).unwrap();
+    let log = here.path().join("first.log");
+    let mut first = Command::new(env!("CARGO_BIN_EXE_kairos"))
+        .args(["deploy", "first.ron", "--for", "60s"])
+        .current_dir(here.path())
+        .stdout(Stdio::null())
+        .stderr(std::fs::File::create(&log).unwrap())
+        .spawn()
+        .unwrap();
+    wait_for_log(&log, "host 'a' started its part", Duration::from_secs(30));
+
+    let second = common::kairos(here.path(), &["deploy", "second.ron", "--for", "1s"]);
+    assert!(second.status.success(), "{:?}", text(&second));
+    // The first deployment says the host left it, and neither deploys its part there again nor stops it.
+    wait_for_log(&log, "host 'a' runs another diagram now", Duration::from_secs(3));
+    nix::sys::signal::kill(
+        nix::unistd::Pid::from_raw(i32::try_from(first.id()).unwrap()),
+        nix::sys::signal::Signal::SIGINT,
+    )
+    .unwrap();
+    let status = first.wait().unwrap();
+    let content = std::fs::read_to_string(&log).unwrap();
+    assert!(
+        !status.success(),
+        "a deployment a host left ends in failure\n{content}"
+    );
+    assert!(
+        content.contains("left this deployment during the run"),
+        "{content}"
+    );
+    let mut socket = operator(&a);
+    let deployed = call(&mut socket, &json!({"id": 2, "type": "get_diagram"}));
+    assert!(
+        deployed["result"]["diagram"]
+            .as_str()
+            .unwrap()
+            .contains("second.csv"),
+        "the second deployment's part stays on a: {deployed}"
     );
 }
 

@@ -43,6 +43,8 @@ impl Reach {
 pub struct Host {
     name: String,
     connection: Connection,
+    /// The identity of the part this deployment gave the host, as its commit replied it.
+    deployment: Option<String>,
 }
 
 impl std::fmt::Debug for Host {
@@ -103,6 +105,7 @@ impl Host {
         Ok(Host {
             name: name.to_owned(),
             connection,
+            deployment: None,
         })
     }
 
@@ -144,6 +147,34 @@ impl Host {
     /// The host's name.
     pub fn name(&self) -> &str {
         &self.name
+    }
+
+    /// The identity of the part this deployment gave the host (`status` reports the one it runs).
+    pub fn deployment(&self) -> Option<&str> {
+        self.deployment.as_deref()
+    }
+
+    /// Deploys `part` (RON text) on the host, joining `network`, in one step: what it ran is replaced
+    /// whether or not another host accepts its part.
+    pub fn deploy(
+        &mut self,
+        part: String,
+        network: Option<kairos_protocol::LinkNetwork>,
+    ) -> anyhow::Result<()> {
+        let reply = self.call(RequestBody::Deploy {
+            diagram: part,
+            network,
+            folder: None,
+        })?;
+        self.deployment = reply["deployment"].as_str().map(str::to_owned);
+        Ok(())
+    }
+
+    /// Commits the part the host prepared under `ticket`.
+    pub fn commit(&mut self, ticket: u64) -> anyhow::Result<()> {
+        let reply = self.call(RequestBody::CommitDeploy { ticket })?;
+        self.deployment = reply["deployment"].as_str().map(str::to_owned);
+        Ok(())
     }
 }
 

@@ -125,7 +125,7 @@ fn deploy_remote<T>(
         }
     };
     for (index, (host, ticket)) in hosts.iter_mut().zip(&tickets).enumerate() {
-        if let Err(e) = host.call(RequestBody::CommitDeploy { ticket: *ticket }) {
+        if let Err(e) = host.commit(*ticket) {
             let committed: Vec<_> = plan.parts.keys().flatten().take(index).cloned().collect();
             abandon(&mut hosts[index + 1..], &tickets[index + 1..]);
             return Err(if committed.is_empty() {

@@ -1,6 +1,6 @@
 //! Watching a running deployment: hosts lost and back, their links, their statuses.
 
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, BTreeSet};
 use std::time::Duration;
 
 use anyhow::{Context as _, bail};
@@ -19,8 +19,10 @@ const HEALTH_PERIOD: Duration = Duration::from_millis(250);
 const RETRY_PERIOD: Duration = Duration::from_secs(1);
 
 /// A running deployment, watched from the deploying machine: a host that stops answering is reported
-/// with the links it cuts while the others keep running; when it answers again, its part is deployed and
-/// started again and its links resume.
+/// with the links it cuts while the others keep running. When it answers again still running the part
+/// this deployment gave it (a network blip), it is watched again and its links resume, its part
+/// untouched; when it restarted meanwhile, its part is deployed (and started) again. A host that runs
+/// another deployment's diagram now leaves this one, untouched.
 #[derive(Debug)]
 pub struct Watch {
     diagram: Diagram,
@@ -36,6 +38,20 @@ pub struct Watch {
     statuses: BTreeMap<String, serde_json::Value>,
     /// Whether the parts run: a host that returns is started again only then.
     running: bool,
+    /// The identity of the part each host was given (its `status` says the one it runs).
+    deployments: BTreeMap<String, String>,
+    /// The hosts that left: another deployment's diagram runs there now.
+    left: BTreeSet<String>,
+}
+
+/// What a host that answers runs, against what this deployment gave it.
+enum Runs {
+    /// The part this deployment gave it.
+    Ours,
+    /// Nothing: the server started afresh since.
+    Nothing,
+    /// Another deployment's diagram.
+    Another,
 }
 
 impl Watch {
@@ -47,6 +63,10 @@ impl Watch {
         reach: Reach,
         hosts: Vec<Host>,
     ) -> Self {
+        let deployments = hosts
+            .iter()
+            .filter_map(|h| Some((h.name().to_owned(), h.deployment()?.to_owned())))
+            .collect();
         Watch {
             diagram,
             plan,
@@ -57,7 +77,25 @@ impl Watch {
             last_check: std::time::Instant::now(),
             statuses: BTreeMap::new(),
             running: true,
+            deployments,
+            left: BTreeSet::new(),
         }
+    }
+
+    /// What host `name`, whose status is `status`, runs.
+    fn runs(&self, name: &str, status: &serde_json::Value) -> Runs {
+        match (status["deployment"].as_str(), self.deployments.get(name)) {
+            (None, _) => Runs::Nothing,
+            (Some(running), Some(ours)) if running == ours => Runs::Ours,
+            // A host older than deployment identities: taken to run what it was given.
+            (Some(_), None) => Runs::Ours,
+            (Some(_), Some(_)) => Runs::Another,
+        }
+    }
+
+    /// The hosts that left this deployment: another deployment's diagram runs there now.
+    pub fn left(&self) -> impl Iterator<Item = &str> {
+        self.left.iter().map(String::as_str)
     }
 
     /// Whether the parts run (they do when a watch is made): a host that returns gets its part deployed
@@ -149,26 +187,31 @@ impl Watch {
         self.last_check = std::time::Instant::now();
         let mut answering = Vec::new();
         for mut host in std::mem::take(&mut self.hosts) {
+            let name = host.name().to_owned();
             match host.ping() {
-                Ok(status) => {
-                    self.statuses.insert(host.name().to_owned(), status);
-                    answering.push(host);
-                }
+                Ok(status) => match self.runs(&name, &status) {
+                    Runs::Ours => {
+                        self.statuses.insert(name, status);
+                        answering.push(host);
+                    }
+                    Runs::Nothing => {
+                        tracing::error!(
+                            "host '{name}' restarted: its part is gone{}; it is deployed again",
+                            self.cut(&name)
+                        );
+                        self.statuses.remove(&name);
+                        self.lost.insert(name, std::time::Instant::now());
+                    }
+                    Runs::Another => self.leave(&name),
+                },
                 Err(error) => {
-                    self.statuses.remove(host.name());
-                    let links = self.links_of(host.name());
-                    let cut = if links.is_empty() {
-                        String::new()
-                    } else {
-                        format!("; links cut: {}", links.join(", "))
-                    };
+                    self.statuses.remove(&name);
                     tracing::error!(
-                        "host '{}' is lost ({error:#}){cut}; the other hosts keep running, and its part is \
-                         deployed again when it answers",
-                        host.name()
+                        "host '{name}' is lost ({error:#}){}; the other hosts keep running, and it is \
+                         watched again when it answers",
+                        self.cut(&name)
                     );
-                    self.lost
-                        .insert(host.name().to_owned(), std::time::Instant::now() + RETRY_PERIOD);
+                    self.lost.insert(name, std::time::Instant::now() + RETRY_PERIOD);
                 }
             }
         }
@@ -180,16 +223,13 @@ impl Watch {
             .map(|(name, _)| name.clone())
             .collect();
         for name in due {
-            match self.redeploy(&name) {
-                Ok(host) => {
-                    let again = if self.running {
-                        "deployed and started again"
-                    } else {
-                        "deployed again"
-                    };
-                    tracing::info!("host '{name}' is back: its part was {again}");
+            match self.rejoin(&name) {
+                Ok(Some(host)) => {
                     self.lost.remove(&name);
                     self.hosts.push(host);
+                }
+                Ok(None) => {
+                    self.lost.remove(&name);
                 }
                 Err(error) => {
                     tracing::debug!("host '{name}' is still lost: {error:#}");
@@ -199,21 +239,72 @@ impl Watch {
         }
     }
 
-    fn redeploy(&self, name: &str) -> anyhow::Result<Host> {
+    /// The links host `name` cuts, as the end of a sentence.
+    fn cut(&self, name: &str) -> String {
+        let links = self.links_of(name);
+        if links.is_empty() {
+            String::new()
+        } else {
+            format!("; links cut: {}", links.join(", "))
+        }
+    }
+
+    /// Host `name` runs another deployment's diagram: it leaves this one, untouched.
+    fn leave(&mut self, name: &str) {
+        tracing::error!(
+            "host '{name}' runs another diagram now, deployed from elsewhere{}: it leaves this deployment, \
+             untouched",
+            self.cut(name)
+        );
+        self.statuses.remove(name);
+        self.left.insert(name.to_owned());
+    }
+
+    /// Reaches host `name` again: re-attached when it still runs its part, given its part again when it
+    /// restarted, left alone (`None`) when it runs another deployment's diagram.
+    fn rejoin(&mut self, name: &str) -> anyhow::Result<Option<Host>> {
         let spec = self
             .diagram
             .hosts
             .get(name)
             .with_context(|| format!("no host '{name}'"))?;
         let mut host = Host::reach_within(name, spec, &self.reach, RETRY_PERIOD)?;
-        let key = Some(name.to_owned());
-        ship_packs(&mut host, self.plan.packs.get(&key).map_or(&[], Vec::as_slice))?;
+        let status = host.call(RequestBody::Status)?;
+        match self.runs(name, &status) {
+            Runs::Ours => {
+                let state = status["state"].as_str().unwrap_or("unknown");
+                tracing::info!(
+                    "host '{name}' is back: its part kept running ({state}), untouched, and its links resume"
+                );
+                self.statuses.insert(name.to_owned(), status);
+                Ok(Some(host))
+            }
+            Runs::Nothing => {
+                self.redeploy(&mut host)?;
+                let again = if self.running {
+                    "deployed and started again"
+                } else {
+                    "deployed again"
+                };
+                tracing::info!("host '{name}' is back after a restart: its part was {again}");
+                if let Some(deployment) = host.deployment() {
+                    self.deployments.insert(name.to_owned(), deployment.to_owned());
+                }
+                Ok(Some(host))
+            }
+            Runs::Another => {
+                self.leave(name);
+                Ok(None)
+            }
+        }
+    }
+
+    /// Gives `host` its part again, and starts it while the parts run.
+    fn redeploy(&self, host: &mut Host) -> anyhow::Result<()> {
+        let key = Some(host.name().to_owned());
+        ship_packs(host, self.plan.packs.get(&key).map_or(&[], Vec::as_slice))?;
         let part = self.plan.parts.get(&key).map(Diagram::to_ron).unwrap_or_default();
-        host.call(RequestBody::Deploy {
-            diagram: part,
-            network: self.networks.get(&key).cloned(),
-            folder: None,
-        })?;
+        host.deploy(part, self.networks.get(&key).cloned())?;
         if self.running {
             host.call(RequestBody::Start {
                 at_ns: None,
@@ -221,7 +312,7 @@ impl Watch {
                 start_unlocked: false,
             })?;
         }
-        Ok(host)
+        Ok(())
     }
 
     /// Stops every host's part and, with `stop_here`, this machine's, all at one instant

@@ -684,6 +684,9 @@ pub struct DeployResult {
     pub diagnostics: Vec<Diagnostic>,
     /// How many components the diagram has.
     pub components: usize,
+    /// The deployment's identity, as `status` reports it while this diagram is the deployed one.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub deployment: Option<String>,
 }
 
 /// The result of a successful `prepare_deploy`: the diagram is valid and built, not yet deployed.
@@ -753,6 +756,11 @@ pub struct Status {
     /// machine's own clock.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub clock: Option<ClockTelemetry>,
+    /// The deployed diagram's identity, as `deploy` and `commit_deploy` replied it: a new one with every
+    /// deployment and every start of the server. `kairos deploy` re-attaches to a host it lost that still
+    /// runs the deployment it made, instead of deploying it again. Absent before any deploy.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub deployment: Option<String>,
 }
 
 /// Latency figures of one link, in nanoseconds.

@@ -32,6 +32,9 @@ struct Deployment {
     prepared: Option<(u64, Part)>,
     /// The ticket the next prepared part gets.
     next_ticket: u64,
+    /// The deployed diagram's identity (`status`'s `deployment`), and how many were deployed.
+    identity: Option<String>,
+    installed: u64,
 }
 
 /// A diagram validated and built, not yet deployed.
@@ -56,6 +59,9 @@ pub struct Runtime {
     clock_master: AtomicBool,
     /// How the current run was started when it was forced: in every clock's description.
     start_note: kairos_clock_sync::StartNote,
+    /// Drawn at random when the server starts: a deployment's identity includes it, so that one made
+    /// before a restart is never taken for one made after.
+    boot: u64,
 }
 
 impl std::fmt::Debug for Runtime {
@@ -182,7 +188,18 @@ impl Runtime {
             clock: Mutex::new(None),
             clock_master: AtomicBool::new(false),
             start_note: kairos_clock_sync::StartNote::default(),
+            boot: {
+                use std::hash::{BuildHasher as _, Hasher as _};
+                std::collections::hash_map::RandomState::new()
+                    .build_hasher()
+                    .finish()
+            },
         })
+    }
+
+    /// The deployed diagram's identity: a new one with every deployment and every start of the server.
+    pub fn deployment_identity(&self) -> Option<String> {
+        self.lock().identity.clone()
     }
 
     /// Runs every diagram deployed from now on on `clock` (a clock synchronised with a master).
@@ -559,11 +576,15 @@ impl Runtime {
         deployment.diagram = Some(part.diagram);
         deployment.engine = Some(part.engine);
         deployment.previous = None;
+        deployment.installed += 1;
+        let identity = format!("{:016x}-{}", self.boot, deployment.installed);
+        deployment.identity = Some(identity.clone());
         self.generation.fetch_add(1, Ordering::Release);
         tracing::info!("deployed a diagram of {components} components");
         Ok(DeployResult {
             diagnostics: part.diagnostics,
             components,
+            deployment: Some(identity),
         })
     }
 

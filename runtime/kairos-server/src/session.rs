@@ -648,6 +648,7 @@ impl Session {
                     .clock_telemetry()
                     .or_else(|| telemetry.as_ref().and_then(|t| t.clock.clone())),
                 telemetry: telemetry.map(Box::new),
+                deployment: r.deployment_identity(),
             })
         })
         .await

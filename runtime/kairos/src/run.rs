@@ -199,8 +199,12 @@ pub fn run(registry: &Registry, path: &Path, options: &RunOptions) -> anyhow::Re
             last_print = Instant::now();
         }
     }
+    let mut left = Vec::new();
     match &mut watch {
-        Some(watch) => watch.stop_together(|| engine.stop()),
+        Some(watch) => {
+            watch.stop_together(|| engine.stop());
+            left.extend(watch.left().map(|name| format!("'{name}'")));
+        }
         None => engine.stop(),
     }
     if let Some(foxglove) = foxglove {
@@ -213,6 +217,14 @@ pub fn run(registry: &Registry, path: &Path, options: &RunOptions) -> anyhow::Re
             started.elapsed().as_secs_f64(),
             last.table()
         );
+    }
+    if !left.is_empty() {
+        tracing::error!(
+            "host(s) {} left this deployment during the run: another diagram runs there now",
+            left.join(", ")
+        );
+        report_failures(&last);
+        return Ok(ExitCode::from(1));
     }
     Ok(report_failures(&last))
 }
