@@ -328,7 +328,9 @@ fn across_two_network_namespaces_a_cut_link_is_reported_and_the_part_resumes_whe
         kept.first()
     );
     assert!(
-        kept.iter().enumerate().all(|(i, (_, v))| (*v - i as f64).abs() < 0.5),
+        kept.iter()
+            .enumerate()
+            .all(|(i, (_, v))| (*v - i as f64).abs() < 0.5),
         "b's counter restarted"
     );
     drop((a, b));

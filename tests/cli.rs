@@ -349,3 +349,75 @@ fn a_diagram_placing_components_on_other_hosts_validates_but_never_runs_them_her
     assert!(stderr.contains("'sine1' is placed on host 'car'"), "{stderr}");
     assert!(stderr.contains("remove `host: \"car\"`"), "{stderr}");
 }
+
+#[test]
+fn a_second_run_writes_beside_the_first_run_s_files_and_never_over_them() {
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::write(
+        dir.path().join("twice.ron"),
+        r#"Diagram(format: 1, components: [
+            Component(id: "count", type: "core.counter", properties: {"rate": 100.0}),
+            Component(id: "csv", type: "core.csv_writer", properties: {"path": "out/count.csv"}),
+            Component(id: "recorder", type: "recording.recorder", properties: {"path": "out/count.mcap", "min_free_mb": 0.0}),
+            Component(id: "can", type: "can.candump_writer", properties: {"path": "out/can.log"}),
+        ], connections: [
+            Connection(from: "count.out", to: "csv.in1"),
+            Connection(from: "count.out", to: "recorder.in1"),
+        ])"#,
+    )
+    .unwrap();
+    let run = || kairos(dir.path(), &["run", "twice.ron", "--for", "300ms"]);
+    let first = run();
+    assert!(first.status.success(), "{:?}", text(&first));
+    let out = dir.path().join("out");
+    let kept: Vec<(std::path::PathBuf, Vec<u8>)> = ["count.csv", "count.mcap", "can.log"]
+        .iter()
+        .map(|name| (out.join(name), std::fs::read(out.join(name)).unwrap()))
+        .collect();
+    let second = run();
+    let (_, stderr) = text(&second);
+    assert!(second.status.success(), "{stderr}");
+    for (path, bytes) in &kept {
+        assert_eq!(
+            &std::fs::read(path).unwrap(),
+            bytes,
+            "{} was touched",
+            path.display()
+        );
+    }
+    for (asked, written) in [
+        ("count.csv", "count-1.csv"),
+        ("count.mcap", "count-1.mcap"),
+        ("can.log", "can-1.log"),
+    ] {
+        assert!(out.join(written).is_file(), "no {written}: {stderr}");
+        assert!(
+            stderr.contains(&format!("{} exists and is kept", out.join(asked).display()))
+                || stderr.contains(&format!("out/{asked} exists and is kept")),
+            "{asked}: {stderr}"
+        );
+    }
+    assert!(
+        std::fs::read_to_string(out.join("count-1.csv"))
+            .unwrap()
+            .lines()
+            .count()
+            > 1,
+        "the second run's rows are in its own file"
+    );
+    // Asked for, a file is replaced.
+    let replaced = kairos(
+        dir.path(),
+        &[
+            "run",
+            "twice.ron",
+            "--for",
+            "300ms",
+            "--set",
+            "csv.overwrite=true",
+        ],
+    );
+    assert!(replaced.status.success(), "{:?}", text(&replaced));
+    assert_ne!(std::fs::read(out.join("count.csv")).unwrap(), kept[0].1);
+    assert!(!out.join("count-2.csv").exists());
+}

@@ -8,6 +8,7 @@
 //! - [`export_pack!`]: the same crate as a pack library a runtime loads.
 //! - [`pixels`]: image buffers a camera draws into, shared with local viewers without a copy.
 //! - [`rng`]: a small seeded generator, so simulated components repeat exactly.
+//! - [`files`]: creating the files a component writes without overwriting one that is there.
 //!
 //! A component behaves the same whether it is linked into a runtime or loaded from a pack library: its
 //! [`Context`] answers the same questions (its id, its inputs' sources and counters, its properties, the
@@ -17,7 +18,7 @@
 //! diagrams, the loader's C conversions) lives in `kairos-sdk-core`, which this crate re-exports only in
 //! part: a pack cannot reach it through this crate, and `tests/sealed.rs` compiles one that tries.
 
-pub use kairos_sdk_core::{descriptor, harness, payload, pixels, rng, sample, text};
+pub use kairos_sdk_core::{descriptor, files, harness, payload, pixels, rng, sample, text};
 
 pub use kairos_sdk_core::component::{
     Component, ComponentError, ComponentResult, Context, InputPort, OutputPort, PortKey, Synchronizer,

@@ -192,7 +192,14 @@ pub fn writer_descriptor() -> ComponentInfo {
         ReaderPolicy::NeverSkipping,
         "The frames to log",
     )
-    .property(Property::path("path", "can.log").doc("The log file (created or replaced)"))
+    .property(Property::path("path", "can.log").doc(
+        "The log file. A file already there is never replaced unless `overwrite` is set: the log goes beside \
+         it as NAME-1.log (the first free number), and the log says so",
+    ))
+    .property(
+        Property::bool("overwrite", false)
+            .doc("Replace a file already at the path instead of writing beside it under a new name"),
+    )
     .property(Property::text("interface", "can0").doc("The interface name written on each line"))
     .build()
 }
@@ -210,8 +217,18 @@ impl Component for CandumpWriter {
     fn birth(&mut self, ctx: &mut Context) -> ComponentResult {
         self.path = ctx.text_property("path")?;
         self.interface = ctx.text_property("interface")?;
-        let file =
-            File::create(&self.path).map_err(|e| failed(format_args!("cannot create {}: {e}", self.path)))?;
+        let asked = std::path::PathBuf::from(&self.path);
+        let (file, path) = kairos_sdk::files::create_beside(&asked, ctx.bool_property("overwrite")?)
+            .map_err(|e| failed(format_args!("cannot create {}: {e}", self.path)))?;
+        if path != asked {
+            tracing::warn!(
+                "{}: {} exists and is kept: writing {} (set overwrite to replace it)",
+                ctx.id(),
+                asked.display(),
+                path.display()
+            );
+            self.path = path.display().to_string();
+        }
         self.file = Some(BufWriter::new(file));
         Ok(())
     }

@@ -208,8 +208,13 @@ impl CsvWriter {
             descriptor = descriptor.input(input, TypeFilter::Any, "A stream to write");
         }
         descriptor
+            .property(Property::path("path", "kairos.csv").doc(
+                "The file written. A file of that name is never replaced unless `overwrite` is set: the \
+                     run writes the first free NAME-1.csv, NAME-2.csv, … beside it, and says so",
+            ))
             .property(
-                Property::path("path", "kairos.csv").doc("The file written (created or truncated at start)"),
+                Property::bool("overwrite", false)
+                    .doc("Replace a file already at `path` instead of writing beside it under a new name"),
             )
             .property(Property::bool("synchronize", false).doc(
                 "false: one row per sample with its input's name; true: one row per set matched by timestamp",
@@ -269,9 +274,20 @@ impl Component for CsvWriter {
                 ComponentError::failed(format_args!("cannot create folder {}: {e}", parent.display()))
             })?;
         }
-        let file = File::create(&self.path).map_err(|e| {
-            ComponentError::failed(format_args!("cannot create {}: {e}", self.path.display()))
-        })?;
+        let (file, path) = kairos_sdk::files::create_beside(&self.path, ctx.bool_property("overwrite")?)
+            .map_err(|e| {
+                ComponentError::failed(format_args!("cannot create {}: {e}", self.path.display()))
+            })?;
+        if path != self.path {
+            tracing::warn!(
+                "{}: {} exists and is kept: writing {} (set overwrite to replace it)",
+                ctx.id(),
+                self.path.display(),
+                path.display()
+            );
+            self.path = path;
+        }
+        ctx.set_status(serde_json::json!({"path": self.path.display().to_string()}));
         self.writer = Some(BufWriter::new(file));
         self.connected = (0..CSV_INPUTS.len()).filter(|i| ctx.is_connected(*i)).collect();
         if ctx.bool_property("synchronize")? {

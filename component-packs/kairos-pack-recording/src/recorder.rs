@@ -164,8 +164,15 @@ impl Recorder {
                 "Pre-trigger mode: each sample (but false or 0) writes the seconds before it and after it",
             )
             .property(
-                Property::path("path", "recording.mcap")
-                    .doc("The file; later parts of a split are named <stem>_001.mcap, ..."),
+                Property::path("path", "recording.mcap").doc(
+                    "The file; later parts of a split are named <stem>_001.mcap, ... A file already there is \
+                     never replaced unless `overwrite` is set: the recording goes beside it, as <stem>-1.mcap \
+                     (the first free number), and the log and the status say so",
+                ),
+            )
+            .property(
+                Property::bool("overwrite", false)
+                    .doc("Replace a file already at the path instead of recording beside it under a new name"),
             )
             .property(
                 Property::choice("compression", &["zstd", "lz4", "none"], "zstd").doc("Chunk compression"),
@@ -249,7 +256,16 @@ impl Recorder {
             _ => None,
         };
         let chunk_size = u64::try_from(ctx.i64_property("chunk_size_kb")?).unwrap_or(1024) * 1024;
-        let file = File::create(&path).map_err(|e| failed(&path, "cannot create", e))?;
+        let (file, path) = kairos_sdk::files::create_beside(&path, ctx.bool_property("overwrite")?)
+            .map_err(|e| failed(&path, "cannot create", e))?;
+        if let Some(asked) = Some(Self::part_path(&base, self.part - 1)).filter(|asked| *asked != path) {
+            tracing::warn!(
+                "{}: {} exists and is kept: recording to {} (set overwrite to replace it)",
+                ctx.id(),
+                asked.display(),
+                path.display()
+            );
+        }
         let mut writer = mcap::WriteOptions::new()
             .compression(compression)
             .chunk_size(Some(chunk_size))

@@ -162,14 +162,15 @@ fn a_trigger_storm_is_one_event_and_memory_stays_within_its_bound() {
 #[test]
 fn a_file_that_cannot_be_written_names_the_error_and_keeps_the_ring() {
     let dir = tempfile::tempdir().unwrap();
-    // A folder where the first event's file should be: it cannot be created.
-    std::fs::create_dir(dir.path().join("blocked_001.mcap")).unwrap();
-    let mut harness = recorder(&dir.path().join("blocked.mcap"), &[]);
+    // A plain file where the events' folder should be: no event file can be created. (A file or folder
+    // at the event file's own name would be kept, the event written beside it.)
+    std::fs::write(dir.path().join("plain"), "").unwrap();
+    let mut harness = recorder(&dir.path().join("plain/blocked.mcap"), &[]);
     drive(&mut harness, 3, &[2.0]);
     let status = harness.status().unwrap();
     let error = status["last_error"].as_str().unwrap_or_default();
     assert!(
-        error.contains("blocked_001.mcap") && error.contains("still in memory"),
+        error.contains("plain") && error.contains("still in memory"),
         "{status}"
     );
     assert!(

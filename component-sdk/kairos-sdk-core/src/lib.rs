@@ -18,6 +18,7 @@ mod buffer;
 pub mod component;
 pub mod descriptor;
 pub mod disciplined;
+pub mod files;
 pub mod harness;
 pub mod host;
 pub mod payload;
