@@ -143,6 +143,67 @@ impl Namespaces {
     }
 }
 
+impl Namespaces {
+    /// Blocks (or lets through again) the Zenoh port, 7447, in both directions on both ends of the veth
+    /// pair, the control connections untouched: traffic to or from it goes to a queue that holds nothing.
+    /// `false` where this machine's traffic control cannot (saying why).
+    fn block_zenoh(&self, block: bool) -> bool {
+        let ends = [
+            (self.names[0].clone(), self.veth.clone()),
+            (self.names[1].clone(), self.veth.replacen("kva", "kvb", 1)),
+        ];
+        for (namespace, device) in ends {
+            let steps: Vec<Vec<&str>> = if block {
+                vec![
+                    vec![
+                        "qdisc", "add", "dev", &device, "root", "handle", "1:", "htb", "default", "20",
+                    ],
+                    vec![
+                        "class", "add", "dev", &device, "parent", "1:", "classid", "1:10", "htb", "rate",
+                        "1mbit",
+                    ],
+                    vec![
+                        "class", "add", "dev", &device, "parent", "1:", "classid", "1:20", "htb", "rate",
+                        "10gbit",
+                    ],
+                    vec![
+                        "qdisc", "add", "dev", &device, "parent", "1:10", "handle", "10:", "pfifo", "limit",
+                        "0",
+                    ],
+                    vec![
+                        "filter", "add", "dev", &device, "parent", "1:", "protocol", "ip", "prio", "1",
+                        "u32", "match", "ip", "dport", "7447", "0xffff", "flowid", "1:10",
+                    ],
+                    vec![
+                        "filter", "add", "dev", &device, "parent", "1:", "protocol", "ip", "prio", "2",
+                        "u32", "match", "ip", "sport", "7447", "0xffff", "flowid", "1:10",
+                    ],
+                ]
+            } else {
+                vec![vec!["qdisc", "del", "dev", &device, "root"]]
+            };
+            for step in steps {
+                let done = Command::new("ip")
+                    .args(["netns", "exec", &namespace, "tc"])
+                    .args(&step)
+                    .stderr(Stdio::piped())
+                    .output();
+                match done {
+                    Ok(output) if output.status.success() => {}
+                    other => {
+                        eprintln!(
+                            "skipped: traffic control cannot block a port here (tc {}: {other:?})",
+                            step.join(" ")
+                        );
+                        return false;
+                    }
+                }
+            }
+        }
+        true
+    }
+}
+
 impl Drop for Namespaces {
     fn drop(&mut self) {
         for name in &self.names {
@@ -491,4 +552,100 @@ fn deploy_over_tls_trusts_the_named_certificate_and_refuses_another() {
         "{}",
         text(&unnamed).1
     );
+}
+
+#[test]
+fn a_cut_of_the_links_alone_is_said_by_kairos_deploy_and_so_is_their_return() {
+    let _machine = whole_machine();
+    let Some(namespaces) = Namespaces::make() else {
+        return;
+    };
+    let [dir_a, dir_b, here] = folders();
+    let (address_a, address_b) = (namespaces.address(1), namespaces.address(2));
+    let a = serve_in(
+        Some(&namespaces.names[0]),
+        dir_a.path(),
+        &format!("{address_a}:7400"),
+        &[],
+        &[],
+    );
+    let b = serve_in(
+        Some(&namespaces.names[1]),
+        dir_b.path(),
+        &format!("{address_b}:7400"),
+        &[],
+        &[],
+    );
+    std::fs::write(here.path().join("a.token"), &a.token).unwrap();
+    std::fs::write(here.path().join("b.token"), &b.token).unwrap();
+    let path = here.path().join("linked.ron");
+    std::fs::write(
+        &path,
+        format!(
+            r#"Diagram(format: 1,
+                hosts: {{
+                    "a": Host(endpoint: "{}", token_file: "a.token", zenoh: "tcp/{address_a}:7447"),
+                    "b": Host(endpoint: "{}", token_file: "b.token", zenoh: "tcp/{address_b}:7447"),
+                }},
+                components: [
+                    Component(id: "sine", type: "core.sine", host: "a", properties: {{"rate": 100.0}}),
+                    Component(id: "gain", type: "core.gain", host: "b", properties: {{"gain": 2.0}}),
+                    Component(id: "csv", type: "core.csv_writer", host: "a", properties: {{"path": "back.csv"}}),
+                ],
+                connections: [
+                    Connection(from: "sine.out", to: "gain.in"),
+                    Connection(from: "gain.out", to: "csv.in1"),
+                ])"#,
+            a.url, b.url
+        ),
+    )
+    .unwrap();
+    let log = here.path().join("deploy.log");
+    let mut deploying = Command::new("ip")
+        .args([
+            "netns",
+            "exec",
+            &namespaces.names[0],
+            env!("CARGO_BIN_EXE_kairos"),
+            "deploy",
+        ])
+        .arg(&path)
+        .args(["--for", "90s", "--allow-clear-text-tokens"])
+        .current_dir(here.path())
+        .stdout(Stdio::null())
+        .stderr(std::fs::File::create(&log).unwrap())
+        .spawn()
+        .unwrap();
+    wait_for_log(&log, "host 'b' started its part", Duration::from_secs(30));
+    std::thread::sleep(Duration::from_secs(1));
+    let blocked = namespaces.block_zenoh(true);
+    if blocked {
+        // Both hosts still answer their control connections: the cut is said from the link's sender. (The
+        // link back from b carries nothing while its source is cut off: its sender has nothing to tell.)
+        let said = wait_for_log(
+            &log,
+            "link sine.out on host 'a' -> gain.in on host 'b' is cut",
+            Duration::from_secs(20),
+        );
+        eprintln!("the cut was said after {said:?}");
+        assert!(namespaces.block_zenoh(false));
+        wait_for_log(
+            &log,
+            "link sine.out on host 'a' -> gain.in on host 'b' resumed",
+            Duration::from_secs(60),
+        );
+    }
+    nix::sys::signal::kill(
+        nix::unistd::Pid::from_raw(i32::try_from(deploying.id()).unwrap()),
+        nix::sys::signal::Signal::SIGINT,
+    )
+    .unwrap();
+    let status = deploying.wait().unwrap();
+    let content = std::fs::read_to_string(&log).unwrap();
+    assert!(status.success(), "{content}");
+    assert!(
+        !content.contains("is lost"),
+        "no host was lost, only links: {content}"
+    );
+    drop((a, b));
 }

@@ -42,6 +42,8 @@ pub struct Watch {
     deployments: BTreeMap<String, String>,
     /// The hosts that left: another deployment's diagram runs there now.
     left: BTreeSet<String>,
+    /// The links whose sender on a host has no receiver matched: cut, though both hosts may answer.
+    cut_links: BTreeSet<String>,
 }
 
 /// What a host that answers runs, against what this deployment gave it.
@@ -79,6 +81,7 @@ impl Watch {
             running: true,
             deployments,
             left: BTreeSet::new(),
+            cut_links: BTreeSet::new(),
         }
     }
 
@@ -216,6 +219,7 @@ impl Watch {
             }
         }
         self.hosts = answering;
+        self.report_links();
         let due: Vec<String> = self
             .lost
             .iter()
@@ -237,6 +241,46 @@ impl Watch {
                 }
             }
         }
+    }
+
+    /// Says which links between hosts were cut, or resumed, since the last check, from their senders'
+    /// statuses on the hosts that answer: a network cut between hosts' Zenoh ports leaves their control
+    /// connections up, and would otherwise be said only in the hosts' own logs. Senders on this machine
+    /// say it in this machine's log themselves.
+    fn report_links(&mut self) {
+        for link in &self.plan.links {
+            let (Some(host), sender) = &link.sender else {
+                continue;
+            };
+            let Some(matched) = self
+                .statuses
+                .get(host)
+                .and_then(|status| status["telemetry"]["components"].as_array())
+                .and_then(|components| components.iter().find(|c| c["id"] == sender.as_str()))
+                .and_then(|component| component["status"]["matched"].as_bool())
+            else {
+                continue;
+            };
+            let words = format!("{} -> {}", link.from, link.to);
+            if !matched && self.cut_links.insert(link.key.clone()) {
+                tracing::error!(
+                    "link {words} is cut: no receiver on the far end; samples sent meanwhile are counted as \
+                     lost (sent_unmatched on {sender})"
+                );
+            } else if matched && self.cut_links.remove(&link.key) {
+                tracing::info!("link {words} resumed");
+            }
+        }
+    }
+
+    /// The links between hosts that are cut now, in words.
+    pub fn cut_links(&self) -> Vec<String> {
+        self.plan
+            .links
+            .iter()
+            .filter(|l| self.cut_links.contains(&l.key))
+            .map(|l| format!("{} -> {}", l.from, l.to))
+            .collect()
     }
 
     /// The links host `name` cuts, as the end of a sentence.
