@@ -632,7 +632,7 @@ fn a_cut_of_the_links_alone_is_said_by_kairos_deploy_and_so_is_their_return() {
         wait_for_log(
             &log,
             "link sine.out on host 'a' -> gain.in on host 'b' resumed",
-            Duration::from_secs(60),
+            Duration::from_mins(1),
         );
     }
     nix::sys::signal::kill(
