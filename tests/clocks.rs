@@ -13,7 +13,7 @@ use common::{example, text};
 use serde_json::{Value, json};
 use serving::{
     Server, call, folders, free_tcp_port, operator, serve, serve_with_env, shared_machine, state,
-    two_host_diagram,
+    two_host_diagram, wait_for_log,
 };
 use std::time::{Duration, Instant};
 
@@ -193,6 +193,10 @@ fn a_start_instant_too_far_ahead_is_refused_and_one_in_the_past_starts_at_once()
         &json!({"id": 4, "type": "start", "at_ns": now_ns - 1_000_000_000_i64}),
     );
     assert_eq!(past["ok"], true, "{past}");
+    assert!(
+        past["result"]["late_ns"].as_i64().unwrap() >= 1_000_000_000,
+        "the start says how late it was: {past}"
+    );
     assert_eq!(state(&mut socket), "running");
 }
 
@@ -285,3 +289,66 @@ fn a_coordinated_start_refused_for_an_unlocked_clock_goes_ahead_when_asked_to() 
 }
 
 // ---- Live in Foxglove ----------------------------------------------------------------------------------
+
+#[test]
+fn kairos_deploy_says_when_a_host_s_clock_leaves_lock_and_how_late_each_host_started() {
+    let _machine = shared_machine();
+    let [dir_master, dir_b, here] = folders();
+    let port = std::net::UdpSocket::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port();
+    let address = format!("127.0.0.1:{port}");
+    let master = serve(dir_master.path(), &["--clock-master", &address]);
+    let b = serve(dir_b.path(), &["--clock-slave-of", &address]);
+    let mut socket = operator(&b);
+    let started = Instant::now();
+    while call(&mut socket, &json!({"id": 1, "type": "status"}))["result"]["clock"]["state"] != "locked" {
+        assert!(started.elapsed() < Duration::from_secs(30), "b never locked");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    std::fs::write(here.path().join("b.token"), &b.token).unwrap();
+    std::fs::write(
+        here.path().join("on_b.ron"),
+        format!(
+            r#"Diagram(format: 1,
+                hosts: {{"b": Host(endpoint: "{}", token_file: "b.token")}},
+                components: [
+                    Component(id: "sine", type: "core.sine", host: "b"),
+                    Component(id: "csv", type: "core.csv_writer", host: "b", properties: {{"path": "b.csv"}}),
+                ],
+                connections: [Connection(from: "sine.out", to: "csv.in1")])"#,
+            b.url
+        ),
+    )
+    .unwrap();
+    let log = here.path().join("deploy.log");
+    let mut deploying = std::process::Command::new(env!("CARGO_BIN_EXE_kairos"))
+        .args(["deploy", "on_b.ron", "--for", "60s"])
+        .current_dir(here.path())
+        .stdout(std::process::Stdio::null())
+        .stderr(std::fs::File::create(&log).unwrap())
+        .spawn()
+        .unwrap();
+    wait_for_log(&log, "host 'b' started its part", Duration::from_secs(30));
+    // The master dies: 3 s without a reference, b's clock is in holdover, and the deployer says so.
+    drop(master);
+    wait_for_log(
+        &log,
+        "host 'b': its clock left lock (holdover",
+        Duration::from_secs(10),
+    );
+    nix::sys::signal::kill(
+        nix::unistd::Pid::from_raw(i32::try_from(deploying.id()).unwrap()),
+        nix::sys::signal::Signal::SIGINT,
+    )
+    .unwrap();
+    let status = deploying.wait().unwrap();
+    let content = std::fs::read_to_string(&log).unwrap();
+    assert!(status.success(), "{content}");
+    assert!(
+        content.contains("after the agreed instant"),
+        "each host's lateness is said: {content}"
+    );
+}

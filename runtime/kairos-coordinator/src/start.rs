@@ -13,6 +13,10 @@ pub const STOP_LEAD: Duration = Duration::from_millis(200);
 /// How far ahead of now the hosts are told to start: time for every request to arrive.
 pub const START_LEAD: Duration = Duration::from_millis(500);
 
+/// A host that started later than this after the agreed instant is said to have: its first samples are
+/// late against the other hosts'.
+pub const LATE_START: Duration = Duration::from_millis(1);
+
 /// Starts every host's part and, with `start_here`, this machine's, at one instant [`START_LEAD`] ahead,
 /// each host waiting for it on its own clock. First every host's clock is checked ([`check_clocks`]); a
 /// start forced with clocks not locked hands `start_here` (and every host) the hosts in words, for the
@@ -40,9 +44,23 @@ pub fn start_together(
         stop_all(hosts);
         return Err(error);
     }
-    confirm_started(hosts, &asked)?;
-    for host in hosts.iter() {
-        tracing::info!("host '{}' started its part", host.name());
+    let lateness = confirm_started(hosts, &asked)?;
+    for (host, late_ns) in hosts.iter().zip(lateness) {
+        match late_ns {
+            Some(late) if late > i64::try_from(LATE_START.as_nanos()).unwrap_or(i64::MAX) => tracing::warn!(
+                "host '{}' started its part {:.1} ms after the agreed instant (more than {} ms): its first \
+                 samples are late against the other hosts'",
+                host.name(),
+                late as f64 * 1e-6,
+                LATE_START.as_millis()
+            ),
+            Some(late) => tracing::info!(
+                "host '{}' started its part (+{:.0} µs after the agreed instant)",
+                host.name(),
+                late as f64 * 1e-3
+            ),
+            None => tracing::info!("host '{}' started its part", host.name()),
+        }
     }
     Ok(())
 }
@@ -63,16 +81,21 @@ fn start_all_at(hosts: &mut [Host], at: i64, forced: Option<&str>) -> anyhow::Re
         .collect()
 }
 
-/// The hosts' answers to [`start_all_at`]; the first refusal, after stopping every host.
-fn confirm_started(hosts: &mut [Host], ids: &[u64]) -> anyhow::Result<()> {
+/// The hosts' answers to [`start_all_at`]: how late each started (ns after the instant, as it says);
+/// the first refusal, after stopping every host.
+fn confirm_started(hosts: &mut [Host], ids: &[u64]) -> anyhow::Result<Vec<Option<i64>>> {
     let mut refused = None;
+    let mut lateness = Vec::new();
     for (host, id) in hosts.iter_mut().zip(ids) {
-        if let Err(error) = host.wait(*id) {
-            refused.get_or_insert(error);
+        match host.wait(*id) {
+            Ok(reply) => lateness.push(reply["late_ns"].as_i64()),
+            Err(error) => {
+                refused.get_or_insert(error);
+            }
         }
     }
     match refused {
-        None => Ok(()),
+        None => Ok(lateness),
         Some(error) => {
             stop_all(hosts);
             Err(error)

@@ -44,6 +44,8 @@ pub struct Watch {
     left: BTreeSet<String>,
     /// The links whose sender on a host has no receiver matched: cut, though both hosts may answer.
     cut_links: BTreeSet<String>,
+    /// Each host's clock state at the last check (`locked`, `holdover`, …), for those that follow one.
+    clock_states: BTreeMap<String, String>,
 }
 
 /// What a host that answers runs, against what this deployment gave it.
@@ -82,6 +84,7 @@ impl Watch {
             deployments,
             left: BTreeSet::new(),
             cut_links: BTreeSet::new(),
+            clock_states: BTreeMap::new(),
         }
     }
 
@@ -220,6 +223,7 @@ impl Watch {
         }
         self.hosts = answering;
         self.report_links();
+        self.report_clocks();
         let due: Vec<String> = self
             .lost
             .iter()
@@ -269,6 +273,34 @@ impl Watch {
                 );
             } else if matched && self.cut_links.remove(&link.key) {
                 tracing::info!("link {words} resumed");
+            }
+        }
+    }
+
+    /// Says which hosts' clocks left lock, or came back to it, since the last check: samples stamped on a
+    /// clock out of lock drift against the other hosts'.
+    fn report_clocks(&mut self) {
+        for (name, status) in &self.statuses {
+            let clock = &status["clock"];
+            let Some(state) = clock["state"].as_str() else {
+                continue;
+            };
+            let error = clock["error_ns"]
+                .as_i64()
+                .map_or_else(String::new, |e| format!(", error {:+.3} ms", e as f64 * 1e-6));
+            let bound = clock["error_bound_ns"].as_i64().map_or_else(String::new, |b| {
+                format!(", error bound {:.3} ms", b as f64 * 1e-6)
+            });
+            let before = self.clock_states.insert(name.clone(), state.to_owned());
+            match before.as_deref() {
+                Some("locked") if state != "locked" => tracing::error!(
+                    "host '{name}': its clock left lock ({state}{error}{bound}); what it stamps now drifts \
+                     against the other hosts"
+                ),
+                Some(previous) if previous != "locked" && state == "locked" => {
+                    tracing::info!("host '{name}': its clock is locked again ({state}{error})");
+                }
+                _ => {}
             }
         }
     }

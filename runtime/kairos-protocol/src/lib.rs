@@ -7,11 +7,11 @@
 //! lists every message with an example.
 //!
 //! ```
-//! use kairos_protocol::{Done, ReplyBody, Request, RequestBody, ServerMessage};
+//! use kairos_protocol::{ReplyBody, Request, RequestBody, ServerMessage, Started};
 //!
 //! let request: Request = serde_json::from_str(r#"{"id": 1, "type": "start"}"#).unwrap();
 //! assert_eq!(request.body, RequestBody::Start { at_ns: None, forced: None, start_unlocked: false });
-//! let reply = ServerMessage::ok(1, &ReplyBody::Start(Done {}));
+//! let reply = ServerMessage::ok(1, &ReplyBody::Start(Started::default()));
 //! assert_eq!(serde_json::to_string(&reply).unwrap(), r#"{"type":"reply","id":1,"ok":true,"result":{}}"#);
 //! ```
 //!
@@ -34,8 +34,8 @@ pub use messages::{
     Described, DeviceInfo, DeviceList, DiagramReply, Done, ErrorCode, FoxgloveState, HostTelemetry,
     LatencyTelemetry, LinkEnd, LinkList, LinkNetwork, LinkTelemetry, LogLevel, LogRecord, PACK_CHUNK_BYTES,
     PYTHON_PACK_PLATFORM, PackInstall, Prepared, ProtocolError, Reply, ReplyBody, Request, RequestBody,
-    RequestKind, Role, RuntimeState, SampleTransport, SamplesSubscribed, ServerMessage, Status, Telemetry,
-    TelemetrySubscribed, Welcome, decode_request, this_host, this_platform,
+    RequestKind, Role, RuntimeState, SampleTransport, SamplesSubscribed, ServerMessage, Started, Status,
+    Telemetry, TelemetrySubscribed, Welcome, decode_request, this_host, this_platform,
 };
 
 /// The protocol version this crate speaks. A client with another version is refused at `hello`, with

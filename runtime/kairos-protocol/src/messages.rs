@@ -236,7 +236,7 @@ requests! {
         /// not locked to their master (the studio's "Start anyway"); the recordings say so.
         #[serde(default, skip_serializing_if = "std::ops::Not::not")]
         start_unlocked: bool,
-    } => Done, Operator;
+    } => Started, Operator;
     /// Pauses it.
     Pause = "pause" => Done, Operator;
     /// Resumes it after a pause.
@@ -700,6 +700,15 @@ pub struct Prepared {
     pub components: usize,
 }
 
+/// The result of `start`.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Started {
+    /// For a start at an instant (`at_ns`): how long after it the runtime started, in ns, on its clock.
+    /// `kairos deploy` says which hosts started more than a millisecond late.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub late_ns: Option<i64>,
+}
+
 /// The result of a request that returns nothing but its success (`start`, `set_property`, ...): `{}`.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
 pub struct Done {}
@@ -1108,8 +1117,8 @@ mod tests {
     use std::collections::BTreeMap;
 
     use super::{
-        ComponentState, ComponentTelemetry, Done, ErrorCode, Reply, ReplyBody, RequestBody, RequestKind,
-        Role, SamplesSubscribed, ServerMessage, decode_request, encode_result,
+        ComponentState, ComponentTelemetry, ErrorCode, Reply, ReplyBody, RequestBody, RequestKind, Role,
+        SamplesSubscribed, ServerMessage, Started, decode_request, encode_result,
     };
 
     #[test]
@@ -1185,14 +1194,14 @@ mod tests {
 
     #[test]
     fn replies_are_written_as_before_and_read_back_as_their_request_type() {
-        let done = ServerMessage::ok(7, &ReplyBody::Start(Done {}));
+        let done = ServerMessage::ok(7, &ReplyBody::Start(Started::default()));
         assert_eq!(
             serde_json::to_string(&done).unwrap(),
             r#"{"type":"reply","id":7,"ok":true,"result":{}}"#
         );
         assert_eq!(
             over_the_wire(&done).decode(RequestKind::Start),
-            Ok(ReplyBody::Start(Done {}))
+            Ok(ReplyBody::Start(Started::default()))
         );
         let subscribed = ReplyBody::SubscribeSamples(SamplesSubscribed {
             max_rate_hz: 15.0,
@@ -1222,7 +1231,7 @@ mod tests {
 
     #[test]
     fn a_reply_that_does_not_fit_its_request_or_was_refused_is_an_error_for_the_client() {
-        let status = over_the_wire(&ServerMessage::ok(3, &ReplyBody::Start(Done {})));
+        let status = over_the_wire(&ServerMessage::ok(3, &ReplyBody::Start(Started::default())));
         let error = status.decode(RequestKind::Status).unwrap_err();
         assert_eq!(error.code, ErrorCode::Internal);
         assert!(

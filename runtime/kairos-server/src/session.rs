@@ -612,21 +612,21 @@ impl Session {
         at_ns: Option<i64>,
         forced: Option<String>,
         start_unlocked: bool,
-    ) -> Result<Done, ProtocolError> {
+    ) -> Result<kairos_protocol::Started, ProtocolError> {
         if let Some(at) = at_ns {
             self.wait_for_instant(Timestamp(at)).await?;
         }
         self.blocking(move |r| r.start(forced.as_deref(), start_unlocked))
             .await?;
-        if let Some(at) = at_ns {
-            let late = self.runtime().now().nanos_since(Timestamp(at));
+        let late_ns = at_ns.map(|at| self.runtime().now().nanos_since(Timestamp(at)));
+        if let Some(late) = late_ns {
             if late > MISSED_START_NS {
                 tracing::warn!("started {:.1} ms after the agreed instant", late as f64 * 1e-6);
             } else {
                 tracing::info!("started at the agreed instant (+{:.0} µs)", late as f64 * 1e-3);
             }
         }
-        Ok(Done {})
+        Ok(kairos_protocol::Started { late_ns })
     }
 
     /// `stop`: now, or at the instant `at_ns` on this runtime's clock.
