@@ -694,7 +694,12 @@ fn a_runtime_given_a_spread_diagram_coordinates_its_hosts_as_the_studio_runs_it(
     let telemetry = loop {
         let status = call(&mut socket, &json!({"id": 4, "type": "status"}));
         let telemetry = status["result"]["telemetry"].clone();
-        let received = telemetry["cross_links"][0]["received"].as_u64().unwrap_or(0);
+        let link = &telemetry["cross_links"][0];
+        let received = link["received"].as_u64().unwrap_or(0);
+        assert!(
+            received + link["lost"].as_u64().unwrap_or(0) <= link["sent"].as_u64().unwrap_or(0),
+            "never more received or lost than sent: {link}"
+        );
         if received > 20 {
             break telemetry;
         }
@@ -745,6 +750,19 @@ fn a_runtime_given_a_spread_diagram_coordinates_its_hosts_as_the_studio_runs_it(
     assert_eq!(stopped["ok"], true, "{stopped}");
     let b_status = call(&mut b_socket, &json!({"id": 2, "type": "status"}));
     assert_ne!(b_status["result"]["state"], "running", "stop stops b: {b_status}");
+    // Once the hosts' last statuses are in, the link's counts are final: every sample sent was received
+    // or counted lost.
+    let deadline = Instant::now() + Duration::from_secs(10);
+    loop {
+        let status = call(&mut socket, &json!({"id": 9, "type": "status"}));
+        let link = status["result"]["telemetry"]["cross_links"][0].clone();
+        let count = |key: &str| link[key].as_u64().unwrap_or(0);
+        if count("sent") > 0 && count("sent") == count("received") + count("lost") {
+            break;
+        }
+        assert!(Instant::now() < deadline, "counts never final: {link}");
+        std::thread::sleep(Duration::from_millis(100));
+    }
     let values = csv_values(&spread_csv);
     let largest = values.iter().map(|(_, v)| v.abs()).fold(0.0, f64::max);
     assert!(

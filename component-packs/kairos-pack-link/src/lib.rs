@@ -219,10 +219,15 @@ impl Component for LinkSender {
                 }
                 self.matched = matched;
             }
-            ctx.set_status(serde_json::json!({
-                "kind": "link", "to": end.peer, "sent": self.sent, "sent_unmatched": self.unmatched,
-                "failed": self.failed, "matched": matched,
-            }));
+            self.publish(ctx, &end.peer);
+        }
+        Ok(())
+    }
+
+    fn death(&mut self, ctx: &mut Context) -> ComponentResult {
+        // The counts as the run leaves them, not as the last status period saw them.
+        if let Some(end) = self.end.clone() {
+            self.publish(ctx, &end.peer);
         }
         Ok(())
     }
@@ -231,6 +236,15 @@ impl Component for LinkSender {
         Err(ComponentError::failed(format_args!(
             "{name} of a link is set by `kairos deploy`; deploy again to change it"
         )))
+    }
+}
+
+impl LinkSender {
+    fn publish(&self, ctx: &Context, peer: &str) {
+        ctx.set_status(serde_json::json!({
+            "kind": "link", "to": peer, "sent": self.sent, "sent_unmatched": self.unmatched,
+            "failed": self.failed, "matched": self.matched,
+        }));
     }
 }
 
@@ -252,6 +266,19 @@ impl LinkReceiver {
             return self.samples.take_pieces(&pieces, peer, ctx);
         }
         self.samples.take(&payload.to_bytes(), peer, ctx)
+    }
+}
+
+impl LinkReceiver {
+    fn publish(&self, ctx: &Context, peer: &str) {
+        let status = serde_json::json!({
+            "kind": "link", "from": peer,
+            "last_sample_age_ms": self.last.map(|at| at.elapsed().as_millis()),
+        });
+        ctx.set_status(kairos_pack_net::encoding::status_with(
+            status,
+            Some(&self.samples),
+        ));
     }
 }
 
@@ -288,14 +315,15 @@ impl Component for LinkReceiver {
             }
         }
         if self.published.ready(STATUS_PERIOD) {
-            let status = serde_json::json!({
-                "kind": "link", "from": end.peer,
-                "last_sample_age_ms": self.last.map(|at| at.elapsed().as_millis()),
-            });
-            ctx.set_status(kairos_pack_net::encoding::status_with(
-                status,
-                Some(&self.samples),
-            ));
+            self.publish(ctx, &end.peer);
+        }
+        Ok(())
+    }
+
+    fn death(&mut self, ctx: &mut Context) -> ComponentResult {
+        // The counts as the run leaves them, not as the last status period saw them.
+        if let Some(end) = self.end.clone() {
+            self.publish(ctx, &end.peer);
         }
         Ok(())
     }

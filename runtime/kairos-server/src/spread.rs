@@ -195,20 +195,30 @@ impl Spread {
                 .unwrap_or_default()
         };
         let count = |status: &serde_json::Value, key: &str| status[key].as_u64().unwrap_or(0);
+        let active = |state: &serde_json::Value| state == "running" || state == "paused";
+        let stopped = !matches!(telemetry.state, RuntimeState::Running | RuntimeState::Paused)
+            && !watch.statuses().values().any(|status| active(&status["state"]));
         let cross_links: Vec<CrossLinkTelemetry> = plan
             .links
             .iter()
             .map(|link| {
                 let sender = status_of(&link.sender.0, &link.sender.1);
                 let receiver = status_of(&link.receiver.0, &link.receiver.1);
+                let (received, gaps) = (count(&receiver, "received"), count(&receiver, "lost"));
+                // The two ends' statuses are read at different instants: a receiver may have seen more than
+                // the sender's last status says it sent. What it saw was sent.
+                let sent = count(&sender, "sent").max(received + gaps);
+                // Stopped, the counts are final: what never arrived after the last sample received was
+                // lost too, not only the gaps between those received.
+                let lost = if stopped { sent - received } else { gaps };
                 CrossLinkTelemetry {
                     from: link.connection.from.to_string(),
                     to: link.connection.to.to_string(),
                     from_host: link.sender.0.clone(),
                     to_host: link.receiver.0.clone(),
-                    sent: count(&sender, "sent"),
-                    received: count(&receiver, "received"),
-                    lost: count(&receiver, "lost"),
+                    sent,
+                    received,
+                    lost,
                     matched: sender["matched"].as_bool().unwrap_or(false),
                     last_sample_age_ms: receiver["last_sample_age_ms"].as_u64(),
                 }
