@@ -202,12 +202,12 @@ impl Spread {
             .links
             .iter()
             .map(|link| {
-                let sender = status_of(&link.sender.0, &link.sender.1);
-                let receiver = status_of(&link.receiver.0, &link.receiver.1);
-                let (received, gaps) = (count(&receiver, "received"), count(&receiver, "lost"));
+                let sending_end = status_of(&link.sender.0, &link.sender.1);
+                let receiving_end = status_of(&link.receiver.0, &link.receiver.1);
+                let (received, gaps) = (count(&receiving_end, "received"), count(&receiving_end, "lost"));
                 // The two ends' statuses are read at different instants: a receiver may have seen more than
                 // the sender's last status says it sent. What it saw was sent.
-                let sent = count(&sender, "sent").max(received + gaps);
+                let sent = count(&sending_end, "sent").max(received + gaps);
                 // Stopped, the counts are final: what never arrived after the last sample received was
                 // lost too, not only the gaps between those received.
                 let lost = if stopped { sent - received } else { gaps };
@@ -219,8 +219,8 @@ impl Spread {
                     sent,
                     received,
                     lost,
-                    matched: sender["matched"].as_bool().unwrap_or(false),
-                    last_sample_age_ms: receiver["last_sample_age_ms"].as_u64(),
+                    matched: sending_end["matched"].as_bool().unwrap_or(false),
+                    last_sample_age_ms: receiving_end["last_sample_age_ms"].as_u64(),
                 }
             })
             .collect();
