@@ -29,6 +29,8 @@ fn every_example_validates() {
         "vision/lanes",
         "fusion/gnss_imu",
         "lidar/obstacles",
+        "two_hosts",
+        "rig",
     ] {
         let path = example(name);
         let output = kairos(&root, &["validate", path.to_str().unwrap()]);
