@@ -11,8 +11,8 @@ mod serving;
 
 use common::text;
 use serving::{
-    Server, csv_values, folders, free_tcp_port, now_ns, samples_after_then_stop, serve, serve_in,
-    shared_machine, wait_for_log, whole_machine,
+    Server, csv_values, deploy_in_background, folders, free_tcp_port, interrupt, now_ns,
+    samples_after_then_stop, serve, serve_in, shared_machine, wait_for_log, whole_machine,
 };
 use std::fmt::Write as _;
 use std::path::Path;
@@ -330,21 +330,8 @@ fn across_two_network_namespaces_a_cut_link_is_reported_and_the_part_resumes_whe
     let path = here.path().join("namespaces.ron");
     std::fs::write(&path, diagram).unwrap();
     let deploy = |extra: &[&str], log: &Path| {
-        Command::new("ip")
-            .args([
-                "netns",
-                "exec",
-                &namespaces.names[0],
-                env!("CARGO_BIN_EXE_kairos"),
-                "deploy",
-            ])
-            .arg(&path)
-            .args(extra)
-            .current_dir(here.path())
-            .stdout(Stdio::null())
-            .stderr(std::fs::File::create(log).unwrap())
-            .spawn()
-            .unwrap()
+        let args = [&[path.to_str().unwrap()], extra].concat();
+        deploy_in_background(Some(&namespaces.names[0]), here.path(), &args, log)
     };
     // Off loopback, a token is not sent in clear text unless the user says so: b's is refused (a's goes
     // over TLS).
@@ -601,21 +588,17 @@ fn a_cut_of_the_links_alone_is_said_by_kairos_deploy_and_so_is_their_return() {
     )
     .unwrap();
     let log = here.path().join("deploy.log");
-    let mut deploying = Command::new("ip")
-        .args([
-            "netns",
-            "exec",
-            &namespaces.names[0],
-            env!("CARGO_BIN_EXE_kairos"),
-            "deploy",
-        ])
-        .arg(&path)
-        .args(["--for", "90s", "--allow-clear-text-tokens"])
-        .current_dir(here.path())
-        .stdout(Stdio::null())
-        .stderr(std::fs::File::create(&log).unwrap())
-        .spawn()
-        .unwrap();
+    let mut deploying = deploy_in_background(
+        Some(&namespaces.names[0]),
+        here.path(),
+        &[
+            path.to_str().unwrap(),
+            "--for",
+            "90s",
+            "--allow-clear-text-tokens",
+        ],
+        &log,
+    );
     wait_for_log(&log, "host 'b' started its part", Duration::from_secs(30));
     std::thread::sleep(Duration::from_secs(1));
     let blocked = namespaces.block_zenoh(true);
@@ -635,13 +618,7 @@ fn a_cut_of_the_links_alone_is_said_by_kairos_deploy_and_so_is_their_return() {
             Duration::from_mins(1),
         );
     }
-    nix::sys::signal::kill(
-        nix::unistd::Pid::from_raw(i32::try_from(deploying.id()).unwrap()),
-        nix::sys::signal::Signal::SIGINT,
-    )
-    .unwrap();
-    let status = deploying.wait().unwrap();
-    let content = std::fs::read_to_string(&log).unwrap();
+    let (status, content) = interrupt(&mut deploying, &log);
     assert!(status.success(), "{content}");
     assert!(
         !content.contains("is lost"),

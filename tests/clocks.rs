@@ -12,8 +12,8 @@ mod serving;
 use common::{example, text};
 use serde_json::{Value, json};
 use serving::{
-    Server, call, folders, free_tcp_port, operator, serve, serve_with_env, shared_machine, state,
-    two_host_diagram, wait_for_log,
+    Server, call, deploy_in_background, folders, free_tcp_port, interrupt, operator, serve, serve_with_env,
+    shared_machine, state, two_host_diagram, wait_for_log,
 };
 use std::time::{Duration, Instant};
 
@@ -324,13 +324,7 @@ fn kairos_deploy_says_when_a_host_s_clock_leaves_lock_and_how_late_each_host_sta
     )
     .unwrap();
     let log = here.path().join("deploy.log");
-    let mut deploying = std::process::Command::new(env!("CARGO_BIN_EXE_kairos"))
-        .args(["deploy", "on_b.ron", "--for", "60s"])
-        .current_dir(here.path())
-        .stdout(std::process::Stdio::null())
-        .stderr(std::fs::File::create(&log).unwrap())
-        .spawn()
-        .unwrap();
+    let mut deploying = deploy_in_background(None, here.path(), &["on_b.ron", "--for", "60s"], &log);
     wait_for_log(&log, "host 'b' started its part", Duration::from_secs(30));
     // The master dies: 3 s without a reference, b's clock is in holdover, and the deployer says so.
     drop(master);
@@ -339,13 +333,7 @@ fn kairos_deploy_says_when_a_host_s_clock_leaves_lock_and_how_late_each_host_sta
         "host 'b': its clock left lock (holdover",
         Duration::from_secs(10),
     );
-    nix::sys::signal::kill(
-        nix::unistd::Pid::from_raw(i32::try_from(deploying.id()).unwrap()),
-        nix::sys::signal::Signal::SIGINT,
-    )
-    .unwrap();
-    let status = deploying.wait().unwrap();
-    let content = std::fs::read_to_string(&log).unwrap();
+    let (status, content) = interrupt(&mut deploying, &log);
     assert!(status.success(), "{content}");
     assert!(
         content.contains("after the agreed instant"),

@@ -13,11 +13,12 @@ mod serving;
 use common::{repo_root, text};
 use serde_json::{Value, json};
 use serving::{
-    Server, call, csv_values, folders, free_tcp_port, now_ns, operator, samples_after_then_stop, serve,
-    serve_on, serve_with_env, shared_machine, state, two_host_diagram, wait_for_log,
+    Server, call, csv_values, deploy_in_background, folders, free_tcp_port, interrupt, now_ns, operator,
+    samples_after_then_stop, serve, serve_on, serve_with_env, shared_machine, state, two_host_diagram,
+    wait_for_log,
 };
 use std::path::Path;
-use std::process::{Command, Stdio};
+use std::process::Command;
 use std::time::{Duration, Instant};
 use tungstenite::Message;
 
@@ -241,13 +242,8 @@ fn a_killed_host_is_reported_within_a_second_and_its_part_runs_again_when_it_ret
     std::fs::write(&path, diagram).unwrap();
     let log = here.path().join("deploy.log");
     // Stopped as Ctrl-C stops it once the samples are back: the --for only bounds a run gone wrong.
-    let mut deploying = Command::new(env!("CARGO_BIN_EXE_kairos"))
-        .args(["deploy", path.to_str().unwrap(), "--for", "60s"])
-        .current_dir(here.path())
-        .stdout(Stdio::null())
-        .stderr(std::fs::File::create(&log).unwrap())
-        .spawn()
-        .unwrap();
+    let mut deploying =
+        deploy_in_background(None, here.path(), &[path.to_str().unwrap(), "--for", "60s"], &log);
     wait_for_log(&log, "host 'b' started its part", Duration::from_secs(30));
     std::thread::sleep(Duration::from_millis(1500));
 
@@ -418,26 +414,14 @@ fn a_host_another_deployment_takes_leaves_the_first_which_says_so() {
     std::fs::write(here.path().join("first.ron"), on_a("first.csv")).unwrap();
     std::fs::write(here.path().join("second.ron"), on_a("second.csv")).unwrap();
     let log = here.path().join("first.log");
-    let mut first = Command::new(env!("CARGO_BIN_EXE_kairos"))
-        .args(["deploy", "first.ron", "--for", "60s"])
-        .current_dir(here.path())
-        .stdout(Stdio::null())
-        .stderr(std::fs::File::create(&log).unwrap())
-        .spawn()
-        .unwrap();
+    let mut first = deploy_in_background(None, here.path(), &["first.ron", "--for", "60s"], &log);
     wait_for_log(&log, "host 'a' started its part", Duration::from_secs(30));
 
     let second = common::kairos(here.path(), &["deploy", "second.ron", "--for", "1s"]);
     assert!(second.status.success(), "{:?}", text(&second));
     // The first deployment says the host left it, and neither deploys its part there again nor stops it.
     wait_for_log(&log, "host 'a' runs another diagram now", Duration::from_secs(3));
-    nix::sys::signal::kill(
-        nix::unistd::Pid::from_raw(i32::try_from(first.id()).unwrap()),
-        nix::sys::signal::Signal::SIGINT,
-    )
-    .unwrap();
-    let status = first.wait().unwrap();
-    let content = std::fs::read_to_string(&log).unwrap();
+    let (status, content) = interrupt(&mut first, &log);
     assert!(
         !status.success(),
         "a deployment a host left ends in failure\n{content}"

@@ -238,6 +238,40 @@ pub fn now_ns() -> i64 {
 
 /// Waits (30 s at most) until `csv` holds a sample stamped after `since_ns` or `deploying` ends, then stops
 /// it with Ctrl-C and checks it ended well: how many samples came after `since_ns`, and its log.
+/// Starts `kairos deploy ARGS` in `here`, in network namespace `namespace` when given, its log written to
+/// `log`; stop it with [`interrupt`].
+pub fn deploy_in_background(namespace: Option<&str>, here: &Path, args: &[&str], log: &Path) -> Child {
+    let mut command = match namespace {
+        Some(namespace) => {
+            let mut command = Command::new("ip");
+            command.args(["netns", "exec", namespace, env!("CARGO_BIN_EXE_kairos")]);
+            command
+        }
+        None => Command::new(env!("CARGO_BIN_EXE_kairos")),
+    };
+    command
+        .arg("deploy")
+        .args(args)
+        .current_dir(here)
+        .stdout(Stdio::null())
+        .stderr(std::fs::File::create(log).unwrap())
+        .spawn()
+        .unwrap()
+}
+
+/// Stops a running `kairos deploy` as Ctrl-C stops it (if it has not ended): how it ended, and its log.
+pub fn interrupt(deploying: &mut Child, log: &Path) -> (std::process::ExitStatus, String) {
+    if deploying.try_wait().unwrap().is_none() {
+        nix::sys::signal::kill(
+            nix::unistd::Pid::from_raw(i32::try_from(deploying.id()).unwrap()),
+            nix::sys::signal::Signal::SIGINT,
+        )
+        .unwrap();
+    }
+    let status = deploying.wait().unwrap();
+    (status, std::fs::read_to_string(log).unwrap())
+}
+
 pub fn samples_after_then_stop(
     deploying: &mut Child,
     csv: &Path,
@@ -254,15 +288,7 @@ pub fn samples_after_then_stop(
     while after() == 0 && Instant::now() < deadline && deploying.try_wait().unwrap().is_none() {
         std::thread::sleep(Duration::from_millis(100));
     }
-    if deploying.try_wait().unwrap().is_none() {
-        nix::sys::signal::kill(
-            nix::unistd::Pid::from_raw(i32::try_from(deploying.id()).unwrap()),
-            nix::sys::signal::Signal::SIGINT,
-        )
-        .unwrap();
-    }
-    let status = deploying.wait().unwrap();
-    let content = std::fs::read_to_string(log).unwrap();
+    let (status, content) = interrupt(deploying, log);
     assert!(status.success(), "{content}");
     (after(), content)
 }

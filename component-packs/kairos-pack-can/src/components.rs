@@ -217,18 +217,9 @@ impl Component for CandumpWriter {
     fn birth(&mut self, ctx: &mut Context) -> ComponentResult {
         self.path = ctx.text_property("path")?;
         self.interface = ctx.text_property("interface")?;
-        let asked = std::path::PathBuf::from(&self.path);
-        let (file, path) = kairos_sdk::files::create_beside(&asked, ctx.bool_property("overwrite")?)
+        let (file, path) = kairos_sdk::files::create_for(ctx, Path::new(&self.path))
             .map_err(|e| failed(format_args!("cannot create {}: {e}", self.path)))?;
-        if path != asked {
-            tracing::warn!(
-                "{}: {} exists and is kept: writing {} (set overwrite to replace it)",
-                ctx.id(),
-                asked.display(),
-                path.display()
-            );
-            self.path = path.display().to_string();
-        }
+        self.path = path.display().to_string();
         self.file = Some(BufWriter::new(file));
         Ok(())
     }

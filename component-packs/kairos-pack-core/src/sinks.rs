@@ -269,24 +269,10 @@ impl CsvWriter {
 impl Component for CsvWriter {
     fn birth(&mut self, ctx: &mut Context) -> ComponentResult {
         self.path = PathBuf::from(ctx.text_property("path")?);
-        if let Some(parent) = self.path.parent().filter(|p| !p.as_os_str().is_empty()) {
-            std::fs::create_dir_all(parent).map_err(|e| {
-                ComponentError::failed(format_args!("cannot create folder {}: {e}", parent.display()))
-            })?;
-        }
-        let (file, path) = kairos_sdk::files::create_beside(&self.path, ctx.bool_property("overwrite")?)
-            .map_err(|e| {
-                ComponentError::failed(format_args!("cannot create {}: {e}", self.path.display()))
-            })?;
-        if path != self.path {
-            tracing::warn!(
-                "{}: {} exists and is kept: writing {} (set overwrite to replace it)",
-                ctx.id(),
-                self.path.display(),
-                path.display()
-            );
-            self.path = path;
-        }
+        let (file, path) = kairos_sdk::files::create_for(ctx, &self.path).map_err(|e| {
+            ComponentError::failed(format_args!("cannot create {}: {e}", self.path.display()))
+        })?;
+        self.path = path;
         ctx.set_status(serde_json::json!({"path": self.path.display().to_string()}));
         self.writer = Some(BufWriter::new(file));
         self.connected = (0..CSV_INPUTS.len()).filter(|i| ctx.is_connected(*i)).collect();

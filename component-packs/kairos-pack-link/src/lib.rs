@@ -240,6 +240,7 @@ impl Component for LinkSender {
 }
 
 impl LinkSender {
+    /// Its counts and whether a receiver matched, as its status.
     fn publish(&self, ctx: &Context, peer: &str) {
         ctx.set_status(serde_json::json!({
             "kind": "link", "to": peer, "sent": self.sent, "sent_unmatched": self.unmatched,
@@ -267,9 +268,8 @@ impl LinkReceiver {
         }
         self.samples.take(&payload.to_bytes(), peer, ctx)
     }
-}
 
-impl LinkReceiver {
+    /// Its counts and how long ago the last sample came, as its status.
     fn publish(&self, ctx: &Context, peer: &str) {
         let status = serde_json::json!({
             "kind": "link", "from": peer,

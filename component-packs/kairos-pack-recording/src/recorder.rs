@@ -247,25 +247,14 @@ impl Recorder {
         let base = PathBuf::from(ctx.text_property("path")?);
         let path = Self::part_path(&base, self.part);
         self.part += 1;
-        if let Some(parent) = path.parent().filter(|p| !p.as_os_str().is_empty()) {
-            std::fs::create_dir_all(parent).map_err(|e| failed(parent, "cannot create the folder", e))?;
-        }
         let compression = match ctx.text_property("compression")?.as_str() {
             "zstd" => Some(mcap::Compression::Zstd),
             "lz4" => Some(mcap::Compression::Lz4),
             _ => None,
         };
         let chunk_size = u64::try_from(ctx.i64_property("chunk_size_kb")?).unwrap_or(1024) * 1024;
-        let (file, path) = kairos_sdk::files::create_beside(&path, ctx.bool_property("overwrite")?)
-            .map_err(|e| failed(&path, "cannot create", e))?;
-        if let Some(asked) = Some(Self::part_path(&base, self.part - 1)).filter(|asked| *asked != path) {
-            tracing::warn!(
-                "{}: {} exists and is kept: recording to {} (set overwrite to replace it)",
-                ctx.id(),
-                asked.display(),
-                path.display()
-            );
-        }
+        let (file, path) =
+            kairos_sdk::files::create_for(ctx, &path).map_err(|e| failed(&path, "cannot create", e))?;
         let mut writer = mcap::WriteOptions::new()
             .compression(compression)
             .chunk_size(Some(chunk_size))

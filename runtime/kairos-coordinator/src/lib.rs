@@ -124,9 +124,9 @@ fn deploy_remote<T>(
             return Err(unchanged(&e));
         }
     };
-    for (index, (host, ticket)) in hosts.iter_mut().zip(&tickets).enumerate() {
-        if let Err(e) = host.commit(*ticket) {
-            let committed: Vec<_> = plan.parts.keys().flatten().take(index).cloned().collect();
+    for (index, ticket) in tickets.iter().enumerate() {
+        if let Err(e) = hosts[index].commit(*ticket) {
+            let committed: Vec<String> = hosts[..index].iter().map(|h| h.name().to_owned()).collect();
             abandon(&mut hosts[index + 1..], &tickets[index + 1..]);
             return Err(if committed.is_empty() {
                 unchanged(&e)

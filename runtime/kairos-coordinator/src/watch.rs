@@ -5,8 +5,9 @@ use std::time::Duration;
 
 use anyhow::{Context as _, bail};
 use kairos_diagram::{Diagram, Value};
-use kairos_protocol::{LinkNetwork, RequestBody};
+use kairos_protocol::{ClockState, LinkNetwork, RequestBody};
 
+use crate::clocks::clock_of;
 use crate::host::{Host, Reach};
 use crate::plan::Plan;
 use crate::ship::ship_packs;
@@ -44,8 +45,8 @@ pub struct Watch {
     left: BTreeSet<String>,
     /// The links whose sender on a host has no receiver matched: cut, though both hosts may answer.
     cut_links: BTreeSet<String>,
-    /// Each host's clock state at the last check (`locked`, `holdover`, …), for those that follow one.
-    clock_states: BTreeMap<String, String>,
+    /// Each host's clock state at the last check, for those that follow one.
+    clock_states: BTreeMap<String, ClockState>,
 }
 
 /// What a host that answers runs, against what this deployment gave it.
@@ -281,38 +282,26 @@ impl Watch {
     /// clock out of lock drift against the other hosts'.
     fn report_clocks(&mut self) {
         for (name, status) in &self.statuses {
-            let clock = &status["clock"];
-            let Some(state) = clock["state"].as_str() else {
+            let Some(clock) = clock_of(status) else {
                 continue;
             };
-            let error = clock["error_ns"]
-                .as_i64()
-                .map_or_else(String::new, |e| format!(", error {:+.3} ms", e as f64 * 1e-6));
-            let bound = clock["error_bound_ns"].as_i64().map_or_else(String::new, |b| {
+            let error = format!("error {:+.3} ms", clock.error_ns as f64 * 1e-6);
+            let bound = clock.error_bound_ns.map_or_else(String::new, |b| {
                 format!(", error bound {:.3} ms", b as f64 * 1e-6)
             });
-            let before = self.clock_states.insert(name.clone(), state.to_owned());
-            match before.as_deref() {
-                Some("locked") if state != "locked" => tracing::error!(
-                    "host '{name}': its clock left lock ({state}{error}{bound}); what it stamps now drifts \
-                     against the other hosts"
+            let locked = clock.state == ClockState::Locked;
+            match self.clock_states.insert(name.clone(), clock.state) {
+                Some(ClockState::Locked) if !locked => tracing::error!(
+                    "host '{name}': its clock left lock ({}, {error}{bound}); what it stamps now drifts \
+                     against the other hosts",
+                    clock.state
                 ),
-                Some(previous) if previous != "locked" && state == "locked" => {
-                    tracing::info!("host '{name}': its clock is locked again ({state}{error})");
+                Some(previous) if previous != ClockState::Locked && locked => {
+                    tracing::info!("host '{name}': its clock is locked again ({error})");
                 }
                 _ => {}
             }
         }
-    }
-
-    /// The links between hosts that are cut now, in words.
-    pub fn cut_links(&self) -> Vec<String> {
-        self.plan
-            .links
-            .iter()
-            .filter(|l| self.cut_links.contains(&l.key))
-            .map(|l| format!("{} -> {}", l.from, l.to))
-            .collect()
     }
 
     /// The links host `name` cuts, as the end of a sentence.

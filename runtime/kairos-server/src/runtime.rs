@@ -32,8 +32,7 @@ struct Deployment {
     prepared: Option<(u64, Part)>,
     /// The ticket the next prepared part gets.
     next_ticket: u64,
-    /// The deployed diagram's identity (`status`'s `deployment`), and how many were deployed.
-    identity: Option<String>,
+    /// How many diagrams were deployed: with the server's `boot`, the deployed one's identity.
     installed: u64,
 }
 
@@ -199,7 +198,16 @@ impl Runtime {
 
     /// The deployed diagram's identity: a new one with every deployment and every start of the server.
     pub fn deployment_identity(&self) -> Option<String> {
-        self.lock().identity.clone()
+        let deployment = self.lock();
+        deployment
+            .diagram
+            .as_ref()
+            .map(|_| self.identity(deployment.installed))
+    }
+
+    /// The identity of the `installed`-th deployment since the server started.
+    fn identity(&self, installed: u64) -> String {
+        format!("{:016x}-{installed}", self.boot)
     }
 
     /// Runs every diagram deployed from now on on `clock` (a clock synchronised with a master).
@@ -577,8 +585,7 @@ impl Runtime {
         deployment.engine = Some(part.engine);
         deployment.previous = None;
         deployment.installed += 1;
-        let identity = format!("{:016x}-{}", self.boot, deployment.installed);
-        deployment.identity = Some(identity.clone());
+        let identity = self.identity(deployment.installed);
         self.generation.fetch_add(1, Ordering::Release);
         tracing::info!("deployed a diagram of {components} components");
         Ok(DeployResult {
