@@ -18,8 +18,29 @@ use std::time::{Duration, Instant};
 use tungstenite::Message;
 use tungstenite::stream::MaybeTlsStream;
 
+/// A Foxglove client and the subscriptions it made. A subscription the server refuses as "Unknown channel
+/// ID" is made again: the `foxglove` crate (0.30) sends a channel's advertisement before it records the
+/// channel as advertised to the client, so a subscription that a quick client sends in between is refused.
+struct Viewer {
+    socket: Socket,
+    subscriptions: Vec<(u32, Value)>,
+}
+
+impl std::ops::Deref for Viewer {
+    type Target = Socket;
+    fn deref(&self) -> &Socket {
+        &self.socket
+    }
+}
+
+impl std::ops::DerefMut for Viewer {
+    fn deref_mut(&mut self) -> &mut Socket {
+        &mut self.socket
+    }
+}
+
 /// A client of `kairos serve --foxglove`, speaking `subprotocol`.
-fn foxglove_client(url: &str, subprotocol: &str) -> Result<Socket, tungstenite::Error> {
+fn foxglove_client(url: &str, subprotocol: &str) -> Result<Viewer, tungstenite::Error> {
     use tungstenite::client::IntoClientRequest as _;
     let mut request = url.into_client_request()?;
     request
@@ -36,11 +57,14 @@ fn foxglove_client(url: &str, subprotocol: &str) -> Result<Socket, tungstenite::
     if let MaybeTlsStream::Plain(stream) = socket.get_ref() {
         stream.set_read_timeout(Some(Duration::from_secs(10))).unwrap();
     }
-    Ok(socket)
+    Ok(Viewer {
+        socket,
+        subscriptions: Vec::new(),
+    })
 }
 
 /// Reads until each of `topics` is advertised: their channels (`id`, `schemaName`, ...) by topic.
-fn foxglove_channels(socket: &mut Socket, topics: &[&str]) -> std::collections::BTreeMap<String, Value> {
+fn foxglove_channels(socket: &mut Viewer, topics: &[&str]) -> std::collections::BTreeMap<String, Value> {
     let mut channels = std::collections::BTreeMap::new();
     let deadline = Instant::now() + Duration::from_secs(30);
     while !topics.iter().all(|t| channels.contains_key(*t)) {
@@ -57,21 +81,39 @@ fn foxglove_channels(socket: &mut Socket, topics: &[&str]) -> std::collections::
     channels
 }
 
-fn foxglove_subscribe(socket: &mut Socket, subscription: u32, channel: &Value) {
+fn foxglove_subscribe(viewer: &mut Viewer, subscription: u32, channel: &Value) {
     let request =
         json!({"op": "subscribe", "subscriptions": [{"id": subscription, "channelId": channel["id"]}]});
-    socket.send(Message::text(request.to_string())).unwrap();
+    viewer.send(Message::text(request.to_string())).unwrap();
+    viewer.subscriptions.push((subscription, channel.clone()));
 }
 
-/// A message-data frame: its subscription, log time and payload; JSON messages are passed over.
-fn foxglove_message(socket: &mut Socket) -> (u32, u64, Vec<u8>) {
+/// A message-data frame: its subscription, log time and payload; other JSON messages are passed over.
+fn foxglove_message(viewer: &mut Viewer) -> (u32, u64, Vec<u8>) {
     loop {
-        if let Message::Binary(frame) = socket.read().unwrap()
-            && frame.first() == Some(&1)
-        {
-            let subscription = u32::from_le_bytes(frame[1..5].try_into().unwrap());
-            let log_time = u64::from_le_bytes(frame[5..13].try_into().unwrap());
-            return (subscription, log_time, frame[13..].to_vec());
+        match viewer.read().unwrap() {
+            Message::Binary(frame) if frame.first() == Some(&1) => {
+                let subscription = u32::from_le_bytes(frame[1..5].try_into().unwrap());
+                let log_time = u64::from_le_bytes(frame[5..13].try_into().unwrap());
+                return (subscription, log_time, frame[13..].to_vec());
+            }
+            Message::Text(text) => {
+                let message: Value = serde_json::from_str(text.as_str()).unwrap();
+                let refused = message["message"]
+                    .as_str()
+                    .and_then(|m| m.strip_prefix("Unknown channel ID: "));
+                let again: Vec<(u32, Value)> = viewer
+                    .subscriptions
+                    .iter()
+                    .filter(|(_, channel)| refused == Some(channel["id"].to_string().as_str()))
+                    .cloned()
+                    .collect();
+                for (subscription, channel) in again {
+                    viewer.subscriptions.retain(|(id, _)| *id != subscription);
+                    foxglove_subscribe(viewer, subscription, &channel);
+                }
+            }
+            _ => {}
         }
     }
 }
