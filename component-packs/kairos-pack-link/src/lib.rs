@@ -125,13 +125,6 @@ fn declared<T>(found: Option<T>, key: &str) -> Result<T, ComponentError> {
 /// them (pixels, bytes), so a camera's frames travel without a copy on the sending side. (Public for the
 /// benchmark, whose baseline puts the same bytes.)
 pub fn frame_of(output: &str, sample: &kairos_sdk::Sample) -> ZBytes {
-    // Numbers, text and small bytes in the compact binary frame: its JSON header would cost more than the
-    // rest of their trip.
-    if sample.payload.heavy_size_bytes() <= SHARE_FROM
-        && let Some(compact) = sample_frame::encode_compact(output, sample)
-    {
-        return ZBytes::from(compact);
-    }
     let (head, body) = sample_frame::encode(output, sample);
     let shared = match &sample.payload {
         Payload::Image(image) => Some(bytes::Bytes::from_owner(image.pixels.clone())),

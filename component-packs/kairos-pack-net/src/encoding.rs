@@ -21,8 +21,8 @@ pub const SAMPLES: &str = "samples";
 pub fn property() -> Property {
     Property::choice("encoding", &["raw", "kairos"], "raw").doc(
         "raw: bytes as they come, stamped on reception (devices and programs of any kind); kairos: whole \
-         samples with both times and their sequence number, in the control protocol's frame format \
-         (another Kairos runtime)",
+         samples with both times and their sequence number, in the binary sample frame (another Kairos \
+         runtime; see docs/net.md)",
     )
 }
 

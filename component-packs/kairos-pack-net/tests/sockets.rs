@@ -196,7 +196,7 @@ fn a_tcp_sender_serves_every_client_and_a_client_sender_reaches_its_server() {
 
 #[test]
 fn a_kairos_receiver_counts_garbage_other_types_gaps_and_late_samples_and_passes_the_rest_on() {
-    use kairos_sample_frame::encode_whole;
+    use kairos_sample_frame::{encode_json_whole, encode_whole};
     use kairos_sdk::Sample;
 
     let port = UdpSocket::bind("127.0.0.1:0")
@@ -223,7 +223,12 @@ fn a_kairos_receiver_counts_garbage_other_types_gaps_and_late_samples_and_passes
         let mut sample = Sample::new(payload, Timestamp(1_000 + i64::try_from(sequence).unwrap()));
         sample.time_of_issue = Timestamp(5_000);
         sample.sequence = sequence;
-        encode_whole("remote.out", &sample)
+        // A program of the user's may send the control protocol's JSON frame: taken as Kairos's own.
+        if sequence == 4 {
+            encode_json_whole("remote.out", &sample)
+        } else {
+            encode_whole("remote.out", &sample)
+        }
     };
     let datagrams = [
         frame(0, Payload::F64(0.0)),

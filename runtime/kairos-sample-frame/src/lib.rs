@@ -1,13 +1,15 @@
-//! Whole samples in the control protocol's frame format (`kairos_protocol::frame`), both ways, so two
-//! runtimes exchange samples with both times and their sequence number, and fusion by timestamp still
-//! works across them.
+//! Whole samples as bytes and back, so two runtimes exchange samples with both times and their sequence
+//! number, and fusion by timestamp still works across them. Encoding then decoding gives back the same
+//! payload, whatever its type.
 //!
-//! Small payloads travel as the header's JSON `value`; images, point clouds, bytes and pack-defined data as
-//! the bytes after the header. Encoding then decoding gives back the same payload, whatever its type.
-//!
-//! Between two Kairos runtimes (the links between hosts), numbers, booleans, text and bytes can travel in
-//! a compact binary frame instead ([`encode_compact`]): the JSON header costs about a microsecond each way,
-//! more than the rest of a small sample's trip. [`decode`] reads both.
+//! Two layouts, and [`decode`] reads both:
+//! - the **binary frame** (`KSB1`, [`binary`]), which Kairos sends between runtimes (socket components in
+//!   `kairos` mode, links between hosts): a fixed header and the payload in its own layout. Building,
+//!   writing, parsing and reading back a JSON header cost about a microsecond each way, more than the rest
+//!   of a small sample's trip;
+//! - the **control protocol's frame** (`KSF1`, `kairos_protocol::frame`), a JSON header then the payload's
+//!   bulk, which the protocol's sample subscriptions carry to clients ([`encode_json`]) and which a
+//!   third-party program may send to a Kairos receiver.
 
 use std::borrow::Cow;
 use std::sync::Arc;
@@ -119,9 +121,23 @@ pub fn header_of(output: &str, sample: &Sample, skipped: u64) -> SampleHeader {
     }
 }
 
-/// `sample` whole, as a frame in two parts: its start (magic, header length, header) and the payload's
-/// bytes, borrowed where they can be (pixels, bytes), so a transport copies them once, where they go.
+pub mod binary;
+
+/// `sample` whole as a binary frame in two parts: its start and the payload's bulk, borrowed where the
+/// payload holds it (pixels, bytes, text), so a transport copies it once, where it goes. A sample the
+/// binary layout cannot hold (an output name over 64 KiB) goes as the protocol's frame.
 pub fn encode<'s>(output: &str, sample: &'s Sample) -> (Vec<u8>, Cow<'s, [u8]>) {
+    binary::encode(output, sample).unwrap_or_else(|| encode_json(output, sample))
+}
+
+/// `sample` whole as one binary frame.
+pub fn encode_whole(output: &str, sample: &Sample) -> Vec<u8> {
+    join(encode(output, sample))
+}
+
+/// `sample` whole in the control protocol's frame, in two parts: its start (magic, header length, JSON
+/// header) and the payload's bytes, borrowed where they can be.
+pub fn encode_json<'s>(output: &str, sample: &'s Sample) -> (Vec<u8>, Cow<'s, [u8]>) {
     let mut header = header_of(output, sample, 0);
     let body: Cow<'s, [u8]> = match &sample.payload {
         Payload::Image(image) => {
@@ -143,87 +159,15 @@ pub fn encode<'s>(output: &str, sample: &'s Sample) -> (Vec<u8>, Cow<'s, [u8]>) 
     (frame::encode(&header, &[]), body)
 }
 
-/// `sample` whole as one frame.
-pub fn encode_whole(output: &str, sample: &Sample) -> Vec<u8> {
-    let (head, body) = encode(output, sample);
-    let mut bytes = Vec::with_capacity(head.len() + body.len());
-    bytes.extend_from_slice(&head);
+/// `sample` whole as one frame of the control protocol.
+pub fn encode_json_whole(output: &str, sample: &Sample) -> Vec<u8> {
+    join(encode_json(output, sample))
+}
+
+fn join((head, body): (Vec<u8>, Cow<'_, [u8]>)) -> Vec<u8> {
+    let mut bytes = head;
     bytes.extend_from_slice(&body);
     bytes
-}
-
-/// The first bytes of a compact frame: then the payload's kind (u8), the output's name (u16 length, UTF-8),
-/// the timestamp, the time of issue and the sequence number (i64, i64, u64), then the payload (an f64 or
-/// i64, one byte for a boolean, the rest of the frame for text and bytes). Little-endian throughout.
-pub const COMPACT_MAGIC: &[u8; 4] = b"KSB1";
-const COMPACT_F64: u8 = 0;
-const COMPACT_I64: u8 = 1;
-const COMPACT_BOOL: u8 = 2;
-const COMPACT_TEXT: u8 = 3;
-const COMPACT_BYTES: u8 = 4;
-
-/// `sample` as one compact frame, for a payload that has one (numbers, booleans, text, bytes); `None`
-/// for the others, which take [`encode`].
-pub fn encode_compact(output: &str, sample: &Sample) -> Option<Vec<u8>> {
-    // A scalar's bytes live here: a frame is the one allocation per sample.
-    let scalar: [u8; 8];
-    let (kind, body): (u8, &[u8]) = match &sample.payload {
-        Payload::F64(value) => {
-            scalar = value.to_le_bytes();
-            (COMPACT_F64, &scalar)
-        }
-        Payload::I64(value) => {
-            scalar = value.to_le_bytes();
-            (COMPACT_I64, &scalar)
-        }
-        Payload::Bool(value) => (COMPACT_BOOL, if *value { &[1] } else { &[0] }),
-        Payload::Text(text) => (COMPACT_TEXT, text.as_bytes()),
-        Payload::Bytes(bytes) => (COMPACT_BYTES, &bytes[..]),
-        _ => return None,
-    };
-    let name = u16::try_from(output.len()).ok()?;
-    let mut frame = Vec::with_capacity(4 + 1 + 2 + output.len() + 24 + body.len());
-    frame.extend_from_slice(COMPACT_MAGIC);
-    frame.push(kind);
-    frame.extend_from_slice(&name.to_le_bytes());
-    frame.extend_from_slice(output.as_bytes());
-    frame.extend_from_slice(&sample.timestamp.as_nanos().to_le_bytes());
-    frame.extend_from_slice(&sample.time_of_issue.as_nanos().to_le_bytes());
-    frame.extend_from_slice(&sample.sequence.to_le_bytes());
-    frame.extend_from_slice(body);
-    Some(frame)
-}
-
-/// Reads a compact frame (after its magic).
-fn decode_compact(bytes: &[u8]) -> Result<Received, String> {
-    let short = || "a compact frame shorter than its fields".to_owned();
-    let (&kind, rest) = bytes.split_first().ok_or_else(short)?;
-    let (length, rest) = rest.split_first_chunk::<2>().ok_or_else(short)?;
-    let (name, rest) = rest
-        .split_at_checked(usize::from(u16::from_le_bytes(*length)))
-        .ok_or_else(short)?;
-    let output = std::str::from_utf8(name).map_err(|_| "an output name that is not UTF-8".to_owned())?;
-    let (timestamp, rest) = rest.split_first_chunk::<8>().ok_or_else(short)?;
-    let (time_of_issue, rest) = rest.split_first_chunk::<8>().ok_or_else(short)?;
-    let (sequence, body) = rest.split_first_chunk::<8>().ok_or_else(short)?;
-    let eight = || body.first_chunk::<8>().copied().ok_or_else(short);
-    let payload = match kind {
-        COMPACT_F64 => Payload::F64(f64::from_le_bytes(eight()?)),
-        COMPACT_I64 => Payload::I64(i64::from_le_bytes(eight()?)),
-        COMPACT_BOOL => Payload::Bool(body.first().copied().ok_or_else(short)? != 0),
-        COMPACT_TEXT => Payload::Text(Arc::from(
-            std::str::from_utf8(body).map_err(|_| "text that is not UTF-8".to_owned())?,
-        )),
-        COMPACT_BYTES => Payload::Bytes(Arc::from(body)),
-        other => return Err(format!("a compact frame of unknown kind {other}")),
-    };
-    let mut sample = Sample::new(payload, Timestamp(i64::from_le_bytes(*timestamp)));
-    sample.time_of_issue = Timestamp(i64::from_le_bytes(*time_of_issue));
-    Ok(Received {
-        output: output.to_owned(),
-        sequence: u64::from_le_bytes(*sequence),
-        sample,
-    })
 }
 
 /// A sample received in a frame.
@@ -237,10 +181,10 @@ pub struct Received {
     pub sample: Sample,
 }
 
-/// Decodes a frame made by [`encode`] or [`encode_compact`] back into its sample.
+/// Decodes a frame of either layout back into its sample.
 pub fn decode(bytes: &[u8]) -> Result<Received, String> {
-    if let Some(compact) = bytes.strip_prefix(COMPACT_MAGIC) {
-        return decode_compact(compact);
+    if let Some(binary) = bytes.strip_prefix(binary::MAGIC) {
+        return binary::decode(binary);
     }
     let (header, body) = frame::decode(bytes).map_err(|e| e.to_string())?;
     let payload = payload_of(&header, body)?;
@@ -260,6 +204,9 @@ pub fn decode_pieces(pieces: &[&[u8]]) -> Result<Received, String> {
         [] => decode(&[]),
         [whole] => decode(whole),
         [first, rest @ ..] => {
+            if let Some(image) = binary::decode_image_pieces(first, rest) {
+                return image;
+            }
             if let Ok((header, head_of_body)) = frame::decode(first)
                 && DataType::from_name(&header.data_type) == DataType::Image
             {
@@ -278,8 +225,7 @@ pub fn decode_pieces(pieces: &[&[u8]]) -> Result<Received, String> {
     }
 }
 
-/// An image frame's payload from its header and its pixels, which may come in several pieces: copied into
-/// the shared pixel pool, so the image goes on through the diagram without another copy.
+/// An image frame's payload from its header and its pixels, which may come in several pieces.
 fn image_of<'b>(
     header: &SampleHeader,
     body: impl Iterator<Item = &'b [u8]> + Clone,
@@ -287,6 +233,15 @@ fn image_of<'b>(
     let layout = header.image.as_ref().ok_or("an image frame without its layout")?;
     let format =
         format_of(&layout.format).ok_or_else(|| format!("an unknown pixel format {:?}", layout.format))?;
+    image_of_pieces((layout.width, layout.height, layout.stride, format), body)
+}
+
+/// An image from its layout and its pixels, which may come in several pieces: copied into the shared pixel
+/// pool, so the image goes on through the diagram without another copy.
+fn image_of_pieces<'b>(
+    (width, height, stride, format): binary::ImageLayout,
+    body: impl Iterator<Item = &'b [u8]> + Clone,
+) -> Result<Payload, String> {
     let length = body.clone().map(<[u8]>::len).sum();
     let mut pixels = PixelsMut::new(length);
     let mut at = 0;
@@ -294,13 +249,7 @@ fn image_of<'b>(
         pixels[at..at + piece.len()].copy_from_slice(piece);
         at += piece.len();
     }
-    Image::with_stride(
-        layout.width,
-        layout.height,
-        format,
-        layout.stride,
-        pixels.freeze(),
-    )
+    Image::with_stride(width, height, format, stride, pixels.freeze())
     .map(Payload::Image)
     .map_err(|e| e.to_string())
 }
@@ -427,35 +376,36 @@ fn payload_of(header: &SampleHeader, body: &[u8]) -> Result<Payload, String> {
         }
         DataType::Bytes => Payload::Bytes(Arc::from(body)),
         DataType::Image => image_of(header, std::iter::once(body))?,
-        DataType::PointCloud => {
-            let stride = if header.intensity { 16 } else { 12 };
-            if !body.len().is_multiple_of(stride) {
-                return Err(format!(
-                    "{} bytes of points are not a whole number of {stride}-byte points",
-                    body.len()
-                ));
-            }
-            let float = |bytes: &[u8], at: usize| {
-                bytes
-                    .get(at..at + 4)
-                    .and_then(|b| b.try_into().ok())
-                    .map_or(0.0, f32::from_le_bytes)
-            };
-            let points = body
-                .chunks_exact(stride)
-                .map(|p| Vec3::new(float(p, 0), float(p, 4), float(p, 8)))
-                .collect();
-            let intensity = header
-                .intensity
-                .then(|| body.chunks_exact(stride).map(|p| float(p, 12)).collect());
-            Payload::PointCloud(Arc::new(PointCloud { points, intensity }))
-        }
+        DataType::PointCloud => Payload::PointCloud(Arc::new(points_of(body, header.intensity)?)),
         DataType::Custom(name) => Payload::Custom(CustomPayload {
             type_name: Arc::from(name.as_str()),
             data: Arc::from(body),
         }),
     };
     Ok(payload)
+}
+
+/// Points from their bytes: x, y, z and, with `intensity`, a fourth f32, little-endian.
+fn points_of(body: &[u8], intensity: bool) -> Result<PointCloud, String> {
+    let stride = if intensity { 16 } else { 12 };
+    if !body.len().is_multiple_of(stride) {
+        return Err(format!(
+            "{} bytes of points are not a whole number of {stride}-byte points",
+            body.len()
+        ));
+    }
+    let float = |bytes: &[u8], at: usize| {
+        bytes
+            .get(at..at + 4)
+            .and_then(|b| b.try_into().ok())
+            .map_or(0.0, f32::from_le_bytes)
+    };
+    let points = body
+        .chunks_exact(stride)
+        .map(|p| Vec3::new(float(p, 0), float(p, 4), float(p, 8)))
+        .collect();
+    let intensity = intensity.then(|| body.chunks_exact(stride).map(|p| float(p, 12)).collect());
+    Ok(PointCloud { points, intensity })
 }
 
 /// Counts what a stream of sequence numbers from one sender says about the link: samples lost in transit
@@ -529,7 +479,7 @@ mod tests {
         Pose, Sample, Timestamp,
     };
 
-    use super::{SequenceTracker, decode, encode_whole};
+    use super::{SequenceTracker, decode, encode_json_whole, encode_whole};
 
     fn every_payload() -> Vec<Payload> {
         let pixels: Vec<u8> = (0..4 * 3 * 3).map(|i| i as u8).collect();
@@ -576,83 +526,113 @@ mod tests {
         ]
     }
 
-    #[test]
-    fn a_frame_in_pieces_decodes_as_the_whole_frame_does() {
-        for payload in every_payload() {
-            let mut sample = Sample::new(payload.clone(), Timestamp(1_700_000_000_123_456_789));
-            sample.time_of_issue = Timestamp(1_700_000_000_223_456_789);
-            let frame = encode_whole("camera.image", &sample);
-            let whole = decode(&frame).unwrap();
-            // Cut everywhere: inside the header, and inside the payload.
-            for cut in [5, frame.len() - 7, frame.len() - 1] {
-                let (a, b) = frame.split_at(cut);
-                let (b, c) = b.split_at(b.len() / 2);
-                let pieces = super::decode_pieces(&[a, b, c]).unwrap();
-                assert_eq!(pieces.output, whole.output);
-                assert_eq!(
-                    pieces.sample.payload, whole.sample.payload,
-                    "{payload:?}, cut at {cut}"
-                );
-                assert_eq!(pieces.sample.timestamp, whole.sample.timestamp);
-                assert_eq!(pieces.sample.time_of_issue, whole.sample.time_of_issue);
-            }
-        }
-    }
+    /// Both layouts' whole frames.
+    const ENCODERS: [(&str, fn(&str, &Sample) -> Vec<u8>); 2] =
+        [("binary", encode_whole), ("protocol", encode_json_whole)];
 
     #[test]
-    fn compact_frames_give_back_numbers_text_and_bytes_whole_and_refuse_the_rest() {
-        for payload in every_payload() {
-            let mut sample = Sample::new(payload.clone(), Timestamp(1_700_000_000_123_456_789));
-            sample.time_of_issue = Timestamp(1_700_000_000_223_456_789);
-            sample.sequence = 41;
-            let Some(frame) = super::encode_compact("imu.out", &sample) else {
-                assert!(
-                    !matches!(
-                        payload,
-                        Payload::F64(_)
-                            | Payload::I64(_)
-                            | Payload::Bool(_)
-                            | Payload::Text(_)
-                            | Payload::Bytes(_)
-                    ),
-                    "{payload:?} has a compact frame"
-                );
-                continue;
-            };
-            let received = decode(&frame).unwrap();
-            assert_eq!(received.sample.payload, payload);
-            assert_eq!(received.output, "imu.out");
-            assert_eq!(received.sequence, 41);
-            assert_eq!(received.sample.timestamp, sample.timestamp);
-            assert_eq!(received.sample.time_of_issue, sample.time_of_issue);
-            // Cut anywhere short of its fields, it is refused, never read past its end.
-            for end in 4..frame.len().min(4 + 1 + 2 + 7 + 24) {
-                assert!(decode(&frame[..end]).is_err(), "cut at {end}");
+    fn a_frame_in_pieces_decodes_as_the_whole_frame_does() {
+        for (layout, encode) in ENCODERS {
+            for payload in every_payload() {
+                let mut sample = Sample::new(payload.clone(), Timestamp(1_700_000_000_123_456_789));
+                sample.time_of_issue = Timestamp(1_700_000_000_223_456_789);
+                let frame = encode("camera.image", &sample);
+                let whole = decode(&frame).unwrap();
+                // Cut everywhere: inside the header, and inside the payload.
+                for cut in [5, frame.len() - 7, frame.len() - 1] {
+                    let (a, b) = frame.split_at(cut);
+                    let (b, c) = b.split_at(b.len() / 2);
+                    let pieces = super::decode_pieces(&[a, b, c]).unwrap();
+                    assert_eq!(pieces.output, whole.output);
+                    assert_eq!(
+                        pieces.sample.payload, whole.sample.payload,
+                        "{layout}: {payload:?}, cut at {cut}"
+                    );
+                    assert_eq!(pieces.sample.timestamp, whole.sample.timestamp);
+                    assert_eq!(pieces.sample.time_of_issue, whole.sample.time_of_issue);
+                }
             }
         }
     }
 
     #[test]
     fn every_payload_type_comes_back_whole_with_both_times_and_its_sequence() {
-        for payload in every_payload() {
-            let mut sample = Sample::new(payload.clone(), Timestamp(1_700_000_000_123_456_789));
-            sample.time_of_issue = Timestamp(1_700_000_000_200_000_000);
-            sample.sequence = 41;
-            let received = decode(&encode_whole("sensor.out", &sample)).unwrap();
-            assert_eq!(received.sample.payload, payload);
-            assert_eq!(received.sample.timestamp, sample.timestamp);
-            assert_eq!(received.sample.time_of_issue, sample.time_of_issue);
-            assert_eq!((received.output.as_str(), received.sequence), ("sensor.out", 41));
+        for (layout, encode) in ENCODERS {
+            for payload in every_payload() {
+                let mut sample = Sample::new(payload.clone(), Timestamp(1_700_000_000_123_456_789));
+                sample.time_of_issue = Timestamp(1_700_000_000_200_000_000);
+                sample.sequence = 41;
+                let received = decode(&encode("sensor.out", &sample)).unwrap();
+                assert_eq!(received.sample.payload, payload, "{layout}");
+                assert_eq!(received.sample.timestamp, sample.timestamp);
+                assert_eq!(received.sample.time_of_issue, sample.time_of_issue);
+                assert_eq!((received.output.as_str(), received.sequence), ("sensor.out", 41));
+            }
         }
+    }
+
+    #[test]
+    fn a_binary_frame_cut_short_is_refused_never_read_past_its_end() {
+        for payload in every_payload() {
+            let sample = Sample::new(payload.clone(), Timestamp(1));
+            let frame = encode_whole("imu.out", &sample);
+            assert!(frame.starts_with(super::binary::MAGIC), "{payload:?}");
+            // Short of the fixed start (kind, name, times, sequence), any payload is refused.
+            for end in 4..4 + 1 + 2 + "imu.out".len() + 24 {
+                assert!(decode(&frame[..end]).is_err(), "{payload:?} cut at {end}");
+            }
+            // A payload of fixed size is refused short of any of its bytes. (Those that end with the frame,
+            // as bytes do, are whole frames in every transport: a datagram, a length-prefixed message.)
+            let fixed = matches!(
+                payload,
+                Payload::F64(_)
+                    | Payload::I64(_)
+                    | Payload::Bool(_)
+                    | Payload::Imu(_)
+                    | Payload::GnssFix(_)
+                    | Payload::Pose(_)
+                    | Payload::Matrix(_)
+                    | Payload::Image(_)
+            );
+            if fixed {
+                for end in 4..frame.len() {
+                    assert!(decode(&frame[..end]).is_err(), "{payload:?} cut at {end}");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn a_binary_frame_of_a_kind_this_version_does_not_know_is_refused_by_number() {
+        let mut frame = encode_whole("a.b", &Sample::new(Payload::F64(1.0), Timestamp(1)));
+        frame[4] = 200;
+        let error = decode(&frame).unwrap_err();
+        assert!(error.contains("kind 200") && error.contains("newer"), "{error}");
+    }
+
+    #[test]
+    fn a_small_sample_s_binary_frame_is_a_fraction_of_its_protocol_frame() {
+        let imu = every_payload().swap_remove(7);
+        let sample = Sample::new(imu, Timestamp(1_700_000_000_123_456_789));
+        let (binary, json) = (
+            encode_whole("imu.imu", &sample).len(),
+            encode_json_whole("imu.imu", &sample).len(),
+        );
+        // 4 + 1 + 2 + 7 + 24, then 6 f64s, a flag and 4 f64s.
+        assert_eq!(binary, 38 + 48 + 1 + 32);
+        assert!(binary * 2 < json, "{binary} B binary, {json} B JSON");
     }
 
     proptest::proptest! {
         #[test]
         fn any_bytes_decode_or_are_refused_never_a_panic(bytes in proptest::collection::vec(proptest::num::u8::ANY, 0..512)) {
             let _ = decode(&bytes);
-            let mut framed = b"KSF1".to_vec();
-            framed.extend_from_slice(&bytes);
-            let _ = decode(&framed);
+            for magic in [b"KSF1", b"KSB1"] {
+                let mut framed = magic.to_vec();
+                framed.extend_from_slice(&bytes);
+                let _ = decode(&framed);
+                let _ = super::decode_pieces(&[&framed[..framed.len() / 2], &framed[framed.len() / 2..]]);
+            }
         }
 
         #[test]
@@ -663,38 +643,44 @@ mod tests {
             timestamp in proptest::num::i64::ANY,
             sequence in proptest::num::u64::ANY,
         ) {
-            for payload in [
-                Payload::Vector(Arc::from(values.clone())),
-                Payload::Text(Arc::from(text.as_str())),
-                Payload::Bytes(Arc::from(bytes.clone())),
-            ] {
-                let mut sample = Sample::new(payload.clone(), Timestamp(timestamp));
-                sample.sequence = sequence;
-                let received = decode(&encode_whole("a.b", &sample)).unwrap();
-                proptest::prop_assert_eq!(received.sample.payload, payload);
-                proptest::prop_assert_eq!(received.sample.timestamp, Timestamp(timestamp));
-                proptest::prop_assert_eq!(received.sequence, sequence);
+            for (_, encode) in ENCODERS {
+                for payload in [
+                    Payload::Vector(Arc::from(values.clone())),
+                    Payload::Text(Arc::from(text.as_str())),
+                    Payload::Bytes(Arc::from(bytes.clone())),
+                ] {
+                    let mut sample = Sample::new(payload.clone(), Timestamp(timestamp));
+                    sample.sequence = sequence;
+                    let received = decode(&encode("a.b", &sample)).unwrap();
+                    proptest::prop_assert_eq!(received.sample.payload, payload);
+                    proptest::prop_assert_eq!(received.sample.timestamp, Timestamp(timestamp));
+                    proptest::prop_assert_eq!(received.sequence, sequence);
+                }
             }
         }
     }
 
     #[test]
     fn a_nan_travels_as_a_nan() {
-        let sample = Sample::new(Payload::F64(f64::NAN), Timestamp(1));
-        let received = decode(&encode_whole("a.b", &sample)).unwrap();
-        assert!(matches!(received.sample.payload, Payload::F64(v) if v.is_nan()));
+        for (_, encode) in ENCODERS {
+            let sample = Sample::new(Payload::F64(f64::NAN), Timestamp(1));
+            let received = decode(&encode("a.b", &sample)).unwrap();
+            assert!(matches!(received.sample.payload, Payload::F64(v) if v.is_nan()));
+        }
     }
 
     #[test]
     fn damaged_frames_are_refused_with_the_reason() {
         let sample = Sample::new(Payload::Vector(Arc::from(vec![1.0])), Timestamp(1));
-        let bytes = encode_whole("a.b", &sample);
-        assert!(decode(&bytes[..bytes.len() - 3]).is_err());
+        for (_, encode) in ENCODERS {
+            let bytes = encode("a.b", &sample);
+            assert!(decode(&bytes[..bytes.len() - 3]).is_err());
+            let image = Sample::new(every_payload().swap_remove(11), Timestamp(1));
+            let bytes = encode("camera.image", &image);
+            let error = decode(&bytes[..bytes.len() - 1]).unwrap_err();
+            assert!(error.contains("buffer") || error.contains("bytes"), "{error}");
+        }
         assert!(decode(b"garbage").unwrap_err().contains("KSF1"));
-        let image = Sample::new(every_payload().swap_remove(11), Timestamp(1));
-        let bytes = encode_whole("camera.image", &image);
-        let error = decode(&bytes[..bytes.len() - 1]).unwrap_err();
-        assert!(error.contains("buffer") || error.contains("bytes"), "{error}");
     }
 
     #[test]
