@@ -80,6 +80,13 @@ fn assert_spread_telemetry(telemetry: &Value) {
     assert_eq!(link["from_host"], "b", "{link}");
     assert_eq!(link["matched"], true, "{link}");
     assert_eq!(link["lost"], 0, "{link}");
+    if link["received"].as_u64().unwrap() > 0 {
+        // One machine, one clock: a time in transit that is no less than nothing and well under a second.
+        let transit = link["transit_p50_ns"]
+            .as_i64()
+            .expect("the time in transit, once samples came");
+        assert!((0..1_000_000_000).contains(&transit), "{link}");
+    }
     let link_names: Vec<&str> = telemetry["links"]
         .as_array()
         .unwrap()

@@ -276,7 +276,10 @@ fn cross_link_figures(counts: &kairos_protocol::CrossLinkTelemetry) -> String {
     let age = counts
         .last_sample_age_ms
         .map_or_else(String::new, |ms| format!(" · {ms} ms ago"));
-    format!("{} lost{age}", counts.lost)
+    let transit = counts.transit_p50_ns.map_or_else(String::new, |ns| {
+        format!(" · {:.2} ms in transit", ns as f64 * 1e-6)
+    });
+    format!("{} lost{transit}{age}", counts.lost)
 }
 
 /// What hovering a connection says: its ends, its policy, its figures.
@@ -463,10 +466,18 @@ impl Canvas {
             if let Some(counts) = crossing {
                 let _ = write!(
                     hover,
-                    "\nbetween hosts, over Zenoh: {} sent, {} received, {} lost in transit{}",
+                    "\nbetween hosts, over Zenoh: {} sent, {} received, {} lost in transit{}{}",
                     counts.sent,
                     counts.received,
                     counts.lost,
+                    match (counts.transit_p50_ns, counts.transit_max_ns) {
+                        (Some(p50), Some(max)) => format!(
+                            "; in transit {:.2} ms (median), {:.2} ms at most, over the last samples",
+                            p50 as f64 * 1e-6,
+                            max as f64 * 1e-6
+                        ),
+                        _ => String::new(),
+                    },
                     if counts.matched {
                         ""
                     } else {

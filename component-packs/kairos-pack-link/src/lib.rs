@@ -126,25 +126,23 @@ fn declared<T>(found: Option<T>, key: &str) -> Result<T, ComponentError> {
 /// benchmark, whose baseline puts the same bytes.)
 pub fn frame_of(output: &str, sample: &kairos_sdk::Sample) -> ZBytes {
     let (head, body) = sample_frame::encode(output, sample);
-    let shared = match &sample.payload {
-        Payload::Image(image) => Some(bytes::Bytes::from_owner(image.pixels.clone())),
-        Payload::Bytes(data) => Some(bytes::Bytes::from_owner(data.clone())),
-        Payload::Custom(custom) => Some(bytes::Bytes::from_owner(custom.data.clone())),
-        _ => None,
-    };
-    match shared {
-        Some(body) if body.len() > SHARE_FROM => {
+    if body.len() > SHARE_FROM {
+        let shared = match &sample.payload {
+            Payload::Image(image) => Some(bytes::Bytes::from_owner(image.pixels.clone())),
+            Payload::Bytes(data) => Some(bytes::Bytes::from_owner(data.clone())),
+            Payload::Custom(custom) => Some(bytes::Bytes::from_owner(custom.data.clone())),
+            _ => None,
+        };
+        if let Some(shared) = shared {
             let mut writer = ZBytes::writer();
             writer.append(ZBytes::from(head));
-            writer.append(ZBytes::from(body));
-            ZBytes::from(writer)
-        }
-        _ => {
-            let mut whole = head;
-            whole.extend_from_slice(&body);
-            ZBytes::from(whole)
+            writer.append(ZBytes::from(shared));
+            return ZBytes::from(writer);
         }
     }
+    let mut whole = head;
+    whole.extend_from_slice(&body);
+    ZBytes::from(whole)
 }
 
 /// Payloads larger than this are shared with Zenoh rather than copied into the frame: below it a copy

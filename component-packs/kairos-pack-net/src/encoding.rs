@@ -125,6 +125,7 @@ pub struct SampleReceiver {
     /// Per sender: its address, its output's name, and what its sequence numbers said. A few senders at
     /// most, so a list looked up without building a key per sample.
     trackers: Vec<(String, String, SequenceTracker)>,
+    transit: Transit,
     received: u64,
     malformed: u64,
     wrong_type: u64,
@@ -218,6 +219,7 @@ impl SampleReceiver {
         };
         if tracker.take(received.sequence) {
             self.received += 1;
+            self.transit.record(ctx.now().nanos_since(time_of_issue));
             ctx.write_replayed(SAMPLES, payload, timestamp, time_of_issue)?;
         }
         Ok(())
@@ -231,7 +233,10 @@ impl SampleReceiver {
                 .map(|(_, _, tracker)| field(tracker))
                 .sum::<u64>()
         };
+        let (transit_p50_ns, transit_max_ns) = self.transit.figures().unzip();
         serde_json::json!({
+            "transit_p50_ns": transit_p50_ns,
+            "transit_max_ns": transit_max_ns,
             "received": self.received,
             "lost": sum(|t| t.lost),
             "reordered": sum(|t| t.reordered),
@@ -241,6 +246,32 @@ impl SampleReceiver {
             "wrong_type": self.wrong_type,
             "senders": self.trackers.len(),
         })
+    }
+}
+
+/// How long the last samples were in transit: this machine's clock at their arrival less their time of
+/// issue on the sender's (the same clock across hosts synchronised by Kairos).
+#[derive(Debug, Default)]
+struct Transit {
+    recent: std::collections::VecDeque<i64>,
+}
+
+/// The samples the transit figures are taken over.
+const TRANSIT_WINDOW: usize = 256;
+
+impl Transit {
+    fn record(&mut self, nanos: i64) {
+        if self.recent.len() == TRANSIT_WINDOW {
+            self.recent.pop_front();
+        }
+        self.recent.push_back(nanos);
+    }
+
+    /// The median and the most, over the last samples; `None` before any.
+    fn figures(&self) -> Option<(i64, i64)> {
+        let mut sorted: Vec<i64> = self.recent.iter().copied().collect();
+        sorted.sort_unstable();
+        Some((*sorted.get(sorted.len() / 2)?, *sorted.last()?))
     }
 }
 

@@ -770,6 +770,11 @@ pub struct Status {
     /// runs the deployment it made, instead of deploying it again. Absent before any deploy.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub deployment: Option<String>,
+    /// How late the last start at an agreed instant (`start` with `at_ns`) came on this runtime's clock,
+    /// ns; over a millisecond, this runtime's part started apart from the other hosts'. Absent until such
+    /// a start, and again after a deploy.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub start_late_ns: Option<i64>,
 }
 
 /// Latency figures of one link, in nanoseconds.
@@ -941,6 +946,13 @@ pub struct CrossLinkTelemetry {
     /// How long ago the last sample arrived, ms.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub last_sample_age_ms: Option<u64>,
+    /// Time in transit over the last 256 samples, median and most, ns: the receiving host's clock at
+    /// arrival less the time of issue on the producer's host (their clocks synchronised).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub transit_p50_ns: Option<i64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[allow(missing_docs, reason = "with transit_p50_ns")]
+    pub transit_max_ns: Option<i64>,
 }
 
 /// Where a runtime's clock stands against its reference, on the wire as its snake-case name.

@@ -385,7 +385,7 @@ fn connection_policy(
     })
 }
 
-/// The name of a link in statistics and warnings.
+/// The name of a link in statistics and warnings (an output known by another name goes by that one).
 pub fn link_name(from: &kairos_diagram::PortRef, to: &kairos_diagram::PortRef) -> String {
     format!("{from} -> {to}")
 }
@@ -531,7 +531,9 @@ impl Wiring<'_> {
                 continue;
             }
             let policy = self.policy(connection);
-            let link = link_name(&connection.from, &connection.to);
+            // Named by the producer's buffer: an output known by another name (a link from another
+            // host, known by the output it comes from) is called by that name, as in the whole diagram.
+            let link = format!("{} -> {}", buffer.output(), connection.to);
             policies.insert(link.clone(), policy);
             let reader = buffer.attach(
                 ReaderConfig {

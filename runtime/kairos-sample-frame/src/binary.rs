@@ -32,6 +32,9 @@ use crate::{Received, image_of_pieces, point_bytes, points_of};
 /// The first bytes of a binary frame.
 pub const MAGIC: &[u8; 4] = b"KSB1";
 
+/// The bulk a frame's start makes room for: a transport copies a payload this small after the start.
+const JOINED_UP_TO: usize = 4096;
+
 /// The pixel formats by their number in a binary frame.
 pub const PIXEL_FORMATS: [PixelFormat; 6] = [
     PixelFormat::Gray8,
@@ -104,12 +107,14 @@ impl Head {
     }
 
     fn u32(&mut self, value: usize) -> Option<()> {
-        self.0.extend_from_slice(&u32::try_from(value).ok()?.to_le_bytes());
+        self.0
+            .extend_from_slice(&u32::try_from(value).ok()?.to_le_bytes());
         Some(())
     }
 
     fn name(&mut self, name: &str) -> Option<()> {
-        self.0.extend_from_slice(&u16::try_from(name.len()).ok()?.to_le_bytes());
+        self.0
+            .extend_from_slice(&u16::try_from(name.len()).ok()?.to_le_bytes());
         self.0.extend_from_slice(name.as_bytes());
         Some(())
     }
@@ -128,12 +133,17 @@ fn xyzw(q: DQuat) -> [f64; 4] {
 /// `None` only for what the layout cannot hold (a name over 64 KiB, a matrix side over 4 G).
 pub fn encode<'s>(output: &str, sample: &'s Sample) -> Option<(Vec<u8>, Cow<'s, [u8]>)> {
     let payload = &sample.payload;
-    let mut head = Head(Vec::with_capacity(64 + output.len()));
+    // Room for a small payload's bulk too: a transport joins it to the start rather than send two slices.
+    let mut head = Head(Vec::with_capacity(
+        80 + output.len() + payload.heavy_size_bytes().min(JOINED_UP_TO),
+    ));
     head.0.extend_from_slice(MAGIC);
     head.0.push(kind_of(payload)? as u8);
     head.name(output)?;
-    head.0.extend_from_slice(&sample.timestamp.as_nanos().to_le_bytes());
-    head.0.extend_from_slice(&sample.time_of_issue.as_nanos().to_le_bytes());
+    head.0
+        .extend_from_slice(&sample.timestamp.as_nanos().to_le_bytes());
+    head.0
+        .extend_from_slice(&sample.time_of_issue.as_nanos().to_le_bytes());
     head.0.extend_from_slice(&sample.sequence.to_le_bytes());
     let body: Cow<'s, [u8]> = match payload {
         Payload::F64(value) => {
@@ -355,12 +365,11 @@ pub(crate) fn decode(bytes: &[u8]) -> Result<Received, String> {
         Kind::Imu => {
             let [wx, wy, wz] = fields.f64s("angular velocity")?;
             let [ax, ay, az] = fields.f64s("linear acceleration")?;
-            let orientation = match fields.u8("orientation flag")? {
-                0 => None,
-                _ => {
-                    let [x, y, z, w] = fields.f64s("orientation")?;
-                    Some(DQuat::from_xyzw(x, y, z, w))
-                }
+            let orientation = if fields.u8("orientation flag")? == 0 {
+                None
+            } else {
+                let [x, y, z, w] = fields.f64s("orientation")?;
+                Some(DQuat::from_xyzw(x, y, z, w))
             };
             Payload::Imu(Imu {
                 angular_velocity: DVec3::new(wx, wy, wz),
@@ -369,8 +378,13 @@ pub(crate) fn decode(bytes: &[u8]) -> Result<Received, String> {
             })
         }
         Kind::GnssFix => {
-            let [latitude_deg, longitude_deg, altitude_m, horizontal_accuracy_m, vertical_accuracy_m] =
-                fields.f64s("fix")?;
+            let [
+                latitude_deg,
+                longitude_deg,
+                altitude_m,
+                horizontal_accuracy_m,
+                vertical_accuracy_m,
+            ] = fields.f64s("fix")?;
             let status = fields.u8("fix status")?;
             let status = *FIX_STATUSES
                 .get(usize::from(status))

@@ -250,8 +250,8 @@ fn image_of_pieces<'b>(
         at += piece.len();
     }
     Image::with_stride(width, height, format, stride, pixels.freeze())
-    .map(Payload::Image)
-    .map_err(|e| e.to_string())
+        .map(Payload::Image)
+        .map_err(|e| e.to_string())
 }
 
 fn number(value: &Json) -> Result<f64, String> {
@@ -526,9 +526,11 @@ mod tests {
         ]
     }
 
+    /// One layout's whole frame of a sample.
+    type Encoder = fn(&str, &Sample) -> Vec<u8>;
+
     /// Both layouts' whole frames.
-    const ENCODERS: [(&str, fn(&str, &Sample) -> Vec<u8>); 2] =
-        [("binary", encode_whole), ("protocol", encode_json_whole)];
+    const ENCODERS: [(&str, Encoder); 2] = [("binary", encode_whole), ("protocol", encode_json_whole)];
 
     #[test]
     fn a_frame_in_pieces_decodes_as_the_whole_frame_does() {

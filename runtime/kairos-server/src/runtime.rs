@@ -34,6 +34,8 @@ struct Deployment {
     next_ticket: u64,
     /// How many diagrams were deployed: with the server's `boot`, the deployed one's identity.
     installed: u64,
+    /// How late the deployed diagram's last start at an agreed instant came, ns.
+    start_late_ns: Option<i64>,
 }
 
 /// A diagram validated and built, not yet deployed.
@@ -203,6 +205,16 @@ impl Runtime {
             .diagram
             .as_ref()
             .map(|_| self.identity(deployment.installed))
+    }
+
+    /// Records how late the deployed diagram started after the instant agreed with the other hosts.
+    pub fn record_start_lateness(&self, late_ns: i64) {
+        self.lock().start_late_ns = Some(late_ns);
+    }
+
+    /// How late the deployed diagram's last start at an agreed instant came, ns.
+    pub fn start_lateness(&self) -> Option<i64> {
+        self.lock().start_late_ns
     }
 
     /// The identity of the `installed`-th deployment since the server started.
@@ -585,6 +597,7 @@ impl Runtime {
         deployment.engine = Some(part.engine);
         deployment.previous = None;
         deployment.installed += 1;
+        deployment.start_late_ns = None;
         let identity = self.identity(deployment.installed);
         self.generation.fetch_add(1, Ordering::Release);
         tracing::info!("deployed a diagram of {components} components");

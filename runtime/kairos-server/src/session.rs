@@ -31,8 +31,6 @@ use super::samples::{LatestSamples, PixelsIn};
 
 /// The shortest telemetry period a client may ask for.
 const MIN_TELEMETRY_MS: u64 = 20;
-/// A start this long after its agreed instant is reported as missed.
-const MISSED_START_NS: i64 = 1_000_000;
 /// The farthest ahead a start instant may be: further means clocks that disagree, or a wrong instant.
 const FARTHEST_START: Duration = Duration::from_mins(1);
 /// The most sample frames per second per output a client may ask for.
@@ -620,7 +618,8 @@ impl Session {
             .await?;
         let late_ns = at_ns.map(|at| self.runtime().now().nanos_since(Timestamp(at)));
         if let Some(late) = late_ns {
-            if late > MISSED_START_NS {
+            self.runtime().record_start_lateness(late);
+            if late > i64::try_from(kairos_coordinator::start::LATE_START.as_nanos()).unwrap_or(i64::MAX) {
                 tracing::warn!("started {:.1} ms after the agreed instant", late as f64 * 1e-6);
             } else {
                 tracing::info!("started at the agreed instant (+{:.0} µs)", late as f64 * 1e-3);
@@ -649,6 +648,7 @@ impl Session {
                     .or_else(|| telemetry.as_ref().and_then(|t| t.clock.clone())),
                 telemetry: telemetry.map(Box::new),
                 deployment: r.deployment_identity(),
+                start_late_ns: r.start_lateness(),
             })
         })
         .await

@@ -221,21 +221,14 @@ impl Spread {
                     lost,
                     matched: sending_end["matched"].as_bool().unwrap_or(false),
                     last_sample_age_ms: receiving_end["last_sample_age_ms"].as_u64(),
+                    transit_p50_ns: receiving_end["transit_p50_ns"].as_i64(),
+                    transit_max_ns: receiving_end["transit_max_ns"].as_i64(),
                 }
             })
             .collect();
-        // The consumer reads a receiver's output: that buffer is the connection's, named as in the diagram.
-        // A sender's input buffer is the producer's side of the same connection, counted in `cross_links`.
-        let renamed: Vec<(String, String)> = plan
-            .links
-            .iter()
-            .map(|link| {
-                (
-                    format!("{}.{} -> ", link.receiver.1, kairos_pack_link::SAMPLES_OUTPUT),
-                    format!("{} -> ", link.connection.from),
-                )
-            })
-            .collect();
+        // The consumer reads a receiver's output, named by every host as the output it comes from (as in
+        // the diagram). A sender's input buffer is the producer's side of the same connection, counted in
+        // `cross_links`.
         let sender_inputs: Vec<String> = plan
             .links
             .iter()
@@ -251,14 +244,6 @@ impl Spread {
         telemetry
             .links
             .retain(|l| !sender_inputs.iter().any(|input| l.link.ends_with(input.as_str())));
-        for link in &mut telemetry.links {
-            if let Some((name, original)) = renamed
-                .iter()
-                .find(|(name, _)| link.link.starts_with(name.as_str()))
-            {
-                link.link = format!("{original}{}", &link.link[name.len()..]);
-            }
-        }
         telemetry.cross_links = cross_links;
     }
 

@@ -9,6 +9,21 @@ use kairos_protocol::{FoxgloveState, LinkList, RequestBody};
 
 use kairos_coordinator::{Host, Reach};
 
+/// How the last start at the agreed instant went: beyond [`kairos_coordinator::start::LATE_START`], the
+/// host's part started apart from the others.
+fn start_words(late_ns: i64) -> String {
+    let late_start = i64::try_from(kairos_coordinator::start::LATE_START.as_nanos()).unwrap_or(i64::MAX);
+    if late_ns > late_start {
+        format!(
+            "STARTED LATE: {:.1} ms after the agreed instant (more than {} ms)",
+            late_ns as f64 * 1e-6,
+            kairos_coordinator::start::LATE_START.as_millis()
+        )
+    } else {
+        format!("started together (+{:.0} µs)", late_ns as f64 * 1e-3)
+    }
+}
+
 /// One host's line: `car (ws://10.0.0.2:7400): running, 4 components, clock locked ±4.2 µs, links 2 of 2
 /// matched, Foxglove on ws://127.0.0.1:8765 (every output, 1 client(s))`.
 fn line(name: &str, spec: &HostSpec, reach: &Reach) -> String {
@@ -49,6 +64,9 @@ fn line(name: &str, spec: &HostSpec, reach: &Reach) -> String {
                     }
                 }
                 None => text.push_str(", own clock"),
+            }
+            if let Some(late_ns) = status["start_late_ns"].as_i64() {
+                let _ = write!(text, ", {}", start_words(late_ns));
             }
         }
         Err(error) => {
