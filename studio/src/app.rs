@@ -26,8 +26,8 @@ struct Dialogs {
     chooser: Option<FileChooser>,
     /// The question about unsaved changes, and what to do after it.
     unsaved: Option<AfterDiscard>,
-    /// The connect dialog's address and token file.
-    connect: Option<RemoteAddress>,
+    /// The connect dialog.
+    connect: Option<crate::dialogs::ConnectDialog>,
     /// The "New component…" dialog.
     new_component: Option<crate::wizard::NewComponentDialog>,
 }
@@ -358,12 +358,21 @@ impl StudioApp {
                 self.dialogs.new_component = Some(crate::wizard::NewComponentDialog::default());
             }
             Command::ConnectDialog => {
-                let remote = self.session.settings.remembered_remote().unwrap_or_else(|error| {
-                    self.session
-                        .note(LogLevel::Warn, format!("the last remote runtime: {error}"));
-                    RemoteAddress::default()
+                let known = self
+                    .session
+                    .settings
+                    .remembered_remotes()
+                    .unwrap_or_else(|error| {
+                        self.session.note(
+                            LogLevel::Warn,
+                            format!("the remote runtimes connected to before: {error}"),
+                        );
+                        Vec::new()
+                    });
+                self.dialogs.connect = Some(crate::dialogs::ConnectDialog {
+                    remote: known.first().cloned().unwrap_or_default(),
+                    known,
                 });
-                self.dialogs.connect = Some(remote);
             }
             Command::Connect(remote) => self.connect_remote(ctx, remote),
             Command::UseLocalRuntime => self.connection.use_local(ctx, &mut self.session),
@@ -437,7 +446,10 @@ impl StudioApp {
                 Ok(token) => Some(token),
                 Err(error) => {
                     self.session.note(LogLevel::Error, error);
-                    self.dialogs.connect = Some(remote);
+                    self.dialogs.connect = Some(crate::dialogs::ConnectDialog {
+                        known: self.session.settings.remembered_remotes().unwrap_or_default(),
+                        remote,
+                    });
                     return;
                 }
             }
@@ -449,8 +461,9 @@ impl StudioApp {
             );
         }
         let label = format!("runtime {}", remote.url);
+        let certificate = (!remote.certificate.is_empty()).then(|| PathBuf::from(&remote.certificate));
         self.connection
-            .connect(ctx, &mut self.session, &remote.url, token, label);
+            .connect(ctx, &mut self.session, &remote.url, token, certificate, label);
     }
 
     /// Runs `after` now, or asks first when there are unsaved changes.

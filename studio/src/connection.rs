@@ -109,9 +109,14 @@ impl Connection {
         session: &mut Session,
         url: &str,
         token: Option<Token>,
+        certificate: Option<PathBuf>,
         label: String,
     ) {
-        let options = self.reach.options(token);
+        let mut options = self.reach.options(token);
+        // A certificate named for this address goes before the one given on the command line.
+        if certificate.is_some() {
+            options.certificate = certificate;
+        }
         self.client = Some(RuntimeClient::connect_with(url, options, repaint_once(ctx)));
         session.connecting(label, url);
     }
@@ -124,6 +129,7 @@ impl Connection {
                 session,
                 &address.url,
                 Some(address.token),
+                None,
                 format!("local runtime {}", address.url),
             );
         }

@@ -1,5 +1,6 @@
 //! What the studio remembers between launches, in `$XDG_CONFIG_HOME/kairos` (or `~/.config/kairos`): the
-//! recent files and the last remote runtime's address and token file, never a token. Reading and writing
+//! recent files and, for each remote runtime connected to lately, its address, token file and the
+//! certificate trusted for it, never a token or a key. Reading and writing
 //! return their errors, which the studio shows in its log.
 
 use std::path::{Path, PathBuf};
@@ -7,15 +8,25 @@ use std::path::{Path, PathBuf};
 /// How many recent files are remembered.
 const RECENT_FILES: usize = 10;
 const RECENT_FILE_NAME: &str = "studio-recent.txt";
+/// The last remote runtime alone, as studios before per-address memory wrote it (address, token file).
 const REMOTE_FILE_NAME: &str = "studio-remote.txt";
+/// The remote runtimes connected to, the latest first: one per line, address, token file and certificate
+/// separated by tabs.
+const REMOTES_FILE_NAME: &str = "studio-remotes.txt";
+/// How many remote runtimes are remembered.
+const REMOTES: usize = 10;
 
-/// A remote runtime as the connect dialog asks for it: its address and the file holding its token.
+/// A remote runtime as the connect dialog asks for it: its address, the file holding its token, and the
+/// certificate to trust for a `wss://` address.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct RemoteAddress {
-    /// `ws://HOST:PORT`.
+    /// `ws://HOST:PORT` or `wss://HOST:PORT`.
     pub url: String,
     /// The file holding its token; empty when it needs none.
     pub token_file: String,
+    /// The PEM file of the certificate to trust (the runtime's own, or its authority's); empty: the one
+    /// given with `--certificate`, if any.
+    pub certificate: String,
 }
 
 impl Default for RemoteAddress {
@@ -23,7 +34,24 @@ impl Default for RemoteAddress {
         RemoteAddress {
             url: "ws://HOST:7400".to_owned(),
             token_file: String::new(),
+            certificate: String::new(),
         }
+    }
+}
+
+impl RemoteAddress {
+    fn line(&self) -> String {
+        format!("{}\t{}\t{}", self.url, self.token_file, self.certificate)
+    }
+
+    fn of_line(line: &str) -> Option<RemoteAddress> {
+        let mut fields = line.split('\t');
+        let url = fields.next().filter(|url| !url.is_empty())?.to_owned();
+        Some(RemoteAddress {
+            url,
+            token_file: fields.next().unwrap_or_default().to_owned(),
+            certificate: fields.next().unwrap_or_default().to_owned(),
+        })
     }
 }
 
@@ -100,28 +128,45 @@ impl Settings {
         self.write(RECENT_FILE_NAME, &lines.join("\n"))
     }
 
-    /// The last remote runtime connected to; the connect dialog's default address when none was.
-    pub fn remembered_remote(&self) -> Result<RemoteAddress, String> {
+    /// The remote runtimes connected to, the latest first (none yet: empty).
+    pub fn remembered_remotes(&self) -> Result<Vec<RemoteAddress>, String> {
         let Some(folder) = &self.folder else {
-            return Ok(RemoteAddress::default());
+            return Ok(Vec::new());
         };
+        if let Some(text) = read_if_any(&folder.join(REMOTES_FILE_NAME))? {
+            return Ok(text.lines().filter_map(RemoteAddress::of_line).collect());
+        }
+        // Written by an earlier studio: the last runtime alone, its address and token file on two lines.
         let Some(text) = read_if_any(&folder.join(REMOTE_FILE_NAME))? else {
-            return Ok(RemoteAddress::default());
+            return Ok(Vec::new());
         };
         let mut lines = text.lines();
-        let default = RemoteAddress::default();
-        Ok(RemoteAddress {
-            url: lines.next().map_or(default.url, str::to_owned),
-            token_file: lines.next().unwrap_or_default().to_owned(),
-        })
+        Ok(lines
+            .next()
+            .filter(|url| !url.is_empty())
+            .map(|url| RemoteAddress {
+                url: url.to_owned(),
+                token_file: lines.next().unwrap_or_default().to_owned(),
+                certificate: String::new(),
+            })
+            .into_iter()
+            .collect())
     }
 
-    /// Remembers `remote` (its address and token file; the token itself is never written).
+    /// The last remote runtime connected to; the connect dialog's default address when none was.
+    pub fn remembered_remote(&self) -> Result<RemoteAddress, String> {
+        Ok(self.remembered_remotes()?.into_iter().next().unwrap_or_default())
+    }
+
+    /// Remembers `remote` first among the remote runtimes (its address, token file and certificate; the
+    /// token and any key are never written).
     pub fn remember_remote(&self, remote: &RemoteAddress) -> Result<(), String> {
-        self.write(
-            REMOTE_FILE_NAME,
-            &format!("{}\n{}\n", remote.url, remote.token_file),
-        )
+        let mut remotes = self.remembered_remotes().unwrap_or_default();
+        remotes.retain(|known| known.url != remote.url);
+        remotes.insert(0, remote.clone());
+        remotes.truncate(REMOTES);
+        let lines: Vec<String> = remotes.iter().map(RemoteAddress::line).collect();
+        self.write(REMOTES_FILE_NAME, &(lines.join("\n") + "\n"))
     }
 }
 
@@ -147,12 +192,45 @@ mod tests {
         let remote = RemoteAddress {
             url: "ws://robot:7400".to_owned(),
             token_file: "/home/me/robot.token".to_owned(),
+            certificate: String::new(),
         };
         settings.remember_remote(&remote).unwrap();
         let (again, error) = Settings::load(Some(dir.path().to_owned()));
         assert_eq!(error, None);
         assert_eq!(again.recent, [std::path::PathBuf::from("a.ron"), "b.ron".into()]);
         assert_eq!(again.remembered_remote().unwrap(), remote);
+    }
+
+    #[test]
+    fn each_remote_keeps_its_own_token_file_and_certificate_the_latest_first() {
+        let dir = tempfile::tempdir().unwrap();
+        // What an earlier studio remembered: the last address and its token file, on two lines.
+        std::fs::write(
+            dir.path().join("studio-remote.txt"),
+            "ws://old:7400\n/home/me/old.token\n",
+        )
+        .unwrap();
+        let (settings, _) = Settings::load(Some(dir.path().to_owned()));
+        let old = settings.remembered_remote().unwrap();
+        assert_eq!(
+            (old.url.as_str(), old.token_file.as_str()),
+            ("ws://old:7400", "/home/me/old.token")
+        );
+        let car = RemoteAddress {
+            url: "wss://10.0.0.2:7400".to_owned(),
+            token_file: "/home/me/car.token".to_owned(),
+            certificate: "/home/me/car.pem".to_owned(),
+        };
+        let roadside = RemoteAddress {
+            url: "wss://10.0.0.3:7400".to_owned(),
+            token_file: "/home/me/roadside.token".to_owned(),
+            certificate: "/home/me/ca.pem".to_owned(),
+        };
+        for remote in [&car, &roadside, &car] {
+            settings.remember_remote(remote).unwrap();
+        }
+        let (again, _) = Settings::load(Some(dir.path().to_owned()));
+        assert_eq!(again.remembered_remotes().unwrap(), [car, roadside, old]);
     }
 
     #[test]

@@ -331,10 +331,63 @@ fn an_unreadable_token_file_is_said_in_the_log_and_the_dialog_stays() {
         harness.query_by_label("Connect").is_some(),
         "the dialog stays open to correct the file"
     );
-    assert!(
-        !config.path().join("studio-remote.txt").exists(),
-        "nothing is remembered"
+    for remembered in ["studio-remote.txt", "studio-remotes.txt"] {
+        assert!(!config.path().join(remembered).exists(), "nothing is remembered");
+    }
+}
+
+#[test]
+fn a_runtime_connected_to_before_comes_back_with_its_own_token_file_and_certificate() {
+    let config = tempfile::tempdir().unwrap();
+    let file = |name: &str| config.path().join(name).to_str().unwrap().to_owned();
+    std::fs::write(file("car.token"), "car-token\n").unwrap();
+    std::fs::write(file("roadside.token"), "roadside-token\n").unwrap();
+    std::fs::write(
+        file("studio-remotes.txt"),
+        format!(
+            "wss://127.0.0.1:9\t{}\t{}\nwss://127.0.0.1:10\t{}\t{}\n",
+            file("car.token"),
+            file("car.pem"),
+            file("roadside.token"),
+            file("ca.pem")
+        ),
+    )
+    .unwrap();
+    let app = StudioApp::new(
+        Document::default(),
+        library(),
+        None,
+        "no runtime (test)".to_owned(),
+        None,
+    )
+    .with_config_dir(config.path().to_owned());
+    let mut harness = Harness::new_ui_state(|ui, app: &mut StudioApp| app.show(ui), app);
+    harness.set_size(Vec2::new(1280.0, 2400.0));
+    harness.run_steps(2);
+    harness.get_by_label("File").click();
+    harness.run_steps(2);
+    harness.get_by_label("Connect to a runtime…").click();
+    harness.run_steps(2);
+    // The runtimes connected to before are offered; the other one brings back its own files.
+    harness.get_by_label("wss://127.0.0.1:10").click();
+    harness.run_steps(2);
+    harness.get_by_label("Connect").click();
+    harness.run_steps(2);
+    let remembered = std::fs::read_to_string(file("studio-remotes.txt")).unwrap();
+    assert_eq!(
+        remembered.lines().next().unwrap(),
+        format!(
+            "wss://127.0.0.1:10\t{}\t{}",
+            file("roadside.token"),
+            file("ca.pem")
+        ),
+        "the one connected to goes first, with its own certificate: {remembered}"
     );
+    assert!(
+        remembered.contains(&file("car.pem")),
+        "the other keeps its own: {remembered}"
+    );
+    assert!(!remembered.contains("-token"), "never a token: {remembered}");
 }
 
 /// Types `text` into the number field labelled `label` and presses Enter.
