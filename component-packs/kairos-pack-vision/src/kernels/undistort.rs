@@ -156,8 +156,13 @@ impl Calibration {
     }
 }
 
+/// Steps of a pixel the source position is rounded to, as OpenCV's `remap` does (`INTER_BITS` = 5).
+const STEPS: u16 = 32;
+/// The bits of the bilinear weights, which always sum to `1 << WEIGHT_BITS`.
+const WEIGHT_BITS: u32 = 10;
+
 /// One destination pixel's source: the top-left of its 2×2 neighbourhood (`None`: outside, black) and
-/// the bilinear weights in 8-bit fixed point.
+/// the bilinear weights in 10-bit fixed point, summing to exactly 1024.
 #[derive(Debug, Clone, Copy)]
 struct Tap {
     source: Option<(u32, u32)>,
@@ -182,18 +187,14 @@ impl Undistortion {
                 let (x, y) = calibration.distorted(u as f64, v as f64);
                 let (x0, y0) = (x.floor(), y.floor());
                 let inside = x0 >= 0.0 && y0 >= 0.0 && x0 + 1.0 < width as f64 && y0 + 1.0 < height as f64;
-                let (fx, fy) = (x - x0, y - y0);
-                let weight = |w: f64| (w * 256.0).round() as u16;
-                let (w00, w01, w10) = (
-                    weight((1.0 - fx) * (1.0 - fy)),
-                    weight(fx * (1.0 - fy)),
-                    weight((1.0 - fx) * fy),
-                );
-                // The last weight takes the rounding, so the four always sum to 256.
-                let w11 = 256_u16.saturating_sub(w00 + w01 + w10);
+                // The fractions in 1/32 of a pixel: products of whole steps sum to exactly 32², so a
+                // uniform image stays uniform (rounding each weight on its own can sum to more, and wrap).
+                let step = |f: f64| ((f * f64::from(STEPS)).round() as u16).min(STEPS);
+                let (ax, ay) = (step(x - x0), step(y - y0));
+                let (bx, by) = (STEPS - ax, STEPS - ay);
                 taps.push(Tap {
                     source: inside.then_some((x0 as u32, y0 as u32)),
-                    weights: [w00, w01, w10, w11],
+                    weights: [bx * by, ax * by, bx * ay, ax * ay],
                 });
             }
         }
@@ -221,7 +222,7 @@ impl Undistortion {
                     + u32::from(top[at + channels]) * u32::from(tap.weights[1])
                     + u32::from(bottom[at]) * u32::from(tap.weights[2])
                     + u32::from(bottom[at + channels]) * u32::from(tap.weights[3]);
-                *value = ((sum + 128) >> 8) as u8;
+                *value = ((sum + (1 << (WEIGHT_BITS - 1))) >> WEIGHT_BITS) as u8;
             }
         }
     }
@@ -264,6 +265,28 @@ mod tests {
                 .collect::<Vec<u8>>()
         };
         assert_eq!(inner(&out), inner(&ramp));
+    }
+
+    #[test]
+    fn a_uniform_image_stays_uniform_wherever_its_pixels_come_from() {
+        let calibration = Calibration::parse(CAMERA, "cam.toml").unwrap();
+        let table = Undistortion::new(&calibration);
+        let undistorted = |level: u8| {
+            let src = vec![level; 64 * 48];
+            let mut dst = vec![0_u8; 64 * 48];
+            table.apply(&View::packed(64, 48, 1, &src).unwrap(), &mut dst);
+            dst
+        };
+        // Black only where the source is outside the image, the same pixels whatever the level; elsewhere
+        // the level, exactly (a white pixel never wraps to black).
+        let outside: Vec<bool> = undistorted(1).iter().map(|v| *v == 0).collect();
+        assert!(outside.iter().filter(|o| !**o).count() > 64 * 48 / 2);
+        for level in [255_u8, 254, 128, 1] {
+            for (at, (value, outside)) in undistorted(level).iter().zip(&outside).enumerate() {
+                let expected = if *outside { 0 } else { level };
+                assert_eq!(*value, expected, "level {level} at pixel {at}");
+            }
+        }
     }
 
     #[test]
