@@ -626,3 +626,103 @@ fn a_cut_of_the_links_alone_is_said_by_kairos_deploy_and_so_is_their_return() {
     );
     drop((a, b));
 }
+
+#[test]
+fn a_link_that_never_skips_rides_out_a_zenoh_partition_of_three_seconds_with_nothing_lost() {
+    let _machine = whole_machine();
+    let Some(namespaces) = Namespaces::make() else {
+        return;
+    };
+    let [dir_a, dir_b, here] = folders();
+    let (address_a, address_b) = (namespaces.address(1), namespaces.address(2));
+    let a = serve_in(
+        Some(&namespaces.names[0]),
+        dir_a.path(),
+        &format!("{address_a}:7400"),
+        &[],
+        &[],
+    );
+    let b = serve_in(
+        Some(&namespaces.names[1]),
+        dir_b.path(),
+        &format!("{address_b}:7400"),
+        &[],
+        &[],
+    );
+    std::fs::write(here.path().join("a.token"), &a.token).unwrap();
+    std::fs::write(here.path().join("b.token"), &b.token).unwrap();
+    let path = here.path().join("round_trip.ron");
+    // A counter on a, through b and back to a file on a, every consumer never skipping: each value must
+    // come back once, in order, whatever the network does for less than the links' ride-out (5 s).
+    std::fs::write(
+        &path,
+        format!(
+            r#"Diagram(format: 1,
+                hosts: {{
+                    "a": Host(endpoint: "{}", token_file: "a.token", zenoh: "tcp/{address_a}:7447"),
+                    "b": Host(endpoint: "{}", token_file: "b.token", zenoh: "tcp/{address_b}:7447"),
+                }},
+                components: [
+                    Component(id: "count", type: "core.counter", host: "a", properties: {{"rate": 100.0}}),
+                    Component(id: "gain", type: "core.gain", host: "b", properties: {{"gain": 1.0}}),
+                    Component(id: "csv", type: "core.csv_writer", host: "a", properties: {{"path": "back.csv"}}),
+                ],
+                connections: [
+                    Connection(from: "count.out", to: "gain.in", policy: NeverSkipping),
+                    Connection(from: "gain.out", to: "csv.in1", policy: NeverSkipping),
+                ])"#,
+            a.url, b.url
+        ),
+    )
+    .unwrap();
+    let log = here.path().join("deploy.log");
+    let mut deploying = deploy_in_background(
+        Some(&namespaces.names[0]),
+        here.path(),
+        &[
+            path.to_str().unwrap(),
+            "--for",
+            "90s",
+            "--allow-clear-text-tokens",
+        ],
+        &log,
+    );
+    wait_for_log(&log, "host 'b' started its part", Duration::from_secs(30));
+    std::thread::sleep(Duration::from_secs(1));
+    if !namespaces.block_zenoh(true) {
+        return;
+    }
+    // Longer than Zenoh's lease (1 s): the sessions between the hosts close, and open again after.
+    wait_for_log(
+        &log,
+        "link count.out on host 'a' -> gain.in on host 'b' is cut",
+        Duration::from_secs(20),
+    );
+    std::thread::sleep(Duration::from_secs(2));
+    assert!(namespaces.block_zenoh(false));
+    wait_for_log(
+        &log,
+        "link count.out on host 'a' -> gain.in on host 'b' resumed",
+        Duration::from_mins(1),
+    );
+    std::thread::sleep(Duration::from_secs(2));
+    let (_, content) = interrupt(&mut deploying, &log);
+    let values: Vec<f64> = csv_values(&dir_a.path().join("back.csv"))
+        .into_iter()
+        .map(|(_, value)| value)
+        .collect();
+    assert!(values.len() > 400, "{} values came back\n{content}", values.len());
+    let first_wrong = values
+        .iter()
+        .enumerate()
+        .find(|(i, value)| (**value - *i as f64).abs() > 0.5);
+    assert!(
+        first_wrong.is_none(),
+        "values lost or repeated through the cut: at row {:?} of {}\n{content}\nA:\n{}\nB:\n{}",
+        first_wrong,
+        values.len(),
+        std::fs::read_to_string(dir_a.path().join("serve.log")).unwrap_or_default(),
+        std::fs::read_to_string(dir_b.path().join("serve.log")).unwrap_or_default(),
+    );
+    drop((a, b));
+}

@@ -3,10 +3,17 @@
 //! `kairos deploy` turns each connection between two hosts into a pair of components: a `link.sender` on
 //! the producer's host, reading the output like any consumer, and a `link.receiver` on the consumer's,
 //! writing into a local output the consumer reads with its own policy, so the five reader policies stay
-//! local and exact. Every sample travels whole, with both its times, in the control protocol's sample
-//! frame, numbered by the sender so the receiver counts what was lost in transit. A consumer that never
+//! local and exact. Every sample travels whole, with both its times, in the binary sample frame,
+//! numbered by the sender so the receiver counts what was lost in transit. A consumer that never
 //! skips makes its link reliable and blocking (the one case where a consumer may slow its producer); any
 //! other drops rather than blocks.
+//!
+//! A reliable link also rides out a cut: its sender keeps what it put for the last `ride_out_s` seconds
+//! (at most `ride_out_mb` of frames) and, when the receiver matches again, asks it for the newest
+//! sequence number it received and puts again everything after it, in order. A cut shorter than that
+//! loses nothing; beyond it, what was no longer kept shows as a gap the receiver counts.
+
+use std::collections::VecDeque;
 
 pub mod network;
 
@@ -65,6 +72,16 @@ pub fn sender_descriptor() -> ComponentInfo {
     ))
     .label("Link to another host")
     .input_with_policy("in", TypeFilter::Any, ReaderPolicy::Fifo, "What to send")
+    .property(
+        Property::f64("ride_out_s", 5.0)
+            .range(0.0, 600.0)
+            .doc("A reliable link keeps what it sent this long and sends it again after a cut: a cut shorter than this loses nothing"),
+    )
+    .property(
+        Property::f64("ride_out_mb", 64.0)
+            .range(0.0, 65_536.0)
+            .doc("The most memory what a reliable link keeps for a cut may take (the oldest goes first)"),
+    )
     .build()
 }
 
@@ -163,6 +180,49 @@ pub struct LinkSender {
     matched: bool,
     warned: Throttle,
     published: Throttle,
+    /// What a reliable link keeps for a cut.
+    kept: Kept,
+    /// The receiver's cuts seen so far, and whether one awaits the receiver's return.
+    seen_cuts: u64,
+    cut: bool,
+    /// After a cut, the receiver asked what it received: samples are held (kept, not put) until it says,
+    /// from this sequence number on.
+    asking: Option<std::sync::mpsc::Receiver<Result<Option<u64>, String>>>,
+    held_from: u64,
+    /// Samples put again after cuts.
+    put_again: u64,
+}
+
+/// The frames a reliable link put lately, the oldest first, within a time and a memory bound.
+#[derive(Debug, Default)]
+struct Kept {
+    frames: VecDeque<(u64, ZBytes, Instant)>,
+    bytes: usize,
+    for_how_long: Duration,
+    most_bytes: usize,
+}
+
+/// What keeping one frame costs beside its bytes (its place in the queue, its handle).
+const KEPT_OVERHEAD: usize = 64;
+
+impl Kept {
+    fn keep(&mut self, sequence: u64, frame: &ZBytes) {
+        if self.for_how_long.is_zero() || self.most_bytes == 0 {
+            return;
+        }
+        let now = Instant::now();
+        self.bytes += frame.len() + KEPT_OVERHEAD;
+        self.frames.push_back((sequence, frame.clone(), now));
+        while let Some((_, oldest, at)) = self.frames.front() {
+            // The newest stays whatever its size: it may not have been put yet.
+            let within = self.bytes <= self.most_bytes && now.duration_since(*at) <= self.for_how_long;
+            if within || self.frames.len() == 1 {
+                break;
+            }
+            self.bytes -= oldest.len() + KEPT_OVERHEAD;
+            self.frames.pop_front();
+        }
+    }
 }
 
 impl Component for LinkSender {
@@ -170,47 +230,37 @@ impl Component for LinkSender {
         let key = ctx.text_property("key")?;
         let end = declared(network::sender(&key), &key)?;
         self.matched = network::matched(&end);
+        self.seen_cuts = end.cuts.load(std::sync::atomic::Ordering::Acquire);
         self.end = Some(end);
         self.output = kairos_pack_net::encoding::source_name(ctx);
+        if ctx.bool_property("reliable")? {
+            self.kept = Kept {
+                for_how_long: Duration::from_secs_f64(ctx.f64_property("ride_out_s")?.max(0.0)),
+                most_bytes: (ctx.f64_property("ride_out_mb")?.max(0.0) * 1024.0 * 1024.0) as usize,
+                ..Kept::default()
+            };
+        }
         Ok(())
     }
 
     fn core(&mut self, ctx: &mut Context) -> ComponentResult {
         let mut sample = ctx.read("in")?;
-        let Some(end) = &self.end else {
+        let Some(end) = self.end.clone() else {
             return Err(ComponentError::Stopped);
         };
         // Numbered by the link, not by the output: a gap the receiver sees was lost in transit, never a
         // sample this reader's policy skipped (those are counted on the input).
         sample.sequence = self.sent;
-        match end.publisher.put(frame_of(&self.output, &sample)).wait() {
-            Ok(()) => {
-                self.sent += 1;
-                if !self.matched {
-                    self.unmatched += 1;
-                }
-            }
-            Err(e) => {
-                self.failed += 1;
-                if self.warned.ready(WARNING_PERIOD) {
-                    tracing::warn!("link to {}: cannot send: {e} ({} in all)", end.peer, self.failed);
-                }
-            }
+        let frame = frame_of(&self.output, &sample);
+        self.kept.keep(sample.sequence, &frame);
+        if self.ride_out(&end) {
+            // Held until the receiver says what it has, then put with what it missed.
+            self.sent += 1;
+        } else {
+            self.put(&end, frame);
         }
         if self.published.ready(STATUS_PERIOD) {
-            let matched = network::matched(end);
-            if matched != self.matched {
-                if matched {
-                    tracing::info!("link to {}: matched again", end.peer);
-                } else {
-                    tracing::warn!(
-                        "link to {}: no receiver any more; samples are dropped until it returns",
-                        end.peer
-                    );
-                }
-                self.matched = matched;
-            }
-            self.publish(ctx, &end.peer);
+            self.look(ctx, &end);
         }
         Ok(())
     }
@@ -231,12 +281,124 @@ impl Component for LinkSender {
 }
 
 impl LinkSender {
+    /// Puts a new sample's frame.
+    fn put(&mut self, end: &network::SenderEnd, frame: ZBytes) {
+        match end.publisher.put(frame).wait() {
+            Ok(()) => {
+                self.sent += 1;
+                if !self.matched {
+                    self.unmatched += 1;
+                }
+            }
+            Err(e) => {
+                self.failed += 1;
+                if self.warned.ready(WARNING_PERIOD) {
+                    tracing::warn!("link to {}: cannot send: {e} ({} in all)", end.peer, self.failed);
+                }
+            }
+        }
+    }
+
+    /// Every status period: whether the receiver matches (said when it changes), and the status.
+    fn look(&mut self, ctx: &Context, end: &network::SenderEnd) {
+        let matched = network::matched(end);
+        if matched != self.matched {
+            if matched {
+                tracing::info!("link to {}: matched again", end.peer);
+            } else if self.kept.for_how_long.is_zero() {
+                tracing::warn!(
+                    "link to {}: no receiver any more; samples are dropped until it returns",
+                    end.peer
+                );
+            } else {
+                tracing::warn!(
+                    "link to {}: no receiver any more; what is sent is kept for {:.1} s and sent again \
+                     when it returns",
+                    end.peer,
+                    self.kept.for_how_long.as_secs_f64()
+                );
+            }
+            self.matched = matched;
+        }
+        self.publish(ctx, &end.peer);
+    }
+}
+
+impl LinkSender {
     /// Its counts and whether a receiver matched, as its status.
     fn publish(&self, ctx: &Context, peer: &str) {
         ctx.set_status(serde_json::json!({
             "kind": "link", "to": peer, "sent": self.sent, "sent_unmatched": self.unmatched,
-            "failed": self.failed, "matched": self.matched,
+            "failed": self.failed, "matched": self.matched, "put_again": self.put_again,
+            "kept": self.kept.frames.len(),
         }));
+    }
+
+    /// Rides out a cut, the newest sample already kept: once the receiver matches again after it stopped,
+    /// asks it for the newest sequence number it received and holds new samples until it says; then puts
+    /// again, in order, every kept frame after that one. Whether this sample was held or put here.
+    fn ride_out(&mut self, end: &network::SenderEnd) -> bool {
+        if self.kept.for_how_long.is_zero() {
+            return false;
+        }
+        let cuts = end.cuts.load(std::sync::atomic::Ordering::Acquire);
+        if cuts != self.seen_cuts {
+            self.seen_cuts = cuts;
+            self.cut = true;
+        }
+        if let Some(asking) = &self.asking {
+            let answer = match asking.try_recv() {
+                Err(std::sync::mpsc::TryRecvError::Empty) => return true,
+                Err(std::sync::mpsc::TryRecvError::Disconnected) => Err("no answer within 2 s".to_owned()),
+                Ok(answer) => answer,
+            };
+            self.asking = None;
+            self.put_again_after(end, &answer);
+            return true;
+        }
+        if self.cut && network::matched(end) {
+            self.cut = false;
+            self.held_from = self.sent;
+            self.asking = Some(end.ask_receiver_newest(Duration::from_secs(2)));
+            return true;
+        }
+        false
+    }
+
+    /// Puts again every kept frame after the newest the receiver received (without its answer, those held
+    /// while asking), and says how the cut went.
+    fn put_again_after(&mut self, end: &network::SenderEnd, newest: &Result<Option<u64>, String>) {
+        let first = match newest {
+            Ok(newest) => newest.map_or(0, |n| n + 1),
+            Err(reason) => {
+                tracing::warn!(
+                    "link to {}: matched again, but the receiver did not say what it received ({reason}): \
+                     what it missed during the cut is counted as lost",
+                    end.peer
+                );
+                self.held_from
+            }
+        };
+        let mut again = 0_u64;
+        for (sequence, frame, _) in &self.kept.frames {
+            if *sequence >= first && end.publisher.put(frame.clone()).wait().is_ok() {
+                again += 1;
+            }
+        }
+        let missed = self.sent.saturating_sub(first);
+        // What was held while asking was never put: only the rest is put again.
+        self.put_again += again.saturating_sub(self.sent - self.held_from);
+        if newest.is_ok() {
+            tracing::info!(
+                "link to {}: matched again; {again} of the {missed} samples it had not received were sent{}",
+                end.peer,
+                if again < missed {
+                    ", the others were no longer kept (counted as lost)"
+                } else {
+                    ""
+                }
+            );
+        }
     }
 }
 
@@ -255,9 +417,14 @@ impl LinkReceiver {
         let payload = sample.payload();
         if payload.slices().nth(1).is_some() {
             let pieces: Vec<&[u8]> = payload.slices().collect();
-            return self.samples.take_pieces(&pieces, peer, ctx);
+            self.samples.take_pieces(&pieces, peer, ctx)?;
+        } else {
+            self.samples.take(&payload.to_bytes(), peer, ctx)?;
         }
-        self.samples.take(&payload.to_bytes(), peer, ctx)
+        if let (Some(newest), Some(end)) = (self.samples.newest(), &self.end) {
+            end.received(newest);
+        }
+        Ok(())
     }
 
     /// Its counts and how long ago the last sample came, as its status.

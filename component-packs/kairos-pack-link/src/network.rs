@@ -9,6 +9,7 @@
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
 use std::time::Duration;
 
@@ -33,6 +34,60 @@ pub struct SenderEnd {
     pub publisher: Publisher<'static>,
     /// The far end, in words.
     pub peer: String,
+    /// Times the receiver stopped matching, counted as Zenoh says it (a reliable link only): a sender
+    /// that sees it grow knows the far end may have missed what it put since.
+    pub cuts: Arc<AtomicU64>,
+    session: zenoh::Session,
+    key: String,
+}
+
+/// The key under which a receiving end answers the newest sequence number it received.
+fn newest_key(key: &str) -> String {
+    format!("{key}/newest")
+}
+
+/// No sequence number received yet.
+const NONE_YET: u64 = u64::MAX;
+
+impl SenderEnd {
+    /// Asks the receiving end for the newest sequence number it received, without waiting: the answer
+    /// (`None`: none yet), or why there is none, comes on the channel returned; it is dropped unanswered
+    /// after `wait`. (Waiting here could deadlock: the receiver's host may be blocked delivering what this
+    /// host put, until this host's consumers read on.)
+    pub fn ask_receiver_newest(
+        &self,
+        wait: Duration,
+    ) -> std::sync::mpsc::Receiver<Result<Option<u64>, String>> {
+        let (answer, answered) = std::sync::mpsc::sync_channel(1);
+        let asked = self
+            .session
+            .get(newest_key(&self.key))
+            .timeout(wait)
+            .callback({
+                let answer = answer.clone();
+                move |reply| {
+                    let newest = match reply.result() {
+                        Ok(sample) => sample
+                            .payload()
+                            .try_to_string()
+                            .ok()
+                            .and_then(|text| text.parse::<u64>().ok())
+                            .map(|newest| (newest != NONE_YET).then_some(newest))
+                            .ok_or_else(|| "an answer that is not a number".to_owned()),
+                        Err(error) => Err(format!(
+                            "an error: {}",
+                            error.payload().try_to_string().unwrap_or_default()
+                        )),
+                    };
+                    let _ = answer.try_send(newest);
+                }
+            })
+            .wait();
+        if let Err(error) = asked {
+            let _ = answer.try_send(Err(error.to_string()));
+        }
+        answered
+    }
 }
 
 /// What a receiving end queues: a bounded FIFO that blocks the link when full (a consumer that never
@@ -79,6 +134,18 @@ pub struct ReceiverEnd {
     pub incoming: Incoming,
     /// The far end, in words.
     pub peer: String,
+    /// The newest sequence number received ([`NONE_YET`] before any), which the sender asks for after a
+    /// cut to put again what did not arrive.
+    newest: Arc<AtomicU64>,
+    /// Answers the sender's question (a reliable link only); dropping it undeclares it.
+    _answering: Option<zenoh::query::Queryable<()>>,
+}
+
+impl ReceiverEnd {
+    /// Records the newest sequence number received.
+    pub fn received(&self, sequence: u64) {
+        self.newest.store(sequence, Ordering::Release);
+    }
 }
 
 impl std::fmt::Debug for SenderEnd {
@@ -277,7 +344,28 @@ pub fn prepare(diagram: &Diagram) -> anyhow::Result<()> {
                 .wait()
                 .map_err(|e| anyhow::anyhow!("{e}"))
                 .with_context(context)?;
-            let end = Arc::new(SenderEnd { publisher, peer });
+            let cuts = Arc::new(AtomicU64::new(0));
+            if reliable {
+                let counted = Arc::clone(&cuts);
+                publisher
+                    .matching_listener()
+                    .callback(move |status| {
+                        if !status.matching() {
+                            counted.fetch_add(1, Ordering::AcqRel);
+                        }
+                    })
+                    .background()
+                    .wait()
+                    .map_err(|e| anyhow::anyhow!("{e}"))
+                    .with_context(context)?;
+            }
+            let end = Arc::new(SenderEnd {
+                publisher,
+                peer,
+                cuts,
+                session: network.session.clone(),
+                key: key.clone(),
+            });
             network.senders.insert(key, (component.id.clone(), end));
         } else {
             let capacity = component
@@ -305,7 +393,30 @@ pub fn prepare(diagram: &Diagram) -> anyhow::Result<()> {
                         .with_context(context)?,
                 )
             };
-            let end = Arc::new(ReceiverEnd { incoming, peer });
+            let newest = Arc::new(AtomicU64::new(NONE_YET));
+            let answering = if reliable {
+                let answer = Arc::clone(&newest);
+                Some(
+                    network
+                        .session
+                        .declare_queryable(newest_key(&key))
+                        .callback(move |query| {
+                            let newest = answer.load(Ordering::Acquire).to_string();
+                            let _ = query.reply(query.key_expr().clone(), newest).wait();
+                        })
+                        .wait()
+                        .map_err(|e| anyhow::anyhow!("{e}"))
+                        .with_context(context)?,
+                )
+            } else {
+                None
+            };
+            let end = Arc::new(ReceiverEnd {
+                incoming,
+                peer,
+                newest,
+                _answering: answering,
+            });
             network.receivers.insert(key, (component.id.clone(), end));
         }
     }

@@ -126,6 +126,8 @@ pub struct SampleReceiver {
     /// most, so a list looked up without building a key per sample.
     trackers: Vec<(String, String, SequenceTracker)>,
     transit: Transit,
+    /// The sequence number of the last sample written.
+    newest: Option<u64>,
     received: u64,
     malformed: u64,
     wrong_type: u64,
@@ -219,10 +221,16 @@ impl SampleReceiver {
         };
         if tracker.take(received.sequence) {
             self.received += 1;
+            self.newest = Some(received.sequence);
             self.transit.record(ctx.now().nanos_since(time_of_issue));
             ctx.write_replayed(SAMPLES, payload, timestamp, time_of_issue)?;
         }
         Ok(())
+    }
+
+    /// The sequence number of the last sample written, as its sender numbered it.
+    pub fn newest(&self) -> Option<u64> {
+        self.newest
     }
 
     /// The link's figures for the component's status.

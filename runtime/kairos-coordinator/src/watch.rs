@@ -269,8 +269,9 @@ impl Watch {
             let words = format!("{} -> {}", link.from, link.to);
             if !matched && self.cut_links.insert(link.key.clone()) {
                 tracing::error!(
-                    "link {words} is cut: no receiver on the far end; samples sent meanwhile are counted as \
-                     lost (sent_unmatched on {sender})"
+                    "link {words} is cut: no receiver on the far end; a link whose consumer never skips \
+                     keeps what it sends and sends it again when the far end returns (for up to its \
+                     ride_out_s), any other drops it (sent_unmatched on {sender})"
                 );
             } else if matched && self.cut_links.remove(&link.key) {
                 tracing::info!("link {words} resumed");
