@@ -35,7 +35,7 @@ pub struct Diagram {
 }
 
 /// A machine running `kairos serve` that a diagram deploys its components marked with the host's name to.
-#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct HostSpec {
     /// Its control protocol endpoint (`ws://10.0.0.2:7600`, or `wss://` with TLS).
     pub endpoint: String,
@@ -50,7 +50,16 @@ pub struct HostSpec {
     /// relative to the diagram's folder.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub certificate: Option<String>,
+    /// How long a link from this host whose consumer never skips keeps what it sends, to send it again
+    /// after a cut, seconds (0 to 600); absent: [`DEFAULT_RIDE_OUT_S`].
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub ride_out_s: Option<f64>,
 }
+
+/// How long a link whose consumer never skips rides out a cut when its host does not say.
+pub const DEFAULT_RIDE_OUT_S: f64 = 5.0;
+/// The longest ride-out a host may ask for, seconds.
+pub const MAX_RIDE_OUT_S: f64 = 600.0;
 
 /// The Zenoh port a host listens on when its `zenoh` endpoint is not given (Zenoh's own default).
 pub const DEFAULT_ZENOH_PORT: u16 = 7447;

@@ -438,6 +438,28 @@ impl Reader<'_> {
         parsed
     }
 
+    /// A host's ride-out: seconds from 0 to [`crate::model::MAX_RIDE_OUT_S`].
+    fn ride_out(&mut self, node: &Node) -> Option<f64> {
+        let seconds = match &node.kind {
+            NodeKind::Float(text) => text.parse::<f64>().ok(),
+            NodeKind::Integer(value) => Some(*value as f64),
+            _ => None,
+        };
+        let Some(seconds) = seconds else {
+            self.wrong_type(node, "a number of seconds");
+            return None;
+        };
+        if !(0.0..=crate::model::MAX_RIDE_OUT_S).contains(&seconds) {
+            let message = format!(
+                "a ride-out of {seconds} s: it is from 0 (a cut loses what it cuts) to {} s",
+                crate::model::MAX_RIDE_OUT_S
+            );
+            self.report(DiagnosticCode::InvalidSetting, node.head, message);
+            return None;
+        }
+        Some(seconds)
+    }
+
     fn list<'n>(&mut self, node: &'n Node) -> Option<&'n [Node]> {
         if let NodeKind::List(items) = &node.kind {
             Some(items)
@@ -618,9 +640,11 @@ impl Reader<'_> {
         let mut hosts = BTreeMap::new();
         let mut locations = BTreeMap::new();
         for (name, name_span, value) in self.string_map(node, "host") {
-            let Some(fields) =
-                self.fields(value, "Host", &["endpoint", "token_file", "zenoh", "certificate"])
-            else {
+            let Some(fields) = self.fields(
+                value,
+                "Host",
+                &["endpoint", "token_file", "zenoh", "certificate", "ride_out_s"],
+            ) else {
                 continue;
             };
             let endpoint_node = self.required(&fields, "endpoint");
@@ -629,6 +653,9 @@ impl Reader<'_> {
                 continue;
             };
             let Ok(certificate) = self.optional(fields.optional("certificate"), Self::text) else {
+                continue;
+            };
+            let Ok(ride_out_s) = self.optional(fields.optional("ride_out_s"), Self::ride_out) else {
                 continue;
             };
             let zenoh_node = fields.optional("zenoh");
@@ -653,6 +680,7 @@ impl Reader<'_> {
                     token_file,
                     zenoh,
                     certificate,
+                    ride_out_s,
                 },
             );
         }
@@ -894,6 +922,27 @@ mod tests {
                 "7:36: error: expected a port written \"component.port\", found \"a\"",
                 "7:61: error: unknown reader policy 'Fifoo'; did you mean 'Fifo'?",
             ]
+        );
+    }
+
+    #[test]
+    fn a_host_s_ride_out_is_read_and_one_out_of_range_refused_at_its_place() {
+        let source = |seconds: &str| {
+            format!(
+                r#"Diagram(format: 1, hosts: {{
+    "car": Host(endpoint: "ws://10.0.0.2:7400", ride_out_s: {seconds}),
+}})"#
+            )
+        };
+        let parsed = parse(&source("12.5")).unwrap();
+        assert_eq!(parsed.diagram.hosts["car"].ride_out_s, Some(12.5));
+        assert_eq!(
+            messages(&source("-1.0")),
+            ["2:61: error: a ride-out of -1 s: it is from 0 (a cut loses what it cuts) to 600 s"]
+        );
+        assert_eq!(
+            messages(&source("\"5 s\"")),
+            ["2:61: error: expected a number of seconds, found a string"]
         );
     }
 

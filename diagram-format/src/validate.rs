@@ -923,6 +923,7 @@ mod tests {
             token_file: None,
             zenoh: None,
             certificate: None,
+            ride_out_s: None,
         };
         assert_eq!(spec.zenoh_endpoint(), "tcp/10.0.0.2:7447");
         let secure = HostSpec {

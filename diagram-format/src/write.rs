@@ -77,6 +77,9 @@ impl fmt::Display for CanonicalRon<'_> {
                 if let Some(certificate) = &host.certificate {
                     write!(f, ", certificate: {}", Quoted(certificate))?;
                 }
+                if let Some(ride_out_s) = host.ride_out_s {
+                    write!(f, ", ride_out_s: {ride_out_s:?}")?;
+                }
                 f.write_str("),\n")?;
             }
             f.write_str("    },\n")?;

@@ -183,13 +183,17 @@ fn diagram() -> impl Strategy<Value = Diagram> {
                 any::<Option<String>>(),
                 any::<Option<String>>(),
                 any::<Option<String>>(),
+                proptest::option::of(0.0..=600.0_f64),
             )
-                .prop_map(|(endpoint, token_file, zenoh, certificate)| HostSpec {
-                    endpoint,
-                    token_file,
-                    zenoh,
-                    certificate,
-                }),
+                .prop_map(
+                    |(endpoint, token_file, zenoh, certificate, ride_out_s)| HostSpec {
+                        endpoint,
+                        token_file,
+                        zenoh,
+                        certificate,
+                        ride_out_s,
+                    },
+                ),
             0..3,
         ),
     )

@@ -110,6 +110,7 @@ fn scrambled_diagram() -> Diagram {
                     token_file: Some("roadside \"token\".txt".to_owned()),
                     zenoh: Some("tls/10.0.0.3:7447".to_owned()),
                     certificate: Some("roadside.pem".to_owned()),
+                    ride_out_s: Some(12.5),
                 },
             ),
             (
@@ -119,6 +120,7 @@ fn scrambled_diagram() -> Diagram {
                     token_file: None,
                     zenoh: None,
                     certificate: None,
+                    ride_out_s: None,
                 },
             ),
         ]),

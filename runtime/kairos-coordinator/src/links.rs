@@ -5,7 +5,7 @@ use std::fmt::Write as _;
 use std::time::Duration;
 
 use anyhow::bail;
-use kairos_protocol::{LinkList, LinkNetwork, RequestBody};
+use kairos_protocol::{CrossLinkTelemetry, LinkList, LinkNetwork, RequestBody};
 
 use crate::host::Host;
 use crate::plan::{CrossLink, Plan, place};
@@ -71,4 +71,40 @@ pub(crate) fn wait_for_links(
         }
         std::thread::sleep(Duration::from_millis(50));
     }
+}
+
+/// Each link of `plan` as its two ends count it, from the ends' statuses (`status_of(host, component)`;
+/// `None` for this machine). `stopped`: every part has stopped, so the counts are final and whatever never
+/// arrived after the last sample received was lost too, not only the gaps between those received.
+pub fn cross_links(
+    plan: &Plan,
+    status_of: impl Fn(Option<&str>, &str) -> serde_json::Value,
+    stopped: bool,
+) -> Vec<CrossLinkTelemetry> {
+    let count = |status: &serde_json::Value, key: &str| status[key].as_u64().unwrap_or(0);
+    plan.links
+        .iter()
+        .map(|link| {
+            let sending_end = status_of(link.sender.0.as_deref(), &link.sender.1);
+            let receiving_end = status_of(link.receiver.0.as_deref(), &link.receiver.1);
+            let (received, gaps) = (count(&receiving_end, "received"), count(&receiving_end, "lost"));
+            // The two ends' statuses are read at different instants: a receiver may have seen more than
+            // the sender's last status says it sent. What it saw was sent.
+            let sent = count(&sending_end, "sent").max(received + gaps);
+            let lost = if stopped { sent - received } else { gaps };
+            CrossLinkTelemetry {
+                from: link.connection.from.to_string(),
+                to: link.connection.to.to_string(),
+                from_host: link.sender.0.clone(),
+                to_host: link.receiver.0.clone(),
+                sent,
+                received,
+                lost,
+                matched: sending_end["matched"].as_bool().unwrap_or(false),
+                last_sample_age_ms: receiving_end["last_sample_age_ms"].as_u64(),
+                transit_p50_ns: receiving_end["transit_p50_ns"].as_i64(),
+                transit_max_ns: receiving_end["transit_max_ns"].as_i64(),
+            }
+        })
+        .collect()
 }

@@ -241,13 +241,16 @@ fn place_link(
         producing,
         &format!("link_to_{}_{}", connection.to.component, connection.to.port),
     );
-    producing.components.push(link_component(
-        kairos_pack_link::SENDER,
-        &sender_id,
-        &key,
-        reliable,
-        &to_words,
-    ));
+    let mut sender = link_component(kairos_pack_link::SENDER, &sender_id, &key, reliable, &to_words);
+    // What the producer's host says a cut may last (the coordinating machine: the default).
+    let ride_out_s = from
+        .and_then(|host| diagram.hosts.get(host))
+        .and_then(|spec| spec.ride_out_s)
+        .unwrap_or(kairos_diagram::DEFAULT_RIDE_OUT_S);
+    sender
+        .properties
+        .insert("ride_out_s".to_owned(), Value::F64(ride_out_s));
+    producing.components.push(sender);
     producing.connections.push(Connection {
         policy: Some(if reliable {
             ReaderPolicy::NeverSkipping

@@ -410,4 +410,40 @@ impl Watch {
             tracing::warn!("host '{name}' was lost and could not be stopped: stop it there");
         }
     }
+
+    /// Once every part has stopped: says what each link between hosts sent, received and lost, with the
+    /// counts its ends leave (`here(component)`: the status of a component of this machine's part). Every
+    /// sample sent was received or counted lost.
+    pub fn report_final_counts(&mut self, here: impl Fn(&str) -> serde_json::Value) {
+        if self.plan.links.is_empty() {
+            return;
+        }
+        for host in &mut self.hosts {
+            if let Ok(status) = host.call(RequestBody::Status) {
+                self.statuses.insert(host.name().to_owned(), status);
+            }
+        }
+        let statuses = &self.statuses;
+        let status_of = |host: Option<&str>, id: &str| match host {
+            None => here(id),
+            Some(name) => statuses
+                .get(name)
+                .and_then(|status| status["telemetry"]["components"].as_array())
+                .and_then(|components| components.iter().find(|c| c["id"] == id))
+                .map(|component| component["status"].clone())
+                .unwrap_or_default(),
+        };
+        let counts = crate::links::cross_links(&self.plan, status_of, true);
+        for (link, counted) in self.plan.links.iter().zip(counts) {
+            let text = format!(
+                "link {} -> {}: sent {}, received {}, lost {}",
+                link.from, link.to, counted.sent, counted.received, counted.lost
+            );
+            if counted.lost == 0 {
+                tracing::info!("{text}");
+            } else {
+                tracing::warn!("{text}");
+            }
+        }
+    }
 }

@@ -9,7 +9,7 @@ use std::sync::{Arc, Mutex, MutexGuard, PoisonError, Weak};
 use std::time::Duration;
 
 use kairos_diagram::{Diagram, Value};
-use kairos_protocol::{CrossLinkTelemetry, HostTelemetry, RequestBody, RuntimeState, Telemetry};
+use kairos_protocol::{HostTelemetry, RequestBody, RuntimeState, Telemetry};
 use kairos_sdk_core::Registry;
 
 use kairos_coordinator::{self as deploy, Watch};
@@ -184,7 +184,7 @@ impl Spread {
             clock: None,
         }));
         let plan = watch.plan();
-        let status_of = |host: &Option<String>, id: &str| -> serde_json::Value {
+        let status_of = |host: Option<&str>, id: &str| -> serde_json::Value {
             let components = match host {
                 None => Some(&telemetry.components),
                 Some(name) => remote.iter().find(|(h, _)| h == name).map(|(_, t)| &t.components),
@@ -194,38 +194,10 @@ impl Spread {
                 .and_then(|c| c.status.clone())
                 .unwrap_or_default()
         };
-        let count = |status: &serde_json::Value, key: &str| status[key].as_u64().unwrap_or(0);
         let active = |state: &serde_json::Value| state == "running" || state == "paused";
         let stopped = !matches!(telemetry.state, RuntimeState::Running | RuntimeState::Paused)
             && !watch.statuses().values().any(|status| active(&status["state"]));
-        let cross_links: Vec<CrossLinkTelemetry> = plan
-            .links
-            .iter()
-            .map(|link| {
-                let sending_end = status_of(&link.sender.0, &link.sender.1);
-                let receiving_end = status_of(&link.receiver.0, &link.receiver.1);
-                let (received, gaps) = (count(&receiving_end, "received"), count(&receiving_end, "lost"));
-                // The two ends' statuses are read at different instants: a receiver may have seen more than
-                // the sender's last status says it sent. What it saw was sent.
-                let sent = count(&sending_end, "sent").max(received + gaps);
-                // Stopped, the counts are final: what never arrived after the last sample received was
-                // lost too, not only the gaps between those received.
-                let lost = if stopped { sent - received } else { gaps };
-                CrossLinkTelemetry {
-                    from: link.connection.from.to_string(),
-                    to: link.connection.to.to_string(),
-                    from_host: link.sender.0.clone(),
-                    to_host: link.receiver.0.clone(),
-                    sent,
-                    received,
-                    lost,
-                    matched: sending_end["matched"].as_bool().unwrap_or(false),
-                    last_sample_age_ms: receiving_end["last_sample_age_ms"].as_u64(),
-                    transit_p50_ns: receiving_end["transit_p50_ns"].as_i64(),
-                    transit_max_ns: receiving_end["transit_max_ns"].as_i64(),
-                }
-            })
-            .collect();
+        let cross_links = deploy::links::cross_links(plan, status_of, stopped);
         // The consumer reads a receiver's output, named by every host as the output it comes from (as in
         // the diagram). A sender's input buffer is the producer's side of the same connection, counted in
         // `cross_links`.

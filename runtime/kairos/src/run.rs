@@ -203,6 +203,14 @@ pub fn run(registry: &Registry, path: &Path, options: &RunOptions) -> anyhow::Re
     match &mut watch {
         Some(watch) => {
             watch.stop_together(|| engine.stop());
+            let here = engine.snapshot();
+            watch.report_final_counts(|id| {
+                here.components
+                    .iter()
+                    .find(|c| c.id == id)
+                    .and_then(|c| c.status.clone())
+                    .unwrap_or_default()
+            });
             left.extend(watch.left().map(|name| format!("'{name}'")));
         }
         None => engine.stop(),
