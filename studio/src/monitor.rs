@@ -3,11 +3,11 @@
 //! or a component fails. The canvas draws the latest figures on connections and nodes; the monitoring panel
 //! lists them all.
 
-use std::collections::{BTreeMap, VecDeque};
+use std::collections::{BTreeMap, BTreeSet, VecDeque};
 use std::time::{Duration, Instant};
 
 use egui::{Color32, RichText, Sense, Stroke, Vec2};
-use kairos_protocol::{ComponentState, ComponentTelemetry, LinkTelemetry, Telemetry};
+use kairos_protocol::{ComponentState, ComponentTelemetry, LinkTelemetry, LogLevel, Telemetry};
 
 use crate::notices::{Notices, Problem};
 
@@ -76,6 +76,9 @@ pub struct Monitor {
     pub cross_links: BTreeMap<String, kairos_protocol::CrossLinkTelemetry>,
     /// How many times each component failed in this deployment.
     failures: BTreeMap<String, u64>,
+    /// The hosts not answering now, and how many times each was lost or each link cut.
+    lost_hosts: BTreeSet<String>,
+    cuts: BTreeMap<Problem, u64>,
     sort: SortBy,
     descending: bool,
 }
@@ -88,6 +91,8 @@ impl Default for Monitor {
             notices: Notices::default(),
             cross_links: BTreeMap::new(),
             failures: BTreeMap::new(),
+            lost_hosts: BTreeSet::new(),
+            cuts: BTreeMap::new(),
             sort: SortBy::Name,
             descending: false,
         }
@@ -109,6 +114,8 @@ impl Monitor {
         self.notices.clear();
         self.cross_links.clear();
         self.failures.clear();
+        self.lost_hosts.clear();
+        self.cuts.clear();
     }
 
     /// The counts of the connection `from -> to` between two hosts, when the diagram is spread.
@@ -121,11 +128,11 @@ impl Monitor {
     }
 
     /// Takes in one telemetry event, raising or updating the notices of its problems (samples lost, a
-    /// component failed); returns what to add to the log: each new problem, and a link's losses again at
-    /// most every few seconds.
-    pub fn update(&mut self, telemetry: &Telemetry) -> Vec<String> {
+    /// component failed, a host lost, a link between hosts cut); returns what to add to the log: each new
+    /// problem and each end of one across hosts, and a link's losses again at most every few seconds.
+    pub fn update(&mut self, telemetry: &Telemetry) -> Vec<(LogLevel, String)> {
         let now = Instant::now();
-        let mut raised = Vec::new();
+        let mut raised = self.follow_hosts(telemetry);
         self.cross_links = telemetry
             .cross_links
             .iter()
@@ -154,7 +161,10 @@ impl Monitor {
                     .raise(Problem::Losses(link.link.clone()), text.clone(), link.overwritten);
                 if entry.last_notice.is_none_or(|at| now - at >= NOTICE_EVERY) {
                     entry.last_notice = Some(now);
-                    raised.push(format!("{text} ({} lost so far)", link.overwritten));
+                    raised.push((
+                        LogLevel::Warn,
+                        format!("{text} ({} lost so far)", link.overwritten),
+                    ));
                 }
             }
             push(&mut entry.rates, link.rate_hz as f32);
@@ -182,7 +192,7 @@ impl Monitor {
                     component.error.as_deref().unwrap_or("no reason given")
                 );
                 self.notices.raise(problem, text.clone(), *times);
-                raised.push(text);
+                raised.push((LogLevel::Error, text));
             } else if component.state == ComponentState::Running {
                 self.notices.resolve(&problem);
             }
@@ -191,6 +201,54 @@ impl Monitor {
             entry.latest = component.clone();
         }
         raised
+    }
+
+    /// Raises a notice when a host of a spread diagram stops answering or a connection between hosts loses
+    /// its far end, and takes it back when they return; what to log of it.
+    fn follow_hosts(&mut self, telemetry: &Telemetry) -> Vec<(LogLevel, String)> {
+        let mut said = Vec::new();
+        for host in &telemetry.hosts {
+            let problem = Problem::HostLost(host.name.clone());
+            if !host.answering && self.lost_hosts.insert(host.name.clone()) {
+                let text = format!(
+                    "host '{}' is lost: it does not answer (the network, or the machine); the other hosts run \
+                     on, and it is watched again when it answers",
+                    host.name
+                );
+                let times = self.cuts.entry(problem.clone()).or_insert(0);
+                *times += 1;
+                self.notices.raise(problem, text.clone(), *times);
+                said.push((LogLevel::Error, text));
+            } else if host.answering && self.lost_hosts.remove(&host.name) {
+                self.notices.resolve(&problem);
+                said.push((LogLevel::Info, format!("host '{}' answers again", host.name)));
+            }
+        }
+        for link in &telemetry.cross_links {
+            let name = format!("{} -> {}", link.from, link.to);
+            let was_matched = self.cross_links.get(&name).is_none_or(|l| l.matched);
+            let problem = Problem::LinkCut(name.clone());
+            let between = format!(
+                "{} -> {}",
+                link.from_host.as_deref().unwrap_or("here"),
+                link.to_host.as_deref().unwrap_or("here")
+            );
+            if !link.matched && was_matched {
+                let text = format!(
+                    "link {name} ({between}) is cut: its far end is out of reach; a consumer that never skips \
+                     gets what was sent again when it returns (within its host's ride_out_s), any other \
+                     loses it, counted"
+                );
+                let times = self.cuts.entry(problem.clone()).or_insert(0);
+                *times += 1;
+                self.notices.raise(problem, text.clone(), *times);
+                said.push((LogLevel::Error, text));
+            } else if link.matched && !was_matched {
+                self.notices.resolve(&problem);
+                said.push((LogLevel::Info, format!("link {name} ({between}) resumed")));
+            }
+        }
+        said
     }
 
     /// A link's figures, by its ends.
@@ -377,4 +435,70 @@ fn sparkline(ui: &mut egui::Ui, values: &VecDeque<f32>, color: Color32) {
     ui.painter().rect_filled(rect, 2.0, ui.visuals().extreme_bg_color);
     ui.painter()
         .add(egui::Shape::line(points, Stroke::new(1.2, color)));
+}
+
+#[cfg(test)]
+mod tests {
+    use kairos_protocol::{CrossLinkTelemetry, HostTelemetry, LogLevel, RuntimeState, Telemetry};
+
+    use super::Monitor;
+
+    /// Telemetry of a diagram with host b, fed from here over one link.
+    fn telemetry(answering: bool, matched: bool) -> Telemetry {
+        Telemetry {
+            at_ns: 0,
+            state: RuntimeState::Running,
+            links: Vec::new(),
+            components: Vec::new(),
+            clock: None,
+            hosts: vec![HostTelemetry {
+                name: "b".to_owned(),
+                answering,
+                state: None,
+                clock: None,
+            }],
+            cross_links: vec![CrossLinkTelemetry {
+                from: "count.out".to_owned(),
+                to: "gain.in".to_owned(),
+                from_host: None,
+                to_host: Some("b".to_owned()),
+                sent: 10,
+                received: 10,
+                lost: 0,
+                matched,
+                last_sample_age_ms: None,
+                transit_p50_ns: None,
+                transit_max_ns: None,
+            }],
+        }
+    }
+
+    #[test]
+    fn a_host_lost_and_a_link_cut_are_said_once_shown_until_they_return_and_their_return_said() {
+        let mut monitor = Monitor::default();
+        assert!(monitor.update(&telemetry(true, true)).is_empty());
+        let said = monitor.update(&telemetry(false, false));
+        let words: Vec<&str> = said.iter().map(|(_, text)| text.as_str()).collect();
+        assert!(
+            said.iter().all(|(level, _)| *level == LogLevel::Error),
+            "{said:?}"
+        );
+        assert!(words[0].starts_with("host 'b' is lost"), "{words:?}");
+        assert!(
+            words[1].starts_with("link count.out -> gain.in (here -> b) is cut"),
+            "{words:?}"
+        );
+        assert_eq!(monitor.notices.shown().count(), 2);
+        assert!(monitor.update(&telemetry(false, false)).is_empty(), "said once");
+        let back = monitor.update(&telemetry(true, true));
+        let words: Vec<&str> = back.iter().map(|(_, text)| text.as_str()).collect();
+        assert_eq!(
+            words,
+            [
+                "host 'b' answers again",
+                "link count.out -> gain.in (here -> b) resumed"
+            ]
+        );
+        assert_eq!(monitor.notices.shown().count(), 0);
+    }
 }

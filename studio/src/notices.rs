@@ -20,6 +20,10 @@ pub enum Problem {
     Losses(String),
     /// A component failed.
     Failed(String),
+    /// A host of a spread diagram (its name) stopped answering.
+    HostLost(String),
+    /// A connection between two hosts (`a.out -> b.in`) lost its far end.
+    LinkCut(String),
 }
 
 /// One problem's notice.
@@ -42,7 +46,7 @@ impl Notice {
     fn shown(&self, now: Instant) -> bool {
         !self.dismissed
             && match self.problem {
-                Problem::Failed(_) => true,
+                Problem::Failed(_) | Problem::HostLost(_) | Problem::LinkCut(_) => true,
                 Problem::Losses(_) => now.duration_since(self.last) < SHOWN_AFTER_LAST,
             }
     }
@@ -51,8 +55,10 @@ impl Notice {
     pub fn line(&self) -> String {
         match self.problem {
             Problem::Losses(_) => format!("{} ({} lost so far)", self.text, self.count),
-            Problem::Failed(_) if self.count > 1 => format!("{} ({} times)", self.text, self.count),
-            Problem::Failed(_) => self.text.clone(),
+            Problem::Failed(_) | Problem::HostLost(_) | Problem::LinkCut(_) if self.count > 1 => {
+                format!("{} ({} times)", self.text, self.count)
+            }
+            Problem::Failed(_) | Problem::HostLost(_) | Problem::LinkCut(_) => self.text.clone(),
         }
     }
 }

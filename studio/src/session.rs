@@ -681,8 +681,8 @@ impl Session {
             .map(|c| (c.id.clone(), NodeState::of(c)))
             .collect();
         self.states.extend(refused);
-        for notice in self.monitor.update(telemetry) {
-            self.note(LogLevel::Warn, notice);
+        for (level, notice) in self.monitor.update(telemetry) {
+            self.note(level, notice);
         }
     }
 

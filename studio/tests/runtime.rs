@@ -200,7 +200,7 @@ fn the_connect_dialog_connects_to_a_runtime_and_remembers_it() {
     harness.run_steps(2);
     let address = harness.get_by_role_and_label(
         egui::accesskit::Role::TextInput,
-        "Address of a `kairos serve` (ws://HOST:PORT):",
+        "Address of a `kairos serve` (ws://HOST:PORT, or wss:// over TLS):",
     );
     address.focus();
     harness.run_steps(1);
@@ -209,7 +209,7 @@ fn the_connect_dialog_connects_to_a_runtime_and_remembers_it() {
     harness
         .get_by_role_and_label(
             egui::accesskit::Role::TextInput,
-            "Address of a `kairos serve` (ws://HOST:PORT):",
+            "Address of a `kairos serve` (ws://HOST:PORT, or wss:// over TLS):",
         )
         .type_text(&local.url);
     harness.run_steps(1);
@@ -231,8 +231,8 @@ fn the_connect_dialog_connects_to_a_runtime_and_remembers_it() {
     harness.get_by_label("Connect").click();
     harness.run_steps(1);
     run_until(&mut harness, "the connection", StudioApp::is_connected);
-    let remembered = std::fs::read_to_string(config.path().join("studio-remote.txt")).unwrap();
-    assert_eq!(remembered, format!("{}\n{token_file}\n", local.url));
+    let remembered = std::fs::read_to_string(config.path().join("studio-remotes.txt")).unwrap();
+    assert_eq!(remembered, format!("{}\t{token_file}\t\n", local.url));
     assert!(
         !remembered.contains(local.token.reveal()),
         "the token itself is never written"

@@ -41,6 +41,11 @@ pub const SAMPLES_OUTPUT: &str = SAMPLES;
 /// The most samples one `core` call of a receiver takes, so stop and control requests get through a flood.
 const BURST: usize = 64;
 
+/// How long the receiver is given to say what it received after a cut, and what is allowed beyond it
+/// before the samples held meanwhile go anyway.
+const ASK_WAIT: Duration = Duration::from_millis(500);
+const ASK_SLACK: Duration = Duration::from_millis(200);
+
 /// How long one wait for a sample lasts, so stop and control requests get through.
 const RECEIVE_WAIT: Duration = Duration::from_millis(50);
 
@@ -187,8 +192,9 @@ pub struct LinkSender {
     cut: bool,
     /// After a cut, the receiver asked what it received: samples are held (kept, not put) until it says,
     /// from this sequence number on.
-    asking: Option<std::sync::mpsc::Receiver<Result<Option<u64>, String>>>,
+    asking: Option<(network::Answer, Instant)>,
     held_from: u64,
+    held_since: Option<Instant>,
     /// Samples put again after cuts.
     put_again: u64,
 }
@@ -346,12 +352,26 @@ impl LinkSender {
             self.seen_cuts = cuts;
             self.cut = true;
         }
-        if let Some(asking) = &self.asking {
+        if let Some((asking, since)) = &self.asking {
             let answer = match asking.try_recv() {
-                Err(std::sync::mpsc::TryRecvError::Empty) => return true,
-                Err(std::sync::mpsc::TryRecvError::Disconnected) => Err("no answer within 2 s".to_owned()),
+                // Held no longer than the question may take, whatever Zenoh does with it.
+                Err(std::sync::mpsc::TryRecvError::Empty) if since.elapsed() < ASK_WAIT + ASK_SLACK => {
+                    return true;
+                }
+                Err(_) => Err(format!("no answer within {} ms", ASK_WAIT.as_millis())),
                 Ok(answer) => answer,
             };
+            // Unanswered (the far end flapping as it comes back): asked again while the samples held
+            // meanwhile are still kept.
+            if answer.is_err()
+                && self
+                    .held_since
+                    .is_some_and(|at| at.elapsed() < self.kept.for_how_long)
+                && network::matched(end)
+            {
+                self.asking = Some((end.ask_receiver_newest(ASK_WAIT), Instant::now()));
+                return true;
+            }
             self.asking = None;
             self.put_again_after(end, &answer);
             return true;
@@ -359,7 +379,8 @@ impl LinkSender {
         if self.cut && network::matched(end) {
             self.cut = false;
             self.held_from = self.sent;
-            self.asking = Some(end.ask_receiver_newest(Duration::from_secs(2)));
+            self.held_since = Some(Instant::now());
+            self.asking = Some((end.ask_receiver_newest(ASK_WAIT), Instant::now()));
             return true;
         }
         false
@@ -385,9 +406,10 @@ impl LinkSender {
                 again += 1;
             }
         }
-        let missed = self.sent.saturating_sub(first);
+        // The newest sample, kept and not yet counted as sent, is `self.sent`.
+        let missed = (self.sent + 1).saturating_sub(first);
         // What was held while asking was never put: only the rest is put again.
-        self.put_again += again.saturating_sub(self.sent - self.held_from);
+        self.put_again += again.saturating_sub(self.sent + 1 - self.held_from);
         if newest.is_ok() {
             tracing::info!(
                 "link to {}: matched again; {again} of the {missed} samples it had not received were sent{}",

@@ -46,6 +46,10 @@ fn newest_key(key: &str) -> String {
     format!("{key}/newest")
 }
 
+/// Where a receiving end's answer comes: the newest sequence number it received (`None`: none yet), or
+/// why it did not say.
+pub type Answer = std::sync::mpsc::Receiver<Result<Option<u64>, String>>;
+
 /// No sequence number received yet.
 const NONE_YET: u64 = u64::MAX;
 
