@@ -344,7 +344,8 @@ impl LinkSender {
     /// asks it for the newest sequence number it received and holds new samples until it says; then puts
     /// again, in order, every kept frame after that one. Whether this sample was held or put here.
     fn ride_out(&mut self, end: &network::SenderEnd) -> bool {
-        if self.kept.for_how_long.is_zero() {
+        // Nothing kept, nothing to hold: a sample held would be lost.
+        if self.kept.for_how_long.is_zero() || self.kept.most_bytes == 0 {
             return false;
         }
         let cuts = end.cuts.load(std::sync::atomic::Ordering::Acquire);

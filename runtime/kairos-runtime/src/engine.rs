@@ -385,11 +385,6 @@ fn connection_policy(
     })
 }
 
-/// The name of a link in statistics and warnings (an output known by another name goes by that one).
-pub fn link_name(from: &kairos_diagram::PortRef, to: &kairos_diagram::PortRef) -> String {
-    format!("{from} -> {to}")
-}
-
 /// An engine runs a diagram on one machine: a part placed on another host must not run here unnoticed.
 fn placed_elsewhere(diagram: &Diagram) -> Vec<kairos_diagram::Diagnostic> {
     diagram

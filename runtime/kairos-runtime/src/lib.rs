@@ -9,7 +9,7 @@ pub mod python_host;
 pub mod scheduling;
 pub mod stats;
 
-pub use engine::{BuildError, ControlError, Engine, EngineState, LongWait, link_name};
+pub use engine::{BuildError, ControlError, Engine, EngineState, LongWait};
 
 use std::sync::Arc;
 
