@@ -206,6 +206,9 @@ struct Kept {
     bytes: usize,
     for_how_long: Duration,
     most_bytes: usize,
+    /// How long the last put blocked: a put stuck in a dead session's full queue (until Zenoh closes it,
+    /// 5 s) ages what is kept without the link having moved on, so that time is added to the bound.
+    stuck: Duration,
 }
 
 /// What keeping one frame costs beside its bytes (its place in the queue, its handle).
@@ -221,7 +224,8 @@ impl Kept {
         self.frames.push_back((sequence, frame.clone(), now));
         while let Some((_, oldest, at)) = self.frames.front() {
             // The newest stays whatever its size: it may not have been put yet.
-            let within = self.bytes <= self.most_bytes && now.duration_since(*at) <= self.for_how_long;
+            let within =
+                self.bytes <= self.most_bytes && now.duration_since(*at) <= self.for_how_long + self.stuck;
             if within || self.frames.len() == 1 {
                 break;
             }
@@ -289,7 +293,10 @@ impl Component for LinkSender {
 impl LinkSender {
     /// Puts a new sample's frame.
     fn put(&mut self, end: &network::SenderEnd, frame: ZBytes) {
-        match end.publisher.put(frame).wait() {
+        let started = Instant::now();
+        let put = end.publisher.put(frame).wait();
+        self.kept.stuck = started.elapsed();
+        match put {
             Ok(()) => {
                 self.sent += 1;
                 if !self.matched {
@@ -298,6 +305,10 @@ impl LinkSender {
             }
             Err(e) => {
                 self.failed += 1;
+                // Kept, it goes again after the cut under its own number: the next sample must not take it.
+                if !self.kept.frames.is_empty() {
+                    self.sent += 1;
+                }
                 if self.warned.ready(WARNING_PERIOD) {
                     tracing::warn!("link to {}: cannot send: {e} ({} in all)", end.peer, self.failed);
                 }
