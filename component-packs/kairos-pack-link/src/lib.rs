@@ -206,10 +206,14 @@ struct Kept {
     bytes: usize,
     for_how_long: Duration,
     most_bytes: usize,
-    /// How long the last put blocked: a put stuck in a dead session's full queue (until Zenoh closes it,
-    /// 5 s) ages what is kept without the link having moved on, so that time is added to the bound.
+    /// How long puts were stuck in all (each over [`STUCK_FROM`]): a put stuck in a dead session's full
+    /// queue (until Zenoh closes it, 5 s) would age what is kept without the link having moved on, so
+    /// kept frames age on the link's time, which leaves that out.
     stuck: Duration,
 }
+
+/// A put blocked longer than this counts as stuck, its time left out of what kept frames' age.
+const STUCK_FROM: Duration = Duration::from_millis(50);
 
 /// What keeping one frame costs beside its bytes (its place in the queue, its handle).
 const KEPT_OVERHEAD: usize = 64;
@@ -219,13 +223,14 @@ impl Kept {
         if self.for_how_long.is_zero() || self.most_bytes == 0 {
             return;
         }
+        // The link's time: now, less the time puts were stuck.
         let now = Instant::now();
+        let now = now.checked_sub(self.stuck).unwrap_or(now);
         self.bytes += frame.len() + KEPT_OVERHEAD;
         self.frames.push_back((sequence, frame.clone(), now));
         while let Some((_, oldest, at)) = self.frames.front() {
             // The newest stays whatever its size: it may not have been put yet.
-            let within =
-                self.bytes <= self.most_bytes && now.duration_since(*at) <= self.for_how_long + self.stuck;
+            let within = self.bytes <= self.most_bytes && now.duration_since(*at) <= self.for_how_long;
             if within || self.frames.len() == 1 {
                 break;
             }
@@ -295,7 +300,10 @@ impl LinkSender {
     fn put(&mut self, end: &network::SenderEnd, frame: ZBytes) {
         let started = Instant::now();
         let put = end.publisher.put(frame).wait();
-        self.kept.stuck = started.elapsed();
+        let took = started.elapsed();
+        if took > STUCK_FROM {
+            self.kept.stuck += took;
+        }
         match put {
             Ok(()) => {
                 self.sent += 1;
