@@ -541,90 +541,136 @@ fn deploy_over_tls_trusts_the_named_certificate_and_refuses_another() {
     );
 }
 
+/// A diagram over hosts a and b, each served in clear text in a namespace of its own, deployed from a's
+/// by `kairos deploy --for 90s`, its part started on both.
+struct TwoHostRun {
+    /// Kept to the end: dropping them stops the servers and removes the folder.
+    _servers: (Server, Server),
+    _here: tempfile::TempDir,
+    dir_a: tempfile::TempDir,
+    dir_b: tempfile::TempDir,
+    log: std::path::PathBuf,
+    deploying: std::process::Child,
+}
+
+impl TwoHostRun {
+    /// Serves both hosts, writes their tokens and the diagram (`host_extra` added to each `Host(...)`,
+    /// then `body`: its components and connections) where the deployer runs, and deploys it.
+    fn start(namespaces: &Namespaces, host_extra: &str, body: &str) -> Self {
+        let [dir_a, dir_b, here] = folders();
+        let (address_a, address_b) = (namespaces.address(1), namespaces.address(2));
+        let serve_host = |index: usize, dir: &Path, address: &str| {
+            serve_in(
+                Some(&namespaces.names[index]),
+                dir,
+                &format!("{address}:7400"),
+                &[],
+                &[],
+            )
+        };
+        let (a, b) = (
+            serve_host(0, dir_a.path(), &address_a),
+            serve_host(1, dir_b.path(), &address_b),
+        );
+        std::fs::write(here.path().join("a.token"), &a.token).unwrap();
+        std::fs::write(here.path().join("b.token"), &b.token).unwrap();
+        let path = here.path().join("two_hosts.ron");
+        std::fs::write(
+            &path,
+            format!(
+                r#"Diagram(format: 1,
+                    hosts: {{
+                        "a": Host(endpoint: "{}", token_file: "a.token", zenoh: "tcp/{address_a}:7447"{host_extra}),
+                        "b": Host(endpoint: "{}", token_file: "b.token", zenoh: "tcp/{address_b}:7447"{host_extra}),
+                    }},
+                    {body})"#,
+                a.url, b.url
+            ),
+        )
+        .unwrap();
+        let log = here.path().join("deploy.log");
+        let deploying = deploy_in_background(
+            Some(&namespaces.names[0]),
+            here.path(),
+            &[
+                path.to_str().unwrap(),
+                "--for",
+                "90s",
+                "--allow-clear-text-tokens",
+            ],
+            &log,
+        );
+        wait_for_log(&log, "host 'b' started its part", Duration::from_secs(30));
+        std::thread::sleep(Duration::from_secs(1));
+        TwoHostRun {
+            _servers: (a, b),
+            _here: here,
+            dir_a,
+            dir_b,
+            log,
+            deploying,
+        }
+    }
+
+    /// Blocks the Zenoh port between the hosts until `kairos deploy` says `link` is cut, `held` more,
+    /// then opens it until it says the link resumed; false where blocking is not possible here.
+    fn cut_zenoh(&self, namespaces: &Namespaces, link: &str, held: Duration) -> bool {
+        if !namespaces.block_zenoh(true) {
+            return false;
+        }
+        let said = wait_for_log(&self.log, &format!("link {link} is cut"), Duration::from_secs(20));
+        eprintln!("the cut was said after {said:?}");
+        std::thread::sleep(held);
+        assert!(namespaces.block_zenoh(false));
+        wait_for_log(&self.log, &format!("link {link} resumed"), Duration::from_mins(1));
+        true
+    }
+
+    /// Stops the deployment as Ctrl-C does: how it ended, and its log with both servers' logs after it.
+    fn stop(&mut self) -> (std::process::ExitStatus, String) {
+        let (status, content) = interrupt(&mut self.deploying, &self.log);
+        let logs = format!(
+            "{content}\nA:\n{}\nB:\n{}",
+            std::fs::read_to_string(self.dir_a.path().join("serve.log")).unwrap_or_default(),
+            std::fs::read_to_string(self.dir_b.path().join("serve.log")).unwrap_or_default(),
+        );
+        (status, logs)
+    }
+}
+
 #[test]
 fn a_cut_of_the_links_alone_is_said_by_kairos_deploy_and_so_is_their_return() {
     let _machine = whole_machine();
     let Some(namespaces) = Namespaces::make() else {
         return;
     };
-    let [dir_a, dir_b, here] = folders();
-    let (address_a, address_b) = (namespaces.address(1), namespaces.address(2));
-    let a = serve_in(
-        Some(&namespaces.names[0]),
-        dir_a.path(),
-        &format!("{address_a}:7400"),
-        &[],
-        &[],
-    );
-    let b = serve_in(
-        Some(&namespaces.names[1]),
-        dir_b.path(),
-        &format!("{address_b}:7400"),
-        &[],
-        &[],
-    );
-    std::fs::write(here.path().join("a.token"), &a.token).unwrap();
-    std::fs::write(here.path().join("b.token"), &b.token).unwrap();
-    let path = here.path().join("linked.ron");
-    std::fs::write(
-        &path,
-        format!(
-            r#"Diagram(format: 1,
-                hosts: {{
-                    "a": Host(endpoint: "{}", token_file: "a.token", zenoh: "tcp/{address_a}:7447"),
-                    "b": Host(endpoint: "{}", token_file: "b.token", zenoh: "tcp/{address_b}:7447"),
-                }},
-                components: [
-                    Component(id: "sine", type: "core.sine", host: "a", properties: {{"rate": 100.0}}),
-                    Component(id: "gain", type: "core.gain", host: "b", properties: {{"gain": 2.0}}),
-                    Component(id: "csv", type: "core.csv_writer", host: "a", properties: {{"path": "back.csv"}}),
-                ],
-                connections: [
-                    Connection(from: "sine.out", to: "gain.in"),
-                    Connection(from: "gain.out", to: "csv.in1"),
-                ])"#,
-            a.url, b.url
-        ),
-    )
-    .unwrap();
-    let log = here.path().join("deploy.log");
-    let mut deploying = deploy_in_background(
-        Some(&namespaces.names[0]),
-        here.path(),
-        &[
-            path.to_str().unwrap(),
-            "--for",
-            "90s",
-            "--allow-clear-text-tokens",
+    let mut run = TwoHostRun::start(
+        &namespaces,
+        "",
+        r#"components: [
+            Component(id: "sine", type: "core.sine", host: "a", properties: {"rate": 100.0}),
+            Component(id: "gain", type: "core.gain", host: "b", properties: {"gain": 2.0}),
+            Component(id: "csv", type: "core.csv_writer", host: "a", properties: {"path": "back.csv"}),
         ],
-        &log,
+        connections: [
+            Connection(from: "sine.out", to: "gain.in"),
+            Connection(from: "gain.out", to: "csv.in1"),
+        ]"#,
     );
-    wait_for_log(&log, "host 'b' started its part", Duration::from_secs(30));
-    std::thread::sleep(Duration::from_secs(1));
-    let blocked = namespaces.block_zenoh(true);
-    if blocked {
-        // Both hosts still answer their control connections: the cut is said from the link's sender. (The
-        // link back from b carries nothing while its source is cut off: its sender has nothing to tell.)
-        let said = wait_for_log(
-            &log,
-            "link sine.out on host 'a' -> gain.in on host 'b' is cut",
-            Duration::from_secs(20),
-        );
-        eprintln!("the cut was said after {said:?}");
-        assert!(namespaces.block_zenoh(false));
-        wait_for_log(
-            &log,
-            "link sine.out on host 'a' -> gain.in on host 'b' resumed",
-            Duration::from_mins(1),
-        );
-    }
-    let (status, content) = interrupt(&mut deploying, &log);
+    // Both hosts still answer their control connections: the cut is said from the link's sender. (The link
+    // back from b carries nothing while its source is cut off: its sender has nothing to tell.)
+    run.cut_zenoh(
+        &namespaces,
+        "sine.out on host 'a' -> gain.in on host 'b'",
+        Duration::ZERO,
+    );
+    let (status, content) = run.stop();
+    drop(run);
     assert!(status.success(), "{content}");
     assert!(
         !content.contains("is lost"),
         "no host was lost, only links: {content}"
     );
-    drop((a, b));
 }
 
 /// A counter on host a, through host b and back to a CSV file on a, every consumer never skipping, the
@@ -633,90 +679,35 @@ fn a_cut_of_the_links_alone_is_said_by_kairos_deploy_and_so_is_their_return() {
 /// what `kairos deploy` said; `None` where network namespaces cannot be made here.
 fn round_trip_through_a_zenoh_partition(ride_out: Option<f64>) -> Option<(Vec<f64>, String)> {
     let namespaces = Namespaces::make()?;
-    let [dir_a, dir_b, here] = folders();
-    let (address_a, address_b) = (namespaces.address(1), namespaces.address(2));
-    let a = serve_in(
-        Some(&namespaces.names[0]),
-        dir_a.path(),
-        &format!("{address_a}:7400"),
-        &[],
-        &[],
-    );
-    let b = serve_in(
-        Some(&namespaces.names[1]),
-        dir_b.path(),
-        &format!("{address_b}:7400"),
-        &[],
-        &[],
-    );
-    std::fs::write(here.path().join("a.token"), &a.token).unwrap();
-    std::fs::write(here.path().join("b.token"), &b.token).unwrap();
     let ride_out = ride_out.map_or_else(String::new, |s| format!(", ride_out_s: {s:?}"));
-    let path = here.path().join("round_trip.ron");
-    std::fs::write(
-        &path,
-        format!(
-            r#"Diagram(format: 1,
-                hosts: {{
-                    "a": Host(endpoint: "{}", token_file: "a.token", zenoh: "tcp/{address_a}:7447"{ride_out}),
-                    "b": Host(endpoint: "{}", token_file: "b.token", zenoh: "tcp/{address_b}:7447"{ride_out}),
-                }},
-                components: [
-                    Component(id: "count", type: "core.counter", host: "a", properties: {{"rate": 100.0}}),
-                    Component(id: "gain", type: "core.gain", host: "b", properties: {{"gain": 1.0}}),
-                    Component(id: "csv", type: "core.csv_writer", host: "a", properties: {{"path": "back.csv"}}),
-                ],
-                connections: [
-                    Connection(from: "count.out", to: "gain.in", policy: NeverSkipping),
-                    Connection(from: "gain.out", to: "csv.in1", policy: NeverSkipping),
-                ])"#,
-            a.url, b.url
-        ),
-    )
-    .unwrap();
-    let log = here.path().join("deploy.log");
-    let mut deploying = deploy_in_background(
-        Some(&namespaces.names[0]),
-        here.path(),
-        &[
-            path.to_str().unwrap(),
-            "--for",
-            "90s",
-            "--allow-clear-text-tokens",
+    let mut run = TwoHostRun::start(
+        &namespaces,
+        &ride_out,
+        r#"components: [
+            Component(id: "count", type: "core.counter", host: "a", properties: {"rate": 100.0}),
+            Component(id: "gain", type: "core.gain", host: "b", properties: {"gain": 1.0}),
+            Component(id: "csv", type: "core.csv_writer", host: "a", properties: {"path": "back.csv"}),
         ],
-        &log,
+        connections: [
+            Connection(from: "count.out", to: "gain.in", policy: NeverSkipping),
+            Connection(from: "gain.out", to: "csv.in1", policy: NeverSkipping),
+        ]"#,
     );
-    wait_for_log(&log, "host 'b' started its part", Duration::from_secs(30));
-    std::thread::sleep(Duration::from_secs(1));
-    if !namespaces.block_zenoh(true) {
-        let _ = interrupt(&mut deploying, &log);
-        return None;
+    // Longer than Zenoh's lease (1 s): the sessions between the hosts close, and open again after.
+    let cut = run.cut_zenoh(
+        &namespaces,
+        "count.out on host 'a' -> gain.in on host 'b'",
+        Duration::from_secs(2),
+    );
+    if cut {
+        std::thread::sleep(Duration::from_secs(2));
     }
-    wait_for_log(
-        &log,
-        "link count.out on host 'a' -> gain.in on host 'b' is cut",
-        Duration::from_secs(20),
-    );
-    std::thread::sleep(Duration::from_secs(2));
-    assert!(namespaces.block_zenoh(false));
-    wait_for_log(
-        &log,
-        "link count.out on host 'a' -> gain.in on host 'b' resumed",
-        Duration::from_mins(1),
-    );
-    std::thread::sleep(Duration::from_secs(2));
-    let (_, content) = interrupt(&mut deploying, &log);
-    let values = csv_values(&dir_a.path().join("back.csv"))
+    let (_, logs) = run.stop();
+    let values = csv_values(&run.dir_a.path().join("back.csv"))
         .into_iter()
         .map(|(_, value)| value)
         .collect();
-    let logs = format!(
-        "{content}\nA:\n{}\nB:\n{}",
-        std::fs::read_to_string(dir_a.path().join("serve.log")).unwrap_or_default(),
-        std::fs::read_to_string(dir_b.path().join("serve.log")).unwrap_or_default(),
-    );
-    drop((a, b));
-    Some((values, logs))
+    cut.then_some((values, logs))
 }
 
 /// The losses `kairos deploy` said at the end, link by link (`link ... : sent S, received R, lost L`).

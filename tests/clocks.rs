@@ -204,16 +204,7 @@ fn a_start_instant_too_far_ahead_is_refused_and_one_in_the_past_starts_at_once()
         status["result"]["start_late_ns"].as_i64().unwrap() >= 1_000_000_000,
         "{status}"
     );
-    let shown = common::kairos(
-        dir.path(),
-        &[
-            "status",
-            &server.url,
-            "--token-file",
-            dir.path().join("token.txt").to_str().unwrap(),
-        ],
-    );
-    let (stdout, _) = text(&shown);
+    let stdout = serving::status_text(dir.path(), &server, dir.path());
     assert!(stdout.contains("STARTED LATE: 1"), "{stdout}");
     let reply = call(&mut socket, &json!({"id": 6, "type": "deploy", "diagram": hello}));
     assert_eq!(reply["ok"], true, "{reply}");

@@ -620,16 +620,8 @@ fn status_shows_each_host_state_clock_and_links_and_names_the_unreachable() {
         stdout.contains("b (") && stdout.contains("NOT REACHED"),
         "{stdout}"
     );
-    let one = common::kairos(
-        here.path(),
-        &[
-            "status",
-            &a.url,
-            "--token-file",
-            dir_a.path().join("token.txt").to_str().unwrap(),
-        ],
-    );
-    assert!(text(&one).0.contains("runtime ("), "{}", text(&one).0);
+    let one = serving::status_text(here.path(), &a, dir_a.path());
+    assert!(one.contains("runtime ("), "{one}");
 }
 
 #[test]

@@ -222,16 +222,7 @@ fn foxglove_gets_outputs_in_the_recordings_schemas_and_a_viewer_that_never_reads
         "the runtime grew by {grown_mib} MiB while a viewer did not read"
     );
     // `kairos status` tells where Foxglove connects and how many are connected.
-    let shown = common::kairos(
-        dir.path(),
-        &[
-            "status",
-            &server.url,
-            "--token-file",
-            dir.path().join("token.txt").to_str().unwrap(),
-        ],
-    );
-    let (stdout, _) = text(&shown);
+    let stdout = serving::status_text(dir.path(), &server, dir.path());
     assert!(
         stdout.contains(&format!("Foxglove on {url} (every output, 2 client(s))")),
         "{stdout}"

@@ -51,6 +51,33 @@ pub fn serve_on(dir: &Path, listen: &str, extra: &[&str], env: &[(&str, &str)]) 
     serve_in(None, dir, listen, extra, env)
 }
 
+/// The `kairos` binary, run in network namespace `namespace` when given (`ip netns exec` execs it, so the
+/// child is kairos itself).
+fn kairos_in(namespace: Option<&str>) -> Command {
+    match namespace {
+        Some(namespace) => {
+            let mut command = Command::new("ip");
+            command.args(["netns", "exec", namespace, env!("CARGO_BIN_EXE_kairos")]);
+            command
+        }
+        None => Command::new(env!("CARGO_BIN_EXE_kairos")),
+    }
+}
+
+/// What `kairos status` run in `here` prints of `server`, whose token file is in `dir`.
+pub fn status_text(here: &Path, server: &Server, dir: &Path) -> String {
+    let shown = crate::common::kairos(
+        here,
+        &[
+            "status",
+            &server.url,
+            "--token-file",
+            dir.join("token.txt").to_str().unwrap(),
+        ],
+    );
+    crate::common::text(&shown).0
+}
+
 /// `kairos serve` in network namespace `namespace` (`ip netns exec`), or in this one.
 pub fn serve_in(
     namespace: Option<&str>,
@@ -60,15 +87,7 @@ pub fn serve_in(
     env: &[(&str, &str)],
 ) -> Server {
     let token_file = dir.join("token.txt");
-    let mut command = match namespace {
-        Some(namespace) => {
-            let mut command = Command::new("ip");
-            command.args(["netns", "exec", namespace, env!("CARGO_BIN_EXE_kairos")]);
-            command
-        }
-        None => Command::new(env!("CARGO_BIN_EXE_kairos")),
-    };
-    let mut child = command
+    let mut child = kairos_in(namespace)
         .envs(env.iter().copied())
         .args(["serve", "--listen", listen, "--token-file"])
         .arg(&token_file)
@@ -241,15 +260,7 @@ pub fn now_ns() -> i64 {
 /// Starts `kairos deploy ARGS` in `here`, in network namespace `namespace` when given, its log written to
 /// `log`; stop it with [`interrupt`].
 pub fn deploy_in_background(namespace: Option<&str>, here: &Path, args: &[&str], log: &Path) -> Child {
-    let mut command = match namespace {
-        Some(namespace) => {
-            let mut command = Command::new("ip");
-            command.args(["netns", "exec", namespace, env!("CARGO_BIN_EXE_kairos")]);
-            command
-        }
-        None => Command::new(env!("CARGO_BIN_EXE_kairos")),
-    };
-    command
+    kairos_in(namespace)
         .arg("deploy")
         .args(args)
         .current_dir(here)

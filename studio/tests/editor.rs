@@ -19,18 +19,34 @@ fn library() -> LibraryInfo {
 }
 
 fn studio() -> Harness<'static, StudioApp> {
-    let app = StudioApp::new(
+    studio_with(None)
+}
+
+/// The studio, remembering its settings in `config` when given (else nowhere).
+fn studio_with(config: Option<&std::path::Path>) -> Harness<'static, StudioApp> {
+    let mut app = StudioApp::new(
         Document::default(),
         library(),
         None,
         "no runtime (test)".to_owned(),
         None,
     );
+    if let Some(config) = config {
+        app = app.with_config_dir(config.to_owned());
+    }
     let mut harness = Harness::new_ui_state(|ui, app: &mut StudioApp| app.show(ui), app);
     // Tall enough for the whole palette, the viewer entry at its end included.
     harness.set_size(Vec2::new(1280.0, 2400.0));
     harness.run_steps(2);
     harness
+}
+
+/// File → Connect to a runtime….
+fn open_connect_dialog(harness: &mut Harness<'_, StudioApp>) {
+    harness.get_by_label("File").click();
+    harness.run_steps(2);
+    harness.get_by_label("Connect to a runtime…").click();
+    harness.run_steps(2);
 }
 
 /// Presses at `from`, moves in small steps to `to`, releases there.
@@ -286,22 +302,8 @@ fn a_viewer_dropped_on_an_output_opens_for_its_type() {
 #[test]
 fn an_unreadable_token_file_is_said_in_the_log_and_the_dialog_stays() {
     let config = tempfile::tempdir().unwrap();
-    let app = StudioApp::new(
-        Document::default(),
-        library(),
-        None,
-        "no runtime (test)".to_owned(),
-        None,
-    )
-    .with_config_dir(config.path().to_owned());
-    let mut harness = Harness::new_ui_state(|ui, app: &mut StudioApp| app.show(ui), app);
-    // Tall enough for the whole palette, the viewer entry at its end included.
-    harness.set_size(Vec2::new(1280.0, 2400.0));
-    harness.run_steps(2);
-    harness.get_by_label("File").click();
-    harness.run_steps(2);
-    harness.get_by_label("Connect to a runtime…").click();
-    harness.run_steps(2);
+    let mut harness = studio_with(Some(config.path()));
+    open_connect_dialog(&mut harness);
     let token_label = "File holding its token (empty when it needs none):";
     harness
         .get_by_role_and_label(Role::TextInput, token_label)
@@ -353,21 +355,8 @@ fn a_runtime_connected_to_before_comes_back_with_its_own_token_file_and_certific
         ),
     )
     .unwrap();
-    let app = StudioApp::new(
-        Document::default(),
-        library(),
-        None,
-        "no runtime (test)".to_owned(),
-        None,
-    )
-    .with_config_dir(config.path().to_owned());
-    let mut harness = Harness::new_ui_state(|ui, app: &mut StudioApp| app.show(ui), app);
-    harness.set_size(Vec2::new(1280.0, 2400.0));
-    harness.run_steps(2);
-    harness.get_by_label("File").click();
-    harness.run_steps(2);
-    harness.get_by_label("Connect to a runtime…").click();
-    harness.run_steps(2);
+    let mut harness = studio_with(Some(config.path()));
+    open_connect_dialog(&mut harness);
     // The runtimes connected to before are offered; the other one brings back its own files.
     harness.get_by_label("wss://127.0.0.1:10").click();
     harness.run_steps(2);

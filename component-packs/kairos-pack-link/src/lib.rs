@@ -219,8 +219,13 @@ const STUCK_FROM: Duration = Duration::from_millis(50);
 const KEPT_OVERHEAD: usize = 64;
 
 impl Kept {
+    /// Whether frames are kept at all (a reliable link with a ride-out and memory for it).
+    fn enabled(&self) -> bool {
+        !self.for_how_long.is_zero() && self.most_bytes > 0
+    }
+
     fn keep(&mut self, sequence: u64, frame: &ZBytes) {
-        if self.for_how_long.is_zero() || self.most_bytes == 0 {
+        if !self.enabled() {
             return;
         }
         // The link's time: now, less the time puts were stuck.
@@ -298,10 +303,12 @@ impl Component for LinkSender {
 impl LinkSender {
     /// Puts a new sample's frame.
     fn put(&mut self, end: &network::SenderEnd, frame: ZBytes) {
-        let started = Instant::now();
+        // Timed only where frames are kept: the clock stays off every other link's path.
+        let started = self.kept.enabled().then(Instant::now);
         let put = end.publisher.put(frame).wait();
-        let took = started.elapsed();
-        if took > STUCK_FROM {
+        if let Some(took) = started.map(|at| at.elapsed())
+            && took > STUCK_FROM
+        {
             self.kept.stuck += took;
         }
         match put {
@@ -314,7 +321,7 @@ impl LinkSender {
             Err(e) => {
                 self.failed += 1;
                 // Kept, it goes again after the cut under its own number: the next sample must not take it.
-                if !self.kept.frames.is_empty() {
+                if self.kept.enabled() {
                     self.sent += 1;
                 }
                 if self.warned.ready(WARNING_PERIOD) {
@@ -330,7 +337,7 @@ impl LinkSender {
         if matched != self.matched {
             if matched {
                 tracing::info!("link to {}: matched again", end.peer);
-            } else if self.kept.for_how_long.is_zero() {
+            } else if !self.kept.enabled() {
                 tracing::warn!(
                     "link to {}: no receiver any more; samples are dropped until it returns",
                     end.peer
@@ -347,9 +354,7 @@ impl LinkSender {
         }
         self.publish(ctx, &end.peer);
     }
-}
 
-impl LinkSender {
     /// Its counts and whether a receiver matched, as its status.
     fn publish(&self, ctx: &Context, peer: &str) {
         ctx.set_status(serde_json::json!({
@@ -364,7 +369,7 @@ impl LinkSender {
     /// again, in order, every kept frame after that one. Whether this sample was held or put here.
     fn ride_out(&mut self, end: &network::SenderEnd) -> bool {
         // Nothing kept, nothing to hold: a sample held would be lost.
-        if self.kept.for_how_long.is_zero() || self.kept.most_bytes == 0 {
+        if !self.kept.enabled() {
             return false;
         }
         let cuts = end.cuts.load(std::sync::atomic::Ordering::Acquire);

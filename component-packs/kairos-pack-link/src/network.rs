@@ -58,10 +58,7 @@ impl SenderEnd {
     /// (`None`: none yet), or why there is none, comes on the channel returned; it is dropped unanswered
     /// after `wait`. (Waiting here could deadlock: the receiver's host may be blocked delivering what this
     /// host put, until this host's consumers read on.)
-    pub fn ask_receiver_newest(
-        &self,
-        wait: Duration,
-    ) -> std::sync::mpsc::Receiver<Result<Option<u64>, String>> {
+    pub fn ask_receiver_newest(&self, wait: Duration) -> Answer {
         let (answer, answered) = std::sync::mpsc::sync_channel(1);
         let asked = self
             .session

@@ -216,6 +216,17 @@ pub enum PixelFormat {
 }
 
 impl PixelFormat {
+    /// Every format, in the order binary encodings number them (the Python wire, the sample frame): a
+    /// format's number is its place here, so new formats only ever go at the end.
+    pub const ALL: [PixelFormat; 6] = [
+        PixelFormat::Gray8,
+        PixelFormat::Gray16,
+        PixelFormat::Rgb8,
+        PixelFormat::Rgba8,
+        PixelFormat::Bgr8,
+        PixelFormat::Bgra8,
+    ];
+
     /// Bytes per pixel.
     pub fn bytes_per_pixel(self) -> u32 {
         match self {
@@ -333,6 +344,16 @@ pub enum FixStatus {
     Differential,
     /// RTK fixed-ambiguity fix.
     RtkFixed,
+}
+
+impl FixStatus {
+    /// Every status, in the order binary encodings number them: a status's number is its place here.
+    pub const ALL: [FixStatus; 4] = [
+        FixStatus::NoFix,
+        FixStatus::Fix,
+        FixStatus::Differential,
+        FixStatus::RtkFixed,
+    ];
 }
 
 /// A satellite navigation fix.

@@ -17,6 +17,11 @@ pub const START_LEAD: Duration = Duration::from_millis(500);
 /// late against the other hosts'.
 pub const LATE_START: Duration = Duration::from_millis(1);
 
+/// Whether a part that started `late_ns` after the agreed instant started apart from the others.
+pub fn started_late(late_ns: i64) -> bool {
+    u128::try_from(late_ns).is_ok_and(|late| late > LATE_START.as_nanos())
+}
+
 /// Starts every host's part and, with `start_here`, this machine's, at one instant [`START_LEAD`] ahead,
 /// each host waiting for it on its own clock. First every host's clock is checked ([`check_clocks`]); a
 /// start forced with clocks not locked hands `start_here` (and every host) the hosts in words, for the
@@ -47,7 +52,7 @@ pub fn start_together(
     let lateness = confirm_started(hosts, &asked)?;
     for (host, late_ns) in hosts.iter().zip(lateness) {
         match late_ns {
-            Some(late) if late > i64::try_from(LATE_START.as_nanos()).unwrap_or(i64::MAX) => tracing::warn!(
+            Some(late) if started_late(late) => tracing::warn!(
                 "host '{}' started its part {:.1} ms after the agreed instant (more than {} ms): its first \
                  samples are late against the other hosts'",
                 host.name(),

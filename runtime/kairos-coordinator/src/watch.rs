@@ -260,9 +260,7 @@ impl Watch {
             let Some(matched) = self
                 .statuses
                 .get(host)
-                .and_then(|status| status["telemetry"]["components"].as_array())
-                .and_then(|components| components.iter().find(|c| c["id"] == sender.as_str()))
-                .and_then(|component| component["status"]["matched"].as_bool())
+                .and_then(|status| component_status(status, sender)["matched"].as_bool())
             else {
                 continue;
             };
@@ -428,9 +426,7 @@ impl Watch {
             None => here(id),
             Some(name) => statuses
                 .get(name)
-                .and_then(|status| status["telemetry"]["components"].as_array())
-                .and_then(|components| components.iter().find(|c| c["id"] == id))
-                .map(|component| component["status"].clone())
+                .map(|status| component_status(status, id).clone())
                 .unwrap_or_default(),
         };
         let counts = crate::links::cross_links(&self.plan, status_of, true);
@@ -446,4 +442,11 @@ impl Watch {
             }
         }
     }
+}
+/// The status component `id` published, as a host's `status` reply tells it (null when it has none).
+fn component_status<'s>(status: &'s serde_json::Value, id: &str) -> &'s serde_json::Value {
+    status["telemetry"]["components"]
+        .as_array()
+        .and_then(|components| components.iter().find(|c| c["id"] == id))
+        .map_or(&serde_json::Value::Null, |component| &component["status"])
 }

@@ -15,7 +15,7 @@
 //! as f64) follows; a GNSS fix as latitude, longitude, altitude and both accuracies (f64) then its status
 //! (one byte: no fix, fix, differential, RTK fixed); a CAN frame as its id (u32), one byte of flags
 //! (1: extended id, 2: CAN FD) and its data; a pose as position (3 f64) and orientation (x, y, z, w); an
-//! image as width, height and stride (u32 each), its pixel format (one byte, [`PIXEL_FORMATS`]'s order)
+//! image as width, height and stride (u32 each), its pixel format (one byte: its place in `PixelFormat::ALL`)
 //! and its pixels; a point cloud as one byte saying whether each point has an intensity, then x, y, z (and
 //! intensity) as f32; a pack-defined payload as its type's name (u16 length, UTF-8) then its bytes.
 
@@ -34,23 +34,6 @@ pub const MAGIC: &[u8; 4] = b"KSB1";
 
 /// The bulk a frame's start makes room for: a transport copies a payload this small after the start.
 const JOINED_UP_TO: usize = 4096;
-
-/// The pixel formats by their number in a binary frame.
-pub const PIXEL_FORMATS: [PixelFormat; 6] = [
-    PixelFormat::Gray8,
-    PixelFormat::Gray16,
-    PixelFormat::Rgb8,
-    PixelFormat::Rgba8,
-    PixelFormat::Bgr8,
-    PixelFormat::Bgra8,
-];
-
-const FIX_STATUSES: [FixStatus; 4] = [
-    FixStatus::NoFix,
-    FixStatus::Fix,
-    FixStatus::Differential,
-    FixStatus::RtkFixed,
-];
 
 /// The payload's kind, the byte after the magic. New kinds are only ever added: a frame of a kind a peer
 /// does not know is refused by it with the kind's number.
@@ -187,7 +170,7 @@ pub fn encode<'s>(output: &str, sample: &'s Sample) -> Option<(Vec<u8>, Cow<'s, 
                 fix.horizontal_accuracy_m,
                 fix.vertical_accuracy_m,
             ]);
-            let status = FIX_STATUSES.iter().position(|s| *s == fix.status).unwrap_or(0);
+            let status = FixStatus::ALL.iter().position(|s| *s == fix.status).unwrap_or(0);
             head.0.push(u8::try_from(status).unwrap_or(0));
             Cow::Borrowed(&[])
         }
@@ -206,7 +189,10 @@ pub fn encode<'s>(output: &str, sample: &'s Sample) -> Option<(Vec<u8>, Cow<'s, 
             for side in [image.width, image.height, image.stride] {
                 head.0.extend_from_slice(&side.to_le_bytes());
             }
-            let format = PIXEL_FORMATS.iter().position(|f| *f == image.format).unwrap_or(0);
+            let format = PixelFormat::ALL
+                .iter()
+                .position(|f| *f == image.format)
+                .unwrap_or(0);
             head.0.push(u8::try_from(format).unwrap_or(0));
             Cow::Borrowed(&image.pixels)
         }
@@ -386,7 +372,7 @@ pub(crate) fn decode(bytes: &[u8]) -> Result<Received, String> {
                 vertical_accuracy_m,
             ] = fields.f64s("fix")?;
             let status = fields.u8("fix status")?;
-            let status = *FIX_STATUSES
+            let status = *FixStatus::ALL
                 .get(usize::from(status))
                 .ok_or_else(|| format!("an unknown fix status {status}"))?;
             Payload::GnssFix(GnssFix {
@@ -440,7 +426,7 @@ fn image_layout(fields: &mut Fields<'_>) -> Result<ImageLayout, String> {
         u32::from_le_bytes(fields.take("image stride")?),
     );
     let format = fields.u8("pixel format")?;
-    let format = *PIXEL_FORMATS
+    let format = *PixelFormat::ALL
         .get(usize::from(format))
         .ok_or_else(|| format!("an unknown pixel format {format}"))?;
     Ok((width, height, stride, format))

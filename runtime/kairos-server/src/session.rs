@@ -619,7 +619,7 @@ impl Session {
         let late_ns = at_ns.map(|at| self.runtime().now().nanos_since(Timestamp(at)));
         if let Some(late) = late_ns {
             self.runtime().record_start_lateness(late);
-            if late > i64::try_from(kairos_coordinator::start::LATE_START.as_nanos()).unwrap_or(i64::MAX) {
+            if kairos_coordinator::start::started_late(late) {
                 tracing::warn!("started {:.1} ms after the agreed instant", late as f64 * 1e-6);
             } else {
                 tracing::info!("started at the agreed instant (+{:.0} µs)", late as f64 * 1e-3);

@@ -12,8 +12,7 @@ use kairos_coordinator::{Host, Reach};
 /// How the last start at the agreed instant went: beyond [`kairos_coordinator::start::LATE_START`], the
 /// host's part started apart from the others.
 fn start_words(late_ns: i64) -> String {
-    let late_start = i64::try_from(kairos_coordinator::start::LATE_START.as_nanos()).unwrap_or(i64::MAX);
-    if late_ns > late_start {
+    if kairos_coordinator::start::started_late(late_ns) {
         format!(
             "STARTED LATE: {:.1} ms after the agreed instant (more than {} ms)",
             late_ns as f64 * 1e-6,

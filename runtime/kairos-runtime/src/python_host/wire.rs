@@ -19,22 +19,6 @@ pub const PIXELS_INLINE: u8 = 0;
 pub const PIXELS_SHARED: u8 = 1;
 pub const PIXELS_HELD: u8 = 2;
 
-const FORMATS: [PixelFormat; 6] = [
-    PixelFormat::Gray8,
-    PixelFormat::Gray16,
-    PixelFormat::Rgb8,
-    PixelFormat::Rgba8,
-    PixelFormat::Bgr8,
-    PixelFormat::Bgra8,
-];
-
-const FIX_STATUSES: [FixStatus; 4] = [
-    FixStatus::NoFix,
-    FixStatus::Fix,
-    FixStatus::Differential,
-    FixStatus::RtkFixed,
-];
-
 /// The runtime's end of a worker's socket.
 #[derive(Debug)]
 pub struct Connection {
@@ -310,7 +294,7 @@ fn decode_record(tag: u8, fields: &mut Fields<'_>) -> Result<Payload, String> {
                 fields.f64("")?,
                 fields.f64("a fix")?,
             ];
-            let status = *FIX_STATUSES
+            let status = *FixStatus::ALL
                 .get(usize::from(fields.u8("a fix status")?))
                 .ok_or("an unknown fix status")?;
             Payload::GnssFix(GnssFix {
@@ -350,7 +334,7 @@ fn decode_image<'a>(fields: &mut Fields<'a>) -> Result<ImageFields<'a>, String> 
     let width = fields.u32("an image")?;
     let height = fields.u32("an image")?;
     let stride = fields.u32("an image")?;
-    let format = *FORMATS
+    let format = *PixelFormat::ALL
         .get(usize::from(fields.u8("an image's format")?))
         .ok_or("an unknown pixel format")?;
     let pixels = match fields.u8("where an image's pixels are")? {
@@ -424,7 +408,7 @@ pub fn encode_payload(out: &mut Vec<u8>, payload: &Payload, pixels: &SentPixels)
             for field in [image.width, image.height, image.stride] {
                 out.extend_from_slice(&field.to_le_bytes());
             }
-            let format = FORMATS
+            let format = PixelFormat::ALL
                 .iter()
                 .position(|f| *f == image.format)
                 .unwrap_or_default() as u8;
@@ -497,7 +481,7 @@ fn encode_record(out: &mut Vec<u8>, payload: &Payload) {
                 ],
             );
             out.push(
-                FIX_STATUSES
+                FixStatus::ALL
                     .iter()
                     .position(|s| *s == fix.status)
                     .unwrap_or_default() as u8,
