@@ -11,7 +11,7 @@ mod serving;
 
 use common::text;
 use serving::{
-    Server, csv_values, deploy_in_background, folders, free_tcp_port, interrupt, now_ns,
+    Server, csv_values, deploy_in_background, final_losses, folders, free_tcp_port, interrupt, now_ns,
     samples_after_then_stop, serve, serve_in, shared_machine, wait_for_log, whole_machine,
 };
 use std::fmt::Write as _;
@@ -710,14 +710,6 @@ fn round_trip_through_a_zenoh_partition(ride_out: Option<f64>) -> Option<(Vec<f6
     cut.then_some((values, logs))
 }
 
-/// The losses `kairos deploy` said at the end, link by link (`link ... : sent S, received R, lost L`).
-fn final_losses(said: &str) -> Vec<u64> {
-    said.lines()
-        .filter_map(|line| line.split(", lost ").nth(1))
-        .filter_map(|rest| rest.split_whitespace().next()?.parse().ok())
-        .collect()
-}
-
 #[test]
 fn a_link_that_never_skips_rides_out_a_zenoh_partition_of_three_seconds_with_nothing_lost() {
     let _machine = whole_machine();
@@ -769,6 +761,78 @@ fn beyond_its_ride_out_a_link_loses_what_it_no_longer_keeps_and_counts_every_sam
     );
     // Every value missing was counted lost on one of the two links; beyond those, only what the stop
     // left in flight (under half a second at 100 Hz).
+    assert!(
+        (missing..=missing + 50).contains(&counted),
+        "{missing} values missing, {counted} counted lost ({losses:?})\n{said}"
+    );
+}
+
+#[test]
+fn thirty_seconds_without_a_network_leave_both_hosts_running_and_count_every_sample_lost() {
+    let _machine = whole_machine();
+    let Some(namespaces) = Namespaces::make() else {
+        return;
+    };
+    // A counter on host a, through host b (which writes what it gets) and back to a, nothing skipping.
+    let mut run = TwoHostRun::start(
+        &namespaces,
+        "",
+        r#"components: [
+            Component(id: "count", type: "core.counter", host: "a", properties: {"rate": 100.0}),
+            Component(id: "gain", type: "core.gain", host: "b", properties: {"gain": 1.0}),
+            Component(id: "csv_b", type: "core.csv_writer", host: "b", properties: {"path": "b.csv"}),
+            Component(id: "csv", type: "core.csv_writer", host: "a", properties: {"path": "back.csv"}),
+        ],
+        connections: [
+            Connection(from: "count.out", to: "gain.in", policy: NeverSkipping),
+            Connection(from: "gain.out", to: "csv_b.in1", policy: NeverSkipping),
+            Connection(from: "gain.out", to: "csv.in1", policy: NeverSkipping),
+        ]"#,
+    );
+    let cut_at = now_ns();
+    namespaces.set_link(false);
+    let reported = wait_for_log(&run.log, "host 'b' is lost", Duration::from_secs(3));
+    assert!(reported < Duration::from_secs(1), "reported after {reported:?}");
+    std::thread::sleep(Duration::from_secs(30));
+    namespaces.set_link(true);
+    wait_for_log(&run.log, "host 'b' is back", Duration::from_secs(30));
+    wait_for_log(
+        &run.log,
+        "link count.out on host 'a' -> gain.in on host 'b' resumed",
+        Duration::from_secs(30),
+    );
+    std::thread::sleep(Duration::from_secs(1));
+    let (status, said) = run.stop();
+    assert!(status.success(), "{said}");
+    // Host b ran through it: re-attached, never deployed again, its file never started again.
+    assert!(
+        said.contains("host 'b' is back: its part kept running") && !said.contains("started again"),
+        "{said}"
+    );
+    let on_b: Vec<(i64, f64)> = csv_values(&run.dir_b.path().join("b.csv"));
+    assert!(
+        on_b.first().is_some_and(|(t, _)| *t < cut_at) && on_b.windows(2).all(|w| w[1].1 > w[0].1),
+        "b's file was started again or holds a value twice\n{said}"
+    );
+    // Back on a, each value at most once, in order; beyond the 5 s ride-out what was no longer kept is
+    // lost, and every value missing is counted lost on one of the two links.
+    let values: Vec<f64> = csv_values(&run.dir_a.path().join("back.csv"))
+        .into_iter()
+        .map(|(_, value)| value)
+        .collect();
+    assert!(
+        values.windows(2).all(|w| w[1] > w[0]),
+        "out of order or repeated\n{said}"
+    );
+    let missing = values.last().copied().unwrap_or(0.0) as u64 + 1 - values.len() as u64;
+    assert!(missing > 1000, "only {missing} lost in 30 s kept for 5 s\n{said}");
+    let losses = final_losses(&said);
+    assert_eq!(losses.len(), 2, "{said}");
+    let counted: u64 = losses.iter().sum();
+    eprintln!(
+        "{missing} values missing of {}; counted lost, by link: {losses:?}",
+        values.len()
+    );
     assert!(
         (missing..=missing + 50).contains(&counted),
         "{missing} values missing, {counted} counted lost ({losses:?})\n{said}"

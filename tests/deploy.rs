@@ -13,9 +13,9 @@ mod serving;
 use common::{repo_root, text};
 use serde_json::{Value, json};
 use serving::{
-    Server, call, csv_values, deploy_in_background, folders, free_tcp_port, interrupt, now_ns, operator,
-    samples_after_then_stop, serve, serve_on, serve_with_env, shared_machine, state, two_host_diagram,
-    wait_for_log,
+    Server, call, csv_values, deploy_in_background, final_losses, folders, free_tcp_port, interrupt, now_ns,
+    operator, samples_after_then_stop, serve, serve_on, serve_with_env, shared_machine, state,
+    two_host_diagram, wait_for_log,
 };
 use std::path::Path;
 use std::process::Command;
@@ -216,7 +216,8 @@ fn links_between_hosts_carry_every_sample_with_its_timestamp_over_zenoh() {
 }
 
 #[test]
-fn a_killed_host_is_reported_within_a_second_and_its_part_runs_again_when_it_returns() {
+fn a_killed_host_is_reported_within_a_second_and_restarted_gets_its_part_again_in_new_files_every_loss_counted()
+ {
     let _machine = shared_machine();
     let [dir_a, dir_b, here] = folders();
     let b_listen = format!("127.0.0.1:{}", free_tcp_port());
@@ -224,7 +225,7 @@ fn a_killed_host_is_reported_within_a_second_and_its_part_runs_again_when_it_ret
     let mut b = serve_on(dir_b.path(), &b_listen, &[], &[]);
     std::fs::write(here.path().join("a.token"), &a.token).unwrap();
     std::fs::write(here.path().join("b.token"), &b.token).unwrap();
-    // A sine on host a, doubled on host b, written here.
+    // A counter on host a, through host b (which writes it too) and back here, no consumer skipping.
     let diagram = format!(
         r#"Diagram(format: 1,
             hosts: {{
@@ -232,13 +233,15 @@ fn a_killed_host_is_reported_within_a_second_and_its_part_runs_again_when_it_ret
                 "b": Host(endpoint: "{}", token_file: "b.token", zenoh: "tcp/127.0.0.1:{}"),
             }},
             components: [
-                Component(id: "sine", type: "core.sine", host: "a", properties: {{"rate": 100.0}}),
-                Component(id: "gain", type: "core.gain", host: "b", properties: {{"gain": 2.0}}),
+                Component(id: "count", type: "core.counter", host: "a", properties: {{"rate": 100.0}}),
+                Component(id: "gain", type: "core.gain", host: "b", properties: {{"gain": 1.0}}),
+                Component(id: "csv_b", type: "core.csv_writer", host: "b", properties: {{"path": "b.csv"}}),
                 Component(id: "csv_here", type: "core.csv_writer", properties: {{"path": "here.csv"}}),
             ],
             connections: [
-                Connection(from: "sine.out", to: "gain.in"),
-                Connection(from: "gain.out", to: "csv_here.in1"),
+                Connection(from: "count.out", to: "gain.in", policy: NeverSkipping),
+                Connection(from: "gain.out", to: "csv_b.in1", policy: NeverSkipping),
+                Connection(from: "gain.out", to: "csv_here.in1", policy: NeverSkipping),
             ])"#,
         a.url,
         free_tcp_port(),
@@ -254,23 +257,25 @@ fn a_killed_host_is_reported_within_a_second_and_its_part_runs_again_when_it_ret
     wait_for_log(&log, "host 'b' started its part", Duration::from_secs(30));
     std::thread::sleep(Duration::from_millis(1500));
 
-    // Host b dies: named within a second, with the links it cuts; host a runs on.
+    // Host b is killed (SIGKILL): named within a second, with the links it cuts; host a runs on.
     let _ = b.child.kill();
     let _ = b.child.wait();
     let reported = wait_for_log(&log, "host 'b' is lost", Duration::from_secs(3));
     assert!(reported < Duration::from_secs(1), "reported after {reported:?}");
     let content = std::fs::read_to_string(&log).unwrap();
     assert!(
-        content.contains("links cut: sine.out on host 'a' -> gain.in on host 'b', gain.out on host 'b' -> csv_here.in1 on this machine"),
+        content.contains("links cut: count.out on host 'a' -> gain.in on host 'b', gain.out on host 'b' -> csv_here.in1 on this machine"),
         "{content}"
     );
     let mut socket = operator(&a);
     assert_eq!(state(&mut socket), "running");
+    let first_life = csv_values(&dir_b.path().join("b.csv"));
 
     // It comes back: its part is deployed and started again, and samples flow here again.
     let returned_at = now_ns();
     b = serve_on(dir_b.path(), &b_listen, &[], &[]);
     wait_for_log(&log, "host 'b' is back", Duration::from_secs(30));
+    std::thread::sleep(Duration::from_secs(1));
     let (after, content) =
         samples_after_then_stop(&mut deploying, &here.path().join("here.csv"), returned_at, &log);
     assert!(after >= 1, "no sample after host b returned\n{content}");
@@ -281,6 +286,44 @@ fn a_killed_host_is_reported_within_a_second_and_its_part_runs_again_when_it_ret
     if std::env::var_os("SHOW_LOG").is_some() {
         eprintln!("{content}");
     }
+    // The file b wrote before it was killed is whole; its second life writes beside it, and says so.
+    assert!(
+        first_life.len() > 100,
+        "{} rows before the kill",
+        first_life.len()
+    );
+    let still = csv_values(&dir_b.path().join("b.csv"));
+    assert!(still.len() >= first_life.len() && still[..first_life.len()] == first_life[..]);
+    assert!(
+        !csv_values(&dir_b.path().join("b-1.csv")).is_empty(),
+        "no b-1.csv"
+    );
+    let b_log = std::fs::read_to_string(dir_b.path().join("serve.log")).unwrap_or_default();
+    assert!(b_log.contains("b.csv exists and is kept: writing"), "{b_log}");
+
+    // Back here, each value at most once, in order; every one missing counted lost on one of the two
+    // links. Beyond those, counted lost: what b took with it after its last status (published every
+    // 0.5 s, read every 0.25 s: at most 75 values at 100 Hz), and what the stop left in flight.
+    let values: Vec<f64> = csv_values(&here.path().join("here.csv"))
+        .into_iter()
+        .map(|(_, value)| value)
+        .collect();
+    assert!(
+        values.windows(2).all(|w| w[1] > w[0]),
+        "repeated or out of order\n{content}"
+    );
+    let missing = values.last().copied().unwrap_or(0.0) as u64 + 1 - values.len() as u64;
+    let losses = final_losses(&content);
+    assert_eq!(losses.len(), 2, "{content}");
+    let counted: u64 = losses.iter().sum();
+    eprintln!(
+        "{missing} values missing of {}; counted lost, by link: {losses:?}",
+        values.len()
+    );
+    assert!(
+        (missing..=missing + 100).contains(&counted),
+        "{missing} values missing, {counted} counted lost ({losses:?})\n{content}"
+    );
     drop(b);
 }
 

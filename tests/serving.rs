@@ -303,3 +303,11 @@ pub fn samples_after_then_stop(
     assert!(status.success(), "{content}");
     (after(), content)
 }
+
+/// The losses `kairos deploy` said at the end, link by link (`link ... : sent S, received R, lost L`).
+pub fn final_losses(said: &str) -> Vec<u64> {
+    said.lines()
+        .filter_map(|line| line.split(", lost ").nth(1))
+        .filter_map(|rest| rest.split_whitespace().next()?.parse().ok())
+        .collect()
+}

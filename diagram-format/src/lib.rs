@@ -34,8 +34,9 @@ pub use library::{
     ValueError, readable_type_name,
 };
 pub use model::{
-    ComponentInstance, Connection, DEFAULT_RIDE_OUT_S, DEFAULT_ZENOH_PORT, Diagram, FORMAT_VERSION, HostSpec,
-    MAX_BUFFER_SIZE, MAX_RIDE_OUT_S, OutputSettings, PackRequirement, PortRef, Position, ThreadSettings,
+    ComponentInstance, Connection, DEFAULT_RIDE_OUT_MB, DEFAULT_RIDE_OUT_S, DEFAULT_ZENOH_PORT, Diagram,
+    FORMAT_VERSION, HostSpec, MAX_BUFFER_SIZE, MAX_RIDE_OUT_MB, MAX_RIDE_OUT_S, OutputSettings,
+    PackRequirement, PortRef, Position, ThreadSettings,
 };
 pub use read::{
     ComponentLocations, ConnectionLocations, EntryLocations, HostLocations, LoadError, OutputLocations,

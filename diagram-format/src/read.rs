@@ -440,24 +440,52 @@ impl Reader<'_> {
 
     /// A host's ride-out: seconds from 0 to [`crate::model::MAX_RIDE_OUT_S`].
     fn ride_out(&mut self, node: &Node) -> Option<f64> {
-        let seconds = match &node.kind {
+        self.bounded(
+            node,
+            "a number of seconds",
+            crate::model::MAX_RIDE_OUT_S,
+            |seconds, most| {
+                format!("a ride-out of {seconds} s: it is from 0 (a cut loses what it cuts) to {most} s")
+            },
+        )
+    }
+
+    /// The memory a host's links keep for a cut: megabytes from 0 to [`crate::model::MAX_RIDE_OUT_MB`].
+    fn ride_out_memory(&mut self, node: &Node) -> Option<f64> {
+        self.bounded(
+            node,
+            "a number of megabytes",
+            crate::model::MAX_RIDE_OUT_MB,
+            |megabytes, most| {
+                format!(
+                    "a ride-out memory of {megabytes} MB: it is from 0 (nothing kept for a cut) to {most} MB"
+                )
+            },
+        )
+    }
+
+    /// A number from 0 to `most`; out of range, the error `message(value, most)` at its place.
+    fn bounded(
+        &mut self,
+        node: &Node,
+        expected: &str,
+        most: f64,
+        message: impl Fn(f64, f64) -> String,
+    ) -> Option<f64> {
+        let value = match &node.kind {
             NodeKind::Float(text) => text.parse::<f64>().ok(),
             NodeKind::Integer(value) => Some(*value as f64),
             _ => None,
         };
-        let Some(seconds) = seconds else {
-            self.wrong_type(node, "a number of seconds");
+        let Some(value) = value else {
+            self.wrong_type(node, expected);
             return None;
         };
-        if !(0.0..=crate::model::MAX_RIDE_OUT_S).contains(&seconds) {
-            let message = format!(
-                "a ride-out of {seconds} s: it is from 0 (a cut loses what it cuts) to {} s",
-                crate::model::MAX_RIDE_OUT_S
-            );
-            self.report(DiagnosticCode::InvalidSetting, node.head, message);
+        if !(0.0..=most).contains(&value) {
+            self.report(DiagnosticCode::InvalidSetting, node.head, message(value, most));
             return None;
         }
-        Some(seconds)
+        Some(value)
     }
 
     fn list<'n>(&mut self, node: &'n Node) -> Option<&'n [Node]> {
@@ -643,7 +671,14 @@ impl Reader<'_> {
             let Some(fields) = self.fields(
                 value,
                 "Host",
-                &["endpoint", "token_file", "zenoh", "certificate", "ride_out_s"],
+                &[
+                    "endpoint",
+                    "token_file",
+                    "zenoh",
+                    "certificate",
+                    "ride_out_s",
+                    "ride_out_mb",
+                ],
             ) else {
                 continue;
             };
@@ -656,6 +691,9 @@ impl Reader<'_> {
                 continue;
             };
             let Ok(ride_out_s) = self.optional(fields.optional("ride_out_s"), Self::ride_out) else {
+                continue;
+            };
+            let Ok(ride_out_mb) = self.optional(fields.optional("ride_out_mb"), Self::ride_out_memory) else {
                 continue;
             };
             let zenoh_node = fields.optional("zenoh");
@@ -681,6 +719,7 @@ impl Reader<'_> {
                     zenoh,
                     certificate,
                     ride_out_s,
+                    ride_out_mb,
                 },
             );
         }
@@ -943,6 +982,27 @@ mod tests {
         assert_eq!(
             messages(&source("\"5 s\"")),
             ["2:61: error: expected a number of seconds, found a string"]
+        );
+    }
+
+    #[test]
+    fn a_host_s_ride_out_memory_is_read_and_one_out_of_range_refused_at_its_place() {
+        let source = |megabytes: &str| {
+            format!(
+                r#"Diagram(format: 1, hosts: {{
+    "car": Host(endpoint: "ws://10.0.0.2:7400", ride_out_mb: {megabytes}),
+}})"#
+            )
+        };
+        assert_eq!(
+            parse(&source("512")).unwrap().diagram.hosts["car"].ride_out_mb,
+            Some(512.0)
+        );
+        assert_eq!(
+            messages(&source("100000.0")),
+            [
+                "2:62: error: a ride-out memory of 100000 MB: it is from 0 (nothing kept for a cut) to 65536 MB"
+            ]
         );
     }
 

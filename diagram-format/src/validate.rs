@@ -924,6 +924,7 @@ mod tests {
             zenoh: None,
             certificate: None,
             ride_out_s: None,
+            ride_out_mb: None,
         };
         assert_eq!(spec.zenoh_endpoint(), "tcp/10.0.0.2:7447");
         let secure = HostSpec {

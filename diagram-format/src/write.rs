@@ -80,6 +80,9 @@ impl fmt::Display for CanonicalRon<'_> {
                 if let Some(ride_out_s) = host.ride_out_s {
                     write!(f, ", ride_out_s: {ride_out_s:?}")?;
                 }
+                if let Some(ride_out_mb) = host.ride_out_mb {
+                    write!(f, ", ride_out_mb: {ride_out_mb:?}")?;
+                }
                 f.write_str("),\n")?;
             }
             f.write_str("    },\n")?;

@@ -184,14 +184,16 @@ fn diagram() -> impl Strategy<Value = Diagram> {
                 any::<Option<String>>(),
                 any::<Option<String>>(),
                 proptest::option::of(0.0..=600.0_f64),
+                proptest::option::of(0.0..=65_536.0_f64),
             )
                 .prop_map(
-                    |(endpoint, token_file, zenoh, certificate, ride_out_s)| HostSpec {
+                    |(endpoint, token_file, zenoh, certificate, ride_out_s, ride_out_mb)| HostSpec {
                         endpoint,
                         token_file,
                         zenoh,
                         certificate,
                         ride_out_s,
+                        ride_out_mb,
                     },
                 ),
             0..3,

@@ -111,6 +111,7 @@ fn scrambled_diagram() -> Diagram {
                     zenoh: Some("tls/10.0.0.3:7447".to_owned()),
                     certificate: Some("roadside.pem".to_owned()),
                     ride_out_s: Some(12.5),
+                    ride_out_mb: Some(512.0),
                 },
             ),
             (
@@ -121,6 +122,7 @@ fn scrambled_diagram() -> Diagram {
                     zenoh: None,
                     certificate: None,
                     ride_out_s: None,
+                    ride_out_mb: None,
                 },
             ),
         ]),

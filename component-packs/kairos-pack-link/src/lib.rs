@@ -11,7 +11,9 @@
 //! A reliable link also rides out a cut: its sender keeps what it put for the last `ride_out_s` seconds
 //! (at most `ride_out_mb` of frames) and, when the receiver matches again, asks it for the newest
 //! sequence number it received and puts again everything after it, in order. A cut shorter than that
-//! loses nothing; beyond it, what was no longer kept shows as a gap the receiver counts.
+//! loses nothing; beyond it, what was no longer kept shows as a gap the receiver counts. A receiver that
+//! started afresh (its host restarted) received nothing yet: it gets what was put since the cut was
+//! noticed, never what its former self may have had (at most once: what died with that host was lost).
 
 use std::collections::VecDeque;
 
@@ -83,7 +85,7 @@ pub fn sender_descriptor() -> ComponentInfo {
             .doc("A reliable link keeps what it sent this long and sends it again after a cut: a cut shorter than this loses nothing"),
     )
     .property(
-        Property::f64("ride_out_mb", 64.0)
+        Property::f64("ride_out_mb", 256.0)
             .range(0.0, 65_536.0)
             .doc("The most memory what a reliable link keeps for a cut may take (the oldest goes first)"),
     )
@@ -190,6 +192,9 @@ pub struct LinkSender {
     /// The receiver's cuts seen so far, and whether one awaits the receiver's return.
     seen_cuts: u64,
     cut: bool,
+    /// The first sequence number put after the cut was noticed: a receiver that comes back afresh gets
+    /// what was kept from it on.
+    noticed_from: u64,
     /// After a cut, the receiver asked what it received: samples are held (kept, not put) until it says,
     /// from this sequence number on.
     asking: Option<(network::Answer, Instant)>,
@@ -375,6 +380,9 @@ impl LinkSender {
         let cuts = end.cuts.load(std::sync::atomic::Ordering::Acquire);
         if cuts != self.seen_cuts {
             self.seen_cuts = cuts;
+            if !self.cut {
+                self.noticed_from = self.sent;
+            }
             self.cut = true;
         }
         if let Some((asking, since)) = &self.asking {
@@ -415,7 +423,15 @@ impl LinkSender {
     /// while asking), and says how the cut went.
     fn put_again_after(&mut self, end: &network::SenderEnd, newest: &Result<Option<u64>, String>) {
         let first = match newest {
-            Ok(newest) => newest.map_or(0, |n| n + 1),
+            Ok(Some(newest)) => newest + 1,
+            Ok(None) => {
+                tracing::warn!(
+                    "link to {}: the receiver started afresh (its host restarted): what it had received \
+                     is gone with it; it gets what was sent since the cut was noticed",
+                    end.peer
+                );
+                self.noticed_from
+            }
             Err(reason) => {
                 tracing::warn!(
                     "link to {}: matched again, but the receiver did not say what it received ({reason}): \

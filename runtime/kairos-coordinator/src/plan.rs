@@ -242,14 +242,20 @@ fn place_link(
         &format!("link_to_{}_{}", connection.to.component, connection.to.port),
     );
     let mut sender = link_component(kairos_pack_link::SENDER, &sender_id, &key, reliable, &to_words);
-    // What the producer's host says a cut may last (the coordinating machine: the default).
-    let ride_out_s = from
-        .and_then(|host| diagram.hosts.get(host))
+    // What the producer's host says a cut may last and keep (the coordinating machine: the defaults).
+    let host_spec = from.and_then(|host| diagram.hosts.get(host));
+    let ride_out_s = host_spec
         .and_then(|spec| spec.ride_out_s)
         .unwrap_or(kairos_diagram::DEFAULT_RIDE_OUT_S);
+    let ride_out_mb = host_spec
+        .and_then(|spec| spec.ride_out_mb)
+        .unwrap_or(kairos_diagram::DEFAULT_RIDE_OUT_MB);
     sender
         .properties
         .insert("ride_out_s".to_owned(), Value::F64(ride_out_s));
+    sender
+        .properties
+        .insert("ride_out_mb".to_owned(), Value::F64(ride_out_mb));
     producing.components.push(sender);
     producing.connections.push(Connection {
         policy: Some(if reliable {

@@ -47,7 +47,15 @@ pub struct Watch {
     cut_links: BTreeSet<String>,
     /// Each host's clock state at the last check, for those that follow one.
     clock_states: BTreeMap<String, ClockState>,
+    /// Each lost host's last status, until it answers again.
+    last_seen: BTreeMap<String, serde_json::Value>,
+    /// What the link ends on hosts that restarted had counted before (by host and component): a
+    /// link's counts run over every life of its ends.
+    earlier: BTreeMap<(String, String), BTreeMap<&'static str, u64>>,
 }
+
+/// The counts of a link end's status that run over its host's restarts.
+const LINK_COUNTS: [&str; 5] = ["sent", "sent_unmatched", "failed", "received", "lost"];
 
 /// What a host that answers runs, against what this deployment gave it.
 enum Runs {
@@ -86,7 +94,53 @@ impl Watch {
             left: BTreeSet::new(),
             cut_links: BTreeSet::new(),
             clock_states: BTreeMap::new(),
+            last_seen: BTreeMap::new(),
+            earlier: BTreeMap::new(),
         }
+    }
+
+    /// Host `name` restarted: what its link ends counted in `status`, its last before, is kept to add to
+    /// what they count from now on.
+    fn count_before_restart(&mut self, name: &str, status: Option<serde_json::Value>) {
+        let Some(status) = status else {
+            return;
+        };
+        let ends = self
+            .plan
+            .links
+            .iter()
+            .flat_map(|link| [&link.sender, &link.receiver]);
+        for (host, id) in ends {
+            if host.as_deref() != Some(name) {
+                continue;
+            }
+            let counted = component_status(&status, id);
+            let earlier = self.earlier.entry((name.to_owned(), id.clone())).or_default();
+            for key in LINK_COUNTS {
+                *earlier.entry(key).or_default() += counted[key].as_u64().unwrap_or(0);
+            }
+        }
+    }
+
+    /// `status`, that of component `id` on host `name`, with what it counted before its host restarted
+    /// added: a link's counts over every life of its ends.
+    pub fn counted_over_restarts(
+        &self,
+        name: &str,
+        id: &str,
+        mut status: serde_json::Value,
+    ) -> serde_json::Value {
+        let Some(earlier) = self.earlier.get(&(name.to_owned(), id.to_owned())) else {
+            return status;
+        };
+        if !status.is_object() {
+            status = serde_json::json!({});
+        }
+        for (key, before) in earlier {
+            let now = status[*key].as_u64().unwrap_or(0);
+            status[*key] = serde_json::json!(now + before);
+        }
+        status
     }
 
     /// What host `name`, whose status is `status`, runs.
@@ -206,13 +260,16 @@ impl Watch {
                             "host '{name}' restarted: its part is gone{}; it is deployed again",
                             self.cut(&name)
                         );
-                        self.statuses.remove(&name);
+                        let before = self.statuses.remove(&name);
+                        self.count_before_restart(&name, before);
                         self.lost.insert(name, std::time::Instant::now());
                     }
                     Runs::Another => self.leave(&name),
                 },
                 Err(error) => {
-                    self.statuses.remove(&name);
+                    if let Some(last) = self.statuses.remove(&name) {
+                        self.last_seen.insert(name.clone(), last);
+                    }
                     tracing::error!(
                         "host '{name}' is lost ({error:#}){}; the other hosts keep running, and it is \
                          watched again when it answers",
@@ -334,6 +391,7 @@ impl Watch {
             .with_context(|| format!("no host '{name}'"))?;
         let mut host = Host::reach_within(name, spec, &self.reach, RETRY_PERIOD)?;
         let status = host.call(RequestBody::Status)?;
+        let before = self.last_seen.remove(name);
         match self.runs(name, &status) {
             Runs::Ours => {
                 let state = status["state"].as_str().unwrap_or("unknown");
@@ -344,6 +402,7 @@ impl Watch {
                 Ok(Some(host))
             }
             Runs::Nothing => {
+                self.count_before_restart(name, before);
                 self.redeploy(&mut host)?;
                 let again = if self.running {
                     "deployed and started again"
@@ -421,13 +480,16 @@ impl Watch {
                 self.statuses.insert(host.name().to_owned(), status);
             }
         }
-        let statuses = &self.statuses;
+        // A host lost at the end counts as it last said.
         let status_of = |host: Option<&str>, id: &str| match host {
             None => here(id),
-            Some(name) => statuses
-                .get(name)
-                .map(|status| component_status(status, id).clone())
-                .unwrap_or_default(),
+            Some(name) => {
+                let last = self.statuses.get(name).or_else(|| self.last_seen.get(name));
+                let status = last
+                    .map(|status| component_status(status, id).clone())
+                    .unwrap_or_default();
+                self.counted_over_restarts(name, id, status)
+            }
         };
         let counts = crate::links::cross_links(&self.plan, status_of, true);
         for (link, counted) in self.plan.links.iter().zip(counts) {

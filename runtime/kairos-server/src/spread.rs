@@ -189,10 +189,14 @@ impl Spread {
                 None => Some(&telemetry.components),
                 Some(name) => remote.iter().find(|(h, _)| h == name).map(|(_, t)| &t.components),
             };
-            components
+            let status = components
                 .and_then(|list| list.iter().find(|c| c.id == id))
                 .and_then(|c| c.status.clone())
-                .unwrap_or_default()
+                .unwrap_or_default();
+            match host {
+                Some(name) => watch.counted_over_restarts(name, id, status),
+                None => status,
+            }
         };
         let active = |state: &serde_json::Value| state == "running" || state == "paused";
         let stopped = !matches!(telemetry.state, RuntimeState::Running | RuntimeState::Paused)

@@ -128,6 +128,7 @@ pub fn print(
             zenoh: None,
             certificate: certificate.map(|p| p.display().to_string()),
             ride_out_s: None,
+            ride_out_mb: None,
         };
         let text = line("runtime", &spec, &Reach::new(Path::new("."), clear_text_tokens));
         reached_all &= !text.contains("NOT REACHED");
