@@ -278,8 +278,26 @@ fn a_coordinated_start_refused_for_an_unlocked_clock_goes_ahead_when_asked_to() 
     assert_eq!(refused["ok"], false, "{refused}");
     let message = refused["error"]["message"].as_str().unwrap_or_default();
     assert!(
-        message.contains("clock is locked to its master")
+        message.contains("clock is locked to its master within 1ms")
             && message.contains("host 'b': clock acquiring (no exchange with its master yet)"),
+        "{refused}"
+    );
+    // The bound is the start's to set (the studio's "lock bound"), within reason.
+    let refused = call(
+        &mut socket,
+        &json!({"id": 2, "type": "start", "lock_bound_ns": 5_000_000}),
+    );
+    let message = refused["error"]["message"].as_str().unwrap_or_default();
+    assert!(message.contains("within 5ms"), "{refused}");
+    let refused = call(
+        &mut socket,
+        &json!({"id": 2, "type": "start", "lock_bound_ns": 0}),
+    );
+    assert_eq!(refused["error"]["code"], "invalid_value", "{refused}");
+    assert!(
+        refused["error"]["message"]
+            .as_str()
+            .is_some_and(|m| m.contains("lock_bound_ns 0: a start's clock lock bound is from 1 ns to 10 s")),
         "{refused}"
     );
     let mut b_socket = operator(&b);

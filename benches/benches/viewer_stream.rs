@@ -238,6 +238,7 @@ fn main() {
         at_ns: None,
         forced: None,
         start_unlocked: false,
+        lock_bound_ns: None,
     });
     if !deployed || wait_for_reply(&control, start).is_none() {
         eprintln!("the camera diagram did not start");

@@ -402,6 +402,7 @@ impl StudioApp {
             }
             Command::Run => self.session.deploy_and_start(),
             Command::StartUnlocked => self.session.start_unlocked(),
+            Command::SetLockBound(bound) => self.session.set_lock_bound(bound),
             Command::Request(body) => self.session.request(body),
             Command::SetProperty {
                 component,

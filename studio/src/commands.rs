@@ -66,6 +66,8 @@ pub enum Command {
     Run,
     /// Start the deployed diagram although some hosts' clocks are not locked.
     StartUnlocked,
+    /// How close to their master hosts' clocks must be for the next starts.
+    SetLockBound(std::time::Duration),
     /// Send this request to the runtime (pause, resume, stop, the transport strip's controls).
     Request(RequestBody),
     /// Set a component's property.

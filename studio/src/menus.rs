@@ -60,6 +60,9 @@ pub fn menu_bar_ui(
         }
         ui.separator();
         connection_state_ui(ui, session);
+        if !session.document.diagram().hosts.is_empty() {
+            lock_bound_ui(ui, session.lock_bound(), commands);
+        }
     });
 }
 
@@ -139,6 +142,30 @@ pub fn run_controls_ui(ui: &mut egui::Ui, state: RuntimeState, commands: &mut Ve
     }
 }
 
+/// The lock bound a start over hosts asks for, in milliseconds, shown while the diagram has hosts.
+fn lock_bound_ui(ui: &mut egui::Ui, bound: Option<std::time::Duration>, commands: &mut Vec<Command>) {
+    let mut ms = bound.map_or(1.0, |b| b.as_secs_f64() * 1e3);
+    let field = egui::DragValue::new(&mut ms)
+        .range(0.001..=10_000.0)
+        .speed(0.01)
+        .max_decimals(3)
+        .prefix("lock bound ")
+        .suffix(" ms");
+    let changed = ui
+        .add(field)
+        .on_hover_text(
+            "How close to its clock master every host's clock must be for Run to start the diagram over its \
+             hosts (1 ms unless set). A host's clock shows \"locked\" once its last error is under 10 ms; \
+             a start also needs it within this bound. Drag or type to change it.",
+        )
+        .changed();
+    if changed {
+        commands.push(Command::SetLockBound(std::time::Duration::from_secs_f64(
+            ms * 1e-3,
+        )));
+    }
+}
+
 /// After a start refused for hosts' clocks not locked: the way to start regardless.
 fn start_anyway_ui(ui: &mut egui::Ui, refusal: &str, commands: &mut Vec<Command>) {
     let button = egui::Button::new(RichText::new("Start anyway").color(Color32::from_rgb(0xff, 0xb0, 0x40)));
@@ -146,7 +173,8 @@ fn start_anyway_ui(ui: &mut egui::Ui, refusal: &str, commands: &mut Vec<Command>
         .add(button)
         .on_hover_text(format!(
             "{refusal}\n\nStarts now although those clocks are not locked: their samples' times may be off by \
-             the error shown, and every recording this start begins says so."
+             the error shown, and every recording this start begins says so. Or raise the lock bound beside \
+             the clock and Run again."
         ))
         .clicked()
     {

@@ -7,6 +7,7 @@
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
+use std::time::Duration;
 
 use kairos_diagram::{LibraryInfo, PortRef, ReaderPolicy, Value};
 use kairos_protocol::{
@@ -211,6 +212,9 @@ pub struct Session {
     /// Why the last start was refused, when it was for hosts' clocks not locked: "Start anyway" offers
     /// to start regardless.
     unlocked_refusal: Option<String>,
+    /// How close to their master the hosts' clocks must be for a start of a diagram spread over hosts to
+    /// go ahead; `None`: the runtime's default (1 ms).
+    lock_bound: Option<Duration>,
     /// What the runtime publishes to Foxglove, as it last said.
     foxglove: kairos_protocol::FoxgloveState,
     /// The runtime's host as its address names it (`robot`), when it runs on another machine.
@@ -256,6 +260,7 @@ impl Session {
             port_problems: BTreeMap::new(),
             field_notes: BTreeMap::new(),
             unlocked_refusal: None,
+            lock_bound: None,
             foxglove: kairos_protocol::FoxgloveState::default(),
             remote_host: None,
             runtime: None,
@@ -654,6 +659,7 @@ impl Session {
                             at_ns: None,
                             forced: None,
                             start_unlocked: false,
+                            lock_bound_ns: self.lock_bound_ns(),
                         },
                         Pending::Start,
                     );
@@ -686,6 +692,22 @@ impl Session {
         }
     }
 
+    /// How close to their master hosts' clocks must be for a start to go ahead; `None`: the runtime's
+    /// default (1 ms).
+    pub fn lock_bound(&self) -> Option<Duration> {
+        self.lock_bound
+    }
+
+    /// Sets the lock bound the next starts ask for.
+    pub fn set_lock_bound(&mut self, bound: Duration) {
+        self.lock_bound = Some(bound);
+    }
+
+    fn lock_bound_ns(&self) -> Option<u64> {
+        self.lock_bound
+            .map(|bound| u64::try_from(bound.as_nanos()).unwrap_or(u64::MAX))
+    }
+
     /// Why the last start was refused when some hosts' clocks were not locked: the studio then offers
     /// to start anyway.
     pub fn unlocked_refusal(&self) -> Option<&str> {
@@ -704,6 +726,7 @@ impl Session {
                     at_ns: None,
                     forced: None,
                     start_unlocked: true,
+                    lock_bound_ns: self.lock_bound_ns(),
                 },
                 Pending::Start,
             );
@@ -1223,6 +1246,7 @@ mod tests {
                     at_ns: None,
                     forced: None,
                     start_unlocked: false,
+                    lock_bound_ns: None,
                 }
             ]
         );
@@ -1400,11 +1424,36 @@ mod tests {
                 at_ns: None,
                 forced: None,
                 start_unlocked: true,
+                lock_bound_ns: None,
             }]
         );
         assert!(session.unlocked_refusal().is_none(), "offered once per refusal");
         session.start_unlocked();
         assert!(sent(&mut session).is_empty());
+    }
+
+    #[test]
+    fn a_start_asks_for_the_lock_bound_set() {
+        let mut session = connected();
+        session.set_lock_bound(std::time::Duration::from_micros(250));
+        session.deploy_and_start();
+        let deploy = sent(&mut session);
+        session.handle(ok(&deploy[0], json!({"diagnostics": [], "components": 2})));
+        let start = sent(&mut session)
+            .into_iter()
+            .find(|r| matches!(r.body, RequestBody::Start { .. }))
+            .unwrap();
+        assert!(
+            matches!(
+                start.body,
+                RequestBody::Start {
+                    lock_bound_ns: Some(250_000),
+                    ..
+                }
+            ),
+            "{:?}",
+            start.body
+        );
     }
 
     #[test]
@@ -1414,6 +1463,7 @@ mod tests {
             at_ns: None,
             forced: None,
             start_unlocked: false,
+            lock_bound_ns: None,
         });
         assert!(session.take_effects().is_empty());
         assert!(

@@ -523,6 +523,7 @@ fn frames_compare_by_socket_and_shared_memory(shared_pixels: bool) {
         at_ns: None,
         forced: None,
         start_unlocked: false,
+        lock_bound_ns: None,
     });
     wait_for_reply(&socket, start);
     let subscribe = |client: &mut RuntimeClient, transport, shared_pixels| {

@@ -81,6 +81,7 @@ fn start_all_at(hosts: &mut [Host], at: i64, forced: Option<&str>) -> anyhow::Re
                 at_ns: Some(at),
                 forced: forced.map(str::to_owned),
                 start_unlocked: false,
+                lock_bound_ns: None,
             })
         })
         .collect()

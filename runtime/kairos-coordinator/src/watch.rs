@@ -433,6 +433,7 @@ impl Watch {
                 at_ns: None,
                 forced: None,
                 start_unlocked: false,
+                lock_bound_ns: None,
             })?;
         }
         Ok(())

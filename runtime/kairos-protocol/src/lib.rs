@@ -10,7 +10,7 @@
 //! use kairos_protocol::{ReplyBody, Request, RequestBody, ServerMessage, Started};
 //!
 //! let request: Request = serde_json::from_str(r#"{"id": 1, "type": "start"}"#).unwrap();
-//! assert_eq!(request.body, RequestBody::Start { at_ns: None, forced: None, start_unlocked: false });
+//! assert_eq!(request.body, RequestBody::Start { at_ns: None, forced: None, start_unlocked: false, lock_bound_ns: None });
 //! let reply = ServerMessage::ok(1, &ReplyBody::Start(Started::default()));
 //! assert_eq!(serde_json::to_string(&reply).unwrap(), r#"{"type":"reply","id":1,"ok":true,"result":{}}"#);
 //! ```

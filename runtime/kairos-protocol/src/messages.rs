@@ -236,6 +236,10 @@ requests! {
         /// not locked to their master (the studio's "Start anyway"); the recordings say so.
         #[serde(default, skip_serializing_if = "std::ops::Not::not")]
         start_unlocked: bool,
+        /// For a runtime coordinating a diagram spread over hosts: how close to its master each host's
+        /// clock must be for the start to go ahead, ns (1 ns to 10 s); absent: 1 ms, as `kairos deploy`.
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        lock_bound_ns: Option<u64>,
     } => Started, Operator;
     /// Pauses it.
     Pause = "pause" => Done, Operator;

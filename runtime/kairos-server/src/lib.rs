@@ -393,7 +393,7 @@ fn deploy_at_boot(runtime: &Runtime, path: &Path, start: bool) -> anyhow::Result
         return Ok(false);
     }
     if start {
-        if let Err(error) = runtime.start(None, false) {
+        if let Err(error) = runtime.start(None, false, None) {
             eprintln!("{}: {}", path.display(), error.message);
             return Ok(false);
         }

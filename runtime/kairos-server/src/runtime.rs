@@ -613,7 +613,13 @@ impl Runtime {
     /// `forced`: the hosts whose clocks were not locked when the start was forced, written into every
     /// recording it begins. `start_unlocked`: for a diagram this runtime coordinates over hosts, start
     /// although some hosts' clocks are not locked (their names then go into the recordings instead).
-    pub fn start(&self, forced: Option<&str>, start_unlocked: bool) -> Result<(), ProtocolError> {
+    /// `lock_bound`: how close to their master hosts' clocks must be (absent: [`crate::spread::LOCK_BOUND`]).
+    pub fn start(
+        &self,
+        forced: Option<&str>,
+        start_unlocked: bool,
+        lock_bound: Option<std::time::Duration>,
+    ) -> Result<(), ProtocolError> {
         let mut deployment = self.lock();
         *self.start_note.lock().unwrap_or_else(PoisonError::into_inner) = forced.map(str::to_owned);
         let Some((_, spread)) = deployment.spread.clone() else {
@@ -622,7 +628,7 @@ impl Runtime {
         if deployment.engine.as_ref().map(Engine::state) == Some(EngineState::Paused) {
             return resume(&mut deployment, Some(&spread));
         }
-        let started = spread.start(start_unlocked, |unlocked| {
+        let started = spread.start(start_unlocked, lock_bound, |unlocked| {
             if let Some(unlocked) = unlocked {
                 *self.start_note.lock().unwrap_or_else(PoisonError::into_inner) = Some(unlocked.to_owned());
             }

@@ -485,7 +485,11 @@ impl Session {
                 at_ns,
                 forced,
                 start_unlocked,
-            } => ReplyBody::Start(self.start(at_ns, forced, start_unlocked).await?),
+                lock_bound_ns,
+            } => ReplyBody::Start(
+                self.start(at_ns, forced, start_unlocked, lock_bound(lock_bound_ns)?)
+                    .await?,
+            ),
             RequestBody::Pause => ReplyBody::Pause(self.blocking(Runtime::pause).await.map(|()| Done {})?),
             RequestBody::Resume => ReplyBody::Resume(self.blocking(Runtime::resume).await.map(|()| Done {})?),
             RequestBody::Stop { at_ns } => ReplyBody::Stop(self.stop(at_ns).await?),
@@ -610,11 +614,12 @@ impl Session {
         at_ns: Option<i64>,
         forced: Option<String>,
         start_unlocked: bool,
+        lock_bound: Option<Duration>,
     ) -> Result<kairos_protocol::Started, ProtocolError> {
         if let Some(at) = at_ns {
             self.wait_for_instant(Timestamp(at)).await?;
         }
-        self.blocking(move |r| r.start(forced.as_deref(), start_unlocked))
+        self.blocking(move |r| r.start(forced.as_deref(), start_unlocked, lock_bound))
             .await?;
         let late_ns = at_ns.map(|at| self.runtime().now().nanos_since(Timestamp(at)));
         if let Some(late) = late_ns {
@@ -914,4 +919,25 @@ fn abort(task: Option<JoinHandle<()>>) {
     if let Some(task) = task {
         task.abort();
     }
+}
+
+/// The longest lock bound a start may ask for: beyond it, clocks that far apart are not synchronised.
+const MOST_LOCK_BOUND: Duration = Duration::from_secs(10);
+
+/// A start's `lock_bound_ns`, checked: 1 ns to [`MOST_LOCK_BOUND`].
+fn lock_bound(lock_bound_ns: Option<u64>) -> Result<Option<Duration>, ProtocolError> {
+    let Some(ns) = lock_bound_ns else {
+        return Ok(None);
+    };
+    let bound = Duration::from_nanos(ns);
+    if bound.is_zero() || bound > MOST_LOCK_BOUND {
+        return Err(ProtocolError::new(
+            ErrorCode::InvalidValue,
+            format!(
+                "lock_bound_ns {ns}: a start's clock lock bound is from 1 ns to {} s (1 ms when absent)",
+                MOST_LOCK_BOUND.as_secs()
+            ),
+        ));
+    }
+    Ok(Some(bound))
 }

@@ -18,7 +18,7 @@ use kairos_coordinator::{self as deploy, Watch};
 const REFRESH_PERIOD: Duration = Duration::from_millis(250);
 
 /// The clock bound a start checks, as `kairos deploy`'s default `--lock-bound`.
-const LOCK_BOUND: Duration = Duration::from_millis(1);
+pub const LOCK_BOUND: Duration = Duration::from_millis(1);
 
 /// A spread diagram's hosts, watched from here.
 #[derive(Debug)]
@@ -91,6 +91,7 @@ impl Spread {
     pub fn start(
         &self,
         start_unlocked: bool,
+        lock_bound: Option<Duration>,
         start_here: impl FnOnce(Option<&str>) -> anyhow::Result<()>,
     ) -> anyhow::Result<()> {
         let mut watch = self.watch();
@@ -99,7 +100,8 @@ impl Spread {
                 "host '{lost}' is lost, so nothing was started: start it again, or wait for it to answer"
             );
         }
-        deploy::start_together(&mut watch.hosts, LOCK_BOUND, start_unlocked, start_here)?;
+        let bound = lock_bound.unwrap_or(LOCK_BOUND);
+        deploy::start_together(&mut watch.hosts, bound, start_unlocked, start_here)?;
         watch.set_running(true);
         Ok(())
     }
