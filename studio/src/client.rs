@@ -366,7 +366,7 @@ fn send_requests(
 
 /// How the studio's user fixes what the client refuses.
 const FIXES: Fixes = Fixes {
-    clear_text_opt_in: "start the studio with --allow-clear-text-token",
+    clear_text_opt_in: "start the studio with --allow-clear-text-tokens",
     certificate: "start the studio with --certificate FILE.pem",
 };
 

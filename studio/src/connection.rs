@@ -21,7 +21,7 @@ pub struct RuntimeAddress {
 }
 
 /// How the studio reaches runtimes on other machines: the certificate to trust for `wss://` addresses, and
-/// whether a token may cross the network in clear text (`--certificate`, `--allow-clear-text-token`).
+/// whether a token may cross the network in clear text (`--certificate`, `--allow-clear-text-tokens`).
 #[derive(Debug, Clone, Default)]
 pub struct Reach {
     /// The certificate to trust (PEM: the runtime's own, or its authority's).

@@ -5,6 +5,16 @@ use std::io::{BufRead as _, BufReader};
 use std::path::PathBuf;
 use std::process::{Child, Command, Stdio};
 
+/// Whether the user said the network is trusted (`--allow-clear-text-tokens`): the local runtimes started
+/// then send the tokens of the hosts they coordinate over plain ws:// too. One answer for the whole
+/// process, as the command line gives it.
+static NETWORK_TRUSTED: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
+
+/// Says the network is trusted: tokens may cross it over plain ws:// (see [`NETWORK_TRUSTED`]).
+pub fn trust_the_network() {
+    NETWORK_TRUSTED.store(true, std::sync::atomic::Ordering::Release);
+}
+
 /// A `kairos serve` child process.
 #[derive(Debug)]
 pub struct LocalRuntime {
@@ -76,6 +86,7 @@ impl LocalRuntime {
     }
 
     /// Starts `binary serve` loading the pack libraries in `packs` too, and waits until it listens.
+    /// Told to [`trust_the_network`], it sends the tokens of the hosts it coordinates over plain ws://.
     pub fn start_with_packs(binary: &std::path::Path, packs: &[PathBuf]) -> Result<LocalRuntime, String> {
         // One folder per runtime started, so two in one process never share a token file.
         static STARTED: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
@@ -99,6 +110,11 @@ impl LocalRuntime {
                 "--token-file",
             ])
             .arg(&token_file)
+            .args(
+                NETWORK_TRUSTED
+                    .load(std::sync::atomic::Ordering::Acquire)
+                    .then_some("--allow-clear-text-tokens"),
+            )
             .stdin(Stdio::piped())
             .stdout(Stdio::piped())
             .stderr(Stdio::inherit())

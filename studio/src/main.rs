@@ -1,5 +1,5 @@
 //! `kairos-studio [FILE] [--connect ws://HOST:PORT --token-file FILE] [--certificate FILE]
-//! [--allow-clear-text-token] [--view OUTPUT]... [--run]`: the studio. Without `--connect` it starts a local
+//! [--allow-clear-text-tokens] [--view OUTPUT]... [--run]`: the studio. Without `--connect` it starts a local
 //! runtime (`kairos serve` on loopback with a fresh token) and drives that.
 
 use std::path::PathBuf;
@@ -37,7 +37,11 @@ fn arguments() -> Result<Arguments, String> {
             "--certificate" => {
                 parsed.reach.certificate = Some(args.next().ok_or("--certificate needs a PEM file")?.into());
             }
-            "--allow-clear-text-token" => parsed.reach.allow_clear_text_token = true,
+            // The plural as `kairos deploy` and `kairos serve` spell it, the singular as studios before.
+            "--allow-clear-text-tokens" | "--allow-clear-text-token" => {
+                parsed.reach.allow_clear_text_token = true;
+                kairos_studio::local::trust_the_network();
+            }
             "--view" => parsed
                 .views
                 .push(args.next().ok_or("--view needs an output (component.port)")?),
@@ -45,11 +49,11 @@ fn arguments() -> Result<Arguments, String> {
             "-h" | "--help" => {
                 return Err(
                     "usage: kairos-studio [FILE] [--connect ws://HOST:PORT --token-file FILE] \
-                     [--certificate FILE] [--allow-clear-text-token] [--view OUTPUT]... [--run]\n  \
+                     [--certificate FILE] [--allow-clear-text-tokens] [--view OUTPUT]... [--run]\n  \
                      --connect wss://HOST:PORT  a runtime served over TLS: give --certificate, its certificate \
                      or its authority's (PEM)\n  \
-                     --allow-clear-text-token   send the token over plain ws:// to another machine (a network \
-                     you trust)\n  \
+                     --allow-clear-text-tokens  send tokens over plain ws:// to another machine: the runtime's, \
+                     and the hosts' of a diagram spread over them (a network you trust)\n  \
                      --view camera.image        opens a viewer on that output\n  \
                      --run                      deploys and starts the diagram once connected"
                         .to_owned(),

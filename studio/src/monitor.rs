@@ -78,6 +78,8 @@ pub struct Monitor {
     failures: BTreeMap<String, u64>,
     /// The hosts not answering now, and how many times each was lost or each link cut.
     lost_hosts: BTreeSet<String>,
+    /// The links between hosts cut now (seen matched before).
+    cut_links: BTreeSet<String>,
     cuts: BTreeMap<Problem, u64>,
     sort: SortBy,
     descending: bool,
@@ -92,6 +94,7 @@ impl Default for Monitor {
             cross_links: BTreeMap::new(),
             failures: BTreeMap::new(),
             lost_hosts: BTreeSet::new(),
+            cut_links: BTreeSet::new(),
             cuts: BTreeMap::new(),
             sort: SortBy::Name,
             descending: false,
@@ -115,6 +118,7 @@ impl Monitor {
         self.cross_links.clear();
         self.failures.clear();
         self.lost_hosts.clear();
+        self.cut_links.clear();
         self.cuts.clear();
     }
 
@@ -226,7 +230,8 @@ impl Monitor {
         }
         for link in &telemetry.cross_links {
             let name = format!("{} -> {}", link.from, link.to);
-            let was_matched = self.cross_links.get(&name).is_none_or(|l| l.matched);
+            // A link not seen matched yet (its sender has not said so before the start) is not cut.
+            let was_matched = self.cross_links.get(&name).is_some_and(|l| l.matched);
             let problem = Problem::LinkCut(name.clone());
             let between = format!(
                 "{} -> {}",
@@ -234,6 +239,7 @@ impl Monitor {
                 link.to_host.as_deref().unwrap_or("here")
             );
             if !link.matched && was_matched {
+                self.cut_links.insert(name.clone());
                 let text = format!(
                     "link {name} ({between}) is cut: its far end is out of reach; a consumer that never skips \
                      gets what was sent again when it returns (within its host's ride_out_s), any other \
@@ -243,7 +249,7 @@ impl Monitor {
                 *times += 1;
                 self.notices.raise(problem, text.clone(), *times);
                 said.push((LogLevel::Error, text));
-            } else if link.matched && !was_matched {
+            } else if link.matched && self.cut_links.remove(&name) {
                 self.notices.resolve(&problem);
                 said.push((LogLevel::Info, format!("link {name} ({between}) resumed")));
             }
@@ -476,6 +482,8 @@ mod tests {
     #[test]
     fn a_host_lost_and_a_link_cut_are_said_once_shown_until_they_return_and_their_return_said() {
         let mut monitor = Monitor::default();
+        // Before the start, a link's sender has not said it matched: neither a cut nor a return.
+        assert!(monitor.update(&telemetry(true, false)).is_empty());
         assert!(monitor.update(&telemetry(true, true)).is_empty());
         let said = monitor.update(&telemetry(false, false));
         let words: Vec<&str> = said.iter().map(|(_, text)| text.as_str()).collect();

@@ -65,6 +65,8 @@ pub struct ServeOptions {
     /// Where packs shipped by a deploying machine are written ([`default_shipped_pack_folder`] when
     /// `None`).
     pub shipped_pack_folder: Option<PathBuf>,
+    /// Coordinating a diagram spread over hosts, send tokens over plain ws:// to hosts off this machine.
+    pub clear_text_tokens: bool,
     /// Publish to Foxglove from boot.
     pub foxglove: Option<FoxgloveOptions>,
     /// Messages queued per Foxglove client before the oldest are dropped (also for a server started later
@@ -235,6 +237,9 @@ pub fn serve_with(
         })
         .transpose()?;
     let runtime = Runtime::new(registry);
+    if options.clear_text_tokens {
+        runtime.allow_clear_text_tokens();
+    }
     synchronise_clock(&runtime, options)?;
     if let Some(path) = &options.diagram
         && !deploy_at_boot(&runtime, path, options.start)?

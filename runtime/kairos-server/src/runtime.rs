@@ -58,6 +58,8 @@ pub struct Runtime {
     clock: Mutex<Option<Arc<dyn kairos_sdk_core::Clock>>>,
     /// Whether this runtime is the clock master of others.
     clock_master: AtomicBool,
+    /// Whether tokens may go over plain ws:// to hosts off this machine when it coordinates them.
+    clear_text_tokens: AtomicBool,
     /// How the current run was started when it was forced: in every clock's description.
     start_note: kairos_clock_sync::StartNote,
     /// Drawn at random when the server starts: a deployment's identity includes it, so that one made
@@ -188,6 +190,7 @@ impl Runtime {
             generation: AtomicU64::new(0),
             clock: Mutex::new(None),
             clock_master: AtomicBool::new(false),
+            clear_text_tokens: AtomicBool::new(false),
             start_note: kairos_clock_sync::StartNote::default(),
             boot: {
                 use std::hash::{BuildHasher as _, Hasher as _};
@@ -235,6 +238,12 @@ impl Runtime {
             Some(shared) => shared.now(),
             None => kairos_sdk_core::Clock::now(&kairos_sdk_core::RealTimeClock::new()),
         }
+    }
+
+    /// Lets the tokens of the hosts this runtime coordinates go over plain ws:// off this machine
+    /// (`kairos serve --allow-clear-text-tokens`: a network the user trusts).
+    pub fn allow_clear_text_tokens(&self) {
+        self.clear_text_tokens.store(true, Ordering::Release);
     }
 
     /// Makes this runtime the clock master of others: its own clock is the reference.
@@ -460,7 +469,8 @@ impl Runtime {
             old.end();
         }
         let folder = folder.map_or_else(|| std::env::current_dir().unwrap_or_default(), Path::to_owned);
-        let (spread, part) = Spread::deploy(&diagram, &self.registry(), &folder, |here| {
+        let clear_text_tokens = self.clear_text_tokens.load(Ordering::Acquire);
+        let (spread, part) = Spread::deploy(&diagram, &self.registry(), &folder, clear_text_tokens, |here| {
             self.build_part(here.clone(), diagnostics.clone(), None)
                 .map_err(|e| anyhow::anyhow!("this runtime's part: {}", e.message))
         })

@@ -36,7 +36,8 @@ pub fn is_spread(diagram: &Diagram) -> bool {
 impl Spread {
     /// Splits `whole`, prepares each host's part (shipping the packs it lacks) and this runtime's with
     /// `prepare_here`, commits them all, joins this runtime's links and waits for every link to match: the
-    /// spread, and what `prepare_here` made of the part that runs here. Nothing starts.
+    /// spread, and what `prepare_here` made of the part that runs here. Nothing starts. Tokens go over
+    /// plain ws:// to hosts off this machine only with `clear_text_tokens`.
     ///
     /// # Errors
     ///
@@ -46,10 +47,11 @@ impl Spread {
         whole: &Diagram,
         registry: &Registry,
         folder: &Path,
+        clear_text_tokens: bool,
         prepare_here: impl FnOnce(&Diagram) -> anyhow::Result<T>,
     ) -> anyhow::Result<(Arc<Spread>, T)> {
-        // A studio cannot say the network is trusted: tokens cross it over wss:// or on loopback only.
-        let (here, mut watch) = deploy::deploy_everywhere(whole, registry, folder, false, prepare_here)?;
+        let (here, mut watch) =
+            deploy::deploy_everywhere(whole, registry, folder, clear_text_tokens, prepare_here)?;
         // A host that returns while the diagram is stopped gets its part back, not started.
         watch.set_running(false);
         let spread = Arc::new(Spread {

@@ -63,6 +63,10 @@ pub struct ServeArgs {
     /// `~/.local/share/kairos/shipped-packs`).
     #[arg(long, value_name = "DIR")]
     pub shipped_pack_dir: Option<PathBuf>,
+    /// When this runtime coordinates a diagram spread over hosts (the studio's Run): send their tokens
+    /// over plain ws:// to hosts off this machine, on a network you trust (else only wss:// or loopback).
+    #[arg(long)]
+    pub allow_clear_text_tokens: bool,
     #[command(flatten)]
     pub foxglove: FoxgloveArgs,
 }
@@ -86,6 +90,7 @@ impl ServeArgs {
                 clock_system: self.clock_system_against.map(|master| (master, self.clock_alarm)),
                 tls: self.tls_cert.zip(self.tls_key),
                 shipped_pack_folder: self.shipped_pack_dir,
+                clear_text_tokens: self.allow_clear_text_tokens,
                 foxglove_backlog: self.foxglove.foxglove_backlog,
                 foxglove: self.foxglove.options(),
             },
