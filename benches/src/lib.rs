@@ -473,7 +473,7 @@ pub fn start_kairos_serve() -> Option<std::net::SocketAddr> {
                 clock_system: None,
                 tls: None,
                 shipped_pack_folder: None,
-                clear_text_tokens: false,
+                host_tokens: kairos_server::HostTokens::Protected,
                 foxglove: None,
                 foxglove_backlog: kairos_server::DEFAULT_FOXGLOVE_BACKLOG,
             };

@@ -34,6 +34,16 @@ pub use runtime::Runtime;
 /// The address `kairos serve` listens on unless told otherwise.
 pub const DEFAULT_LISTEN: &str = "127.0.0.1:7400";
 
+/// How the tokens of the hosts a runtime coordinates (a diagram spread over them) travel.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub enum HostTokens {
+    /// Over wss://, or over plain ws:// to this machine only.
+    #[default]
+    Protected,
+    /// Over plain ws:// to other machines too: a network the user trusts (`--allow-clear-text-tokens`).
+    ClearTextAllowed,
+}
+
 /// What `kairos serve` was asked to do.
 #[derive(Debug, Clone)]
 pub struct ServeOptions {
@@ -65,8 +75,8 @@ pub struct ServeOptions {
     /// Where packs shipped by a deploying machine are written ([`default_shipped_pack_folder`] when
     /// `None`).
     pub shipped_pack_folder: Option<PathBuf>,
-    /// Coordinating a diagram spread over hosts, send tokens over plain ws:// to hosts off this machine.
-    pub clear_text_tokens: bool,
+    /// How the tokens of the hosts this runtime coordinates travel.
+    pub host_tokens: HostTokens,
     /// Publish to Foxglove from boot.
     pub foxglove: Option<FoxgloveOptions>,
     /// Messages queued per Foxglove client before the oldest are dropped (also for a server started later
@@ -237,7 +247,7 @@ pub fn serve_with(
         })
         .transpose()?;
     let runtime = Runtime::new(registry);
-    if options.clear_text_tokens {
+    if options.host_tokens == HostTokens::ClearTextAllowed {
         runtime.allow_clear_text_tokens();
     }
     synchronise_clock(&runtime, options)?;

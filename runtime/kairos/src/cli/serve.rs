@@ -63,10 +63,8 @@ pub struct ServeArgs {
     /// `~/.local/share/kairos/shipped-packs`).
     #[arg(long, value_name = "DIR")]
     pub shipped_pack_dir: Option<PathBuf>,
-    /// When this runtime coordinates a diagram spread over hosts (the studio's Run): send their tokens
-    /// over plain ws:// to hosts off this machine, on a network you trust (else only wss:// or loopback).
-    #[arg(long)]
-    pub allow_clear_text_tokens: bool,
+    #[command(flatten)]
+    pub hosts: CoordinatingArgs,
     #[command(flatten)]
     pub foxglove: FoxgloveArgs,
 }
@@ -90,12 +88,26 @@ impl ServeArgs {
                 clock_system: self.clock_system_against.map(|master| (master, self.clock_alarm)),
                 tls: self.tls_cert.zip(self.tls_key),
                 shipped_pack_folder: self.shipped_pack_dir,
-                clear_text_tokens: self.allow_clear_text_tokens,
+                host_tokens: if self.hosts.allow_clear_text_tokens {
+                    kairos_server::HostTokens::ClearTextAllowed
+                } else {
+                    kairos_server::HostTokens::Protected
+                },
                 foxglove_backlog: self.foxglove.foxglove_backlog,
                 foxglove: self.foxglove.options(),
             },
         )
     }
+}
+
+/// What `serve` takes for the hosts it coordinates, when deployed a diagram spread over them (the studio's
+/// Run).
+#[derive(Debug, clap::Args)]
+pub struct CoordinatingArgs {
+    /// Send the hosts' tokens over plain ws:// to machines off this one, on a network you trust (else
+    /// only over wss:// or on loopback).
+    #[arg(long)]
+    pub allow_clear_text_tokens: bool,
 }
 
 /// What `kairos status` takes.
