@@ -75,22 +75,23 @@ impl Database {
     ///
     /// # Errors
     ///
-    /// The file cannot be read or does not parse: the message names the file and, where the parser
-    /// says, the line and column.
+    /// The file cannot be read or does not parse: the message names the file and, for a parse error,
+    /// the line and column of the fault (`broken.dbc:18:18: ...`).
     pub fn open(path: &Path) -> Result<Self, DbcFileError> {
         let shown = path.display();
         let bytes = std::fs::read(path).map_err(|e| DbcFileError(format!("cannot read {shown}: {e}")))?;
         let text = String::from_utf8_lossy(&bytes);
-        Self::parse(&text).map_err(|e| DbcFileError(format!("{shown}: {}", e.0)))
+        Self::parse(&text).map_err(|e| DbcFileError(format!("{shown}:{}", e.0)))
     }
 
     /// Reads a DBC file's text.
     ///
     /// # Errors
     ///
-    /// It does not parse (the message has the line and column where the parser says).
+    /// It does not parse: the message starts `LINE:COLUMN:` at the fault (for a signal line, the first
+    /// field that is wrong).
     pub fn parse(text: &str) -> Result<Self, DbcFileError> {
-        let dbc = Dbc::try_from(text).map_err(|e| DbcFileError(e.to_string()))?;
+        let dbc = Dbc::try_from(text).map_err(|e| DbcFileError(located(&e, text)))?;
         let mut messages = BTreeMap::new();
         for message in &dbc.messages {
             let key = match message.id {
@@ -250,6 +251,182 @@ fn physical(signal: &SignalSpec, raw: u64) -> f64 {
     number * signal.factor + signal.offset
 }
 
+/// A parse error as `LINE:COLUMN: what was expected`, with the line. The parser places a fault in a
+/// signal line where the optional multiplexer indicator could have been (before its `:`), so a signal
+/// line is read here field by field to find the first one that is wrong.
+fn located(error: &can_dbc::DbcError, text: &str) -> String {
+    let can_dbc::DbcError::Pest(error) = error else {
+        return format!(" {error}");
+    };
+    let (line, column) = match error.line_col {
+        pest::error::LineColLocation::Pos(at) | pest::error::LineColLocation::Span(at, _) => at,
+    };
+    let source = text.lines().nth(line.saturating_sub(1)).unwrap_or_default();
+    let (column, what) = signal_fault(source).unwrap_or_else(|| (column, expected(&error.variant)));
+    format!("{line}:{column}: {what}\n  {line} | {source}")
+}
+
+/// What the parser expected, in words.
+fn expected<R: std::fmt::Debug>(variant: &pest::error::ErrorVariant<R>) -> String {
+    match variant {
+        pest::error::ErrorVariant::ParsingError { positives, .. } if !positives.is_empty() => {
+            let names: Vec<String> = positives
+                .iter()
+                .map(|rule| format!("{rule:?}").replace('_', " "))
+                .collect();
+            format!("expected {}", names.join(" or "))
+        }
+        pest::error::ErrorVariant::ParsingError { .. } => "unexpected text".to_owned(),
+        pest::error::ErrorVariant::CustomError { message } => message.clone(),
+    }
+}
+
+/// In a signal line (` SG_ NAME [MUX] : START|SIZE@ORDER SIGN (FACTOR,OFFSET) [MIN|MAX] "UNIT" NODES`),
+/// the 1-based column of the first field that is wrong and what it should be; `None` for another line,
+/// or one whose fields are all right.
+fn signal_fault(line: &str) -> Option<(usize, String)> {
+    let mut scan = Scan { line, at: 0 };
+    scan.spaces();
+    if !scan.word("SG_") {
+        return None;
+    }
+    let fields: [(&str, fn(&mut Scan<'_>) -> bool); 16] = [
+        ("the signal's name", |s| s.spaces_then(Scan::identifier)),
+        ("a multiplexer indicator (M, mN or mNM) or ':'", |s| {
+            s.spaces();
+            let mark = s.at;
+            if s.identifier() && !s.line[mark..s.at].starts_with(['M', 'm']) {
+                return false;
+            }
+            true
+        }),
+        ("':'", |s| s.spaces_then(|s| s.word(":"))),
+        ("the start bit, a whole number", |s| s.spaces_then(Scan::digits)),
+        ("'|'", |s| s.word("|")),
+        ("the size in bits, a whole number", |s| s.digits()),
+        ("'@'", |s| s.word("@")),
+        ("the byte order: 1 (Intel) or 0 (Motorola)", |s| {
+            s.word("1") || s.word("0")
+        }),
+        ("the sign: + (unsigned) or - (signed)", |s| {
+            s.word("+") || s.word("-")
+        }),
+        ("'(' and the factor, a number", |s| {
+            s.spaces_then(|s| s.word("(") && s.number())
+        }),
+        ("',' and the offset, a number, then ')'", |s| {
+            s.word(",") && s.number() && s.word(")")
+        }),
+        ("'[' and the minimum, a number", |s| {
+            s.spaces_then(|s| s.word("[") && s.number())
+        }),
+        ("'|' and the maximum, a number, then ']'", |s| {
+            s.word("|") && s.number() && s.word("]")
+        }),
+        ("the unit in double quotes", |s| s.spaces_then(Scan::quoted)),
+        ("the receiving nodes", |s| s.spaces_then(Scan::identifier)),
+        ("more receiving nodes after ','", |s| {
+            while s.spaces_then(|s| s.word(",")) {
+                if !s.spaces_then(Scan::identifier) {
+                    return false;
+                }
+            }
+            s.spaces();
+            s.at == s.line.len()
+        }),
+    ];
+    for (what, field) in fields {
+        let from = scan.at;
+        if !field(&mut scan) {
+            // The column of the field's first character past the spaces before it.
+            let start = from + line[from..].len() - line[from..].trim_start().len();
+            let found: String = line[start..]
+                .chars()
+                .take_while(|c| !c.is_whitespace())
+                .take(16)
+                .collect();
+            let found = if found.is_empty() {
+                "the end of the line".to_owned()
+            } else {
+                format!("{found:?}")
+            };
+            return Some((start + 1, format!("expected {what}, found {found}")));
+        }
+    }
+    None
+}
+
+/// A cursor over one line.
+struct Scan<'a> {
+    line: &'a str,
+    at: usize,
+}
+
+impl Scan<'_> {
+    fn rest(&self) -> &str {
+        &self.line[self.at..]
+    }
+
+    fn spaces(&mut self) {
+        self.at = self.line.len() - self.rest().trim_start().len();
+    }
+
+    fn spaces_then(&mut self, then: impl FnOnce(&mut Self) -> bool) -> bool {
+        self.spaces();
+        then(self)
+    }
+
+    fn word(&mut self, word: &str) -> bool {
+        let found = self.rest().starts_with(word);
+        if found {
+            self.at += word.len();
+        }
+        found
+    }
+
+    /// Characters while `keep`; whether there was one.
+    fn take(&mut self, keep: impl Fn(char) -> bool) -> bool {
+        let length: usize = self
+            .rest()
+            .chars()
+            .take_while(|c| keep(*c))
+            .map(char::len_utf8)
+            .sum();
+        self.at += length;
+        length > 0
+    }
+
+    fn identifier(&mut self) -> bool {
+        self.rest()
+            .starts_with(|c: char| c.is_ascii_alphabetic() || c == '_')
+            && self.take(|c| c.is_ascii_alphanumeric() || c == '_')
+    }
+
+    /// Digits, then nothing that would make the field something else.
+    fn digits(&mut self) -> bool {
+        self.take(|c| c.is_ascii_digit()) && !self.rest().starts_with(|c: char| c.is_ascii_alphanumeric())
+    }
+
+    fn number(&mut self) -> bool {
+        let start = self.at;
+        self.take(|c| c.is_ascii_digit() || matches!(c, '+' | '-' | '.' | 'e' | 'E'));
+        self.line[start..self.at].parse::<f64>().is_ok()
+    }
+
+    fn quoted(&mut self) -> bool {
+        if !self.word("\"") {
+            return false;
+        }
+        match self.rest().find('"') {
+            Some(end) => {
+                self.at += end + 1;
+                true
+            }
+            None => false,
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -348,9 +525,32 @@ BO_ 2147484160 Diag: 8 ECU
     }
 
     #[test]
-    fn a_dbc_with_an_error_says_where() {
-        let broken = DBC.replace("SG_ Speed : 0|16@1+", "SG_ Speed : 0|16@3+");
-        let error = Database::parse(&broken).unwrap_err().to_string();
-        assert!(error.contains("10:"), "{error}");
+    fn a_dbc_error_is_placed_at_the_field_that_is_wrong() {
+        let error = |from: &str, to: &str| {
+            let broken = DBC.replace(from, to);
+            let message = Database::parse(&broken).unwrap_err().to_string();
+            message.lines().next().unwrap_or_default().to_owned()
+        };
+        assert_eq!(
+            error("SG_ Speed : 0|16@1+", "SG_ Speed : 0|16@3+"),
+            "10:19: expected the byte order: 1 (Intel) or 0 (Motorola), found \"3+\""
+        );
+        assert_eq!(
+            error("SG_ Speed : 0|16@1+", "SG_ Speed : 0|1x@1+"),
+            "10:16: expected the size in bits, a whole number, found \"1x@1+\""
+        );
+        assert_eq!(
+            error("\"rpm\" DASH", "rpm DASH"),
+            "10:44: expected the unit in double quotes, found \"rpm\""
+        );
+        assert_eq!(
+            error("(0.25,0) [0|16383.75]", "(0.25;0) [0|16383.75]"),
+            "10:27: expected ',' and the offset, a number, then ')', found \";0)\""
+        );
+        // Elsewhere, where the parser says.
+        assert_eq!(
+            error("BO_ 512 Brake: 8 ECU", "BO_ x512 Brake: 8 ECU"),
+            "14:5: expected message id"
+        );
     }
 }
