@@ -268,14 +268,15 @@ fn decoder_base() -> Descriptor {
         "can.dbc_decoder",
         "CAN",
         "Decodes CAN frames with a DBC database into named, scaled signals with units: every signal of a \
-         frame as one line of text, and one number output per signal of the database",
+         frame as one line of text, one number output per signal of the database, and one text output per \
+         signal whose values the database describes (VAL_: `On`, `Off`)",
     )
     .label("CAN decoder (DBC)")
     .input_with_policy("frame", can_frames(), ReaderPolicy::Fifo, "The frames to decode")
     .output(
         "signals",
         DataType::Text,
-        "Each decoded frame: `Message: Signal = value unit; ...`",
+        "Each decoded frame: `Message: Signal = value unit; ...`, a described value in its words",
     )
     .property(Property::path("dbc", "").doc("The DBC file"))
 }
@@ -292,7 +293,13 @@ fn output_name(message: &str, signal: &str) -> String {
     format!("{message}_{signal}")
 }
 
-/// `can.dbc_decoder`'s descriptor for an instance: one output per signal of its DBC.
+/// The text output of a signal with value descriptions: `Message_Signal_text`.
+fn text_output_name(message: &str, signal: &str) -> String {
+    format!("{message}_{signal}_text")
+}
+
+/// `can.dbc_decoder`'s descriptor for an instance: one output per signal of its DBC, then one text output
+/// per signal with value descriptions (after every number output, so theirs keep their places).
 ///
 /// # Errors
 ///
@@ -306,6 +313,26 @@ pub fn describe_decoder(properties: &BTreeMap<String, Value>) -> Result<Componen
                 &output_name(&message.name, &signal.name),
                 DataType::F64,
                 &signal_doc(&message.name, signal),
+            );
+        }
+    }
+    for message in database.messages.values() {
+        for signal in message.signals.iter().filter(|s| !s.choices.is_empty()) {
+            let words: Vec<&str> = signal.choices.values().map(String::as_str).take(4).collect();
+            descriptor = descriptor.output(
+                &text_output_name(&message.name, &signal.name),
+                DataType::Text,
+                &format!(
+                    "{}.{} in words ({}{})",
+                    message.name,
+                    signal.name,
+                    words.join(", "),
+                    if signal.choices.len() > words.len() {
+                        ", …"
+                    } else {
+                        ""
+                    }
+                ),
             );
         }
     }
@@ -340,6 +367,8 @@ pub struct DbcDecoder {
     /// Per message, the output index of its first signal (outputs follow the database's order, as
     /// [`describe_decoder`] makes them).
     first_output: BTreeMap<(u32, bool), usize>,
+    /// Per message and signal index, the text output of a signal with value descriptions.
+    text_outputs: BTreeMap<((u32, bool), usize), usize>,
     unknown: u64,
     decoded: u64,
     published: Throttle,
@@ -354,6 +383,14 @@ impl Component for DbcDecoder {
         for (key, message) in &self.database.messages {
             self.first_output.insert(*key, next);
             next += message.signals.len();
+        }
+        for (key, message) in &self.database.messages {
+            for (index, signal) in message.signals.iter().enumerate() {
+                if !signal.choices.is_empty() {
+                    self.text_outputs.insert((*key, index), next);
+                    next += 1;
+                }
+            }
         }
         Ok(())
     }
@@ -379,10 +416,14 @@ impl Component for DbcDecoder {
             } else {
                 line.push_str("; ");
             }
-            let _ = write!(line, "{} = {}", signal.signal, readable(signal.value));
-            if !signal.unit.is_empty() {
-                line.push(' ');
-                line.push_str(signal.unit);
+            if let Some(words) = signal.choice {
+                let _ = write!(line, "{} = {words}", signal.signal);
+            } else {
+                let _ = write!(line, "{} = {}", signal.signal, readable(signal.value));
+                if !signal.unit.is_empty() {
+                    line.push(' ');
+                    line.push_str(signal.unit);
+                }
             }
         }
         let first = self
@@ -390,10 +431,18 @@ impl Component for DbcDecoder {
             .get(&(frame.id, frame.extended))
             .copied()
             .unwrap_or(0);
+        let key = (frame.id, frame.extended);
         let outputs: Vec<(usize, f64)> = signals.iter().map(|s| (first + s.index, s.value)).collect();
+        let words: Vec<(usize, Arc<str>)> = signals
+            .iter()
+            .filter_map(|s| Some((*self.text_outputs.get(&(key, s.index))?, Arc::from(s.choice?))))
+            .collect();
         ctx.write_processed(0, &sample, Payload::Text(Arc::from(line)))?;
         for (output, value) in outputs {
             ctx.write_processed(output, &sample, Payload::F64(value))?;
+        }
+        for (output, text) in words {
+            ctx.write_processed(output, &sample, Payload::Text(text))?;
         }
         if self.published.ready(STATUS_PERIOD) {
             ctx.set_status(

@@ -32,6 +32,8 @@ pub struct SignalSpec {
     /// `Some(value)`: decoded only when the message's multiplexor holds it.
     multiplexed_on: Option<u64>,
     is_multiplexor: bool,
+    /// Its value descriptions (`VAL_`): a raw value's meaning, in words.
+    pub choices: BTreeMap<i64, String>,
 }
 
 /// One message of the database.
@@ -56,6 +58,8 @@ pub struct Decoded<'a> {
     pub value: f64,
     /// Its unit.
     pub unit: &'a str,
+    /// What its raw value means, where the database describes it (`VAL_`).
+    pub choice: Option<&'a str>,
 }
 
 /// A database, by frame identifier.
@@ -120,6 +124,12 @@ impl Database {
                         MultiplexIndicator::Multiplexor
                             | MultiplexIndicator::MultiplexorAndMultiplexedSignal(_)
                     ),
+                    choices: dbc
+                        .value_descriptions_for_signal(message.id, &signal.name)
+                        .unwrap_or_default()
+                        .iter()
+                        .map(|choice| (choice.id, choice.description.clone()))
+                        .collect(),
                 })
                 .collect();
             messages.insert(
@@ -156,6 +166,7 @@ impl Database {
                     signal: &signal.name,
                     value: physical(signal, raw),
                     unit: &signal.unit,
+                    choice: signal.choices.get(&integer(signal, raw)).map(String::as_str),
                 })
             })
             .collect();
@@ -234,17 +245,23 @@ fn raw_of(signal: &SignalSpec, data: &[u8]) -> Option<u64> {
     Some(raw)
 }
 
+/// The raw value as the integer it stands for: two's complement in its size when signed.
+#[allow(clippy::cast_possible_wrap, reason = "a signal of at most 64 bits")]
+fn integer(signal: &SignalSpec, raw: u64) -> i64 {
+    if signal.signed && signal.size > 0 && signal.size < 64 && raw >> (signal.size - 1) & 1 == 1 {
+        (raw | (u64::MAX << signal.size)) as i64
+    } else {
+        raw as i64
+    }
+}
+
 fn physical(signal: &SignalSpec, raw: u64) -> f64 {
     #[allow(
-        clippy::cast_possible_wrap,
         clippy::cast_precision_loss,
-        reason = "a signal of at most 64 bits"
+        reason = "a signal of at most 64 bits, as exact as a double holds it"
     )]
-    let number = if signal.signed && signal.size > 0 && signal.size < 64 && raw >> (signal.size - 1) & 1 == 1
-    {
-        (raw | (u64::MAX << signal.size)) as i64 as f64
-    } else if signal.signed {
-        raw as i64 as f64
+    let number = if signal.signed {
+        integer(signal, raw) as f64
     } else {
         raw as f64
     };
@@ -290,7 +307,7 @@ fn signal_fault(line: &str) -> Option<(usize, String)> {
     if !scan.word("SG_") {
         return None;
     }
-    let fields: [(&str, fn(&mut Scan<'_>) -> bool); 16] = [
+    let fields: [(&str, Field); 16] = [
         ("the signal's name", |s| s.spaces_then(Scan::identifier)),
         ("a multiplexer indicator (M, mN or mNM) or ':'", |s| {
             s.spaces();
@@ -355,6 +372,9 @@ fn signal_fault(line: &str) -> Option<(usize, String)> {
     }
     None
 }
+
+/// Reads one field of a line, past it; whether it is right.
+type Field = fn(&mut Scan<'_>) -> bool;
 
 /// A cursor over one line.
 struct Scan<'a> {

@@ -103,6 +103,68 @@ fn the_decoder_gives_signals_by_name_with_units_and_a_number_output_each() {
 }
 
 #[test]
+fn described_values_are_said_in_words_in_the_text_and_on_a_text_output_of_their_own() {
+    let dir = tempfile::tempdir().unwrap();
+    let dbc = dir.path().join("brakes.dbc");
+    std::fs::write(
+        &dbc,
+        format!(
+            "{DBC}\nBO_ 512 Brakes: 2 ECU\n SG_ ParkingBrake : 0|1@1+ (1,0) [0|1] \"\" DASH\n \
+             SG_ Gear : 8|4@1- (1,0) [-1|6] \"\" DASH\n\n\
+             VAL_ 512 ParkingBrake 0 \"Off\" 1 \"On\" ;\nVAL_ 512 Gear -1 \"Reverse\" 0 \"Neutral\" 1 \"First\" ;\n"
+        ),
+    )
+    .unwrap();
+    let properties = BTreeMap::from([("dbc".to_owned(), Value::Text(dbc.display().to_string()))]);
+    let info = describe_decoder(&properties).unwrap();
+    let outputs: Vec<&str> = info.outputs.iter().map(|o| o.name.as_str()).collect();
+    assert_eq!(
+        outputs,
+        [
+            "signals",
+            "Engine_Speed",
+            "Engine_Temperature",
+            "Brakes_ParkingBrake",
+            "Brakes_Gear",
+            "Brakes_ParkingBrake_text",
+            "Brakes_Gear_text"
+        ]
+    );
+    let mut harness = Harness::new(info, DbcDecoder::default());
+    harness.set_property("dbc", dbc.display().to_string()).unwrap();
+    // Parking brake on, gear -1 (4-bit two's complement 0xF); then off, gear 5 (no description).
+    for (data, at) in [([0x01, 0x0F], 1), ([0x00, 0x05], 2)] {
+        let frame = CanFrame::new(512, false, &data).unwrap();
+        harness.push("frame", Payload::CanFrame(frame), Timestamp(at));
+    }
+    let out = harness.finish().unwrap();
+    let texts = |output: &str| -> Vec<String> {
+        out.samples(output)
+            .iter()
+            .map(|s| match &s.payload {
+                Payload::Text(text) => text.to_string(),
+                other => panic!("{other:?}"),
+            })
+            .collect()
+    };
+    assert_eq!(
+        texts("signals"),
+        [
+            "Brakes: ParkingBrake = On; Gear = Reverse",
+            "Brakes: ParkingBrake = Off; Gear = 5"
+        ]
+    );
+    assert_eq!(texts("Brakes_ParkingBrake_text"), ["On", "Off"]);
+    assert_eq!(
+        texts("Brakes_Gear_text"),
+        ["Reverse"],
+        "a value without words has none"
+    );
+    assert_eq!(out.f64_values("Brakes_ParkingBrake"), [1.0, 0.0]);
+    assert_eq!(out.f64_values("Brakes_Gear"), [-1.0, 5.0]);
+}
+
+#[test]
 fn the_encoder_makes_frames_the_decoder_reads_back_with_the_newest_value_of_each_signal() {
     let dir = tempfile::tempdir().unwrap();
     let dbc = dir.path().join("engine.dbc");
@@ -165,8 +227,11 @@ fn a_dbc_with_an_error_is_refused_on_its_property_with_the_line() {
     let properties = BTreeMap::from([("dbc".to_owned(), Value::Text(dbc.display().to_string()))]);
     let error = describe_decoder(&properties).unwrap_err();
     assert_eq!(error.property.as_deref(), Some("dbc"));
+    // At the fault: line 10, column 19 (the byte order), as FILE:LINE:COLUMN.
     assert!(
-        error.message.contains("broken.dbc") && error.message.contains("10:"),
+        error
+            .message
+            .contains("broken.dbc:10:19: expected the byte order"),
         "{}",
         error.message
     );
