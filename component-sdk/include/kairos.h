@@ -55,7 +55,8 @@ extern "C" {
 #define KAIROS_POINT_CLOUD 9u /* width points as x, y, z floats in data; if flags & 1, width intensities follow */
 #define KAIROS_IMU 10u        /* values: gyro x y z (rad/s), accel x y z (m/s2); if flags & 1, quaternion x y z w */
 #define KAIROS_GNSS_FIX 11u   /* values: lat, lon (deg), alt (m), h and v accuracy (m); scalar_i64: 0 none 1 fix 2 differential 3 RTK */
-#define KAIROS_CAN_FRAME 12u  /* scalar_i64: identifier; flags & 1 extended, & 2 FD; data bytes in data */
+#define KAIROS_CAN_FRAME 12u  /* scalar_i64: identifier; flags & 1 extended, & 2 FD, & 4 remote request
+                                 (no data; width: the length it asks for); data bytes in data */
 #define KAIROS_POSE 13u       /* values: x y z (m), quaternion x y z w */
 #define KAIROS_CUSTOM 14u     /* type_name and data */
 

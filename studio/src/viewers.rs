@@ -1120,6 +1120,9 @@ fn table_text(data_type: &str, value: &serde_json::Value, payload_len: usize) ->
             } else {
                 format!("{id:03X}")
             };
+            if frame["remote"].as_bool().unwrap_or(false) {
+                return format!("{id} [{}] remote request", frame["length"].as_u64().unwrap_or(0));
+            }
             let fd = if frame["fd"].as_bool().unwrap_or(false) {
                 " (FD)"
             } else {
@@ -1146,6 +1149,8 @@ mod tests {
         assert_eq!(table_text("can_frame", &frame, 0), "100 [3] 40 1F EC");
         let extended = serde_json::json!({"id": 0x18FF_0001_u32, "extended": true, "fd": false, "data": []});
         assert_eq!(table_text("can_frame", &extended, 0), "18FF0001 [0] ");
+        let remote = serde_json::json!({"id": 291, "extended": false, "fd": false, "data": [], "remote": true, "length": 4});
+        assert_eq!(table_text("can_frame", &remote, 0), "123 [4] remote request");
         assert_eq!(table_text("f64", &serde_json::json!(0.5), 0), "0.5");
         assert_eq!(
             table_text("image", &serde_json::Value::Null, 921_600),

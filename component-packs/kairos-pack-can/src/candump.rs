@@ -1,6 +1,6 @@
 //! The candump log format (can-utils' `candump -l`, `canplayer`): one frame per line,
 //! `(seconds.micros) interface ID#DATA`. A classic frame's data is up to 8 hex bytes; `ID##F` starts a
-//! CAN FD frame with the flags nibble F; `ID#R` is a remote request. An identifier of 3 hex digits is
+//! CAN FD frame with the flags nibble F; `ID#R` is a remote request, `ID#R5` one asking for 5 bytes. An identifier of 3 hex digits is
 //! standard, of 8 extended; one with bit 29 set (`CAN_ERR_FLAG`) is an error frame.
 
 use std::fmt::Write as _;
@@ -86,8 +86,28 @@ pub fn parse(line: &str) -> Result<Logged, LineError> {
                 .ok_or_else(|| bad("a CAN FD frame needs its flags digit after '##'"))?;
             (true, chars.as_str())
         }
-        None if data_text.starts_with('R') => (false, ""),
-        None => (false, data_text),
+        None => match data_text.strip_prefix('R') {
+            Some(length) => {
+                let length = match length {
+                    "" => 0,
+                    digit => digit
+                        .parse::<u8>()
+                        .ok()
+                        .filter(|length| *length <= 8)
+                        .ok_or_else(|| {
+                            bad(format!("a remote request asks for 0 to 8 bytes, not {digit:?}"))
+                        })?,
+                };
+                let frame =
+                    CanFrame::remote_request(id, extended, length).ok_or_else(|| bad("remote request"))?;
+                return Ok(Logged::Frame {
+                    time_s,
+                    interface,
+                    frame,
+                });
+            }
+            None => (false, data_text),
+        },
     };
     if hex.len() % 2 != 0 || !hex.chars().all(|c| c.is_ascii_hexdigit()) {
         return Err(bad(format!("the data {hex:?} is not whole hex bytes")));
@@ -121,6 +141,14 @@ pub fn format(frame: &CanFrame, time_ns: i64, interface: &str) -> String {
     } else {
         format!("{:03X}", frame.id)
     };
+    if frame.remote {
+        let length = if frame.length() == 0 {
+            String::new()
+        } else {
+            frame.length().to_string()
+        };
+        return format!("({seconds}.{micros:06}) {interface} {id}#R{length}");
+    }
     let mut data = String::with_capacity(frame.data().len() * 2);
     for byte in frame.data() {
         let _ = write!(data, "{byte:02X}");
@@ -161,10 +189,14 @@ mod tests {
         };
         assert!(frame.fd);
         assert_eq!(frame.data().len(), 9);
-        let Logged::Frame { frame, .. } = parse("(1.0) can0 123#R").unwrap() else {
-            panic!()
-        };
-        assert!(frame.data().is_empty());
+        // Remote requests, with and without the length they ask for, written back as they were.
+        for line in ["(1.000000) can0 123#R", "(1.000000) can0 1ABCDEF0#R8"] {
+            let Logged::Frame { frame, .. } = parse(line).unwrap() else {
+                panic!()
+            };
+            assert!(frame.remote && frame.data().is_empty(), "{line}");
+            assert_eq!(format(&frame, 1_000_000_000, "can0"), line);
+        }
         assert!(matches!(
             parse("(2.5) can0 20000080#0000000000000000").unwrap(),
             Logged::Error { .. }
@@ -182,6 +214,7 @@ mod tests {
             ("(1.0) vcan0 044#2A3", "whole hex bytes"),
             ("(1.0) vcan0 044#000000000000000000", "more than a classic"),
             ("(1.0) vcan0 844#00", "over 7FF"),
+            ("(1.0) vcan0 123#R9", "0 to 8 bytes"),
         ] {
             let error = parse(line).unwrap_err().to_string();
             assert!(error.contains(says), "{line}: {error}");

@@ -13,7 +13,7 @@ use kairos_sdk::{
 use kairos_sdk::{DeviceKind, STATUS_PERIOD, Throttle};
 use socketcan::{
     CanAnyFrame, CanDataFrame, CanErrorFrame, CanFdFrame, CanFdSocket, CanFilter, CanFrame as BusFrame,
-    CanSocket, EmbeddedFrame, ExtendedId, Frame as _, Id, Socket, SocketOptions, StandardId,
+    CanRemoteFrame, CanSocket, EmbeddedFrame, ExtendedId, Frame as _, Id, Socket, SocketOptions, StandardId,
 };
 
 /// How long one read waits, so stop and control requests get through.
@@ -77,7 +77,7 @@ enum Bus {
 #[derive(Debug)]
 enum Received {
     Frame(CanFrame),
-    Remote,
+    Remote(CanFrame),
     Error(String),
     /// More data than a frame holds: cannot come from the kernel, counted if it ever does.
     Oversized,
@@ -116,7 +116,7 @@ impl Bus {
         Ok(match self {
             Bus::Classic(socket) => match socket.read_frame()? {
                 BusFrame::Data(frame) => converted(frame.raw_id(), frame.is_extended(), frame.data(), false),
-                BusFrame::Remote(_) => Received::Remote,
+                BusFrame::Remote(frame) => remote(frame.raw_id(), frame.is_extended(), frame.dlc()),
                 BusFrame::Error(frame) => Received::Error(error_text(frame)),
             },
             Bus::Fd(socket) => match socket.read_frame()? {
@@ -124,7 +124,7 @@ impl Bus {
                     converted(frame.raw_id(), frame.is_extended(), frame.data(), false)
                 }
                 CanAnyFrame::Fd(frame) => converted(frame.raw_id(), frame.is_extended(), frame.data(), true),
-                CanAnyFrame::Remote(_) => Received::Remote,
+                CanAnyFrame::Remote(frame) => remote(frame.raw_id(), frame.is_extended(), frame.dlc()),
                 CanAnyFrame::Error(frame) => Received::Error(error_text(frame)),
             },
         })
@@ -146,7 +146,13 @@ impl Bus {
                 if frame.extended { "29-bit" } else { "11-bit" }
             )
         })?;
+        let remote = || {
+            CanRemoteFrame::new_remote(id, usize::from(frame.length()))
+                .ok_or("a remote request the bus cannot carry")
+        };
         let written = match self {
+            Bus::Classic(socket) if frame.remote => socket.write_frame(&remote()?),
+            Bus::Fd(socket) if frame.remote => socket.write_frame(&remote()?),
             Bus::Classic(socket) => {
                 if frame.fd || frame.data().len() > 8 {
                     return Err("a CAN FD frame on a classic socket: set 'fd' to send it".to_owned());
@@ -172,6 +178,14 @@ impl Bus {
             }
         })
     }
+}
+
+/// A received remote request as a sample's frame.
+fn remote(id: u32, extended: bool, length: usize) -> Received {
+    u8::try_from(length)
+        .ok()
+        .and_then(|length| CanFrame::remote_request(id, extended, length))
+        .map_or(Received::Oversized, Received::Remote)
 }
 
 /// A received data frame as a sample's frame.
@@ -225,7 +239,9 @@ pub struct SocketCanReader {
     bus: Option<Bus>,
     interface: String,
     frames: u64,
+    /// Of the frames, remote requests.
     remote: u64,
+    oversized: u64,
     errors: u64,
     last_error: String,
     warnings: Throttle,
@@ -251,7 +267,13 @@ impl Component for SocketCanReader {
                 let now = ctx.now();
                 ctx.write_at("frame", Payload::CanFrame(frame), now)?;
             }
-            Ok(Received::Remote | Received::Oversized) => self.remote += 1,
+            Ok(Received::Remote(frame)) => {
+                self.frames += 1;
+                self.remote += 1;
+                let now = ctx.now();
+                ctx.write_at("frame", Payload::CanFrame(frame), now)?;
+            }
+            Ok(Received::Oversized) => self.oversized += 1,
             Ok(Received::Error(what)) => {
                 self.errors += 1;
                 let (interface, count) = (&self.interface, self.errors);
@@ -274,7 +296,7 @@ impl Component for SocketCanReader {
         if self.published.ready(STATUS_PERIOD) {
             ctx.set_status(serde_json::json!({
                 "kind": "can", "interface": self.interface, "frames": self.frames, "remote_frames": self.remote,
-                "error_frames": self.errors, "last_error": self.last_error,
+                "oversized": self.oversized, "error_frames": self.errors, "last_error": self.last_error,
             }));
         }
         Ok(())

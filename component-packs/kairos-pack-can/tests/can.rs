@@ -247,6 +247,8 @@ fn a_written_log_reads_back_frame_for_frame() {
         CanFrame::new(0x123, false, &[1, 2, 3]).unwrap(),
         CanFrame::new(0x1ABC_DEF0, true, &[]).unwrap(),
         CanFrame::new(0x7FF, false, &[9; 12]).unwrap(),
+        CanFrame::remote_request(0x123, false, 0).unwrap(),
+        CanFrame::remote_request(0x1ABC_DEF0, true, 8).unwrap(),
     ];
     for (index, frame) in frames.iter().enumerate() {
         writer.push(
@@ -256,7 +258,7 @@ fn a_written_log_reads_back_frame_for_frame() {
         );
     }
     writer.finish().unwrap();
-    let (out, _) = run(reader(&log, "fast"), 5);
+    let (out, _) = run(reader(&log, "fast"), 7);
     let read: Vec<CanFrame> = out
         .samples("frame")
         .iter()

@@ -47,21 +47,27 @@ fn frames_sent_on_vcan0_are_read_back_with_their_ids_and_data() {
         let frame = CanFrame::new(id, extended, &[1, 2, 3]).unwrap();
         writer.push("frame", Payload::CanFrame(frame), Timestamp(1));
     }
+    let request = CanFrame::remote_request(0x123, false, 4).unwrap();
+    writer.push("frame", Payload::CanFrame(request), Timestamp(2));
     writer.finish().unwrap();
     let mut received = Vec::new();
     for _ in 0..20 {
         for sample in reader.run().unwrap().samples("frame") {
             if let Payload::CanFrame(frame) = sample.payload {
-                received.push((frame.id, frame.extended, frame.data().to_vec()));
+                received.push(frame);
             }
         }
-        if received.len() >= 2 {
+        if received.len() >= 3 {
             break;
         }
     }
-    // 0x456 is filtered out by the kernel.
+    // 0x456 is filtered out by the kernel; the remote request goes through as one.
     assert_eq!(
         received,
-        [(0x123, false, vec![1, 2, 3]), (0x18FF_0001, true, vec![1, 2, 3])]
+        [
+            CanFrame::new(0x123, false, &[1, 2, 3]).unwrap(),
+            CanFrame::new(0x18FF_0001, true, &[1, 2, 3]).unwrap(),
+            request
+        ]
     );
 }

@@ -162,8 +162,26 @@ fn decode_json(data_type: &DataType, json: &Json) -> Result<Payload, String> {
                         .ok_or("a data byte out of range")
                 })
                 .collect::<Result<_, _>>()?;
-            let frame = CanFrame::new(id, boolean(json, "extended")?, &data)
-                .ok_or_else(|| format!("a CAN frame of {} bytes", data.len()))?;
+            let extended = boolean(json, "extended")?;
+            let optional = |name: &str| {
+                json.get(name)
+                    .and_then(serde_json::Value::as_bool)
+                    .unwrap_or(false)
+            };
+            let mut frame = if optional("remote") {
+                let length = json
+                    .get("length")
+                    .and_then(serde_json::Value::as_u64)
+                    .unwrap_or(0);
+                u8::try_from(length)
+                    .ok()
+                    .and_then(|length| CanFrame::remote_request(id, extended, length))
+                    .ok_or("a remote request for more than 8 bytes")?
+            } else {
+                CanFrame::new(id, extended, &data)
+                    .ok_or_else(|| format!("a CAN frame of {} bytes", data.len()))?
+            };
+            frame.fd |= optional("fd");
             Payload::CanFrame(frame)
         }
         other => return Err(format!("no JSON decoding for {other}")),
@@ -367,6 +385,7 @@ mod tests {
                 status: FixStatus::RtkFixed,
             }),
             Payload::CanFrame(CanFrame::new(0x1AB, true, &[1, 2, 3]).unwrap()),
+            Payload::CanFrame(CanFrame::remote_request(0x1AB, false, 8).unwrap()),
             Payload::Pose(Pose {
                 position: glam::DVec3::new(1.0, 2.0, 3.0),
                 orientation: glam::DQuat::from_rotation_z(0.5),

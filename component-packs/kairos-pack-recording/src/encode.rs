@@ -81,7 +81,7 @@ pub fn schema_for(payload: &Payload) -> SchemaSpec {
         }
         Payload::CanFrame(_) => json_schema(
             "kairos.CanFrame",
-            &json!({"id": {"type": "integer"}, "extended": {"type": "boolean"}, "fd": {"type": "boolean"}, "data": {"type": "array", "items": {"type": "integer"}}}),
+            &json!({"id": {"type": "integer"}, "extended": {"type": "boolean"}, "fd": {"type": "boolean"}, "data": {"type": "array", "items": {"type": "integer"}}, "remote": {"type": "boolean"}, "length": {"type": "integer"}}),
         ),
         Payload::Custom(custom) => json_schema(
             &format!("kairos.Custom.{}", custom.type_name),
@@ -288,6 +288,10 @@ pub fn encode(
             "angular_velocity": {"x": imu.angular_velocity.x, "y": imu.angular_velocity.y, "z": imu.angular_velocity.z},
             "linear_acceleration": {"x": imu.linear_acceleration.x, "y": imu.linear_acceleration.y, "z": imu.linear_acceleration.z},
             "orientation": imu.orientation.map(|q| json!({"x": q.x, "y": q.y, "z": q.z, "w": q.w})),
+        }),
+        Payload::CanFrame(frame) if frame.remote => json!({
+            "id": frame.id, "extended": frame.extended, "fd": frame.fd, "data": frame.data(),
+            "remote": true, "length": frame.length(),
         }),
         Payload::CanFrame(frame) => {
             json!({"id": frame.id, "extended": frame.extended, "fd": frame.fd, "data": frame.data()})

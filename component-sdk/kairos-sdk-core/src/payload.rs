@@ -382,6 +382,10 @@ pub struct CanFrame {
     pub extended: bool,
     /// Whether this is a CAN FD frame (up to 64 data bytes).
     pub fd: bool,
+    /// Whether this is a remote request (RTR, classic CAN): it asks for the frame with this identifier
+    /// and carries no data, only the length it asks for.
+    pub remote: bool,
+    /// The data's length; a remote request's, the length it asks for.
     len: u8,
     data: [u8; 64],
 }
@@ -399,14 +403,35 @@ impl CanFrame {
             id,
             extended,
             fd,
+            remote: false,
             len: data.len() as u8,
             data: buffer,
         })
     }
 
-    /// The data bytes.
+    /// A remote request for the frame `id`, asking for `length` bytes (at most 8); `None` if longer.
+    pub fn remote_request(id: u32, extended: bool, length: u8) -> Option<Self> {
+        (length <= 8).then_some(CanFrame {
+            id,
+            extended,
+            fd: false,
+            remote: true,
+            len: length,
+            data: [0; 64],
+        })
+    }
+
+    /// The data bytes (none for a remote request).
     pub fn data(&self) -> &[u8] {
+        if self.remote {
+            return &[];
+        }
         self.data.get(..usize::from(self.len)).unwrap_or(&[])
+    }
+
+    /// The length code: the data's length, or the length a remote request asks for.
+    pub fn length(&self) -> u8 {
+        self.len
     }
 }
 
@@ -414,9 +439,10 @@ impl fmt::Debug for CanFrame {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         write!(
             f,
-            "CanFrame(id {:#x}{}, {:02x?})",
+            "CanFrame(id {:#x}{}{}, {:02x?})",
             self.id,
             if self.extended { " ext" } else { "" },
+            if self.remote { " remote" } else { "" },
             self.data()
         )
     }

@@ -73,15 +73,21 @@ class GnssFix:
 
 @dataclass(frozen=True)
 class CanFrame:
-    """A CAN or CAN FD frame (more than 8 data bytes makes it FD; at most 64)."""
+    """A CAN or CAN FD frame (more than 8 data bytes, or ``fd``, makes it FD; at most 64), or a remote
+    request (``remote``: no data, asking for ``remote_length`` bytes, at most 8)."""
 
     id: int
     data: bytes = b""
     extended: bool = False
+    fd: bool = False
+    remote: bool = False
+    remote_length: int = 0
 
     def __post_init__(self):
         if len(self.data) > 64:
             raise ValueError(f"a CAN frame carries at most 64 bytes, got {len(self.data)}")
+        if self.remote and (self.data or not 0 <= self.remote_length <= 8):
+            raise ValueError("a remote request carries no data and asks for 0 to 8 bytes")
         limit = 0x1FFFFFFF if self.extended else 0x7FF
         if not 0 <= self.id <= limit:
             raise ValueError(f"CAN id {self.id:#x} does not fit {'29' if self.extended else '11'} bits")

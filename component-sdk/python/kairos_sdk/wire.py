@@ -116,7 +116,10 @@ def encode_payload(out, data_type, value, extra, image_pixels=None):
         out += GNSS_S.pack(value.latitude_deg, value.longitude_deg, value.altitude_m, value.horizontal_accuracy_m,
                            value.vertical_accuracy_m, FIX_STATUSES.index(value.status))
     elif data_type == CAN_FRAME:
-        out += CAN_S.pack(value.id, value.extended, len(value.data)) + bytes(value.data)
+        # Flags: 1 extended, 2 FD, 4 remote request (then the length it asks for, and no data).
+        flags = int(value.extended) | int(value.fd) << 1 | int(value.remote) << 2
+        length = value.remote_length if value.remote else len(value.data)
+        out += CAN_S.pack(value.id, flags, length) + (b"" if value.remote else bytes(value.data))
     elif data_type == POSE:
         out += POSE_S.pack(*value.position, *value.orientation)
 
@@ -171,8 +174,12 @@ def decode_payload(reader, image_of):
         fields = reader.take(GNSS_S)
         return GNSS_FIX, GnssFix(*fields[:5], status=FIX_STATUSES[fields[5]]), None
     if data_type == CAN_FRAME:
-        can_id, extended, length = reader.take(CAN_S)
-        return CAN_FRAME, CanFrame(can_id, bytes(reader.raw(length)), bool(extended)), None
+        can_id, flags, length = reader.take(CAN_S)
+        if flags & 4:
+            return CAN_FRAME, CanFrame(can_id, b"", bool(flags & 1), remote=True, remote_length=length), None
+        # More than 8 bytes is FD by itself: the flag says so only of a shorter frame.
+        fd = bool(flags & 2) and length <= 8
+        return CAN_FRAME, CanFrame(can_id, bytes(reader.raw(length)), bool(flags & 1), fd), None
     if data_type == POSE:
         fields = reader.take(POSE_S)
         return POSE, Pose(tuple(fields[0:3]), tuple(fields[3:7])), None

@@ -56,6 +56,8 @@ def round_trip(data_type, value, format_=None, intensity=None):
     (CAN_FRAME, CanFrame(0x123, b"\x01\x02\x03")),
     (CAN_FRAME, CanFrame(0x1ABCDEF0, bytes(range(64)), extended=True)),
     (CAN_FRAME, CanFrame(0x7FF)),
+    (CAN_FRAME, CanFrame(0x123, b"\x01", fd=True)),
+    (CAN_FRAME, CanFrame(0x123, remote=True, remote_length=8)),
     (POSE, Pose((1.0, 2.0, 3.0), (0.0, 0.0, 0.0, 1.0))),
     ("mypack.boxes", Custom("mypack.boxes", b"\x00\xff payload")),
 ])

@@ -14,7 +14,8 @@
 //! velocity and linear acceleration (3 f64 each), then one byte saying whether an orientation (x, y, z, w
 //! as f64) follows; a GNSS fix as latitude, longitude, altitude and both accuracies (f64) then its status
 //! (one byte: no fix, fix, differential, RTK fixed); a CAN frame as its id (u32), one byte of flags
-//! (1: extended id, 2: CAN FD) and its data; a pose as position (3 f64) and orientation (x, y, z, w); an
+//! (1: extended id, 2: CAN FD, 4: remote request) and its data (a remote request: the one byte of the
+//! length it asks for); a pose as position (3 f64) and orientation (x, y, z, w); an
 //! image as width, height and stride (u32 each), its pixel format (one byte: its place in `PixelFormat::ALL`)
 //! and its pixels; a point cloud as one byte saying whether each point has an intensity, then x, y, z (and
 //! intensity) as f32; a pack-defined payload as its type's name (u16 length, UTF-8) then its bytes.
@@ -176,7 +177,11 @@ pub fn encode<'s>(output: &str, sample: &'s Sample) -> Option<(Vec<u8>, Cow<'s, 
         }
         Payload::CanFrame(frame) => {
             head.0.extend_from_slice(&frame.id.to_le_bytes());
-            head.0.push(u8::from(frame.extended) | (u8::from(frame.fd) << 1));
+            head.0
+                .push(u8::from(frame.extended) | (u8::from(frame.fd) << 1) | (u8::from(frame.remote) << 2));
+            if frame.remote {
+                head.0.push(frame.length());
+            }
             head.0.extend_from_slice(frame.data());
             Cow::Borrowed(&[])
         }
@@ -387,8 +392,14 @@ pub(crate) fn decode(bytes: &[u8]) -> Result<Received, String> {
         Kind::CanFrame => {
             let id = u32::from_le_bytes(fields.take("CAN id")?);
             let flags = fields.u8("CAN flags")?;
-            let mut frame =
-                CanFrame::new(id, flags & 1 != 0, fields.0).ok_or("more than 64 CAN data bytes")?;
+            let extended = flags & 1 != 0;
+            let mut frame = if flags & 4 != 0 {
+                let length = fields.u8("a remote request's length")?;
+                CanFrame::remote_request(id, extended, length)
+                    .ok_or("a remote request for more than 8 bytes")?
+            } else {
+                CanFrame::new(id, extended, fields.0).ok_or("more than 64 CAN data bytes")?
+            };
             frame.fd |= flags & 2 != 0;
             Payload::CanFrame(frame)
         }

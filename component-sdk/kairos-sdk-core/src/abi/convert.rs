@@ -175,7 +175,8 @@ pub fn sample_to_c(sample: &Sample, scratch: &mut Vec<u8>) -> KSample {
         Payload::CanFrame(frame) => {
             k.kind = kind::CAN_FRAME;
             k.scalar_i64 = i64::from(frame.id);
-            k.flags = u32::from(frame.extended) | (u32::from(frame.fd) << 1);
+            k.flags = u32::from(frame.extended) | (u32::from(frame.fd) << 1) | (u32::from(frame.remote) << 2);
+            k.width = u32::from(frame.length());
             borrow(frame.data(), &mut k);
         }
         Payload::Pose(pose) => {
@@ -270,10 +271,20 @@ pub unsafe fn sample_from_c(k: &KSample) -> Result<Sample, String> {
                 _ => FixStatus::NoFix,
             },
         }),
-        kind::CAN_FRAME => Payload::CanFrame(
-            CanFrame::new(u32::try_from(k.scalar_i64).unwrap_or(0), k.flags & 1 == 1, data)
-                .ok_or_else(|| format!("CAN frame of {} bytes", data.len()))?,
-        ),
+        kind::CAN_FRAME => {
+            let (id, extended) = (u32::try_from(k.scalar_i64).unwrap_or(0), k.flags & 1 == 1);
+            let mut frame = if k.flags & 4 != 0 {
+                u8::try_from(k.width)
+                    .ok()
+                    .and_then(|length| CanFrame::remote_request(id, extended, length))
+                    .ok_or_else(|| format!("a remote request for {} bytes", k.width))?
+            } else {
+                CanFrame::new(id, extended, data)
+                    .ok_or_else(|| format!("CAN frame of {} bytes", data.len()))?
+            };
+            frame.fd |= k.flags & 2 != 0;
+            Payload::CanFrame(frame)
+        }
         kind::POSE => Payload::Pose(Pose {
             position: DVec3::new(v[0], v[1], v[2]),
             orientation: DQuat::from_xyzw(v[3], v[4], v[5], v[6]),

@@ -308,10 +308,18 @@ fn decode_record(tag: u8, fields: &mut Fields<'_>) -> Result<Payload, String> {
         }
         11 => {
             let id = fields.u32("a CAN id")?;
-            let extended = fields.u8("a CAN frame")? != 0;
-            let length = usize::from(fields.u8("a CAN frame")?);
-            let data = fields.bytes(length, "a CAN frame's data")?;
-            Payload::CanFrame(CanFrame::new(id, extended, data).ok_or("a CAN frame of more than 64 bytes")?)
+            // Flags: 1 extended, 2 FD, 4 remote request (its length, and no data).
+            let flags = fields.u8("a CAN frame")?;
+            let length = fields.u8("a CAN frame")?;
+            let mut frame = if flags & 4 != 0 {
+                CanFrame::remote_request(id, flags & 1 != 0, length)
+                    .ok_or("a remote request for more than 8 bytes")?
+            } else {
+                let data = fields.bytes(usize::from(length), "a CAN frame's data")?;
+                CanFrame::new(id, flags & 1 != 0, data).ok_or("a CAN frame of more than 64 bytes")?
+            };
+            frame.fd |= flags & 2 != 0;
+            Payload::CanFrame(frame)
         }
         12 => {
             let position = fields.dvec3("a pose")?;
@@ -490,8 +498,8 @@ fn encode_record(out: &mut Vec<u8>, payload: &Payload) {
         Payload::CanFrame(frame) => {
             out.push(11);
             out.extend_from_slice(&frame.id.to_le_bytes());
-            out.push(u8::from(frame.extended));
-            out.push(frame.data().len() as u8);
+            out.push(u8::from(frame.extended) | (u8::from(frame.fd) << 1) | (u8::from(frame.remote) << 2));
+            out.push(frame.length());
             out.extend_from_slice(frame.data());
         }
         Payload::Pose(pose) => {
@@ -511,5 +519,28 @@ fn sized(out: &mut Vec<u8>, bytes: &[u8]) {
 fn f64s(out: &mut Vec<u8>, values: &[f64]) {
     for value in values {
         out.extend_from_slice(&value.to_le_bytes());
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn can_frames_go_and_come_back_with_their_flags_remote_requests_with_their_length() {
+        let mut fd = CanFrame::new(0x123, false, &[1, 2]).unwrap();
+        fd.fd = true;
+        for frame in [
+            CanFrame::new(0x1ABC_DEF0, true, &[9; 12]).unwrap(),
+            fd,
+            CanFrame::remote_request(0x7FF, false, 6).unwrap(),
+        ] {
+            let mut out = Vec::new();
+            encode_payload(&mut out, &Payload::CanFrame(frame), &SentPixels::Inline);
+            let Ok(Written::Payload(back)) = decode_payload(&mut Fields::new(&out)) else {
+                panic!("{frame:?} does not decode");
+            };
+            assert_eq!(back, Payload::CanFrame(frame));
+        }
     }
 }
