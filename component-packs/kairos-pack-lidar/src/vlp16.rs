@@ -7,6 +7,8 @@
 //! lasts 55.296 µs, so each measurement's azimuth is interpolated between its block's and the next's.
 //!
 //! Points are in the sensor frame Kairos uses everywhere: x forward (azimuth 0), y left, z up, metres.
+//! Each laser's beam starts at its own height, the manual's per-laser vertical correction (±11.2 mm),
+//! added to z.
 //! The VLP-16's azimuth grows clockwise seen from above.
 
 use glam::Vec3;
@@ -20,6 +22,12 @@ const LASERS: usize = 16;
 /// Vertical angle of each laser, degrees, by laser id (the manual's table).
 const ELEVATION_DEG: [f32; LASERS] = [
     -15.0, 1.0, -13.0, 3.0, -11.0, 5.0, -9.0, 7.0, -7.0, 9.0, -5.0, 11.0, -3.0, 13.0, -1.0, 15.0,
+];
+/// Vertical offset of each laser's origin from the sensor's, metres, by laser id (the manual's
+/// "vertical correction", mm): each beam starts that far above (or below) the optical centre.
+const VERTICAL_CORRECTION_M: [f32; LASERS] = [
+    0.0112, -0.0007, 0.0097, -0.0022, 0.0081, -0.0037, 0.0066, -0.0051, 0.0051, -0.0066, 0.0037, -0.0081,
+    0.0022, -0.0097, 0.0007, -0.0112,
 ];
 /// Metres per distance unit.
 const DISTANCE_UNIT_M: f32 = 0.002;
@@ -120,7 +128,7 @@ impl Decoder {
                 self.points.push(Vec3::new(
                     horizontal * alpha.cos(),
                     -horizontal * alpha.sin(),
-                    distance * omega.sin(),
+                    distance * omega.sin() + VERTICAL_CORRECTION_M[laser],
                 ));
                 self.intensity.push(f32::from(bytes[2]) / 255.0);
             }

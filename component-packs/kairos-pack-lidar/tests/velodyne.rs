@@ -47,10 +47,29 @@ fn points_land_where_the_manual_puts_them() {
     let expected = [
         10.0 * elevation.cos() * azimuth.cos(),
         -10.0 * elevation.cos() * azimuth.sin(),
-        10.0 * elevation.sin(),
+        // The manual's vertical correction of laser 0: its beam starts 11.2 mm above the centre.
+        10.0 * elevation.sin() + 0.0112,
     ];
     for (got, want) in first.to_array().iter().zip(expected) {
-        assert!((got - want).abs() < 1e-3, "{first:?} vs {expected:?}");
+        assert!((got - want).abs() < 1e-4, "{first:?} vs {expected:?}");
+    }
+    // Every laser's height is its beam's plus its correction (mm, by laser id, from the manual).
+    let corrections_mm = [
+        11.2, -0.7, 9.7, -2.2, 8.1, -3.7, 6.6, -5.1, 5.1, -6.6, 3.7, -8.1, 2.2, -9.7, 0.7, -11.2,
+    ];
+    for (laser, correction) in corrections_mm.iter().enumerate() {
+        let elevation = -15.0_f32
+            + if laser % 2 == 0 {
+                laser as f32
+            } else {
+                15.0 + laser as f32
+            };
+        let beam = 10.0 * elevation.to_radians().sin();
+        let z = cloud.points[laser].z;
+        assert!(
+            ((z - beam) * 1000.0 - correction).abs() < 0.05,
+            "laser {laser}: z {z}, beam {beam}"
+        );
     }
     // Laser 1 (+1°) of the second firing sequence: half a block later, between the two azimuths.
     let later = cloud.points[17];
