@@ -266,28 +266,70 @@ fn inspect_json_names_its_time_base_and_rounds_its_figures() {
 }
 
 #[test]
-fn a_gnss_receiver_sets_the_runtime_clock_to_its_utc() {
+fn a_gnss_receiver_sets_the_runtime_clock_to_its_utc_whatever_the_sentence_order() {
     let root = common::repo_root();
-    let output = kairos(
-        &root,
-        &[
-            "run",
-            "examples/gnss_replay.ron",
-            "--for",
-            "2500ms",
-            "--stats",
-            "--stats-interval",
-            "10s",
-            "--clock-source",
-            "gnss",
-        ],
-    );
-    let (stdout, stderr) = text(&output);
-    assert!(output.status.success(), "{stderr}");
-    assert!(stderr.contains("clock: follows 'gnss', locked"), "{stderr}");
-    // The recording's fixes are from 2026-11-25 10:00:00 UTC: the samples carry that time, not the
-    // machine's.
-    assert!(stdout.contains("t=179560080"), "{stdout}");
+    let dir = tempfile::tempdir().unwrap();
+    // The drive as recorded (RMC, then GGA, each second), and with GGA first: its time has no date
+    // until the RMC after it.
+    let drive = std::fs::read_to_string(root.join("examples/data/drive.nmea")).unwrap();
+    let mut swapped: Vec<&str> = drive.lines().collect();
+    for pair in swapped.chunks_mut(3) {
+        pair.swap(0, 1);
+    }
+    assert!(swapped[0].starts_with("$GPGGA") && swapped[1].starts_with("$GPRMC"));
+    let swapped_path = dir.path().join("gga_first.nmea");
+    std::fs::write(&swapped_path, swapped.join("\n")).unwrap();
+    for path in [root.join("examples/data/drive.nmea"), swapped_path] {
+        let output = kairos(
+            &root,
+            &[
+                "run",
+                "examples/gnss_replay.ron",
+                "--set",
+                &format!("gnss.path={}", path.display()),
+                "--for",
+                "3500ms",
+                "--stats",
+                "--stats-interval",
+                "3s",
+                "--clock-source",
+                "gnss",
+            ],
+        );
+        let (stdout, stderr) = text(&output);
+        assert!(output.status.success(), "{stderr}");
+        // Locked, within a few milliseconds (not a second off, following a replay scheduled on itself).
+        let clock = stderr
+            .lines()
+            .find(|l| l.starts_with("clock: follows 'gnss'"))
+            .unwrap_or_default();
+        let error_ms: f64 = clock
+            .split("error ")
+            .nth(1)
+            .and_then(|rest| rest.split(" ms").next())
+            .and_then(|number| number.parse().ok())
+            .unwrap_or(f64::NAN);
+        assert!(
+            clock.contains("locked") && error_ms.abs() < 5.0,
+            "{}: {clock}",
+            path.display()
+        );
+        // The fixes are from 2026-11-25 10:00:00 UTC: every sample carries that time, the first one
+        // too, and none goes back.
+        let stamps: Vec<f64> = stdout
+            .lines()
+            .filter_map(|l| l.split("t=").nth(1)?.split_whitespace().next()?.parse().ok())
+            .collect();
+        assert!(stamps.len() >= 3, "{stdout}");
+        assert!(
+            stamps
+                .iter()
+                .all(|t| (1_795_600_799.0..1_795_600_900.0).contains(t))
+                && stamps.windows(2).all(|w| w[1] >= w[0]),
+            "{}: {stamps:?}",
+            path.display()
+        );
+    }
 }
 
 #[test]

@@ -4,8 +4,8 @@ use std::sync::Arc;
 
 use kairos_sdk::descriptor::{Descriptor, Property};
 use kairos_sdk::{
-    Component, ComponentError, ComponentInfo, ComponentResult, Context, DataType, FixStatus, GnssFix,
-    Payload, Timestamp, Value,
+    Component, ComponentError, ComponentInfo, ComponentResult, Context, DataType, GnssFix, Payload,
+    Timestamp, Value,
 };
 use kairos_sdk::{DeviceKind, STATUS_PERIOD, Throttle, WARNING_PERIOD};
 
@@ -18,6 +18,10 @@ pub const TYPE_NAME: &str = "gnss.nmea";
 
 /// Vertical error relative to horizontal error, as receivers typically report (GGA has no VDOP).
 const VERTICAL_FACTOR: f64 = 1.5;
+
+/// The most sentences held for the clock's first reference (a receiver without a fix for minutes sends
+/// thousands): past it, they are written on the machine's clock.
+const MOST_HELD: usize = 256;
 
 /// The outputs, in the descriptor's order (written by index: no name lookup per sample).
 const FIX: usize = 0;
@@ -33,16 +37,18 @@ pub fn descriptor() -> ComponentInfo {
     Descriptor::new(
         TYPE_NAME,
         "GNSS",
-        "GNSS receiver speaking NMEA 0183 (GGA, RMC, VTG) on a serial port, UDP, a TCP server or a file: \
-         fixes, the receiver's UTC time, satellites, HDOP, speed and course, and the sentences as text. \
-         Samples are stamped when the sentence arrives",
+        "GNSS receiver speaking NMEA 0183 (GGA, GNS, RMC, VTG, ZDA; any talker) on a serial port, UDP, a TCP \
+         server or a file: fixes (a lost fix as one with status no fix), the receiver's UTC time, \
+         satellites, HDOP, speed and course, and the sentences as text. Samples are stamped when the \
+         sentence arrives",
     )
     .label("GNSS receiver (NMEA)")
     .time_source()
     .output(
         "fix",
         DataType::GnssFix,
-        "Position, altitude above the ellipsoid, accuracy from HDOP, fix status (GGA)",
+        "Position, altitude above the ellipsoid, accuracy from HDOP, fix status (GGA, GNS); without a \
+         position, NaN and status no fix",
     )
     .output(
         "utc",
@@ -145,8 +151,12 @@ pub struct NmeaReceiver {
     decoder: Decoder,
     counts: Counts,
     connected: bool,
-    /// Set when a reference stepped the runtime clock, until a replay takes its schedule from the new time.
-    clock_stepped: bool,
+    /// Set when a reference stepped the runtime clock: the stepping sentence's time of day and its
+    /// arrival on the new clock, from which a replay takes its schedule again.
+    clock_stepped: Option<(f64, Timestamp)>,
+    /// What was received while the runtime clock, following this receiver, awaited its first time
+    /// from it: written once the time is known, on it.
+    held: Vec<(Arc<str>, Reading, Timestamp)>,
     published: Throttle,
 }
 
@@ -201,8 +211,10 @@ impl NmeaReceiver {
         Ok(Input::Live(source))
     }
 
-    /// Decodes one line received at `received` and writes what it says.
-    fn handle(&mut self, ctx: &mut Context, line: &[u8], received: Timestamp) -> ComponentResult {
+    /// Decodes one line received at `received` and writes what it says. A time the receiver vouches for
+    /// is first a reference for the runtime clock (when this component is its source): a reference that
+    /// steps the clock stamps the sentence's samples on the new time, so none goes back behind them.
+    fn handle(&mut self, ctx: &mut Context, line: &[u8], mut received: Timestamp) -> ComponentResult {
         let decoded = std::str::from_utf8(line)
             .map_err(|_| SentenceError::Malformed("not text".to_owned()))
             .and_then(|text| Ok((text, self.decoder.decode(text)?)));
@@ -220,19 +232,54 @@ impl NmeaReceiver {
             }
         };
         self.counts.sentences += 1;
-        ctx.write_at(SENTENCE, Payload::Text(Arc::from(text)), received)?;
-        Self::write_reading(ctx, &reading, received, self.accuracy_per_hdop)?;
-        // The receiver's UTC, from a sentence with a fix (GGA) or motion (RMC), is a reference for the
-        // runtime clock when the diagram makes this component its clock source.
-        let fixed = reading.fix.is_some_and(|fix| fix.status != FixStatus::NoFix) || reading.motion.is_some();
-        if let Some(utc) = reading.utc_s.filter(|_| fixed) {
+        let text: Arc<str> = Arc::from(text);
+        let mut step = 0;
+        if let Some(utc) = reading.utc_s.filter(|_| reading.time_valid) {
             let before = ctx.now();
             if ctx.clock_reference(received, Timestamp::from_secs_f64(utc)) {
-                // The first reference may step the clock: a replay's schedule starts again from there.
-                self.clock_stepped |= ctx.now().nanos_since(before).abs() > 1_000_000_000;
+                // The first reference may step the clock (by more than a second; a slew moves it by far
+                // less): what this sentence says is stamped on the new time.
+                let moved = ctx.now().nanos_since(before);
+                if moved.abs() > 1_000_000_000 {
+                    step = moved;
+                    received = Timestamp(received.0.saturating_add(step));
+                    self.clock_stepped = reading.time_of_day_s.map(|day| (day, received));
+                }
             }
+        } else if Self::awaits_its_first_reference(ctx) && self.held.len() < MOST_HELD {
+            // Stamped now, the clock's first reference could step behind it.
+            self.held.push((text, reading, received));
+            return Ok(());
+        }
+        for (text, reading, at) in std::mem::take(&mut self.held) {
+            self.write_sentence(ctx, text, &reading, Timestamp(at.0.saturating_add(step)))?;
+        }
+        self.write_sentence(ctx, text, &reading, received)
+    }
+
+    /// Writes what was held for a first reference that never came (the stream ended first), as received.
+    fn write_held(&mut self, ctx: &mut Context) -> ComponentResult {
+        for (text, reading, at) in std::mem::take(&mut self.held) {
+            self.write_sentence(ctx, text, &reading, at)?;
         }
         Ok(())
+    }
+
+    /// Whether the runtime clock follows this receiver and has had no time from it yet.
+    fn awaits_its_first_reference(ctx: &Context) -> bool {
+        ctx.clock_status()
+            .is_some_and(|clock| clock.source == ctx.id() && clock.references == 0)
+    }
+
+    fn write_sentence(
+        &self,
+        ctx: &mut Context,
+        text: Arc<str>,
+        reading: &Reading,
+        at: Timestamp,
+    ) -> ComponentResult {
+        ctx.write_at(SENTENCE, Payload::Text(text), at)?;
+        Self::write_reading(ctx, reading, at, self.accuracy_per_hdop)
     }
 
     fn write_reading(
@@ -376,16 +423,20 @@ impl Component for NmeaReceiver {
             }
             Some(Input::File(replay)) => {
                 let Some(line) = Self::next_replayed(replay, &self.decoder, ctx)? else {
+                    self.write_held(ctx)?;
                     self.published.reset();
                     self.publish_status(ctx);
                     return Err(ComponentError::EndOfStream);
                 };
                 let now = ctx.now();
                 self.handle(ctx, &line, now)?;
-                if std::mem::take(&mut self.clock_stepped)
+                // After a step, the schedule goes on from the stepping sentence at its new arrival time:
+                // anchored on the next line instead, a line later in the file would be replayed as if
+                // it came when this one did, and every reference would find the clock that much ahead.
+                if let Some(anchor) = self.clock_stepped.take()
                     && let Some(Input::File(replay)) = &mut self.input
                 {
-                    replay.anchor = None;
+                    replay.anchor = Some(anchor);
                 }
             }
             None => return Err(ComponentError::Stopped),

@@ -1,7 +1,8 @@
 //! NMEA 0183 sentences to readings: a pure decoder that checks the checksum and parses the fields of
-//! GGA (position, altitude, fix quality, satellites, HDOP, UTC time of day), RMC (date, time, course and
-//! speed) and VTG (course and speed). Any other sentence with a valid checksum is accepted and passed on
-//! as text only.
+//! GGA and GNS (position, altitude, fix quality, satellites, HDOP, UTC time of day), RMC (date, time,
+//! validity, course and speed), VTG (course and speed) and ZDA (date and time), from any talker. Any other
+//! sentence with a valid checksum is accepted and passed on as text only. A GGA or GNS without a position
+//! is still a fix, with status "no fix" (and its satellites and HDOP): a lost fix is said, not silent.
 //!
 //! Decision: written here rather than taken from the `nmea` crate, whose exact `serde_with` pin cannot be
 //! built together with Zenoh; three sentences' fields are little code, and the tests and fuzz target hold
@@ -17,12 +18,12 @@ const METRES_PER_SECOND_PER_KNOT: f64 = 1852.0 / 3600.0;
 /// sentences run longer, so some margin.
 pub const MAX_SENTENCE_LEN: usize = 256;
 
-/// A position fix (GGA).
+/// A position fix (GGA, GNS).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Fix {
-    /// Degrees north, WGS84.
+    /// Degrees north, WGS84 (NaN without a position).
     pub latitude_deg: f64,
-    /// Degrees east, WGS84.
+    /// Degrees east, WGS84 (NaN without a position).
     pub longitude_deg: f64,
     /// Altitude above mean sea level, metres.
     pub altitude_msl_m: Option<f64>,
@@ -64,6 +65,9 @@ pub struct Reading {
     pub utc_s: Option<f64>,
     /// The receiver's UTC time of day, seconds since midnight, when the sentence has a time.
     pub time_of_day_s: Option<f64>,
+    /// Whether the receiver vouches for that time: a GGA or GNS with a fix, an RMC marked valid (`A`), a
+    /// ZDA while the last position sentence had a fix. Only such a time is a reference for a clock.
+    pub time_valid: bool,
 }
 
 /// Why a line is not a sentence.
@@ -82,6 +86,8 @@ pub enum SentenceError {
 pub struct Decoder {
     date: Option<NaiveDate>,
     last_time: Option<NaiveTime>,
+    /// Whether the last GGA, GNS or RMC had a fix.
+    fixed: bool,
 }
 
 impl Decoder {
@@ -113,22 +119,24 @@ impl Decoder {
             "GGA" => {
                 let field = |index: usize| field(&fields, index, "GGA");
                 let mut reading = self.timed(time_of(field(1)?)?, None);
-                let latitude = angle(field(2)?, field(3)?, 'N', 'S')?;
-                let longitude = angle(field(4)?, field(5)?, 'E', 'W')?;
-                if let (Some(latitude_deg), Some(longitude_deg)) = (latitude, longitude) {
-                    reading.fix = Some(Fix {
-                        latitude_deg,
-                        longitude_deg,
-                        altitude_msl_m: number(field(9)?, "altitude")?,
-                        geoid_separation_m: fields
-                            .get(11)
-                            .map_or(Ok(None), |f| number(f, "geoid separation"))?,
-                        status: status_of(number::<u8>(field(6)?, "fix quality")?),
-                        satellites: number(field(7)?, "satellites")?,
-                        hdop: number(field(8)?, "HDOP")?,
-                    });
-                }
-                Ok(reading)
+                let status = status_of(number::<u8>(field(6)?, "fix quality")?);
+                reading.fix = Some(Fix {
+                    satellites: number(field(7)?, "satellites")?,
+                    hdop: number(field(8)?, "HDOP")?,
+                    ..position(&fields, 2, 9, 11, status)?
+                });
+                Ok(self.vouched(reading))
+            }
+            "GNS" => {
+                let field = |index: usize| field(&fields, index, "GNS");
+                let mut reading = self.timed(time_of(field(1)?)?, None);
+                let status = status_of_modes(field(6)?);
+                reading.fix = Some(Fix {
+                    satellites: number(field(7)?, "satellites")?,
+                    hdop: number(field(8)?, "HDOP")?,
+                    ..position(&fields, 2, 9, 10, status)?
+                });
+                Ok(self.vouched(reading))
             }
             "RMC" => {
                 let field = |index: usize| field(&fields, index, "RMC");
@@ -137,6 +145,27 @@ impl Decoder {
                     speed_mps: number(field(7)?, "speed")?.map(knots_to_mps),
                     course_deg: number(field(8)?, "course")?,
                 });
+                self.fixed = field(2)? == "A";
+                reading.time_valid = self.fixed && reading.utc_s.is_some();
+                Ok(reading)
+            }
+            "ZDA" => {
+                let field = |index: usize| field(&fields, index, "ZDA");
+                let date = match (field(2)?, field(3)?, field(4)?) {
+                    ("", "", "") => None,
+                    (day, month, year) => {
+                        let parsed = |text: &str| text.parse::<u32>().ok();
+                        let date = parsed(day)
+                            .zip(parsed(month))
+                            .zip(year.parse::<i32>().ok())
+                            .and_then(|((d, m), y)| NaiveDate::from_ymd_opt(y, m, d));
+                        Some(date.ok_or_else(|| {
+                            SentenceError::Malformed(format!("ZDA date {day:?}, {month:?}, {year:?}"))
+                        })?)
+                    }
+                };
+                let mut reading = self.timed(time_of(field(1)?)?, date);
+                reading.time_valid = self.fixed && reading.utc_s.is_some();
                 Ok(reading)
             }
             "VTG" => {
@@ -152,6 +181,13 @@ impl Decoder {
             // A valid sentence this decoder does not read (GSV, GSA, ...): text only.
             _ => Ok(Reading::default()),
         }
+    }
+
+    /// A position sentence's reading, its time vouched for when it has a fix.
+    fn vouched(&mut self, mut reading: Reading) -> Reading {
+        self.fixed = reading.fix.is_some_and(|fix| fix.status != FixStatus::NoFix);
+        reading.time_valid = self.fixed && reading.utc_s.is_some();
+        reading
     }
 
     /// A reading carrying the sentence's time, with the date `date` or the one last seen.
@@ -308,6 +344,44 @@ fn angle(text: &str, hemisphere: &str, positive: char, negative: char) -> Result
     Ok(Some(sign * (degrees + minutes / 60.0)))
 }
 
+/// The position of a GGA or GNS: latitude and its hemisphere at `latitude`, longitude after them, the
+/// altitude and geoid separation at their indexes; NaN where the receiver has none.
+fn position(
+    fields: &[&str],
+    latitude: usize,
+    altitude: usize,
+    separation: usize,
+    status: FixStatus,
+) -> Result<Fix, SentenceError> {
+    let at = |index: usize| fields.get(index).copied().unwrap_or_default();
+    Ok(Fix {
+        latitude_deg: angle(at(latitude), at(latitude + 1), 'N', 'S')?.unwrap_or(f64::NAN),
+        longitude_deg: angle(at(latitude + 2), at(latitude + 3), 'E', 'W')?.unwrap_or(f64::NAN),
+        altitude_msl_m: number(at(altitude), "altitude")?,
+        geoid_separation_m: number(at(separation), "geoid separation")?,
+        status,
+        satellites: None,
+        hdop: None,
+    })
+}
+
+/// GNS's mode indicator (one letter per constellation) as a fix status: the best of them (`R` RTK
+/// fixed; `D`, `F` or `P` differential, float or precise; `A` autonomous; `N`, `E`, `M`, `S` none).
+fn status_of_modes(modes: &str) -> FixStatus {
+    let rank = |mode: char| match mode {
+        'R' => 3,
+        'D' | 'F' | 'P' => 2,
+        'A' => 1,
+        _ => 0,
+    };
+    match modes.chars().map(rank).max().unwrap_or(0) {
+        3 => FixStatus::RtkFixed,
+        2 => FixStatus::Differential,
+        1 => FixStatus::Fix,
+        _ => FixStatus::NoFix,
+    }
+}
+
 /// GGA's quality field as a fix status (1 GPS, 2 DGPS, 3 PPS, 4 RTK fixed, 5 RTK float; 0 none, 6
 /// estimated, 7 manual, 8 simulated); a fix that is not a measured position is no fix.
 fn status_of(quality: Option<u8>) -> FixStatus {
@@ -329,6 +403,38 @@ pub fn with_checksum(body: &str) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_lost_fix_is_said_with_its_satellites_and_hdop_and_its_time_is_no_reference() {
+        let mut decoder = Decoder::new();
+        let rmc = with_checksum("GPRMC,120000.00,A,4843.1098,N,00213.9980,E,0.0,0.0,251126,,,A");
+        assert!(
+            decoder.decode(&rmc).unwrap().time_valid,
+            "a valid RMC vouches for its time"
+        );
+        let lost = decoder
+            .decode(&with_checksum("GPGGA,120001.00,,,,,0,3,9.9,,,,,,"))
+            .unwrap();
+        let fix = lost.fix.expect("a GGA without a position is still a fix");
+        assert_eq!(fix.status, FixStatus::NoFix);
+        assert!(fix.latitude_deg.is_nan() && fix.longitude_deg.is_nan());
+        assert_eq!((fix.satellites, fix.hdop), (Some(3), Some(9.9)));
+        assert!(lost.utc_s.is_some() && !lost.time_valid);
+        let void = with_checksum("GPRMC,120002.00,V,,,,,,,251126,,,N");
+        assert!(!decoder.decode(&void).unwrap().time_valid, "a void RMC does not");
+        // Nor does a ZDA while there is no fix; with one, it does, and it dates the sentences after it.
+        let zda = with_checksum("GPZDA,120003.00,26,11,2026,00,00");
+        assert!(!decoder.decode(&zda).unwrap().time_valid);
+        let gns = with_checksum("GNGNS,120004.00,4843.1098,N,00213.9980,E,RNA,14,0.7,95.0,47.3,,,V");
+        let reading = decoder.decode(&gns).unwrap();
+        let fix = reading.fix.unwrap();
+        assert_eq!((fix.status, fix.satellites), (FixStatus::RtkFixed, Some(14)));
+        assert!((fix.altitude_ellipsoid_m().unwrap() - (95.0 + 47.3)).abs() < 1e-9);
+        // 2026-11-26, the ZDA's date (the RMC said the 25th).
+        assert_eq!(reading.utc_s, Some(1_795_694_404.0));
+        assert!(reading.time_valid);
+        assert!(decoder.decode(&zda).unwrap().time_valid);
+    }
 
     #[test]
     fn gga_gives_position_altitude_quality_satellites_hdop_and_time() {
