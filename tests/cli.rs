@@ -463,3 +463,69 @@ fn a_second_run_writes_beside_the_first_run_s_files_and_never_over_them() {
     assert_ne!(std::fs::read(out.join("count.csv")).unwrap(), kept[0].1);
     assert!(!out.join("count-2.csv").exists());
 }
+
+/// Makes a noisy colour image with OpenCV, blurs it through `kairos run` at each size OpenCV has a fixed
+/// kernel for (sigma 0), and compares with OpenCV's `GaussianBlur`: identical, value for value.
+#[test]
+fn the_gaussian_blur_with_sigma_0_is_opencv_s_value_for_value() {
+    let root = common::repo_root();
+    let dir = tempfile::tempdir().unwrap();
+    let (input, output) = (dir.path().join("in"), dir.path().join("out"));
+    std::fs::create_dir_all(&input).unwrap();
+    let python = |script: &str| {
+        let done = Command::new("python3")
+            .args(["-c", script])
+            .output()
+            .expect("python3");
+        let (stdout, stderr) = text(&done);
+        assert!(
+            done.status.success(),
+            "install numpy and opencv-python-headless: {stderr}"
+        );
+        stdout
+    };
+    python(&format!(
+        "import numpy as np, cv2\n\
+         y, x = np.mgrid[0:120, 0:160]\n\
+         base = 127 + 100 * np.sin(x / 9.0) * np.cos(y / 7.0)\n\
+         noise = np.random.default_rng(1).normal(0, 40, (120, 160, 3))\n\
+         cv2.imwrite('{}/1795575410804363450_00000000.png', np.clip(base[..., None] + noise, 0, 255).astype(np.uint8))",
+        input.display()
+    ));
+    for size in [3, 5, 7] {
+        let _ = std::fs::remove_dir_all(&output);
+        let diagram = dir.path().join("blur.ron");
+        std::fs::write(
+            &diagram,
+            format!(
+                r#"Diagram(format: 1, components: [
+                    Component(id: "images", type: "video.image_sequence", properties: {{"folder": "{}"}}),
+                    Component(id: "blur", type: "vision.gaussian_blur", properties: {{"size": {size}, "sigma": 0.0}}),
+                    Component(id: "out", type: "video.image_writer", properties: {{"folder": "{}"}}),
+                ], connections: [
+                    Connection(from: "images.image", to: "blur.in", policy: NeverSkipping),
+                    Connection(from: "blur.out", to: "out.image"),
+                ])"#,
+                input.display(),
+                output.display()
+            ),
+        )
+        .unwrap();
+        let run = kairos(&root, &["run", diagram.to_str().unwrap(), "--for", "1500ms"]);
+        assert!(run.status.success(), "{}", text(&run).1);
+        let compared = python(&format!(
+            "import glob, numpy as np, cv2\n\
+             source = cv2.imread(glob.glob('{}/*.png')[0])\n\
+             ours = cv2.imread(sorted(glob.glob('{}/*.png'))[0])\n\
+             theirs = cv2.GaussianBlur(source, ({size}, {size}), 0)\n\
+             print(int(np.abs(ours.astype(int) - theirs.astype(int)).max()))",
+            input.display(),
+            output.display()
+        ));
+        assert_eq!(
+            compared.trim(),
+            "0",
+            "size {size}: the most a value differs from OpenCV's"
+        );
+    }
+}

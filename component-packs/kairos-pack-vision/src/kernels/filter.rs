@@ -14,8 +14,8 @@ pub struct Gaussian {
 
 impl Gaussian {
     /// The kernel of odd `size` (1 to 31) and standard deviation `sigma`; a `sigma` of 0 or less takes
-    /// the one OpenCV derives from the size, `0.3 × ((size − 1) / 2 − 1) + 0.8`, and sizes 3 and 5 then
-    /// use the binomial taps (1 2 1, 1 4 6 4 1) as OpenCV does.
+    /// the one OpenCV derives from the size, `0.3 × ((size − 1) / 2 − 1) + 0.8`, and sizes 3, 5 and 7 then
+    /// use OpenCV's fixed taps (1 2 1; 1 4 6 4 1; 2 7 14 18 14 7 2, over 4, 16 and 64).
     pub fn new(size: usize, sigma: f64) -> Option<Self> {
         if size.is_multiple_of(2) || !(1..=31).contains(&size) || sigma.is_nan() {
             return None;
@@ -30,6 +30,12 @@ impl Gaussian {
                 5 => {
                     return Some(Gaussian {
                         taps: vec![16, 64, 96, 64, 16],
+                    });
+                }
+                // OpenCV's fixed table for 7 (1/32, 7/64, 7/32, 9/32, …), not the sampled Gaussian.
+                7 => {
+                    return Some(Gaussian {
+                        taps: vec![8, 28, 56, 72, 56, 28, 8],
                     });
                 }
                 _ => {}
