@@ -464,10 +464,10 @@ fn a_second_run_writes_beside_the_first_run_s_files_and_never_over_them() {
     assert!(!out.join("count-2.csv").exists());
 }
 
-/// Makes a noisy colour image with OpenCV, blurs it through `kairos run` at each size OpenCV has a fixed
-/// kernel for (sigma 0), and compares with OpenCV's `GaussianBlur`: identical, value for value.
-#[test]
-fn the_gaussian_blur_with_sigma_0_is_opencv_s_value_for_value() {
+/// Makes a noisy colour image with OpenCV, runs it through `component` (its type and properties, as a
+/// diagram writes them) with `kairos run`, and returns the most a value differs from what the Python
+/// expression `opencv` makes of `source` (the image as OpenCV reads it, BGR).
+fn differs_from_opencv(component: &str, opencv: &str) -> String {
     let root = common::repo_root();
     let dir = tempfile::tempdir().unwrap();
     let (input, output) = (dir.path().join("in"), dir.path().join("out"));
@@ -482,50 +482,68 @@ fn the_gaussian_blur_with_sigma_0_is_opencv_s_value_for_value() {
             done.status.success(),
             "install numpy and opencv-python-headless: {stderr}"
         );
-        stdout
+        stdout.trim().to_owned()
     };
+    // A smooth pattern under strong noise: every colour value and every neighbourhood comes up.
     python(&format!(
         "import numpy as np, cv2\n\
-         y, x = np.mgrid[0:120, 0:160]\n\
+         y, x = np.mgrid[0:240, 0:320]\n\
          base = 127 + 100 * np.sin(x / 9.0) * np.cos(y / 7.0)\n\
-         noise = np.random.default_rng(1).normal(0, 40, (120, 160, 3))\n\
+         noise = np.random.default_rng(1).normal(0, 60, (240, 320, 3))\n\
          cv2.imwrite('{}/1795575410804363450_00000000.png', np.clip(base[..., None] + noise, 0, 255).astype(np.uint8))",
         input.display()
     ));
-    for size in [3, 5, 7] {
-        let _ = std::fs::remove_dir_all(&output);
-        let diagram = dir.path().join("blur.ron");
-        std::fs::write(
-            &diagram,
-            format!(
-                r#"Diagram(format: 1, components: [
-                    Component(id: "images", type: "video.image_sequence", properties: {{"folder": "{}"}}),
-                    Component(id: "blur", type: "vision.gaussian_blur", properties: {{"size": {size}, "sigma": 0.0}}),
-                    Component(id: "out", type: "video.image_writer", properties: {{"folder": "{}"}}),
-                ], connections: [
-                    Connection(from: "images.image", to: "blur.in", policy: NeverSkipping),
-                    Connection(from: "blur.out", to: "out.image"),
-                ])"#,
-                input.display(),
-                output.display()
-            ),
-        )
-        .unwrap();
-        let run = kairos(&root, &["run", diagram.to_str().unwrap(), "--for", "1500ms"]);
-        assert!(run.status.success(), "{}", text(&run).1);
-        let compared = python(&format!(
-            "import glob, numpy as np, cv2\n\
-             source = cv2.imread(glob.glob('{}/*.png')[0])\n\
-             ours = cv2.imread(sorted(glob.glob('{}/*.png'))[0])\n\
-             theirs = cv2.GaussianBlur(source, ({size}, {size}), 0)\n\
-             print(int(np.abs(ours.astype(int) - theirs.astype(int)).max()))",
+    let diagram = dir.path().join("through.ron");
+    std::fs::write(
+        &diagram,
+        format!(
+            r#"Diagram(format: 1, components: [
+                Component(id: "images", type: "video.image_sequence", properties: {{"folder": "{}"}}),
+                Component(id: "step", {component}),
+                Component(id: "out", type: "video.image_writer", properties: {{"folder": "{}"}}),
+            ], connections: [
+                Connection(from: "images.image", to: "step.in", policy: NeverSkipping),
+                Connection(from: "step.out", to: "out.image"),
+            ])"#,
             input.display(),
             output.display()
-        ));
+        ),
+    )
+    .unwrap();
+    let run = kairos(&root, &["run", diagram.to_str().unwrap(), "--for", "1500ms"]);
+    assert!(run.status.success(), "{}", text(&run).1);
+    python(&format!(
+        "import glob, numpy as np, cv2\n\
+         source = cv2.imread(glob.glob('{}/*.png')[0])\n\
+         ours = cv2.imread(sorted(glob.glob('{}/*.png'))[0], cv2.IMREAD_UNCHANGED)\n\
+         theirs = {opencv}\n\
+         print(int(np.abs(ours.astype(int) - theirs.astype(int)).max()))",
+        input.display(),
+        output.display()
+    ))
+}
+
+/// The Gaussian blur with sigma 0, at each size OpenCV has a fixed kernel for, is OpenCV's `GaussianBlur`.
+#[test]
+fn the_gaussian_blur_with_sigma_0_is_opencv_s_value_for_value() {
+    for size in [3, 5, 7] {
+        let differs = differs_from_opencv(
+            &format!(r#"type: "vision.gaussian_blur", properties: {{"size": {size}, "sigma": 0.0}}"#),
+            &format!("cv2.GaussianBlur(source, ({size}, {size}), 0)"),
+        );
         assert_eq!(
-            compared.trim(),
-            "0",
+            differs, "0",
             "size {size}: the most a value differs from OpenCV's"
         );
     }
+}
+
+/// Colour to grey is OpenCV's `cvtColor(..., COLOR_BGR2GRAY)`.
+#[test]
+fn grey_is_opencv_s_value_for_value() {
+    let differs = differs_from_opencv(
+        r#"type: "vision.convert", properties: {"to": "gray"}"#,
+        "cv2.cvtColor(source, cv2.COLOR_BGR2GRAY)",
+    );
+    assert_eq!(differs, "0", "the most a grey value differs from OpenCV's");
 }

@@ -243,7 +243,7 @@ fn main() {
         let grey_pixels: Vec<u8> = pixels
             .chunks_exact(3)
             .map(|p| {
-                ((u32::from(p[0]) * 4899 + u32::from(p[1]) * 9617 + u32::from(p[2]) * 1868 + 8192) >> 14)
+                ((u32::from(p[0]) * 9798 + u32::from(p[1]) * 19235 + u32::from(p[2]) * 3735 + 16384) >> 15)
                     as u8
             })
             .collect();
