@@ -547,3 +547,20 @@ fn grey_is_opencv_s_value_for_value() {
     );
     assert_eq!(differs, "0", "the most a grey value differs from OpenCV's");
 }
+
+/// Shrinking by area at scales that are not whole numbers is OpenCV's `INTER_AREA`.
+#[test]
+fn the_area_resize_is_opencv_s_at_any_scale() {
+    for (width, height) in [(128, 96), (240, 180), (100, 70)] {
+        let differs = differs_from_opencv(
+            &format!(
+                r#"type: "vision.resize", properties: {{"width": {width}, "height": {height}, "interpolation": "area"}}"#
+            ),
+            &format!("cv2.resize(source, ({width}, {height}), interpolation=cv2.INTER_AREA)"),
+        );
+        assert_eq!(
+            differs, "0",
+            "{width}×{height}: the most a value differs from OpenCV's"
+        );
+    }
+}
