@@ -564,3 +564,124 @@ fn the_area_resize_is_opencv_s_at_any_scale() {
         );
     }
 }
+
+/// Runs `script` with the tests' Python; its standard output.
+fn python_output(script: &str) -> String {
+    let done = Command::new("python3")
+        .args(["-c", script])
+        .output()
+        .expect("python3");
+    let (stdout, stderr) = text(&done);
+    assert!(
+        done.status.success(),
+        "the tests' Python (tests/run installs it): {stderr}"
+    );
+    stdout
+}
+
+/// Signals of every kind (Intel and Motorola, signed and not, scaled and offset, described values, an
+/// extended identifier), encoded by cantools from random values, decoded by `kairos run` and compared with
+/// what cantools decodes from the same frames.
+#[test]
+fn the_dbc_decoder_agrees_with_cantools_on_frames_cantools_encodes() {
+    const DBC: &str = r#"VERSION ""
+
+NS_ :
+
+BS_:
+
+BU_: ECU DASH
+
+BO_ 256 Engine: 8 ECU
+ SG_ Speed : 0|16@1+ (0.25,0) [0|16383.75] "rpm" DASH
+ SG_ Temperature : 16|8@1- (1,-40) [-168|87] "degC" DASH
+ SG_ Torque : 24|12@1- (0.5,10) [-1014|1033.5] "Nm" DASH
+ SG_ Running : 36|1@1+ (1,0) [0|1] "" DASH
+
+BO_ 512 Brake: 8 ECU
+ SG_ Pressure : 7|12@0+ (0.1,0) [0|409.5] "bar" DASH
+ SG_ Wear : 11|10@0- (0.01,0) [-5.12|5.11] "mm" DASH
+
+BO_ 2566834709 Gear: 8 ECU
+ SG_ Selected : 0|4@1- (1,0) [-8|7] "" DASH
+ SG_ ParkingBrake : 8|2@1+ (1,0) [0|3] "" DASH
+
+VAL_ 2566834709 Selected -1 "Reverse" 0 "Neutral" 1 "First" 2 "Second" ;
+VAL_ 2566834709 ParkingBrake 0 "Off" 1 "On" 2 "Fault" 3 "Unknown" ;
+"#;
+    let root = common::repo_root();
+    let dir = tempfile::tempdir().unwrap();
+    let (dbc, log) = (dir.path().join("car.dbc"), dir.path().join("bus.log"));
+    std::fs::write(&dbc, DBC).unwrap();
+    // cantools: random raw values in each signal's range, the log, and what it decodes (choices named).
+    let expected = python_output(&format!(
+        "import cantools, json, random\n\
+         db = cantools.database.load_file('{dbc}')\n\
+         random.seed(7)\n\
+         lines, decoded = [], []\n\
+         for i in range(300):\n\
+         \x20   message = db.messages[i % len(db.messages)]\n\
+         \x20   raw = {{}}\n\
+         \x20   for s in message.signals:\n\
+         \x20       low, high = (-(1 << (s.length - 1)), (1 << (s.length - 1)) - 1) if s.is_signed else (0, (1 << s.length) - 1)\n\
+         \x20       raw[s.name] = random.randint(low, high)\n\
+         \x20   data = message.encode(raw, scaling=False, strict=False)\n\
+         \x20   frame_id = ('%08X' if message.is_extended_frame else '%03X') % message.frame_id\n\
+         \x20   lines.append('(%.6f) can0 %s#%s' % (1.0 + i / 1000, frame_id, data.hex().upper()))\n\
+         \x20   values = message.decode(data, decode_choices=True)\n\
+         \x20   decoded.append([message.name, {{k: (str(v) if not isinstance(v, (int, float)) else v) for k, v in values.items()}}])\n\
+         open('{log}', 'w').write('\\n'.join(lines) + '\\n')\n\
+         print(json.dumps(decoded))",
+        dbc = dbc.display(),
+        log = log.display()
+    ));
+    let expected: Vec<(String, serde_json::Map<String, serde_json::Value>)> =
+        serde_json::from_str(&expected).unwrap();
+    let diagram = dir.path().join("decode.ron");
+    std::fs::write(
+        &diagram,
+        format!(
+            r#"Diagram(format: 1, components: [
+                Component(id: "log", type: "can.candump_reader", properties: {{"path": "{}", "replay": "fast"}}),
+                Component(id: "decoder", type: "can.dbc_decoder", properties: {{"dbc": "{}"}}),
+                Component(id: "print", type: "core.console"),
+            ], connections: [
+                Connection(from: "log.frame", to: "decoder.frame", policy: NeverSkipping),
+                Connection(from: "decoder.signals", to: "print.in", policy: NeverSkipping),
+            ])"#,
+            log.display(),
+            dbc.display()
+        ),
+    )
+    .unwrap();
+    let run = kairos(&root, &["run", diagram.to_str().unwrap(), "--for", "3s"]);
+    let (stdout, stderr) = text(&run);
+    assert!(run.status.success(), "{stderr}");
+    // `print: t=… seq=… latency=… Message: Signal = value unit; …`
+    let lines: Vec<&str> = stdout.lines().filter(|l| l.starts_with("print:")).collect();
+    assert_eq!(lines.len(), expected.len(), "{stdout}");
+    for (line, (message, values)) in lines.iter().zip(&expected) {
+        let text = line
+            .split_once(&format!(" {message}: "))
+            .map(|(_, rest)| rest)
+            .unwrap_or_default();
+        let ours: Vec<(&str, &str)> = text
+            .split("; ")
+            .filter_map(|pair| pair.split_once(" = "))
+            .collect();
+        assert_eq!(ours.len(), values.len(), "{line} against {values:?}");
+        for (name, value) in ours {
+            let theirs = &values[name];
+            match theirs.as_f64() {
+                Some(number) => {
+                    let ours: f64 = value.split_whitespace().next().unwrap().parse().unwrap();
+                    assert!(
+                        (ours - number).abs() <= 1e-9 * number.abs().max(1.0),
+                        "{line}: {name} {theirs}"
+                    );
+                }
+                None => assert_eq!(Some(value), theirs.as_str(), "{line}: {name}"),
+            }
+        }
+    }
+}
