@@ -685,3 +685,113 @@ VAL_ 2566834709 ParkingBrake 0 "Off" 1 "On" 2 "Fault" 3 "Unknown" ;
         }
     }
 }
+
+/// GGA and GNS sentences pynmea2 builds from random fields (both hemispheres, every fix quality, positions
+/// missing when there is no fix), decoded by `kairos run` and compared with what pynmea2 reads from them.
+#[test]
+fn the_nmea_receiver_agrees_with_pynmea2_on_sentences_pynmea2_builds() {
+    let root = common::repo_root();
+    let dir = tempfile::tempdir().unwrap();
+    let nmea = dir.path().join("random.nmea");
+    let expected = python_output(&format!(
+        "import pynmea2, json, random\n\
+         random.seed(11)\n\
+         lines, expected = [], []\n\
+         for i in range(200):\n\
+         \x20   quality = random.choice([0, 1, 2, 4, 5, 6])\n\
+         \x20   if quality == 0 and random.random() < 0.5:\n\
+         \x20       position = ['', '', '', '']\n\
+         \x20   else:\n\
+         \x20       position = ['%02d%09.6f' % (random.randint(0, 89), random.uniform(0, 59.999999)), random.choice('NS'),\n\
+         \x20                   '%03d%09.6f' % (random.randint(0, 179), random.uniform(0, 59.999999)), random.choice('EW')]\n\
+         \x20   time = '%02d%02d%05.2f' % (random.randint(0, 23), random.randint(0, 59), random.uniform(0, 59.99))\n\
+         \x20   sats, hdop = str(random.randint(0, 24)), '%.1f' % random.uniform(0.5, 20)\n\
+         \x20   altitude, separation = '%.1f' % random.uniform(-100, 3000), '%.1f' % random.uniform(-100, 100)\n\
+         \x20   if i % 2:\n\
+         \x20       mode = {{0: 'NN', 1: 'AA', 2: 'DA', 4: 'RA', 5: 'FN', 6: 'EN'}}[quality]\n\
+         \x20       sentence = pynmea2.GNS('GN', 'GNS', [time] + position + [mode, sats, hdop, altitude, separation, '', ''])\n\
+         \x20   else:\n\
+         \x20       sentence = pynmea2.GGA(random.choice(['GP', 'GN', 'GL']), 'GGA', [time] + position + [str(quality), sats, hdop, altitude, 'M', separation, 'M', '', ''])\n\
+         \x20   line = str(sentence)\n\
+         \x20   read = pynmea2.parse(line)\n\
+         \x20   has_position = position[0] != ''\n\
+         \x20   expected.append({{'latitude': read.latitude if has_position else None, 'longitude': read.longitude if has_position else None,\n\
+         \x20       'altitude': float(read.altitude) + float(read.geo_sep), 'satellites': int(read.num_sats), 'hdop': float(read.hdop if i % 2 else read.horizontal_dil),\n\
+         \x20       'fixed': quality in (1, 2, 4, 5)}})\n\
+         \x20   lines.append(line)\n\
+         open('{nmea}', 'w').write('\\r\\n'.join(lines) + '\\r\\n')\n\
+         print(json.dumps(expected))",
+        nmea = nmea.display()
+    ));
+    let expected: Vec<serde_json::Value> = serde_json::from_str(&expected).unwrap();
+    let (fixes, more) = (dir.path().join("fix.csv"), dir.path().join("more.csv"));
+    let diagram = dir.path().join("decode.ron");
+    std::fs::write(
+        &diagram,
+        format!(
+            r#"Diagram(format: 1, components: [
+                Component(id: "gnss", type: "gnss.nmea", properties: {{"source": "file", "path": "{}", "replay": "fast"}}),
+                Component(id: "fixes", type: "core.csv_writer", properties: {{"path": "{}"}}),
+                Component(id: "more", type: "core.csv_writer", properties: {{"path": "{}"}}),
+            ], connections: [
+                Connection(from: "gnss.fix", to: "fixes.in1", policy: NeverSkipping),
+                Connection(from: "gnss.satellites", to: "more.in1", policy: NeverSkipping),
+                Connection(from: "gnss.hdop", to: "more.in2", policy: NeverSkipping),
+            ])"#,
+            nmea.display(),
+            fixes.display(),
+            more.display()
+        ),
+    )
+    .unwrap();
+    let run = kairos(&root, &["run", diagram.to_str().unwrap(), "--for", "3s"]);
+    assert!(run.status.success(), "{}", text(&run).1);
+    let rows = |path: &std::path::Path| -> Vec<Vec<String>> {
+        std::fs::read_to_string(path)
+            .unwrap()
+            .lines()
+            .skip(1)
+            .map(|l| l.split(',').map(str::to_owned).collect())
+            .collect()
+    };
+    // input, timestamp, time of issue, sequence, latitude, longitude, altitude, accuracy, status
+    let fix_rows = rows(&fixes);
+    assert_eq!(
+        fix_rows.len(),
+        expected.len(),
+        "a fix for every sentence, lost ones too"
+    );
+    let (satellites, hdops): (Vec<_>, Vec<_>) = rows(&more).into_iter().partition(|r| r[0] == "in1");
+    assert_eq!((satellites.len(), hdops.len()), (expected.len(), expected.len()));
+    let number = |text: &str| text.parse::<f64>().unwrap_or(f64::NAN);
+    for (index, want) in expected.iter().enumerate() {
+        let fix = &fix_rows[index];
+        for (column, key) in [(4, "latitude"), (5, "longitude")] {
+            match want[key].as_f64() {
+                Some(degrees) => assert!(
+                    (number(&fix[column]) - degrees).abs() < 1e-9,
+                    "{index} {key}: {fix:?} {want}"
+                ),
+                None => assert!(number(&fix[column]).is_nan(), "{index} {key}: {fix:?}"),
+            }
+        }
+        assert!(
+            (number(&fix[6]) - want["altitude"].as_f64().unwrap()).abs() < 1e-6,
+            "{index}: {fix:?} {want}"
+        );
+        assert_eq!(
+            fix[8] != "NoFix",
+            want["fixed"].as_bool().unwrap(),
+            "{index}: {fix:?} {want}"
+        );
+        assert_eq!(
+            number(&satellites[index][4]),
+            want["satellites"].as_f64().unwrap(),
+            "{index}"
+        );
+        assert!(
+            (number(&hdops[index][4]) - want["hdop"].as_f64().unwrap()).abs() < 1e-9,
+            "{index}"
+        );
+    }
+}
