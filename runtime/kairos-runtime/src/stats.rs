@@ -200,9 +200,27 @@ impl StatsSnapshot {
             if let ComponentState::Failed(error) = &component.state {
                 let _ = writeln!(out, "{:<width$}    error: {error}", "");
             }
+            if let Some(counters) = component.status.as_ref().and_then(status_counters) {
+                let _ = writeln!(out, "{:<width$}    {counters}", "");
+            }
         }
         out
     }
+}
+
+/// The counts and flags a component's status holds, in words (`decoded 300, unknown_ids 8`); `None` when
+/// it has none.
+fn status_counters(status: &serde_json::Value) -> Option<String> {
+    let counters: Vec<String> = status
+        .as_object()?
+        .iter()
+        .filter_map(|(name, value)| match value {
+            serde_json::Value::Number(number) => Some(format!("{name} {number}")),
+            serde_json::Value::Bool(flag) => Some(format!("{name} {flag}")),
+            _ => None,
+        })
+        .collect();
+    (!counters.is_empty()).then(|| counters.join(", "))
 }
 
 fn micros(nanos: i64, count: u64) -> String {
@@ -210,5 +228,20 @@ fn micros(nanos: i64, count: u64) -> String {
         "-".to_owned()
     } else {
         format!("{:.1}µs", nanos as f64 / 1000.0)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_status_s_counts_and_flags_are_listed_its_words_left_out() {
+        let status = serde_json::json!({"kind": "can", "decoded": 300, "unknown_ids": 8, "connected": true, "last_error": "x"});
+        assert_eq!(
+            status_counters(&status).as_deref(),
+            Some("connected true, decoded 300, unknown_ids 8")
+        );
+        assert_eq!(status_counters(&serde_json::json!({"kind": "text"})), None);
     }
 }
