@@ -440,7 +440,15 @@ impl Connection {
 
     fn reply_to(&mut self, id: u64) -> Result<Reply, CallError> {
         loop {
-            let Message::Text(text) = self.socket.read().map_err(CallError::Lost)? else {
+            let message = match self.socket.read() {
+                // A signal to this process (the user's Ctrl-C, handled) cut the wait short: nothing was
+                // read, so reading again loses nothing. The runtime is not lost for it.
+                Err(tungstenite::Error::Io(error)) if error.kind() == std::io::ErrorKind::Interrupted => {
+                    continue;
+                }
+                other => other.map_err(CallError::Lost)?,
+            };
+            let Message::Text(text) = message else {
                 continue;
             };
             let Ok(value) = serde_json::from_str::<serde_json::Value>(text.as_str()) else {
