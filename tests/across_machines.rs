@@ -11,8 +11,8 @@ mod serving;
 
 use common::text;
 use serving::{
-    Server, csv_values, deploy_in_background, final_losses, folders, free_tcp_port, interrupt, now_ns,
-    samples_after_then_stop, serve, serve_in, shared_machine, wait_for_log, whole_machine,
+    RoundTrip, Server, csv_values, deploy_in_background, final_losses, folders, free_tcp_port, interrupt,
+    now_ns, samples_after_then_stop, serve, serve_in, shared_machine, wait_for_log, whole_machine,
 };
 use std::fmt::Write as _;
 use std::path::Path;
@@ -742,29 +742,14 @@ fn beyond_its_ride_out_a_link_loses_what_it_no_longer_keeps_and_counts_every_sam
         return;
     };
     // The values back are in order, each once; those missing are the ones lost.
-    assert!(
-        values.windows(2).all(|w| w[1] > w[0]),
-        "out of order or repeated\n{said}"
-    );
-    let last = values.last().copied().unwrap_or(0.0) as u64;
-    let missing = last + 1 - values.len() as u64;
+    let back = RoundTrip::of(values, &said);
+    let missing = back.missing;
     assert!(
         missing > 50,
         "only {missing} lost through a 3 s cut kept for 0.5 s\n{said}"
     );
-    let losses = final_losses(&said);
-    assert_eq!(losses.len(), 2, "{said}");
-    let counted: u64 = losses.iter().sum();
-    eprintln!(
-        "{missing} values missing of {}; counted lost, by link: {losses:?}",
-        last + 1
-    );
-    // Every value missing was counted lost on one of the two links; beyond those, only what the stop
-    // left in flight (under half a second at 100 Hz).
-    assert!(
-        (missing..=missing + 50).contains(&counted),
-        "{missing} values missing, {counted} counted lost ({losses:?})\n{said}"
-    );
+    // Beyond the values missing, only what the stop left in flight (under half a second at 100 Hz).
+    back.assert_every_missing_value_counted(50, &said);
 }
 
 #[test]
@@ -820,21 +805,8 @@ fn thirty_seconds_without_a_network_leave_both_hosts_running_and_count_every_sam
         .into_iter()
         .map(|(_, value)| value)
         .collect();
-    assert!(
-        values.windows(2).all(|w| w[1] > w[0]),
-        "out of order or repeated\n{said}"
-    );
-    let missing = values.last().copied().unwrap_or(0.0) as u64 + 1 - values.len() as u64;
+    let back = RoundTrip::of(values, &said);
+    let missing = back.missing;
     assert!(missing > 1000, "only {missing} lost in 30 s kept for 5 s\n{said}");
-    let losses = final_losses(&said);
-    assert_eq!(losses.len(), 2, "{said}");
-    let counted: u64 = losses.iter().sum();
-    eprintln!(
-        "{missing} values missing of {}; counted lost, by link: {losses:?}",
-        values.len()
-    );
-    assert!(
-        (missing..=missing + 50).contains(&counted),
-        "{missing} values missing, {counted} counted lost ({losses:?})\n{said}"
-    );
+    back.assert_every_missing_value_counted(50, &said);
 }

@@ -13,7 +13,7 @@ mod serving;
 use common::{repo_root, text};
 use serde_json::{Value, json};
 use serving::{
-    Server, call, csv_values, deploy_in_background, final_losses, folders, free_tcp_port, interrupt, now_ns,
+    RoundTrip, Server, call, csv_values, deploy_in_background, folders, free_tcp_port, interrupt, now_ns,
     operator, samples_after_then_stop, serve, serve_on, serve_with_env, shared_machine, state,
     two_host_diagram, wait_for_log,
 };
@@ -308,22 +308,7 @@ fn a_killed_host_is_reported_within_a_second_and_restarted_gets_its_part_again_i
         .into_iter()
         .map(|(_, value)| value)
         .collect();
-    assert!(
-        values.windows(2).all(|w| w[1] > w[0]),
-        "repeated or out of order\n{content}"
-    );
-    let missing = values.last().copied().unwrap_or(0.0) as u64 + 1 - values.len() as u64;
-    let losses = final_losses(&content);
-    assert_eq!(losses.len(), 2, "{content}");
-    let counted: u64 = losses.iter().sum();
-    eprintln!(
-        "{missing} values missing of {}; counted lost, by link: {losses:?}",
-        values.len()
-    );
-    assert!(
-        (missing..=missing + 100).contains(&counted),
-        "{missing} values missing, {counted} counted lost ({losses:?})\n{content}"
-    );
+    RoundTrip::of(values, &content).assert_every_missing_value_counted(100, &content);
     drop(b);
 }
 

@@ -311,3 +311,44 @@ pub fn final_losses(said: &str) -> Vec<u64> {
         .filter_map(|rest| rest.split_whitespace().next()?.parse().ok())
         .collect()
 }
+
+/// What came back through a counter's round trip between hosts: the values, in order, each once (asserted);
+/// how many of those up to the last are missing; and the final losses `kairos deploy` said, one per link
+/// of the two.
+pub struct RoundTrip {
+    pub values: Vec<f64>,
+    pub missing: u64,
+    pub losses: Vec<u64>,
+}
+
+impl RoundTrip {
+    /// Checks `values` (the counter as it came back) and `said` (what `kairos deploy` said).
+    pub fn of(values: Vec<f64>, said: &str) -> Self {
+        assert!(
+            values.windows(2).all(|w| w[1] > w[0]),
+            "out of order or repeated\n{said}"
+        );
+        let missing = values.last().copied().unwrap_or(0.0) as u64 + 1 - values.len() as u64;
+        let losses = final_losses(said);
+        assert_eq!(losses.len(), 2, "{said}");
+        RoundTrip {
+            values,
+            missing,
+            losses,
+        }
+    }
+
+    /// Every value missing was counted lost on one of the two links; beyond those, at most `beyond`.
+    pub fn assert_every_missing_value_counted(&self, beyond: u64, said: &str) {
+        let (missing, losses) = (self.missing, &self.losses);
+        let counted: u64 = losses.iter().sum();
+        eprintln!(
+            "{missing} values missing of {}; counted lost, by link: {losses:?}",
+            missing + self.values.len() as u64
+        );
+        assert!(
+            (missing..=missing + beyond).contains(&counted),
+            "{missing} values missing, {counted} counted lost ({losses:?})\n{said}"
+        );
+    }
+}

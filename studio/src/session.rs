@@ -1398,16 +1398,21 @@ mod tests {
             )));
     }
 
+    /// Runs the document, the runtime accepting the deploy: the start request that follows.
+    fn deployed_then_started(session: &mut Session) -> Request {
+        session.deploy_and_start();
+        let deploy = sent(session);
+        session.handle(ok(&deploy[0], json!({"diagnostics": [], "components": 2})));
+        sent(session)
+            .into_iter()
+            .find(|r| matches!(r.body, RequestBody::Start { .. }))
+            .unwrap()
+    }
+
     #[test]
     fn a_start_refused_for_clocks_not_locked_can_be_asked_again_anyway() {
         let mut session = connected();
-        session.deploy_and_start();
-        let deploy = sent(&mut session);
-        session.handle(ok(&deploy[0], json!({"diagnostics": [], "components": 2})));
-        let start = sent(&mut session)
-            .into_iter()
-            .find(|r| matches!(r.body, RequestBody::Start { .. }))
-            .unwrap();
+        let start = deployed_then_started(&mut session);
         assert!(session.unlocked_refusal().is_none());
         let refusal = "not every host's clock is locked to its master within 1ms, so nothing was started: \
                        host 'b': clock acquiring, error +3.000 ms";
@@ -1436,13 +1441,7 @@ mod tests {
     fn a_start_asks_for_the_lock_bound_set() {
         let mut session = connected();
         session.set_lock_bound(std::time::Duration::from_micros(250));
-        session.deploy_and_start();
-        let deploy = sent(&mut session);
-        session.handle(ok(&deploy[0], json!({"diagnostics": [], "components": 2})));
-        let start = sent(&mut session)
-            .into_iter()
-            .find(|r| matches!(r.body, RequestBody::Start { .. }))
-            .unwrap();
+        let start = deployed_then_started(&mut session);
         assert!(
             matches!(
                 start.body,
