@@ -30,6 +30,15 @@ pub struct ResizeError(String);
 pub struct Resize {
     resizer: Resizer,
     packed: Vec<u8>,
+    /// The area shares across and down for the last sizes shrunk by area, kept while the sizes stay.
+    area: Option<AreaShares>,
+}
+
+/// The shares of an area shrink from one size to another, along each axis.
+struct AreaShares {
+    sizes: [usize; 4],
+    across: Vec<Share>,
+    down: Vec<Share>,
 }
 
 impl std::fmt::Debug for Resize {
@@ -65,7 +74,17 @@ impl Resize {
             && height <= src.height
             && width * height > 0
         {
-            shrink_by_area(src, (width, height), dst);
+            let sizes = [src.width, src.height, width, height];
+            let shares = match self.area.take() {
+                Some(shares) if shares.sizes == sizes => shares,
+                _ => AreaShares {
+                    sizes,
+                    across: area_shares(src.width, width),
+                    down: area_shares(src.height, height),
+                },
+            };
+            shrink_by_area(src, (&shares.across, &shares.down), dst);
+            self.area = Some(shares);
             return Ok(());
         }
         let source = if let Some(pixels) = src.pixels() {
@@ -140,12 +159,12 @@ fn area_shares(from: usize, to: usize) -> Vec<Share> {
     shares
 }
 
-/// `src` shrunk to `width × height` into the packed `dst`, each new pixel the mean of the source area it
-/// covers, partly covered pixels in part: OpenCV's `INTER_AREA`, summed in the same order in `f32`.
-fn shrink_by_area(src: &View<'_>, (width, height): (usize, usize), dst: &mut [u8]) {
+/// `src` shrunk by area into the packed `dst` with the shares `across` and `down` ([`area_shares`]),
+/// each new pixel the mean of the source area it covers, partly covered pixels in part: OpenCV's
+/// `INTER_AREA`, summed in the same order in `f32`.
+fn shrink_by_area(src: &View<'_>, (across, down): (&[Share], &[Share]), dst: &mut [u8]) {
     let channels = src.channels;
-    let across = area_shares(src.width, width);
-    let down = area_shares(src.height, height);
+    let width = across.last().map_or(0, |share| share.destination + 1);
     let row_bytes = width * channels;
     let (mut row, mut sum) = (vec![0.0_f32; row_bytes], vec![0.0_f32; row_bytes]);
     let mut current: Option<usize> = None;
@@ -156,10 +175,10 @@ fn shrink_by_area(src: &View<'_>, (width, height): (usize, usize), dst: &mut [u8
             }
         }
     };
-    for vertical in &down {
+    for vertical in down {
         row.fill(0.0);
         let line = src.row(vertical.source);
-        for share in &across {
+        for share in across {
             for c in 0..channels {
                 let value = f32::from(line[share.source * channels + c]);
                 row[share.destination * channels + c] += value * share.weight;
