@@ -654,9 +654,23 @@ VAL_ 2566834709 ParkingBrake 0 "Off" 1 "On" 2 "Fault" 3 "Unknown" ;
         ),
     )
     .unwrap();
-    let run = kairos(&root, &["run", diagram.to_str().unwrap(), "--for", "3s"]);
+    let run = kairos(
+        &root,
+        &[
+            "run",
+            diagram.to_str().unwrap(),
+            "--for",
+            "3s",
+            "--stats",
+            "--stats-interval",
+            "10s",
+        ],
+    );
     let (stdout, stderr) = text(&run);
     assert!(run.status.success(), "{stderr}");
+    // The statuses at the end count every frame, whenever their last period fell.
+    assert!(stderr.contains("frames 300,"), "{stderr}");
+    assert!(stderr.contains("decoded 300, unknown_ids 0"), "{stderr}");
     // `print: t=… seq=… latency=… Message: Signal = value unit; …`
     let lines: Vec<&str> = stdout.lines().filter(|l| l.starts_with("print:")).collect();
     assert_eq!(lines.len(), expected.len(), "{stdout}");

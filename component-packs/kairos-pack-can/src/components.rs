@@ -8,12 +8,12 @@ use std::path::Path;
 use std::sync::Arc;
 use std::time::Duration;
 
+use kairos_sdk::Throttle;
 use kairos_sdk::descriptor::{Descriptor, Property};
 use kairos_sdk::{
     Component, ComponentError, ComponentInfo, ComponentResult, Context, DataType, DescribeError, Payload,
     ReaderPolicy, Timestamp, TypeFilter, Value,
 };
-use kairos_sdk::{STATUS_PERIOD, Throttle};
 
 use crate::candump::{self, Logged};
 use crate::dbc::Database;
@@ -60,7 +60,6 @@ pub struct CandumpReader {
     error_frames: u64,
     malformed: u64,
     warnings: Throttle,
-    published: Throttle,
 }
 
 impl CandumpReader {
@@ -71,16 +70,6 @@ impl CandumpReader {
         self.line_number = 0;
         self.anchor = None;
         Ok(())
-    }
-
-    fn publish_status(&mut self, ctx: &Context, now: bool) {
-        let due = self.published.ready(STATUS_PERIOD);
-        if !now && !due {
-            return;
-        }
-        ctx.set_status(serde_json::json!({
-            "kind": "can", "frames": self.frames, "error_frames": self.error_frames, "malformed": self.malformed,
-        }));
     }
 
     /// The next frame of the log on the chosen interface, or `None` at its end.
@@ -141,7 +130,6 @@ impl Component for CandumpReader {
             },
         };
         let Some((time_s, frame)) = next else {
-            self.publish_status(ctx, true);
             return Err(ComponentError::EndOfStream);
         };
         let now = ctx.now();
@@ -160,13 +148,13 @@ impl Component for CandumpReader {
         };
         self.frames += 1;
         ctx.write_at("frame", Payload::CanFrame(frame), due)?;
-        self.publish_status(ctx, false);
         Ok(())
     }
 
-    fn death(&mut self, ctx: &mut Context) -> ComponentResult {
-        self.publish_status(ctx, true);
-        Ok(())
+    fn status(&self) -> Option<serde_json::Value> {
+        Some(serde_json::json!({
+            "kind": "can", "frames": self.frames, "error_frames": self.error_frames, "malformed": self.malformed,
+        }))
     }
 
     fn property_changed(&mut self, _name: &str, _value: &Value, _ctx: &mut Context) -> ComponentResult {
@@ -371,7 +359,6 @@ pub struct DbcDecoder {
     text_outputs: BTreeMap<((u32, bool), usize), usize>,
     unknown: u64,
     decoded: u64,
-    published: Throttle,
 }
 
 impl Component for DbcDecoder {
@@ -444,12 +431,11 @@ impl Component for DbcDecoder {
         for (output, text) in words {
             ctx.write_processed(output, &sample, Payload::Text(text))?;
         }
-        if self.published.ready(STATUS_PERIOD) {
-            ctx.set_status(
-                serde_json::json!({"kind": "can", "decoded": self.decoded, "unknown_ids": self.unknown}),
-            );
-        }
         Ok(())
+    }
+
+    fn status(&self) -> Option<serde_json::Value> {
+        Some(serde_json::json!({"kind": "can", "decoded": self.decoded, "unknown_ids": self.unknown}))
     }
 
     fn property_changed(&mut self, _name: &str, _value: &Value, _ctx: &mut Context) -> ComponentResult {
@@ -522,7 +508,6 @@ pub struct DbcEncoder {
     signals: Vec<String>,
     values: BTreeMap<String, f64>,
     encoded: u64,
-    published: Throttle,
 }
 
 impl Component for DbcEncoder {
@@ -558,10 +543,11 @@ impl Component for DbcEncoder {
             self.encoded += 1;
             ctx.write_processed("frame", &sample, Payload::CanFrame(frame))?;
         }
-        if self.published.ready(STATUS_PERIOD) {
-            ctx.set_status(serde_json::json!({"kind": "can", "encoded": self.encoded}));
-        }
         Ok(())
+    }
+
+    fn status(&self) -> Option<serde_json::Value> {
+        Some(serde_json::json!({"kind": "can", "encoded": self.encoded}))
     }
 
     fn property_changed(&mut self, _name: &str, _value: &Value, _ctx: &mut Context) -> ComponentResult {

@@ -10,7 +10,7 @@ use kairos_sdk::{
     CanFrame, Component, ComponentError, ComponentInfo, ComponentResult, Context, DataType, Payload,
     ReaderPolicy, TypeFilter, Value,
 };
-use kairos_sdk::{DeviceKind, STATUS_PERIOD, Throttle};
+use kairos_sdk::{DeviceKind, Throttle};
 use socketcan::{
     CanAnyFrame, CanDataFrame, CanErrorFrame, CanFdFrame, CanFdSocket, CanFilter, CanFrame as BusFrame,
     CanRemoteFrame, CanSocket, EmbeddedFrame, ExtendedId, Frame as _, Id, Socket, SocketOptions, StandardId,
@@ -245,7 +245,6 @@ pub struct SocketCanReader {
     errors: u64,
     last_error: String,
     warnings: Throttle,
-    published: Throttle,
 }
 
 impl Component for SocketCanReader {
@@ -293,13 +292,14 @@ impl Component for SocketCanReader {
                 ctx.sleep(READ_WAIT)?;
             }
         }
-        if self.published.ready(STATUS_PERIOD) {
-            ctx.set_status(serde_json::json!({
-                "kind": "can", "interface": self.interface, "frames": self.frames, "remote_frames": self.remote,
-                "oversized": self.oversized, "error_frames": self.errors, "last_error": self.last_error,
-            }));
-        }
         Ok(())
+    }
+
+    fn status(&self) -> Option<serde_json::Value> {
+        Some(serde_json::json!({
+            "kind": "can", "interface": self.interface, "frames": self.frames, "remote_frames": self.remote,
+            "oversized": self.oversized, "error_frames": self.errors, "last_error": self.last_error,
+        }))
     }
 
     fn property_changed(&mut self, _name: &str, _value: &Value, _ctx: &mut Context) -> ComponentResult {
@@ -334,7 +334,6 @@ pub struct SocketCanWriter {
     sent: u64,
     not_sent: u64,
     warnings: Throttle,
-    published: Throttle,
 }
 
 impl Component for SocketCanWriter {
@@ -364,12 +363,13 @@ impl Component for SocketCanWriter {
                     .warn(|| format!("{interface}: frame not sent: {why} ({count} in all)"));
             }
         }
-        if self.published.ready(STATUS_PERIOD) {
-            ctx.set_status(serde_json::json!({
-                "kind": "can", "interface": self.interface, "sent": self.sent, "not_sent": self.not_sent,
-            }));
-        }
         Ok(())
+    }
+
+    fn status(&self) -> Option<serde_json::Value> {
+        Some(serde_json::json!({
+            "kind": "can", "interface": self.interface, "sent": self.sent, "not_sent": self.not_sent,
+        }))
     }
 
     fn property_changed(&mut self, _name: &str, _value: &Value, _ctx: &mut Context) -> ComponentResult {

@@ -7,7 +7,7 @@ use kairos_sdk::{
     Component, ComponentError, ComponentInfo, ComponentResult, Context, DataType, GnssFix, Payload,
     Timestamp, Value,
 };
-use kairos_sdk::{DeviceKind, STATUS_PERIOD, Throttle, WARNING_PERIOD};
+use kairos_sdk::{DeviceKind, Throttle, WARNING_PERIOD};
 
 use kairos_pack_serial::link::{Endpoint, LiveSource, SerialSettings, file_lines};
 
@@ -157,7 +157,8 @@ pub struct NmeaReceiver {
     /// What was received while the runtime clock, following this receiver, awaited its first time
     /// from it: written once the time is known, on it.
     held: Vec<(Arc<str>, Reading, Timestamp)>,
-    published: Throttle,
+    /// Lines dropped for their length, as the input last counted them.
+    overlong: u64,
 }
 
 impl std::fmt::Debug for NmeaReceiver {
@@ -336,25 +337,6 @@ impl NmeaReceiver {
         self.counts.unreported = 0;
     }
 
-    fn publish_status(&mut self, ctx: &Context) {
-        if !self.published.ready(STATUS_PERIOD) {
-            return;
-        }
-        let overlong = match &self.input {
-            Some(Input::Live(source)) => source.dropped_overlong(),
-            Some(Input::File(replay)) => replay.overlong,
-            None => 0,
-        };
-        ctx.set_status(serde_json::json!({
-            "kind": "gnss",
-            "connected": self.connected,
-            "sentences": self.counts.sentences,
-            "bad_checksum": self.counts.bad_checksum,
-            "malformed": self.counts.malformed,
-            "overlong": overlong,
-        }));
-    }
-
     /// The next line of a replayed file, once its time has come; `None` at the end.
     fn next_replayed(
         replay: &mut Replay,
@@ -400,7 +382,7 @@ impl Component for NmeaReceiver {
         self.accuracy_per_hdop = ctx.f64_property("accuracy_per_hdop_m")?;
         self.input = Some(Self::open(ctx)?);
         self.connected = true;
-        self.publish_status(ctx);
+        ctx.publish_status(self);
         Ok(())
     }
 
@@ -408,6 +390,8 @@ impl Component for NmeaReceiver {
         match &mut self.input {
             Some(Input::Live(source)) => {
                 let received = source.receive();
+                self.overlong = source.dropped_overlong();
+                let changed = received.problem.is_some() || received.recovered;
                 if let Some(problem) = received.problem {
                     tracing::warn!("{problem}");
                     self.connected = false;
@@ -416,16 +400,18 @@ impl Component for NmeaReceiver {
                     tracing::info!("receiving again");
                     self.connected = true;
                 }
+                if changed {
+                    ctx.publish_status(self);
+                }
                 let now = ctx.now();
                 for line in received.lines {
                     self.handle(ctx, &line, now)?;
                 }
             }
             Some(Input::File(replay)) => {
+                self.overlong = replay.overlong;
                 let Some(line) = Self::next_replayed(replay, &self.decoder, ctx)? else {
                     self.write_held(ctx)?;
-                    self.published.reset();
-                    self.publish_status(ctx);
                     return Err(ComponentError::EndOfStream);
                 };
                 let now = ctx.now();
@@ -441,15 +427,23 @@ impl Component for NmeaReceiver {
             }
             None => return Err(ComponentError::Stopped),
         }
-        self.publish_status(ctx);
         Ok(())
     }
 
-    fn death(&mut self, ctx: &mut Context) -> ComponentResult {
-        self.published.reset();
-        self.publish_status(ctx);
+    fn death(&mut self, _ctx: &mut Context) -> ComponentResult {
         self.input = None;
         Ok(())
+    }
+
+    fn status(&self) -> Option<serde_json::Value> {
+        Some(serde_json::json!({
+            "kind": "gnss",
+            "connected": self.connected,
+            "sentences": self.counts.sentences,
+            "bad_checksum": self.counts.bad_checksum,
+            "malformed": self.counts.malformed,
+            "overlong": self.overlong,
+        }))
     }
 
     fn property_changed(&mut self, name: &str, value: &Value, _ctx: &mut Context) -> ComponentResult {

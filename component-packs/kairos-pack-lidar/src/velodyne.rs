@@ -10,7 +10,7 @@ use kairos_sdk::{
     Component, ComponentError, ComponentInfo, ComponentResult, Context, DataType, Payload, PointCloud,
     Timestamp, Value,
 };
-use kairos_sdk::{STATUS_PERIOD, Throttle, WARNING_PERIOD};
+use kairos_sdk::{Throttle, WARNING_PERIOD};
 
 use crate::pcap::Capture;
 use crate::vlp16::Decoder;
@@ -72,7 +72,6 @@ pub struct Velodyne {
     revolutions: u64,
     last_problem: String,
     warned: Throttle,
-    published: Throttle,
 }
 
 impl std::fmt::Debug for Velodyne {
@@ -141,17 +140,6 @@ impl Velodyne {
     fn write(&mut self, ctx: &mut Context, cloud: PointCloud, at: Timestamp) -> ComponentResult {
         self.revolutions += 1;
         ctx.write_at("points", Payload::PointCloud(Arc::new(cloud)), at)
-    }
-
-    fn publish_status(&mut self, ctx: &Context, now: bool) {
-        let due = self.published.ready(STATUS_PERIOD);
-        if !now && !due {
-            return;
-        }
-        ctx.set_status(serde_json::json!({
-            "kind": "lidar", "packets": self.packets, "bad_packets": self.bad_packets,
-            "revolutions": self.revolutions,
-        }));
     }
 }
 
@@ -232,17 +220,21 @@ impl Component for Velodyne {
                 let now = ctx.now();
                 self.write(ctx, cloud, now)?;
             }
-            self.publish_status(ctx, true);
             return Err(ComponentError::EndOfStream);
         }
-        self.publish_status(ctx, false);
         Ok(())
     }
 
-    fn death(&mut self, ctx: &mut Context) -> ComponentResult {
-        self.publish_status(ctx, true);
+    fn death(&mut self, _ctx: &mut Context) -> ComponentResult {
         self.input = None;
         Ok(())
+    }
+
+    fn status(&self) -> Option<serde_json::Value> {
+        Some(serde_json::json!({
+            "kind": "lidar", "packets": self.packets, "bad_packets": self.bad_packets,
+            "revolutions": self.revolutions,
+        }))
     }
 
     fn property_changed(&mut self, _name: &str, _value: &Value, _ctx: &mut Context) -> ComponentResult {

@@ -186,7 +186,8 @@ pub struct LinkSender {
     /// Whether a receiver matched at the last look (every status period).
     matched: bool,
     warned: Throttle,
-    published: Throttle,
+    /// When the receiver's match was last looked at.
+    looked: Throttle,
     /// What a reliable link keeps for a cut.
     kept: Kept,
     /// The receiver's cuts seen so far, and whether one awaits the receiver's return.
@@ -284,18 +285,20 @@ impl Component for LinkSender {
         } else {
             self.put(&end, frame);
         }
-        if self.published.ready(STATUS_PERIOD) {
+        if self.looked.ready(STATUS_PERIOD) {
             self.look(ctx, &end);
         }
         Ok(())
     }
 
-    fn death(&mut self, ctx: &mut Context) -> ComponentResult {
-        // The counts as the run leaves them, not as the last status period saw them.
-        if let Some(end) = self.end.clone() {
-            self.publish(ctx, &end.peer);
-        }
-        Ok(())
+    /// Its counts and whether a receiver matched.
+    fn status(&self) -> Option<serde_json::Value> {
+        let peer = self.end.as_ref().map(|end| end.peer.as_str());
+        Some(serde_json::json!({
+            "kind": "link", "to": peer, "sent": self.sent, "sent_unmatched": self.unmatched,
+            "failed": self.failed, "matched": self.matched, "put_again": self.put_again,
+            "kept": self.kept.frames.len(),
+        }))
     }
 
     fn property_changed(&mut self, name: &str, _value: &Value, _ctx: &mut Context) -> ComponentResult {
@@ -336,7 +339,7 @@ impl LinkSender {
         }
     }
 
-    /// Every status period: whether the receiver matches (said when it changes), and the status.
+    /// Every status period: whether the receiver matches, said (and published) when it changes.
     fn look(&mut self, ctx: &Context, end: &network::SenderEnd) {
         let matched = network::matched(end);
         if matched != self.matched {
@@ -356,17 +359,8 @@ impl LinkSender {
                 );
             }
             self.matched = matched;
+            ctx.publish_status(self);
         }
-        self.publish(ctx, &end.peer);
-    }
-
-    /// Its counts and whether a receiver matched, as its status.
-    fn publish(&self, ctx: &Context, peer: &str) {
-        ctx.set_status(serde_json::json!({
-            "kind": "link", "to": peer, "sent": self.sent, "sent_unmatched": self.unmatched,
-            "failed": self.failed, "matched": self.matched, "put_again": self.put_again,
-            "kept": self.kept.frames.len(),
-        }));
     }
 
     /// Rides out a cut, the newest sample already kept: once the receiver matches again after it stopped,
@@ -471,7 +465,6 @@ pub struct LinkReceiver {
     end: Option<std::sync::Arc<network::ReceiverEnd>>,
     samples: SampleReceiver,
     last: Option<Instant>,
-    published: Throttle,
 }
 
 impl LinkReceiver {
@@ -488,18 +481,6 @@ impl LinkReceiver {
             end.received(newest);
         }
         Ok(())
-    }
-
-    /// Its counts and how long ago the last sample came, as its status.
-    fn publish(&self, ctx: &Context, peer: &str) {
-        let status = serde_json::json!({
-            "kind": "link", "from": peer,
-            "last_sample_age_ms": self.last.map(|at| at.elapsed().as_millis()),
-        });
-        ctx.set_status(kairos_pack_net::encoding::status_with(
-            status,
-            Some(&self.samples),
-        ));
     }
 }
 
@@ -535,18 +516,19 @@ impl Component for LinkReceiver {
                 )));
             }
         }
-        if self.published.ready(STATUS_PERIOD) {
-            self.publish(ctx, &end.peer);
-        }
         Ok(())
     }
 
-    fn death(&mut self, ctx: &mut Context) -> ComponentResult {
-        // The counts as the run leaves them, not as the last status period saw them.
-        if let Some(end) = self.end.clone() {
-            self.publish(ctx, &end.peer);
-        }
-        Ok(())
+    /// Its counts and how long ago the last sample came.
+    fn status(&self) -> Option<serde_json::Value> {
+        let status = serde_json::json!({
+            "kind": "link", "from": self.end.as_ref().map(|end| end.peer.as_str()),
+            "last_sample_age_ms": self.last.map(|at| at.elapsed().as_millis()),
+        });
+        Some(kairos_pack_net::encoding::status_with(
+            status,
+            Some(&self.samples),
+        ))
     }
 
     fn property_changed(&mut self, name: &str, _value: &Value, _ctx: &mut Context) -> ComponentResult {

@@ -7,12 +7,12 @@ use std::net::{SocketAddr, TcpListener, TcpStream, ToSocketAddrs as _};
 use std::sync::Arc;
 use std::time::Duration;
 
+use kairos_sdk::Throttle;
 use kairos_sdk::descriptor::{Descriptor, Property};
 use kairos_sdk::{
     Component, ComponentError, ComponentInfo, ComponentResult, Context, DataType, DescribeError, Payload,
     ReaderPolicy, TypeFilter, Value,
 };
-use kairos_sdk::{STATUS_PERIOD, Throttle};
 
 use crate::encoding::{self, SampleReceiver, SampleSender};
 use crate::framing::{Deframer, Framing};
@@ -183,7 +183,6 @@ pub struct TcpReceiver {
     refused: u64,
     samples: Option<SampleReceiver>,
     warnings: Throttle,
-    published: Throttle,
 }
 
 impl TcpReceiver {
@@ -294,17 +293,18 @@ impl Component for TcpReceiver {
         for index in closed.into_iter().rev() {
             self.connections.remove(index);
         }
-        if self.published.ready(STATUS_PERIOD) {
-            let status = serde_json::json!({
-                "kind": "tcp", "connections": self.connections.len(), "messages": self.messages,
-                "cut_off": self.cut_off, "refused": self.refused,
-            });
-            ctx.set_status(encoding::status_with(status, self.samples.as_ref()));
-        }
         if idle && self.side.as_ref().is_some_and(Side::is_server) {
             ctx.sleep(IDLE_WAIT)?;
         }
         Ok(())
+    }
+
+    fn status(&self) -> Option<serde_json::Value> {
+        let status = serde_json::json!({
+            "kind": "tcp", "connections": self.connections.len(), "messages": self.messages,
+            "cut_off": self.cut_off, "refused": self.refused,
+        });
+        Some(encoding::status_with(status, self.samples.as_ref()))
     }
 
     fn property_changed(&mut self, _name: &str, _value: &Value, _ctx: &mut Context) -> ComponentResult {
@@ -353,7 +353,6 @@ pub struct TcpSender {
     sent: u64,
     dropped: u64,
     warnings: Throttle,
-    published: Throttle,
 }
 
 impl TcpSender {
@@ -410,12 +409,13 @@ impl Component for TcpSender {
         for index in gone.into_iter().rev() {
             self.peers.remove(index);
         }
-        if self.published.ready(STATUS_PERIOD) {
-            ctx.set_status(serde_json::json!({
-                "kind": "tcp", "connections": self.peers.len(), "sent": self.sent, "dropped": self.dropped,
-            }));
-        }
         Ok(())
+    }
+
+    fn status(&self) -> Option<serde_json::Value> {
+        Some(serde_json::json!({
+            "kind": "tcp", "connections": self.peers.len(), "sent": self.sent, "dropped": self.dropped,
+        }))
     }
 
     fn property_changed(&mut self, _name: &str, _value: &Value, _ctx: &mut Context) -> ComponentResult {

@@ -10,7 +10,7 @@ use kairos_sdk::{
     Component, ComponentError, ComponentInfo, ComponentResult, Context, DataType, DescribeError, Payload,
     ReaderPolicy, TypeFilter, Value,
 };
-use kairos_sdk::{STATUS_PERIOD, Throttle, WARNING_PERIOD};
+use kairos_sdk::{Throttle, WARNING_PERIOD};
 
 use crate::encoding::{self, SampleReceiver, SampleSender};
 
@@ -75,7 +75,6 @@ pub struct UdpReceiver {
     samples: Option<SampleReceiver>,
     /// The last sender and its address in words, written once rather than for every datagram.
     peer: Option<(SocketAddr, String)>,
-    published: Throttle,
 }
 
 impl Component for UdpReceiver {
@@ -132,11 +131,12 @@ impl Component for UdpReceiver {
             // An ICMP error from an earlier send on this socket, and the like: the socket still works.
             Err(e) => tracing::debug!("UDP receive: {e}"),
         }
-        if self.published.ready(STATUS_PERIOD) {
-            let status = serde_json::json!({"kind": "udp", "datagrams": self.datagrams});
-            ctx.set_status(encoding::status_with(status, self.samples.as_ref()));
-        }
         Ok(())
+    }
+
+    fn status(&self) -> Option<serde_json::Value> {
+        let status = serde_json::json!({"kind": "udp", "datagrams": self.datagrams});
+        Some(encoding::status_with(status, self.samples.as_ref()))
     }
 
     fn property_changed(&mut self, _name: &str, _value: &Value, _ctx: &mut Context) -> ComponentResult {
@@ -187,7 +187,6 @@ pub struct UdpSender {
     failed: u64,
     too_large: u64,
     warned: Throttle,
-    published: Throttle,
 }
 
 impl UdpSender {
@@ -249,12 +248,13 @@ impl Component for UdpSender {
                 }
             }
         }
-        if self.published.ready(STATUS_PERIOD) {
-            ctx.set_status(serde_json::json!({
-                "kind": "udp", "sent": self.sent, "failed": self.failed, "too_large": self.too_large,
-            }));
-        }
         Ok(())
+    }
+
+    fn status(&self) -> Option<serde_json::Value> {
+        Some(serde_json::json!({
+            "kind": "udp", "sent": self.sent, "failed": self.failed, "too_large": self.too_large,
+        }))
     }
 
     fn property_changed(&mut self, _name: &str, _value: &Value, _ctx: &mut Context) -> ComponentResult {

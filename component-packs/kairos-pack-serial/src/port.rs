@@ -5,12 +5,12 @@ use std::io::Write as _;
 use std::sync::Arc;
 use std::time::Instant;
 
+use kairos_sdk::DeviceKind;
 use kairos_sdk::descriptor::{Descriptor, Property};
 use kairos_sdk::{
     Component, ComponentError, ComponentInfo, ComponentResult, Context, DataType, Payload, ReaderPolicy,
     TypeFilter, Value,
 };
-use kairos_sdk::{DeviceKind, STATUS_PERIOD, Throttle};
 
 use crate::link::{Endpoint, LiveSource, REOPEN_AFTER, SerialSettings};
 
@@ -84,22 +84,7 @@ pub struct SerialReader {
     lines: bool,
     connected: bool,
     received: u64,
-    published: Throttle,
-}
-
-impl SerialReader {
-    fn publish_status(&mut self, ctx: &Context, now: bool) {
-        let due = self.published.ready(STATUS_PERIOD);
-        if !now && !due {
-            return;
-        }
-        ctx.set_status(serde_json::json!({
-            "kind": "serial",
-            "connected": self.connected,
-            "received": self.received,
-            "overlong": self.source.as_ref().map_or(0, LiveSource::dropped_overlong),
-        }));
-    }
+    overlong: u64,
 }
 
 impl Component for SerialReader {
@@ -109,7 +94,7 @@ impl Component for SerialReader {
         source.open_now().map_err(ComponentError::failed)?;
         self.source = Some(source);
         self.connected = true;
-        self.publish_status(ctx, true);
+        ctx.publish_status(self);
         Ok(())
     }
 
@@ -124,6 +109,7 @@ impl Component for SerialReader {
             let (bytes, received) = source.receive_bytes();
             (Vec::new(), bytes, received)
         };
+        self.overlong = source.dropped_overlong();
         if let Some(problem) = &received.problem {
             tracing::warn!("{problem}");
             self.connected = false;
@@ -142,14 +128,24 @@ impl Component for SerialReader {
             self.received += 1;
             ctx.write_at("bytes", Payload::Bytes(Arc::from(bytes)), now)?;
         }
-        self.publish_status(ctx, received.problem.is_some() || received.recovered);
+        if received.problem.is_some() || received.recovered {
+            ctx.publish_status(self);
+        }
         Ok(())
     }
 
-    fn death(&mut self, ctx: &mut Context) -> ComponentResult {
-        self.publish_status(ctx, true);
+    fn death(&mut self, _ctx: &mut Context) -> ComponentResult {
         self.source = None;
         Ok(())
+    }
+
+    fn status(&self) -> Option<serde_json::Value> {
+        Some(serde_json::json!({
+            "kind": "serial",
+            "connected": self.connected,
+            "received": self.received,
+            "overlong": self.overlong,
+        }))
     }
 
     fn property_changed(&mut self, _name: &str, _value: &Value, _ctx: &mut Context) -> ComponentResult {
@@ -189,7 +185,6 @@ pub struct SerialWriter {
     failed: Option<Instant>,
     dropped: u64,
     sent: u64,
-    published: Throttle,
 }
 
 impl std::fmt::Debug for SerialWriter {
@@ -202,19 +197,6 @@ impl std::fmt::Debug for SerialWriter {
 }
 
 impl SerialWriter {
-    fn publish_status(&mut self, ctx: &Context, now: bool) {
-        let due = self.published.ready(STATUS_PERIOD);
-        if !now && !due {
-            return;
-        }
-        ctx.set_status(serde_json::json!({
-            "kind": "serial",
-            "connected": self.port.is_some(),
-            "sent": self.sent,
-            "dropped": self.dropped,
-        }));
-    }
-
     /// The port, opened again once a second after a failure.
     fn port(&mut self) -> Option<&mut Box<dyn serialport::SerialPort>> {
         if self.port.is_none()
@@ -240,7 +222,7 @@ impl Component for SerialWriter {
         let settings = serial_settings(ctx)?;
         self.port = Some(settings.open().map_err(ComponentError::failed)?);
         self.settings = Some(settings);
-        self.publish_status(ctx, true);
+        ctx.publish_status(self);
         Ok(())
     }
 
@@ -280,17 +262,24 @@ impl Component for SerialWriter {
                     );
                 }
                 self.failed.get_or_insert_with(Instant::now);
-                self.publish_status(ctx, true);
+                ctx.publish_status(self);
             }
         }
-        self.publish_status(ctx, false);
         Ok(())
     }
 
-    fn death(&mut self, ctx: &mut Context) -> ComponentResult {
-        self.publish_status(ctx, true);
+    fn death(&mut self, _ctx: &mut Context) -> ComponentResult {
         self.port = None;
         Ok(())
+    }
+
+    fn status(&self) -> Option<serde_json::Value> {
+        Some(serde_json::json!({
+            "kind": "serial",
+            "connected": self.port.is_some(),
+            "sent": self.sent,
+            "dropped": self.dropped,
+        }))
     }
 
     fn property_changed(&mut self, _name: &str, _value: &Value, _ctx: &mut Context) -> ComponentResult {

@@ -3,11 +3,11 @@
 
 use std::os::fd::AsFd as _;
 
+use kairos_sdk::Throttle;
 use kairos_sdk::descriptor::{Descriptor, Property};
 use kairos_sdk::{
     Component, ComponentError, ComponentInfo, ComponentResult, Context, DataType, DeviceKind, Payload, Value,
 };
-use kairos_sdk::{STATUS_PERIOD, Throttle};
 use linuxvideo::format::{PixFormat, PixelFormat};
 use linuxvideo::stream::ReadStream;
 use linuxvideo::{CapabilityFlags, Device, Fract};
@@ -70,7 +70,6 @@ pub struct V4l2Camera {
     frames: u64,
     bad_frames: u64,
     warnings: Throttle,
-    published: Throttle,
 }
 
 impl std::fmt::Debug for V4l2Camera {
@@ -205,13 +204,14 @@ impl Component for V4l2Camera {
                     .warn(|| format!("{device}: a frame dropped: {why} ({count} in all)"));
             }
         }
-        if self.published.ready(STATUS_PERIOD) {
-            ctx.set_status(serde_json::json!({
-                "kind": "camera", "device": self.device, "frames": self.frames, "bad_frames": self.bad_frames,
-                "width": format.width, "height": format.height,
-            }));
-        }
         Ok(())
+    }
+
+    fn status(&self) -> Option<serde_json::Value> {
+        Some(serde_json::json!({
+            "kind": "camera", "device": self.device, "frames": self.frames, "bad_frames": self.bad_frames,
+            "width": self.format.map(|f| f.width), "height": self.format.map(|f| f.height),
+        }))
     }
 
     fn death(&mut self, _ctx: &mut Context) -> ComponentResult {

@@ -9,7 +9,6 @@ use kairos_sdk::{
     Component, ComponentError, ComponentInfo, ComponentResult, Context, DataType, Image, Payload,
     PixelFormat, PixelsMut, ReaderPolicy, Timestamp, TypeFilter, Value,
 };
-use kairos_sdk::{STATUS_PERIOD, Throttle};
 
 /// The file names the sequence plays, by extension (lower case).
 const IMAGE_EXTENSIONS: [&str; 3] = ["png", "jpg", "jpeg"];
@@ -310,7 +309,6 @@ pub fn writer_descriptor() -> ComponentInfo {
 pub struct ImageWriter {
     folder: PathBuf,
     written: u64,
-    published: Throttle,
 }
 
 /// `image` as the `image` crate's buffer, 8 bits per channel, without row padding.
@@ -413,10 +411,13 @@ impl Component for ImageWriter {
         };
         written.map_err(|e| ComponentError::failed(format_args!("cannot write {}: {e}", path.display())))?;
         self.written += 1;
-        if self.published.ready(STATUS_PERIOD) {
-            ctx.set_status(serde_json::json!({"kind": "image_writer", "written": self.written, "folder": self.folder.display().to_string()}));
-        }
         Ok(())
+    }
+
+    fn status(&self) -> Option<serde_json::Value> {
+        Some(
+            serde_json::json!({"kind": "image_writer", "written": self.written, "folder": self.folder.display().to_string()}),
+        )
     }
 
     fn property_changed(&mut self, _name: &str, _value: &Value, _ctx: &mut Context) -> ComponentResult {

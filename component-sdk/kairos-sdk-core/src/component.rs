@@ -107,6 +107,46 @@ pub trait Component: Send + 'static {
         let _ = ctx;
         Err(ComponentError::failed(format_args!("no action named '{name}'")))
     }
+
+    /// What the component wants its users to see about itself (counters, a file and its size), as
+    /// JSON. The runtime asks for it and publishes it: at most every [`crate::STATUS_PERIOD`] while the
+    /// component works, once when its input goes quiet after work, and after `death`, so what the user
+    /// sees covers everything it did. `None` (the default) publishes nothing; a component may instead
+    /// call [`Context::set_status`] itself.
+    fn status(&self) -> Option<serde_json::Value> {
+        None
+    }
+}
+
+/// When a component's [`Component::status`] is published: one mechanism for every component, so that
+/// none has to remember to publish at its end or when its input stops.
+#[derive(Debug, Default)]
+pub struct StatusSchedule {
+    published: crate::Throttle,
+}
+
+impl StatusSchedule {
+    /// After a `core` call: publishes when a status period has passed since the last, or at once when
+    /// the component's input `went_quiet` (see [`RunSignal::take_quiet`]).
+    pub fn after_core(&mut self, component: &dyn Component, ctx: &Context, went_quiet: bool) {
+        if went_quiet {
+            self.published.reset();
+        }
+        if self.published.ready(crate::STATUS_PERIOD) {
+            Self::publish(component, ctx);
+        }
+    }
+
+    /// After `death`: the last word, whatever the period.
+    pub fn at_end(&mut self, component: &dyn Component, ctx: &Context) {
+        Self::publish(component, ctx);
+    }
+
+    fn publish(component: &dyn Component, ctx: &Context) {
+        if let Some(status) = component.status() {
+            ctx.set_status(status);
+        }
+    }
 }
 
 /// Names a port either by its index in the descriptor or by its name.
@@ -371,6 +411,14 @@ impl Context {
         match &self.remote {
             Some(remote) => remote.set_status(&status),
             None => self.status.set(status),
+        }
+    }
+
+    /// Publishes `component`'s [`Component::status`] now, outside its period: for what the user must
+    /// hear of at once (a port lost or back).
+    pub fn publish_status(&self, component: &dyn Component) {
+        if let Some(status) = component.status() {
+            self.set_status(status);
         }
     }
 

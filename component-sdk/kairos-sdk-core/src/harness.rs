@@ -405,11 +405,14 @@ impl Harness {
         Ok(Self::drain(running))
     }
 
-    /// The status the component published last (`ctx.set_status`), if any.
+    /// The component's status as the runtime would publish it now: what [`Component::status`] says,
+    /// or else what it last set with `ctx.set_status`, if anything.
     pub fn status(&self) -> Option<serde_json::Value> {
-        self.running
-            .as_ref()
-            .and_then(|running| running.ctx.status_cell().get())
+        self.component.status().or_else(|| {
+            self.running
+                .as_ref()
+                .and_then(|running| running.ctx.status_cell().get())
+        })
     }
 
     /// The harness clock's current time.

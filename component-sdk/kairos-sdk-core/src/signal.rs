@@ -7,6 +7,7 @@ use std::time::Duration;
 use crate::sync::{
     AtomicBool, LightFence, Ordering, Thread, current_thread, heavy_fence, park, park_timeout,
 };
+use crate::throttle::STATUS_PERIOD;
 
 /// One per component: the thread that runs it and the flags the runtime raises to get its attention.
 ///
@@ -23,6 +24,11 @@ pub struct RunSignal {
     stop: AtomicBool,
     paused: AtomicBool,
     control_pending: AtomicBool,
+    /// The component worked since it last went quiet: a read that then sleeps a status period wakes it
+    /// once, so that its status covers that work (see [`crate::component::StatusSchedule`]).
+    quiet_break_armed: AtomicBool,
+    /// A read slept a status period after work: the component's loop publishes its status.
+    went_quiet: AtomicBool,
     reactive: Option<Box<dyn Fn() + Send + Sync>>,
 }
 
@@ -52,6 +58,8 @@ impl RunSignal {
             stop: AtomicBool::new(false),
             paused: AtomicBool::new(false),
             control_pending: AtomicBool::new(false),
+            quiet_break_armed: AtomicBool::new(false),
+            went_quiet: AtomicBool::new(false),
             reactive: None,
         }
     }
@@ -147,11 +155,29 @@ impl RunSignal {
         self.control_pending.swap(false, Ordering::AcqRel)
     }
 
-    /// Whether a blocked call should return to the component's loop: stop, pause or control requested.
+    /// Whether a blocked call should return to the component's loop: stop, pause or control requested,
+    /// or the component went quiet after work and its status is to be published.
     pub fn wants_attention(&self) -> bool {
         self.stop.load(Ordering::Acquire)
             || self.paused.load(Ordering::Acquire)
             || self.control_pending.load(Ordering::Acquire)
+            || self.went_quiet.load(Ordering::Relaxed)
+    }
+
+    /// The component did some work: the next read that sleeps a whole status period returns to its loop
+    /// once. Called by the component's own thread after each cycle; a load when already armed, so the
+    /// line writers read `sleeping` from is not written at every cycle.
+    #[inline]
+    pub fn arm_quiet_break(&self) {
+        if !self.quiet_break_armed.load(Ordering::Relaxed) {
+            self.quiet_break_armed.store(true, Ordering::Relaxed);
+        }
+    }
+
+    /// Whether a read went quiet since the last call (and clears it).
+    #[inline]
+    pub fn take_quiet(&self) -> bool {
+        self.went_quiet.load(Ordering::Relaxed) && self.went_quiet.swap(false, Ordering::Relaxed)
     }
 
     /// Waits to be woken. Like [`std::thread::park`] it may return early, and callers re-check their
@@ -169,7 +195,17 @@ impl RunSignal {
             heavy_fence();
             return;
         }
-        park();
+        if self.quiet_break_armed.load(Ordering::Relaxed) {
+            let asleep = std::time::Instant::now();
+            park_timeout(STATUS_PERIOD);
+            if asleep.elapsed() >= STATUS_PERIOD {
+                // Only the component's own thread parks on its signal, so these need no ordering.
+                self.quiet_break_armed.store(false, Ordering::Relaxed);
+                self.went_quiet.store(true, Ordering::Relaxed);
+            }
+        } else {
+            park();
+        }
         self.sleeping.store(false, Ordering::Relaxed);
     }
 

@@ -10,6 +10,7 @@ use std::time::{Duration, Instant};
 use kairos_diagram::{
     ComponentInfo, Diagram, ExecutionMode, InstanceInfos, ReaderPolicy, ThreadSettings, Value,
 };
+use kairos_sdk_core::component::StatusSchedule;
 use kairos_sdk_core::host::{
     ContextHost as _, ContextParts, OutputBuffer, ReaderConfig, RegistryValidation as _,
 };
@@ -281,7 +282,7 @@ fn wait_for_answer(
 /// A component that runs without a thread of its own, in the thread of whoever writes to it.
 struct ReactiveCell {
     id: String,
-    inner: Mutex<(Box<dyn Component>, Context)>,
+    inner: Mutex<(Box<dyn Component>, Context, StatusSchedule)>,
     monitor: Arc<Monitor>,
 }
 
@@ -292,9 +293,10 @@ impl ReactiveCell {
         }
         let started = Instant::now();
         let mut guard = lock(&self.inner);
-        let (component, ctx) = &mut *guard;
+        let (component, ctx, status) = &mut *guard;
         ctx.begin_cycle();
         let result = guarded(|| component.core(ctx));
+        status.after_core(component.as_ref(), ctx, false);
         drop(guard);
         self.monitor
             .busy_nanos
@@ -578,7 +580,7 @@ impl Pending {
             Some(hook) => {
                 let cell = Arc::new(ReactiveCell {
                     id: self.id.clone(),
-                    inner: Mutex::new((self.component, ctx)),
+                    inner: Mutex::new((self.component, ctx, StatusSchedule::default())),
                     monitor: Arc::clone(&monitor),
                 });
                 let _ = hook.set(Arc::downgrade(&cell));
@@ -665,7 +667,7 @@ impl Engine {
         for slot in &mut self.slots {
             if let Driver::Reactive(cell) = &slot.driver {
                 let mut guard = lock(&cell.inner);
-                let (component, ctx) = &mut *guard;
+                let (component, ctx, _) = &mut *guard;
                 match guarded(|| component.birth(ctx)) {
                     Ok(()) => slot.monitor.set_state(ComponentState::Running),
                     Err(error) => slot.monitor.fail(&slot.id, "birth", &error.to_string()),
@@ -849,10 +851,11 @@ impl Engine {
         for slot in &self.slots {
             if let Driver::Reactive(cell) = &slot.driver {
                 let mut guard = lock(&cell.inner);
-                let (component, ctx) = &mut *guard;
+                let (component, ctx, status) = &mut *guard;
                 if let Err(error) = guarded(|| component.death(ctx)) {
                     slot.monitor.fail(&slot.id, "death", &error.to_string());
                 }
+                status.at_end(component.as_ref(), ctx);
                 if !slot.monitor.is_failed() {
                     slot.monitor.set_state(ComponentState::Stopped);
                 }
@@ -995,7 +998,7 @@ impl Engine {
             Driver::Reactive(cell) => {
                 lock(&slot.monitor.controls).push_back(request);
                 let mut guard = lock(&cell.inner);
-                let (component, ctx) = &mut *guard;
+                let (component, ctx, _) = &mut *guard;
                 apply_controls(&slot.id, component.as_mut(), ctx, &slot.monitor);
             }
             Driver::Threaded { .. } if self.state == EngineState::Ready => {
@@ -1169,6 +1172,7 @@ impl Worker {
         let mut next_tick = self.clock.now();
         let mut missed = MissedTicks::default();
         let mut paused = false;
+        let mut status = StatusSchedule::default();
         while outcome.is_none() {
             if self.signal.stop_requested() {
                 outcome = Some(ComponentState::Stopped);
@@ -1211,9 +1215,12 @@ impl Worker {
                 None
             };
             ctx.begin_cycle();
-            match guarded(|| component.core(&mut ctx)) {
+            let result = guarded(|| component.core(&mut ctx));
+            status.after_core(component.as_ref(), &ctx, self.signal.take_quiet());
+            match result {
                 Ok(()) => {
                     self.monitor.cycles.fetch_add(1, Ordering::Relaxed);
+                    self.signal.arm_quiet_break();
                 }
                 Err(ComponentError::Stopped) => outcome = Some(ComponentState::Stopped),
                 Err(ComponentError::EndOfStream) => outcome = Some(ComponentState::Finished),
@@ -1238,6 +1245,7 @@ impl Worker {
         if let Err(error) = guarded(|| component.death(&mut ctx)) {
             self.monitor.fail(&self.id, "death", &error.to_string());
         }
+        status.at_end(component.as_ref(), &ctx);
         if matches!(outcome, Some(ComponentState::Finished)) {
             // Its streams ended: readers drain what is left, then finish in turn.
             for buffer in ctx.output_buffers() {

@@ -96,6 +96,45 @@ impl Component for BusyCycles {
     }
 }
 
+/// Periodic at 1 kHz: writes a burst of 200 samples, then nothing, and stays running.
+#[derive(Default)]
+struct BurstThenQuiet {
+    written: u32,
+}
+
+impl Component for BurstThenQuiet {
+    fn birth(&mut self, ctx: &mut Context) -> ComponentResult {
+        ctx.set_period(Duration::from_millis(1));
+        Ok(())
+    }
+
+    fn core(&mut self, ctx: &mut Context) -> ComponentResult {
+        if self.written < 200 {
+            self.written += 1;
+            ctx.write("out", Payload::F64(f64::from(self.written)))?;
+        }
+        Ok(())
+    }
+}
+
+/// Counts what it reads and says so in its status, which it leaves to the runtime to publish.
+#[derive(Default)]
+struct CountsInItsStatus {
+    read: u64,
+}
+
+impl Component for CountsInItsStatus {
+    fn core(&mut self, ctx: &mut Context) -> ComponentResult {
+        ctx.read("in")?;
+        self.read += 1;
+        Ok(())
+    }
+
+    fn status(&self) -> Option<serde_json::Value> {
+        Some(serde_json::json!({ "read": self.read }))
+    }
+}
+
 fn registry() -> Registry {
     let mut registry = Registry::new();
     kairos_pack_core::register(&mut registry);
@@ -128,6 +167,21 @@ fn registry() -> Registry {
                 "",
             )
             .build(),
+        )
+        .component::<BurstThenQuiet>(
+            Descriptor::new(
+                "faulty.burst_then_quiet",
+                "test",
+                "200 samples at 1 kHz, then none",
+            )
+            .mode(kairos_sdk_core::ExecutionMode::Periodic)
+            .output("out", DataType::F64, "")
+            .build(),
+        )
+        .component::<CountsInItsStatus>(
+            Descriptor::new("faulty.counts", "test", "Counts what it reads in its status")
+                .input("in", TypeFilter::Any, "")
+                .build(),
         )
         .component::<PanicsOnThird>(
             Descriptor::new("faulty.panics_on_third", "test", "Panics on its third sample")
@@ -523,6 +577,45 @@ fn reactive_components_run_in_their_producer_and_output_subsampling_applies() {
     let double = snapshot.components.iter().find(|c| c.id == "double").unwrap();
     assert!(double.cycles as usize >= 2 * values.len() - 1, "{double:?}");
     assert_eq!(double.state, ComponentState::Stopped);
+}
+
+fn status_of(snapshot: &StatsSnapshot, id: &str) -> Option<serde_json::Value> {
+    snapshot
+        .components
+        .iter()
+        .find(|c| c.id == id)
+        .unwrap()
+        .status
+        .clone()
+}
+
+#[test]
+fn a_status_covers_everything_done_once_the_input_goes_quiet_and_at_stop() {
+    let d = diagram(
+        vec![
+            component("burst", "faulty.burst_then_quiet", &[]),
+            component("counter", "faulty.counts", &[]),
+        ],
+        vec![connect("burst.out", "counter.in")],
+    );
+    let mut engine = Engine::build(&d, &registry(), RealTimeClock::shared()).unwrap();
+    engine.start().unwrap();
+    // The burst lasts about 200 ms, less than a status period: without a publication when the input
+    // goes quiet, the status would stay at what the first cycle said.
+    let all = serde_json::json!({ "read": 200 });
+    eventually("the status says all 200 were read", || {
+        status_of(&engine.snapshot(), "counter") == Some(all.clone())
+    });
+    // Going quiet wakes the reader once, not in a loop.
+    let quiet_cycles = cycles(&engine.snapshot(), "counter");
+    sleep(Duration::from_millis(1_200));
+    let later = cycles(&engine.snapshot(), "counter");
+    assert!(
+        later <= quiet_cycles + 1,
+        "{quiet_cycles} cycles, then {later} while quiet"
+    );
+    engine.stop();
+    assert_eq!(status_of(&engine.snapshot(), "counter"), Some(all));
 }
 
 #[test]

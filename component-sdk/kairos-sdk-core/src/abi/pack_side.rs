@@ -25,7 +25,7 @@ use super::{ABI_MAGIC, ABI_VERSION, INPUT_CONNECTED, INPUT_EXHAUSTED, status};
 use crate::buffer::OutputBuffer;
 use crate::component::{
     Component, ComponentError, ComponentResult, Context, ContextParts, HostPorts, InputPort, InputState,
-    OutputPort,
+    OutputPort, StatusSchedule,
 };
 use crate::payload::Payload;
 use crate::registry::Registry;
@@ -251,6 +251,7 @@ struct PackInstance {
     info: &'static ComponentInfo,
     ctx: Option<Context>,
     link: Arc<HostLink>,
+    status: StatusSchedule,
 }
 
 impl PackInstance {
@@ -389,6 +390,7 @@ unsafe extern "C" fn pack_create(data: *const c_void) -> *mut c_void {
             info,
             ctx: None,
             link: Arc::new(HostLink::default()),
+            status: StatusSchedule::default(),
         };
         Box::into_raw(Box::new(instance)).cast::<c_void>()
     })
@@ -419,7 +421,7 @@ fn with_instance(
     host: *const KHost,
     error: *mut KError,
     refresh: bool,
-    call: impl FnOnce(&mut dyn Component, &mut Context) -> ComponentResult,
+    call: impl FnOnce(&mut dyn Component, &mut Context, &mut StatusSchedule) -> ComponentResult,
 ) -> i32 {
     pack_guard(error, || {
         // SAFETY: the host passes an instance it created, exclusively for this call.
@@ -430,9 +432,14 @@ fn with_instance(
         } else {
             instance.context(host, frame);
         }
-        let PackInstance { component, ctx, .. } = instance;
+        let PackInstance {
+            component,
+            ctx,
+            status,
+            ..
+        } = instance;
         let ctx = ctx.as_mut().ok_or_else(|| ComponentError::failed("no context"))?;
-        call(component.as_mut(), ctx)
+        call(component.as_mut(), ctx, status)
     })
 }
 
@@ -442,7 +449,7 @@ unsafe extern "C" fn pack_birth(
     host: *const KHost,
     error: *mut KError,
 ) -> i32 {
-    with_instance(instance, frame, host, error, true, |component, ctx| {
+    with_instance(instance, frame, host, error, true, |component, ctx, _| {
         component.birth(ctx)
     })
 }
@@ -453,9 +460,14 @@ unsafe extern "C" fn pack_core(
     host: *const KHost,
     error: *mut KError,
 ) -> i32 {
-    with_instance(instance, frame, host, error, false, |component, ctx| {
+    with_instance(instance, frame, host, error, false, |component, ctx, status| {
         ctx.begin_cycle();
-        component.core(ctx)
+        let result = component.core(ctx);
+        // The host's read returns Interrupted when the input went quiet after work (or a control
+        // request waits): either way the status is published now.
+        let went_quiet = result == Err(ComponentError::Interrupted);
+        status.after_core(component, ctx, went_quiet);
+        result
     })
 }
 
@@ -465,8 +477,10 @@ unsafe extern "C" fn pack_death(
     host: *const KHost,
     error: *mut KError,
 ) -> i32 {
-    with_instance(instance, frame, host, error, false, |component, ctx| {
-        component.death(ctx)
+    with_instance(instance, frame, host, error, false, |component, ctx, status| {
+        let result = component.death(ctx);
+        status.at_end(component, ctx);
+        result
     })
 }
 
@@ -479,7 +493,7 @@ unsafe extern "C" fn pack_property_changed(
 ) -> i32 {
     // SAFETY: the host passes a valid name for the call.
     let name = unsafe { name.as_str() }.unwrap_or_default().to_owned();
-    with_instance(instance, frame, host, error, true, |component, ctx| {
+    with_instance(instance, frame, host, error, true, |component, ctx, _| {
         let value = ctx
             .property(&name)
             .cloned()
@@ -497,7 +511,7 @@ unsafe extern "C" fn pack_action(
 ) -> i32 {
     // SAFETY: the host passes a valid name for the call.
     let name = unsafe { name.as_str() }.unwrap_or_default().to_owned();
-    with_instance(instance, frame, host, error, false, |component, ctx| {
+    with_instance(instance, frame, host, error, false, |component, ctx, _| {
         component.action(&name, ctx)
     })
 }

@@ -50,9 +50,12 @@ impl Component for FakeGain {
 }
 
 /// For every sample it reads, writes what its context says: its id, its input's source and link
-/// counters, whether it knows its diagram and the clock; and publishes a count as its status.
+/// counters, whether it knows its diagram and the clock; its status counts the samples it handled,
+/// published by the runtime (or the pack library's shim).
 #[derive(Debug, Default)]
-pub struct ContextProbe;
+pub struct ContextProbe {
+    handled: u64,
+}
 
 impl Component for ContextProbe {
     fn core(&mut self, ctx: &mut Context) -> ComponentResult {
@@ -67,8 +70,12 @@ impl Component for ContextProbe {
             clock.split(" (").next().unwrap_or_default(),
         );
         tracing::info!("{report}");
-        ctx.set_status(serde_json::json!({ "read": read }));
+        self.handled += 1;
         ctx.write_processed("out", &sample, Payload::Text(Arc::from(report)))
+    }
+
+    fn status(&self) -> Option<serde_json::Value> {
+        Some(serde_json::json!({ "handled": self.handled }))
     }
 }
 
