@@ -164,8 +164,8 @@ fn can(dir: &Path, items: usize) -> (f64, f64) {
 }
 
 fn velodyne(dir: &Path, items: usize) -> (f64, f64) {
+    use kairos_pack_lidar::packets::{Decoder, Model, encode_packet};
     use kairos_pack_lidar::pcap::{Capture, capture_of, frame_of};
-    use kairos_pack_lidar::vlp16::{Decoder, encode_packet};
     let path = dir.join("spin.pcap");
     let frames: Vec<(i64, Vec<u8>)> = (0..754_i64)
         .map(|index| {
@@ -176,7 +176,10 @@ fn velodyne(dir: &Path, items: usize) -> (f64, f64) {
                     *value = (2500 + (m as u16) * 10, m as u8);
                 }
             }
-            (index * 1_326_000, frame_of(2368, &encode_packet(&blocks, 0)))
+            (
+                index * 1_326_000,
+                frame_of(2368, &encode_packet(Model::Vlp16, &blocks, 0)),
+            )
         })
         .collect();
     std::fs::write(&path, capture_of(&frames)).unwrap();

@@ -2,7 +2,7 @@
 #![no_main]
 
 use kairos_pack_lidar::pcap::Capture;
-use kairos_pack_lidar::vlp16::Decoder;
+use kairos_pack_lidar::packets::Decoder;
 use libfuzzer_sys::fuzz_target;
 
 fuzz_target!(|data: &[u8]| {

@@ -2,7 +2,7 @@
 //!
 //! | type | what it does |
 //! | --- | --- |
-//! | `lidar.velodyne` | a Velodyne VLP-16: data packets over UDP or from a pcap capture, one point cloud per revolution |
+//! | `lidar.velodyne` | a Velodyne VLP-16, VLP-32C or HDL-32E: data packets over UDP or from a pcap capture, one point cloud per revolution |
 //! | `lidar.transform` | a cloud moved by the sensor's mounting and the vehicle's pose |
 //! | `lidar.crop_box` | the points inside (or outside) a box |
 //! | `lidar.voxel_grid` | one mean point per cube |
@@ -10,14 +10,14 @@
 //! | `lidar.range_image` | the cloud as a grey range image |
 //! | `lidar.clusters` | objects as boxes |
 //!
-//! [`vlp16`] decodes packets as the sensor's manual specifies them; [`pcap`] reads UDP datagrams from a
+//! [`packets`] decodes packets as the sensors' manuals specify them; [`pcap`] reads UDP datagrams from a
 //! capture. [`cloud`] holds the point-cloud algorithms, [`processing`] their components.
 
 pub mod cloud;
+pub mod packets;
 pub mod pcap;
 pub mod processing;
 pub mod velodyne;
-pub mod vlp16;
 
 use kairos_sdk::Registry;
 

@@ -1,4 +1,4 @@
-//! `lidar.velodyne`: a Velodyne VLP-16, live over UDP or replayed from a pcap capture.
+//! `lidar.velodyne`: a Velodyne VLP-16, VLP-32C or HDL-32E, live over UDP or replayed from a pcap capture.
 
 use std::net::UdpSocket;
 use std::path::Path;
@@ -12,8 +12,8 @@ use kairos_sdk::{
 };
 use kairos_sdk::{Throttle, WARNING_PERIOD};
 
+use crate::packets::{Decoder, Model};
 use crate::pcap::Capture;
-use crate::vlp16::Decoder;
 
 /// How long one receive waits, so stop and control requests get through.
 const RECEIVE_WAIT: Duration = Duration::from_millis(50);
@@ -23,11 +23,17 @@ pub fn descriptor() -> ComponentInfo {
     Descriptor::new(
         "lidar.velodyne",
         "lidar",
-        "Velodyne VLP-16 lidar: data packets from UDP or a pcap capture, one point cloud per revolution \
-         (x forward, y left, z up, metres; intensity from the reflectivity)",
+        "Velodyne lidar (VLP-16, VLP-32C, HDL-32E): data packets from UDP or a pcap capture, one point \
+         cloud per revolution (x forward, y left, z up, metres; intensity from the reflectivity)",
     )
-    .label("Velodyne VLP-16 lidar")
+    .label("Velodyne lidar")
     .output("points", DataType::PointCloud, "A revolution's points")
+    .property(
+        Property::choice("model", &["auto", "VLP-16", "VLP-32C", "HDL-32E"], "auto").doc(
+            "The sensor; auto reads it from each packet's product id (set it for a sensor whose packets do \
+             not say)",
+        ),
+    )
     .property(Property::choice("source", &["udp", "pcap"], "udp").doc("Live packets, or a capture"))
     .property(
         Property::text("address", "0.0.0.0:2368")
@@ -145,7 +151,10 @@ impl Velodyne {
 
 impl Component for Velodyne {
     fn birth(&mut self, ctx: &mut Context) -> ComponentResult {
-        self.decoder = Decoder::new();
+        self.decoder = match Model::named(&ctx.text_property("model")?) {
+            Some(model) => Decoder::for_model(model),
+            None => Decoder::new(),
+        };
         self.input = Some(Self::open(ctx)?);
         Ok(())
     }
@@ -232,8 +241,8 @@ impl Component for Velodyne {
 
     fn status(&self) -> Option<serde_json::Value> {
         Some(serde_json::json!({
-            "kind": "lidar", "packets": self.packets, "bad_packets": self.bad_packets,
-            "revolutions": self.revolutions,
+            "kind": "lidar", "model": self.decoder.model().map(Model::name),
+            "packets": self.packets, "bad_packets": self.bad_packets, "revolutions": self.revolutions,
         }))
     }
 

@@ -8,9 +8,9 @@
 
 use std::net::UdpSocket;
 
+use kairos_pack_lidar::packets::{Decoder, Model, PACKET_BYTES, PacketError, encode_packet};
 use kairos_pack_lidar::pcap::{capture_of, frame_of};
 use kairos_pack_lidar::velodyne::{Velodyne, descriptor};
-use kairos_pack_lidar::vlp16::{Decoder, PACKET_BYTES, PacketError, encode_packet};
 use kairos_sdk::harness::{Harness, HarnessOutput};
 use kairos_sdk::{Payload, PointCloud};
 
@@ -24,7 +24,7 @@ fn packet(first: u16, step: u16) -> Vec<u8> {
             *value = (5000, (measurement % 16) as u8 * 10);
         }
     }
-    encode_packet(&blocks, 0)
+    encode_packet(Model::Vlp16, &blocks, 0)
 }
 
 fn clouds_of(packets: &[Vec<u8>]) -> (Vec<PointCloud>, Decoder) {
@@ -92,7 +92,7 @@ fn a_revolution_ends_where_the_azimuth_wraps_and_no_return_gives_no_point() {
     for (index, block) in silent.iter_mut().enumerate() {
         block.0 = index as u16 * 40;
     }
-    let (_, mut decoder) = clouds_of(&[encode_packet(&silent, 0)]);
+    let (_, mut decoder) = clouds_of(&[encode_packet(Model::Vlp16, &silent, 0)]);
     assert!(decoder.finish().is_none(), "distance 0 is no return");
 }
 
