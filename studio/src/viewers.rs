@@ -188,9 +188,11 @@ fn color_image(layout: &kairos_protocol::frame::ImageLayout, bytes: &[u8]) -> Op
     {
         return None;
     }
+    if layout.format == "gray16" {
+        return gray16_image(width, height, stride, bytes);
+    }
     let convert: fn(&[u8]) -> Color32 = match layout.format.as_str() {
         "gray8" => |p| Color32::from_gray(p[0]),
-        "gray16" => |p| Color32::from_gray(p[1]),
         "rgb8" => |p| Color32::from_rgb(p[0], p[1], p[2]),
         "bgr8" => |p| Color32::from_rgb(p[2], p[1], p[0]),
         "rgba8" => |p| Color32::from_rgba_unmultiplied(p[0], p[1], p[2], p[3]),
@@ -202,6 +204,28 @@ fn color_image(layout: &kairos_protocol::frame::ImageLayout, bytes: &[u8]) -> Op
         pixels.extend(line.chunks_exact(per_pixel).map(convert));
     }
     Some(ColorImage::new([width, height], pixels))
+}
+
+/// A 16-bit grey frame (a depth camera's millimetres, a thermal camera's counts) stretched over the grey
+/// scale from its least to its greatest value, 0 left black: such frames use a small part of the 16 bits,
+/// and shown by their high byte they would be black.
+fn gray16_image(width: usize, height: usize, stride: usize, bytes: &[u8]) -> Option<ColorImage> {
+    let rows = || (0..height).filter_map(move |row| bytes.get(row * stride..row * stride + width * 2));
+    let values = || rows().flat_map(|line| line.chunks_exact(2).map(|p| u16::from_le_bytes([p[0], p[1]])));
+    let (low, high) = values()
+        .filter(|v| *v != 0)
+        .fold((u16::MAX, 0), |(low, high), v| (low.min(v), high.max(v)));
+    let span = u32::from(high.saturating_sub(low)).max(1);
+    let pixels: Vec<Color32> = values()
+        .map(|v| {
+            if v == 0 {
+                return Color32::BLACK;
+            }
+            let level = (u32::from(v.saturating_sub(low)) * 255 + span / 2) / span;
+            Color32::from_gray(u8::try_from(level.min(255)).unwrap_or(255))
+        })
+        .collect();
+    (pixels.len() == width * height).then(|| ColorImage::new([width, height], pixels))
 }
 
 /// A point-cloud frame's points (x, y, z and, with `intensity`, a fourth f32 each, little-endian) for the
@@ -1180,6 +1204,18 @@ mod tests {
         assert!(
             color_image(&layout("yuv", 6), &[0; 6]).is_none(),
             "unknown format"
+        );
+        // A depth frame of 1000 and 3000 mm: stretched from least to greatest, not its high byte.
+        let depth = color_image(&layout("gray16", 4), &[0xE8, 0x03, 0xB8, 0x0B]);
+        assert_eq!(
+            depth.map(|i| i.pixels),
+            Some(vec![Color32::from_gray(0), Color32::from_gray(255)])
+        );
+        // No return (0) stays black beside a single value.
+        let sparse = color_image(&layout("gray16", 4), &[0, 0, 0x10, 0x00]);
+        assert_eq!(
+            sparse.map(|i| i.pixels),
+            Some(vec![Color32::BLACK, Color32::from_gray(0)])
         );
     }
 

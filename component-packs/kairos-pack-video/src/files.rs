@@ -179,7 +179,8 @@ fn csv_times(csv: &Path) -> Result<BTreeMap<String, f64>, String> {
     Ok(table)
 }
 
-/// An image file as an image sample: grey, RGB or RGBA as in the file (16-bit files are cut to 8).
+/// An image file as an image sample: grey (8 or 16 bits), RGB or RGBA as in the file (16-bit colour is
+/// cut to 8 bits).
 ///
 /// # Errors
 ///
@@ -191,6 +192,11 @@ pub fn load(path: &Path) -> Result<Image, String> {
         image::DynamicImage::ImageLuma8(grey) => (PixelFormat::Gray8, grey.into_raw()),
         image::DynamicImage::ImageRgb8(rgb) => (PixelFormat::Rgb8, rgb.into_raw()),
         image::DynamicImage::ImageRgba8(rgba) => (PixelFormat::Rgba8, rgba.into_raw()),
+        // A depth camera's millimetres: kept whole, little-endian as Kairos' images hold them.
+        image::DynamicImage::ImageLuma16(grey) => (
+            PixelFormat::Gray16,
+            grey.into_raw().iter().flat_map(|v| v.to_le_bytes()).collect(),
+        ),
         // Alpha kept where the file has it; everything else (16 bits, float) to 8-bit RGB.
         other if other.color().has_alpha() => (PixelFormat::Rgba8, other.into_rgba8().into_raw()),
         other => (PixelFormat::Rgb8, other.into_rgb8().into_raw()),

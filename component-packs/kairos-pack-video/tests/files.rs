@@ -197,6 +197,38 @@ fn the_writer_writes_every_format_and_the_files_read_back() {
     }
 }
 
+/// A depth camera's frame: 16-bit grey written as a 16-bit PNG and played back by the sequence whole.
+#[test]
+fn sixteen_bit_grey_is_written_and_played_back_whole() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("depth");
+    let mut harness = Harness::new(writer_descriptor(), ImageWriter::default());
+    harness.set_property("folder", out.display().to_string()).unwrap();
+    // Millimetres from 0 (no return) to 65 000, across both bytes.
+    let depth: Vec<u16> = (0..6 * 4).map(|i| (i * 2_826) as u16).collect();
+    let bytes: Vec<u8> = depth.iter().flat_map(|v| v.to_le_bytes()).collect();
+    let image = Image::packed(6, 4, PixelFormat::Gray16, Arc::<[u8]>::from(bytes.clone())).unwrap();
+    harness.push("image", Payload::Image(image), Timestamp(1_000));
+    harness.finish().unwrap();
+    let file = std::fs::read_dir(&out).unwrap().next().unwrap().unwrap().path();
+    let back = kairos_pack_video::files::load(&file).unwrap();
+    assert_eq!(back.format, PixelFormat::Gray16);
+    assert_eq!((back.width, back.height), (6, 4));
+    assert_eq!(&back.pixels[..], &bytes[..], "every value kept");
+    // Played as a camera, the folder gives the same frame.
+    let played = play(
+        sequence(&[("folder", kairos_sdk::Value::Text(out.display().to_string()))]),
+        1,
+    );
+    let Payload::Image(frame) = &played.samples("image")[0].payload else {
+        panic!("an image");
+    };
+    assert_eq!(
+        (frame.format, &frame.pixels[..]),
+        (PixelFormat::Gray16, &bytes[..])
+    );
+}
+
 #[test]
 fn a_folder_that_cannot_be_made_fails_the_writer_naming_it() {
     let dir = tempfile::tempdir().unwrap();
