@@ -12,6 +12,7 @@ pub mod filter;
 pub mod geometry;
 pub mod hough;
 pub mod jpeg;
+pub mod turbojpeg;
 pub mod undistort;
 pub mod yuv;
 
