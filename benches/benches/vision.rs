@@ -109,6 +109,21 @@ fn ours(rgb: &Image, grey: &Image) -> BTreeMap<&'static str, f64> {
             rgb,
         ),
     );
+    for (name, scale, interpolation) in [
+        ("resize_0.4_bilinear", 0.4, "bilinear"),
+        ("resize_0.75_bilinear", 0.75, "bilinear"),
+        ("resize_0.4_area", 0.4, "area"),
+    ] {
+        times.insert(
+            name,
+            through(
+                images::Resize::info(),
+                images::Resize::default(),
+                &[("scale", scale.into()), ("interpolation", interpolation.into())],
+                rgb,
+            ),
+        );
+    }
     times.insert(
         "gaussian_blur_5x5",
         through(images::GaussianBlur::info(), images::GaussianBlur, &[], rgb),
@@ -117,6 +132,7 @@ fn ours(rgb: &Image, grey: &Image) -> BTreeMap<&'static str, f64> {
         "canny",
         through(images::Canny::info(), images::Canny::default(), &[], grey),
     );
+    // libjpeg-turbo where the system has it (the encoder `auto` picks), and the pure-Rust one.
     times.insert(
         "jpeg_encode_q90",
         through(
@@ -126,7 +142,33 @@ fn ours(rgb: &Image, grey: &Image) -> BTreeMap<&'static str, f64> {
             rgb,
         ),
     );
+    times.insert(
+        "jpeg_encode_q90_rust",
+        through(
+            codecs::JpegEncode::info(),
+            codecs::JpegEncode::default(),
+            &[("quality", 90_i64.into()), ("encoder", "rust".into())],
+            rgb,
+        ),
+    );
     times
+}
+
+/// The photographs `peers/opencv/photos.py` writes (scikit-image's sample data): 640×480 and 1920×1080.
+fn photographs(dir: &std::path::Path) -> Option<[Vec<u8>; 2]> {
+    let script = concat!(env!("CARGO_MANIFEST_DIR"), "/peers/opencv/photos.py");
+    let done = Command::new("python3").arg(script).arg(dir).output().ok()?;
+    if !done.status.success() {
+        eprintln!(
+            "no photographs (scikit-image's sample data): {}",
+            String::from_utf8_lossy(&done.stderr)
+        );
+        return None;
+    }
+    Some([
+        std::fs::read(dir.join("photo640.rgb")).ok()?,
+        std::fs::read(dir.join("photo1080.rgb")).ok()?,
+    ])
 }
 
 fn opencv(raw: &std::path::Path, width: usize, height: usize) -> Option<BTreeMap<String, f64>> {
@@ -233,9 +275,23 @@ fn main() {
     perception_figures();
     let dir = tempfile::tempdir().expect("a temporary folder");
     println!("benchmark 20: vision operations, Kairos component vs OpenCV (one thread), median µs per image");
-    for (width, height) in [(640_usize, 480_usize), (1920, 1080)] {
-        let pixels = scene(width, height);
-        let raw = dir.path().join(format!("scene{width}.rgb"));
+    // The OpenCV side reads its JPEG encoder's and the comparisons' images from raw files.
+    let mut images = vec![
+        ("synthetic scene", 640_usize, 480_usize, scene(640, 480)),
+        ("synthetic scene", 1920, 1080, scene(1920, 1080)),
+    ];
+    // Kept between runs: the photographs come from a 13 MB download the first time.
+    let photos = std::path::Path::new(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../target/bench-data/photos"
+    ));
+    let _ = std::fs::create_dir_all(photos);
+    if let Some([small, large]) = photographs(photos) {
+        images.push(("photograph", 640, 480, small));
+        images.push(("photograph", 1920, 1080, large));
+    }
+    for (kind, width, height, pixels) in images {
+        let raw = dir.path().join(format!("{}{width}.rgb", kind.replace(' ', "_")));
         std::fs::write(&raw, &pixels).expect("writing the image");
         let rgb =
             Image::packed(width as u32, height as u32, PixelFormat::Rgb8, pixels.clone()).expect("an image");
@@ -256,7 +312,8 @@ fn main() {
                 return;
             };
             for (name, time) in &kairos {
-                if let Some(theirs) = cv.get(*name) {
+                // Both JPEG encoders against OpenCV's one.
+                if let Some(theirs) = cv.get(name.trim_end_matches("_rust")) {
                     ratios
                         .entry(name)
                         .or_default()
@@ -265,7 +322,7 @@ fn main() {
             }
         }
         println!(
-            "\n{width}×{height} RGB          Kairos µs   OpenCV µs   ratio (3 rounds: median [min–max])"
+            "\n{width}×{height} RGB, {kind}   Kairos µs   OpenCV µs   ratio (3 rounds: median [min–max])"
         );
         for (name, rounds) in ratios {
             let mut by_ratio = rounds.clone();

@@ -32,6 +32,13 @@ def main():
         "rgb_to_gray": lambda: cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY),
         "rgb_to_bgr": lambda: cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR),
         "resize_half_bilinear": lambda: cv2.resize(rgb, (width // 2, height // 2), interpolation=cv2.INTER_LINEAR),
+        "resize_0.4_bilinear": lambda: cv2.resize(
+            rgb, (round(width * 0.4), round(height * 0.4)), interpolation=cv2.INTER_LINEAR
+        ),
+        "resize_0.75_bilinear": lambda: cv2.resize(
+            rgb, (round(width * 0.75), round(height * 0.75)), interpolation=cv2.INTER_LINEAR
+        ),
+        "resize_0.4_area": lambda: cv2.resize(rgb, (round(width * 0.4), round(height * 0.4)), interpolation=cv2.INTER_AREA),
         "gaussian_blur_5x5": lambda: cv2.GaussianBlur(rgb, (5, 5), 0),
         "canny": lambda: cv2.Canny(grey, 50, 150),
         "jpeg_encode_q90": lambda: cv2.imencode(".jpg", rgb, [cv2.IMWRITE_JPEG_QUALITY, 90]),

@@ -126,13 +126,19 @@ pub struct StatusSchedule {
 }
 
 impl StatusSchedule {
-    /// After a `core` call: publishes when a status period has passed since the last, or at once when
-    /// the component's input `went_quiet` (see [`RunSignal::take_quiet`]).
-    pub fn after_core(&mut self, component: &dyn Component, ctx: &Context, went_quiet: bool) {
+    /// After a `core` call that ended at `now`: publishes when a status period has passed since the
+    /// last, or at once when the component's input `went_quiet` (see [`RunSignal::take_quiet`]).
+    pub fn after_core(
+        &mut self,
+        component: &dyn Component,
+        ctx: &Context,
+        went_quiet: bool,
+        now: std::time::Instant,
+    ) {
         if went_quiet {
             self.published.reset();
         }
-        if self.published.ready(crate::STATUS_PERIOD) {
+        if self.published.ready_at(crate::STATUS_PERIOD, now) {
             Self::publish(component, ctx);
         }
     }

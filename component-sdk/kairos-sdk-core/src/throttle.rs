@@ -17,9 +17,16 @@ pub struct Throttle {
 impl Throttle {
     /// Whether `period` has passed since the last yes (or there was none); a yes starts the next period.
     pub fn ready(&mut self, period: Duration) -> bool {
-        let ready = self.last.is_none_or(|at| at.elapsed() >= period);
+        self.ready_at(period, Instant::now())
+    }
+
+    /// [`Throttle::ready`] at `now`, for a caller that has read the clock already.
+    pub fn ready_at(&mut self, period: Duration, now: Instant) -> bool {
+        let ready = self
+            .last
+            .is_none_or(|at| now.saturating_duration_since(at) >= period);
         if ready {
-            self.last = Some(Instant::now());
+            self.last = Some(now);
         }
         ready
     }

@@ -296,11 +296,12 @@ impl ReactiveCell {
         let (component, ctx, status) = &mut *guard;
         ctx.begin_cycle();
         let result = guarded(|| component.core(ctx));
-        status.after_core(component.as_ref(), ctx, false);
+        let now = Instant::now();
+        status.after_core(component.as_ref(), ctx, false, now);
         drop(guard);
         self.monitor
             .busy_nanos
-            .fetch_add(started.elapsed().as_nanos() as u64, Ordering::Relaxed);
+            .fetch_add(now.duration_since(started).as_nanos() as u64, Ordering::Relaxed);
         match result {
             Ok(()) => {
                 self.monitor.cycles.fetch_add(1, Ordering::Relaxed);
@@ -1216,7 +1217,9 @@ impl Worker {
             };
             ctx.begin_cycle();
             let result = guarded(|| component.core(&mut ctx));
-            status.after_core(component.as_ref(), &ctx, self.signal.take_quiet());
+            // One clock read a cycle, for the status and the CPU sample both.
+            let now = Instant::now();
+            status.after_core(component.as_ref(), &ctx, self.signal.take_quiet(), now);
             match result {
                 Ok(()) => {
                     self.monitor.cycles.fetch_add(1, Ordering::Relaxed);
@@ -1234,8 +1237,8 @@ impl Worker {
             if let Some(period) = period {
                 next_tick = self.next_tick(next_tick, period, &mut missed);
             }
-            if cpu_checked.elapsed() >= CPU_SAMPLE_PERIOD {
-                cpu_checked = Instant::now();
+            if now.saturating_duration_since(cpu_checked) >= CPU_SAMPLE_PERIOD {
+                cpu_checked = now;
                 self.monitor.busy_nanos.store(
                     scheduling::thread_cpu_nanos().saturating_sub(cpu_start),
                     Ordering::Relaxed,

@@ -466,7 +466,7 @@ unsafe extern "C" fn pack_core(
         // The host's read returns Interrupted when the input went quiet after work (or a control
         // request waits): either way the status is published now.
         let went_quiet = result == Err(ComponentError::Interrupted);
-        status.after_core(component, ctx, went_quiet);
+        status.after_core(component, ctx, went_quiet, std::time::Instant::now());
         result
     })
 }
