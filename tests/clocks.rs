@@ -370,3 +370,115 @@ fn kairos_deploy_says_when_a_host_s_clock_leaves_lock_and_how_late_each_host_sta
         "each host's lateness is said: {content}"
     );
 }
+
+/// The README's rig on one machine: a clock master recording, a host locked to it recording; their files
+/// say master and locked, and merge without being told anything. A recording made on neither still needs
+/// `--allow-unsynchronised`.
+#[test]
+fn recordings_of_a_clock_master_and_a_host_locked_to_it_merge_as_they_are() {
+    let _machine = shared_machine();
+    let [dir_master, dir_b, here] = folders();
+    let port = std::net::UdpSocket::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port();
+    let address = format!("127.0.0.1:{port}");
+    let master = serve(dir_master.path(), &["--clock-master", &address]);
+    let b = serve(dir_b.path(), &["--clock-slave-of", &address]);
+    let mut socket = operator(&b);
+    let started = Instant::now();
+    while call(&mut socket, &json!({"id": 1, "type": "status"}))["result"]["clock"]["state"] != "locked" {
+        assert!(started.elapsed() < Duration::from_secs(30), "b never locked");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    std::fs::write(here.path().join("car.token"), &master.token).unwrap();
+    std::fs::write(here.path().join("roadside.token"), &b.token).unwrap();
+    std::fs::write(
+        here.path().join("rig.ron"),
+        format!(
+            r#"Diagram(format: 1,
+                hosts: {{"car": Host(endpoint: "{}", token_file: "car.token"),
+                         "roadside": Host(endpoint: "{}", token_file: "roadside.token")}},
+                components: [
+                    Component(id: "imu", type: "core.sine", host: "car", properties: {{"rate": 100.0}}),
+                    Component(id: "rec_car", type: "recording.recorder", host: "car", properties: {{"path": "car.mcap", "min_free_mb": 0.0}}),
+                    Component(id: "radar", type: "core.sine", host: "roadside", properties: {{"rate": 50.0}}),
+                    Component(id: "rec_roadside", type: "recording.recorder", host: "roadside", properties: {{"path": "roadside.mcap", "min_free_mb": 0.0}}),
+                ],
+                connections: [
+                    Connection(from: "imu.out", to: "rec_car.in1"),
+                    Connection(from: "radar.out", to: "rec_roadside.in1"),
+                ])"#,
+            master.url, b.url
+        ),
+    )
+    .unwrap();
+    let deployed = common::kairos(here.path(), &["deploy", "rig.ron", "--for", "2s"]);
+    let (_, stderr) = text(&deployed);
+    assert!(deployed.status.success(), "{stderr}");
+    let (car, roadside) = (
+        dir_master.path().join("car.mcap"),
+        dir_b.path().join("roadside.mcap"),
+    );
+    let inspected = common::kairos(here.path(), &["inspect", car.to_str().unwrap(), "--json"]);
+    let report: Value = serde_json::from_slice(&inspected.stdout).unwrap();
+    assert_eq!(report["metadata"]["kairos.clock"]["state"], "master", "{report}");
+    assert_eq!(report["clock_warning"], Value::Null, "{report}");
+    let merged_path = here.path().join("rig.mcap");
+    let merged = common::kairos(
+        here.path(),
+        &[
+            "merge",
+            &format!("car={}", car.display()),
+            &format!("roadside={}", roadside.display()),
+            "-o",
+            merged_path.to_str().unwrap(),
+        ],
+    );
+    let (stdout, stderr) = text(&merged);
+    assert!(merged.status.success(), "{stdout}{stderr}");
+    assert!(!stdout.contains("not synchronised"), "{stdout}");
+    let report: Value = serde_json::from_slice(
+        &common::kairos(here.path(), &["inspect", merged_path.to_str().unwrap(), "--json"]).stdout,
+    )
+    .unwrap();
+    assert!(
+        !report["metadata"]["kairos.merge"]
+            .as_object()
+            .unwrap()
+            .contains_key("UNSYNCHRONISED CLOCKS"),
+        "{report}"
+    );
+    // A recording from a machine on no master is still refused with it.
+    let alone = here.path().join("alone.mcap");
+    std::fs::write(
+        here.path().join("alone.ron"),
+        format!(
+            r#"Diagram(format: 1, components: [
+                Component(id: "sine", type: "core.sine"),
+                Component(id: "rec", type: "recording.recorder", properties: {{"path": "{}", "min_free_mb": 0.0}}),
+            ], connections: [Connection(from: "sine.out", to: "rec.in1")])"#,
+            alone.display()
+        ),
+    )
+    .unwrap();
+    let run = common::kairos(here.path(), &["run", "alone.ron", "--for", "500ms"]);
+    assert!(run.status.success(), "{}", text(&run).1);
+    let refused = common::kairos(
+        here.path(),
+        &[
+            "merge",
+            &format!("car={}", car.display()),
+            &format!("alone={}", alone.display()),
+            "-o",
+            here.path().join("no.mcap").to_str().unwrap(),
+        ],
+    );
+    let (_, stderr) = text(&refused);
+    assert!(!refused.status.success());
+    assert!(
+        stderr.contains("alone): clock free") && !stderr.contains("car): clock"),
+        "{stderr}"
+    );
+}

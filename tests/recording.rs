@@ -769,6 +769,93 @@ fn recordings_of_two_runs_on_unlocked_clocks_merge_only_when_allowed_and_then_sa
     );
 }
 
+/// A truncated recording (a copy cut short, a file from a host that lost power) is not merged as if it
+/// were whole: refused, naming what it holds; merged with `--allow-damaged`, the merged file says what
+/// was lost and `inspect` exits 3 on it as on a damaged file. A file of a few bytes is refused the same.
+#[test]
+fn damaged_recordings_are_merged_only_when_allowed_and_the_merged_file_says_what_was_lost() {
+    let _serial = one_at_a_time();
+    let dir = tempfile::tempdir().unwrap();
+    let (car, roadside) = (dir.path().join("car.mcap"), dir.path().join("rsu.mcap"));
+    for file in [&car, &roadside] {
+        let output = record_for(dir.path(), file, "600ms", &[]);
+        assert!(output.status.success(), "{}", text(&output).1);
+    }
+    let whole = std::fs::read(&car).unwrap();
+    let (cut, tiny) = (dir.path().join("cut.mcap"), dir.path().join("tiny.mcap"));
+    std::fs::write(&cut, &whole[..whole.len() / 3]).unwrap();
+    std::fs::write(&tiny, &whole[..10]).unwrap();
+    let merged = dir.path().join("merged.mcap");
+    let merge = |input: &Path, extra: &[&str]| {
+        let mut args = vec![
+            "merge".to_owned(),
+            format!("car={}", input.display()),
+            format!("roadside={}", roadside.display()),
+            "-o".to_owned(),
+            merged.display().to_string(),
+            "--allow-unsynchronised".to_owned(),
+        ];
+        args.extend(extra.iter().map(|s| (*s).to_owned()));
+        kairos(dir.path(), &args.iter().map(String::as_str).collect::<Vec<_>>())
+    };
+    for input in [&cut, &tiny] {
+        let refused = merge(input, &[]);
+        let (_, stderr) = text(&refused);
+        assert!(!refused.status.success(), "{}: {stderr}", input.display());
+        assert!(
+            stderr.contains("damaged recordings")
+                && stderr.contains("(car): ")
+                && stderr.contains("--allow-damaged"),
+            "{stderr}"
+        );
+        assert!(!merged.exists(), "nothing written for a refused merge");
+    }
+    let allowed = merge(&cut, &["--allow-damaged"]);
+    let (stdout, stderr) = text(&allowed);
+    assert!(allowed.status.success(), "{stderr}");
+    assert!(stdout.contains("merged although damaged"), "{stdout}");
+    let (code, report) = inspect(dir.path(), &merged);
+    assert_eq!(code, Some(3), "a merge of a damaged file is not whole: {report}");
+    assert!(
+        report["input_damage"]
+            .as_str()
+            .is_some_and(|s| s.contains("cut.mcap (car)") && s.contains("messages intact")),
+        "{report}"
+    );
+}
+
+/// Two recordings on unlocked clocks replayed on one timeline: the player says, as merge refuses, that
+/// their times may not line up.
+#[test]
+fn the_player_warns_when_its_recordings_clocks_were_not_synchronised() {
+    let _serial = one_at_a_time();
+    let dir = tempfile::tempdir().unwrap();
+    let (car, roadside) = (dir.path().join("car.mcap"), dir.path().join("rsu.mcap"));
+    for file in [&car, &roadside] {
+        let output = record_for(dir.path(), file, "600ms", &[]);
+        assert!(output.status.success(), "{}", text(&output).1);
+    }
+    let diagram = dir.path().join("both.ron");
+    std::fs::write(
+        &diagram,
+        format!(
+            r#"Diagram(format: 1, components: [
+                Component(id: "player", type: "recording.player", properties: {{"path": "{}", "path2": "{}"}}),
+            ])"#,
+            car.display(),
+            roadside.display()
+        ),
+    )
+    .unwrap();
+    let output = kairos(dir.path(), &["run", diagram.to_str().unwrap(), "--for", "300ms"]);
+    let (_, stderr) = text(&output);
+    assert!(output.status.success(), "{stderr}");
+    assert!(
+        stderr.contains("not made on synchronised clocks") && stderr.contains("car.mcap: clock free"),
+        "{stderr}"
+    );
+}
+
 #[test]
 fn lz4_and_uncompressed_chunks_are_read_by_inspect_the_player_and_python() {
     let _serial = one_at_a_time();

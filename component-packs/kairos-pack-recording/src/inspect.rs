@@ -62,6 +62,9 @@ pub struct Report {
     /// Said when the file comes from a host that followed a clock master and was recorded while that
     /// clock was not locked: its times may not line up with other hosts' recordings.
     pub clock_warning: Option<String>,
+    /// For a merged file made with `--allow-damaged`: the damaged inputs and what they lost. Such a
+    /// file is whole, but its data is not (`kairos inspect` exits 3, as for a damaged file).
+    pub input_damage: Option<String>,
     /// How a file that was not closed ends (the last part of `damage`).
     #[serde(skip)]
     ending: Option<String>,
@@ -73,7 +76,7 @@ pub struct Report {
 pub fn unlocked_clock(clock: &BTreeMap<String, String>) -> Option<String> {
     let state = clock.get("state").map_or("unknown", String::as_str);
     let source = clock.get("source").map_or("unknown", String::as_str);
-    (state != "locked" && source != "this machine").then(|| {
+    (!crate::merge::clock_agrees(clock) && source != "this machine").then(|| {
         format!(
             "recorded while its clock was {state} (following {source}): its times may not line up with \
              other hosts' recordings"
@@ -264,6 +267,9 @@ fn inspect_bytes_with_progress(
         duration_s: round_to(end_ns.saturating_sub(start_ns) as f64 * 1e-9, 1e6),
         channels,
         clock_warning: metadata.get("kairos.clock").and_then(unlocked_clock),
+        input_damage: metadata
+            .get("kairos.merge")
+            .and_then(|merge| merge.get(crate::merge::DAMAGED_INPUTS).cloned()),
         metadata,
         summary_messages: summary.and_then(|s| s.stats).map(|stats| stats.message_count),
         messages_left_out: walked.messages_left_out(),
@@ -288,6 +294,12 @@ impl Report {
         let _ = writeln!(out, "{} messages over {:.3} s", self.messages, self.duration_s);
         if let Some(warning) = &self.clock_warning {
             let _ = writeln!(out, "warning: {warning}");
+        }
+        if let Some(damage) = &self.input_damage {
+            let _ = writeln!(
+                out,
+                "warning: merged from damaged recordings, what was past their damage is missing: {damage}"
+            );
         }
         let width = self
             .channels
@@ -387,7 +399,11 @@ mod tests {
             "{warning}"
         );
         assert!(report.text().contains(&format!("warning: {warning}")));
-        for (source, state) in [("master 10.0.0.1:7401", "locked"), ("this machine", "free")] {
+        for (source, state) in [
+            ("master 10.0.0.1:7401", "locked"),
+            ("this machine", "free"),
+            ("this machine (the clock master)", "master"),
+        ] {
             let report = inspect_bytes("car.mcap", &recording_with_clock(source, state)).unwrap();
             assert_eq!(report.clock_warning, None, "{source}: {state}");
         }

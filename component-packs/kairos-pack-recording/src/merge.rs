@@ -26,6 +26,52 @@ pub struct Merged {
     pub channels: Vec<String>,
     /// Files whose clock was not locked, with their state, when the merge was allowed anyway.
     pub unsynchronised: Vec<String>,
+    /// Damaged files, with what was lost, when the merge was allowed anyway.
+    pub damaged: Vec<String>,
+}
+
+/// What a merge lets through that it refuses by default.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct MergeOptions {
+    /// Recordings whose clocks did not line up (the merged file says so).
+    pub allow_unsynchronised: bool,
+    /// Damaged or truncated recordings, of which what is intact is merged (the merged file says what
+    /// was lost).
+    pub allow_damaged: bool,
+}
+
+/// The name under which the merged file's `kairos.merge` record lists damaged inputs.
+pub const DAMAGED_INPUTS: &str = "DAMAGED INPUTS";
+
+/// Whether a recording's `kairos.clock` record says its times line up with the rig's: recorded locked
+/// to the clock master, or on the master itself.
+pub fn clock_agrees(clock: &BTreeMap<String, String>) -> bool {
+    matches!(clock.get("state").map(String::as_str), Some("locked" | "master"))
+}
+
+/// Of `files` (each named as the user knows it), those whose times do not line up with the others', with
+/// their clock's state: none when every clock was locked to the master or was it, or when one runtime
+/// made them all (the same clock, down to the epoch it read at start).
+pub fn unsynchronised<'a>(files: impl IntoIterator<Item = (String, &'a RecordingIndex)>) -> Vec<String> {
+    let files: Vec<(String, &RecordingIndex)> = files.into_iter().collect();
+    let descriptions: Vec<Option<&String>> = files
+        .iter()
+        .map(|(_, index)| index.clock().and_then(|c| c.get("description")))
+        .collect();
+    if descriptions.iter().all(|d| d.is_some() && *d == descriptions[0]) {
+        return Vec::new();
+    }
+    files
+        .iter()
+        .filter(|(_, index)| !index.clock().is_some_and(clock_agrees))
+        .map(|(name, index)| {
+            let state = index
+                .clock()
+                .and_then(|c| c.get("state").cloned())
+                .unwrap_or_else(|| "unknown".to_owned());
+            format!("{name}: clock {state}")
+        })
+        .collect()
 }
 
 /// One input: its host name (the channels' prefix) and its file.
@@ -75,16 +121,43 @@ impl Source {
     }
 }
 
-/// Merges `inputs` into `output`. Recordings from different hosts must have been made with locked
-/// clocks (or by one runtime, on one clock), or the merge is refused naming each file and its clock's
-/// state, unless `allow_unsynchronised` (the merged file then says so in its `kairos.merge` record).
-pub fn merge(inputs: &[MergeInput], output: &Path, allow_unsynchronised: bool) -> Result<Merged, MergeError> {
+/// Merges `inputs` into `output`. Recordings from different hosts must have been made with their clocks
+/// locked to one master or on the master itself (or by one runtime, on one clock), or the merge is
+/// refused naming each file and its clock's state, unless `options.allow_unsynchronised`. A damaged or
+/// truncated input is refused, naming what it holds and what it lost, unless `options.allow_damaged`.
+/// What was let through is written in the merged file's `kairos.merge` record.
+pub fn merge(inputs: &[MergeInput], output: &Path, options: MergeOptions) -> Result<Merged, MergeError> {
     check_names(inputs, output)?;
-    let (mut sources, unsynchronised) = open_sources(inputs)?;
-    if !unsynchronised.is_empty() && !allow_unsynchronised {
+    let mut sources = open_sources(inputs)?;
+    let unsynchronised = unsynchronised(
+        sources
+            .iter()
+            .zip(inputs)
+            .map(|(s, i)| (format!("{} ({})", i.path.display(), i.host), &*s.index)),
+    );
+    if !unsynchronised.is_empty() && !options.allow_unsynchronised {
         return Err(MergeError(format!(
-            "the recordings were not made on synchronised clocks, so their times do not line up: {}. Record with the hosts' clocks locked (kairos deploy with a clock master), or pass --allow-unsynchronised to merge anyway (the merged file says so)",
+            "the recordings were not made on synchronised clocks, so their times do not line up: {}. Record with the hosts' clocks locked to one clock master (kairos serve --clock-master on one, --clock-slave-of on the others), or pass --allow-unsynchronised to merge anyway (the merged file says so)",
             unsynchronised.join("; ")
+        )));
+    }
+    let damaged: Vec<String> = sources
+        .iter()
+        .zip(inputs)
+        .filter_map(|(source, input)| {
+            let damage = source.index.damage()?;
+            let kept: u64 = source.index.channels().iter().map(|c| c.messages).sum();
+            Some(format!(
+                "{} ({}): {damage}; {kept} messages intact",
+                input.path.display(),
+                input.host
+            ))
+        })
+        .collect();
+    if !damaged.is_empty() && !options.allow_damaged {
+        return Err(MergeError(format!(
+            "damaged recordings: {}. Merged, they would lose what is past the damage: see `kairos inspect` on each, `kairos recover` one that was not closed, or pass --allow-damaged to merge what is intact (the merged file says what was lost)",
+            damaged.join("; ")
         )));
     }
     let file =
@@ -130,6 +203,9 @@ pub fn merge(inputs: &[MergeInput], output: &Path, allow_unsynchronised: bool) -
     if !unsynchronised.is_empty() {
         about.insert("UNSYNCHRONISED CLOCKS".to_owned(), unsynchronised.join("; "));
     }
+    if !damaged.is_empty() {
+        about.insert(DAMAGED_INPUTS.to_owned(), damaged.join("; "));
+    }
     out.writer
         .write_metadata(&Metadata {
             name: "kairos.merge".to_owned(),
@@ -141,6 +217,7 @@ pub fn merge(inputs: &[MergeInput], output: &Path, allow_unsynchronised: bool) -
         messages,
         channels: out.topics,
         unsynchronised,
+        damaged,
     })
 }
 
@@ -180,40 +257,19 @@ fn check_names(inputs: &[MergeInput], output: &Path) -> Result<(), MergeError> {
     Ok(())
 }
 
-/// The inputs' indexes, and those whose clocks do not line up with the others' (with their state).
-fn open_sources(inputs: &[MergeInput]) -> Result<(Vec<Source>, Vec<String>), MergeError> {
-    let mut sources = Vec::new();
-    let mut unsynchronised = Vec::new();
-    for input in inputs {
-        let index = RecordingIndex::open(&input.path).map_err(MergeError)?;
-        let state = index
-            .clock()
-            .and_then(|c| c.get("state").cloned())
-            .unwrap_or_else(|| "unknown".to_owned());
-        if state != "locked" {
-            unsynchronised.push(format!(
-                "{} ({}): clock {state}",
-                input.path.display(),
-                input.host
-            ));
-        }
-        sources.push(Source {
-            host: input.host.clone(),
-            index,
-            next_block: 0,
-            pending: VecDeque::new(),
-        });
-    }
-    // Recordings made by one runtime share its clock (the same description, down to the epoch it read
-    // at start): their times line up whatever its state.
-    let descriptions: Vec<Option<&String>> = sources
+/// The inputs' indexes.
+fn open_sources(inputs: &[MergeInput]) -> Result<Vec<Source>, MergeError> {
+    inputs
         .iter()
-        .map(|s| s.index.clock().and_then(|c| c.get("description")))
-        .collect();
-    if descriptions.iter().all(|d| d.is_some() && *d == descriptions[0]) {
-        unsynchronised.clear();
-    }
-    Ok((sources, unsynchronised))
+        .map(|input| {
+            Ok(Source {
+                host: input.host.clone(),
+                index: RecordingIndex::open(&input.path).map_err(MergeError)?,
+                next_block: 0,
+                pending: VecDeque::new(),
+            })
+        })
+        .collect()
 }
 
 /// The source whose next message was logged first.

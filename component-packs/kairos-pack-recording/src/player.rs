@@ -526,6 +526,19 @@ impl Component for Player {
             .collect();
         let common_start = starts.iter().copied().min().unwrap_or(0);
         let align_starts = ctx.text_property("align")? == "start";
+        if files.len() > 1 && !align_starts {
+            let apart =
+                crate::merge::unsynchronised(files.iter().map(|f| (f.path().display().to_string(), &**f)));
+            if !apart.is_empty() {
+                tracing::warn!(
+                    "{}: these recordings were not made on synchronised clocks, so on one timeline their \
+                     times may not line up (kairos merge refuses them): {}. With align: start each one's \
+                     start is put at the same instant instead",
+                    ctx.id(),
+                    apart.join("; ")
+                );
+            }
+        }
         let planned = plan(&files);
         self.sources = files
             .into_iter()

@@ -9,7 +9,7 @@
 use std::path::Path;
 use std::sync::Arc;
 
-use kairos_pack_recording::merge::{MergeInput, merge};
+use kairos_pack_recording::merge::{MergeInput, MergeOptions, merge};
 use kairos_pack_recording::recorder::Recorder;
 use kairos_pack_recording::timeline::RecordingIndex;
 use kairos_sdk::harness::Harness;
@@ -49,7 +49,7 @@ fn two_hosts_recordings_become_one_timeline_with_prefixed_channels() {
     ];
     // Both were made on one clock (the same description: here the offline harness's), so their times
     // line up: no flag needed. Clocks of different runtimes that were not locked are refused (tests/recording.rs).
-    let merged = merge(&inputs, &output, false).unwrap();
+    let merged = merge(&inputs, &output, MergeOptions::default()).unwrap();
     assert_eq!(merged.messages, 2 * 51);
     assert!(merged.unsynchronised.is_empty());
     let index = RecordingIndex::open(&output).unwrap();
@@ -90,6 +90,15 @@ fn two_recordings_under_one_host_name_are_refused() {
         MergeInput::parse(&format!("car={}", a.display())),
         MergeInput::parse(&format!("car={}", b.display())),
     ];
-    let error = merge(&inputs, &dir.path().join("one.mcap"), true).unwrap_err().0;
+    let error = merge(
+        &inputs,
+        &dir.path().join("one.mcap"),
+        MergeOptions {
+            allow_unsynchronised: true,
+            ..MergeOptions::default()
+        },
+    )
+    .unwrap_err()
+    .0;
     assert!(error.contains("both put their channels under 'car/'"), "{error}");
 }

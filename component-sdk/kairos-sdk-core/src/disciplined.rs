@@ -59,6 +59,9 @@ pub enum ClockState {
     /// A clock Kairos only measures (the system clock, kept by PTP or chrony) is further from its
     /// reference than the bound the user set.
     Alarm,
+    /// The clock master of a rig (`kairos serve --clock-master`): this clock is the reference the
+    /// others follow, so it agrees with them by definition.
+    Master,
 }
 
 impl ClockState {

@@ -549,12 +549,27 @@ pub type StartNote = Arc<Mutex<Option<String>>>;
 pub struct NotedClock {
     inner: Arc<dyn Clock>,
     note: StartNote,
+    /// This runtime is the rig's clock master: a clock that follows nothing else says so.
+    master: bool,
 }
 
 impl NotedClock {
     /// `inner`, described with `note`.
     pub fn new(inner: Arc<dyn Clock>, note: StartNote) -> Self {
-        NotedClock { inner, note }
+        NotedClock {
+            inner,
+            note,
+            master: false,
+        }
+    }
+
+    /// The same clock on the rig's clock master: where it follows no source of its own (a GNSS
+    /// receiver), its status says it is the reference, so recordings made on it merge with those of
+    /// the hosts locked to it.
+    #[must_use]
+    pub fn of_the_master(mut self) -> Self {
+        self.master = true;
+        self
     }
 }
 
@@ -587,7 +602,19 @@ impl Clock for NotedClock {
     }
 
     fn status(&self) -> Option<ClockStatus> {
-        self.inner.status()
+        self.inner.status().or_else(|| {
+            self.master.then(|| ClockStatus {
+                source: "this machine (the clock master)".to_owned(),
+                state: ClockState::Master,
+                error_ns: 0,
+                offset_ns: 0,
+                step_ns: 0,
+                references: 0,
+                since_reference_s: None,
+                error_bound_ns: Some(0),
+                rate_ppm: None,
+            })
+        })
     }
 }
 

@@ -171,6 +171,7 @@ fn clock_telemetry(clock: &kairos_sdk_core::ClockStatus) -> ClockTelemetry {
             kairos_sdk_core::ClockState::Holdover => ClockState::Holdover,
             kairos_sdk_core::ClockState::Lost => ClockState::Lost,
             kairos_sdk_core::ClockState::Alarm => ClockState::Alarm,
+            kairos_sdk_core::ClockState::Master => ClockState::Master,
         },
         error_ns: clock.error_ns,
         step_ns: clock.step_ns,
@@ -274,10 +275,12 @@ impl Runtime {
             Some(shared) => shared,
             None => kairos_runtime::clock_for(diagram),
         };
-        Arc::new(kairos_clock_sync::NotedClock::new(
-            clock,
-            Arc::clone(&self.start_note),
-        ))
+        let noted = kairos_clock_sync::NotedClock::new(clock, Arc::clone(&self.start_note));
+        if self.clock_master.load(Ordering::Acquire) {
+            Arc::new(noted.of_the_master())
+        } else {
+            Arc::new(noted)
+        }
     }
 
     fn lock(&self) -> MutexGuard<'_, Deployment> {

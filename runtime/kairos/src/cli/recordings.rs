@@ -27,7 +27,7 @@ impl InspectArgs {
         } else {
             print!("{}", report.text());
         }
-        Ok(if report.damage.is_some() {
+        Ok(if report.damage.is_some() || report.input_damage.is_some() {
             ExitCode::from(3)
         } else {
             ExitCode::SUCCESS
@@ -90,6 +90,9 @@ pub struct MergeArgs {
     /// Merge recordings whose clocks were not locked all the same (the merged file says so).
     #[arg(long)]
     pub allow_unsynchronised: bool,
+    /// Merge what is intact of damaged or truncated recordings (the merged file says what was lost).
+    #[arg(long)]
+    pub allow_damaged: bool,
 }
 
 impl MergeArgs {
@@ -101,7 +104,11 @@ impl MergeArgs {
             .map(|a| kairos_pack_recording::merge::MergeInput::parse(a))
             .collect();
         let output = self.output;
-        let merged = kairos_pack_recording::merge::merge(&inputs, &output, self.allow_unsynchronised)?;
+        let options = kairos_pack_recording::merge::MergeOptions {
+            allow_unsynchronised: self.allow_unsynchronised,
+            allow_damaged: self.allow_damaged,
+        };
+        let merged = kairos_pack_recording::merge::merge(&inputs, &output, options)?;
         println!(
             "{}: {} messages on {} channels ({})",
             output.display(),
@@ -111,6 +118,9 @@ impl MergeArgs {
         );
         for warning in &merged.unsynchronised {
             println!("merged although not synchronised: {warning}");
+        }
+        for warning in &merged.damaged {
+            println!("merged although damaged (what was past the damage is lost): {warning}");
         }
         Ok(ExitCode::SUCCESS)
     }
