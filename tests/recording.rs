@@ -691,9 +691,23 @@ umount disk"#;
     );
     let recorder = log.lines().rev().find(|l| l.starts_with("recorder ")).unwrap();
     assert!(recorder.contains("stopped"), "{recorder}");
-    // The second event, written once there was room, holds the second before its trigger: the ring
-    // was kept through the failure.
-    let second = dir.path().join("full/event_002.mcap");
+    // The first event could not be written: its partial file is gone, not left empty or damaged, and
+    // its number goes to the next. That one, written once there was room, holds the second before its
+    // trigger: the ring was kept through the failure.
+    let files: Vec<String> = std::fs::read_dir(dir.path().join("full"))
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    assert!(
+        files.iter().all(|f| f.starts_with("event_00")) && files.contains(&"event_001.mcap".to_owned()),
+        "{files:?}\n{log}"
+    );
+    for file in &files {
+        let (code, report) = inspect(dir.path(), &dir.path().join("full").join(file));
+        assert_eq!(code, Some(0), "{file} is whole: {report}");
+    }
+    assert!(log.contains("event 1 into disk/event_001.mcap"), "{log}");
+    let second = dir.path().join("full/event_001.mcap");
     let (code, report) = inspect(dir.path(), &second);
     assert_eq!(code, Some(0), "{report}");
     let camera = channel(&report, "camera.image");
@@ -714,6 +728,119 @@ umount disk"#;
     );
     let (code, report) = inspect(dir.path(), &dir.path().join("guarded/event_001.mcap"));
     assert_eq!(code, Some(0), "closed and valid: {report}");
+}
+
+/// A trigger storm (1000 triggers a second for 2 s) on a full 1 MB disk: no event file is left behind
+/// empty or damaged, the error is logged about once a second with a count, and the log's event numbers
+/// are the files'.
+#[test]
+fn a_trigger_storm_on_a_full_disk_leaves_no_file_and_logs_once_a_second() {
+    let _serial = one_at_a_time();
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::write(
+        dir.path().join("storm.ron"),
+        PRE_TRIGGER_ON_DISK
+            .replace(r#""rate": 0.5"#, r#""rate": 1000.0"#)
+            .replace("every_2s", "storm"),
+    )
+    .unwrap();
+    let script = r#"mkdir -p disk left
+mount -t tmpfs -o size=1m tmpfs disk
+head -c 1020k /dev/zero > disk/filler || true
+"$KAIROS" run storm.ron --for 2500ms --stats > out.txt 2> err.txt || echo $? > code.txt
+ls disk > left/files.txt
+umount disk"#;
+    let output = with_a_small_disk(dir.path(), script);
+    let (_, stderr) = text(&output);
+    assert!(output.status.success(), "{stderr}");
+    let log = std::fs::read_to_string(dir.path().join("err.txt")).unwrap();
+    assert!(
+        !dir.path().join("code.txt").exists(),
+        "the recorder does not fail: {log}"
+    );
+    let files = std::fs::read_to_string(dir.path().join("left/files.txt")).unwrap();
+    assert_eq!(
+        files.trim(),
+        "filler",
+        "no event file is left on the full disk: {files}"
+    );
+    let errors = log.lines().filter(|l| l.contains("ERROR")).count();
+    assert!((1..=4).contains(&errors), "{errors} error lines in 2.5 s:\n{log}");
+    assert!(log.contains("event(s) not written in all"), "{log}");
+    // An event that opened its file before the disk refused more says what became of the file.
+    if log.contains(": event 1 into") {
+        assert!(
+            log.contains("partial file disk/event_001.mcap is removed"),
+            "{log}"
+        );
+    }
+}
+
+/// Markers belong to the data: in pre-trigger mode a marker on the `mark` input waits in the ring and is
+/// written with the event it falls in, not into a file of its own; a mark input held on marks once.
+#[test]
+fn markers_wait_in_the_ring_and_a_mark_input_held_on_marks_once() {
+    let _serial = one_at_a_time();
+    let dir = tempfile::tempdir().unwrap();
+    // A square wave at 0.4 Hz: on for 1.25 s from 0, then off, on again at 2.5 s (sampled at 20 Hz);
+    // one trigger at 4 s (the counter's second count). The pre-trigger window of 1 s before it holds no
+    // rising edge; the event written at 4 s holds none of the first markers.
+    let diagram = r#"Diagram(
+    format: 1,
+    components: [
+        Component(id: "camera", type: "sensors.camera", properties: {"width": 80, "height": 60, "rate": 20.0}),
+        Component(id: "square", type: "core.square", properties: {"frequency": 0.4, "rate": 20.0, "offset": 0.5, "amplitude": 0.5}),
+        Component(id: "every_4s", type: "core.counter", properties: {"rate": 0.25}),
+        Component(id: "recorder", type: "recording.recorder", properties: {
+            "mode": "pre_trigger", "pre_trigger_s": 2.0, "post_trigger_s": 0.2,
+            "path": "event.mcap", "compression": "none", "min_free_mb": 0.0,
+        }),
+    ],
+    connections: [
+        Connection(from: "camera.image", to: "recorder.in1"),
+        Connection(from: "square.out", to: "recorder.mark"),
+        Connection(from: "every_4s.out", to: "recorder.trigger"),
+    ],
+)"#;
+    std::fs::write(dir.path().join("marks.ron"), diagram).unwrap();
+    let output = kairos(dir.path(), &["run", "marks.ron", "--for", "4600ms"]);
+    let (_, stderr) = text(&output);
+    assert!(output.status.success(), "{stderr}");
+    let files: Vec<String> = std::fs::read_dir(dir.path())
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .filter(|f| Path::new(f).extension().is_some_and(|e| e == "mcap"))
+        .collect();
+    assert_eq!(
+        files,
+        vec!["event_001.mcap".to_owned()],
+        "one event, no file for a marker alone: {stderr}"
+    );
+    let (code, report) = inspect(dir.path(), &dir.path().join("event_001.mcap"));
+    assert_eq!(code, Some(0), "{report}");
+    // The edge at 2.5 s falls in the 2 s before the trigger at 4 s: one marker, not one per sample.
+    let markers = report["channels"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|c| c["topic"] == "kairos.markers")
+        .map_or(0, |c| c["messages"].as_u64().unwrap());
+    assert_eq!(markers, 1, "{report}");
+    // The file's drop counts say what it holds of each track, and what the ring let go before it.
+    let camera = channel(&report, "camera.image")["messages"].as_u64().unwrap();
+    let drops = report["metadata"]["kairos.drops"]["in1 camera.image"]
+        .as_str()
+        .unwrap_or_default();
+    assert!(
+        drops.contains(&format!("in_file={camera} ")) && drops.contains("ring_dropped_before="),
+        "{drops}: {camera} in the file"
+    );
+    let dropped: u64 = drops
+        .rsplit("ring_dropped_before=")
+        .next()
+        .and_then(|n| n.parse().ok())
+        .unwrap_or(0);
+    assert!(dropped > 0, "2 s of a 4 s wait were let go: {drops}");
 }
 
 #[test]

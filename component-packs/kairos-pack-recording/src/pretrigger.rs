@@ -1,7 +1,7 @@
 //! The pre-trigger ring: the last seconds of every recorded input, in memory, bounded in time and in
 //! bytes, ready to be written when a trigger arrives.
 
-use std::collections::VecDeque;
+use std::collections::{BTreeMap, VecDeque};
 
 use kairos_sdk::{Sample, Timestamp};
 
@@ -12,6 +12,8 @@ pub struct Ring {
     bytes: usize,
     /// Samples pushed out (too old or over the byte bound) since the start.
     pub dropped: u64,
+    /// The same, per input.
+    pub dropped_by_input: BTreeMap<usize, u64>,
 }
 
 /// What a sample costs the ring: the bytes behind its payload and the sample itself.
@@ -27,12 +29,13 @@ impl Ring {
         let bytes = cost(&sample);
         self.bytes += bytes;
         self.samples.push_back((input, sample, bytes));
-        while let Some((_, oldest, bytes)) = self.samples.front() {
+        while let Some((input, oldest, bytes)) = self.samples.front() {
             let too_old = newest.nanos_since(oldest.timestamp) > keep_nanos;
             if !too_old && self.bytes <= max_bytes {
                 break;
             }
             self.bytes -= bytes;
+            *self.dropped_by_input.entry(*input).or_default() += 1;
             self.samples.pop_front();
             self.dropped += 1;
         }
@@ -108,6 +111,7 @@ mod tests {
         }
         assert!((ring.span_s() - 2.0).abs() < 0.011, "{}", ring.span_s());
         assert_eq!(ring.dropped, 1000 - 201);
+        assert_eq!(ring.dropped_by_input.get(&0), Some(&(1000 - 201)));
         let mut small = Ring::default();
         for ms in 0..100 {
             small.push(0, sample(ms, 10_000), i64::MAX, 50_000);

@@ -1,6 +1,7 @@
 //! `recording.recorder`: writes every sample of its inputs to MCAP, one channel per input.
 
 use std::collections::BTreeMap;
+use std::fmt::Write as _;
 use std::fs::File;
 use std::io::BufWriter;
 use std::path::{Path, PathBuf};
@@ -55,10 +56,22 @@ struct OpenFile {
     bytes: u64,
     channels: BTreeMap<usize, (u16, u32)>,
     schemas: BTreeMap<String, u16>,
+    /// Messages written into this file, per input.
+    counts: BTreeMap<usize, u64>,
+    /// Pre-trigger mode: per input, the samples the ring pushed out since the previous event's file.
+    ring_dropped_before: BTreeMap<usize, u64>,
 }
+
+/// After an event could not be written, how long new triggers wait before another file is tried: a
+/// trigger storm on a full disk makes one attempt a second, not one per trigger.
+const RETRY_EVENTS_AFTER: Duration = Duration::from_secs(1);
 
 /// The recorder component. See [`Recorder::info`].
 #[derive(Default)]
+#[allow(
+    clippy::struct_excessive_bools,
+    reason = "independent switches: recording, a split asked for, the mode, the mark input's level"
+)]
 pub struct Recorder {
     file: Option<OpenFile>,
     recording: bool,
@@ -81,6 +94,15 @@ pub struct Recorder {
     event_until: Option<kairos_sdk::Timestamp>,
     events: u64,
     last_error: Option<String>,
+    /// Pre-trigger mode: events that could not be written, when the next may be tried, the error log's
+    /// throttle, and the ring's drops per input when the last event's file opened.
+    failures: u64,
+    retry_after: Option<Instant>,
+    failure_log: kairos_sdk::Throttle,
+    ring_dropped_at_event: BTreeMap<usize, u64>,
+    /// Whether the last sample on the `mark` input was on (true, non-zero): a marker is written when it
+    /// turns on, not for every sample while it stays on.
+    mark_was_on: bool,
 }
 
 impl std::fmt::Debug for Recorder {
@@ -246,7 +268,6 @@ impl Recorder {
     fn open(&mut self, ctx: &Context) -> ComponentResult {
         let base = PathBuf::from(ctx.text_property("path")?);
         let path = Self::part_path(&base, self.part);
-        self.part += 1;
         let compression = match ctx.text_property("compression")?.as_str() {
             "zstd" => Some(mcap::Compression::Zstd),
             "lz4" => Some(mcap::Compression::Lz4),
@@ -255,13 +276,58 @@ impl Recorder {
         let chunk_size = u64::try_from(ctx.i64_property("chunk_size_kb")?).unwrap_or(1024) * 1024;
         let (file, path) =
             kairos_sdk::files::create_for(ctx, &path).map_err(|e| failed(&path, "cannot create", e))?;
+        let writer = match Self::start_file(ctx, file, &path, compression, chunk_size) {
+            Ok(writer) => writer,
+            Err(error) => {
+                // A file that could not even be started (a full disk) is not left behind empty.
+                let _ = std::fs::remove_file(&path);
+                return Err(error);
+            }
+        };
+        // The number is used only once the file is there: files are numbered without gaps.
+        self.part += 1;
+        tracing::info!("recording to {}", path.display());
+        let now = Instant::now();
+        let ring_dropped_before = self
+            .ring
+            .dropped_by_input
+            .iter()
+            .map(|(input, total)| {
+                let before = self.ring_dropped_at_event.get(input).copied().unwrap_or(0);
+                (*input, total - before)
+            })
+            .filter(|(_, dropped)| *dropped > 0)
+            .collect();
+        self.ring_dropped_at_event = self.ring.dropped_by_input.clone();
+        self.file = Some(OpenFile {
+            writer,
+            path,
+            opened: now,
+            last_chunk: now,
+            bytes: 0,
+            channels: BTreeMap::new(),
+            schemas: BTreeMap::new(),
+            counts: BTreeMap::new(),
+            ring_dropped_before,
+        });
+        Ok(())
+    }
+
+    /// A new MCAP file on `file`, its opening records written.
+    fn start_file(
+        ctx: &Context,
+        file: File,
+        path: &Path,
+        compression: Option<mcap::Compression>,
+        chunk_size: u64,
+    ) -> Result<mcap::Writer<BufWriter<File>>, ComponentError> {
         let mut writer = mcap::WriteOptions::new()
             .compression(compression)
             .chunk_size(Some(chunk_size))
             .profile("kairos")
             .library(concat!("kairos-pack-recording ", env!("CARGO_PKG_VERSION")))
             .create(BufWriter::new(file))
-            .map_err(|e| failed(&path, "cannot start", with_causes(&e)))?;
+            .map_err(|e| failed(path, "cannot start", with_causes(&e)))?;
         let about = BTreeMap::from([
             ("recorder".to_owned(), ctx.id().to_owned()),
             ("clock".to_owned(), ctx.clock_description()),
@@ -281,36 +347,29 @@ impl Recorder {
                 name: "kairos.recording".to_owned(),
                 metadata: about,
             })
-            .map_err(|e| failed(&path, "cannot write to", with_causes(&e)))?;
+            .map_err(|e| failed(path, "cannot write to", with_causes(&e)))?;
         if let Some(text) = ctx.diagram_text() {
             writer
                 .write_metadata(&Metadata {
                     name: "kairos.diagram".to_owned(),
                     metadata: BTreeMap::from([("ron".to_owned(), text.to_string())]),
                 })
-                .map_err(|e| failed(&path, "cannot write to", with_causes(&e)))?;
+                .map_err(|e| failed(path, "cannot write to", with_causes(&e)))?;
         }
         writer
             .write_metadata(&clock_record(ctx))
-            .map_err(|e| failed(&path, "cannot write to", with_causes(&e)))?;
-        tracing::info!("recording to {}", path.display());
-        let now = Instant::now();
-        self.file = Some(OpenFile {
-            writer,
-            path,
-            opened: now,
-            last_chunk: now,
-            bytes: 0,
-            channels: BTreeMap::new(),
-            schemas: BTreeMap::new(),
-        });
-        Ok(())
+            .map_err(|e| failed(path, "cannot write to", with_causes(&e)))?;
+        // The opening records reach the disk now: a file that cannot hold them fails here, not later.
+        writer
+            .flush()
+            .map_err(|e| failed(path, "cannot write to", with_causes(&e)))?;
+        Ok(writer)
     }
 
     /// The `kairos.drops` record: per track, its link's counters now. Written with every chunk the period
     /// closes and at the end, so a file that was never closed still tells what was lost until then (the
     /// last record of that name is the latest).
-    fn drop_counts(&self, ctx: &Context) -> Metadata {
+    fn drop_counts(&self, ctx: &Context, file: Option<&OpenFile>) -> Metadata {
         let mut drops = BTreeMap::new();
         for index in &self.connected {
             let (Some(source), Some(counters)) = (
@@ -320,13 +379,21 @@ impl Recorder {
                 continue;
             };
             let name = input_name(*index);
-            drops.insert(
-                format!("{name} {source}"),
-                format!(
-                    "written={} recorded={} overwritten={} skipped={} queued={}",
-                    counters.written, counters.read, counters.overwritten, counters.skipped, counters.queued
-                ),
+            // The link's counters are the run's so far; `in_file` is what this file holds, and in
+            // pre-trigger mode `ring_dropped_before` what the ring let go since the previous event's file
+            // (older than pre_trigger_s, or over ring_mb, when the trigger came).
+            let in_file = file.and_then(|f| f.counts.get(index).copied()).unwrap_or(0);
+            let mut counts = format!(
+                "written={} recorded={} overwritten={} skipped={} queued={} in_file={in_file}",
+                counters.written, counters.read, counters.overwritten, counters.skipped, counters.queued
             );
+            if self.pre_trigger {
+                let dropped = file
+                    .and_then(|f| f.ring_dropped_before.get(index).copied())
+                    .unwrap_or(0);
+                let _ = write!(counts, " ring_dropped_before={dropped}");
+            }
+            drops.insert(format!("{name} {source}"), counts);
         }
         Metadata {
             name: "kairos.drops".to_owned(),
@@ -342,7 +409,7 @@ impl Recorder {
         self.closed_files += 1;
         let result = file
             .writer
-            .write_metadata(&self.drop_counts(ctx))
+            .write_metadata(&self.drop_counts(ctx, Some(&file)))
             .and_then(|()| file.writer.write_metadata(&clock_record(ctx)))
             .and_then(|()| file.writer.finish().map(|_| ()));
         let inner = file.writer.into_inner();
@@ -417,12 +484,13 @@ impl Recorder {
             .write_to_known_channel(&header, &self.scratch)
             .map_err(|e| failed(&path, "cannot write to", with_causes(&e)))?;
         file.bytes += self.scratch.len() as u64;
+        *file.counts.entry(input).or_default() += 1;
         let chunk_due =
             file.last_chunk.elapsed() >= Duration::from_secs_f64(ctx.f64_property("chunk_period_s")?);
         self.written_since_check += self.scratch.len() as u64;
         if chunk_due {
             // The metadata record closes the chunk; the flush hands both to the system.
-            let drops = self.drop_counts(ctx);
+            let drops = self.drop_counts(ctx, self.file.as_ref());
             if let Some(file) = self.file.as_mut() {
                 file.last_chunk = Instant::now();
                 file.writer
@@ -485,6 +553,10 @@ impl Recorder {
             self.event_until = Some(current.max(until));
             return Ok(());
         }
+        // An event failed a moment ago (a full disk): the seconds stay in the ring for a later trigger.
+        if self.retry_after.is_some_and(|at| Instant::now() < at) {
+            return Ok(());
+        }
         let before = seconds_to_nanos(ctx.f64_property("pre_trigger_s")?);
         let kept = self
             .ring
@@ -507,8 +579,16 @@ impl Recorder {
                 self.write_failed(ctx, &error);
                 return Ok(());
             }
+            if input == MARK_INPUT {
+                self.markers += 1;
+            }
         }
-        tracing::info!("{}: event {}", ctx.id(), self.events);
+        let file = self
+            .file
+            .as_ref()
+            .map(|f| f.path.display().to_string())
+            .unwrap_or_default();
+        tracing::info!("{}: event {} into {file}", ctx.id(), self.events);
         Ok(())
     }
 
@@ -521,25 +601,84 @@ impl Recorder {
         Ok(())
     }
 
+    /// Pre-trigger mode: an event could not be written (a full disk). What it started is completed if
+    /// it can be (the file closed, valid, with what it holds), else removed; the ring keeps what was not
+    /// written; new events wait a moment; the error is logged at most once a second, with a count.
     fn write_failed(&mut self, ctx: &Context, error: &ComponentError) {
-        let message = format!("{error}; the last seconds are still in memory, for the next trigger");
-        tracing::error!("{}: {message}", ctx.id());
+        self.failures += 1;
+        self.retry_after = Some(Instant::now() + RETRY_EVENTS_AFTER);
+        let what_became = match self.file.take() {
+            None => String::new(),
+            Some(file) => self.settle_failed_file(ctx, file),
+        };
+        let message = format!(
+            "{error}{what_became}; the last seconds are still in memory, for the next trigger ({} event(s) \
+             not written in all)",
+            self.failures
+        );
+        if self.failure_log.ready(kairos_sdk::WARNING_PERIOD) {
+            tracing::error!("{}: {message}", ctx.id());
+        }
         self.last_error = Some(message);
-        // The file may be half written: let it go, keeping the ring.
-        self.file = None;
     }
 
-    /// A sample on the `mark` input: a marker with its text when it is text, else `marker_text`.
+    /// A file an event failed in: closed if it still can be; else, holding this event alone, removed
+    /// (its number is used again), or left for `kairos recover` when it holds earlier events too.
+    fn settle_failed_file(&mut self, ctx: &Context, mut file: OpenFile) -> String {
+        let path = file.path.clone();
+        let finished = file
+            .writer
+            .write_metadata(&self.drop_counts(ctx, Some(&file)))
+            .and_then(|()| file.writer.finish().map(|_| ()))
+            .is_ok()
+            && file
+                .writer
+                .into_inner()
+                .into_inner()
+                .is_ok_and(|f| f.sync_all().is_ok());
+        if finished {
+            self.closed_files += 1;
+            return format!(
+                "; {} is closed and valid, holding the event up to the failure",
+                path.display()
+            );
+        }
+        let one_per_event = ctx
+            .text_property("event_files")
+            .is_ok_and(|files| files == "one_per_event");
+        if one_per_event {
+            let _ = std::fs::remove_file(&path);
+            self.part = self.part.saturating_sub(1).max(1);
+            self.events = self.events.saturating_sub(1);
+            return format!("; the event's partial file {} is removed", path.display());
+        }
+        format!(
+            "; {} is not closed (it holds earlier events: `kairos recover` makes a valid copy)",
+            path.display()
+        )
+    }
+
+    /// A sample on the `mark` input: a marker when it is text (its text), or when it turns on (true or
+    /// non-zero after a false, a zero or nothing: `marker_text`), as a threshold crossing does.
     fn mark_sample(&mut self, ctx: &Context, sample: &Sample) -> ComponentResult {
         let text = match &sample.payload {
             kairos_sdk::Payload::Text(text) => text.to_string(),
-            _ => ctx.text_property("marker_text")?,
+            other => {
+                let on = is_trigger(other);
+                let turned_on = on && !self.mark_was_on;
+                self.mark_was_on = on;
+                if !turned_on {
+                    return Ok(());
+                }
+                ctx.text_property("marker_text")?
+            }
         };
         self.mark(ctx, &text, sample.timestamp)
     }
 
     /// Writes a marker stamped `at`: a text message on the markers channel. While not recording there is
-    /// no file to mark; that is said, and nothing fails.
+    /// no file to mark; that is said, and nothing fails. In pre-trigger mode, outside an event, the
+    /// marker waits in the ring like a sample and is written with the event it falls in.
     fn mark(&mut self, ctx: &Context, text: &str, at: kairos_sdk::Timestamp) -> ComponentResult {
         if !self.recording {
             tracing::warn!(
@@ -554,6 +693,9 @@ impl Recorder {
             time_of_issue: at,
             sequence: self.markers,
         };
+        if self.pre_trigger && self.event_until.is_none() {
+            return self.keep_in_ring(ctx, MARK_INPUT, marker);
+        }
         self.record(ctx, MARK_INPUT, &marker)?;
         self.markers += 1;
         tracing::info!("{}: marker '{text}'", ctx.id());
@@ -723,6 +865,7 @@ impl Recorder {
             "ring_s": self.ring.span_s(),
             "ring_bytes": self.ring.bytes(),
             "ring_dropped": self.ring.dropped,
+            "events_not_written": self.failures,
             "last_error": self.last_error,
         }));
     }
