@@ -739,3 +739,73 @@ fn ctrl_c_in_the_terminal_stops_python_components_in_order() {
     );
     assert!(!stderr.contains("KeyboardInterrupt"), "{stderr}");
 }
+
+/// The worker processes of the process `parent`: its children running `kairos_sdk.worker`.
+fn workers_of(parent: u32) -> Vec<u32> {
+    std::fs::read_dir("/proc")
+        .unwrap()
+        .filter_map(|entry| entry.ok()?.file_name().to_str()?.parse::<u32>().ok())
+        .filter(|pid| {
+            let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).unwrap_or_default();
+            let ppid = stat
+                .rsplit(')')
+                .next()
+                .and_then(|rest| rest.split_whitespace().nth(1))
+                .and_then(|p| p.parse::<u32>().ok());
+            ppid == Some(parent)
+                && std::fs::read(format!("/proc/{pid}/cmdline"))
+                    .is_ok_and(|c| String::from_utf8_lossy(&c).contains("kairos_sdk.worker"))
+        })
+        .collect()
+}
+
+/// `kill -9` of the runtime while its Python component spins in a loop that never reads its socket: the
+/// kernel ends the worker with it (its parent-death signal), within a second, with no help from Python.
+#[test]
+fn a_runtime_killed_with_sigkill_takes_its_spinning_worker_with_it() {
+    require_numpy();
+    let dir = tempfile::tempdir().unwrap();
+    write_pack(
+        &dir.path().join("packs"),
+        "py_test",
+        &[("components.py", TEST_COMPONENTS)],
+    );
+    std::fs::write(
+        dir.path().join("d.ron"),
+        counter_into("py_test.endless", "in", 10.0),
+    )
+    .unwrap();
+    let mut runtime = std::process::Command::new(env!("CARGO_BIN_EXE_kairos"))
+        .args(["run", "d.ron"])
+        .current_dir(dir.path())
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let mut worker = None;
+    assert!(
+        wait_for(Duration::from_secs(30), || {
+            worker = workers_of(runtime.id()).first().copied();
+            worker.is_some()
+        }),
+        "the worker started"
+    );
+    let worker = worker.unwrap();
+    // Until it spins: its first sample read, it loops for ever.
+    std::thread::sleep(Duration::from_millis(1500));
+    runtime.kill().unwrap();
+    runtime.wait().unwrap();
+    let killed = Instant::now();
+    let gone = wait_for(Duration::from_secs(1), || !process_exists(worker));
+    if !gone {
+        let _ = nix::sys::signal::kill(
+            nix::unistd::Pid::from_raw(worker as i32),
+            nix::sys::signal::Signal::SIGKILL,
+        );
+    }
+    assert!(
+        gone,
+        "the worker {worker} outlived its runtime by {:?}",
+        killed.elapsed()
+    );
+}

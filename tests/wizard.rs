@@ -378,6 +378,20 @@ fn a_generated_python_pack_passes_its_tests_and_runs() {
         ][..],
         &["ticker", "--mode", "periodic", "--output", "out:text"][..],
         &["sink", "--input", "in:any"][..],
+        // The README's own: an image in, an image out.
+        &["blur", "--input", "image:image", "--output", "blurred:image"][..],
+        &["words", "--input", "in:text", "--output", "out:text"][..],
+        &["gains", "--input", "in:vector", "--output", "out:vector"][..],
+        &["frames", "--input", "in:can_frame", "--output", "out:can_frame"][..],
+        &["fixes", "--input", "in:gnss_fix"][..],
+        &["motion", "--input", "in:imu", "--output", "out:f64"][..],
+        &[
+            "cloud",
+            "--input",
+            "in:point_cloud",
+            "--output",
+            "out:point_cloud",
+        ][..],
     ] {
         let mut command = vec!["new", "component"];
         command.extend_from_slice(args);
@@ -406,7 +420,8 @@ fn a_generated_python_pack_passes_its_tests_and_runs() {
         .unwrap();
     let (stdout, stderr) = text(&pytest);
     assert!(pytest.status.success(), "{stdout}{stderr}");
-    assert!(stdout.contains("4 passed"), "{stdout}");
+    // Every generated test pushes a sample of its first input's type: none passes by doing nothing.
+    assert!(stdout.contains("11 passed"), "{stdout}");
 
     // And the pack runs in a diagram: a constant scaled by the example component, printed.
     let diagram = r#"Diagram(format: 1, components: [

@@ -197,7 +197,10 @@ def normalize(port, data_type, value, format_=None, intensity=None):
     if data_type == IMAGE:
         if getattr(value, "dtype", None) is None or getattr(value, "ndim", None) is None:
             wrong("write a numpy array of height × width × channels")
-        return IMAGE, value, image_format(value, format_)
+        try:
+            return IMAGE, value, image_format(value, format_)
+        except WrongType as error:
+            raise WrongType(f"output '{port}' carries image: {error}") from None
     if data_type == POINT_CLOUD:
         np = numpy()
         try:

@@ -308,9 +308,9 @@ def test_images_are_checked_against_their_format():
     assert normalize("o", IMAGE, np.zeros((4, 6, 3), np.uint8), "bgr8")[2] == "bgr8"
     with pytest.raises(WrongType, match="a rgb8 image has 3 channels, the array has 1"):
         normalize("o", IMAGE, gray, "rgb8")
-    with pytest.raises(WrongType, match="a gray8 image is an array of uint8, not float32"):
+    with pytest.raises(WrongType, match="output 'o' carries image: a gray8 image is an array of uint8, not float32"):
         normalize("o", IMAGE, np.zeros((4, 6), np.float32), "gray8")
-    with pytest.raises(WrongType, match="1, 3 or 4 channels, not 2"):
+    with pytest.raises(WrongType, match="output 'o' carries image: an image has 1, 3 or 4 channels, not 2"):
         normalize("o", IMAGE, np.zeros((4, 6, 2), np.uint8))
     with pytest.raises(WrongType, match="is empty"):
         normalize("o", IMAGE, np.zeros((0, 6), np.uint8))

@@ -50,6 +50,64 @@ impl Watch {
     }
 }
 
+/// Starts `command` so that the kernel kills the child when this process ends, however it ends (`kill -9`
+/// included): no worker outlives its runtime, spinning in Python or not.
+///
+/// `PR_SET_PDEATHSIG` fires when the *thread* that forked the child ends, so every worker is forked by
+/// one thread that lives as long as the process, never by a component's or a request's thread, which
+/// may end long before the worker should.
+fn spawn_ended_with_this_process(command: Command) -> std::io::Result<Child> {
+    type Request = (Command, std::sync::mpsc::Sender<std::io::Result<Child>>);
+    static SPAWNER: std::sync::OnceLock<Mutex<std::sync::mpsc::Sender<Request>>> = std::sync::OnceLock::new();
+    let spawner = SPAWNER.get_or_init(|| {
+        let (requests, incoming) = std::sync::mpsc::channel::<Request>();
+        let started = std::thread::Builder::new()
+            .name("k:python-spawner".to_owned())
+            .spawn(move || {
+                for (mut command, answer) in incoming {
+                    let _ = answer.send(spawn_with_death_signal(&mut command));
+                }
+            });
+        if let Err(error) = started {
+            tracing::warn!("cannot start the thread that starts Python workers: {error}");
+        }
+        Mutex::new(requests)
+    });
+    let (answer, answered) = std::sync::mpsc::channel();
+    spawner
+        .lock()
+        .unwrap_or_else(PoisonError::into_inner)
+        .send((command, answer))
+        .map_err(|_| std::io::Error::other("the thread that starts Python workers is gone"))?;
+    answered
+        .recv()
+        .map_err(|_| std::io::Error::other("the thread that starts Python workers is gone"))?
+}
+
+/// Spawns `command` with SIGKILL as its parent-death signal; refused if the parent died before the
+/// signal was set (the child would then never get it).
+#[allow(
+    unsafe_code,
+    reason = "pre_exec runs between fork and exec, where only async-signal-safe calls are allowed: \
+              prctl and getppid are"
+)]
+fn spawn_with_death_signal(command: &mut Command) -> std::io::Result<Child> {
+    let parent = nix::unistd::Pid::this();
+    // SAFETY: the closure calls prctl(2) and getppid(2) only, both async-signal-safe, and allocates
+    // nothing.
+    unsafe {
+        command.pre_exec(move || {
+            nix::sys::prctl::set_pdeathsig(nix::sys::signal::Signal::SIGKILL)?;
+            if nix::unistd::getppid() != parent {
+                // The runtime ended while its worker started (no allocation here: an OS error code).
+                return Err(nix::errno::Errno::ESRCH.into());
+            }
+            Ok(())
+        });
+    }
+    command.spawn()
+}
+
 /// A running worker process.
 #[derive(Debug)]
 pub struct Worker {
@@ -68,7 +126,8 @@ impl Worker {
     pub fn start(spec: &ComponentSpec, id: &str, signal: Arc<RunSignal>) -> Result<Worker, String> {
         let (ours, theirs) =
             UnixStream::pair().map_err(|e| format!("cannot make the worker's socket: {e}"))?;
-        let mut child = Command::new(&spec.interpreter)
+        let mut command = Command::new(&spec.interpreter);
+        command
             .args(["-m", "kairos_sdk.worker", "--component", id])
             // A group of its own: Ctrl-C in the terminal (sent to the whole foreground group) reaches
             // the runtime, which stops the worker in order, and never kills the worker under it.
@@ -79,14 +138,13 @@ impl Worker {
             .env("PYTHONUNBUFFERED", "1")
             .stdin(Stdio::from(OwnedFd::from(theirs)))
             .stdout(Stdio::piped())
-            .stderr(Stdio::piped())
-            .spawn()
-            .map_err(|e| {
-                format!(
-                    "cannot start the Python interpreter {}: {e}",
-                    spec.interpreter.display()
-                )
-            })?;
+            .stderr(Stdio::piped());
+        let mut child = spawn_ended_with_this_process(command).map_err(|e| {
+            format!(
+                "cannot start the Python interpreter {}: {e}",
+                spec.interpreter.display()
+            )
+        })?;
         let pid = child.id();
         let stderr_tail = Arc::new(Mutex::new(VecDeque::new()));
         // A pipe nobody drains would block the worker at its first long print: without the thread that

@@ -239,7 +239,10 @@ pub(super) fn plan(spec: &ComponentSpec) -> Result<Plan, String> {
     for text in &spec.inputs {
         let (name, data_type) = parse_port("input", text, true).map_err(|r| r.to_string())?;
         if !taken.insert(name.clone()) {
-            return Err(format!("two ports are named '{name}'"));
+            return Err(format!(
+                "two ports are named '{name}': each input and output needs a name of its own (e.g. \
+                 --input {name}:... --output {name}_out:...)"
+            ));
         }
         inputs.push(PortView {
             filter: data_type.as_ref().map_or_else(
@@ -258,7 +261,10 @@ pub(super) fn plan(spec: &ComponentSpec) -> Result<Plan, String> {
         let (name, data_type) = parse_port("output", text, false).map_err(|r| r.to_string())?;
         let data_type = data_type.unwrap_or(DataType::F64);
         if !taken.insert(name.clone()) {
-            return Err(format!("two ports are named '{name}'"));
+            return Err(format!(
+                "two ports are named '{name}': each input and output needs a name of its own (e.g. \
+                 --input {name}:... --output {name}_out:...)"
+            ));
         }
         outputs.push(PortView {
             type_expr: type_expr(&data_type),

@@ -143,12 +143,37 @@ pub(super) fn write_python(
         imports.insert(python_type(&view.type_name));
     }
     let input_type = plan.first_input().map(|i| i.type_name.as_str());
-    let test_value = match input_type {
-        Some("f64" | "any") => Some("1.5"),
-        Some("i64") => Some("3"),
-        Some("bool") => Some("True"),
-        _ => None,
+    // A sample of the first input's type for the generated test, and what the test must import for it.
+    let (test_value, test_import) = match input_type {
+        Some("f64" | "any") => (Some("1.5"), None),
+        Some("i64") => (Some("3"), None),
+        Some("bool") => (Some("True"), None),
+        Some("text") => (Some("\"hello\""), None),
+        Some("bytes") => (Some("b\"\\x01\\x02\""), None),
+        Some("vector") => (Some("[1.0, 2.0, 3.0]"), None),
+        Some("matrix") => (Some("[[1.0, 2.0], [3.0, 4.0]]"), None),
+        Some("image") => (Some("np.zeros((4, 6, 3), np.uint8)"), Some("import numpy as np")),
+        Some("point_cloud") => (Some("np.zeros((5, 3), np.float32)"), Some("import numpy as np")),
+        Some("imu") => (
+            Some("Imu((0.0, 0.0, 0.1), (0.0, 0.0, 9.81))"),
+            Some("from kairos_sdk import Imu"),
+        ),
+        Some("gnss_fix") => (
+            Some("GnssFix(48.8584, 2.2945, 35.0)"),
+            Some("from kairos_sdk import GnssFix"),
+        ),
+        Some("can_frame") => (
+            Some("CanFrame(0x123, b\"\\x01\\x02\")"),
+            Some("from kairos_sdk import CanFrame"),
+        ),
+        Some("pose") => (Some("Pose((1.0, 2.0, 0.0))"), Some("from kairos_sdk import Pose")),
+        _ => (None, None),
     };
+    // Compared as they are only where Python's `==` says yes or no (not numpy arrays).
+    let comparable = matches!(
+        input_type,
+        Some("f64" | "any" | "i64" | "bool" | "text" | "bytes")
+    );
     let factor_default = plan.factor.as_ref().and_then(|name| {
         spec.properties
             .iter()
@@ -165,7 +190,7 @@ pub(super) fn write_python(
         None => "float(sample.data)".to_owned(),
     });
     let expected = if plan.pass_through {
-        test_value.map(str::to_owned)
+        test_value.filter(|_| comparable).map(str::to_owned)
     } else if numeric.is_some() {
         Some(format!("{:?}", input_value * factor_default.unwrap_or(1.0)))
     } else {
@@ -192,6 +217,7 @@ pub(super) fn write_python(
         numeric => numeric,
         source => source,
         test_value => test_value,
+        test_import => test_import,
         expected => expected,
         imports => imports.into_iter().collect::<Vec<_>>().join(", "),
     };
