@@ -231,7 +231,8 @@ fn foxglove_gets_outputs_in_the_recordings_schemas_and_a_viewer_that_never_reads
 }
 
 #[test]
-fn foxglove_refuses_a_wrong_subprotocol_an_open_address_without_the_flag_and_an_unknown_output() {
+fn foxglove_refuses_a_wrong_subprotocol_serves_the_former_name_and_refuses_an_open_address_without_the_flag_and_an_unknown_output()
+ {
     let _machine = shared_machine();
     let dir = tempfile::tempdir().unwrap();
     let output = common::kairos(
@@ -285,6 +286,14 @@ fn foxglove_refuses_a_wrong_subprotocol_an_open_address_without_the_flag_and_an_
     );
     let mut viewer = foxglove_client(&url, "foxglove.sdk.v1").unwrap();
     foxglove_channels(&mut viewer, &["camera.image"]);
+    // A client of before the protocol's rename offers its former name: it is answered in that name
+    // (tungstenite checks the answer is one it offered) and served the same channels and messages.
+    let mut former = foxglove_client(&url, "foxglove.websocket.v1").unwrap();
+    let channels = foxglove_channels(&mut former, &["imu.imu"]);
+    foxglove_subscribe(&mut former, 7, &channels["imu.imu"]);
+    let (subscription, log_time, payload) = foxglove_message(&mut former);
+    assert_eq!(subscription, 7);
+    assert!(log_time > 0 && !payload.is_empty());
 }
 
 #[test]

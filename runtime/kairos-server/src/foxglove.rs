@@ -166,11 +166,17 @@ impl Foxglove {
             .enable_all()
             .build()
             .context("cannot start the Foxglove server's thread")?;
+        // Clients connect at the front door, which also serves those offering the protocol's former name
+        // (`foxglove_door`); the crate's server listens behind it on loopback.
+        let door = std::net::TcpListener::bind(address)
+            .and_then(|listener| listener.set_nonblocking(true).map(|()| listener))
+            .with_context(|| format!("cannot serve Foxglove on {address}"))?;
+        let bound = door.local_addr().unwrap_or(address);
         let context = foxglove::Context::new();
         let server = context
             .websocket_server()
             .name(format!("kairos {}", env!("CARGO_PKG_VERSION")))
-            .bind(address.ip().to_string(), address.port())
+            .bind("127.0.0.1", 0)
             .message_backlog_size(backlog.max(1))
             .tokio_runtime(network.handle());
         // Started from a thread of its own: the caller may be on the control protocol's async threads,
@@ -182,7 +188,13 @@ impl Foxglove {
                 .unwrap_or_else(|_| Err(foxglove::FoxgloveError::Unspecified("the start panicked".into())))
         })
         .with_context(|| format!("cannot serve Foxglove on {address}"))?;
-        let bound = SocketAddr::new(address.ip(), handle.port());
+        let behind = SocketAddr::from(([127, 0, 0, 1], handle.port()));
+        let door = {
+            let _entered = network.enter();
+            tokio::net::TcpListener::from_std(door)
+                .with_context(|| format!("cannot serve Foxglove on {address}"))?
+        };
+        network.spawn(crate::foxglove_door::serve(door, behind));
         let foxglove = Arc::new(Foxglove {
             address: bound,
             selection: Mutex::new(selection),

@@ -7,6 +7,7 @@
 mod auth;
 pub mod devices;
 mod foxglove;
+mod foxglove_door;
 pub mod log_tap;
 mod runtime;
 mod samples;
