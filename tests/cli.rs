@@ -1000,3 +1000,57 @@ fn jpeg_through_libjpeg_turbo_is_opencv_s_and_the_rust_encoder_is_close() {
         }
     }
 }
+
+/// Canny on a grey photograph-like image (smooth shapes under noise, edges in every direction) is
+/// OpenCV's `Canny(grey, 50, 150)` (L1 gradient, 3×3 Sobel), edge for edge.
+#[test]
+fn canny_is_opencv_s_edge_for_edge() {
+    let root = common::repo_root();
+    let dir = tempfile::tempdir().unwrap();
+    let (input, output) = (dir.path().join("in"), dir.path().join("out"));
+    std::fs::create_dir_all(&input).unwrap();
+    python_output(&format!(
+        "import numpy as np, cv2\n\
+         y, x = np.mgrid[0:240, 0:320]\n\
+         base = 127 + 90 * np.sin(x / 13.0 + y / 29.0) * np.cos(y / 11.0)\n\
+         base[60:180, 80:200] += 60\n\
+         base[(x - 240) ** 2 + (y - 120) ** 2 < 50 ** 2] -= 80\n\
+         noise = np.random.default_rng(5).normal(0, 12, (240, 320))\n\
+         cv2.imwrite('{}/1795575410804363450_00000000.png', np.clip(base + noise, 0, 255).astype(np.uint8))",
+        input.display()
+    ));
+    let diagram = dir.path().join("canny.ron");
+    std::fs::write(
+        &diagram,
+        format!(
+            r#"Diagram(format: 1, components: [
+                Component(id: "images", type: "video.image_sequence", properties: {{"folder": "{}"}}),
+                Component(id: "edges", type: "vision.canny", properties: {{"low": 50, "high": 150}}),
+                Component(id: "out", type: "video.image_writer", properties: {{"folder": "{}"}}),
+            ], connections: [
+                Connection(from: "images.image", to: "edges.in", policy: NeverSkipping),
+                Connection(from: "edges.out", to: "out.image"),
+            ])"#,
+            input.display(),
+            output.display()
+        ),
+    )
+    .unwrap();
+    let run = kairos(&root, &["run", diagram.to_str().unwrap(), "--for", "1500ms"]);
+    assert!(run.status.success(), "{}", text(&run).1);
+    let compared = python_output(&format!(
+        "import glob, numpy as np, cv2\n\
+         source = cv2.imread(glob.glob('{}/*.png')[0], cv2.IMREAD_GRAYSCALE)\n\
+         ours = cv2.imread(sorted(glob.glob('{}/*.png'))[0], cv2.IMREAD_GRAYSCALE)\n\
+         theirs = cv2.Canny(source, 50, 150)\n\
+         print(int((ours != theirs).sum()), int((theirs > 0).sum()))",
+        input.display(),
+        output.display()
+    ));
+    let figures: Vec<u64> = compared.split_whitespace().map(|f| f.parse().unwrap()).collect();
+    assert!(figures[1] > 2_000, "an image with many edges: {compared}");
+    assert_eq!(
+        figures[0], 0,
+        "pixels that differ from OpenCV's, of its edge pixels: {compared}"
+    );
+}
