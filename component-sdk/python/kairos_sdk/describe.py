@@ -55,6 +55,28 @@ def describe_file(pack, path):
     return components, errors
 
 
+def _one_class_per_name(components, errors):
+    """Components whose type name no other class declares, and an error naming every class and file of a
+    name declared twice (neither is offered: which one a diagram would get must not depend on file order)."""
+    by_name = {}
+    for info in components:
+        by_name.setdefault(info["type_name"], []).append(info)
+    kept = []
+    for name, infos in by_name.items():
+        if len(infos) == 1:
+            kept += infos
+            continue
+        places = "; ".join(
+            f"class {i['python']['class']} in {os.path.basename(i['python']['file'])}:{i['python']['line']}"
+            for i in infos
+        )
+        for info in infos:
+            errors.append({"file": info["python"]["file"], "line": info["python"]["line"],
+                           "message": f"the component name '{name}' is declared by more than one class ({places}): "
+                                      "give each its own name in Descriptor(...)"})
+    return kept, errors
+
+
 def main(argv):
     if len(argv) < 2:
         sys.stderr.write("usage: python -m kairos_sdk.describe PACK FILE...\n")
@@ -70,6 +92,7 @@ def main(argv):
         found, failed = describe_file(pack, os.path.abspath(path))
         components += found
         errors += failed
+    components, errors = _one_class_per_name(components, errors)
     json.dump({"python": sys.executable, "version": list(sys.version_info[:3]),
                "components": components, "errors": errors}, answer)
     answer.flush()
