@@ -467,6 +467,19 @@ fn a_second_run_writes_beside_the_first_run_s_files_and_never_over_them() {
 /// Makes a noisy colour image with OpenCV, runs it through `component` (its type and properties, as a
 /// diagram writes them) with `kairos run`, and returns the most a value differs from what the Python
 /// expression `opencv` makes of `source` (the image as OpenCV reads it, BGR).
+/// A 320×240 colour PNG in `folder` (named as the image sequence plays it): a smooth pattern under noise of
+/// `sigma` levels, from `seed`.
+fn write_noisy_pattern(folder: &std::path::Path, sigma: f64, seed: u32) {
+    python_output(&format!(
+        "import numpy as np, cv2\n\
+         y, x = np.mgrid[0:240, 0:320]\n\
+         base = 127 + 100 * np.sin(x / 9.0) * np.cos(y / 7.0)\n\
+         noise = np.random.default_rng({seed}).normal(0, {sigma}, (240, 320, 3))\n\
+         cv2.imwrite('{}/1795575410804363450_00000000.png', np.clip(base[..., None] + noise, 0, 255).astype(np.uint8))",
+        folder.display()
+    ));
+}
+
 fn differs_from_opencv(component: &str, opencv: &str) -> String {
     let root = common::repo_root();
     let dir = tempfile::tempdir().unwrap();
@@ -485,14 +498,7 @@ fn differs_from_opencv(component: &str, opencv: &str) -> String {
         stdout.trim().to_owned()
     };
     // A smooth pattern under strong noise: every colour value and every neighbourhood comes up.
-    python(&format!(
-        "import numpy as np, cv2\n\
-         y, x = np.mgrid[0:240, 0:320]\n\
-         base = 127 + 100 * np.sin(x / 9.0) * np.cos(y / 7.0)\n\
-         noise = np.random.default_rng(1).normal(0, 60, (240, 320, 3))\n\
-         cv2.imwrite('{}/1795575410804363450_00000000.png', np.clip(base[..., None] + noise, 0, 255).astype(np.uint8))",
-        input.display()
-    ));
+    write_noisy_pattern(&input, 60.0, 1);
     let diagram = dir.path().join("through.ron");
     std::fs::write(
         &diagram,
@@ -936,14 +942,7 @@ fn jpeg_through_libjpeg_turbo_is_opencv_s_and_the_rust_encoder_is_close() {
         let dir = tempfile::tempdir().unwrap();
         let (input, recording) = (dir.path().join("in"), dir.path().join("jpeg.mcap"));
         std::fs::create_dir_all(&input).unwrap();
-        python_output(&format!(
-            "import numpy as np, cv2\n\
-             y, x = np.mgrid[0:240, 0:320]\n\
-             base = 127 + 100 * np.sin(x / 9.0) * np.cos(y / 7.0)\n\
-             noise = np.random.default_rng(2).normal(0, 40, (240, 320, 3))\n\
-             cv2.imwrite('{}/1795575410804363450_00000000.png', np.clip(base[..., None] + noise, 0, 255).astype(np.uint8))",
-            input.display()
-        ));
+        write_noisy_pattern(&input, 40.0, 2);
         let diagram = dir.path().join("jpeg.ron");
         std::fs::write(
             &diagram,

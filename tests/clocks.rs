@@ -32,6 +32,29 @@ fn clock_once(server: &Server, done: impl Fn(&Value) -> bool) -> Value {
     }
 }
 
+/// A clock master served from `master_dir` and a runtime from `slave_dir` following it, once its clock is
+/// locked (within 30 s).
+fn master_and_locked_slave(master_dir: &std::path::Path, slave_dir: &std::path::Path) -> (Server, Server) {
+    let port = std::net::UdpSocket::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port();
+    let address = format!("127.0.0.1:{port}");
+    let master = serve(master_dir, &["--clock-master", &address]);
+    let slave = serve(slave_dir, &["--clock-slave-of", &address]);
+    let mut socket = operator(&slave);
+    let started = Instant::now();
+    while call(&mut socket, &json!({"id": 1, "type": "status"}))["result"]["clock"]["state"] != "locked" {
+        assert!(
+            started.elapsed() < Duration::from_secs(30),
+            "the slave never locked"
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    (master, slave)
+}
+
 #[test]
 fn deploy_starts_nothing_while_a_host_clock_is_not_locked_unless_told_to() {
     let _machine = shared_machine();
@@ -324,20 +347,7 @@ fn a_coordinated_start_refused_for_an_unlocked_clock_goes_ahead_when_asked_to() 
 fn kairos_deploy_says_when_a_host_s_clock_leaves_lock_and_how_late_each_host_started() {
     let _machine = shared_machine();
     let [dir_master, dir_b, here] = folders();
-    let port = std::net::UdpSocket::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port();
-    let address = format!("127.0.0.1:{port}");
-    let master = serve(dir_master.path(), &["--clock-master", &address]);
-    let b = serve(dir_b.path(), &["--clock-slave-of", &address]);
-    let mut socket = operator(&b);
-    let started = Instant::now();
-    while call(&mut socket, &json!({"id": 1, "type": "status"}))["result"]["clock"]["state"] != "locked" {
-        assert!(started.elapsed() < Duration::from_secs(30), "b never locked");
-        std::thread::sleep(Duration::from_millis(50));
-    }
+    let (master, b) = master_and_locked_slave(dir_master.path(), dir_b.path());
     std::fs::write(here.path().join("b.token"), &b.token).unwrap();
     std::fs::write(
         here.path().join("on_b.ron"),
@@ -378,20 +388,7 @@ fn kairos_deploy_says_when_a_host_s_clock_leaves_lock_and_how_late_each_host_sta
 fn recordings_of_a_clock_master_and_a_host_locked_to_it_merge_as_they_are() {
     let _machine = shared_machine();
     let [dir_master, dir_b, here] = folders();
-    let port = std::net::UdpSocket::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port();
-    let address = format!("127.0.0.1:{port}");
-    let master = serve(dir_master.path(), &["--clock-master", &address]);
-    let b = serve(dir_b.path(), &["--clock-slave-of", &address]);
-    let mut socket = operator(&b);
-    let started = Instant::now();
-    while call(&mut socket, &json!({"id": 1, "type": "status"}))["result"]["clock"]["state"] != "locked" {
-        assert!(started.elapsed() < Duration::from_secs(30), "b never locked");
-        std::thread::sleep(Duration::from_millis(50));
-    }
+    let (master, b) = master_and_locked_slave(dir_master.path(), dir_b.path());
     std::fs::write(here.path().join("car.token"), &master.token).unwrap();
     std::fs::write(here.path().join("roadside.token"), &b.token).unwrap();
     std::fs::write(

@@ -31,6 +31,17 @@ fn inspect(dir: &Path, file: &Path) -> (Option<i32>, serde_json::Value) {
     (output.status.code(), json)
 }
 
+/// Two recordings of 0.6 s made by two runs (so on two runtimes' clocks, neither locked): `car.mcap`
+/// and `rsu.mcap` in `dir`.
+fn two_runs(dir: &Path) -> (std::path::PathBuf, std::path::PathBuf) {
+    let (car, roadside) = (dir.join("car.mcap"), dir.join("rsu.mcap"));
+    for file in [&car, &roadside] {
+        let output = record_for(dir, file, "600ms", &[]);
+        assert!(output.status.success(), "{}", text(&output).1);
+    }
+    (car, roadside)
+}
+
 fn channel<'a>(report: &'a serde_json::Value, topic: &str) -> &'a serde_json::Value {
     report["channels"]
         .as_array()
@@ -847,11 +858,7 @@ fn markers_wait_in_the_ring_and_a_mark_input_held_on_marks_once() {
 fn recordings_of_two_runs_on_unlocked_clocks_merge_only_when_allowed_and_then_say_so() {
     let _serial = one_at_a_time();
     let dir = tempfile::tempdir().unwrap();
-    let (car, roadside) = (dir.path().join("car.mcap"), dir.path().join("rsu.mcap"));
-    for file in [&car, &roadside] {
-        let output = record_for(dir.path(), file, "600ms", &[]);
-        assert!(output.status.success(), "{}", text(&output).1);
-    }
+    let (car, roadside) = two_runs(dir.path());
     let one = dir.path().join("one.mcap");
     let args = |extra: &'static [&'static str]| {
         let mut args = vec![
@@ -903,11 +910,7 @@ fn recordings_of_two_runs_on_unlocked_clocks_merge_only_when_allowed_and_then_sa
 fn damaged_recordings_are_merged_only_when_allowed_and_the_merged_file_says_what_was_lost() {
     let _serial = one_at_a_time();
     let dir = tempfile::tempdir().unwrap();
-    let (car, roadside) = (dir.path().join("car.mcap"), dir.path().join("rsu.mcap"));
-    for file in [&car, &roadside] {
-        let output = record_for(dir.path(), file, "600ms", &[]);
-        assert!(output.status.success(), "{}", text(&output).1);
-    }
+    let (car, roadside) = two_runs(dir.path());
     let whole = std::fs::read(&car).unwrap();
     let (cut, tiny) = (dir.path().join("cut.mcap"), dir.path().join("tiny.mcap"));
     std::fs::write(&cut, &whole[..whole.len() / 3]).unwrap();
@@ -957,11 +960,7 @@ fn damaged_recordings_are_merged_only_when_allowed_and_the_merged_file_says_what
 fn the_player_warns_when_its_recordings_clocks_were_not_synchronised() {
     let _serial = one_at_a_time();
     let dir = tempfile::tempdir().unwrap();
-    let (car, roadside) = (dir.path().join("car.mcap"), dir.path().join("rsu.mcap"));
-    for file in [&car, &roadside] {
-        let output = record_for(dir.path(), file, "600ms", &[]);
-        assert!(output.status.success(), "{}", text(&output).1);
-    }
+    let (car, roadside) = two_runs(dir.path());
     let diagram = dir.path().join("both.ron");
     std::fs::write(
         &diagram,
