@@ -528,12 +528,30 @@ fn editing_a_component_file_while_it_runs_reloads_that_component_alone() {
     assert_eq!(state(&engine, "gain"), ComponentState::Running);
     assert!(cycles(&engine, "gain") > gain_before, "the rest kept running");
 
-    // Code that does not load leaves the running code in place.
-    std::fs::write(folder.join("constant.py"), "VALUE = (\n").unwrap();
-    std::thread::sleep(Duration::from_millis(1500));
-    assert_eq!(state(&engine, "constant"), ComponentState::Running);
-    let values: Vec<f64> = read_n(&mut constant, 20).iter().map(f64_of).collect();
-    assert!(values.iter().all(|v| *v == 2.0), "{values:?}");
+    // Code that does not load leaves the running code in place, and its status says where the edit
+    // went wrong: the syntax error's own line, then a failing statement's, never the import machinery's.
+    for (broken, line) in [
+        ("VALUE = 3.0\n\nVALUE = (\n", 3),
+        ("VALUE = 3.0\nVALUE = undefined_name\n", 2),
+    ] {
+        std::fs::write(folder.join("constant.py"), broken).unwrap();
+        let place = format!("constant.py:{line}): ");
+        // The test's link never skips: it is drained while waiting, or it would hold the component.
+        let mut said = || {
+            constant.skip_pending();
+            status(&engine, "constant")["python"]["reload_error"]
+                .as_str()
+                .is_some_and(|error| error.contains(&place))
+        };
+        assert!(
+            wait_for(Duration::from_secs(30), said),
+            "{place} in {}",
+            status(&engine, "constant")
+        );
+        assert_eq!(state(&engine, "constant"), ComponentState::Running);
+        let values: Vec<f64> = read_n(&mut constant, 20).iter().map(f64_of).collect();
+        assert!(values.iter().all(|v| *v == 2.0), "{values:?}");
+    }
     engine.stop();
 }
 

@@ -348,20 +348,32 @@ def _load(hello):
     return cls
 
 
+def _is_user_code(filename):
+    """Frames of the component's own code: neither this SDK's nor the import machinery's."""
+    return not (filename.startswith(SDK_FOLDER) or filename.startswith("<frozen ")
+                or "importlib" in filename)
+
+
 def user_traceback(error):
-    """The traceback without the SDK's own frames: where the component's code went wrong."""
+    """The traceback without the SDK's own frames, and the file and line where the component's code went
+    wrong: for code that does not compile that is the syntax error's own place, which no frame holds."""
     frames = traceback.extract_tb(error.__traceback__)
-    own = [f for f in frames if not f.filename.startswith(SDK_FOLDER)] or frames
+    own = [f for f in frames if _is_user_code(f.filename)] or frames
     lines = ["Traceback (most recent call last):\n", *traceback.format_list(own)]
     lines += traceback.format_exception_only(type(error), error)
-    line = next((f.lineno for f in reversed(own) if not f.filename.startswith(SDK_FOLDER)), None)
-    return "".join(lines).rstrip(), line
+    if isinstance(error, SyntaxError) and error.filename and error.lineno:
+        place = (error.filename, error.lineno)
+    else:
+        place = next(((f.filename, f.lineno) for f in reversed(frames) if _is_user_code(f.filename)),
+                     (None, None))
+    return "".join(lines).rstrip(), place
 
 
 def _failure(error):
-    text, line = user_traceback(error)
-    message = "".join(traceback.format_exception_only(type(error), error)).strip()
-    return json.dumps({"message": message, "traceback": text, "line": line}).encode()
+    text, (file, line) = user_traceback(error)
+    # The last line is "Type: what"; a syntax error puts its file and source line before it.
+    message = traceback.format_exception_only(type(error), error)[-1].strip()
+    return json.dumps({"message": message, "traceback": text, "file": file, "line": line}).encode()
 
 
 def _run(conn, call):

@@ -33,6 +33,8 @@ pub(crate) struct PythonComponent {
     stats: ImageStats,
     python_status: Option<serde_json::Value>,
     status_throttle: Throttle,
+    /// Why the file as edited last does not load, while the previous code keeps running.
+    reload_error: Option<String>,
 }
 
 impl std::fmt::Debug for PythonComponent {
@@ -60,6 +62,7 @@ impl PythonComponent {
             stats: ImageStats::default(),
             python_status: None,
             status_throttle: Throttle::default(),
+            reload_error: None,
         }
     }
 
@@ -95,6 +98,7 @@ impl PythonComponent {
             "pid": self.session.as_ref().map(|s| s.worker.pid),
             "images": self.stats.images,
             "pixels_copied_bytes": self.stats.copied_bytes,
+            "reload_error": self.reload_error,
         });
         let status = match self.python_status.clone() {
             Some(serde_json::Value::Object(mut fields)) => {
@@ -146,6 +150,8 @@ impl PythonComponent {
                     "{}: {file} changed but does not load; the previous code keeps running. {reason}",
                     ctx.id()
                 );
+                self.reload_error = reason.lines().next().map(str::to_owned);
+                self.publish_status(ctx, true);
                 return Ok(());
             }
             Err(flow) => return Err(flow),
@@ -154,6 +160,7 @@ impl PythonComponent {
             self.retire(ctx, old);
         }
         tracing::info!("{}: reloaded from {file}", ctx.id());
+        self.reload_error = None;
         self.publish_status(ctx, true);
         self.command(ctx, Phase::Birth, &[])
     }
@@ -253,9 +260,14 @@ fn python_failure(phase: Phase, body: &[u8], file: &std::path::Path) -> Componen
     let report: serde_json::Value = serde_json::from_slice(body).unwrap_or_default();
     let message = report["message"].as_str().unwrap_or("an exception");
     let traceback = report["traceback"].as_str().unwrap_or_default();
+    // The worker names the file when the fault is in another module of the pack, or in a file that
+    // does not compile.
+    let file = report["file"]
+        .as_str()
+        .map_or_else(|| file.display().to_string(), str::to_owned);
     let place = report["line"]
         .as_u64()
-        .map_or_else(String::new, |line| format!(" ({}:{line})", file.display()));
+        .map_or_else(String::new, |line| format!(" ({file}:{line})"));
     if traceback.is_empty() {
         ComponentError::failed(format!("Python {}{place}: {message}", phase.name()))
     } else {
