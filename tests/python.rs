@@ -537,7 +537,7 @@ fn editing_a_component_file_while_it_runs_reloads_that_component_alone() {
         std::fs::write(folder.join("constant.py"), broken).unwrap();
         let place = format!("constant.py:{line}): ");
         // The test's link never skips: it is drained while waiting, or it would hold the component.
-        let mut said = || {
+        let said = || {
             constant.skip_pending();
             status(&engine, "constant")["python"]["reload_error"]
                 .as_str()
@@ -631,10 +631,53 @@ fn a_missing_interpreter_or_virtual_environment_is_named() {
         assert!(reason.contains(expected), "{reason}");
         assert!(reason.contains(&format!("pack '{name}'")), "{reason}");
         assert!(
-            reason.contains("set `interpreter` under [python]"),
+            reason.contains("correct `interpreter` under [python] in kairos-pack.toml"),
             "the fix: {reason}"
         );
     }
+
+    // A pack naming no interpreter: a bad KAIROS_PYTHON is named as the cause, and where it is not set the
+    // pack's own `.venv` runs the pack.
+    let folder = write_pack(dir.path(), "py_env", &[("good.py", CONSTANT)]);
+    let packs = |variable: Option<&str>| {
+        let mut command = std::process::Command::new(env!("CARGO_BIN_EXE_kairos"));
+        command.args(["packs", "--pack-path"]).arg(&folder);
+        match variable {
+            Some(value) => command.env("KAIROS_PYTHON", value),
+            None => command.env_remove("KAIROS_PYTHON"),
+        };
+        let output = command.output().unwrap();
+        let (stdout, stderr) = text(&output);
+        format!("{stdout}{stderr}")
+    };
+    let said = packs(Some("/no/such/python3"));
+    assert!(
+        said.contains("'/no/such/python3' does not exist")
+            && said.contains("named by the environment variable KAIROS_PYTHON: correct or unset it"),
+        "{said}"
+    );
+    let python = String::from_utf8(
+        std::process::Command::new("python3")
+            .args(["-c", "import sys; print(sys.executable)"])
+            .output()
+            .unwrap()
+            .stdout,
+    )
+    .unwrap();
+    let venv = folder.join(".venv");
+    std::fs::create_dir_all(venv.join("bin")).unwrap();
+    std::os::unix::fs::symlink(python.trim(), venv.join("bin/python3")).unwrap();
+    let said = packs(None);
+    assert!(
+        said.contains("py_env.constant"),
+        "the pack's .venv runs it: {said}"
+    );
+    std::fs::remove_file(venv.join("bin/python3")).unwrap();
+    let said = packs(None);
+    assert!(
+        said.contains("without bin/python3") && said.contains("the pack's .venv folder is used"),
+        "{said}"
+    );
 }
 
 #[test]

@@ -1,6 +1,6 @@
 //! The inspector: the selected connection's reader settings, or the selected component's description,
-//! properties (one widget per kind, each labelled by the property's name), actions and failure. Edits are
-//! pushed as [`Command`]s.
+//! properties (one widget per kind, each labelled by the property's name), actions, status while it runs
+//! and failure. Edits are pushed as [`Command`]s.
 
 use egui::{Color32, RichText};
 use kairos_diagram::{
@@ -128,9 +128,53 @@ fn component_ui(
         property_ui(ui, session, instance, property, commands);
     }
     actions_ui(ui, &instance.id, info, commands);
+    status_ui(ui, session, &instance.id);
     if let Some(NodeState::Failed(error)) = session.node_state(&instance.id) {
         ui.separator();
         ui.colored_label(Color32::LIGHT_RED, format!("failed: {error}"));
+    }
+}
+
+/// What the running component says about itself (its counters, its file, a reload that failed), one
+/// line per value, nested names joined by dots as `kairos run --stats` prints them.
+fn status_ui(ui: &mut egui::Ui, session: &Session, id: &str) {
+    let Some(status) = session
+        .monitor
+        .components
+        .get(id)
+        .and_then(|component| component.latest.status.as_ref())
+        .filter(|status| !status.is_null())
+    else {
+        return;
+    };
+    ui.separator();
+    ui.label(RichText::new("Status").strong());
+    let mut lines = Vec::new();
+    status_lines("", status, &mut lines);
+    egui::Grid::new(("status", id)).num_columns(2).show(ui, |ui| {
+        for (name, value) in lines {
+            ui.label(RichText::new(name).weak());
+            ui.monospace(value);
+            ui.end_row();
+        }
+    });
+}
+
+fn status_lines(prefix: &str, value: &serde_json::Value, lines: &mut Vec<(String, String)>) {
+    match value {
+        serde_json::Value::Object(fields) => {
+            for (name, inner) in fields {
+                let name = if prefix.is_empty() {
+                    name.clone()
+                } else {
+                    format!("{prefix}.{name}")
+                };
+                status_lines(&name, inner, lines);
+            }
+        }
+        serde_json::Value::String(text) => lines.push((prefix.to_owned(), text.clone())),
+        serde_json::Value::Null => lines.push((prefix.to_owned(), "-".to_owned())),
+        other => lines.push((prefix.to_owned(), other.to_string())),
     }
 }
 
@@ -472,5 +516,30 @@ fn actions_ui(ui: &mut egui::Ui, component: &str, info: &ComponentInfo, commands
                 action: action.name.clone(),
             });
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::status_lines;
+
+    #[test]
+    fn a_status_is_shown_one_value_a_line_with_nested_names_joined() {
+        let status = serde_json::json!({
+            "decoded": 300,
+            "python": {"pid": 42, "reload_error": null, "file": "a.py"},
+        });
+        let mut lines = Vec::new();
+        status_lines("", &status, &mut lines);
+        let lines: Vec<(&str, &str)> = lines.iter().map(|(n, v)| (n.as_str(), v.as_str())).collect();
+        assert_eq!(
+            lines,
+            [
+                ("decoded", "300"),
+                ("python.file", "a.py"),
+                ("python.pid", "42"),
+                ("python.reload_error", "-"),
+            ]
+        );
     }
 }

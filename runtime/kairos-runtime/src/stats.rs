@@ -208,19 +208,36 @@ impl StatsSnapshot {
     }
 }
 
-/// The counts and flags a component's status holds, in words (`decoded 300, unknown_ids 8`); `None` when
-/// it has none.
+/// The counts, flags and errors a component's status holds, in words (`decoded 300, unknown_ids 8`,
+/// nested names joined by dots: `python.images 46`); `None` when it has none. Other words are left to
+/// the studio's inspector, which shows the whole status.
 fn status_counters(status: &serde_json::Value) -> Option<String> {
-    let counters: Vec<String> = status
-        .as_object()?
-        .iter()
-        .filter_map(|(name, value)| match value {
-            serde_json::Value::Number(number) => Some(format!("{name} {number}")),
-            serde_json::Value::Bool(flag) => Some(format!("{name} {flag}")),
-            _ => None,
-        })
-        .collect();
+    let mut counters = Vec::new();
+    collect_counters("", status.as_object()?, &mut counters);
     (!counters.is_empty()).then(|| counters.join(", "))
+}
+
+fn collect_counters(
+    prefix: &str,
+    fields: &serde_json::Map<String, serde_json::Value>,
+    counters: &mut Vec<String>,
+) {
+    for (name, value) in fields {
+        let name = if prefix.is_empty() {
+            name.clone()
+        } else {
+            format!("{prefix}.{name}")
+        };
+        match value {
+            serde_json::Value::Number(number) => counters.push(format!("{name} {number}")),
+            serde_json::Value::Bool(flag) => counters.push(format!("{name} {flag}")),
+            serde_json::Value::String(text) if name.ends_with("error") => {
+                counters.push(format!("{name} \"{text}\""));
+            }
+            serde_json::Value::Object(inner) => collect_counters(&name, inner, counters),
+            _ => {}
+        }
+    }
 }
 
 fn micros(nanos: i64, count: u64) -> String {
@@ -240,8 +257,14 @@ mod tests {
         let status = serde_json::json!({"kind": "can", "decoded": 300, "unknown_ids": 8, "connected": true, "last_error": "x"});
         assert_eq!(
             status_counters(&status).as_deref(),
-            Some("connected true, decoded 300, unknown_ids 8")
+            Some("connected true, decoded 300, last_error \"x\", unknown_ids 8")
         );
         assert_eq!(status_counters(&serde_json::json!({"kind": "text"})), None);
+        let python =
+            serde_json::json!({"python": {"images": 46, "pid": 7, "reload_error": "a.py:3: SyntaxError"}});
+        assert_eq!(
+            status_counters(&python).as_deref(),
+            Some("python.images 46, python.pid 7, python.reload_error \"a.py:3: SyntaxError\"")
+        );
     }
 }

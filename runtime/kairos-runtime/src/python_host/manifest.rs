@@ -7,8 +7,12 @@ use serde::Deserialize;
 /// The manifest's file name: a folder on the pack path holding it is a Python pack.
 pub const MANIFEST: &str = "kairos-pack.toml";
 
-/// The interpreter used when the manifest names none and `KAIROS_PYTHON` is not set.
+/// The interpreter used when the manifest names none, `KAIROS_PYTHON` is not set and the pack has no
+/// `.venv`.
 const DEFAULT_INTERPRETER: &str = "python3";
+
+/// A virtual environment in the pack's folder, used when nothing else names an interpreter.
+const PACK_VENV: &str = ".venv";
 
 /// What `kairos-pack.toml` says.
 #[derive(Debug, Clone, Deserialize)]
@@ -84,18 +88,9 @@ pub fn read(folder: &Path) -> Result<PythonPackSpec, String> {
             manifest.pack.version
         ));
     }
-    let interpreter_named = manifest
-        .python
-        .interpreter
-        .clone()
-        .or_else(|| std::env::var("KAIROS_PYTHON").ok().filter(|v| !v.is_empty()))
-        .unwrap_or_else(|| DEFAULT_INTERPRETER.to_owned());
-    let interpreter = resolve_interpreter(folder, &interpreter_named).map_err(|reason| {
-        format!(
-            "pack '{name}' ({}): {reason}; set `interpreter` under [python] to your Python or virtual environment",
-            path.display()
-        )
-    })?;
+    let (interpreter_named, named_by) = choose_interpreter(folder, &manifest);
+    let interpreter = resolve_interpreter(folder, &interpreter_named)
+        .map_err(|reason| format!("pack '{name}' ({}): {reason}; {}", path.display(), named_by.fix()))?;
     let modules = modules(folder, manifest.python.modules.as_deref())
         .map_err(|reason| format!("{}: {reason}", path.display()))?;
     Ok(PythonPackSpec {
@@ -105,6 +100,50 @@ pub fn read(folder: &Path) -> Result<PythonPackSpec, String> {
         interpreter,
         modules,
     })
+}
+
+/// Where the interpreter's name came from: the error that cannot start it says what to change.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum NamedBy {
+    Manifest,
+    Environment,
+    PackVenv,
+    Default,
+}
+
+impl NamedBy {
+    fn fix(self) -> &'static str {
+        match self {
+            NamedBy::Manifest => "correct `interpreter` under [python] in kairos-pack.toml",
+            NamedBy::Environment => {
+                "it was named by the environment variable KAIROS_PYTHON: correct or unset it, or set \
+                 `interpreter` under [python] in kairos-pack.toml"
+            }
+            NamedBy::PackVenv => {
+                "the pack's .venv folder is used when nothing names an interpreter: \
+                 make it again (python3 -m venv .venv) or set `interpreter` under [python]"
+            }
+            NamedBy::Default => {
+                "install python3, or set `interpreter` under [python] in kairos-pack.toml to your Python \
+                 or virtual environment"
+            }
+        }
+    }
+}
+
+/// The interpreter a pack runs on, first found: the manifest's `interpreter`, `$KAIROS_PYTHON`, a virtual
+/// environment in the pack's `.venv` folder (where the wizard tells to make one), then `python3`.
+fn choose_interpreter(folder: &Path, manifest: &Manifest) -> (String, NamedBy) {
+    if let Some(named) = &manifest.python.interpreter {
+        return (named.clone(), NamedBy::Manifest);
+    }
+    if let Some(named) = std::env::var("KAIROS_PYTHON").ok().filter(|v| !v.is_empty()) {
+        return (named, NamedBy::Environment);
+    }
+    if folder.join(PACK_VENV).is_dir() {
+        return (PACK_VENV.to_owned(), NamedBy::PackVenv);
+    }
+    (DEFAULT_INTERPRETER.to_owned(), NamedBy::Default)
 }
 
 /// The interpreter `named` stands for: a path from the pack's folder when one is there or `named` has a

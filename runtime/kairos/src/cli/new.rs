@@ -68,10 +68,21 @@ fn print_pack_next_steps(
     name: &str,
     folder: &std::path::Path,
     path: &std::path::Path,
+    sdk: &std::path::Path,
 ) {
     if lang == crate::wizard::Lang::Python {
-        println!("  cd {} && python3 -m pytest", folder.display());
-        println!("  kairos --pack-path {} components {name}.", path.display());
+        // The tests need numpy, pytest and the SDK's harness, which a system Python seldom has: a
+        // virtual environment in the pack's `.venv`, which the runtime then uses to run the pack too.
+        println!(
+            "  cd {} && python3 -m venv .venv && .venv/bin/pip install '{}[test]'",
+            folder.display(),
+            sdk.join("python").display()
+        );
+        println!("  cd {} && .venv/bin/python -m pytest", folder.display());
+        println!(
+            "  kairos --pack-path {} components {name}.     (the pack's .venv runs its components)",
+            path.display()
+        );
     } else if lang == crate::wizard::Lang::Cpp {
         println!("  cd {} && make", folder.display());
         println!(
@@ -110,7 +121,7 @@ pub(super) fn new(what: NewCommand, registry: &Registry) -> ExitCode {
             let library = registry.library_info();
             crate::wizard::new_pack(&name, &path, &sdk, &library, lang, force).map(|(folder, notes)| {
                 println!("made the pack '{name}' in {}", folder.display());
-                print_pack_next_steps(lang, &name, &folder, &path);
+                print_pack_next_steps(lang, &name, &folder, &path, &sdk);
                 notes
             })
         }
