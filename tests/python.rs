@@ -870,3 +870,72 @@ fn a_runtime_killed_with_sigkill_takes_its_spinning_worker_with_it() {
         killed.elapsed()
     );
 }
+
+/// A component whose module takes its time to import, as one importing numpy, OpenCV or a model does.
+const SLOW_TO_IMPORT: &str = r#"
+import time
+
+import numpy  # noqa: F401 - the import's own time is the point
+
+from kairos_sdk import F64, I64, Component, Descriptor
+
+time.sleep(0.3)
+
+
+class Slow(Component):
+    descriptor = Descriptor("slow").input("in", (F64, I64))
+
+    def core(self, ctx):
+        ctx.read("in")
+"#;
+
+#[test]
+fn sources_start_once_every_python_worker_is_ready_so_nothing_is_lost_at_start_on_a_loaded_machine() {
+    require_numpy();
+    let dir = tempfile::tempdir().unwrap();
+    write_pack(dir.path(), "py_start", &[("slow.py", SLOW_TO_IMPORT)]);
+    let (registry, _) = registry_with(&[dir.path().to_owned()]);
+    // Small buffers: 80 ms of samples each, far less than the worker's start.
+    let mut engine = engine(
+        &registry,
+        r#"Diagram(format: 1, components: [
+            Component(id: "counter", type: "core.counter", properties: {"rate": 100.0}),
+            Component(id: "strict", type: "core.counter", properties: {"rate": 100.0}),
+            Component(id: "latest", type: "py_start.slow"),
+            Component(id: "every", type: "py_start.slow"),
+        ], connections: [
+            Connection(from: "counter.out", to: "latest.in", policy: Fifo, buffer_size: 8),
+            Connection(from: "strict.out", to: "every.in", policy: NeverSkipping, buffer_size: 8),
+        ])"#,
+    );
+    // Both cores busy while the diagram starts.
+    let loaded = Arc::new(std::sync::atomic::AtomicBool::new(true));
+    let load: Vec<_> = (0..2)
+        .map(|_| {
+            let loaded = Arc::clone(&loaded);
+            std::thread::Builder::new()
+                .name("load".to_owned())
+                .spawn(move || {
+                    while loaded.load(std::sync::atomic::Ordering::Relaxed) {
+                        std::hint::spin_loop();
+                    }
+                })
+                .unwrap()
+        })
+        .collect();
+    engine.start().unwrap();
+    std::thread::sleep(Duration::from_secs(2));
+    loaded.store(false, std::sync::atomic::Ordering::Relaxed);
+    for spinner in load {
+        spinner.join().unwrap();
+    }
+    std::thread::sleep(Duration::from_millis(500));
+    let snapshot = engine.snapshot();
+    engine.stop();
+    for link in &snapshot.links {
+        assert!(link.counters.written >= 100, "{}: {:?}", link.link, link.counters);
+        assert_eq!(link.counters.overwritten, 0, "{}: {:?}", link.link, link.counters);
+    }
+    let strict = snapshot.components.iter().find(|c| c.id == "strict").unwrap();
+    assert_eq!(strict.missed_ticks, 0, "the source never waited for its reader");
+}

@@ -19,6 +19,7 @@ use kairos_sdk_core::{
 };
 
 use crate::scheduling;
+use crate::start_gate::{START_GATE_LIMIT, StartGate};
 use crate::stats::{ComponentState, ComponentStats, LinkStats, StatsSnapshot};
 
 /// Why a diagram could not be built.
@@ -684,15 +685,23 @@ impl Engine {
         if let Some(source) = &source
             && let Some(slot) = self.slots.iter_mut().find(|slot| &slot.id == source)
         {
-            Self::spawn(slot, &self.clock)?;
+            Self::spawn(slot, &self.clock, None)?;
             self.wait_for_clock_lock(source);
         }
         self.clock.forbid_steps();
+        // The clock source already runs: it alone cannot wait for the others' births.
+        let gate = Arc::new(StartGate::new(
+            self.slots
+                .iter()
+                .filter(|slot| matches!(&slot.driver, Driver::Threaded { pending: Some(_), .. }))
+                .map(|slot| slot.id.clone()),
+            START_GATE_LIMIT,
+        ));
         for index in 0..self.slots.len() {
             let Some(slot) = self.slots.get_mut(index) else {
                 continue;
             };
-            if let Err(error) = Self::spawn(slot, &self.clock) {
+            if let Err(error) = Self::spawn(slot, &self.clock, Some(&gate)) {
                 self.state = EngineState::Running;
                 self.stop();
                 return Err(error);
@@ -703,8 +712,9 @@ impl Engine {
         Ok(())
     }
 
-    /// Gives a threaded or periodic component not started yet its named thread.
-    fn spawn(slot: &mut Slot, clock: &Arc<dyn Clock>) -> std::io::Result<()> {
+    /// Gives a threaded or periodic component not started yet its named thread, which waits at `gate`
+    /// after its birth.
+    fn spawn(slot: &mut Slot, clock: &Arc<dyn Clock>, gate: Option<&Arc<StartGate>>) -> std::io::Result<()> {
         let Driver::Threaded {
             mode,
             pending,
@@ -724,6 +734,7 @@ impl Engine {
             signal: Arc::clone(&slot.signal),
             monitor: Arc::clone(&slot.monitor),
             clock: Arc::clone(clock),
+            gate: gate.map(Arc::clone),
         };
         slot.monitor.set_state(ComponentState::Running);
         let spawned = std::thread::Builder::new()
@@ -1106,6 +1117,8 @@ struct Worker {
     signal: Arc<RunSignal>,
     monitor: Arc<Monitor>,
     clock: Arc<dyn Clock>,
+    /// Where the first cycle waits for every other component's birth.
+    gate: Option<Arc<StartGate>>,
 }
 
 /// Missed periodic ticks not yet said in the log: at most one warning a second per component.
@@ -1170,6 +1183,13 @@ impl Worker {
                 Some(ComponentState::Failed(error.to_string()))
             }
         };
+        if let Some(gate) = &self.gate {
+            if outcome.is_some() {
+                gate.arrive(&self.id);
+            } else if !gate.arrive_and_wait(&self.id, &self.signal) {
+                outcome = Some(ComponentState::Stopped);
+            }
+        }
         let mut next_tick = self.clock.now();
         let mut missed = MissedTicks::default();
         let mut paused = false;

@@ -7,6 +7,7 @@ pub mod pack_host;
 pub mod packs;
 pub mod python_host;
 pub mod scheduling;
+mod start_gate;
 pub mod stats;
 
 pub use engine::{BuildError, ControlError, Engine, EngineState, LongWait};
