@@ -188,6 +188,28 @@ impl ReaderPolicy {
         ReaderPolicy::NeverSkipping,
     ];
 
+    /// What the policy does, in one line for people choosing it (the studio's reader settings).
+    pub fn explanation(self) -> &'static str {
+        match self {
+            ReaderPolicy::Fifo => {
+                "Every sample in order, the oldest first; if the reader falls behind, the oldest are \
+                 overwritten (and counted)"
+            }
+            ReaderPolicy::LastOrNext => {
+                "The newest sample not read yet: older ones waiting are skipped (and counted)"
+            }
+            ReaderPolicy::WaitForNext => {
+                "Only a sample that arrives after the reader asks: whatever is waiting is ignored"
+            }
+            ReaderPolicy::Sampling => {
+                "The newest sample at once, even one read before: the reader never waits"
+            }
+            ReaderPolicy::NeverSkipping => {
+                "Every sample in order and none lost: when the buffer is full the producer waits"
+            }
+        }
+    }
+
     /// Whether a read takes the newest sample, passing over older pending ones (LastOrNext, WaitForNext,
     /// Sampling), rather than the oldest (FIFO, NeverSkipping).
     pub fn reads_newest(self) -> bool {

@@ -378,9 +378,11 @@ impl StudioApp {
             Command::UseLocalRuntime => self.connection.use_local(ctx, &mut self.session),
             Command::Undo => {
                 self.session.document.undo();
+                self.session.edit_undone_or_redone();
             }
             Command::Redo => {
                 self.session.document.redo();
+                self.session.edit_undone_or_redone();
             }
             Command::Copy => self.copy(),
             Command::Paste => self.paste(),
@@ -480,10 +482,12 @@ impl StudioApp {
         match after {
             AfterDiscard::New => {
                 self.session.document = Document::default();
+                self.session.document_replaced();
                 self.canvas = Canvas::default();
             }
             AfterDiscard::Open(path) => {
                 if self.session.open(&path) {
+                    self.session.document_replaced();
                     self.canvas = Canvas::default();
                     self.canvas.fit(&self.session.document, &self.session.library);
                 }
@@ -579,13 +583,23 @@ fn empty_canvas_ui(ui: &mut egui::Ui, examples: &[crate::examples::Example], com
             ui.add_space(8.0);
             ui.menu_button("Open an example", |ui| {
                 ui.set_max_width(520.0);
-                for example in examples {
-                    // One button for the name and the description, so either opens it.
-                    if ui.add(example_button(ui, example)).clicked() {
-                        commands.push(Command::OpenFile(example.path.clone()));
-                        ui.close();
+                // Every example, grouped by folder: more than a window's height, so it scrolls.
+                let height = ui.ctx().content_rect().height() * 0.8;
+                egui::ScrollArea::vertical().max_height(height).show(ui, |ui| {
+                    let mut group = "";
+                    for example in examples {
+                        if example.group != group {
+                            group = &example.group;
+                            ui.separator();
+                            ui.label(egui::RichText::new(format!("{group}/")).strong());
+                        }
+                        // One button for the name and the description, so either opens it.
+                        if ui.add(example_button(ui, example)).clicked() {
+                            commands.push(Command::OpenFile(example.path.clone()));
+                            ui.close();
+                        }
                     }
-                }
+                });
             });
         });
 }

@@ -1,5 +1,6 @@
 //! The example diagrams offered on an empty canvas: the `.ron` files of the repository's `examples/`
-//! folder, each with the first sentence of its leading comment as its description.
+//! folder and its subfolders (grouped by subfolder), each with the first sentence of its leading comment
+//! as its description.
 
 use std::path::{Path, PathBuf};
 
@@ -10,6 +11,8 @@ pub struct Example {
     pub path: PathBuf,
     /// Its file name without `.ron` (`fusion`).
     pub name: String,
+    /// The subfolder it is in, `/`-separated (`vision`), empty at the top.
+    pub group: String,
     /// What it shows, in one line.
     pub description: String,
 }
@@ -34,29 +37,51 @@ pub fn folder() -> Option<PathBuf> {
         .find(|candidate| candidate.join("hello.ron").is_file())
 }
 
-/// The examples in `folder`, by name.
+/// How deep subfolders are searched: `examples/vision/lanes.ron` is one level down.
+const DEPTH: usize = 3;
+
+/// The examples in `folder` and its subfolders: the top's first, then each group's, by name.
 pub fn in_folder(folder: &Path) -> Vec<Example> {
-    let Ok(entries) = std::fs::read_dir(folder) else {
-        return Vec::new();
-    };
-    let mut examples: Vec<Example> = entries
-        .map_while(Result::ok)
-        .map(|entry| entry.path())
-        .filter(|path| path.extension().is_some_and(|e| e == "ron"))
-        .map(|path| Example {
-            name: path
-                .file_stem()
-                .map(|s| s.to_string_lossy().into_owned())
-                .unwrap_or_default(),
-            description: std::fs::read_to_string(&path)
-                .ok()
-                .and_then(|text| description(&text))
-                .unwrap_or_default(),
-            path,
-        })
-        .collect();
-    examples.sort_by(|a, b| a.name.cmp(&b.name));
+    let mut examples = Vec::new();
+    collect(folder, "", DEPTH, &mut examples);
+    examples.sort_by(|a, b| {
+        (!a.group.is_empty(), &a.group, &a.name).cmp(&(!b.group.is_empty(), &b.group, &b.name))
+    });
     examples
+}
+
+fn collect(folder: &Path, group: &str, depth: usize, examples: &mut Vec<Example>) {
+    let Ok(entries) = std::fs::read_dir(folder) else {
+        return;
+    };
+    for path in entries.map_while(Result::ok).map(|entry| entry.path()) {
+        let Some(file_name) = path.file_name().map(|n| n.to_string_lossy().into_owned()) else {
+            continue;
+        };
+        if path.is_dir() {
+            if depth > 0 && !file_name.starts_with('.') {
+                let inner = if group.is_empty() {
+                    file_name
+                } else {
+                    format!("{group}/{file_name}")
+                };
+                collect(&path, &inner, depth - 1, examples);
+            }
+        } else if path.extension().is_some_and(|e| e == "ron") {
+            examples.push(Example {
+                name: path
+                    .file_stem()
+                    .map(|s| s.to_string_lossy().into_owned())
+                    .unwrap_or_default(),
+                group: group.to_owned(),
+                description: std::fs::read_to_string(&path)
+                    .ok()
+                    .and_then(|text| description(&text))
+                    .unwrap_or_default(),
+                path,
+            });
+        }
+    }
 }
 
 /// The longest description kept, in characters: one line in the examples menu.
@@ -73,7 +98,8 @@ pub fn description(text: &str) -> Option<String> {
         .map(str::trim)
         .take_while(|line| !line.is_empty())
         .collect();
-    let comment = comment.join(" ");
+    // The arrow that descriptions of pipelines use, in characters the studio's font has.
+    let comment = comment.join(" ").replace('→', "->");
     // A sentence ends at a full stop followed by a space or the end (not `fusion.ron`'s dot).
     let end = comment
         .match_indices(". ")
@@ -109,6 +135,21 @@ mod tests {
         // A first sentence that runs over two lines is taken whole, and only the first.
         let sensors = examples.iter().find(|e| e.name == "sensors").unwrap();
         assert!(sensors.description.ends_with("open a viewer."), "{sensors:?}");
+        // The showcases in subfolders too, after the top's, grouped by folder.
+        let lanes = examples.iter().position(|e| e.name == "lanes").unwrap();
+        assert_eq!(examples[lanes].group, "vision");
+        assert!(
+            examples.iter().any(|e| e.group == "python" && e.name == "edges"),
+            "{examples:?}"
+        );
+        assert!(
+            examples
+                .iter()
+                .any(|e| e.group == "lidar" && e.name == "obstacles")
+        );
+        let first_grouped = examples.iter().position(|e| !e.group.is_empty()).unwrap();
+        assert!(examples[first_grouped..].iter().all(|e| !e.group.is_empty()));
+        assert!(examples[..first_grouped].iter().any(|e| e.name == "hello"));
     }
 
     #[test]

@@ -60,11 +60,21 @@ fn connection_ui(
     egui::ComboBox::from_label("reader policy")
         .selected_text(policy.map_or(INPUTS_DEFAULT, ReaderPolicy::name))
         .show_ui(ui, |ui| {
-            ui.selectable_value(&mut policy, None, INPUTS_DEFAULT);
+            ui.selectable_value(&mut policy, None, INPUTS_DEFAULT)
+                .on_hover_text("The policy the input's component asks for");
             for choice in ReaderPolicy::ALL {
-                ui.selectable_value(&mut policy, Some(choice), choice.name());
+                ui.selectable_value(&mut policy, Some(choice), choice.name())
+                    .on_hover_text(choice.explanation());
             }
         });
+    // What the chosen policy does, in words, where it is chosen.
+    ui.label(
+        RichText::new(policy.map_or(
+            "The policy the input's component asks for",
+            ReaderPolicy::explanation,
+        ))
+        .weak(),
+    );
     let mut buffer = connection.buffer_size.unwrap_or(0);
     ui.horizontal(|ui| {
         ui.label("buffer size (0: the output's)");

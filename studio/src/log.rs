@@ -1,5 +1,7 @@
 //! The log the studio shows: the runtime's records and the studio's own lines, the latest
-//! [`LOG_LINES`], and the filter the log panel applies (a least level, one component).
+//! [`LOG_LINES`], and the filter the log panel applies (a least level, one component). A line that says
+//! again what a recent one said, but for its numbers (an overflow warned every second), replaces it with
+//! a count, as the notices over the canvas do.
 
 use std::collections::VecDeque;
 
@@ -7,6 +9,9 @@ use kairos_protocol::{LogLevel, LogRecord};
 
 /// How many lines the log keeps; older ones go.
 pub const LOG_LINES: usize = 2000;
+
+/// How far back a repeat is looked for: the lines a problem's repeats are interleaved with.
+const REPEAT_WINDOW: usize = 20;
 
 /// Whether a line reports a success (drawn green) or is plain.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -37,8 +42,23 @@ pub struct LogLine {
     pub source: Source,
     /// The component it concerns, for runtime records that name one.
     pub component: Option<String>,
-    /// The text shown.
+    /// The text shown: the latest of its repeats.
     pub text: String,
+    /// How many times it was said (1: once).
+    pub repeats: u32,
+}
+
+impl LogLine {
+    /// What stays the same when a problem is said again: its level, source, component and its words
+    /// without their numbers.
+    fn repeat_key(&self) -> (LogLevel, Source, Option<&str>, String) {
+        let words = self
+            .text
+            .chars()
+            .filter(|c| !c.is_ascii_digit() && *c != '.')
+            .collect();
+        (self.level, self.source, self.component.as_deref(), words)
+    }
 }
 
 /// What the log panel shows: lines of at least `least`, of one component or all.
@@ -77,8 +97,18 @@ pub struct Log {
 }
 
 impl Log {
-    /// Adds a line, forgetting the oldest beyond [`LOG_LINES`].
-    pub fn push(&mut self, line: LogLine) {
+    /// Adds a line, forgetting the oldest beyond [`LOG_LINES`]. A repeat of one of the last few lines
+    /// takes that line's place at the end, counted.
+    pub fn push(&mut self, mut line: LogLine) {
+        let key = line.repeat_key();
+        let recent = self.lines.len().saturating_sub(REPEAT_WINDOW);
+        if let Some(at) = (recent..self.lines.len())
+            .rev()
+            .find(|&at| self.lines.get(at).is_some_and(|old| old.repeat_key() == key))
+            && let Some(old) = self.lines.remove(at)
+        {
+            line.repeats = old.repeats.saturating_add(line.repeats);
+        }
         self.lines.push_back(line);
         while self.lines.len() > LOG_LINES {
             self.lines.pop_front();
@@ -93,6 +123,7 @@ impl Log {
             source: Source::Studio,
             component: None,
             text: text.into(),
+            repeats: 1,
         });
     }
 
@@ -108,6 +139,7 @@ impl Log {
             source: Source::Runtime,
             component: record.component,
             text: format!("{who}{}", record.message),
+            repeats: 1,
         });
     }
 
@@ -184,12 +216,69 @@ mod tests {
     }
 
     #[test]
+    fn a_problem_said_again_is_one_line_with_a_count_at_the_end() {
+        let mut log = Log::default();
+        let filter = LogFilter::default();
+        log.record(record(
+            LogLevel::Warn,
+            Some("a"),
+            "a.out -> b.in overflowed: 12 samples lost",
+        ));
+        log.record(record(LogLevel::Info, Some("c"), "started"));
+        log.record(record(
+            LogLevel::Warn,
+            Some("a"),
+            "a.out -> b.in overflowed: 30 samples lost",
+        ));
+        log.record(record(
+            LogLevel::Warn,
+            Some("a"),
+            "a.out -> b.in overflowed: 7 samples lost",
+        ));
+        // Other words, another component or another level: a line of its own.
+        log.record(record(
+            LogLevel::Warn,
+            Some("b"),
+            "a.out -> b.in overflowed: 7 samples lost",
+        ));
+        log.record(record(
+            LogLevel::Error,
+            Some("a"),
+            "a.out -> b.in overflowed: 7 samples lost",
+        ));
+        let lines: Vec<(&str, u32)> = log
+            .visible(&filter)
+            .map(|l| (l.text.as_str(), l.repeats))
+            .collect();
+        assert_eq!(
+            lines,
+            [
+                ("c: started", 1),
+                ("a: a.out -> b.in overflowed: 7 samples lost", 3),
+                ("b: a.out -> b.in overflowed: 7 samples lost", 1),
+                ("a: a.out -> b.in overflowed: 7 samples lost", 1),
+            ]
+        );
+    }
+
+    #[test]
     fn the_log_keeps_its_latest_lines() {
+        // Lines in words (digits would make them repeats of each other): n in base 26, as letters.
+        let words = |mut n: usize| {
+            let mut text = String::new();
+            loop {
+                text.push(char::from(b'a' + (n % 26) as u8));
+                n /= 26;
+                if n == 0 {
+                    return text;
+                }
+            }
+        };
         let mut log = Log::default();
         for n in 0..LOG_LINES + 5 {
-            log.studio(LogLevel::Info, Tone::Plain, n.to_string());
+            log.studio(LogLevel::Info, Tone::Plain, words(n));
         }
         assert_eq!(log.lines().count(), LOG_LINES);
-        assert_eq!(log.lines().next().map(|l| l.text.as_str()), Some("5"));
+        assert_eq!(log.lines().next().map(|l| l.text.clone()), Some(words(5)));
     }
 }

@@ -102,7 +102,12 @@ pub fn log_ui(ui: &mut egui::Ui, log: &Log, filter: &LogFilter) {
         .stick_to_bottom(true)
         .show_rows(ui, row_height, lines.len(), |ui, rows| {
             for line in &lines[rows] {
-                ui.add(egui::Label::new(egui::RichText::new(&line.text).color(color(line))).extend());
+                let text = if line.repeats > 1 {
+                    format!("{}   (×{})", line.text, line.repeats)
+                } else {
+                    line.text.clone()
+                };
+                ui.add(egui::Label::new(egui::RichText::new(text).color(color(line))).extend());
             }
         });
 }

@@ -968,6 +968,22 @@ impl Session {
         self.field_notes.insert(key, why);
     }
 
+    /// Another document took this one's place (New, Open): what the fields said goes, and, unless the
+    /// old diagram still runs (its telemetry is then still current), what its run showed.
+    pub fn document_replaced(&mut self) {
+        self.field_notes.clear();
+        self.port_problems.clear();
+        if !matches!(self.run_state, RuntimeState::Running | RuntimeState::Paused) {
+            self.states.clear();
+            self.monitor.clear();
+        }
+    }
+
+    /// An edit was undone or redone: what the fields said was about values no longer there.
+    pub fn edit_undone_or_redone(&mut self) {
+        self.field_notes.clear();
+    }
+
     /// What the inspector says under a property's field, if anything.
     pub fn field_note(&self, component: &str, property: &str) -> Option<&str> {
         self.field_notes
@@ -1489,18 +1505,19 @@ mod tests {
             telemetry: 0,
             log: 3,
         });
-        let said: Vec<&str> = session
+        let said: Vec<(&str, u32)> = session
             .log
             .lines()
             .skip(before)
-            .map(|l| l.text.as_str())
+            .map(|l| (l.text.as_str(), l.repeats))
             .collect();
-        assert_eq!(
-            said.len(),
-            4,
-            "at 1, 2 and 4 frames, and the log records: {said:?}"
+        // Said at 1, 2 and 4 frames: one line, the latest count, said three times; then the log records.
+        assert_eq!(said.len(), 2, "{said:?}");
+        assert!(
+            said[0].0.contains("4 sample frames") && said[0].1 == 3,
+            "{said:?}"
         );
-        assert!(said[3].contains("3 of the runtime's log records"));
+        assert!(said[1].0.contains("3 of the runtime's log records"));
     }
 
     #[test]

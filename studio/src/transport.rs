@@ -344,7 +344,12 @@ fn recorder_row(ui: &mut egui::Ui, id: &str, status: &serde_json::Value, request
             pre_trigger_controls(ui, id, status, requests);
         }
         if let Some(path) = status.get("path").and_then(serde_json::Value::as_str) {
-            ui.monospace(format!("{path}  {:.1} MB", number(status, "bytes") / 1e6));
+            // The size on disk, as a file manager shows it; the samples' own size before compression on hover.
+            ui.monospace(format!("{path}  {:.1} MB", number(status, "disk_bytes") / 1e6))
+                .on_hover_text(format!(
+                    "{:.1} MB of samples before compression",
+                    number(status, "bytes") / 1e6
+                ));
         }
         let closed = number(status, "files_closed");
         if closed > 0.0 {

@@ -424,6 +424,20 @@ fn a_number_refused_or_clamped_is_said_at_the_field_and_in_the_log() {
             .any(|l| l.text == format!("sine1.rate: {said}"))
     );
 
+    // Undone, the clamped value goes and what the field said with it.
+    harness.get_by_label("Edit").click();
+    harness.run_steps(2);
+    harness.get_by_label("Undo Ctrl+Z").click();
+    harness.run_steps(3);
+    assert_ne!(rate(&harness), Some(kairos_diagram::Value::F64(0.001)), "undone");
+    assert!(harness.query_by_label(said).is_none(), "no stale note after Undo");
+    // Redone, the value is back and the field says nothing new: the note was about the typing.
+    harness.get_by_label("Edit").click();
+    harness.run_steps(2);
+    harness.get_by_label("Redo Ctrl+Y").click();
+    harness.run_steps(3);
+    assert_eq!(rate(&harness), Some(kairos_diagram::Value::F64(0.001)));
+
     type_number(&mut harness, "rate", "abc");
     assert_eq!(rate(&harness), Some(kairos_diagram::Value::F64(0.001)), "kept");
     harness.get_by_label("\"abc\" is not a number: kept 0.001 Hz");
@@ -574,6 +588,30 @@ fn an_empty_canvas_says_what_to_do_and_opens_an_example() {
         .collect();
     assert_eq!(ids.len(), 3, "hello.ron is open: {ids:?}");
     assert!(harness.query_by_label("An empty diagram").is_none());
+
+    // The showcases in subfolders are offered too, under their folder's name.
+    harness.get_by_label("File").click();
+    harness.run_steps(2);
+    harness.get_by_label("New Ctrl+N").click();
+    harness.run_steps(3);
+    harness.get_by_label("Open an example").click();
+    harness.run_steps(2);
+    harness.get_by_label("vision/");
+    // Below the fold of the menu's list: scrolled to, as a user would.
+    harness.get_by_label_contains("lanes").scroll_to_me();
+    harness.run_steps(3);
+    harness.get_by_label_contains("lanes").click();
+    harness.run_steps(3);
+    let path = harness
+        .state()
+        .session
+        .document
+        .path()
+        .map(std::path::Path::to_path_buf);
+    assert!(
+        path.as_ref().is_some_and(|p| p.ends_with("vision/lanes.ron")),
+        "{path:?}"
+    );
 }
 
 #[test]

@@ -851,12 +851,19 @@ impl Recorder {
             .file
             .as_ref()
             .map_or((None, 0), |f| (Some(f.path.display().to_string()), f.bytes));
+        // What the file takes on disk so far, compressed (the chunk being filled is not in it yet).
+        let disk_bytes = self
+            .file
+            .as_ref()
+            .and_then(|f| std::fs::metadata(&f.path).ok())
+            .map_or(0, |metadata| metadata.len());
         ctx.set_status(serde_json::json!({
             "kind": "recorder",
             // Pre-trigger mode: armed (keeping seconds in memory), whether or not an event is being written.
             "recording": self.recording && (self.file.is_some() || self.pre_trigger),
             "path": path,
             "bytes": bytes,
+            "disk_bytes": disk_bytes,
             "files_closed": self.closed_files,
             "markers": self.markers,
             "mode": if self.pre_trigger { "pre_trigger" } else { "continuous" },

@@ -362,3 +362,35 @@ fn markers_written_by_action_and_input_are_on_the_timeline_and_the_player_jumps_
         "back at the first marker: {reached}"
     );
 }
+
+#[test]
+fn the_recorder_s_status_gives_the_size_on_disk_beside_the_samples_size() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("sizes.mcap");
+    let mut recorder = Harness::new(Recorder::info(), Recorder::default());
+    recorder.set_property("path", path.display().to_string()).unwrap();
+    recorder.set_property("chunk_size_kb", 64_i64).unwrap();
+    // Text that compresses well: the samples' size and the file's part ways.
+    let line: Arc<str> = Arc::from("the same words again and again ".repeat(32));
+    for step in 0..2_000_i64 {
+        recorder.push(
+            "in1",
+            Payload::Text(Arc::clone(&line)),
+            Timestamp::from_millis(1_000 + step),
+        );
+    }
+    recorder.run().unwrap();
+    let status = recorder.status().unwrap();
+    let (bytes, disk_bytes) = (
+        status["bytes"].as_u64().unwrap(),
+        status["disk_bytes"].as_u64().unwrap(),
+    );
+    let on_disk = std::fs::metadata(&path).unwrap().len();
+    assert!(bytes >= 2_000 * 992, "{status}");
+    assert!(
+        disk_bytes > 0 && disk_bytes <= on_disk,
+        "{disk_bytes} vs {on_disk} on disk"
+    );
+    assert!(disk_bytes * 10 < bytes, "compressed: {status}");
+    recorder.finish().unwrap();
+}
