@@ -251,33 +251,33 @@ impl StudioApp {
                 not_applied_ui(ui, &not_applied, &mut self.commands);
             });
         }
+        // Problems in a strip over the canvas rather than on it: they never cover a node.
+        if self.session.monitor.has_notices() {
+            egui::Panel::top("notices").show(ui, |ui| self.session.monitor.show_notices(ui));
+        }
         let session = &mut self.session;
         let canvas = &mut self.canvas;
         let examples = &self.examples;
         let commands = &mut self.commands;
-        let canvas_rect = egui::CentralPanel::default()
-            .show(ui, |ui| {
-                let empty = session.document.diagram().components.is_empty();
-                let (document, shown) = session.canvas_view();
-                canvas.show(ui, document, &shown);
-                if empty {
-                    empty_canvas_ui(ui, examples, commands);
-                }
-                if let Some(refusal) = canvas.take_refusal() {
-                    session.note(LogLevel::Warn, refusal);
-                }
-                if let Some(request) = canvas.take_viewer_request() {
-                    session
-                        .viewers
-                        .open_kind(request.output.to_string(), request.kind);
-                }
-                if let Some((output, publish)) = canvas.take_foxglove_request() {
-                    session.publish_to_foxglove(&output.to_string(), publish);
-                }
-            })
-            .response
-            .rect;
-        self.session.monitor.show_notices(ui.ctx(), canvas_rect);
+        egui::CentralPanel::default().show(ui, |ui| {
+            let empty = session.document.diagram().components.is_empty();
+            let (document, shown) = session.canvas_view();
+            canvas.show(ui, document, &shown);
+            if empty {
+                empty_canvas_ui(ui, examples, commands);
+            }
+            if let Some(refusal) = canvas.take_refusal() {
+                session.note(LogLevel::Warn, refusal);
+            }
+            if let Some(request) = canvas.take_viewer_request() {
+                session
+                    .viewers
+                    .open_kind(request.output.to_string(), request.kind);
+            }
+            if let Some((output, publish)) = canvas.take_foxglove_request() {
+                session.publish_to_foxglove(&output.to_string(), publish);
+            }
+        });
         let choices = self.session.outputs_with_types();
         self.session.viewers.show_floating(ui.ctx(), &choices);
     }

@@ -103,7 +103,7 @@ pub fn log_ui(ui: &mut egui::Ui, log: &Log, filter: &LogFilter) {
         .show_rows(ui, row_height, lines.len(), |ui, rows| {
             for line in &lines[rows] {
                 let text = if line.repeats > 1 {
-                    format!("{}   (×{})", line.text, line.repeats)
+                    format!("(×{}) {}", line.repeats, line.text)
                 } else {
                     line.text.clone()
                 };

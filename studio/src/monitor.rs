@@ -268,8 +268,13 @@ impl Monitor {
     }
 
     /// Shows the notices inside the canvas (`over`), top right.
-    pub fn show_notices(&mut self, ctx: &egui::Context, over: egui::Rect) {
-        self.notices.show(ctx, over);
+    pub fn show_notices(&mut self, ui: &mut egui::Ui) {
+        self.notices.show(ui);
+    }
+
+    /// Whether a notice is to be shown over the canvas now.
+    pub fn has_notices(&self) -> bool {
+        self.notices.any_shown()
     }
 
     fn sort_header(&mut self, ui: &mut egui::Ui, label: &str, by: SortBy) {

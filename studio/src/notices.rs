@@ -8,8 +8,6 @@ use egui::{Color32, RichText};
 
 /// How long a notice about a passing problem (losses) stays after it last happened.
 const SHOWN_AFTER_LAST: Duration = Duration::from_secs(8);
-/// The widest a notice gets.
-const WIDTH: f32 = 420.0;
 /// At most this many problems are remembered; the oldest go first.
 const KEPT: usize = 32;
 
@@ -116,47 +114,39 @@ impl Notices {
         self.list.iter().filter(move |n| n.shown(now))
     }
 
-    /// Draws the notices shown inside `canvas` (top right), each with a button that dismisses it.
-    pub fn show(&mut self, ctx: &egui::Context, canvas: egui::Rect) {
+    /// Whether any notice is shown now.
+    pub fn any_shown(&self) -> bool {
+        self.shown().next().is_some()
+    }
+
+    /// Draws the notices shown, one line each with a button that dismisses it, in `ui`: a strip over the
+    /// canvas, so that no notice covers a node.
+    pub fn show(&mut self, ui: &mut egui::Ui) {
         let now = Instant::now();
         let shown: Vec<Notice> = self.list.iter().filter(|n| n.shown(now)).cloned().collect();
         if shown.is_empty() {
             return;
         }
-        let width = WIDTH.min(canvas.width() - 24.0).max(120.0);
-        let corner = egui::pos2(
-            (canvas.right() - width - 16.0).max(canvas.left() + 8.0),
-            canvas.top() + 8.0,
-        );
         let mut dismissed = Vec::new();
-        egui::Area::new(egui::Id::unique("canvas notices"))
-            .fixed_pos(corner)
-            .constrain_to(canvas)
-            .show(ctx, |ui| {
-                egui::Frame::popup(ui.style()).show(ui, |ui| {
-                    ui.set_max_width(width);
-                    for notice in &shown {
-                        ui.horizontal_top(|ui| {
-                            if ui
-                                .small_button("x")
-                                .on_hover_text("Dismiss: hidden until the next run (the Log keeps it)")
-                                .clicked()
-                            {
-                                dismissed.push(notice.problem.clone());
-                            }
-                            ui.add(
-                                egui::Label::new(
-                                    RichText::new(notice.line()).color(Color32::from_rgb(240, 140, 60)),
-                                )
-                                .wrap(),
-                            );
-                        });
-                    }
-                });
+        for notice in &shown {
+            ui.horizontal_top(|ui| {
+                if ui
+                    .small_button("x")
+                    .on_hover_text("Dismiss: hidden until the next run (the Log keeps it)")
+                    .clicked()
+                {
+                    dismissed.push(notice.problem.clone());
+                }
+                ui.add(
+                    egui::Label::new(RichText::new(notice.line()).color(Color32::from_rgb(240, 140, 60)))
+                        .wrap(),
+                );
             });
+        }
         for problem in &dismissed {
             self.dismiss(problem);
         }
+        let ctx = ui.ctx().clone();
         // Wake when the first passing notice is due to go, not before: at rest nothing is drawn.
         let next_expiry = shown
             .iter()
