@@ -36,7 +36,7 @@ pub use library::{
 pub use model::{
     ComponentInstance, Connection, DEFAULT_RIDE_OUT_MB, DEFAULT_RIDE_OUT_S, DEFAULT_ZENOH_PORT, Diagram,
     FORMAT_VERSION, HostSpec, MAX_BUFFER_SIZE, MAX_RIDE_OUT_MB, MAX_RIDE_OUT_S, OutputSettings,
-    PackRequirement, PortRef, Position, ThreadSettings,
+    PackRequirement, PortRef, Position, ThreadSettings, ViewerSpec,
 };
 pub use read::{
     ComponentLocations, ConnectionLocations, EntryLocations, HostLocations, LoadError, OutputLocations,

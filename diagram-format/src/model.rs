@@ -32,6 +32,30 @@ pub struct Diagram {
     /// The machines parts of the diagram run on, by name; empty: everything runs where it is deployed.
     #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
     pub hosts: BTreeMap<String, HostSpec>,
+    /// The viewers the studio had open when the diagram was saved, reopened with it. The runtime ignores
+    /// them: they say how to look at the diagram, not what it does.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub viewers: Vec<ViewerSpec>,
+}
+
+/// A viewer saved with a diagram: which output it shows, how, and where.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct ViewerSpec {
+    /// The output shown (`camera.image`).
+    pub output: String,
+    /// How it is shown, as the studio names it (`image`, `plot`, `track`, `cloud`, `trajectory`, `table`);
+    /// a kind the studio does not know shows as a table.
+    pub kind: String,
+    /// In the studio's dock (true) or a window of its own.
+    #[serde(default = "docked_by_default")]
+    pub docked: bool,
+    /// Outputs drawn over the first (more GNSS fixes on a track, boxes in a point cloud).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub also: Vec<String>,
+}
+
+fn docked_by_default() -> bool {
+    true
 }
 
 /// A machine running `kairos serve` that a diagram deploys its components marked with the host's name to.
@@ -108,6 +132,7 @@ impl Default for Diagram {
             connections: Vec::new(),
             clock_source: None,
             hosts: BTreeMap::new(),
+            viewers: Vec::new(),
         }
     }
 }

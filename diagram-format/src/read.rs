@@ -8,7 +8,7 @@ use crate::diagnostic::{Diagnostic, DiagnosticCode, LineIndex, Location, did_you
 use crate::library::{LibraryInfo, ReaderPolicy, Value};
 use crate::model::{
     ComponentInstance, Connection, Diagram, HostSpec, OutputSettings, PackRequirement, PortRef, Position,
-    ThreadSettings,
+    ThreadSettings, ViewerSpec,
 };
 use crate::ron_syntax::{Field, Node, NodeKind, Span, parse_document};
 
@@ -549,6 +549,7 @@ impl Reader<'_> {
                 "packs",
                 "components",
                 "connections",
+                "viewers",
             ],
         )?;
         let (hosts, host_locations) = fields
@@ -562,6 +563,7 @@ impl Reader<'_> {
         let packs = self.items(fields.optional("packs"), Self::pack);
         let components = self.items(fields.optional("components"), Self::component);
         let connections = self.items(fields.optional("connections"), Self::connection);
+        let viewers = self.items(fields.optional("viewers"), Self::viewer);
         let (format, format_node) = (format?, format_node?);
         let (packs, pack_locations) = packs.into_iter().unzip();
         let (components, component_locations) = components.into_iter().unzip();
@@ -574,6 +576,7 @@ impl Reader<'_> {
                 connections,
                 clock_source,
                 hosts,
+                viewers,
             },
             source_map: SourceMap {
                 hosts: host_locations,
@@ -815,6 +818,33 @@ impl Reader<'_> {
             affinity: affinity?,
         };
         Some((settings, priority_node.map(|n| self.location(n.span))))
+    }
+
+    fn viewer(&mut self, node: &Node) -> Option<ViewerSpec> {
+        let fields = self.fields(node, "Viewer", &["output", "kind", "docked", "also"])?;
+        let output = self.required(&fields, "output").and_then(|n| self.text(n));
+        let kind = self.required(&fields, "kind").and_then(|n| self.text(n));
+        let docked = self.optional(fields.optional("docked"), Self::boolean);
+        let also = fields
+            .optional("also")
+            .and_then(|n| self.list(n))
+            .unwrap_or_default();
+        let also: Option<Vec<String>> = also.iter().map(|n| self.text(n)).collect();
+        Some(ViewerSpec {
+            output: output?,
+            kind: kind?,
+            docked: docked.ok()?.unwrap_or(true),
+            also: also?,
+        })
+    }
+
+    fn boolean(&mut self, node: &Node) -> Option<bool> {
+        if let NodeKind::Bool(value) = node.kind {
+            Some(value)
+        } else {
+            self.wrong_type(node, "true or false");
+            None
+        }
     }
 
     fn connection(&mut self, node: &Node) -> Option<(Connection, ConnectionLocations)> {

@@ -110,6 +110,31 @@ impl fmt::Display for CanonicalRon<'_> {
         write_list(f, "connections", &connections, |f, connection| {
             write_connection(f, connection)
         })?;
+        // In the order the studio opened them (the dock's order), absent when there are none.
+        if !diagram.viewers.is_empty() {
+            write_list(f, "viewers", &diagram.viewers, |f, viewer| {
+                write!(
+                    f,
+                    "Viewer(output: {}, kind: {}",
+                    Quoted(&viewer.output),
+                    Quoted(&viewer.kind)
+                )?;
+                if !viewer.docked {
+                    f.write_str(", docked: false")?;
+                }
+                if !viewer.also.is_empty() {
+                    f.write_str(", also: [")?;
+                    for (index, output) in viewer.also.iter().enumerate() {
+                        if index > 0 {
+                            f.write_str(", ")?;
+                        }
+                        write!(f, "{}", Quoted(output))?;
+                    }
+                    f.write_str("]")?;
+                }
+                f.write_str(")")
+            })?;
+        }
         f.write_str(")\n")
     }
 }

@@ -207,6 +207,7 @@ fn diagram() -> impl Strategy<Value = Diagram> {
                 connections,
                 clock_source,
                 hosts,
+                viewers: Vec::new(),
             },
         )
 }

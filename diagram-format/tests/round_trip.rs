@@ -6,7 +6,7 @@ use std::collections::BTreeMap;
 
 use kairos_diagram::{
     ComponentInstance, Connection, Diagram, HostSpec, OutputSettings, PackRequirement, PortRef, Position,
-    ReaderPolicy, ThreadSettings, Value, parse, resolved_properties,
+    ReaderPolicy, ThreadSettings, Value, ViewerSpec, parse, resolved_properties,
 };
 
 const CANONICAL: &str = include_str!("corpus/canonical.ron");
@@ -126,6 +126,21 @@ fn scrambled_diagram() -> Diagram {
                 },
             ),
         ]),
+        // Viewers keep their order: the dock's.
+        viewers: vec![
+            ViewerSpec {
+                output: "sine1.out".to_owned(),
+                kind: "plot".to_owned(),
+                docked: true,
+                also: Vec::new(),
+            },
+            ViewerSpec {
+                output: "gnss \"a\".fix".to_owned(),
+                kind: "track".to_owned(),
+                docked: false,
+                also: vec!["gnss2.fix".to_owned(), "gnss3.fix".to_owned()],
+            },
+        ],
     }
 }
 

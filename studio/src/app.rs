@@ -74,6 +74,7 @@ impl StudioApp {
     ) -> Self {
         let (settings, settings_error) = Settings::load(crate::settings::default_folder());
         let mut session = Session::new(document, library, settings);
+        session.restore_viewers();
         if let Some(error) = settings_error {
             session.note(LogLevel::Warn, error);
         }
@@ -482,6 +483,7 @@ impl StudioApp {
         match after {
             AfterDiscard::New => {
                 self.session.document = Document::default();
+                self.session.restore_viewers();
                 self.session.document_replaced();
                 self.canvas = Canvas::default();
             }

@@ -49,9 +49,12 @@ impl Document {
         self.path.as_deref()
     }
 
-    /// Whether there are changes a save would write.
+    /// Whether there are edits a save would write (what is asked before they are discarded). Viewers
+    /// opened or closed are not edits: a save writes them, but nothing asks for one.
     pub fn is_dirty(&self) -> bool {
-        self.diagram != self.saved
+        let mut without_viewers = self.diagram.clone();
+        without_viewers.viewers.clone_from(&self.saved.viewers);
+        without_viewers != self.saved
     }
 
     /// Writes the diagram (canonical text) to its file. With no change since it was opened, the file is left
@@ -60,7 +63,7 @@ impl Document {
         let Some(path) = self.path.clone() else {
             return Err("the diagram has no file yet: use Save as".to_owned());
         };
-        if !self.is_dirty() && path.exists() {
+        if self.diagram == self.saved && path.exists() {
             return Ok(());
         }
         self.save_as(&path)
@@ -100,20 +103,30 @@ impl Document {
         }
     }
 
-    /// Undoes the last edit; `false` when there is none.
+    /// Undoes the last edit; `false` when there is none. The viewers stay as they are: opening one is
+    /// not an edit.
     pub fn undo(&mut self) -> bool {
-        let Some(previous) = self.undo.pop() else {
+        let Some(mut previous) = self.undo.pop() else {
             return false;
         };
+        previous.viewers.clone_from(&self.diagram.viewers);
         self.redo.push(std::mem::replace(&mut self.diagram, previous));
         true
     }
 
     /// Redoes the last undone edit; `false` when there is none.
     pub fn redo(&mut self) -> bool {
-        let Some(next) = self.redo.pop() else { return false };
+        let Some(mut next) = self.redo.pop() else {
+            return false;
+        };
+        next.viewers.clone_from(&self.diagram.viewers);
         self.undo.push(std::mem::replace(&mut self.diagram, next));
         true
+    }
+
+    /// Keeps the open viewers in the diagram, to be saved with it: a change to save, but no edit to undo.
+    pub fn set_viewers(&mut self, viewers: Vec<kairos_diagram::ViewerSpec>) {
+        self.diagram.viewers = viewers;
     }
 
     /// Adds a component of `info`'s type at `position`, with a fresh id, and lists its pack. Returns the id.

@@ -827,6 +827,13 @@ impl Session {
                 );
                 continue;
             };
+            // A viewer the diagram file reopened already shows it.
+            if self
+                .viewers
+                .shows(&output, crate::viewers::ViewerKind::for_type(data_type.name()))
+            {
+                continue;
+            }
             self.viewers.open(output.clone(), data_type.name());
             let index = self.viewers.list.len() - 1;
             for over in outputs {
@@ -968,6 +975,25 @@ impl Session {
         self.field_notes.insert(key, why);
     }
 
+    /// Opens the viewers the document was saved with, in place of those open.
+    pub fn restore_viewers(&mut self) {
+        let viewers = self.document.diagram().viewers.clone();
+        for kind in self.viewers.restore(&viewers) {
+            self.note(
+                LogLevel::Warn,
+                format!("a viewer of kind '{kind}' saved in the diagram is unknown here: shown as a table"),
+            );
+        }
+    }
+
+    /// Puts the open viewers in the document, to be saved with it.
+    fn keep_viewers_in_document(&mut self) {
+        let open = self.viewers.specs();
+        if open != self.document.diagram().viewers {
+            self.document.set_viewers(open);
+        }
+    }
+
     /// Another document took this one's place (New, Open): what the fields said goes, and, unless the
     /// old diagram still runs (its telemetry is then still current), what its run showed.
     pub fn document_replaced(&mut self) {
@@ -1029,6 +1055,7 @@ impl Session {
         match Document::open(path) {
             Ok(document) => {
                 self.document = document;
+                self.restore_viewers();
                 self.note(LogLevel::Info, format!("opened {}", path.display()));
                 self.remember_recent(path.to_owned());
                 true
@@ -1042,6 +1069,7 @@ impl Session {
 
     /// Writes the document to its file.
     pub fn save(&mut self) -> Saved {
+        self.keep_viewers_in_document();
         let Some(path) = self.document.path().map(Path::to_path_buf) else {
             return Saved::NeedsPath;
         };
@@ -1057,6 +1085,7 @@ impl Session {
 
     /// Writes the document to `path`, which becomes its file.
     pub fn save_as(&mut self, path: &Path) {
+        self.keep_viewers_in_document();
         match self.document.save_as(path) {
             Ok(()) => {
                 self.note(LogLevel::Info, format!("saved {}", path.display()));

@@ -87,6 +87,32 @@ impl ViewerKind {
         choices
     }
 
+    /// The name a diagram file saves it under.
+    pub fn key(self) -> &'static str {
+        match self {
+            ViewerKind::Image => "image",
+            ViewerKind::Plot => "plot",
+            ViewerKind::Track => "track",
+            ViewerKind::Cloud => "cloud",
+            ViewerKind::Trajectory => "trajectory",
+            ViewerKind::Table => "table",
+        }
+    }
+
+    /// The kind a diagram file names; `None` for a name this studio does not know.
+    pub fn from_key(key: &str) -> Option<ViewerKind> {
+        [
+            ViewerKind::Image,
+            ViewerKind::Plot,
+            ViewerKind::Track,
+            ViewerKind::Cloud,
+            ViewerKind::Trajectory,
+            ViewerKind::Table,
+        ]
+        .into_iter()
+        .find(|kind| kind.key() == key)
+    }
+
     /// What the viewer is called in menus and titles.
     pub fn name(self) -> &'static str {
         match self {
@@ -981,6 +1007,50 @@ impl Viewers {
         self.next_id += 1;
         self.list.push(Viewer::new(self.next_id, output, kind));
         self.changed = true;
+    }
+
+    /// The open viewers as a diagram saves them, in their order.
+    pub fn specs(&self) -> Vec<kairos_diagram::ViewerSpec> {
+        self.list
+            .iter()
+            .filter(|v| v.open)
+            .map(|v| kairos_diagram::ViewerSpec {
+                output: v.output.clone(),
+                kind: v.kind.key().to_owned(),
+                docked: v.docked,
+                also: v.also.clone(),
+            })
+            .collect()
+    }
+
+    /// Replaces the open viewers by those a diagram saved; returns the kinds it did not know (shown as
+    /// tables).
+    pub fn restore(&mut self, specs: &[kairos_diagram::ViewerSpec]) -> Vec<String> {
+        for viewer in &mut self.list {
+            viewer.open = false;
+        }
+        self.forget_closed();
+        let mut unknown = Vec::new();
+        for spec in specs {
+            let kind = ViewerKind::from_key(&spec.kind).unwrap_or_else(|| {
+                unknown.push(spec.kind.clone());
+                ViewerKind::Table
+            });
+            self.open_kind(spec.output.clone(), kind);
+            if let Some(viewer) = self.list.last_mut() {
+                viewer.docked = spec.docked;
+                viewer.also.clone_from(&spec.also);
+            }
+        }
+        self.changed = true;
+        unknown
+    }
+
+    /// Whether a viewer of this kind already shows `output`.
+    pub fn shows(&self, output: &str, kind: ViewerKind) -> bool {
+        self.list
+            .iter()
+            .any(|v| v.open && v.output == output && v.kind == kind)
     }
 
     /// The outputs the viewers show, each once.

@@ -297,6 +297,58 @@ fn a_viewer_dropped_on_an_output_opens_for_its_type() {
             kairos_studio::viewers::ViewerKind::Image
         )]
     );
+    assert!(
+        !harness.state().session.document.is_dirty() || harness.state().session.document.path().is_none(),
+        "opening a viewer is not an edit to be asked about"
+    );
+
+    // Saved with the diagram and opened with it again, in a new studio.
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("viewed.ron");
+    harness.get_by_label("File").click();
+    harness.run_steps(2);
+    harness.get_by_label("Save as… Ctrl+Shift+S").click();
+    harness.run_steps(2);
+    harness.get_by_role_and_label(Role::TextInput, "File:").focus();
+    harness.run_steps(1);
+    harness.key_press_modifiers(egui::Modifiers::COMMAND, egui::Key::A);
+    harness
+        .get_by_role_and_label(Role::TextInput, "File:")
+        .type_text(path.to_str().unwrap());
+    harness.run_steps(1);
+    harness.get_by_label("Save").click();
+    harness.run_steps(2);
+    let text = std::fs::read_to_string(&path).unwrap();
+    assert!(
+        text.contains("viewers: [\n        Viewer(output: \"camera1.image\", kind: \"image\"),"),
+        "{text}"
+    );
+    let app = StudioApp::new(
+        Document::open(&path).unwrap(),
+        library(),
+        None,
+        "no runtime (test)".to_owned(),
+        None,
+    );
+    let reopened = Harness::new_ui_state(|ui, app: &mut StudioApp| app.show(ui), app);
+    let viewers: Vec<(String, kairos_studio::viewers::ViewerKind)> = reopened
+        .state()
+        .session
+        .viewers
+        .list
+        .iter()
+        .map(|v| (v.output.clone(), v.kind))
+        .collect();
+    assert_eq!(
+        viewers,
+        [(
+            "camera1.image".to_owned(),
+            kairos_studio::viewers::ViewerKind::Image
+        )]
+    );
+    assert!(!reopened.state().session.document.is_dirty());
+    // The diagram format reads the file as any other diagram.
+    assert!(kairos_diagram::load(&path).is_ok());
 }
 
 #[test]
