@@ -155,34 +155,42 @@ fn entry_ui(ui: &mut egui::Ui, found: &Found<'_>) -> egui::Response {
 /// The palette, with its search field: groups while the search is empty, the matches best first while it
 /// is not.
 pub fn palette_ui(ui: &mut egui::Ui, library: &LibraryInfo, search_text: &mut String) {
+    // The palette's width is the panel's, whatever the search shows: results never push the canvas.
+    ui.set_max_width(ui.available_width());
     ui.heading("Components");
-    ui.add(egui::TextEdit::singleline(search_text).hint_text("search names, ids, descriptions"))
-        .on_hover_text("Drag a component onto the canvas; drag the viewer onto an output");
-    egui::ScrollArea::vertical().show(ui, |ui| {
-        if search_text.trim().is_empty() {
-            for (header, entries) in grouped(library) {
-                egui::CollapsingHeader::new(&header)
-                    .id_salt(("palette group", &header))
-                    .default_open(true)
-                    .show(ui, |ui| {
-                        for found in &entries {
-                            entry_ui(ui, found);
-                        }
-                    });
+    ui.add(
+        egui::TextEdit::singleline(search_text)
+            .hint_text("search names, ids, descriptions")
+            .desired_width(f32::INFINITY),
+    )
+    .on_hover_text("Drag a component onto the canvas; drag the viewer onto an output");
+    egui::ScrollArea::vertical()
+        .auto_shrink([false, true])
+        .show(ui, |ui| {
+            if search_text.trim().is_empty() {
+                for (header, entries) in grouped(library) {
+                    egui::CollapsingHeader::new(&header)
+                        .id_salt(("palette group", &header))
+                        .default_open(true)
+                        .show(ui, |ui| {
+                            for found in &entries {
+                                entry_ui(ui, found);
+                            }
+                        });
+                }
+                return;
             }
-            return;
-        }
-        let found = search(library, search_text);
-        if found.is_empty() {
-            ui.weak(format!("Nothing matches \"{}\".", search_text.trim()));
-        }
-        for found in &found {
-            ui.horizontal(|ui| {
-                entry_ui(ui, found);
-                ui.weak(&found.group);
-            });
-        }
-    });
+            let found = search(library, search_text);
+            if found.is_empty() {
+                ui.weak(format!("Nothing matches \"{}\".", search_text.trim()));
+            }
+            for found in &found {
+                ui.horizontal_wrapped(|ui| {
+                    entry_ui(ui, found);
+                    ui.weak(&found.group);
+                });
+            }
+        });
 }
 
 #[cfg(test)]

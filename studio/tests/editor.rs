@@ -775,6 +775,16 @@ fn the_palette_shows_readable_names_without_doubled_headers_and_searches() {
     search(&mut harness, "viewer");
     harness.get_by_label("Viewer");
     assert!(harness.query_by_label("Sine wave").is_none());
+
+    // The palette keeps its width whatever the results: the canvas beside it does not move.
+    let palette_width =
+        |harness: &Harness<'_, StudioApp>| harness.get_by_role(Role::TextInput).rect().width();
+    search(&mut harness, "");
+    let full = palette_width(&harness);
+    for text in ["gain", "socketcan", "wgs84", "zzz"] {
+        search(&mut harness, text);
+        assert_eq!(palette_width(&harness), full, "searching {text}");
+    }
 }
 
 #[test]

@@ -446,6 +446,24 @@ fn the_timeline_pauses_seeks_and_plays_a_recording() {
             .and_then(|p| p.as_f64())
             .is_some_and(|p| (p - duration * 0.75).abs() < 0.3)
     });
+    // A plain click seeks too, even with its press and release in one slow frame.
+    let at = Pos2::new(bar_left + (bar_right - bar_left) * 0.25, y);
+    harness.hover_at(at);
+    harness.run_steps(1);
+    for pressed in [true, false] {
+        harness.event(egui::Event::PointerButton {
+            pos: at,
+            button: egui::PointerButton::Primary,
+            pressed,
+            modifiers: egui::Modifiers::NONE,
+        });
+    }
+    harness.run_steps(2);
+    run_until(&mut harness, "the seek by a click", |app| {
+        status(app, "player", "position_s")
+            .and_then(|p| p.as_f64())
+            .is_some_and(|p| (p - duration * 0.25).abs() < 0.3)
+    });
     harness.get_by_label("Play").click();
     harness.run_steps(1);
     run_until(&mut harness, "the end of the replay", |app| {
