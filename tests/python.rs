@@ -672,12 +672,10 @@ fn a_missing_interpreter_or_virtual_environment_is_named() {
         said.contains("py_env.constant"),
         "the pack's .venv runs it: {said}"
     );
+    // One with its interpreter gone (copied from another machine, half made) is passed over.
     std::fs::remove_file(venv.join("bin/python3")).unwrap();
     let said = packs(None);
-    assert!(
-        said.contains("without bin/python3") && said.contains("the pack's .venv folder is used"),
-        "{said}"
-    );
+    assert!(said.contains("py_env.constant"), "python3 runs it: {said}");
 }
 
 #[test]

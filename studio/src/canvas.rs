@@ -17,7 +17,8 @@ use std::time::{Duration, Instant};
 
 use egui::{Color32, Pos2, Rect, Sense, Stroke, Vec2, WidgetInfo};
 use kairos_diagram::{
-    ComponentInstance, Connection, DataType, Diagram, InputInfo, LibraryInfo, PortRef, Position, ReaderPolicy,
+    ComponentInfo, ComponentInstance, Connection, DataType, Diagram, InputInfo, LibraryInfo, PortRef,
+    Position, ReaderPolicy,
 };
 use kairos_protocol::LinkTelemetry;
 
@@ -505,10 +506,12 @@ impl Canvas {
         let response = interact_node(ui, component, node.rect);
         self.select_or_move(ui, &response, &component.id, frame.diagram, document);
         let state = frame.shown.states.get(&component.id);
-        // A component placed on another machine says which, under its type.
-        let subtitle: std::borrow::Cow<'_, str> = match &component.host {
-            Some(host) => format!("{} — on {host}", component.type_name).into(),
-            None => component.type_name.as_str().into(),
+        // Under the name, what the component is in words (its type id is on hover); one placed on another
+        // machine says which.
+        let kind = info.map_or_else(|| component.type_name.clone(), ComponentInfo::display_name);
+        let subtitle = match &component.host {
+            Some(host) => format!("{kind} — on {host}"),
+            None => kind,
         };
         let look = NodeLook {
             id: &component.id,
@@ -526,7 +529,12 @@ impl Canvas {
         paint::paint_node(frame.painter, ui.visuals(), node.rect, &look);
         match (state, info) {
             (Some(NodeState::Failed(error)), _) => response.on_hover_text(format!("failed: {error}")),
-            (_, Some(info)) => response.on_hover_text(&info.doc),
+            (_, Some(info)) => response.on_hover_text(format!(
+                "{} ({})\n{}",
+                info.display_name(),
+                info.type_name,
+                info.doc
+            )),
             (_, None) => response.on_hover_text(format!("unknown component type {}", component.type_name)),
         };
         let Some(info) = info else { return false };

@@ -250,7 +250,7 @@ impl Document {
             && !input.filter.accepts(data_type)
         {
             return Err(Refusal(format!(
-                "{to} needs {}, not {} ({from} gives {data_type})",
+                "{to} needs {}, and {from} gives {}",
                 filter_in_words(&input.filter),
                 type_in_words(data_type)
             )));
@@ -536,7 +536,7 @@ mod tests {
             )
             .unwrap_err();
         assert!(
-            refusal.0.contains("needs a number") && refusal.0.contains("not an image"),
+            refusal.0.contains("needs a number") && refusal.0.contains("camera1.image gives an image"),
             "{}",
             refusal.0
         );

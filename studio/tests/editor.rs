@@ -211,7 +211,7 @@ fn a_connection_the_input_refuses_is_not_made_and_the_canvas_says_why() {
     let notice = harness.state().canvas.notice().unwrap_or_default().to_owned();
     assert_eq!(
         notice,
-        "gain1.in needs a number, a whole number or a yes/no value, not an image (camera1.image gives image)"
+        "gain1.in needs a number, a whole number or a yes/no value, and camera1.image gives an image"
     );
     // Said in the log too, where it stays.
     assert!(
@@ -784,7 +784,10 @@ fn the_palette_shows_readable_names_without_doubled_headers_and_searches() {
     for text in ["gain", "socketcan", "wgs84", "zzz"] {
         search(&mut harness, text);
         let width = palette_width(&harness);
-        assert!((width - full).abs() < 0.01, "searching {text}: {width} then {full}");
+        assert!(
+            (width - full).abs() < 0.01,
+            "searching {text}: {width} then {full}"
+        );
     }
 }
 

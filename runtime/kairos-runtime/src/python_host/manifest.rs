@@ -132,7 +132,8 @@ impl NamedBy {
 }
 
 /// The interpreter a pack runs on, first found: the manifest's `interpreter`, `$KAIROS_PYTHON`, a virtual
-/// environment in the pack's `.venv` folder (where the wizard tells to make one), then `python3`.
+/// environment with an interpreter in the pack's `.venv` folder (where the wizard tells to make one), then
+/// `python3`.
 fn choose_interpreter(folder: &Path, manifest: &Manifest) -> (String, NamedBy) {
     if let Some(named) = &manifest.python.interpreter {
         return (named.clone(), NamedBy::Manifest);
@@ -140,7 +141,10 @@ fn choose_interpreter(folder: &Path, manifest: &Manifest) -> (String, NamedBy) {
     if let Some(named) = std::env::var("KAIROS_PYTHON").ok().filter(|v| !v.is_empty()) {
         return (named, NamedBy::Environment);
     }
-    if folder.join(PACK_VENV).is_dir() {
+    // Only one with an interpreter: a `.venv` made on another machine and copied here, or half made, is
+    // passed over rather than refusing the pack.
+    let venv = folder.join(PACK_VENV);
+    if venv.join("bin/python3").is_file() || venv.join("bin/python").is_file() {
         return (PACK_VENV.to_owned(), NamedBy::PackVenv);
     }
     (DEFAULT_INTERPRETER.to_owned(), NamedBy::Default)
