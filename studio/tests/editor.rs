@@ -96,6 +96,42 @@ fn add_from_palette(harness: &mut Harness<'_, StudioApp>, type_name: &str, at: P
     drag(harness, from, at);
 }
 
+/// File → Save as…, `path` typed, Save.
+fn save_as(harness: &mut Harness<'_, StudioApp>, path: &std::path::Path) {
+    harness.get_by_label("File").click();
+    harness.run_steps(2);
+    harness.get_by_label("Save as… Ctrl+Shift+S").click();
+    harness.run_steps(2);
+    harness.get_by_role_and_label(Role::TextInput, "File:").focus();
+    harness.run_steps(1);
+    harness.key_press_modifiers(egui::Modifiers::COMMAND, egui::Key::A);
+    harness
+        .get_by_role_and_label(Role::TextInput, "File:")
+        .type_text(path.to_str().unwrap());
+    harness.run_steps(1);
+    harness.get_by_label("Save").click();
+    harness.run_steps(2);
+}
+
+/// The open viewers: what each shows and how.
+fn open_viewers(harness: &Harness<'_, StudioApp>) -> Vec<(String, kairos_studio::viewers::ViewerKind)> {
+    harness
+        .state()
+        .session
+        .viewers
+        .list
+        .iter()
+        .map(|v| (v.output.clone(), v.kind))
+        .collect()
+}
+
+fn camera_image_viewer() -> (String, kairos_studio::viewers::ViewerKind) {
+    (
+        "camera1.image".to_owned(),
+        kairos_studio::viewers::ViewerKind::Image,
+    )
+}
+
 #[test]
 fn a_diagram_is_built_through_the_interface_and_saved() {
     let mut harness = studio();
@@ -166,21 +202,7 @@ fn a_diagram_is_built_through_the_interface_and_saved() {
     // File > Save as…, a typed path, Save.
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("built.ron");
-    harness.get_by_label("File").click();
-    harness.run_steps(2);
-    harness.get_by_label("Save as… Ctrl+Shift+S").click();
-    harness.run_steps(2);
-    let typed = dir.path().join("built");
-    let field = harness.get_by_role_and_label(Role::TextInput, "File:");
-    field.focus();
-    harness.run_steps(1);
-    harness.key_press_modifiers(egui::Modifiers::COMMAND, egui::Key::A);
-    harness
-        .get_by_role_and_label(Role::TextInput, "File:")
-        .type_text(typed.to_str().unwrap());
-    harness.run_steps(1);
-    harness.get_by_label("Save").click();
-    harness.run_steps(2);
+    save_as(&mut harness, &dir.path().join("built"));
     assert_eq!(
         harness.state().session.document.path(),
         Some(path.as_path()),
@@ -282,21 +304,7 @@ fn a_viewer_dropped_on_an_output_opens_for_its_type() {
     let from = center_of(&harness, "Viewer");
     let to = on_canvas(&harness, "output camera1.image (image)");
     drag(&mut harness, from, to);
-    let viewers: Vec<(String, kairos_studio::viewers::ViewerKind)> = harness
-        .state()
-        .session
-        .viewers
-        .list
-        .iter()
-        .map(|v| (v.output.clone(), v.kind))
-        .collect();
-    assert_eq!(
-        viewers,
-        [(
-            "camera1.image".to_owned(),
-            kairos_studio::viewers::ViewerKind::Image
-        )]
-    );
+    assert_eq!(open_viewers(&harness), [camera_image_viewer()]);
     assert!(
         !harness.state().session.document.is_dirty() || harness.state().session.document.path().is_none(),
         "opening a viewer is not an edit to be asked about"
@@ -305,19 +313,7 @@ fn a_viewer_dropped_on_an_output_opens_for_its_type() {
     // Saved with the diagram and opened with it again, in a new studio.
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("viewed.ron");
-    harness.get_by_label("File").click();
-    harness.run_steps(2);
-    harness.get_by_label("Save as… Ctrl+Shift+S").click();
-    harness.run_steps(2);
-    harness.get_by_role_and_label(Role::TextInput, "File:").focus();
-    harness.run_steps(1);
-    harness.key_press_modifiers(egui::Modifiers::COMMAND, egui::Key::A);
-    harness
-        .get_by_role_and_label(Role::TextInput, "File:")
-        .type_text(path.to_str().unwrap());
-    harness.run_steps(1);
-    harness.get_by_label("Save").click();
-    harness.run_steps(2);
+    save_as(&mut harness, &path);
     let text = std::fs::read_to_string(&path).unwrap();
     assert!(
         text.contains("viewers: [\n        Viewer(output: \"camera1.image\", kind: \"image\"),"),
@@ -331,21 +327,7 @@ fn a_viewer_dropped_on_an_output_opens_for_its_type() {
         None,
     );
     let reopened = Harness::new_ui_state(|ui, app: &mut StudioApp| app.show(ui), app);
-    let viewers: Vec<(String, kairos_studio::viewers::ViewerKind)> = reopened
-        .state()
-        .session
-        .viewers
-        .list
-        .iter()
-        .map(|v| (v.output.clone(), v.kind))
-        .collect();
-    assert_eq!(
-        viewers,
-        [(
-            "camera1.image".to_owned(),
-            kairos_studio::viewers::ViewerKind::Image
-        )]
-    );
+    assert_eq!(open_viewers(&reopened), [camera_image_viewer()]);
     assert!(!reopened.state().session.document.is_dirty());
     // The diagram format reads the file as any other diagram.
     assert!(kairos_diagram::load(&path).is_ok());
