@@ -529,12 +529,15 @@ impl Canvas {
         paint::paint_node(frame.painter, ui.visuals(), node.rect, &look);
         match (state, info) {
             (Some(NodeState::Failed(error)), _) => response.on_hover_text(format!("failed: {error}")),
-            (_, Some(info)) => response.on_hover_text(format!(
-                "{} ({})\n{}",
-                info.display_name(),
-                info.type_name,
-                info.doc
-            )),
+            // Made only while hovered: this runs for every node each frame the canvas draws.
+            (_, Some(info)) => response.on_hover_ui(|ui| {
+                ui.label(format!(
+                    "{} ({})\n{}",
+                    info.display_name(),
+                    info.type_name,
+                    info.doc
+                ));
+            }),
             (_, None) => response.on_hover_text(format!("unknown component type {}", component.type_name)),
         };
         let Some(info) = info else { return false };

@@ -46,18 +46,34 @@ pub struct LogLine {
     pub text: String,
     /// How many times it was said (1: once).
     pub repeats: u32,
+    /// The text without its numbers, made once: what a repeat says again.
+    words: String,
 }
 
 impl LogLine {
-    /// What stays the same when a problem is said again: its level, source, component and its words
-    /// without their numbers.
-    fn repeat_key(&self) -> (LogLevel, Source, Option<&str>, String) {
-        let words = self
-            .text
+    fn new(level: LogLevel, tone: Tone, source: Source, component: Option<String>, text: String) -> Self {
+        let words = text
             .chars()
             .filter(|c| !c.is_ascii_digit() && *c != '.')
             .collect();
-        (self.level, self.source, self.component.as_deref(), words)
+        LogLine {
+            level,
+            tone,
+            source,
+            component,
+            text,
+            repeats: 1,
+            words,
+        }
+    }
+
+    /// Whether `self` says again what `other` said: the same level, source, component and words, but
+    /// for the numbers.
+    fn repeats_line(&self, other: &LogLine) -> bool {
+        self.level == other.level
+            && self.source == other.source
+            && self.component == other.component
+            && self.words == other.words
     }
 }
 
@@ -100,11 +116,10 @@ impl Log {
     /// Adds a line, forgetting the oldest beyond [`LOG_LINES`]. A repeat of one of the last few lines
     /// takes that line's place at the end, counted.
     pub fn push(&mut self, mut line: LogLine) {
-        let key = line.repeat_key();
         let recent = self.lines.len().saturating_sub(REPEAT_WINDOW);
         if let Some(at) = (recent..self.lines.len())
             .rev()
-            .find(|&at| self.lines.get(at).is_some_and(|old| old.repeat_key() == key))
+            .find(|&at| self.lines.get(at).is_some_and(|old| line.repeats_line(old)))
             && let Some(old) = self.lines.remove(at)
         {
             line.repeats = old.repeats.saturating_add(line.repeats);
@@ -117,14 +132,7 @@ impl Log {
 
     /// A line of the studio's own.
     pub fn studio(&mut self, level: LogLevel, tone: Tone, text: impl Into<String>) {
-        self.push(LogLine {
-            level,
-            tone,
-            source: Source::Studio,
-            component: None,
-            text: text.into(),
-            repeats: 1,
-        });
+        self.push(LogLine::new(level, tone, Source::Studio, None, text.into()));
     }
 
     /// A record of the runtime's log, prefixed with the component it concerns.
@@ -133,14 +141,14 @@ impl Log {
             .component
             .as_ref()
             .map_or_else(String::new, |c| format!("{c}: "));
-        self.push(LogLine {
-            level: record.level,
-            tone: Tone::Plain,
-            source: Source::Runtime,
-            component: record.component,
-            text: format!("{who}{}", record.message),
-            repeats: 1,
-        });
+        let text = format!("{who}{}", record.message);
+        self.push(LogLine::new(
+            record.level,
+            Tone::Plain,
+            Source::Runtime,
+            record.component,
+            text,
+        ));
     }
 
     /// Every line, the oldest first.

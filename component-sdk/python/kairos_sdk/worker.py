@@ -348,10 +348,13 @@ def _load(hello):
     return cls
 
 
+IMPORTLIB_FOLDER = os.path.dirname(os.path.abspath(importlib.__file__))
+
+
 def _is_user_code(filename):
-    """Frames of the component's own code: neither this SDK's nor the import machinery's."""
-    return not (filename.startswith(SDK_FOLDER) or filename.startswith("<frozen ")
-                or "importlib" in filename)
+    """Frames of the component's own code: neither this SDK's nor the import machinery's (frozen, or
+    the importlib package's own files)."""
+    return not (filename.startswith((SDK_FOLDER, IMPORTLIB_FOLDER)) or filename.startswith("<frozen "))
 
 
 def user_traceback(error):
