@@ -95,6 +95,11 @@ pub enum DiagnosticCode {
     UnknownHost,
     /// A host whose endpoint is not a `ws://` or `wss://` address with a port.
     InvalidEndpoint,
+    /// An execution group that cannot run as asked: members on two machines, two members that wait, a
+    /// group no component uses.
+    InvalidGroup,
+    /// Components of one execution group that feed each other in a loop.
+    GroupCycle,
 }
 
 /// Where a problem is in the source text.

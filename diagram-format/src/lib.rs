@@ -36,11 +36,11 @@ pub use library::{
 pub use model::{
     ComponentInstance, Connection, DEFAULT_RIDE_OUT_MB, DEFAULT_RIDE_OUT_S, DEFAULT_ZENOH_PORT, Diagram,
     FORMAT_VERSION, HostSpec, MAX_BUFFER_SIZE, MAX_RIDE_OUT_MB, MAX_RIDE_OUT_S, OutputSettings,
-    PackRequirement, PortRef, Position, ThreadSettings, ViewerSpec,
+    PackRequirement, PortRef, Position, SEQUENTIAL_GROUP, ThreadSettings, ViewerSpec,
 };
 pub use read::{
-    ComponentLocations, ConnectionLocations, EntryLocations, HostLocations, LoadError, OutputLocations,
-    PackLocations, ParsedDiagram, SourceMap, load, parse,
+    ComponentLocations, ConnectionLocations, EntryLocations, GroupLocations, HostLocations, LoadError,
+    OutputLocations, PackLocations, ParsedDiagram, SourceMap, load, parse,
 };
 pub use ron_syntax::MAX_DEPTH;
 pub use validate::{is_valid_id, output_type, resolved_properties, validate, validate_with};

@@ -590,9 +590,24 @@ pub struct ComponentInfo {
     /// as a GNSS receiver does).
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub time_source: bool,
+    /// Why a call of it may wait for long (on a device, a socket, its own timing), in words ("waits for
+    /// each frame of the camera"): such a
+    /// component cannot share an execution group's thread, except as the group's driver.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub blocking: Option<String>,
 }
 
 impl ComponentInfo {
+    /// Why the component may keep an execution group's thread waiting: what its descriptor says, or,
+    /// for a threaded source (no inputs), that it keeps its own time. `None`: it can share a group.
+    pub fn blocking_reason(&self) -> Option<String> {
+        if let Some(reason) = &self.blocking {
+            return Some(reason.clone());
+        }
+        (self.mode == ExecutionMode::Threaded && self.inputs.is_empty())
+            .then(|| "a source that keeps its own time: a device, a file or a socket".to_owned())
+    }
+
     /// The name people read: the pack's label, else one derived from the type name
     /// ([`readable_type_name`]).
     pub fn display_name(&self) -> String {
@@ -776,6 +791,7 @@ mod tests {
             properties: Vec::new(),
             actions: Vec::new(),
             time_source: false,
+            blocking: None,
         };
         assert_eq!(unlabelled.display_name(), "Sine");
         let labelled = super::ComponentInfo {

@@ -36,7 +36,18 @@ pub struct Diagram {
     /// them: they say how to look at the diagram, not what it does.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub viewers: Vec<ViewerSpec>,
+    /// Every component runs in one thread, [`SEQUENTIAL_GROUP`], in the order of the links (RTMaps'
+    /// sequential behaviour): runs that replay the same data give the same outputs.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub sequential: bool,
+    /// The thread settings of execution groups, by group name. A group that components name but this map
+    /// does not runs with the default settings.
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub groups: BTreeMap<String, ThreadSettings>,
 }
+
+/// The one group every component of a [`Diagram::sequential`] diagram runs in.
+pub const SEQUENTIAL_GROUP: &str = "sequential";
 
 /// A viewer saved with a diagram: which output it shows, how, and where.
 #[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
@@ -133,6 +144,8 @@ impl Default for Diagram {
             clock_source: None,
             hosts: BTreeMap::new(),
             viewers: Vec::new(),
+            sequential: false,
+            groups: BTreeMap::new(),
         }
     }
 }
@@ -146,6 +159,27 @@ impl Diagram {
     /// The component instance with this id, mutably.
     pub fn component_mut(&mut self, id: &str) -> Option<&mut ComponentInstance> {
         self.components.iter_mut().find(|c| c.id == id)
+    }
+
+    /// The execution group `component` runs in: the diagram's one group when it is sequential, else the
+    /// component's own; `None`: a thread of its own.
+    pub fn group_of<'a>(&'a self, component: &'a ComponentInstance) -> Option<&'a str> {
+        if self.sequential {
+            Some(SEQUENTIAL_GROUP)
+        } else {
+            component.group.as_deref()
+        }
+    }
+
+    /// Every execution group with its members' ids, in the diagram's order.
+    pub fn execution_groups(&self) -> BTreeMap<&str, Vec<&str>> {
+        let mut groups: BTreeMap<&str, Vec<&str>> = BTreeMap::new();
+        for component in &self.components {
+            if let Some(group) = self.group_of(component) {
+                groups.entry(group).or_default().push(component.id.as_str());
+            }
+        }
+        groups
     }
 }
 
@@ -210,6 +244,10 @@ pub struct ComponentInstance {
     /// The host it runs on (a name of the diagram's `hosts`); `None`: the machine that deploys.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub host: Option<String>,
+    /// The execution group it runs in, sharing that group's thread with the other members; `None`: a
+    /// thread of its own (RTMaps' default).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub group: Option<String>,
 }
 
 impl ComponentInstance {
@@ -223,6 +261,7 @@ impl ComponentInstance {
             thread: ThreadSettings::default(),
             position: Position::default(),
             host: None,
+            group: None,
         }
     }
 }

@@ -32,6 +32,19 @@ pub struct SourceMap {
     pub clock_source: Option<Location>,
     /// Each host's name and endpoint.
     pub hosts: BTreeMap<String, HostLocations>,
+    /// Each execution group's name in the `groups` section, and where its priority is.
+    pub groups: BTreeMap<String, GroupLocations>,
+    /// The `sequential` switch's value, when given.
+    pub sequential: Option<Location>,
+}
+
+/// Where an execution group of the `groups` section is.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct GroupLocations {
+    /// Its name (the map's key).
+    pub name: Location,
+    /// Its thread priority's value, when given.
+    pub priority: Option<Location>,
 }
 
 /// Where a host of the `hosts` section is.
@@ -75,6 +88,8 @@ pub struct ComponentLocations {
     pub priority: Option<Location>,
     /// The host's value, when given.
     pub host: Option<Location>,
+    /// The execution group's value, when given.
+    pub group: Option<Location>,
 }
 
 /// Where a map entry's key and value are.
@@ -550,6 +565,8 @@ impl Reader<'_> {
                 "components",
                 "connections",
                 "viewers",
+                "sequential",
+                "groups",
             ],
         )?;
         let (hosts, host_locations) = fields
@@ -564,6 +581,12 @@ impl Reader<'_> {
         let components = self.items(fields.optional("components"), Self::component);
         let connections = self.items(fields.optional("connections"), Self::connection);
         let viewers = self.items(fields.optional("viewers"), Self::viewer);
+        let sequential_node = fields.optional("sequential");
+        let sequential = self.optional(sequential_node, Self::boolean);
+        let (groups, group_locations) = fields
+            .optional("groups")
+            .map(|n| self.groups(n))
+            .unwrap_or_default();
         let (format, format_node) = (format?, format_node?);
         let (packs, pack_locations) = packs.into_iter().unzip();
         let (components, component_locations) = components.into_iter().unzip();
@@ -577,9 +600,13 @@ impl Reader<'_> {
                 clock_source,
                 hosts,
                 viewers,
+                sequential: sequential.ok()?.unwrap_or(false),
+                groups,
             },
             source_map: SourceMap {
                 hosts: host_locations,
+                groups: group_locations,
+                sequential: sequential_node.map(|n| self.location(n.span)),
                 diagram: self.location(node.head),
                 format: self.location(format_node.span),
                 clock_source: clock_source_node.map(|n| self.location(n.span)),
@@ -627,6 +654,7 @@ impl Reader<'_> {
             "properties",
             "outputs",
             "thread",
+            "group",
         ];
         let fields = self.fields(node, "Component", &known)?;
         let id_node = self.required(&fields, "id");
@@ -640,6 +668,8 @@ impl Reader<'_> {
         let thread = fields.optional("thread").map(|n| self.thread(n));
         let host_node = fields.optional("host");
         let host = self.optional(host_node, Self::text).ok()?;
+        let group_node = fields.optional("group");
+        let group = self.optional(group_node, Self::text).ok()?;
 
         let (properties, property_locations) = properties.unwrap_or_default();
         let (outputs, output_locations) = outputs.unwrap_or_default();
@@ -653,8 +683,10 @@ impl Reader<'_> {
         instance.outputs = outputs;
         instance.thread = thread;
         instance.host = host;
+        instance.group = group;
         let locations = ComponentLocations {
             host: host_node.map(|n| self.location(n.span)),
+            group: group_node.map(|n| self.location(n.span)),
             component: self.location(node.head),
             id: self.location(id_node?.span),
             type_name: self.location(type_node?.span),
@@ -727,6 +759,30 @@ impl Reader<'_> {
             );
         }
         (hosts, locations)
+    }
+
+    /// The `groups` map: `"name": (priority: Some(50), affinity: [1])`, a group's thread settings.
+    fn groups(
+        &mut self,
+        node: &Node,
+    ) -> (BTreeMap<String, ThreadSettings>, BTreeMap<String, GroupLocations>) {
+        let mut groups = BTreeMap::new();
+        let mut locations = BTreeMap::new();
+        for (name, name_span, value) in self.string_map(node, "group") {
+            let Some((settings, priority)) = self.thread(value) else {
+                continue;
+            };
+            let name_location = self.location(name_span);
+            locations.insert(
+                name.clone(),
+                GroupLocations {
+                    name: name_location,
+                    priority,
+                },
+            );
+            groups.insert(name, settings);
+        }
+        (groups, locations)
     }
 
     fn position(&mut self, node: &Node) -> Option<Position> {

@@ -10,6 +10,8 @@ use crate::model::HostSpec;
 use crate::model::{ComponentInstance, Connection, Diagram, FORMAT_VERSION, MAX_BUFFER_SIZE, PortRef};
 use crate::read::{ComponentLocations, ConnectionLocations, PackLocations, SourceMap};
 
+mod groups;
+
 /// Checks `diagram` against `library` and returns every problem found, in source order.
 ///
 /// With `source_map` (from [`crate::parse()`], for the diagram as parsed) each diagnostic points at the
@@ -47,6 +49,7 @@ pub fn validate_with(
     validator.check_components();
     validator.check_connections();
     validator.check_reactive_cycles();
+    validator.check_groups();
     let mut found = validator.found;
     // Stable, so problems at the same place keep the order the checks found them in.
     found.sort_by_key(|d| d.location.map_or(usize::MAX, |l| l.offset));
@@ -697,6 +700,10 @@ impl<'a> Validator<'a> {
         let reactive = |id: &str| -> Option<usize> {
             let index = self.first_with_id.get(id).copied()?;
             let instance = components.get(index)?;
+            // In an execution group the group's thread runs it, not its producer's.
+            if self.diagram.group_of(instance).is_some() {
+                return None;
+            }
             let info = self.info_of(instance)?;
             (info.mode == ExecutionMode::Reactive).then_some(index)
         };

@@ -87,6 +87,16 @@ impl fmt::Display for CanonicalRon<'_> {
             }
             f.write_str("    },\n")?;
         }
+        if diagram.sequential {
+            f.write_str("    sequential: true,\n")?;
+        }
+        if !diagram.groups.is_empty() {
+            f.write_str("    groups: {\n")?;
+            for (name, settings) in &diagram.groups {
+                writeln!(f, "        {}: {},", Quoted(name), RonThread(settings))?;
+            }
+            f.write_str("    },\n")?;
+        }
 
         let mut packs: Vec<&PackRequirement> = diagram.packs.iter().collect();
         packs.sort_by(|a, b| compare_packs(a, b));
@@ -166,6 +176,9 @@ fn write_component(f: &mut fmt::Formatter<'_>, component: &ComponentInstance) ->
     writeln!(f, "{FIELD}type: {},", Quoted(&component.type_name))?;
     if let Some(host) = &component.host {
         writeln!(f, "{FIELD}host: {},", Quoted(host))?;
+    }
+    if let Some(group) = &component.group {
+        writeln!(f, "{FIELD}group: {},", Quoted(group))?;
     }
     let position = component.position;
     // Compare bits, not values: `-0.0` is not the default and must survive a round trip.

@@ -208,6 +208,8 @@ fn diagram() -> impl Strategy<Value = Diagram> {
                 clock_source,
                 hosts,
                 viewers: Vec::new(),
+                sequential: false,
+                groups: std::collections::BTreeMap::new(),
             },
         )
 }

@@ -82,6 +82,7 @@ fn scrambled_diagram() -> Diagram {
     let mut gain = ComponentInstance::new("gain1", "core.gain");
     gain.thread.priority = Some(99);
     gain.host = Some("roadside".to_owned());
+    gain.group = Some("control".to_owned());
     let mut connection = Connection::new(PortRef::new("sine1", "out"), PortRef::new("gain1", "in"));
     connection.policy = Some(ReaderPolicy::NeverSkipping);
     Diagram {
@@ -141,6 +142,14 @@ fn scrambled_diagram() -> Diagram {
                 also: vec!["gnss2.fix".to_owned(), "gnss3.fix".to_owned()],
             },
         ],
+        sequential: true,
+        groups: BTreeMap::from([(
+            "control".to_owned(),
+            ThreadSettings {
+                priority: Some(40),
+                affinity: vec![1],
+            },
+        )]),
     }
 }
 

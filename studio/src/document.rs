@@ -62,6 +62,8 @@ impl Document {
             clock_source,
             hosts,
             viewers: _,
+            sequential,
+            groups,
         } = &self.diagram;
         let saved = &self.saved;
         *format != saved.format
@@ -70,6 +72,8 @@ impl Document {
             || *connections != saved.connections
             || *clock_source != saved.clock_source
             || *hosts != saved.hosts
+            || *sequential != saved.sequential
+            || *groups != saved.groups
     }
 
     /// Writes the diagram (canonical text) to its file. With no change since it was opened, the file is left

@@ -396,6 +396,7 @@ impl Delay {
         .label("Delay")
         .input("in", TypeFilter::Any, "Any stream")
         .output_following("out", "in", "The input, later; timestamps kept")
+        .blocking("it holds each sample for delay_ms before passing it on")
         .property(Property::f64("delay_ms", 10.0).unit("ms").range(0.0, 60_000.0).live().doc("Time spent on each sample"))
         .build()
     }

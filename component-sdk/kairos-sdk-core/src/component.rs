@@ -742,6 +742,11 @@ impl Context {
 
     /// A pack's request to sleep until woken (its own any-of or synchronised reads).
     pub(crate) fn wait_from_pack(&self, interruptible: bool) -> Result<(), ComponentError> {
+        // A loaded component may believe it has a thread of its own; run by its group or its producer,
+        // it must not sleep there.
+        if self.is_reactive() {
+            return Err(ComponentError::NoData);
+        }
         self.wait_for_attention(interruptible && self.samples_read_this_cycle == 0)
     }
 

@@ -46,6 +46,7 @@ impl Descriptor {
                 properties: Vec::new(),
                 actions: Vec::new(),
                 time_source: false,
+                blocking: None,
             },
         }
     }
@@ -54,6 +55,14 @@ impl Descriptor {
     /// [`crate::Context::clock_reference`] with the true time it receives (a GNSS receiver's UTC).
     pub fn time_source(mut self) -> Self {
         self.info.time_source = true;
+        self
+    }
+
+    /// Declares that a call of the component may wait for long (on a device, a socket, its own timing),
+    /// and why, in words: it cannot then share an execution group's thread except as the group's
+    /// driver. Threaded sources (no inputs) are taken to wait without saying so.
+    pub fn blocking(mut self, reason: &str) -> Self {
+        self.info.blocking = Some(reason.to_owned());
         self
     }
 

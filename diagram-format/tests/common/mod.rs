@@ -50,6 +50,7 @@ fn component(type_name: &str, pack: &str, mode: ExecutionMode) -> ComponentInfo 
         properties: Vec::new(),
         actions: Vec::new(),
         time_source: false,
+        blocking: None,
     }
 }
 

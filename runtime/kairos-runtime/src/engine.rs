@@ -1,7 +1,7 @@
 //! The engine: builds a running diagram from a validated one, runs each component, stops them all.
 
 use std::collections::{BTreeMap, VecDeque};
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::mpsc::{self, Receiver, RecvTimeoutError, SyncSender};
 use std::sync::{Arc, Mutex, MutexGuard, OnceLock, Weak};
 use std::thread::JoinHandle;
@@ -18,6 +18,7 @@ use kairos_sdk_core::{
     Clock, Component, ComponentError, ComponentResult, Context, Registry, RunSignal, Timestamp,
 };
 
+use crate::group::{GroupRun, GroupShared, Member};
 use crate::scheduling;
 use crate::start_gate::{START_GATE_LIMIT, StartGate};
 use crate::stats::{ComponentState, ComponentStats, LinkStats, StatsSnapshot};
@@ -109,17 +110,17 @@ enum ControlRequest {
 }
 
 /// What a component's thread and the engine share.
-struct Monitor {
+pub(crate) struct Monitor {
     state: Mutex<ComponentState>,
-    cycles: AtomicU64,
-    busy_nanos: AtomicU64,
+    pub(crate) cycles: AtomicU64,
+    pub(crate) busy_nanos: AtomicU64,
     /// Periodic ticks skipped because the component fell more than a period behind.
-    missed_ticks: AtomicU64,
+    pub(crate) missed_ticks: AtomicU64,
     controls: Mutex<VecDeque<ControlRequest>>,
     status: kairos_sdk_core::host::StatusCell,
 }
 
-fn lock<T>(mutex: &Mutex<T>) -> MutexGuard<'_, T> {
+pub(crate) fn lock<T>(mutex: &Mutex<T>) -> MutexGuard<'_, T> {
     match mutex.lock() {
         Ok(guard) => guard,
         Err(poisoned) => poisoned.into_inner(),
@@ -138,7 +139,7 @@ impl Monitor {
         }
     }
 
-    fn set_state(&self, state: ComponentState) {
+    pub(crate) fn set_state(&self, state: ComponentState) {
         *lock(&self.state) = state;
     }
 
@@ -146,12 +147,12 @@ impl Monitor {
         lock(&self.state).clone()
     }
 
-    fn is_failed(&self) -> bool {
+    pub(crate) fn is_failed(&self) -> bool {
         matches!(*lock(&self.state), ComponentState::Failed(_))
     }
 
     /// Marks the component failed and reports it by id, once.
-    fn fail(&self, id: &str, stage: &str, message: &str) {
+    pub(crate) fn fail(&self, id: &str, stage: &str, message: &str) {
         let mut current = lock(&self.state);
         if !matches!(*current, ComponentState::Failed(_)) {
             tracing::error!(
@@ -196,7 +197,7 @@ impl Component for FailedConstruction {
 }
 
 /// Runs one lifecycle call, turning a panic into an error so it never leaves the component.
-fn guarded(call: impl FnOnce() -> Result<(), ComponentError>) -> Result<(), ComponentError> {
+pub(crate) fn guarded(call: impl FnOnce() -> Result<(), ComponentError>) -> Result<(), ComponentError> {
     match std::panic::catch_unwind(std::panic::AssertUnwindSafe(call)) {
         Ok(result) => result,
         Err(panic) => Err(ComponentError::Failed(format!(
@@ -207,7 +208,12 @@ fn guarded(call: impl FnOnce() -> Result<(), ComponentError>) -> Result<(), Comp
 }
 
 /// Applies queued property changes and actions on the component's own thread.
-fn apply_controls(id: &str, component: &mut dyn Component, ctx: &mut Context, monitor: &Monitor) -> bool {
+pub(crate) fn apply_controls(
+    id: &str,
+    component: &mut dyn Component,
+    ctx: &mut Context,
+    monitor: &Monitor,
+) -> bool {
     loop {
         let Some(request) = lock(&monitor.controls).pop_front() else {
             return true;
@@ -320,6 +326,8 @@ enum Driver {
         handle: Option<JoinHandle<()>>,
     },
     Reactive(Arc<ReactiveCell>),
+    /// A member of an execution group: the group's thread runs it.
+    Grouped(Arc<GroupShared>),
 }
 
 struct Slot {
@@ -338,10 +346,27 @@ struct Pending {
     component: Box<dyn Component>,
     signal: Arc<RunSignal>,
     reactive: Option<Arc<OnceLock<Weak<ReactiveCell>>>>,
+    group: Option<GroupRole>,
     inputs: Vec<kairos_sdk_core::InputPort>,
     outputs: Vec<kairos_sdk_core::OutputPort>,
     properties: BTreeMap<String, Value>,
     thread: ThreadSettings,
+}
+
+/// A component's place in its execution group.
+struct GroupRole {
+    shared: Arc<GroupShared>,
+    ready: Arc<AtomicBool>,
+    drives: bool,
+}
+
+/// An execution group of the engine: its members until its thread starts, then the thread.
+struct GroupSlot {
+    shared: Arc<GroupShared>,
+    settings: ThreadSettings,
+    member_ids: Vec<String>,
+    members: Option<Vec<Member>>,
+    handle: Option<JoinHandle<()>>,
 }
 
 /// A diagram instantiated on a component library: buffers allocated, readers attached, components made.
@@ -350,6 +375,7 @@ pub struct Engine {
     /// The component the clock follows, started first so the clock can lock before anything else runs.
     clock_source: Option<String>,
     slots: Vec<Slot>,
+    groups: Vec<GroupSlot>,
     buffers: Vec<OutputBuffer>,
     policies: BTreeMap<String, ReaderPolicy>,
     state: EngineState,
@@ -428,13 +454,34 @@ impl Wiring<'_> {
         &self,
         instance: &kairos_diagram::ComponentInstance,
         buffers: &mut BTreeMap<(String, String), OutputBuffer>,
+        groups: &mut BTreeMap<String, Arc<GroupShared>>,
     ) -> Option<Pending> {
         let registered = self.registry.component(&instance.type_name)?;
         let info = match self.instances.get(&instance.id) {
             Some(Ok(described)) => described.clone(),
             _ => registered.info.clone(),
         };
-        let (signal, reactive) = if info.mode == ExecutionMode::Reactive {
+        let group = self.diagram.group_of(instance).map(|name| {
+            let shared = groups
+                .entry(name.to_owned())
+                .or_insert_with(|| Arc::new(GroupShared::new(name)));
+            GroupRole {
+                shared: Arc::clone(shared),
+                ready: Arc::new(AtomicBool::new(false)),
+                drives: info.blocking_reason().is_some(),
+            }
+        });
+        let (signal, reactive) = if let Some(role) = &group {
+            // The driver waits in its calls like a thread of its own; the others read without waiting.
+            let signal = if role.drives {
+                let signal = Arc::new(RunSignal::new());
+                role.shared.set_driver(&signal);
+                signal
+            } else {
+                Arc::new(role.shared.member_signal(&role.ready))
+            };
+            (signal, None)
+        } else if info.mode == ExecutionMode::Reactive {
             let cell: Arc<OnceLock<Weak<ReactiveCell>>> = Arc::new(OnceLock::new());
             let hook = Arc::clone(&cell);
             let signal = RunSignal::reactive(move || {
@@ -470,6 +517,7 @@ impl Wiring<'_> {
             info,
             signal,
             reactive,
+            group,
             inputs: Vec::new(),
             outputs,
             thread: instance.thread.clone(),
@@ -566,8 +614,9 @@ impl Wiring<'_> {
 }
 
 impl Pending {
-    /// The slot this component runs in: its context built, in its producer's thread when reactive.
-    fn into_slot(self, clock: &Arc<dyn Clock>, diagram_text: &Arc<str>) -> Slot {
+    /// The slot this component runs in: its context built, in its producer's thread when reactive; a
+    /// group's member as well, for the group's thread.
+    fn into_slot(self, clock: &Arc<dyn Clock>, diagram_text: &Arc<str>) -> (Slot, Option<Member>) {
         let mut ctx = kairos_sdk_core::host::context(ContextParts {
             id: self.id.clone(),
             inputs: self.inputs,
@@ -578,6 +627,31 @@ impl Pending {
         });
         ctx.set_diagram_text(Arc::clone(diagram_text));
         let monitor = Arc::new(Monitor::new(ctx.status_cell()));
+        if let Some(role) = self.group {
+            let member = Member {
+                id: self.id.clone(),
+                mode: self.info.mode,
+                drives: role.drives,
+                component: self.component,
+                ctx,
+                signal: Arc::clone(&self.signal),
+                monitor: Arc::clone(&monitor),
+                ready: role.ready,
+                status: StatusSchedule::default(),
+                next_tick: None,
+                missed: MissedTicks::default(),
+                done: false,
+            };
+            let slot = Slot {
+                id: self.id,
+                info: self.info,
+                thread: self.thread,
+                signal: self.signal,
+                monitor,
+                driver: Driver::Grouped(role.shared),
+            };
+            return (slot, Some(member));
+        }
         let driver = match self.reactive {
             Some(hook) => {
                 let cell = Arc::new(ReactiveCell {
@@ -594,14 +668,15 @@ impl Pending {
                 handle: None,
             },
         };
-        Slot {
+        let slot = Slot {
             id: self.id,
             info: self.info,
             thread: self.thread,
             signal: self.signal,
             monitor,
             driver,
-        }
+        };
+        (slot, None)
     }
 }
 
@@ -628,21 +703,29 @@ impl Engine {
         };
         let mut pending: Vec<Pending> = Vec::new();
         let mut buffers: BTreeMap<(String, String), OutputBuffer> = BTreeMap::new();
+        let mut group_shares: BTreeMap<String, Arc<GroupShared>> = BTreeMap::new();
         for instance in &diagram.components {
-            if let Some(component) = wiring.pending(instance, &mut buffers) {
+            if let Some(component) = wiring.pending(instance, &mut buffers, &mut group_shares) {
                 pending.push(component);
             }
         }
         let policies = wiring.attach_inputs(&buffers, &mut pending);
         let diagram_text: Arc<str> = Arc::from(diagram.to_ron());
-        let slots = pending
-            .into_iter()
-            .map(|component| component.into_slot(&clock, &diagram_text))
-            .collect();
+        let mut slots = Vec::with_capacity(pending.len());
+        let mut members: BTreeMap<String, Member> = BTreeMap::new();
+        for component in pending {
+            let (slot, member) = component.into_slot(&clock, &diagram_text);
+            if let Some(member) = member {
+                members.insert(member.id.clone(), member);
+            }
+            slots.push(slot);
+        }
+        let groups = group_slots(diagram, group_shares, members);
         Ok(Engine {
             clock,
             clock_source: diagram.clock_source.clone(),
             slots,
+            groups,
             buffers: buffers.into_values().collect(),
             policies,
             state: EngineState::Ready,
@@ -685,18 +768,41 @@ impl Engine {
         if let Some(source) = &source
             && let Some(slot) = self.slots.iter_mut().find(|slot| &slot.id == source)
         {
-            Self::spawn(slot, &self.clock, None)?;
+            if let Driver::Grouped(shared) = &slot.driver {
+                let shared = Arc::clone(shared);
+                if let Some(group) = self.groups.iter_mut().find(|g| Arc::ptr_eq(&g.shared, &shared)) {
+                    Self::spawn_group(group, &self.clock, None)?;
+                }
+            } else {
+                Self::spawn(slot, &self.clock, None)?;
+            }
             self.wait_for_clock_lock(source);
         }
         self.clock.forbid_steps();
         // The clock source already runs: it alone cannot wait for the others' births.
+        let waiting_groups = self
+            .groups
+            .iter()
+            .filter(|group| group.members.is_some())
+            .flat_map(|group| group.member_ids.iter().cloned());
         let gate = Arc::new(StartGate::new(
             self.slots
                 .iter()
                 .filter(|slot| matches!(&slot.driver, Driver::Threaded { pending: Some(_), .. }))
-                .map(|slot| slot.id.clone()),
+                .map(|slot| slot.id.clone())
+                .chain(waiting_groups),
             START_GATE_LIMIT,
         ));
+        for index in 0..self.groups.len() {
+            let Some(group) = self.groups.get_mut(index) else {
+                continue;
+            };
+            if let Err(error) = Self::spawn_group(group, &self.clock, Some(&gate)) {
+                self.state = EngineState::Running;
+                self.stop();
+                return Err(error);
+            }
+        }
         for index in 0..self.slots.len() {
             let Some(slot) = self.slots.get_mut(index) else {
                 continue;
@@ -748,6 +854,40 @@ impl Engine {
             Err(error) => {
                 slot.monitor
                     .fail(&slot.id, "start", &format!("cannot spawn its thread: {error}"));
+                Err(error)
+            }
+        }
+    }
+
+    /// Gives an execution group not started yet its named thread.
+    fn spawn_group(
+        group: &mut GroupSlot,
+        clock: &Arc<dyn Clock>,
+        gate: Option<&Arc<StartGate>>,
+    ) -> std::io::Result<()> {
+        let Some(members) = group.members.take() else {
+            return Ok(());
+        };
+        let run = GroupRun {
+            shared: Arc::clone(&group.shared),
+            settings: group.settings.clone(),
+            members,
+            clock: Arc::clone(clock),
+            gate: gate.map(Arc::clone),
+        };
+        let spawned = std::thread::Builder::new()
+            .name(thread_name(&format!("g:{}", group.shared.name)))
+            .spawn(move || run.run());
+        match spawned {
+            Ok(joined) => {
+                group.handle = Some(joined);
+                Ok(())
+            }
+            Err(error) => {
+                tracing::error!(
+                    "group '{}' cannot start: cannot spawn its thread: {error}",
+                    group.shared.name
+                );
                 Err(error)
             }
         }
@@ -860,6 +1000,20 @@ impl Engine {
                     .fail(&slot.id, "thread", "its thread ended abnormally");
             }
         }
+        for group in &mut self.groups {
+            group.shared.wake();
+            if let Some(handle) = group.handle.take()
+                && handle.join().is_err()
+            {
+                for slot in self.slots.iter().filter(|s| group.member_ids.contains(&s.id)) {
+                    slot.monitor.fail(
+                        &slot.id,
+                        "thread",
+                        &format!("the thread of its group '{}' ended abnormally", group.shared.name),
+                    );
+                }
+            }
+        }
         for slot in &self.slots {
             if let Driver::Reactive(cell) = &slot.driver {
                 let mut guard = lock(&cell.inner);
@@ -884,7 +1038,7 @@ impl Engine {
     pub fn all_finished(&self) -> bool {
         self.slots
             .iter()
-            .filter(|s| matches!(s.driver, Driver::Threaded { .. }))
+            .filter(|s| matches!(s.driver, Driver::Threaded { .. } | Driver::Grouped(_)))
             .all(|s| {
                 matches!(
                     s.monitor.state(),
@@ -1013,7 +1167,7 @@ impl Engine {
                 let (component, ctx, _) = &mut *guard;
                 apply_controls(&slot.id, component.as_mut(), ctx, &slot.monitor);
             }
-            Driver::Threaded { .. } if self.state == EngineState::Ready => {
+            Driver::Threaded { .. } | Driver::Grouped(_) if self.state == EngineState::Ready => {
                 // Not started: the request waits in the queue and applies right after birth.
                 lock(&slot.monitor.controls).push_back(request);
                 slot.signal.raise_control();
@@ -1025,6 +1179,14 @@ impl Engine {
                 }
                 lock(&slot.monitor.controls).push_back(request);
                 slot.signal.raise_control();
+            }
+            Driver::Grouped(group) => {
+                if matches!(self.state, EngineState::Stopped) {
+                    return Err(refused("the diagram is stopped".to_owned()));
+                }
+                lock(&slot.monitor.controls).push_back(request);
+                slot.signal.raise_control();
+                group.attention();
             }
         }
         match wait_for_answer(answer, long_wait) {
@@ -1068,6 +1230,10 @@ impl Engine {
                 cycle_rate_hz: 0.0,
                 cpu_share: 0.0,
                 status: slot.monitor.status.get(),
+                group: match &slot.driver {
+                    Driver::Grouped(group) => Some(group.name.clone()),
+                    _ => None,
+                },
             })
             .collect();
         StatsSnapshot {
@@ -1075,6 +1241,11 @@ impl Engine {
             links,
             components,
             clock: self.clock.status(),
+            groups: self
+                .groups
+                .iter()
+                .map(|group| group.shared.stats(group.member_ids.clone()))
+                .collect(),
         }
     }
 
@@ -1088,6 +1259,36 @@ impl Engine {
         let name = format!("{component}.{output}");
         self.buffers.iter().find(|b| b.output() == name)
     }
+}
+
+/// The engine's execution groups, each with its members in the order they run.
+fn group_slots(
+    diagram: &Diagram,
+    shares: BTreeMap<String, Arc<GroupShared>>,
+    mut members: BTreeMap<String, Member>,
+) -> Vec<GroupSlot> {
+    let by_group = diagram.execution_groups();
+    shares
+        .into_iter()
+        .map(|(name, shared)| {
+            let ids: Vec<String> = by_group
+                .get(name.as_str())
+                .into_iter()
+                .flatten()
+                .filter(|id| members.contains_key(**id))
+                .map(|id| (*id).to_owned())
+                .collect();
+            let member_ids = crate::group::run_order(diagram, &ids);
+            let ordered = member_ids.iter().filter_map(|id| members.remove(id)).collect();
+            GroupSlot {
+                settings: diagram.groups.get(&name).cloned().unwrap_or_default(),
+                shared,
+                member_ids,
+                members: Some(ordered),
+                handle: None,
+            }
+        })
+        .collect()
 }
 
 impl Drop for Engine {
@@ -1123,13 +1324,15 @@ struct Worker {
 
 /// Missed periodic ticks not yet said in the log: at most one warning a second per component.
 #[derive(Default)]
-struct MissedTicks {
+pub(crate) struct MissedTicks {
     unsaid: u64,
     last_said: Option<Instant>,
 }
 
 impl MissedTicks {
-    fn skipped(&mut self, id: &str, ticks: u64, period: Duration) {
+    /// `ticks` of `period` skipped by `id`; `place` says where it runs, when that explains the delay
+    /// (`in group 'control'; …`), else is empty.
+    pub(crate) fn skipped(&mut self, id: &str, ticks: u64, period: Duration, place: &str) {
         self.unsaid += ticks;
         if self
             .last_said
@@ -1140,16 +1343,17 @@ impl MissedTicks {
         self.last_said = Some(Instant::now());
         tracing::warn!(
             component = id,
-            "'{id}' missed {} periodic ticks of {:.1} ms: a cycle, or the machine, took longer than its \
-             period; the ticks are skipped, not run late (lower its rate or lighten its work)",
+            "'{id}' missed {} periodic ticks of {:.1} ms{}{place}: a cycle, or the machine, took longer than \
+             its period; the ticks are skipped, not run late (lower its rate or lighten its work)",
             std::mem::take(&mut self.unsaid),
-            period.as_secs_f64() * 1e3
+            period.as_secs_f64() * 1e3,
+            if place.is_empty() { "" } else { " " },
         );
     }
 }
 
 /// How often a component's thread reads its own CPU time.
-const CPU_SAMPLE_PERIOD: Duration = Duration::from_millis(50);
+pub(crate) const CPU_SAMPLE_PERIOD: Duration = Duration::from_millis(50);
 
 impl Worker {
     /// The tick after `tick`. Fallen more than a period behind (a long cycle, a stall), it skips the missed
@@ -1164,7 +1368,7 @@ impl Worker {
         }
         let skipped = (behind / period_nanos) as u64;
         self.monitor.missed_ticks.fetch_add(skipped, Ordering::Relaxed);
-        missed.skipped(&self.id, skipped, period);
+        missed.skipped(&self.id, skipped, period, "");
         now
     }
 

@@ -3,6 +3,7 @@
 //! per-link and per-component statistics.
 
 pub mod engine;
+mod group;
 pub mod pack_host;
 pub mod packs;
 pub mod python_host;
@@ -24,4 +25,4 @@ pub fn clock_for(diagram: &kairos_diagram::Diagram) -> Arc<dyn Clock> {
     }
 }
 pub use packs::{PackScan, RefusedLibrary, load_packs, pack_path};
-pub use stats::{ComponentState, ComponentStats, LinkStats, StatsSnapshot};
+pub use stats::{ComponentState, ComponentStats, GroupStats, LinkStats, StatsSnapshot};

@@ -74,6 +74,37 @@ pub struct ComponentStats {
     /// What the component last published about itself ([`kairos_sdk_core::Context::set_status`]).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub status: Option<serde_json::Value>,
+    /// The execution group it runs in; `None`: a thread of its own (or its producer's, when reactive).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub group: Option<String>,
+}
+
+/// One execution group's statistics: its thread, which runs its members one after the other.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct GroupStats {
+    /// The group's name.
+    pub name: String,
+    /// Its members' ids, in the order they run.
+    pub members: Vec<String>,
+    /// Passes over the members that called at least one of them.
+    pub passes: u64,
+    /// The CPU time of the group's thread.
+    pub cpu_nanos: u64,
+    /// The wall time of every pass, added up.
+    pub pass_nanos: u64,
+    /// The longest pass.
+    pub longest_pass_nanos: u64,
+    /// Periodic ticks its members skipped because a pass ran past them.
+    pub missed_ticks: u64,
+    /// The member that took most of the longest pass.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub slowest_member: Option<String>,
+    /// Passes per second over the last interval.
+    pub pass_rate_hz: f64,
+    /// Share of one core over the last interval (0.0 to 1.0).
+    pub cpu_share: f64,
+    /// The mean pass over the last interval.
+    pub mean_pass_nanos: u64,
 }
 
 /// Statistics of a whole running diagram at one instant.
@@ -88,6 +119,9 @@ pub struct StatsSnapshot {
     /// The clock, when a component of the diagram disciplines it.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub clock: Option<kairos_sdk_core::ClockStatus>,
+    /// Per execution group, by name.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub groups: Vec<GroupStats>,
 }
 
 impl StatsSnapshot {
@@ -111,6 +145,20 @@ impl StatsSnapshot {
                 component.cycle_rate_hz = component.cycles.saturating_sub(before.cycles) as f64 / seconds;
                 component.cpu_share =
                     component.busy_nanos.saturating_sub(before.busy_nanos) as f64 * 1e-9 / seconds;
+            }
+        }
+        let groups: BTreeMap<&str, &GroupStats> =
+            earlier.groups.iter().map(|g| (g.name.as_str(), g)).collect();
+        for group in &mut self.groups {
+            if let Some(before) = groups.get(group.name.as_str()) {
+                let passes = group.passes.saturating_sub(before.passes);
+                group.pass_rate_hz = passes as f64 / seconds;
+                group.cpu_share = group.cpu_nanos.saturating_sub(before.cpu_nanos) as f64 * 1e-9 / seconds;
+                group.mean_pass_nanos = group
+                    .pass_nanos
+                    .saturating_sub(before.pass_nanos)
+                    .checked_div(passes)
+                    .unwrap_or(0);
             }
         }
         self
@@ -204,7 +252,41 @@ impl StatsSnapshot {
                 let _ = writeln!(out, "{:<width$}    {counters}", "");
             }
         }
+        if !self.groups.is_empty() {
+            self.group_table(&mut out);
+        }
         out
+    }
+
+    fn group_table(&self, out: &mut String) {
+        use std::fmt::Write as _;
+        let width = self.groups.iter().map(|g| g.name.len()).max().unwrap_or(5).max(5);
+        let _ = writeln!(out);
+        let _ = writeln!(
+            out,
+            "{:<width$}  {:>7} {:>9} {:>6} {:>10} {:>10} {:>7}  slowest",
+            "group", "members", "passes/s", "cpu%", "pass mean", "pass max", "missed"
+        );
+        for group in &self.groups {
+            let _ = writeln!(
+                out,
+                "{:<width$}  {:>7} {:>9.1} {:>6.1} {:>10} {:>10} {:>7}  {}",
+                group.name,
+                group.members.len(),
+                group.pass_rate_hz,
+                group.cpu_share * 100.0,
+                micros(
+                    i64::try_from(group.mean_pass_nanos).unwrap_or(i64::MAX),
+                    group.passes
+                ),
+                micros(
+                    i64::try_from(group.longest_pass_nanos).unwrap_or(i64::MAX),
+                    group.passes
+                ),
+                group.missed_ticks,
+                group.slowest_member.as_deref().unwrap_or("-"),
+            );
+        }
     }
 }
 
