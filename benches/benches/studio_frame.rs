@@ -113,9 +113,11 @@ fn telemetry(diagram: &Diagram, tick: u64) -> kairos_protocol::Telemetry {
                 cpu_share: 0.01,
                 missed_ticks: 0,
                 status: None,
+                group: None,
             })
             .collect(),
         clock: None,
+        groups: Vec::new(),
         hosts: Vec::new(),
         cross_links: Vec::new(),
     }

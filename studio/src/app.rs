@@ -424,6 +424,20 @@ impl StudioApp {
                     .document
                     .edit(|diagram| diagram.clock_source = source);
             }
+            Command::SetGroup { components, group } => {
+                self.session.document.edit(|diagram| {
+                    for id in &components {
+                        if let Some(component) = diagram.component_mut(id) {
+                            component.group.clone_from(&group);
+                        }
+                    }
+                });
+            }
+            Command::SetSequential(sequential) => {
+                self.session
+                    .document
+                    .edit(|diagram| diagram.sequential = sequential);
+            }
             Command::TriggerAction { component, action } => {
                 self.session
                     .request(RequestBody::TriggerAction { component, action });

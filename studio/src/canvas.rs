@@ -525,6 +525,7 @@ impl Canvas {
                 .get(&component.id)
                 .map(|f| &f.latest),
             detail: frame.detail,
+            group: frame.diagram.group_of(component),
         };
         paint::paint_node(frame.painter, ui.visuals(), node.rect, &look);
         match (state, info) {

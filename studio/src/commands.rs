@@ -112,6 +112,15 @@ pub enum Command {
     RefreshDevices,
     /// Make the runtime clock follow a component (a GNSS receiver), or no component.
     SetClockSource(Option<String>),
+    /// Run these components in an execution group, or each in a thread of its own (`None`).
+    SetGroup {
+        /// The components' ids.
+        components: Vec<String>,
+        /// The group's name.
+        group: Option<String>,
+    },
+    /// Run the whole diagram in one thread (sequential), or not.
+    SetSequential(bool),
     /// Trigger a component's action.
     TriggerAction {
         /// The component's id.

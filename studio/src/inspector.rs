@@ -34,11 +34,16 @@ pub fn inspector_ui(ui: &mut egui::Ui, session: &Session, canvas: &Canvas, comma
     let [id] = selected.as_slice() else {
         if selected.is_empty() {
             ui.label("Select a component or a connection.");
+            ui.separator();
+            sequential_ui(ui, session, commands);
         } else {
             ui.label(format!(
                 "{} components selected: select one alone to see its properties.",
                 selected.len()
             ));
+            ui.separator();
+            let ids: Vec<String> = selected.iter().map(|id| (*id).clone()).collect();
+            group_ui(ui, session, &ids, None, commands);
         }
         return;
     };
@@ -133,6 +138,13 @@ fn component_ui(
             commands.push(Command::SetClockSource(checked.then(|| instance.id.clone())));
         }
     }
+    group_ui(
+        ui,
+        session,
+        std::slice::from_ref(&instance.id),
+        info.blocking_reason(),
+        commands,
+    );
     ui.separator();
     for property in &info.properties {
         property_ui(ui, session, instance, property, commands);
@@ -142,6 +154,118 @@ fn component_ui(
     if let Some(NodeState::Failed(error)) = session.node_state(&instance.id) {
         ui.separator();
         ui.colored_label(Color32::LIGHT_RED, format!("failed: {error}"));
+    }
+}
+
+/// What an execution group is, for whoever hovers over the choice.
+const GROUP_EXPLANATION: &str = "An execution group runs its members in one thread, one after the other in \
+     the order of their links: many light components use far less CPU. A slow member delays its whole group, \
+     and a group uses one core at most.";
+
+/// The diagram-wide switch: every component in one thread.
+fn sequential_ui(ui: &mut egui::Ui, session: &Session, commands: &mut Vec<Command>) {
+    let mut sequential = session.document.diagram().sequential;
+    ui.checkbox(&mut sequential, "Sequential: every component in one thread")
+        .on_hover_text(
+            "RTMaps' sequential behaviour: components run one after the other in the order of their \
+             links, so replaying the same data gives the same outputs every run. A slow component delays \
+             all the others.",
+        );
+    if sequential != session.document.diagram().sequential {
+        commands.push(Command::SetSequential(sequential));
+    }
+}
+
+/// Where the components `ids` run: each in a thread of its own, or an execution group (one the diagram
+/// has, or a new one named here). `waits` says why a single component would drive its group.
+fn group_ui(
+    ui: &mut egui::Ui,
+    session: &Session,
+    ids: &[String],
+    waits: Option<String>,
+    commands: &mut Vec<Command>,
+) {
+    let diagram = session.document.diagram();
+    if diagram.sequential {
+        ui.label(RichText::new("The diagram is sequential: every component runs in one thread.").weak());
+        return;
+    }
+    let current: std::collections::BTreeSet<Option<&str>> = ids
+        .iter()
+        .filter_map(|id| diagram.component(id))
+        .map(|c| c.group.as_deref())
+        .collect();
+    let known: std::collections::BTreeSet<&str> = diagram
+        .components
+        .iter()
+        .filter_map(|c| c.group.as_deref())
+        .collect();
+    let shown = match current.iter().collect::<Vec<_>>().as_slice() {
+        [None] => "a thread of its own".to_owned(),
+        [Some(group)] => format!("group {group}"),
+        _ => "(several)".to_owned(),
+    };
+    let mut chosen: Option<Option<String>> = None;
+    ui.horizontal(|ui| {
+        ui.label("runs in").on_hover_text(GROUP_EXPLANATION);
+        egui::ComboBox::from_id_salt(("group", ids.first()))
+            .selected_text(shown)
+            .show_ui(ui, |ui| {
+                if ui
+                    .selectable_label(
+                        current.len() == 1 && current.contains(&None),
+                        "a thread of its own",
+                    )
+                    .clicked()
+                {
+                    chosen = Some(None);
+                }
+                for group in &known {
+                    let on = current.len() == 1 && current.contains(&Some(*group));
+                    if ui.selectable_label(on, format!("group {group}")).clicked() {
+                        chosen = Some(Some((*group).to_owned()));
+                    }
+                }
+            });
+    });
+    let edit_id = egui::Id::unique(("new group", ids.first()));
+    let mut name = ui.data(|d| d.get_temp::<String>(edit_id)).unwrap_or_default();
+    ui.horizontal(|ui| {
+        let label = ui.label("new group").id;
+        let response = ui
+            .add(egui::TextEdit::singleline(&mut name).desired_width(110.0))
+            .labelled_by(label)
+            .on_hover_text(GROUP_EXPLANATION);
+        if response.changed() {
+            ui.data_mut(|d| d.insert_temp(edit_id, name.clone()));
+        }
+        let valid = kairos_diagram::is_valid_id(name.trim());
+        let enter = response.lost_focus() && ui.input(|i| i.key_pressed(egui::Key::Enter));
+        if ui
+            .add_enabled(valid, egui::Button::new("Put in it"))
+            .on_disabled_hover_text("a group's name: letters, digits, _ and -")
+            .clicked()
+            || (enter && valid)
+        {
+            chosen = Some(Some(name.trim().to_owned()));
+            ui.data_mut(|d| d.remove_temp::<String>(edit_id));
+        }
+    });
+    if let Some(reason) = waits {
+        ui.label(
+            RichText::new(format!(
+                "It waits ({reason}): in a group it is the group's driver, one per group, run first."
+            ))
+            .weak(),
+        );
+    }
+    if let Some(group) = chosen
+        && !(current.len() == 1 && current.contains(&group.as_deref()))
+    {
+        commands.push(Command::SetGroup {
+            components: ids.to_vec(),
+            group,
+        });
     }
 }
 

@@ -7,7 +7,9 @@ use std::collections::{BTreeMap, BTreeSet, VecDeque};
 use std::time::{Duration, Instant};
 
 use egui::{Color32, RichText, Sense, Stroke, Vec2};
-use kairos_protocol::{ComponentState, ComponentTelemetry, LinkTelemetry, LogLevel, Telemetry};
+use kairos_protocol::{
+    ComponentState, ComponentTelemetry, GroupTelemetry, LinkTelemetry, LogLevel, Telemetry,
+};
 
 use crate::notices::{Notices, Problem};
 
@@ -74,6 +76,8 @@ pub struct Monitor {
     pub notices: Notices,
     /// With a diagram spread over hosts: each connection between two of them, by link name.
     pub cross_links: BTreeMap<String, kairos_protocol::CrossLinkTelemetry>,
+    /// Each execution group's latest figures, by name.
+    pub groups: BTreeMap<String, GroupTelemetry>,
     /// How many times each component failed in this deployment.
     failures: BTreeMap<String, u64>,
     /// The hosts not answering now, and how many times each was lost or each link cut.
@@ -92,6 +96,7 @@ impl Default for Monitor {
             components: BTreeMap::new(),
             notices: Notices::default(),
             cross_links: BTreeMap::new(),
+            groups: BTreeMap::new(),
             failures: BTreeMap::new(),
             lost_hosts: BTreeSet::new(),
             cut_links: BTreeSet::new(),
@@ -116,6 +121,7 @@ impl Monitor {
         self.components.clear();
         self.notices.clear();
         self.cross_links.clear();
+        self.groups.clear();
         self.failures.clear();
         self.lost_hosts.clear();
         self.cut_links.clear();
@@ -137,6 +143,11 @@ impl Monitor {
     pub fn update(&mut self, telemetry: &Telemetry) -> Vec<(LogLevel, String)> {
         let now = Instant::now();
         let mut raised = self.follow_hosts(telemetry);
+        self.groups = telemetry
+            .groups
+            .iter()
+            .map(|group| (group.name.clone(), group.clone()))
+            .collect();
         self.cross_links = telemetry
             .cross_links
             .iter()
@@ -419,6 +430,53 @@ impl Monitor {
                             ui.end_row();
                         }
                     });
+                if !self.groups.is_empty() {
+                    ui.separator();
+                    self.groups_grid(ui);
+                }
+            });
+    }
+
+    /// Each execution group: its thread's CPU, its passes and how long they take, the ticks its members
+    /// missed and who took the time.
+    fn groups_grid(&self, ui: &mut egui::Ui) {
+        egui::Grid::new("groups")
+            .striped(true)
+            .num_columns(7)
+            .show(ui, |ui| {
+                ui.strong("group")
+                    .on_hover_text("an execution group: its members share one thread");
+                ui.strong("members");
+                ui.strong("CPU")
+                    .on_hover_text("the group's thread, share of one core");
+                ui.strong("passes/s")
+                    .on_hover_text("a pass calls every member that has something to do");
+                ui.strong("pass mean / longest");
+                ui.strong("missed ticks")
+                    .on_hover_text("periodic ticks its members skipped because a pass ran past them");
+                ui.strong("slowest member")
+                    .on_hover_text("the member that took most of the longest pass");
+                ui.end_row();
+                for group in self.groups.values() {
+                    ui.label(&group.name);
+                    ui.label(group.members.len().to_string())
+                        .on_hover_text(group.members.join(", "));
+                    ui.label(format!("{:.1} %", group.cpu_share * 100.0));
+                    ui.label(format!("{:.1}", group.pass_rate_hz));
+                    ui.label(format!(
+                        "{} / {}",
+                        milliseconds(i64::try_from(group.mean_pass_ns).unwrap_or(i64::MAX)),
+                        milliseconds(i64::try_from(group.longest_pass_ns).unwrap_or(i64::MAX))
+                    ));
+                    let missed = RichText::new(group.missed_ticks.to_string());
+                    ui.label(if group.missed_ticks > 0 {
+                        missed.color(Color32::from_rgb(240, 110, 60))
+                    } else {
+                        missed
+                    });
+                    ui.label(group.slowest_member.as_deref().unwrap_or("–"));
+                    ui.end_row();
+                }
             });
     }
 }
@@ -462,6 +520,7 @@ mod tests {
             links: Vec::new(),
             components: Vec::new(),
             clock: None,
+            groups: Vec::new(),
             hosts: vec![HostTelemetry {
                 name: "b".to_owned(),
                 answering,

@@ -796,3 +796,51 @@ fn what_a_console_prints_is_in_the_console_tab_with_its_component_and_time() {
     harness.get_by_label("21:54:50.476");
     assert!(harness.get_all_by_label("console1").count() >= 1);
 }
+
+#[test]
+fn a_selection_is_put_in_an_execution_group_from_the_inspector_and_the_diagram_made_sequential() {
+    let mut harness = studio();
+    add_from_palette(&mut harness, "core.sine", Pos2::new(450.0, 250.0));
+    add_from_palette(&mut harness, "core.gain", Pos2::new(800.0, 250.0));
+    let group_of = |harness: &Harness<'_, StudioApp>, id: &str| {
+        harness
+            .state()
+            .session
+            .document
+            .diagram()
+            .component(id)
+            .unwrap()
+            .group
+            .clone()
+    };
+    // Both selected: one name puts them in one group, one undoable edit.
+    click_on_canvas(&mut harness, "component sine1 (core.sine)");
+    harness.state_mut().canvas.selected.insert("gain1".to_owned());
+    harness.run_steps(1);
+    harness
+        .get_by_role_and_label(Role::TextInput, "new group")
+        .focus();
+    harness.run_steps(1);
+    harness
+        .get_by_role_and_label(Role::TextInput, "new group")
+        .type_text("chain");
+    harness.run_steps(1);
+    harness.get_by_label("Put in it").click();
+    harness.run_steps(2);
+    assert_eq!(group_of(&harness, "sine1").as_deref(), Some("chain"));
+    assert_eq!(group_of(&harness, "gain1").as_deref(), Some("chain"));
+    harness.state_mut().session.document.undo();
+    harness.run_steps(1);
+    assert_eq!(group_of(&harness, "sine1"), None, "one undo takes both back");
+    assert_eq!(group_of(&harness, "gain1"), None);
+
+    // Nothing selected: the diagram-wide switch.
+    harness.state_mut().canvas.selected.clear();
+    harness.run_steps(1);
+    harness
+        .get_by_label("Sequential: every component in one thread")
+        .click();
+    harness.run_steps(2);
+    assert!(harness.state().session.document.diagram().sequential);
+    assert!(harness.state().session.document.is_dirty());
+}

@@ -57,6 +57,9 @@ pub trait ContextHost {
     fn is_input_exhausted(&self, index: usize) -> bool;
     /// Every output's buffer, in descriptor order.
     fn output_buffers(&self) -> Vec<&OutputBuffer>;
+    /// Whether an input holds a sample not read yet (a Sampling input, which always has its newest,
+    /// does not count).
+    fn has_unread_input(&self) -> bool;
 }
 
 impl ContextHost for Context {
@@ -94,6 +97,13 @@ impl ContextHost for Context {
 
     fn output_buffers(&self) -> Vec<&OutputBuffer> {
         self.outputs().iter().map(OutputPort::buffer).collect()
+    }
+
+    fn has_unread_input(&self) -> bool {
+        self.inputs()
+            .iter()
+            .filter_map(InputPort::reader)
+            .any(|reader| reader.policy() != kairos_diagram::ReaderPolicy::Sampling && reader.has_pending())
     }
 }
 

@@ -81,6 +81,24 @@ impl Validator<'_> {
             }
         }
         for (index, component) in self.diagram.components.iter().enumerate() {
+            if let Some(group) = self.diagram.group_of(component)
+                && !component.thread.is_default()
+            {
+                self.found.push(
+                    Diagnostic::warning(
+                        DiagnosticCode::InvalidGroup,
+                        format!(
+                            "the thread settings of '{}' are not used: it runs in group '{group}', whose thread \
+                             has settings of its own",
+                            component.id
+                        ),
+                    )
+                    .at(self.component_at(index).and_then(|l| l.priority.or(l.group)))
+                    .with_suggestion(Some(format!(
+                        "set them for the group: groups: {{ \"{group}\": (priority: .., affinity: [..]) }}"
+                    ))),
+                );
+            }
             let Some(group) = &component.group else { continue };
             let at = self.component_at(index).and_then(|l| l.group);
             if !is_valid_id(group) {

@@ -886,6 +886,31 @@ pub struct ComponentTelemetry {
     /// `playing`, `speed`, `loop` and `tracks`; a recorder's `recording`, `path` and `bytes`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub status: Option<serde_json::Value>,
+    /// The execution group it runs in; absent: a thread of its own.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub group: Option<String>,
+}
+
+/// One execution group's statistics: the thread that runs its members one after the other.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct GroupTelemetry {
+    /// The group's name.
+    pub name: String,
+    /// Its members' ids, in the order they run.
+    pub members: Vec<String>,
+    /// Passes per second lately (a pass calls every member that has something to do).
+    pub pass_rate_hz: f64,
+    /// Share of one core its thread used lately (0 to 1).
+    pub cpu_share: f64,
+    /// The mean pass lately, in nanoseconds.
+    pub mean_pass_ns: u64,
+    /// The longest pass so far, in nanoseconds.
+    pub longest_pass_ns: u64,
+    /// Periodic ticks its members skipped so far because a pass ran past them.
+    pub missed_ticks: u64,
+    /// The member that took most of the longest pass.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub slowest_member: Option<String>,
 }
 
 /// Statistics of the whole diagram at one instant.
@@ -902,6 +927,9 @@ pub struct Telemetry {
     /// The runtime clock, when a component of the diagram disciplines it (a GNSS receiver).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub clock: Option<ClockTelemetry>,
+    /// Per execution group.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub groups: Vec<GroupTelemetry>,
     /// With a diagram spread over hosts and coordinated here: each host's state and clock. Their
     /// components and links are in `components` and `links` beside this runtime's own.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]

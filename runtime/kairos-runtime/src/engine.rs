@@ -391,30 +391,6 @@ impl std::fmt::Debug for Engine {
     }
 }
 
-/// The policy a connection reads under: its own, else its input's default.
-fn connection_policy(
-    diagram: &Diagram,
-    registry: &Registry,
-    instances: &InstanceInfos,
-    connection: &kairos_diagram::Connection,
-) -> ReaderPolicy {
-    connection.policy.unwrap_or_else(|| {
-        let consumer = &connection.to.component;
-        let described = match instances.get(consumer) {
-            Some(Ok(info)) => Some(info),
-            _ => diagram
-                .components
-                .iter()
-                .find(|c| &c.id == consumer)
-                .and_then(|c| registry.component(&c.type_name))
-                .map(|registered| &registered.info),
-        };
-        described
-            .and_then(|info| info.input(&connection.to.port))
-            .map_or(ReaderPolicy::default(), |input| input.default_policy)
-    })
-}
-
 /// An engine runs a diagram on one machine: a part placed on another host must not run here unnoticed.
 fn placed_elsewhere(diagram: &Diagram) -> Vec<kairos_diagram::Diagnostic> {
     diagram
@@ -445,6 +421,11 @@ struct Wiring<'a> {
     diagram: &'a Diagram,
     registry: &'a Registry,
     instances: &'a InstanceInfos,
+    /// The connections from each output, by (component, port): looked up once per output, so that a
+    /// diagram of ten thousand components builds in linear time.
+    from_output: BTreeMap<(&'a str, &'a str), Vec<&'a kairos_diagram::Connection>>,
+    /// Each component by id.
+    by_id: BTreeMap<&'a str, &'a kairos_diagram::ComponentInstance>,
 }
 
 impl Wiring<'_> {
@@ -538,10 +519,10 @@ impl Wiring<'_> {
             .and_then(|s| s.buffer_size)
             .unwrap_or(output.default_buffer_size);
         let slots = self
-            .diagram
-            .connections
-            .iter()
-            .filter(|c| c.from.component == instance.id && c.from.port == output.name)
+            .from_output
+            .get(&(instance.id.as_str(), output.name.as_str()))
+            .into_iter()
+            .flatten()
             .flat_map(|c| {
                 let newest_kept = c.subsampling.filter(|_| self.policy(c).reads_newest());
                 [c.buffer_size, newest_kept.map(|n| n as usize)]
@@ -556,7 +537,20 @@ impl Wiring<'_> {
     }
 
     fn policy(&self, connection: &kairos_diagram::Connection) -> ReaderPolicy {
-        connection_policy(self.diagram, self.registry, self.instances, connection)
+        connection.policy.unwrap_or_else(|| {
+            let consumer = connection.to.component.as_str();
+            let described = match self.instances.get(consumer) {
+                Some(Ok(info)) => Some(info),
+                _ => self
+                    .by_id
+                    .get(consumer)
+                    .and_then(|c| self.registry.component(&c.type_name))
+                    .map(|registered| &registered.info),
+            };
+            described
+                .and_then(|info| info.input(&connection.to.port))
+                .map_or(ReaderPolicy::default(), |input| input.default_policy)
+        })
     }
 
     /// Attaches a reader to its producer's buffer for every connection, under the connection's policy, and
@@ -568,10 +562,18 @@ impl Wiring<'_> {
     ) -> BTreeMap<String, ReaderPolicy> {
         let mut policies = BTreeMap::new();
         let mut readers: BTreeMap<(String, String), kairos_sdk_core::host::Reader> = BTreeMap::new();
+        let pending_index: BTreeMap<String, usize> = pending
+            .iter()
+            .enumerate()
+            .map(|(index, p)| (p.id.clone(), index))
+            .collect();
         for connection in &self.diagram.connections {
             let key = (connection.from.component.clone(), connection.from.port.clone());
             let Some(buffer) = buffers.get(&key) else { continue };
-            let Some(consumer) = pending.iter().find(|p| p.id == connection.to.component) else {
+            let Some(consumer) = pending_index
+                .get(connection.to.component.as_str())
+                .and_then(|&index| pending.get(index))
+            else {
                 continue;
             };
             if consumer.info.input(&connection.to.port).is_none() {
@@ -696,10 +698,19 @@ impl Engine {
         if diagnostics.iter().any(kairos_diagram::Diagnostic::is_error) {
             return Err(BuildError::Invalid(diagnostics));
         }
+        let mut from_output: BTreeMap<(&str, &str), Vec<&kairos_diagram::Connection>> = BTreeMap::new();
+        for connection in &diagram.connections {
+            from_output
+                .entry((connection.from.component.as_str(), connection.from.port.as_str()))
+                .or_default()
+                .push(connection);
+        }
         let wiring = Wiring {
             diagram,
             registry,
             instances: &instances,
+            from_output,
+            by_id: diagram.components.iter().map(|c| (c.id.as_str(), c)).collect(),
         };
         let mut pending: Vec<Pending> = Vec::new();
         let mut buffers: BTreeMap<(String, String), OutputBuffer> = BTreeMap::new();

@@ -200,7 +200,9 @@ impl Member {
         match result {
             Ok(()) => {
                 self.monitor.cycles.fetch_add(1, Ordering::Relaxed);
-                more = self.ctx.samples_read_this_cycle() > 0;
+                // Called again only for what is already there: a call to find nothing costs as much as
+                // one that works.
+                more = self.ctx.samples_read_this_cycle() > 0 && self.ctx.has_unread_input();
             }
             Err(ComponentError::Stopped) => self.finish(ComponentState::Stopped),
             Err(ComponentError::EndOfStream) => self.finish(ComponentState::Finished),
@@ -220,7 +222,7 @@ impl Member {
 /// What a call did.
 #[derive(Clone, Copy)]
 struct Called {
-    /// It read a sample and ended well: it may have more to read.
+    /// It read a sample, ended well, and more samples wait for it.
     more: bool,
     /// Its wall time.
     nanos: u64,

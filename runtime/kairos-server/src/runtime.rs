@@ -9,8 +9,8 @@ use std::sync::{Arc, Mutex, MutexGuard, PoisonError, RwLock, RwLockReadGuard, Tr
 
 use kairos_diagram::{Diagnostic, Diagram, Value};
 use kairos_protocol::{
-    ClockState, ClockTelemetry, ComponentTelemetry, DeployResult, ErrorCode, LatencyTelemetry, LinkTelemetry,
-    ProtocolError, RequestBody, RuntimeState, Telemetry,
+    ClockState, ClockTelemetry, ComponentTelemetry, DeployResult, ErrorCode, GroupTelemetry,
+    LatencyTelemetry, LinkTelemetry, ProtocolError, RequestBody, RuntimeState, Telemetry,
 };
 use kairos_runtime::{ComponentState, ControlError, Engine, EngineState, LongWait, StatsSnapshot};
 use kairos_sdk_core::Registry;
@@ -153,9 +153,24 @@ fn telemetry(snapshot: &StatsSnapshot, state: RuntimeState) -> Telemetry {
                 cpu_share: c.cpu_share,
                 missed_ticks: c.missed_ticks,
                 status: c.status.clone(),
+                group: c.group.clone(),
             })
             .collect(),
         clock: snapshot.clock.as_ref().map(clock_telemetry),
+        groups: snapshot
+            .groups
+            .iter()
+            .map(|g| GroupTelemetry {
+                name: g.name.clone(),
+                members: g.members.clone(),
+                pass_rate_hz: g.pass_rate_hz,
+                cpu_share: g.cpu_share,
+                mean_pass_ns: g.mean_pass_nanos,
+                longest_pass_ns: g.longest_pass_nanos,
+                missed_ticks: g.missed_ticks,
+                slowest_member: g.slowest_member.clone(),
+            })
+            .collect(),
         hosts: Vec::new(),
         cross_links: Vec::new(),
     }

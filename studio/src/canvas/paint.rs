@@ -220,10 +220,32 @@ pub struct NodeLook<'a> {
     pub figures: Option<&'a ComponentTelemetry>,
     /// Whether there is room for small text.
     pub detail: bool,
+    /// The execution group it runs in, when it shares a thread.
+    pub group: Option<&'a str>,
 }
 
-/// A node's box, state stripe, id, type and figures (its ports are painted on their own).
+/// A node's box, state stripe, id, type and figures (its ports are painted on their own); a member of an
+/// execution group is ringed in the group's colour, its name on a tab above.
 pub fn paint_node(painter: &Painter, visuals: &egui::Visuals, rect: Rect, look: &NodeLook<'_>) {
+    if let Some(group) = look.group {
+        let color = type_color(group);
+        painter.rect_stroke(
+            rect.expand(3.0),
+            8.0,
+            Stroke::new(2.0, color),
+            StrokeKind::Outside,
+        );
+        if look.detail {
+            crisp_text(
+                painter,
+                rect.right_top() + Vec2::new(-8.0, -4.0),
+                Align2::RIGHT_BOTTOM,
+                group,
+                FontId::proportional(10.0),
+                color,
+            );
+        }
+    }
     painter.rect_filled(rect, 6.0, visuals.faint_bg_color);
     painter.rect_stroke(
         rect,
