@@ -31,6 +31,8 @@ fn every_example_validates() {
         "lidar/obstacles",
         "two_hosts",
         "rig",
+        "scale/threaded_900",
+        "scale/grouped_900",
     ] {
         let path = example(name);
         let output = kairos(&root, &["validate", path.to_str().unwrap()]);
@@ -118,6 +120,27 @@ fn hello_prints_the_amplified_sine() {
     // The final statistics table names both links and their counts balance.
     assert!(stderr.contains("sine1.out -> gain1.in"), "{stderr}");
     assert!(stderr.contains("=== final"), "{stderr}");
+}
+
+#[test]
+fn the_grouped_900_example_runs_its_chains_in_100_threads_and_says_so_in_its_statistics() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = example("scale/grouped_900");
+    let output = kairos(
+        dir.path(),
+        &["run", path.to_str().unwrap(), "--for", "1s", "--stats"],
+    );
+    let (_, stderr) = text(&output);
+    assert!(output.status.success(), "{stderr}");
+    let final_table = stderr.rsplit("=== final").next().unwrap_or_default();
+    // The group table: one row per chain, its nine members, in the order of its links.
+    assert!(final_table.contains("passes/s"), "{final_table}");
+    let row = final_table
+        .lines()
+        .find(|line| line.starts_with("chain00 "))
+        .unwrap_or_else(|| panic!("no row for chain00:\n{final_table}"));
+    assert_eq!(row.split_whitespace().nth(1), Some("9"), "{row}");
+    assert!(!final_table.contains("FAILED"), "{final_table}");
 }
 
 fn csv_rows(path: &std::path::Path) -> (Vec<String>, Vec<Vec<String>>) {
