@@ -194,6 +194,7 @@ class Descriptor:
         self.doc = doc
         self.label = label
         self.mode = "threaded"
+        self.blocking_reason = None
         self.inputs = []
         self.outputs = []
         self.properties = []
@@ -262,6 +263,14 @@ class Descriptor:
         self.mode = "periodic"
         return self
 
+    def blocking(self, reason):
+        """Says that a call may wait for long (on a device, a socket, its own timing), and why, in words: the
+        component then shares an execution group's thread only as the group's driver."""
+        if not isinstance(reason, str) or not reason.strip():
+            raise DescriptorError("blocking needs the reason, in words (\"waits for each frame of the camera\")")
+        self.blocking_reason = reason.strip()
+        return self
+
     def type_name(self, pack):
         return self.name if "." in self.name else f"{pack}.{self.name}"
 
@@ -290,7 +299,7 @@ class Descriptor:
             "outputs": [_port_json(p, "data_type") for p in self.outputs],
             "properties": [p.to_json() for p in self.properties],
             "actions": self.actions,
-        }
+        } | ({"blocking": self.blocking_reason} if self.blocking_reason else {})
 
 
 def _port_json(port, field):

@@ -197,8 +197,15 @@ def test_delay_json_is_the_runtimes_own():
         .input("in", ANY, doc="Any stream")
         .output_following("out", "in", doc="The input, later; timestamps kept")
         .property(Property.f64("delay_ms", 10).range(0, 60000).live().doc("Time spent on each sample").unit("ms"))
+        .blocking("it holds each sample for delay_ms before passing it on")
     )
     assert canonical(delay.to_json("core")) == canonical(library_entry("core.delay"))
+
+
+def test_a_blocking_component_says_why_and_an_empty_reason_is_refused():
+    with pytest.raises(DescriptorError, match="reason"):
+        Descriptor("waits").blocking("  ")
+    assert "blocking" not in Descriptor("plain").to_json("p")
 
 
 def test_every_field_is_spelled_as_serde_spells_it():
