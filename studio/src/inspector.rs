@@ -34,8 +34,6 @@ pub fn inspector_ui(ui: &mut egui::Ui, session: &Session, canvas: &Canvas, comma
     let [id] = selected.as_slice() else {
         if selected.is_empty() {
             ui.label("Select a component or a connection.");
-            ui.separator();
-            sequential_ui(ui, session, commands);
         } else {
             ui.label(format!(
                 "{} components selected: select one alone to see its properties.",
@@ -43,7 +41,7 @@ pub fn inspector_ui(ui: &mut egui::Ui, session: &Session, canvas: &Canvas, comma
             ));
             ui.separator();
             let ids: Vec<String> = selected.iter().map(|id| (*id).clone()).collect();
-            group_ui(ui, session, &ids, None, commands);
+            execution_ui(ui, session, &ids, None, commands);
         }
         return;
     };
@@ -138,7 +136,7 @@ fn component_ui(
             commands.push(Command::SetClockSource(checked.then(|| instance.id.clone())));
         }
     }
-    group_ui(
+    execution_ui(
         ui,
         session,
         std::slice::from_ref(&instance.id),
@@ -162,18 +160,38 @@ const GROUP_EXPLANATION: &str = "An execution group runs its members in one thre
      the order of their links: many light components use far less CPU. A slow member delays its whole group, \
      and a group uses one core at most.";
 
-/// The diagram-wide switch: every component in one thread.
+/// The diagram-wide switch, shown with any component's execution: every component in one thread.
 fn sequential_ui(ui: &mut egui::Ui, session: &Session, commands: &mut Vec<Command>) {
     let mut sequential = session.document.diagram().sequential;
-    ui.checkbox(&mut sequential, "Sequential: every component in one thread")
+    ui.checkbox(&mut sequential, "Sequential (the whole diagram)")
         .on_hover_text(
-            "RTMaps' sequential behaviour: components run one after the other in the order of their \
+            "Every component in one thread, RTMaps' sequential behaviour: components run one after the \
+             other in the order of their \
              links, so replaying the same data gives the same outputs every run. A slow component delays \
              all the others.",
         );
     if sequential != session.document.diagram().sequential {
         commands.push(Command::SetSequential(sequential));
     }
+}
+
+/// The execution settings, folded by default: most diagrams never need them, and open they would widen
+/// the inspector over the canvas.
+fn execution_ui(
+    ui: &mut egui::Ui,
+    session: &Session,
+    ids: &[String],
+    waits: Option<String>,
+    commands: &mut Vec<Command>,
+) {
+    egui::CollapsingHeader::new("Execution")
+        .id_salt("execution")
+        .show(ui, |ui| {
+            group_ui(ui, session, ids, waits, commands);
+            sequential_ui(ui, session, commands);
+        })
+        .header_response
+        .on_hover_text(GROUP_EXPLANATION);
 }
 
 /// Where the components `ids` run: each in a thread of its own, or an execution group (one the diagram

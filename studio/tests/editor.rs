@@ -817,6 +817,8 @@ fn a_selection_is_put_in_an_execution_group_from_the_inspector_and_the_diagram_m
     click_on_canvas(&mut harness, "component sine1 (core.sine)");
     harness.state_mut().canvas.selected.insert("gain1".to_owned());
     harness.run_steps(1);
+    harness.get_by_label("Execution").click();
+    harness.run_steps(1);
     harness
         .get_by_role_and_label(Role::TextInput, "new group")
         .focus();
@@ -834,12 +836,8 @@ fn a_selection_is_put_in_an_execution_group_from_the_inspector_and_the_diagram_m
     assert_eq!(group_of(&harness, "sine1"), None, "one undo takes both back");
     assert_eq!(group_of(&harness, "gain1"), None);
 
-    // Nothing selected: the diagram-wide switch.
-    harness.state_mut().canvas.selected.clear();
-    harness.run_steps(1);
-    harness
-        .get_by_label("Sequential: every component in one thread")
-        .click();
+    // The diagram-wide switch, beside the selection's execution.
+    harness.get_by_label("Sequential (the whole diagram)").click();
     harness.run_steps(2);
     assert!(harness.state().session.document.diagram().sequential);
     assert!(harness.state().session.document.is_dirty());
