@@ -9,6 +9,7 @@ use std::collections::BTreeMap;
 
 use super::{Validator, is_valid_id, join_with_and, strongly_connected_components};
 use crate::diagnostic::{Diagnostic, DiagnosticCode, Location};
+use crate::library::ReaderPolicy;
 use crate::model::SEQUENTIAL_GROUP;
 
 impl Validator<'_> {
@@ -25,6 +26,7 @@ impl Validator<'_> {
             self.check_one_driver(group, indices);
         }
         self.check_group_cycles();
+        self.check_never_skipping_inside();
     }
 
     /// Where component `index` names its group; the `sequential` switch for a sequential diagram.
@@ -250,6 +252,50 @@ impl Validator<'_> {
                 ))),
             );
             return;
+        }
+    }
+
+    /// A NeverSkipping reader makes its writer wait for room; inside a group the reader runs only after
+    /// the writer's call returns, so a call that writes more than the link holds would wait for ever.
+    fn check_never_skipping_inside(&mut self) {
+        for (index, connection) in self.diagram.connections.iter().enumerate() {
+            let (Some(from), Some(to)) = (
+                self.instance(&connection.from.component),
+                self.instance(&connection.to.component),
+            ) else {
+                continue;
+            };
+            let Some(group) = self.diagram.group_of(from) else {
+                continue;
+            };
+            if self.diagram.group_of(to) != Some(group) {
+                continue;
+            }
+            let policy = connection.policy.or_else(|| {
+                self.info_of(to)?
+                    .input(&connection.to.port)
+                    .map(|input| input.default_policy)
+            });
+            if policy != Some(ReaderPolicy::NeverSkipping) {
+                continue;
+            }
+            self.found.push(
+                Diagnostic::warning(
+                    DiagnosticCode::InvalidGroup,
+                    format!(
+                        "'{}' reads '{}' NeverSkipping inside group '{group}': if one call of '{}' writes more \
+                         samples than the link holds, it waits for a reader that runs only after it returns, and \
+                         the group stops until the diagram does",
+                        connection.to.component, connection.from, connection.from.component
+                    ),
+                )
+                .at(self.connection_at(index).map(|l| l.connection))
+                .with_suggestion(Some(
+                    "inside a group Fifo loses nothing when each call writes what the link holds; or give the \
+                     link a buffer_size above what one call writes"
+                        .to_owned(),
+                )),
+            );
         }
     }
 

@@ -804,25 +804,20 @@ impl Engine {
                 .chain(waiting_groups),
             START_GATE_LIMIT,
         ));
-        for index in 0..self.groups.len() {
-            let Some(group) = self.groups.get_mut(index) else {
-                continue;
-            };
-            if let Err(error) = Self::spawn_group(group, &self.clock, Some(&gate)) {
-                self.state = EngineState::Running;
-                self.stop();
-                return Err(error);
-            }
-        }
-        for index in 0..self.slots.len() {
-            let Some(slot) = self.slots.get_mut(index) else {
-                continue;
-            };
-            if let Err(error) = Self::spawn(slot, &self.clock, Some(&gate)) {
-                self.state = EngineState::Running;
-                self.stop();
-                return Err(error);
-            }
+        let clock = &self.clock;
+        let spawned = self
+            .groups
+            .iter_mut()
+            .try_for_each(|group| Self::spawn_group(group, clock, Some(&gate)))
+            .and_then(|()| {
+                self.slots
+                    .iter_mut()
+                    .try_for_each(|slot| Self::spawn(slot, clock, Some(&gate)))
+            });
+        if let Err(error) = spawned {
+            self.state = EngineState::Running;
+            self.stop();
+            return Err(error);
         }
         self.state = EngineState::Running;
         self.start_supervisor();

@@ -9,7 +9,10 @@ use std::sync::Arc;
 use std::thread::sleep;
 use std::time::{Duration, Instant};
 
-use kairos_diagram::{ComponentInstance, Connection, Diagram, PackRequirement, PortRef, Value};
+mod common;
+
+use common::{component, connect, diagram, eventually, stats};
+use kairos_diagram::Value;
 use kairos_runtime::{ComponentState, ControlError, Engine, EngineState, StatsSnapshot};
 use kairos_sdk_core::descriptor::Descriptor;
 use kairos_sdk_core::{
@@ -192,38 +195,8 @@ fn registry() -> Registry {
     registry
 }
 
-fn component(id: &str, type_name: &str, properties: &[(&str, Value)]) -> ComponentInstance {
-    let mut instance = ComponentInstance::new(id, type_name);
-    for (name, value) in properties {
-        instance.properties.insert((*name).to_owned(), value.clone());
-    }
-    instance
-}
-
-fn connect(from: &str, to: &str) -> Connection {
-    Connection::new(PortRef::parse(from).unwrap(), PortRef::parse(to).unwrap())
-}
-
-fn diagram(components: Vec<ComponentInstance>, connections: Vec<Connection>) -> Diagram {
-    Diagram {
-        packs: vec![PackRequirement {
-            name: "core".into(),
-            version: "^0.1".into(),
-        }],
-        components,
-        connections,
-        ..Diagram::default()
-    }
-}
-
 fn state_of(snapshot: &StatsSnapshot, id: &str) -> ComponentState {
-    snapshot
-        .components
-        .iter()
-        .find(|c| c.id == id)
-        .unwrap()
-        .state
-        .clone()
+    stats(snapshot, id).state.clone()
 }
 
 fn written(snapshot: &StatsSnapshot, link: &str) -> u64 {
@@ -237,17 +210,7 @@ fn written(snapshot: &StatsSnapshot, link: &str) -> u64 {
 }
 
 fn cycles(snapshot: &StatsSnapshot, id: &str) -> u64 {
-    snapshot.components.iter().find(|c| c.id == id).unwrap().cycles
-}
-
-/// Waits until `done` holds: at once on a fast machine, failing only after 30 s. Counts that must grow
-/// are waited for, never timed: speed is for the benchmarks.
-fn eventually(what: &str, mut done: impl FnMut() -> bool) {
-    let deadline = Instant::now() + Duration::from_secs(30);
-    while !done() {
-        assert!(Instant::now() < deadline, "not within 30 s: {what}");
-        sleep(Duration::from_millis(5));
-    }
+    stats(snapshot, id).cycles
 }
 
 /// The first sample `tap` gives that `wanted` accepts, waited for.

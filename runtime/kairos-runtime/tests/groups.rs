@@ -10,8 +10,11 @@ use std::sync::Mutex;
 use std::thread::sleep;
 use std::time::{Duration, Instant};
 
-use kairos_diagram::{ComponentInstance, Connection, Diagram, PackRequirement, PortRef, ReaderPolicy, Value};
-use kairos_runtime::{ComponentState, Engine, StatsSnapshot};
+mod common;
+
+use common::{connect, diagram, eventually, stats};
+use kairos_diagram::{ComponentInstance, Diagram, ReaderPolicy, Value};
+use kairos_runtime::{ComponentState, Engine};
 use kairos_sdk_core::descriptor::Descriptor;
 use kairos_sdk_core::{
     Component, ComponentError, ComponentResult, Context, DataType, Payload, RealTimeClock, Registry,
@@ -72,6 +75,21 @@ impl Component for Slow {
     }
 }
 
+/// Panics on the third sample it reads.
+#[derive(Default)]
+struct PanicsOnThird {
+    seen: u32,
+}
+
+impl Component for PanicsOnThird {
+    fn core(&mut self, ctx: &mut Context) -> ComponentResult {
+        ctx.read("in")?;
+        self.seen += 1;
+        assert!(self.seen < 3, "third sample");
+        Ok(())
+    }
+}
+
 fn registry() -> Registry {
     let mut registry = Registry::new();
     kairos_pack_core::register(&mut registry);
@@ -88,6 +106,11 @@ fn registry() -> Registry {
                 .input("in", TypeFilter::Any, "")
                 .build(),
         )
+        .component::<PanicsOnThird>(
+            Descriptor::new("test.panics_on_third", "test", "Panics on its third sample")
+                .input("in", TypeFilter::Any, "")
+                .build(),
+        )
         .component::<Slow>(
             Descriptor::new("test.slow", "test", "Cycles of 30 ms at 100 Hz")
                 .mode(kairos_sdk_core::ExecutionMode::Periodic)
@@ -96,46 +119,16 @@ fn registry() -> Registry {
     registry
 }
 
+/// [`common::component`], in `group` when given.
 fn component(
     id: &str,
     type_name: &str,
     group: Option<&str>,
     properties: &[(&str, Value)],
 ) -> ComponentInstance {
-    let mut instance = ComponentInstance::new(id, type_name);
+    let mut instance = common::component(id, type_name, properties);
     instance.group = group.map(str::to_owned);
-    for (name, value) in properties {
-        instance.properties.insert((*name).to_owned(), value.clone());
-    }
     instance
-}
-
-fn connect(from: &str, to: &str) -> Connection {
-    Connection::new(PortRef::parse(from).unwrap(), PortRef::parse(to).unwrap())
-}
-
-fn diagram(components: Vec<ComponentInstance>, connections: Vec<Connection>) -> Diagram {
-    Diagram {
-        packs: vec![PackRequirement {
-            name: "core".into(),
-            version: "^0.1".into(),
-        }],
-        components,
-        connections,
-        ..Diagram::default()
-    }
-}
-
-fn eventually(what: &str, mut done: impl FnMut() -> bool) {
-    let deadline = Instant::now() + Duration::from_secs(30);
-    while !done() {
-        assert!(Instant::now() < deadline, "not within 30 s: {what}");
-        sleep(Duration::from_millis(5));
-    }
-}
-
-fn stats<'s>(snapshot: &'s StatsSnapshot, id: &str) -> &'s kairos_runtime::ComponentStats {
-    snapshot.components.iter().find(|c| c.id == id).unwrap()
 }
 
 fn collected(id: &str) -> Vec<f64> {
@@ -380,4 +373,38 @@ fn two_members_that_wait_in_one_group_are_refused() {
         message.contains("group 'two' can hold one member that waits") && message.contains("'second'"),
         "{message}"
     );
+}
+
+#[test]
+fn a_member_that_panics_fails_alone_and_the_rest_of_its_group_runs_on() {
+    let group = Some("shared");
+    let rate = Value::F64(200.0);
+    let d = diagram(
+        vec![
+            component("feed", "core.counter", group, &[("rate", rate.clone())]),
+            component("bad", "test.panics_on_third", group, &[]),
+            component("other", "core.counter", group, &[("rate", rate)]),
+            component("panic_sink", "test.collect", group, &[]),
+        ],
+        vec![
+            connect("feed.out", "bad.in"),
+            connect("other.out", "panic_sink.in"),
+        ],
+    );
+    let mut engine = Engine::build(&d, &registry(), RealTimeClock::shared()).unwrap();
+    engine.start().unwrap();
+    eventually("'bad' fails on its third sample", || {
+        matches!(stats(&engine.snapshot(), "bad").state, ComponentState::Failed(_))
+    });
+    let failed_at = collected("panic_sink").len();
+    eventually("the rest of the group runs on", || {
+        collected("panic_sink").len() > failed_at + 50
+    });
+    let snapshot = engine.snapshot();
+    engine.stop();
+    match &stats(&snapshot, "bad").state {
+        ComponentState::Failed(message) => assert!(message.contains("third sample"), "{message}"),
+        other => panic!("expected failed, got {other:?}"),
+    }
+    assert_eq!(stats(&snapshot, "feed").state, ComponentState::Running);
 }
