@@ -354,6 +354,11 @@ impl Monitor {
         egui::ScrollArea::both()
             .auto_shrink([false, true])
             .show(ui, |ui| {
+                // Groups, when there are any, first: a few rows that sum up hundreds of components.
+                if !self.groups.is_empty() {
+                    self.groups_grid(ui);
+                    ui.separator();
+                }
                 // Losses first: what the panel is most often opened for.
                 egui::Grid::new("links")
                     .striped(true)
@@ -430,10 +435,6 @@ impl Monitor {
                             ui.end_row();
                         }
                     });
-                if !self.groups.is_empty() {
-                    ui.separator();
-                    self.groups_grid(ui);
-                }
             });
     }
 
