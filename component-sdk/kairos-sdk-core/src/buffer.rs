@@ -77,11 +77,24 @@ pub enum ReadError {
 }
 
 /// Why a write did not happen.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 pub enum WriteError {
     /// The writer waited for a NeverSkipping reader and was stopped meanwhile.
     #[error("stopped while waiting for a NeverSkipping reader to make room")]
     Stopped,
+    /// The NeverSkipping reader to wait for runs in the writer's own thread (both in one execution
+    /// group): it cannot make room until the write returns, so the write would wait for ever.
+    #[error(
+        "the NeverSkipping link '{link}' is full ({capacity} samples) and its reader runs in this same \
+         thread (one execution group), so it cannot read until this write returns; give the link a \
+         larger capacity or another policy, or take one of its ends out of the group"
+    )]
+    ReaderInWritersThread {
+        /// The link's name, as in the statistics.
+        link: Arc<str>,
+        /// The reader's share of the ring.
+        capacity: u64,
+    },
 }
 
 /// How one reader attaches to an output.
@@ -1067,6 +1080,12 @@ impl OutputBuffer {
             !reader.attached.load(Ordering::Acquire)
                 || written - reader.progress.cursor.load(Ordering::Acquire) < reader.capacity
         };
+        if !has_room() && reader.signal.is_bound_to_current_thread() {
+            return Err(WriteError::ReaderInWritersThread {
+                link: Arc::clone(&reader.link),
+                capacity: reader.capacity,
+            });
+        }
         for _ in 0..SPINS {
             if has_room() {
                 return Ok(());

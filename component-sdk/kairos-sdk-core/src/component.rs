@@ -67,6 +67,7 @@ impl From<WriteError> for ComponentError {
     fn from(error: WriteError) -> Self {
         match error {
             WriteError::Stopped => ComponentError::Stopped,
+            error @ WriteError::ReaderInWritersThread { .. } => ComponentError::failed(error),
         }
     }
 }

@@ -77,6 +77,14 @@ impl RunSignal {
         let _ = self.thread.set(current_thread());
     }
 
+    /// Whether the calling thread is the one this signal wakes: a writer that waited here for this
+    /// component would wait for itself (two members of one execution group).
+    pub fn is_bound_to_current_thread(&self) -> bool {
+        self.thread
+            .get()
+            .is_some_and(|thread| thread.id() == current_thread().id())
+    }
+
     /// Whether the component runs without a thread of its own.
     pub fn is_reactive(&self) -> bool {
         self.reactive.is_some()

@@ -256,7 +256,8 @@ impl Validator<'_> {
     }
 
     /// A NeverSkipping reader makes its writer wait for room; inside a group the reader runs only after
-    /// the writer's call returns, so a call that writes more than the link holds would wait for ever.
+    /// the writer's call returns, so a call that writes more than the link holds cannot wait: the
+    /// runtime fails the writer rather than hang the group.
     fn check_never_skipping_inside(&mut self) {
         for (index, connection) in self.diagram.connections.iter().enumerate() {
             let (Some(from), Some(to)) = (
@@ -284,9 +285,12 @@ impl Validator<'_> {
                     DiagnosticCode::InvalidGroup,
                     format!(
                         "'{}' reads '{}' NeverSkipping inside group '{group}': if one call of '{}' writes more \
-                         samples than the link holds, it waits for a reader that runs only after it returns, and \
-                         the group stops until the diagram does",
-                        connection.to.component, connection.from, connection.from.component
+                         samples than the link holds, it cannot wait for a reader that runs only after it returns, \
+                         and '{}' fails",
+                        connection.to.component,
+                        connection.from,
+                        connection.from.component,
+                        connection.from.component
                     ),
                 )
                 .at(self.connection_at(index).map(|l| l.connection))

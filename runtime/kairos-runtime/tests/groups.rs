@@ -90,6 +90,24 @@ impl Component for PanicsOnThird {
     }
 }
 
+/// Periodic at 100 Hz, writing five numbers in each cycle.
+#[derive(Default)]
+struct Flood;
+
+impl Component for Flood {
+    fn birth(&mut self, ctx: &mut Context) -> ComponentResult {
+        ctx.set_period(Duration::from_millis(10));
+        Ok(())
+    }
+
+    fn core(&mut self, ctx: &mut Context) -> ComponentResult {
+        for n in 0..5 {
+            ctx.write("out", Payload::I64(n))?;
+        }
+        Ok(())
+    }
+}
+
 fn registry() -> Registry {
     let mut registry = Registry::new();
     kairos_pack_core::register(&mut registry);
@@ -109,6 +127,12 @@ fn registry() -> Registry {
         .component::<PanicsOnThird>(
             Descriptor::new("test.panics_on_third", "test", "Panics on its third sample")
                 .input("in", TypeFilter::Any, "")
+                .build(),
+        )
+        .component::<Flood>(
+            Descriptor::new("test.flood", "test", "Five numbers a cycle at 100 Hz")
+                .mode(kairos_sdk_core::ExecutionMode::Periodic)
+                .output("out", DataType::I64, "")
                 .build(),
         )
         .component::<Slow>(
@@ -407,4 +431,51 @@ fn a_member_that_panics_fails_alone_and_the_rest_of_its_group_runs_on() {
         other => panic!("expected failed, got {other:?}"),
     }
     assert_eq!(stats(&snapshot, "feed").state, ComponentState::Running);
+}
+
+#[test]
+fn a_write_that_overfills_a_never_skipping_link_inside_its_group_fails_the_writer_rather_than_hang() {
+    let group = Some("flooded");
+    let mut d = diagram(
+        vec![
+            component("flood", "test.flood", group, &[]),
+            component("flood_sink", "test.collect", group, &[]),
+        ],
+        vec![connect("flood.out", "flood_sink.in")],
+    );
+    // Two samples fit; a cycle writes five, and the reader runs only once the cycle returns.
+    d.connections[0].buffer_size = Some(2);
+    d.connections[0].policy = Some(ReaderPolicy::NeverSkipping);
+    let mut engine = Engine::build(&d, &registry(), RealTimeClock::shared()).unwrap();
+    engine.start().unwrap();
+    eventually("the writer fails", || {
+        matches!(
+            stats(&engine.snapshot(), "flood").state,
+            ComponentState::Failed(_)
+        )
+    });
+    // What was written before the failure is read, none of it lost.
+    eventually("the reader reads what fitted", || {
+        collected("flood_sink").len() == 2
+    });
+    let snapshot = engine.snapshot();
+    let stopping = Instant::now();
+    engine.stop();
+    assert!(
+        stopping.elapsed() < Duration::from_secs(5),
+        "{:?}",
+        stopping.elapsed()
+    );
+    match &stats(&snapshot, "flood").state {
+        ComponentState::Failed(message) => assert!(
+            message.contains("NeverSkipping link")
+                && message.contains("is full (2 samples)")
+                && message.contains("same thread"),
+            "{message}"
+        ),
+        other => panic!("expected failed, got {other:?}"),
+    }
+    let link = &snapshot.links[0].counters;
+    assert_eq!(link.written, 2, "{link:?}");
+    assert_eq!(collected("flood_sink"), [0.0, 1.0]);
 }
