@@ -107,7 +107,11 @@ fn deploy_runs_each_part_on_its_host_and_stops_them_all() {
     std::fs::write(here.path().join("a.token"), &a.token).unwrap();
     std::fs::write(here.path().join("b.token"), &b.token).unwrap();
     let diagram = here.path().join("two_hosts.ron");
-    std::fs::write(&diagram, two_host_diagram(&a, &b.url)).unwrap();
+    // Host b's part runs in an execution group, with the group's thread settings shipped with it.
+    let text_of_diagram = two_host_diagram(&a, &b.url)
+        .replace(r#"host: "b""#, r#"host: "b", group: "on_b""#)
+        .replace("packs: [],", r#"packs: [], groups: {"on_b": (affinity: [0])},"#);
+    std::fs::write(&diagram, text_of_diagram).unwrap();
     let deployed = common::kairos(
         here.path(),
         &["deploy", diagram.to_str().unwrap(), "--for", "1500ms"],
@@ -115,6 +119,13 @@ fn deploy_runs_each_part_on_its_host_and_stops_them_all() {
     let (_, stderr) = text(&deployed);
     assert!(deployed.status.success(), "{stderr}");
     assert!(stderr.contains("host 'a' started its part"), "{stderr}");
+    let mut on_b = operator(&b);
+    let deployed_on_b = call(&mut on_b, &json!({"id": 7, "type": "get_diagram"}));
+    let part_text = deployed_on_b["result"]["diagram"].as_str().unwrap_or_default();
+    assert!(
+        part_text.contains(r#"group: "on_b""#) && part_text.contains("affinity: [0]"),
+        "{deployed_on_b}"
+    );
     // Each part ran where it was placed: its CSV is in that host's folder.
     for (folder, file) in [(&dir_a, "a.csv"), (&dir_b, "b.csv"), (&here, "here.csv")] {
         let rows = std::fs::read_to_string(folder.path().join(file)).unwrap_or_default();

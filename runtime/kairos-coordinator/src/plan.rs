@@ -168,6 +168,19 @@ pub fn split(diagram: &Diagram, registry: &Registry, deployment: &str) -> anyhow
         plan.links.push(link);
     }
     for part in plan.parts.values_mut() {
+        // A part runs as the whole would: sequential if the diagram is (validation keeps a sequential
+        // diagram on one host), its groups with their thread settings.
+        part.sequential = diagram.sequential;
+        part.groups = diagram
+            .groups
+            .iter()
+            .filter(|(name, _)| {
+                part.components
+                    .iter()
+                    .any(|c| part.group_of(c) == Some(name.as_str()))
+            })
+            .map(|(name, settings)| (name.clone(), settings.clone()))
+            .collect();
         if diagram
             .clock_source
             .as_ref()
@@ -398,4 +411,50 @@ pub fn deployment_name() -> String {
         .duration_since(std::time::UNIX_EPOCH)
         .map_or(0, |d| d.as_nanos());
     format!("{:x}{:x}", std::process::id(), nanos & 0xffff_ffff)
+}
+
+#[cfg(test)]
+mod tests {
+    use kairos_diagram::{ComponentInstance, ThreadSettings};
+
+    use super::*;
+
+    fn on(id: &str, host: Option<&str>, group: Option<&str>) -> ComponentInstance {
+        let mut component = ComponentInstance::new(id, "core.counter");
+        component.host = host.map(str::to_owned);
+        component.group = group.map(str::to_owned);
+        component
+    }
+
+    #[test]
+    fn each_part_keeps_its_own_groups_with_their_settings_and_the_sequential_switch() {
+        let mut diagram = Diagram {
+            components: vec![
+                on("a1", Some("a"), Some("on_a")),
+                on("a2", Some("a"), Some("on_a")),
+                on("here", None, Some("here")),
+            ],
+            ..Diagram::default()
+        };
+        let fast = ThreadSettings {
+            priority: Some(10),
+            ..ThreadSettings::default()
+        };
+        diagram.groups.insert("on_a".into(), fast.clone());
+        diagram.groups.insert("here".into(), ThreadSettings::default());
+        let plan = split(&diagram, &Registry::new(), "test").unwrap();
+        let part_a = &plan.parts[&Some("a".to_owned())];
+        assert_eq!(part_a.groups.keys().collect::<Vec<_>>(), ["on_a"]);
+        assert_eq!(part_a.groups["on_a"], fast);
+        assert_eq!(part_a.component("a2").unwrap().group.as_deref(), Some("on_a"));
+        assert_eq!(plan.parts[&None].groups.keys().collect::<Vec<_>>(), ["here"]);
+
+        let sequential = Diagram {
+            components: vec![on("s1", Some("a"), None), on("s2", Some("a"), None)],
+            sequential: true,
+            ..Diagram::default()
+        };
+        let plan = split(&sequential, &Registry::new(), "test").unwrap();
+        assert!(plan.parts[&Some("a".to_owned())].sequential);
+    }
 }
