@@ -376,6 +376,57 @@ fn properties_actions_and_synchronised_reads_reach_the_python_code() {
 }
 
 #[test]
+fn python_components_run_inside_an_execution_group_in_order_and_lose_nothing() {
+    require_numpy();
+    let dir = tempfile::tempdir().unwrap();
+    write_pack(dir.path(), "py_test", &[("components.py", TEST_COMPONENTS)]);
+    let (registry, scan) = registry_with(&[dir.path().to_owned()]);
+    assert!(scan.refused.is_empty(), "{:?}", scan.refused);
+    // The counter, a Python scale and a Python synchronised pair share one thread.
+    let mut engine = engine(
+        &registry,
+        r#"Diagram(format: 1, components: [
+            Component(id: "counter", type: "core.counter", properties: {"rate": 200.0, "start": 1}, group: "py"),
+            Component(id: "scale", type: "py_test.scale", properties: {"factor": 2.0}, group: "py"),
+            Component(id: "pair", type: "py_test.pair", group: "py"),
+        ], connections: [
+            Connection(from: "counter.out", to: "scale.in"),
+            Connection(from: "counter.out", to: "pair.a"),
+            Connection(from: "counter.out", to: "pair.b"),
+        ])"#,
+    );
+    let mut scaled = reader(&engine, "scale", "out");
+    engine.start().unwrap();
+    // Every count, in order, twice over, from the first.
+    let values: Vec<f64> = read_n(&mut scaled, 50).iter().map(f64_of).collect();
+    let expected: Vec<f64> = (1..=50).map(|n| 2.0 * f64::from(n)).collect();
+    assert_eq!(values, expected);
+    // A NeverSkipping reader that is not read holds its writer, and with it the writer's whole group:
+    // the test reads one stream at a time.
+    drop(scaled);
+    let mut differences = reader(&engine, "pair", "difference");
+    for difference in read_n(&mut differences, 20) {
+        assert_eq!(f64_of(&difference), 0.0, "matched samples of one stream");
+    }
+    let snapshot = engine.snapshot();
+    engine.stop();
+    let group = snapshot.groups.iter().find(|g| g.name == "py").unwrap();
+    assert_eq!(group.members, ["counter", "scale", "pair"], "{group:?}");
+    for id in ["scale", "pair"] {
+        let component = snapshot.components.iter().find(|c| c.id == id).unwrap();
+        assert!(
+            matches!(component.state, ComponentState::Running),
+            "{id}: {:?}",
+            component.state
+        );
+        assert_eq!(component.group.as_deref(), Some("py"));
+    }
+    for id in ["scale", "pair"] {
+        assert_eq!(state(&engine, id), ComponentState::Stopped, "{id}");
+    }
+}
+
+#[test]
 fn an_exception_in_core_fails_that_component_alone_with_its_traceback() {
     require_numpy();
     let dir = tempfile::tempdir().unwrap();
