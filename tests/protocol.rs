@@ -646,3 +646,49 @@ fn recorders_and_players_are_driven_over_the_protocol() {
     let player = &status["result"]["telemetry"]["components"][0];
     assert_eq!(player["state"], "running", "{status}");
 }
+
+/// Telemetry events received within `window`, with their states.
+fn telemetry_within(socket: &mut Socket, window: Duration) -> Vec<String> {
+    let mut states = Vec::new();
+    let until = Instant::now() + window;
+    while let Some(left) = until.checked_duration_since(Instant::now()) {
+        if let MaybeTlsStream::Plain(stream) = socket.get_ref() {
+            stream
+                .set_read_timeout(Some(left.max(Duration::from_millis(1))))
+                .unwrap();
+        }
+        let Ok(Message::Text(text)) = socket.read() else {
+            continue;
+        };
+        let message: Value = serde_json::from_str(text.as_str()).unwrap();
+        if message["type"] == "telemetry" {
+            states.push(message["state"].as_str().unwrap_or_default().to_owned());
+        }
+    }
+    states
+}
+
+#[test]
+fn telemetry_flows_while_the_diagram_runs_and_rests_once_it_is_stopped() {
+    let _machine = shared_machine();
+    let dir = tempfile::tempdir().unwrap();
+    let server = serve(dir.path(), &[]);
+    let mut admin = operator(&server);
+    let hello_text = std::fs::read_to_string(example("hello")).unwrap();
+    deploy_and_start(&mut admin, &hello_text);
+    let reply = call(
+        &mut admin,
+        &json!({"id": 20, "type": "subscribe_telemetry", "interval_ms": 50}),
+    );
+    assert_eq!(reply["ok"], true, "{reply}");
+    let running = telemetry_within(&mut admin, Duration::from_secs(1));
+    assert!(running.len() >= 5, "{running:?}");
+    assert_eq!(call(&mut admin, &json!({"id": 21, "type": "stop"}))["ok"], true);
+    // What the stop changed is said once; then nothing changes, and nothing is sent but a reminder.
+    let _ = telemetry_within(&mut admin, Duration::from_millis(500));
+    let stopped = telemetry_within(&mut admin, Duration::from_secs(2));
+    assert!(stopped.len() <= 1, "{stopped:?}");
+    assert_eq!(call(&mut admin, &json!({"id": 22, "type": "start"}))["ok"], true);
+    let again = telemetry_within(&mut admin, Duration::from_secs(1));
+    assert!(again.iter().filter(|s| *s == "running").count() >= 5, "{again:?}");
+}

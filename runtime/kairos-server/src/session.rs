@@ -9,13 +9,13 @@ use std::collections::BTreeMap;
 use std::net::SocketAddr;
 use std::path::Path;
 use std::sync::Arc;
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use futures_util::{SinkExt as _, StreamExt as _};
 use kairos_protocol::{
     CLIENT_QUEUE, DeployResult, DiagramReply, Done, ErrorCode, LogLevel, MAX_MESSAGE_BYTES, PROTOCOL_VERSION,
     ProtocolError, ReplyBody, RequestBody, RequestKind, Role, SampleTransport, SamplesSubscribed,
-    ServerMessage, Status, TelemetrySubscribed, Token, Welcome, decode_request,
+    ServerMessage, Status, Telemetry, TelemetrySubscribed, Token, Welcome, decode_request,
 };
 use kairos_sdk_core::{Timestamp, Value};
 use tokio::sync::mpsc;
@@ -31,6 +31,9 @@ use super::samples::{LatestSamples, PixelsIn};
 
 /// The shortest telemetry period a client may ask for.
 const MIN_TELEMETRY_MS: u64 = 20;
+/// How often telemetry that has not changed (a stopped diagram's) is sent all the same: a client that
+/// connected meanwhile or missed one still sees it soon.
+const UNCHANGED_TELEMETRY_RESENT: Duration = Duration::from_secs(5);
 /// The farthest ahead a start instant may be: further means clocks that disagree, or a wrong instant.
 const FARTHEST_START: Duration = Duration::from_mins(1);
 /// The most sample frames per second per output a client may ask for.
@@ -711,6 +714,7 @@ impl Session {
         tokio::spawn(async move {
             let mut ticker = tokio::time::interval(period);
             ticker.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
+            let mut last_sent: Option<(Telemetry, Instant)> = None;
             loop {
                 ticker.tick().await;
                 let runtime = Arc::clone(&runtime);
@@ -718,12 +722,22 @@ impl Session {
                 else {
                     continue;
                 };
-                let Some(text) = text_of(&ServerMessage::Telemetry(telemetry)) else {
+                // A stopped diagram's statistics do not change: sent again at every tick they would
+                // only keep the client parsing and redrawing. Sent again now and then all the same.
+                let now = Instant::now();
+                if let Some((last, at)) = &last_sent
+                    && now.duration_since(*at) < UNCHANGED_TELEMETRY_RESENT
+                    && same_but_for_time(last, &telemetry)
+                {
+                    continue;
+                }
+                let Some(text) = text_of(&ServerMessage::Telemetry(telemetry.clone())) else {
                     continue;
                 };
                 if let Err(TrySendError::Closed(_)) = out.try_send(Message::text(text)) {
                     return;
                 }
+                last_sent = Some((telemetry, now));
             }
         })
     }
@@ -940,4 +954,26 @@ fn lock_bound(lock_bound_ns: Option<u64>) -> Result<Option<Duration>, ProtocolEr
         ));
     }
     Ok(Some(bound))
+}
+
+/// Whether two telemetries say the same but for when they were taken.
+fn same_but_for_time(earlier: &Telemetry, later: &Telemetry) -> bool {
+    // Taken apart field by field: a field added later must be weighed here.
+    let Telemetry {
+        at_ns: _,
+        state,
+        links,
+        components,
+        clock,
+        groups,
+        hosts,
+        cross_links,
+    } = earlier;
+    *state == later.state
+        && *links == later.links
+        && *components == later.components
+        && *clock == later.clock
+        && *groups == later.groups
+        && *hosts == later.hosts
+        && *cross_links == later.cross_links
 }
