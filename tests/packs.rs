@@ -290,10 +290,7 @@ fn rust_and_cpp_packs_from_a_folder_beside_the_diagram_run_with_built_in_compone
     std::fs::create_dir(&packs).unwrap();
     copy_rust_pack("kairos_pack_filters", &packs);
     cpp_pack(&packs);
-    let diagram = write_diagram(
-        dir.path(),
-        "mixed.ron",
-        r#"Diagram(
+    let text = r#"Diagram(
     format: 1,
     packs: [
         Pack(name: "core", version: "^0.1"),
@@ -312,10 +309,22 @@ fn rust_and_cpp_packs_from_a_folder_beside_the_diagram_run_with_built_in_compone
         Connection(from: "sine.out", to: "clamp.in"),
     ],
 )
-"#,
-    );
+"#;
+    // The same diagram with a thread per component, then in one thread (loaded components called by
+    // their group rather than waiting in threads of their own).
+    for sequential in [false, true] {
+        let diagram = write_diagram(
+            dir.path(),
+            "mixed.ron",
+            &text.replace("format: 1,", &format!("format: 1, sequential: {sequential},")),
+        );
+        run_mixed(dir.path(), &diagram, sequential);
+    }
+}
+
+fn run_mixed(dir: &Path, diagram: &Path, sequential: bool) {
     let output = kairos(
-        dir.path(),
+        dir,
         &["run", diagram.to_str().unwrap(), "--for", "1500ms", "--stats"],
     );
     let (stdout, stderr) = text(&output);
@@ -339,6 +348,12 @@ fn rust_and_cpp_packs_from_a_folder_beside_the_diagram_run_with_built_in_compone
         "the C++ component logs through the host: {stderr}"
     );
     assert!(stderr.contains("lp.out -> console.in"), "{stderr}");
+    // The statistics' group table has a row for the sequential group, its four members.
+    let group_row = stderr
+        .lines()
+        .find(|l| l.starts_with("sequential "))
+        .map(|l| l.split_whitespace().nth(1).unwrap_or_default().to_owned());
+    assert_eq!(group_row.as_deref(), sequential.then_some("4"), "{stderr}");
 }
 
 #[test]
