@@ -1192,7 +1192,7 @@ impl Viewers {
 }
 
 /// A sample as a table row reads it: text as it is (a decoded CAN frame's `Engine: Speed = 2000 rpm`), a
-/// CAN frame as candump writes it, other small payloads as JSON, large ones by their size.
+/// CAN frame as candump writes it, other small payloads as `name = value` fields, large ones by their size.
 fn table_text(data_type: &str, value: &serde_json::Value, payload_len: usize) -> String {
     match value {
         serde_json::Value::Null => format!("{payload_len} bytes"),
@@ -1224,6 +1224,61 @@ fn table_text(data_type: &str, value: &serde_json::Value, payload_len: usize) ->
             };
             format!("{id} [{}] {}{fd}", data.len(), data.join(" "))
         }
+        other => {
+            let mut fields = Vec::new();
+            flatten_fields("", other, &mut fields);
+            fields.join("; ")
+        }
+    }
+}
+
+/// How many values of a list a table cell shows before it says how many there are.
+const LISTED_VALUES: usize = 8;
+
+/// A structured value as `name = value` fields, nested names joined with dots (`position.x = 1.5`):
+/// what a person reads, rather than JSON's braces and quotes.
+fn flatten_fields(prefix: &str, value: &serde_json::Value, into: &mut Vec<String>) {
+    match value {
+        serde_json::Value::Object(fields) if !fields.is_empty() => {
+            for (name, field) in fields {
+                let path = if prefix.is_empty() {
+                    name.clone()
+                } else {
+                    format!("{prefix}.{name}")
+                };
+                flatten_fields(&path, field, into);
+            }
+        }
+        leaf => {
+            let text = scalar_text(leaf);
+            into.push(if prefix.is_empty() {
+                text
+            } else {
+                format!("{prefix} = {text}")
+            });
+        }
+    }
+}
+
+/// One value of a field: text without quotes, a list as its first values and its length.
+fn scalar_text(value: &serde_json::Value) -> String {
+    match value {
+        serde_json::Value::Null => "none".to_owned(),
+        serde_json::Value::String(text) => text.clone(),
+        serde_json::Value::Array(items) => {
+            let shown: Vec<String> = items.iter().take(LISTED_VALUES).map(scalar_text).collect();
+            if items.len() > LISTED_VALUES {
+                format!("[{}, … ({} values)]", shown.join(", "), items.len())
+            } else {
+                format!("[{}]", shown.join(", "))
+            }
+        }
+        serde_json::Value::Object(fields) if fields.is_empty() => "{}".to_owned(),
+        serde_json::Value::Object(_) => {
+            let mut fields = Vec::new();
+            flatten_fields("", value, &mut fields);
+            format!("({})", fields.join("; "))
+        }
         other => other.to_string(),
     }
 }
@@ -1246,6 +1301,26 @@ mod tests {
         let remote = serde_json::json!({"id": 291, "extended": false, "fd": false, "data": [], "remote": true, "length": 4});
         assert_eq!(table_text("can_frame", &remote, 0), "123 [4] remote request");
         assert_eq!(table_text("f64", &serde_json::json!(0.5), 0), "0.5");
+        // Structured values read as fields, nested ones with dotted names, lists cut short.
+        let fix = serde_json::json!({"latitude": 48.85, "longitude": 2.35, "quality": "rtk fixed", "hdop": null});
+        assert_eq!(
+            table_text("gnss_fix", &fix, 0),
+            "hdop = none; latitude = 48.85; longitude = 2.35; quality = rtk fixed"
+        );
+        let pose = serde_json::json!({"position": {"x": 1.5, "y": -2}, "frame": "map"});
+        assert_eq!(
+            table_text("pose", &pose, 0),
+            "frame = map; position.x = 1.5; position.y = -2"
+        );
+        let long: Vec<u32> = (0..20).collect();
+        assert_eq!(
+            table_text("vector", &serde_json::json!(long), 0),
+            "[0, 1, 2, 3, 4, 5, 6, 7, … (20 values)]"
+        );
+        assert_eq!(
+            table_text("vector", &serde_json::json!([{"a": 1}, [2, 3]]), 0),
+            "[(a = 1), [2, 3]]"
+        );
         assert_eq!(
             table_text("image", &serde_json::Value::Null, 921_600),
             "921600 bytes"
