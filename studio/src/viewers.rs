@@ -1279,7 +1279,27 @@ fn scalar_text(value: &serde_json::Value) -> String {
             flatten_fields("", value, &mut fields);
             format!("({})", fields.join("; "))
         }
-        other => other.to_string(),
+        serde_json::Value::Number(number) => match number.as_f64() {
+            Some(real) if number.is_f64() => real_text(real),
+            _ => number.to_string(),
+        },
+        serde_json::Value::Bool(flag) => flag.to_string(),
+    }
+}
+
+/// A real number to nine significant digits (a latitude to about a centimetre), without trailing zeros:
+/// `150.418698` rather than `150.418697990603`.
+fn real_text(value: f64) -> String {
+    if !value.is_finite() || value == 0.0 {
+        return value.to_string();
+    }
+    let magnitude = value.abs().log10().floor() as i32;
+    let decimals = usize::try_from((8 - magnitude).clamp(0, 15)).unwrap_or(0);
+    let text = format!("{value:.decimals$}");
+    if text.contains('.') {
+        text.trim_end_matches('0').trim_end_matches('.').to_owned()
+    } else {
+        text
     }
 }
 
@@ -1302,7 +1322,8 @@ mod tests {
         assert_eq!(table_text("can_frame", &remote, 0), "123 [4] remote request");
         assert_eq!(table_text("f64", &serde_json::json!(0.5), 0), "0.5");
         // Structured values read as fields, nested ones with dotted names, lists cut short.
-        let fix = serde_json::json!({"latitude": 48.85, "longitude": 2.35, "quality": "rtk fixed", "hdop": null});
+        let fix =
+            serde_json::json!({"latitude": 48.85, "longitude": 2.35, "quality": "rtk fixed", "hdop": null});
         assert_eq!(
             table_text("gnss_fix", &fix, 0),
             "hdop = none; latitude = 48.85; longitude = 2.35; quality = rtk fixed"
@@ -1311,6 +1332,11 @@ mod tests {
         assert_eq!(
             table_text("pose", &pose, 0),
             "frame = map; position.x = 1.5; position.y = -2"
+        );
+        let noisy = serde_json::json!({"altitude_m": 150.418_697_990_603, "latitude": 48.716_700_123_4, "tiny": 0.000_012_345_678_91});
+        assert_eq!(
+            table_text("gnss_fix", &noisy, 0),
+            "altitude_m = 150.418698; latitude = 48.7167001; tiny = 0.0000123456789"
         );
         let long: Vec<u32> = (0..20).collect();
         assert_eq!(
