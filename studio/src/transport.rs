@@ -91,7 +91,10 @@ impl Transport {
         ui.horizontal(|ui| {
             ui.strong(id).on_hover_text("a recording player");
             if ended {
-                ui.weak("ended: Run replays it again; tick loop in its properties to replay it without end");
+                ui.weak(
+                    "ended: Run replays it again; in its properties, 'at end: hold' keeps it at its end to seek \
+                     back, 'loop' replays it without end",
+                );
                 return;
             }
             if playing {
@@ -273,8 +276,13 @@ impl Transport {
         {
             self.scrubbing.insert(id.to_owned(), to_seconds(pointer));
         }
+        // A click whose press and release came in one frame never scrubbed: it seeks where it landed.
+        let clicked_at = response
+            .clicked()
+            .then(|| response.interact_pointer_pos().map(to_seconds))
+            .flatten();
         if (response.drag_stopped() || response.clicked())
-            && let Some(target) = self.scrubbing.remove(id)
+            && let Some(target) = self.scrubbing.remove(id).or(clicked_at)
         {
             requests.push(RequestBody::PlayerSeek {
                 component,

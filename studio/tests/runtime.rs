@@ -395,7 +395,7 @@ fn the_timeline_pauses_seeks_and_plays_a_recording() {
         format!(
             "Diagram(format: 1, packs: [Pack(name: \"recording\", version: \"^0.1\")], components: [\
              Component(id: \"player\", type: \"recording.player\", position: (x: 40.0, y: 40.0), \
-             properties: {{\"path\": {:?}}})], connections: [])",
+             properties: {{\"path\": {:?}, \"at_end\": \"hold\"}})], connections: [])",
             recording.display().to_string()
         ),
     )
@@ -447,7 +447,39 @@ fn the_timeline_pauses_seeks_and_plays_a_recording() {
             .is_some_and(|p| (p - duration * 0.75).abs() < 0.3)
     });
     // A plain click seeks too, even with its press and release in one slow frame.
-    let at = Pos2::new(bar_left + (bar_right - bar_left) * 0.25, y);
+    click_at(
+        &mut harness,
+        Pos2::new(bar_left + (bar_right - bar_left) * 0.25, y),
+    );
+    run_until(&mut harness, "the seek by a click", |app| {
+        status(app, "player", "position_s")
+            .and_then(|p| p.as_f64())
+            .is_some_and(|p| (p - duration * 0.25).abs() < 0.3)
+    });
+    harness.get_by_label("Play").click();
+    harness.run_steps(1);
+    run_until(&mut harness, "the end of the replay", |app| {
+        status(app, "player", "held_at_end") == Some(serde_json::json!(true))
+    });
+    // Held at its end (`at_end: hold`), the replay is sought back by a click and plays on from there.
+    click_at(
+        &mut harness,
+        Pos2::new(bar_left + (bar_right - bar_left) * 0.5, y),
+    );
+    run_until(&mut harness, "a replay from half-way", |app| {
+        status(app, "player", "held_at_end") == Some(serde_json::json!(false))
+            && status(app, "player", "position_s")
+                .and_then(|p| p.as_f64())
+                .is_some_and(|p| p >= duration * 0.5 - 0.3 && p < duration - 0.2)
+    });
+    assert_eq!(
+        status(harness.state(), "player", "ended"),
+        Some(serde_json::json!(false))
+    );
+}
+
+/// A press and release at `at` in one frame: a click as a slow frame sees it.
+fn click_at(harness: &mut Harness<'_, StudioApp>, at: Pos2) {
     harness.hover_at(at);
     harness.run_steps(1);
     for pressed in [true, false] {
@@ -459,16 +491,6 @@ fn the_timeline_pauses_seeks_and_plays_a_recording() {
         });
     }
     harness.run_steps(2);
-    run_until(&mut harness, "the seek by a click", |app| {
-        status(app, "player", "position_s")
-            .and_then(|p| p.as_f64())
-            .is_some_and(|p| (p - duration * 0.25).abs() < 0.3)
-    });
-    harness.get_by_label("Play").click();
-    harness.run_steps(1);
-    run_until(&mut harness, "the end of the replay", |app| {
-        status(app, "player", "ended") == Some(serde_json::json!(true))
-    });
 }
 
 type Frames = std::collections::BTreeMap<u64, (kairos_protocol::frame::SampleHeader, Vec<u8>)>;

@@ -218,6 +218,9 @@ pub struct Player {
     /// When the status was last published, and whether the replay reached its end.
     published: Option<std::time::Instant>,
     ended: bool,
+    /// At the end with `at_end` hold: waiting there for a seek, a rewind or play.
+    held: bool,
+    hold_at_end: bool,
 }
 
 impl std::fmt::Debug for Player {
@@ -260,6 +263,11 @@ impl Player {
                 .doc("Replay speed in real time: 2 replays twice as fast"),
         )
         .property(Property::bool("loop", false).live().doc("Start again at the end"))
+        .property(
+            Property::choice("at_end", &["stop", "hold"], "stop")
+                .live()
+                .doc("stop: the replay ends there, and what it feeds ends after it (kairos run then exits); hold: it waits at its last sample, where a seek, a rewind or play replays again"),
+        )
         .property(
             Property::f64("start_s", 0.0).unit("s")
                 .range(0.0, 1e9)
@@ -313,6 +321,8 @@ impl Player {
     /// last sample before `target` so downstream state is what it was at that time.
     fn seek(&mut self, target: i64) -> Result<(), ComponentError> {
         let target = target.clamp(self.range.0, self.range.1);
+        // Held at the end: a seek replays from its target.
+        self.held = false;
         self.restore.clear();
         self.anchor = None;
         let mut restore: Vec<(i64, usize, RawMessage)> = Vec::new();
@@ -456,8 +466,9 @@ impl Player {
             "position_s": seconds(self.reached.max(self.timeline.0)),
             "duration_s": seconds(self.timeline.1),
             "range_s": [seconds(self.range.0), seconds(self.range.1)],
-            "playing": self.transport == Transport::Playing && !self.ended,
+            "playing": self.transport == Transport::Playing && !self.ended && !self.held,
             "ended": self.ended,
+            "held_at_end": self.held,
             "speed": self.speed,
             "loop": self.looping,
             "files": files,
@@ -605,6 +616,7 @@ impl Component for Player {
         self.real_time = ctx.text_property("mode")? == "real_time";
         self.recorded_times = ctx.text_property("times")? == "recorded";
         self.looping = ctx.bool_property("loop")?;
+        self.hold_at_end = ctx.text_property("at_end")? == "hold";
         if ctx.bool_property("start_paused")? {
             self.transport = Transport::Paused;
         }
@@ -643,7 +655,7 @@ impl Component for Player {
 
 impl Player {
     fn cycle(&mut self, ctx: &mut Context) -> ComponentResult {
-        if self.transport == Transport::Paused {
+        if self.transport == Transport::Paused || self.held {
             // Not a wait on the clock: a manual clock (the offline harness) would jump to the deadline.
             ctx.sleep(PAUSED_RECHECK)?;
             return Err(ComponentError::NoData);
@@ -665,6 +677,12 @@ impl Player {
             if self.looping {
                 self.seek(self.range.0)?;
                 return Ok(());
+            }
+            if self.hold_at_end {
+                self.held = true;
+                self.reached = self.range.1;
+                self.publish_status(ctx, true);
+                return Err(ComponentError::NoData);
             }
             return Err(ComponentError::EndOfStream);
         };
@@ -709,6 +727,11 @@ impl Player {
                 self.speed = speed;
             }
             "loop" => self.looping = value.as_bool().unwrap_or(false),
+            "at_end" => {
+                self.hold_at_end = value.as_text() == Some("hold");
+                // Held and told to stop now: the end it was waiting at comes on the next cycle.
+                self.held &= self.hold_at_end;
+            }
             "seek_s" => {
                 let seconds = value.as_f64().unwrap_or(-1.0);
                 if seconds >= 0.0 {
@@ -725,6 +748,11 @@ impl Player {
     fn act(&mut self, name: &str) -> ComponentResult {
         match name {
             "play" => {
+                // At the end, play starts again from the start, as a media player does.
+                if self.held {
+                    self.seek(self.range.0)?;
+                    self.reached = self.range.0;
+                }
                 self.transport = Transport::Playing;
                 self.anchor = None;
             }

@@ -181,6 +181,35 @@ fn step_emits_one_sample_and_pause_holds_the_rest() {
 }
 
 #[test]
+fn a_replay_held_at_its_end_replays_from_where_it_is_sought_or_from_the_start_on_play() {
+    let (_dir, path, written) = temp_recording(1_000);
+    let (mut harness, _) = player(&[
+        ("path", path_value(&path)),
+        ("mode", Value::from("as_fast_as_possible")),
+        ("at_end", Value::from("hold")),
+    ]);
+    let everything = run(&mut harness, written.len());
+    assert_eq!(everything.len(), written.len());
+    // At the end it waits rather than ending: further cycles give nothing, and no error.
+    assert!(run(&mut harness, 3).is_empty());
+    assert_eq!(harness.status().unwrap()["held_at_end"], true);
+    // A seek to half-way replays the second half (after each output's last sample before it).
+    harness.set_property("seek_s", Value::F64(0.25)).unwrap();
+    let second_half = run(&mut harness, written.len());
+    let last = &written.last().unwrap().1;
+    assert!(
+        second_half.len() < written.len() && second_half.len() > 2,
+        "{}",
+        second_half.len()
+    );
+    assert!(same(&second_half.last().unwrap().1, last), "to the end again");
+    // Play at the end starts from the start.
+    harness.action("play").unwrap();
+    let again = run(&mut harness, 1);
+    assert!(same(&again[0].1, &written[0].1));
+}
+
+#[test]
 fn a_loop_starts_again_at_the_start_offset() {
     let (_dir, path, written) = temp_recording(1_000);
     let (mut harness, _) = player(&[
