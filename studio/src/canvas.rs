@@ -141,6 +141,9 @@ pub struct Canvas {
     /// Frames left in which a fit follows the canvas's size instead of keeping the zoom: the panels
     /// around it settle their sizes over the first frames after a fit (the studio's first frames too).
     fit_frames: u8,
+    /// How many nodes lay wholly outside the canvas's view last frame: said in a corner, so that a part
+    /// of the diagram out of sight (a large diagram fitted at reading size, a dock that took room) is known.
+    outside_view: usize,
 }
 
 impl Default for Canvas {
@@ -159,6 +162,7 @@ impl Default for Canvas {
             foxglove_request: None,
             view_size: None,
             fit_frames: 0,
+            outside_view: 0,
         }
     }
 }
@@ -326,16 +330,41 @@ impl Canvas {
         let scene = egui::Scene::new().zoom_range(0.2..=3.0).drag_pan_buttons(
             egui::containers::DragPanButtons::MIDDLE | egui::containers::DragPanButtons::SECONDARY,
         );
-        self.keep_zoom(ui.available_rect_before_wrap().size());
+        let canvas_rect = ui.available_rect_before_wrap();
+        self.keep_zoom(canvas_rect.size());
         let mut scene_rect = self.scene_rect;
         // Zoomed far out, small text is unreadable and costly: only ids, boxes, curves and losses are drawn.
         let detail = self.to_screen.scaling >= DETAIL_SCALE;
         let response = scene.show(ui, &mut scene_rect, |ui| {
-            self.scene_ui(ui, document, shown, detail)
+            self.scene_ui(ui, document, shown, detail, canvas_rect)
         });
         self.scene_rect = scene_rect;
         self.background_ui(ui, &response.response, response.inner, document, shown.library);
         self.notice_ui(ui);
+        self.outside_view_ui(ui, canvas_rect);
+    }
+
+    /// In the canvas's lower right corner, how many components are out of sight and how to reach them.
+    fn outside_view_ui(&self, ui: &egui::Ui, canvas: Rect) {
+        if self.outside_view == 0 {
+            return;
+        }
+        let text = if self.outside_view == 1 {
+            "1 component is outside the view: scroll or drag with the right button to pan, Ctrl+\u{2212} to zoom out"
+                .to_owned()
+        } else {
+            format!(
+                "{} components are outside the view: scroll or drag with the right button to pan, Ctrl+\u{2212} to zoom out",
+                self.outside_view
+            )
+        };
+        ui.painter().text(
+            canvas.right_bottom() + Vec2::new(-8.0, -6.0),
+            egui::Align2::RIGHT_BOTTOM,
+            text,
+            egui::FontId::proportional(12.0),
+            ui.visuals().weak_text_color(),
+        );
     }
 
     /// Everything inside the zoomable scene; returns where the pointer is, in scene coordinates.
@@ -345,6 +374,7 @@ impl Canvas {
         document: &mut Document,
         shown: &Shown<'_>,
         detail: bool,
+        canvas_rect: Rect,
     ) -> Option<Pos2> {
         let painter = ui.painter().clone();
         let to_scene = ui.ctx().layer_transform_from_global(ui.layer_id());
@@ -357,6 +387,11 @@ impl Canvas {
             .map(|p| to_scene.map_or(p, |t| t * p));
         let diagram = document.diagram().clone();
         let layout = Layout::of(&diagram, shown.library);
+        let visible = to_scene.map_or(canvas_rect, |t| t * canvas_rect);
+        self.outside_view = diagram
+            .components
+            .len()
+            .saturating_sub(layout.touching(visible).len());
         let pending_link = self.pending_link.clone();
         let frame = Frame {
             diagram: &diagram,
@@ -841,6 +876,11 @@ impl Canvas {
         }
         let center = self.scene_rect.center();
         self.scene_rect = Rect::from_center_size(center, self.scene_rect.size() / factor);
+    }
+
+    /// How many components lay wholly outside the view last frame (said in the canvas's corner).
+    pub fn outside_view(&self) -> usize {
+        self.outside_view
     }
 
     /// How many screen points one unit of the diagram takes, as of the last frame.

@@ -570,6 +570,23 @@ fn docking_a_viewer_keeps_the_canvas_zoom() {
 }
 
 #[test]
+fn components_pushed_out_of_sight_by_a_dock_are_counted_in_the_canvas_corner() {
+    let mut harness = studio();
+    add_from_palette(&mut harness, "core.sine", Pos2::new(400.0, 300.0));
+    add_from_palette(&mut harness, "core.counter", Pos2::new(850.0, 300.0));
+    harness.run_steps(4);
+    assert_eq!(harness.state().canvas.outside_view(), 0, "both in view");
+    harness
+        .state_mut()
+        .session
+        .viewers
+        .open("sine1.out".to_owned(), "f64");
+    harness.run_steps(4);
+    // The dock takes the right of the canvas at the same zoom: the counter is out of sight, and said so.
+    assert_eq!(harness.state().canvas.outside_view(), 1);
+}
+
+#[test]
 fn the_view_menu_zooms_in_fine_steps_and_fits_the_diagram() {
     let mut harness = studio();
     add_from_palette(&mut harness, "core.sine", Pos2::new(500.0, 300.0));
