@@ -302,7 +302,7 @@ fn status_ui(ui: &mut egui::Ui, session: &Session, id: &str) {
     ui.separator();
     ui.label(RichText::new("Status").strong());
     let mut lines = Vec::new();
-    status_lines("", status, &mut lines);
+    crate::viewers::flatten_fields("", status, &mut lines);
     egui::Grid::new(("status", id)).num_columns(2).show(ui, |ui| {
         for (name, value) in lines {
             ui.label(RichText::new(name).weak());
@@ -310,24 +310,6 @@ fn status_ui(ui: &mut egui::Ui, session: &Session, id: &str) {
             ui.end_row();
         }
     });
-}
-
-fn status_lines(prefix: &str, value: &serde_json::Value, lines: &mut Vec<(String, String)>) {
-    match value {
-        serde_json::Value::Object(fields) => {
-            for (name, inner) in fields {
-                let name = if prefix.is_empty() {
-                    name.clone()
-                } else {
-                    format!("{prefix}.{name}")
-                };
-                status_lines(&name, inner, lines);
-            }
-        }
-        serde_json::Value::String(text) => lines.push((prefix.to_owned(), text.clone())),
-        serde_json::Value::Null => lines.push((prefix.to_owned(), "-".to_owned())),
-        other => lines.push((prefix.to_owned(), other.to_string())),
-    }
 }
 
 /// The component's name, edited in place: a rename is asked for when editing ends.
@@ -673,7 +655,7 @@ fn actions_ui(ui: &mut egui::Ui, component: &str, info: &ComponentInfo, commands
 
 #[cfg(test)]
 mod tests {
-    use super::status_lines;
+    use crate::viewers::flatten_fields;
 
     #[test]
     fn a_status_is_shown_one_value_a_line_with_nested_names_joined() {
@@ -682,7 +664,7 @@ mod tests {
             "python": {"pid": 42, "reload_error": null, "file": "a.py"},
         });
         let mut lines = Vec::new();
-        status_lines("", &status, &mut lines);
+        flatten_fields("", &status, &mut lines);
         let lines: Vec<(&str, &str)> = lines.iter().map(|(n, v)| (n.as_str(), v.as_str())).collect();
         assert_eq!(
             lines,
@@ -690,7 +672,7 @@ mod tests {
                 ("decoded", "300"),
                 ("python.file", "a.py"),
                 ("python.pid", "42"),
-                ("python.reload_error", "-"),
+                ("python.reload_error", "none"),
             ]
         );
     }

@@ -1224,20 +1224,35 @@ fn table_text(data_type: &str, value: &serde_json::Value, payload_len: usize) ->
             };
             format!("{id} [{}] {}{fd}", data.len(), data.join(" "))
         }
-        other => {
-            let mut fields = Vec::new();
-            flatten_fields("", other, &mut fields);
-            fields.join("; ")
-        }
+        other => fields_text(other),
     }
 }
 
 /// How many values of a list a table cell shows before it says how many there are.
 const LISTED_VALUES: usize = 8;
 
-/// A structured value as `name = value` fields, nested names joined with dots (`position.x = 1.5`):
-/// what a person reads, rather than JSON's braces and quotes.
-fn flatten_fields(prefix: &str, value: &serde_json::Value, into: &mut Vec<String>) {
+/// A structured value as `name = value` fields joined with `; `: what a person reads, rather than
+/// JSON's braces and quotes.
+fn fields_text(value: &serde_json::Value) -> String {
+    let mut fields = Vec::new();
+    flatten_fields("", value, &mut fields);
+    fields
+        .into_iter()
+        .map(|(name, text)| {
+            if name.is_empty() {
+                text
+            } else {
+                format!("{name} = {text}")
+            }
+        })
+        .collect::<Vec<_>>()
+        .join("; ")
+}
+
+/// A structured value's fields as (name, value in words), nested names joined with dots
+/// (`position.x`); a value that is not an object is one field with an empty name. The table viewer and
+/// the inspector's status read values alike.
+pub(crate) fn flatten_fields(prefix: &str, value: &serde_json::Value, into: &mut Vec<(String, String)>) {
     match value {
         serde_json::Value::Object(fields) if !fields.is_empty() => {
             for (name, field) in fields {
@@ -1249,14 +1264,7 @@ fn flatten_fields(prefix: &str, value: &serde_json::Value, into: &mut Vec<String
                 flatten_fields(&path, field, into);
             }
         }
-        leaf => {
-            let text = scalar_text(leaf);
-            into.push(if prefix.is_empty() {
-                text
-            } else {
-                format!("{prefix} = {text}")
-            });
-        }
+        leaf => into.push((prefix.to_owned(), scalar_text(leaf))),
     }
 }
 
@@ -1274,11 +1282,7 @@ fn scalar_text(value: &serde_json::Value) -> String {
             }
         }
         serde_json::Value::Object(fields) if fields.is_empty() => "{}".to_owned(),
-        serde_json::Value::Object(_) => {
-            let mut fields = Vec::new();
-            flatten_fields("", value, &mut fields);
-            format!("({})", fields.join("; "))
-        }
+        serde_json::Value::Object(_) => format!("({})", fields_text(value)),
         serde_json::Value::Number(number) => match number.as_f64() {
             Some(real) if number.is_f64() => real_text(real),
             _ => number.to_string(),
