@@ -391,7 +391,7 @@ impl Canvas {
         self.outside_view = diagram
             .components
             .len()
-            .saturating_sub(layout.touching(visible).len());
+            .saturating_sub(layout.touching(visible).count());
         let pending_link = self.pending_link.clone();
         let frame = Frame {
             diagram: &diagram,
@@ -814,8 +814,11 @@ impl Canvas {
                 self.selected.clear();
             }
             self.selected_connection = None;
-            self.selected
-                .extend(Layout::of(document.diagram(), library).touching(band.rect()));
+            self.selected.extend(
+                Layout::of(document.diagram(), library)
+                    .touching(band.rect())
+                    .map(str::to_owned),
+            );
         }
     }
 

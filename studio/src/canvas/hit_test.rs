@@ -146,12 +146,11 @@ impl Layout {
     }
 
     /// The components whose nodes `band` touches, by id.
-    pub fn touching(&self, band: Rect) -> Vec<String> {
+    pub fn touching(&self, band: Rect) -> impl Iterator<Item = &str> {
         self.nodes
             .iter()
-            .filter(|(_, node)| band.intersects(node.rect))
-            .map(|(id, _)| id.clone())
-            .collect()
+            .filter(move |(_, node)| band.intersects(node.rect))
+            .map(|(id, _)| id.as_str())
     }
 
     /// The box around every node; nothing when there are none.
@@ -217,9 +216,9 @@ mod tests {
     fn a_box_selects_the_nodes_it_touches() {
         let layout = Layout::of(&diagram(), &library());
         let band = Rect::from_two_pos(Pos2::new(-10.0, -10.0), Pos2::new(20.0, 20.0));
-        assert_eq!(layout.touching(band), ["sine1"]);
+        assert_eq!(layout.touching(band).collect::<Vec<_>>(), ["sine1"]);
         let wide = Rect::from_two_pos(Pos2::new(-10.0, -10.0), Pos2::new(420.0, 120.0));
-        assert_eq!(layout.touching(wide), ["add1", "sine1"]);
+        assert_eq!(layout.touching(wide).collect::<Vec<_>>(), ["add1", "sine1"]);
         assert!(layout.bounds().contains(Pos2::new(500.0, 110.0)));
     }
 
