@@ -266,7 +266,18 @@ fn a_killed_host_is_reported_within_a_second_and_restarted_gets_its_part_again_i
     let mut deploying =
         deploy_in_background(None, here.path(), &[path.to_str().unwrap(), "--for", "60s"], &log);
     wait_for_log(&log, "host 'b' started its part", Duration::from_secs(30));
-    std::thread::sleep(Duration::from_millis(1500));
+    // Killed once b has written a second's worth: waited for rather than slept, since a loaded
+    // machine writes fewer rows in a fixed time.
+    let b_csv = dir_b.path().join("b.csv");
+    let waiting = Instant::now();
+    while csv_values(&b_csv).len() <= 100 {
+        assert!(
+            waiting.elapsed() < Duration::from_secs(20),
+            "b.csv has {} rows after 20 s",
+            csv_values(&b_csv).len()
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
 
     // Host b is killed (SIGKILL): named within a second, with the links it cuts; host a runs on.
     let _ = b.child.kill();
