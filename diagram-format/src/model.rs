@@ -50,7 +50,7 @@ pub struct Diagram {
 pub const SEQUENTIAL_GROUP: &str = "sequential";
 
 /// A viewer saved with a diagram: which output it shows, how, and where.
-#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct ViewerSpec {
     /// The output shown (`camera.image`).
     pub output: String,
@@ -63,6 +63,13 @@ pub struct ViewerSpec {
     /// Outputs drawn over the first (more GNSS fixes on a track, boxes in a point cloud).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub also: Vec<String>,
+    /// In the dock, the area it shows in: viewers with the same area share it as tabs; areas are
+    /// stacked in the order of their numbers. Absent: an area of its own.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub area: Option<u32>,
+    /// The area's height as a share of the dock's (1.0 for as much as an area of default height).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub share: Option<f32>,
 }
 
 fn docked_by_default() -> bool {

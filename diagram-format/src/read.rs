@@ -877,7 +877,8 @@ impl Reader<'_> {
     }
 
     fn viewer(&mut self, node: &Node) -> Option<ViewerSpec> {
-        let fields = self.fields(node, "Viewer", &["output", "kind", "docked", "also"])?;
+        let known = ["output", "kind", "docked", "also", "area", "share"];
+        let fields = self.fields(node, "Viewer", &known)?;
         let output = self.required(&fields, "output").and_then(|n| self.text(n));
         let kind = self.required(&fields, "kind").and_then(|n| self.text(n));
         let docked = self.optional(fields.optional("docked"), Self::boolean);
@@ -886,12 +887,30 @@ impl Reader<'_> {
             .and_then(|n| self.list(n))
             .unwrap_or_default();
         let also: Option<Vec<String>> = also.iter().map(|n| self.text(n)).collect();
+        let area = self.optional(fields.optional("area"), Self::integer::<u32>);
+        let share = self.optional(fields.optional("share"), Self::dock_share);
         Some(ViewerSpec {
             output: output?,
             kind: kind?,
             docked: docked.ok()?.unwrap_or(true),
             also: also?,
+            area: area.ok()?,
+            share: share.ok()?,
         })
+    }
+
+    /// A dock area's share of the dock's height: a positive number.
+    fn dock_share(&mut self, node: &Node) -> Option<f32> {
+        let share = self.float32(node)?;
+        if share > 0.0 && share.is_finite() {
+            Some(share)
+        } else {
+            let message = format!(
+                "a dock area's share is a positive number (1.0 for the height of an area by default), not {share}"
+            );
+            self.report(DiagnosticCode::InvalidSetting, node.head, message);
+            None
+        }
     }
 
     fn boolean(&mut self, node: &Node) -> Option<bool> {
@@ -1068,6 +1087,26 @@ mod tests {
         assert_eq!(
             messages(&source("\"5 s\"")),
             ["2:61: error: expected a number of seconds, found a string"]
+        );
+    }
+
+    #[test]
+    fn a_viewer_s_place_in_the_dock_is_read_and_a_share_not_positive_refused_at_its_place() {
+        let source = |share: &str| {
+            format!(
+                r#"Diagram(format: 1, viewers: [
+    Viewer(output: "a.out", kind: "plot", area: 2, share: {share}),
+])"#
+            )
+        };
+        let parsed = parse(&source("0.5")).unwrap();
+        assert_eq!(parsed.diagram.viewers[0].area, Some(2));
+        assert_eq!(parsed.diagram.viewers[0].share, Some(0.5));
+        assert_eq!(
+            messages(&source("0.0")),
+            [
+                "2:59: error: a dock area's share is a positive number (1.0 for the height of an area by default), not 0"
+            ]
         );
     }
 

@@ -142,6 +142,12 @@ impl fmt::Display for CanonicalRon<'_> {
                     }
                     f.write_str("]")?;
                 }
+                if let Some(area) = viewer.area {
+                    write!(f, ", area: {area}")?;
+                }
+                if let Some(share) = viewer.share {
+                    write!(f, ", share: {share:?}")?;
+                }
                 f.write_str(")")
             })?;
         }

@@ -15,6 +15,7 @@ pub mod commands;
 pub mod connection;
 pub mod console;
 pub mod dialogs;
+pub mod dock;
 pub mod document;
 pub mod examples;
 pub mod inspector;

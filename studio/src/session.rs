@@ -827,11 +827,10 @@ impl Session {
                 );
                 continue;
             };
-            // A viewer the diagram file reopened already shows it.
-            if self
-                .viewers
-                .shows(&output, crate::viewers::ViewerKind::for_type(data_type.name()))
-            {
+            // A viewer the diagram file reopened already shows it: in front, should it be a tab behind.
+            let kind = crate::viewers::ViewerKind::for_type(data_type.name());
+            if self.viewers.shows(&output, kind) {
+                self.viewers.bring_to_front(&output, kind);
                 continue;
             }
             self.viewers.open(output.clone(), data_type.name());

@@ -3,7 +3,7 @@
 //! fixes as a track on a local metric plane, anything else as a table of the latest samples. Viewers get
 //! samples as protocol frames (header and bytes) and do not care how they travelled.
 
-use std::collections::VecDeque;
+use std::collections::{BTreeMap, VecDeque};
 
 use std::sync::Arc;
 
@@ -632,7 +632,7 @@ impl Viewer {
             );
             return;
         }
-        let size = Vec2::new(ui.available_width(), 360.0);
+        let size = Vec2::new(ui.available_width(), (ui.available_height() - 4.0).max(160.0));
         let (rect, response) = ui.allocate_exact_size(size, egui::Sense::click_and_drag());
         self.camera.handle(&response, ui);
         ui.painter().rect_filled(rect, 0.0, Color32::from_gray(12));
@@ -726,56 +726,61 @@ impl Viewer {
                 self.fit = false;
             }
             ui.checkbox(&mut self.fit, "fit")
-                .on_hover_text("scale the image to the viewer's width");
+                .on_hover_text("scale the image to the viewer's room");
         });
         if self.fit
             && let Some(frame) = &self.frame
         {
-            self.zoom = (ui.available_width() / frame.texture.size_vec2().x).clamp(0.1, 8.0);
+            let size = frame.texture.size_vec2();
+            let room = ui.available_size();
+            self.zoom = (room.x / size.x).min(room.y.max(60.0) / size.y).clamp(0.1, 8.0);
         }
         let Some(frame) = &self.frame else {
             ui.weak("waiting for an image…");
             return;
         };
         let size = frame.texture.size_vec2();
-        egui::ScrollArea::both().max_height(600.0).show(ui, |ui| {
-            let response =
-                ui.add(egui::Image::new((frame.texture.id(), size * self.zoom)).sense(egui::Sense::hover()));
-            // The sample's time (UTC) and latency over the image's corner.
-            if let Some(last) = &self.last {
-                let text = format!(
-                    "{} UTC · latency {}",
-                    time_of_day(last.timestamp_ns),
-                    crate::monitor::milliseconds(last.time_of_issue_ns - last.timestamp_ns)
+        egui::ScrollArea::both()
+            .max_height(ui.available_height().max(100.0))
+            .show(ui, |ui| {
+                let response = ui.add(
+                    egui::Image::new((frame.texture.id(), size * self.zoom)).sense(egui::Sense::hover()),
                 );
-                let painter = ui.painter_at(response.rect);
-                let at = response.rect.left_bottom() + Vec2::new(6.0, -6.0);
-                let galley = painter.layout_no_wrap(text, egui::FontId::monospace(12.0), Color32::WHITE);
-                let back = egui::Rect::from_min_size(
-                    at - Vec2::new(3.0, galley.size().y + 2.0),
-                    galley.size() + Vec2::new(6.0, 4.0),
-                );
-                painter.rect_filled(back, 3.0, Color32::from_black_alpha(170));
-                painter.galley(at - Vec2::new(0.0, galley.size().y), galley, Color32::WHITE);
-            }
-            if let Some(pointer) = response.hover_pos() {
-                let at = (pointer - response.rect.min) / self.zoom;
-                let (x, y) = (at.x as usize, at.y as usize);
-                let [w, h] = frame.pixels.size;
-                if x < w
-                    && y < h
-                    && let Some(pixel) = frame.pixels.pixels.get(y * w + x)
-                {
-                    response.on_hover_text(format!(
-                        "x {x}, y {y}: r {} g {} b {} a {}",
-                        pixel.r(),
-                        pixel.g(),
-                        pixel.b(),
-                        pixel.a()
-                    ));
+                // The sample's time (UTC) and latency over the image's corner.
+                if let Some(last) = &self.last {
+                    let text = format!(
+                        "{} UTC · latency {}",
+                        time_of_day(last.timestamp_ns),
+                        crate::monitor::milliseconds(last.time_of_issue_ns - last.timestamp_ns)
+                    );
+                    let painter = ui.painter_at(response.rect);
+                    let at = response.rect.left_bottom() + Vec2::new(6.0, -6.0);
+                    let galley = painter.layout_no_wrap(text, egui::FontId::monospace(12.0), Color32::WHITE);
+                    let back = egui::Rect::from_min_size(
+                        at - Vec2::new(3.0, galley.size().y + 2.0),
+                        galley.size() + Vec2::new(6.0, 4.0),
+                    );
+                    painter.rect_filled(back, 3.0, Color32::from_black_alpha(170));
+                    painter.galley(at - Vec2::new(0.0, galley.size().y), galley, Color32::WHITE);
                 }
-            }
-        });
+                if let Some(pointer) = response.hover_pos() {
+                    let at = (pointer - response.rect.min) / self.zoom;
+                    let (x, y) = (at.x as usize, at.y as usize);
+                    let [w, h] = frame.pixels.size;
+                    if x < w
+                        && y < h
+                        && let Some(pixel) = frame.pixels.pixels.get(y * w + x)
+                    {
+                        response.on_hover_text(format!(
+                            "x {x}, y {y}: r {} g {} b {} a {}",
+                            pixel.r(),
+                            pixel.g(),
+                            pixel.b(),
+                            pixel.a()
+                        ));
+                    }
+                }
+            });
         let [w, h] = frame.texture.size();
         let scaled = frame
             .original_width
@@ -806,12 +811,8 @@ impl Viewer {
                 ui.label(RichText::new(name).color(series_color(index)).strong());
             }
         });
-        // In a window of its own the plot takes the room there is; in the dock, a fixed share.
-        let height = if self.docked {
-            260.0
-        } else {
-            (ui.available_height() - 4.0).max(160.0)
-        };
+        // The plot takes the room its window or dock area has.
+        let height = (ui.available_height() - 4.0).max(120.0);
         let mut plot = Plot::new(("plot", self.id))
             .height(height)
             .x_axis_label("time (s)")
@@ -850,7 +851,8 @@ impl Viewer {
         Plot::new(("track", self.id))
             .legend(Legend::default())
             .data_aspect(1.0)
-            .height(300.0)
+            // Room for the origin's line under it.
+            .height((ui.available_height() - 24.0).max(120.0))
             .x_axis_label("east, m")
             .y_axis_label("north, m")
             .show(ui, |plot_ui| {
@@ -882,28 +884,30 @@ impl Viewer {
     }
 
     fn table(&self, ui: &mut egui::Ui) {
-        egui::ScrollArea::vertical().max_height(300.0).show(ui, |ui| {
-            egui::Grid::new(("table", self.id))
-                .striped(true)
-                .max_col_width(ui.available_width() * 0.6)
-                .show(ui, |ui| {
-                    ui.strong("#");
-                    ui.strong("timestamp (s)");
-                    ui.strong("latency");
-                    ui.strong("value");
-                    ui.end_row();
-                    for (sequence, timestamp, latency, text) in &self.rows {
-                        ui.label(sequence.to_string());
-                        ui.label(format!("{:.3}", *timestamp as f64 / 1e9));
-                        ui.label(crate::monitor::milliseconds(*latency));
-                        // Long values are cut at the dock's edge (the whole text on hover), so the table
-                        // never widens the dock over the canvas.
-                        ui.add(egui::Label::new(RichText::new(text).monospace()).truncate())
-                            .on_hover_text(text);
+        egui::ScrollArea::vertical()
+            .max_height(ui.available_height().max(100.0))
+            .show(ui, |ui| {
+                egui::Grid::new(("table", self.id))
+                    .striped(true)
+                    .max_col_width(ui.available_width() * 0.6)
+                    .show(ui, |ui| {
+                        ui.strong("#");
+                        ui.strong("timestamp (s)");
+                        ui.strong("latency");
+                        ui.strong("value");
                         ui.end_row();
-                    }
-                });
-        });
+                        for (sequence, timestamp, latency, text) in &self.rows {
+                            ui.label(sequence.to_string());
+                            ui.label(format!("{:.3}", *timestamp as f64 / 1e9));
+                            ui.label(crate::monitor::milliseconds(*latency));
+                            // Long values are cut at the dock's edge (the whole text on hover), so the table
+                            // never widens the dock over the canvas.
+                            ui.add(egui::Label::new(RichText::new(text).monospace()).truncate())
+                                .on_hover_text(text);
+                            ui.end_row();
+                        }
+                    });
+            });
     }
 }
 
@@ -985,6 +989,95 @@ fn series_color(index: usize) -> Color32 {
     SERIES_COLORS[index % SERIES_COLORS.len()]
 }
 
+/// The dock's way of drawing viewers: a tab per viewer, closable, with Float for the one in front.
+struct DockedViewers<'a> {
+    list: &'a mut [Viewer],
+    choices: &'a [(String, String)],
+    /// An output the user chose to draw over a viewer (its index).
+    chosen: Option<(usize, (String, String))>,
+}
+
+impl DockedViewers<'_> {
+    fn viewer(&mut self, id: u64) -> Option<&mut Viewer> {
+        self.list.iter_mut().find(|v| v.id == id)
+    }
+}
+
+impl egui_tiles::Behavior<u64> for DockedViewers<'_> {
+    fn pane_ui(
+        &mut self,
+        ui: &mut egui::Ui,
+        _tile: egui_tiles::TileId,
+        id: &mut u64,
+    ) -> egui_tiles::UiResponse {
+        let choices = self.choices;
+        if let Some(index) = self.list.iter().position(|v| v.id == *id) {
+            let room = ui.max_rect().shrink(4.0);
+            let mut inner = ui.new_child(
+                egui::UiBuilder::new()
+                    .max_rect(room)
+                    .id_salt(("docked viewer", *id)),
+            );
+            // A viewer never draws over its neighbours, whatever its area's size.
+            inner.set_clip_rect(room.intersect(ui.clip_rect()));
+            if let Some(choice) = self.list[index].contents(&mut inner, choices) {
+                self.chosen = Some((index, choice));
+            }
+        }
+        egui_tiles::UiResponse::None
+    }
+
+    fn tab_title_for_pane(&mut self, id: &u64) -> egui::WidgetText {
+        self.list
+            .iter()
+            .find(|v| v.id == *id)
+            .map_or_else(String::new, Viewer::title)
+            .into()
+    }
+
+    fn is_tab_closable(&self, _tiles: &egui_tiles::Tiles<u64>, _tile: egui_tiles::TileId) -> bool {
+        true
+    }
+
+    fn on_tab_close(&mut self, tiles: &mut egui_tiles::Tiles<u64>, tile: egui_tiles::TileId) -> bool {
+        if let Some(&id) = tiles.get_pane(&tile)
+            && let Some(viewer) = self.viewer(id)
+        {
+            viewer.open = false;
+        }
+        true
+    }
+
+    fn top_bar_right_ui(
+        &mut self,
+        tiles: &egui_tiles::Tiles<u64>,
+        ui: &mut egui::Ui,
+        _tile: egui_tiles::TileId,
+        tabs: &egui_tiles::Tabs,
+        _scroll_offset: &mut f32,
+    ) {
+        let Some(&id) = tabs.active.and_then(|active| tiles.get_pane(&active)) else {
+            return;
+        };
+        if ui
+            .small_button("Float")
+            .on_hover_text("show it in a window of its own; drag a tab to move a viewer in the dock")
+            .clicked()
+            && let Some(viewer) = self.viewer(id)
+        {
+            viewer.docked = false;
+        }
+    }
+
+    fn simplification_options(&self) -> egui_tiles::SimplificationOptions {
+        crate::dock::SIMPLIFICATION
+    }
+
+    fn min_size(&self) -> f32 {
+        80.0
+    }
+}
+
 /// Every open viewer.
 #[derive(Debug, Default)]
 pub struct Viewers {
@@ -994,6 +1087,8 @@ pub struct Viewers {
     changed: bool,
     /// Closed 3D viewers whose GPU buffers are still to be freed.
     closed_on_gpu: Vec<u64>,
+    /// Where the docked viewers are in the dock.
+    dock: crate::dock::Dock,
 }
 
 impl Viewers {
@@ -1009,17 +1104,41 @@ impl Viewers {
         self.changed = true;
     }
 
-    /// The open viewers as a diagram saves them, in their order.
-    pub fn specs(&self) -> Vec<kairos_diagram::ViewerSpec> {
+    /// The open viewers as a diagram saves them, in their order, the docked ones with their place in
+    /// the dock.
+    pub fn specs(&mut self) -> Vec<kairos_diagram::ViewerSpec> {
+        self.dock.sync(&self.docked_ids());
+        let areas = self.dock.areas();
+        let place = |id: u64| {
+            areas
+                .iter()
+                .enumerate()
+                .find(|(_, area)| area.viewers.contains(&id))
+                .map(|(index, area)| (index as u32, area.share))
+        };
         self.list
             .iter()
             .filter(|v| v.open)
-            .map(|v| kairos_diagram::ViewerSpec {
-                output: v.output.clone(),
-                kind: v.kind.key().to_owned(),
-                docked: v.docked,
-                also: v.also.clone(),
+            .map(|v| {
+                let place = if v.docked { place(v.id) } else { None };
+                kairos_diagram::ViewerSpec {
+                    output: v.output.clone(),
+                    kind: v.kind.key().to_owned(),
+                    docked: v.docked,
+                    also: v.also.clone(),
+                    area: place.map(|(area, _)| area),
+                    share: place.map(|(_, share)| share),
+                }
             })
+            .collect()
+    }
+
+    /// The open docked viewers' ids, in the order they were opened.
+    fn docked_ids(&self) -> Vec<u64> {
+        self.list
+            .iter()
+            .filter(|v| v.open && v.docked)
+            .map(|v| v.id)
             .collect()
     }
 
@@ -1031,17 +1150,29 @@ impl Viewers {
         }
         self.forget_closed();
         let mut unknown = Vec::new();
-        for spec in specs {
+        // Numbered areas in the order of their numbers, then one for each docked viewer without one.
+        let mut areas: BTreeMap<(bool, u32), crate::dock::Area> = BTreeMap::new();
+        for (order, spec) in specs.iter().enumerate() {
             let kind = ViewerKind::from_key(&spec.kind).unwrap_or_else(|| {
                 unknown.push(spec.kind.clone());
                 ViewerKind::Table
             });
             self.open_kind(spec.output.clone(), kind);
+            let id = self.next_id;
             if let Some(viewer) = self.list.last_mut() {
                 viewer.docked = spec.docked;
                 viewer.also.clone_from(&spec.also);
             }
+            if spec.docked {
+                let key = spec.area.map_or((true, order as u32), |area| (false, area));
+                let area = areas.entry(key).or_insert_with(|| crate::dock::Area {
+                    viewers: Vec::new(),
+                    share: spec.share.unwrap_or(1.0),
+                });
+                area.viewers.push(id);
+            }
         }
+        self.dock.restore(areas.into_values().collect());
         self.changed = true;
         unknown
     }
@@ -1102,38 +1233,60 @@ impl Viewers {
         self.list.iter().any(|v| v.docked)
     }
 
-    /// The docked viewers, one under the other, each with its title and buttons to float or close it.
+    /// The docked viewers in their areas, each area with a tab for each of its viewers (drag one to
+    /// move it), buttons to float the viewer in front or close it, and borders to resize by.
     pub fn show_docked(&mut self, ui: &mut egui::Ui, choices: &[(String, String)]) {
-        let mut chosen = None;
-        egui::ScrollArea::vertical().show(ui, |ui| {
-            for (index, viewer) in self.list.iter_mut().enumerate().filter(|(_, v)| v.docked) {
-                ui.push_id(("docked viewer", viewer.id), |ui| {
-                    ui.horizontal(|ui| {
-                        ui.strong(viewer.title());
-                        ui.with_layout(egui::Layout::right_to_left(egui::Align::Center), |ui| {
-                            if ui.button("Close").clicked() {
-                                viewer.open = false;
-                            }
-                            if ui
-                                .button("Float")
-                                .on_hover_text("show it in a window of its own")
-                                .clicked()
-                            {
-                                viewer.docked = false;
-                            }
-                        });
-                    });
-                    if let Some(choice) = viewer.contents(ui, choices) {
-                        chosen = Some((index, choice));
-                    }
-                    ui.separator();
-                });
-            }
-        });
-        if let Some((index, (output, data_type))) = chosen {
+        self.dock.sync(&self.docked_ids());
+        let mut behavior = DockedViewers {
+            list: &mut self.list,
+            choices,
+            chosen: None,
+        };
+        self.dock.show(ui, &mut behavior);
+        if let Some((index, (output, data_type))) = behavior.chosen {
             self.add_overlay(index, output, &data_type);
         }
         self.forget_closed();
+    }
+
+    /// Brings the docked viewer of this kind on `output` to the front of its area (a tab behind another
+    /// draws nothing).
+    pub fn bring_to_front(&mut self, output: &str, kind: ViewerKind) {
+        self.dock.sync(&self.docked_ids());
+        if let Some(viewer) = self
+            .list
+            .iter()
+            .find(|v| v.open && v.output == output && v.kind == kind)
+        {
+            self.dock.bring_to_front(viewer.id);
+        }
+    }
+
+    /// The docked viewers drawn (each area's tab in front), as their outputs.
+    pub fn docked_in_front(&self) -> Vec<String> {
+        self.dock
+            .in_front()
+            .into_iter()
+            .filter_map(|id| self.list.iter().find(|v| v.id == id))
+            .map(|v| format!("{} {}", v.output, v.kind.key()))
+            .collect()
+    }
+
+    /// The layout of the dock: each area's viewers (outputs) and share of the height, top to bottom.
+    pub fn dock_areas(&mut self) -> Vec<(Vec<String>, f32)> {
+        self.dock.sync(&self.docked_ids());
+        let output = |id: u64| {
+            self.list
+                .iter()
+                .find(|v| v.id == id)
+                .map(|v| v.output.clone())
+                .unwrap_or_default()
+        };
+        self.dock
+            .areas()
+            .into_iter()
+            .map(|area| (area.viewers.into_iter().map(output).collect(), area.share))
+            .collect()
     }
 
     /// The floating viewers, each in a window of its own.

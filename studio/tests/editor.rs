@@ -12,6 +12,7 @@ use egui::{Pos2, Vec2};
 use egui_kittest::Harness;
 use egui_kittest::kittest::Queryable as _;
 use kairos_diagram::{LibraryInfo, PortRef};
+use kairos_studio::viewers::ViewerKind;
 use kairos_studio::{Document, StudioApp};
 
 fn library() -> LibraryInfo {
@@ -114,7 +115,7 @@ fn save_as(harness: &mut Harness<'_, StudioApp>, path: &std::path::Path) {
 }
 
 /// The open viewers: what each shows and how.
-fn open_viewers(harness: &Harness<'_, StudioApp>) -> Vec<(String, kairos_studio::viewers::ViewerKind)> {
+fn open_viewers(harness: &Harness<'_, StudioApp>) -> Vec<(String, ViewerKind)> {
     harness
         .state()
         .session
@@ -125,11 +126,8 @@ fn open_viewers(harness: &Harness<'_, StudioApp>) -> Vec<(String, kairos_studio:
         .collect()
 }
 
-fn camera_image_viewer() -> (String, kairos_studio::viewers::ViewerKind) {
-    (
-        "camera1.image".to_owned(),
-        kairos_studio::viewers::ViewerKind::Image,
-    )
+fn camera_image_viewer() -> (String, ViewerKind) {
+    ("camera1.image".to_owned(), ViewerKind::Image)
 }
 
 #[test]
@@ -316,7 +314,9 @@ fn a_viewer_dropped_on_an_output_opens_for_its_type() {
     save_as(&mut harness, &path);
     let text = std::fs::read_to_string(&path).unwrap();
     assert!(
-        text.contains("viewers: [\n        Viewer(output: \"camera1.image\", kind: \"image\"),"),
+        text.contains(
+            "viewers: [\n        Viewer(output: \"camera1.image\", kind: \"image\", area: 0, share: 1.0),"
+        ),
         "{text}"
     );
     let app = StudioApp::new(
@@ -331,6 +331,121 @@ fn a_viewer_dropped_on_an_output_opens_for_its_type() {
     assert!(!reopened.state().session.document.is_dirty());
     // The diagram format reads the file as any other diagram.
     assert!(kairos_diagram::load(&path).is_ok());
+}
+
+/// The dock's areas: each one's viewers (outputs) and share of the height, top to bottom.
+fn dock(harness: &mut Harness<'_, StudioApp>) -> Vec<(Vec<String>, f32)> {
+    harness.state_mut().session.viewers.dock_areas()
+}
+
+#[test]
+fn docked_viewers_share_an_area_as_tabs_resize_and_come_back_so() {
+    let mut harness = studio();
+    add_from_palette(&mut harness, "sensors.camera", Pos2::new(300.0, 250.0));
+    add_from_palette(&mut harness, "core.sine", Pos2::new(300.0, 450.0));
+    for (output, kind) in [
+        ("camera1.image", ViewerKind::Image),
+        ("sine1.out", ViewerKind::Plot),
+        ("sine1.out", ViewerKind::Table),
+    ] {
+        harness
+            .state_mut()
+            .session
+            .viewers
+            .open_kind(output.to_owned(), kind);
+    }
+    harness.run_steps(3);
+    let outputs = |areas: &[(Vec<String>, f32)]| -> Vec<Vec<String>> {
+        areas.iter().map(|(viewers, _)| viewers.clone()).collect()
+    };
+    let owned = |names: &[&[&str]]| -> Vec<Vec<String>> {
+        names
+            .iter()
+            .map(|area| area.iter().map(|&o| o.to_owned()).collect())
+            .collect()
+    };
+    // Each opens in an area of its own, stacked.
+    assert_eq!(
+        outputs(&dock(&mut harness)),
+        owned(&[&["camera1.image"], &["sine1.out"], &["sine1.out"]])
+    );
+
+    // The plot's tab dropped in the middle of the image's area: they share it as tabs.
+    let image_tab = harness.get_by_label("camera1.image — image").rect();
+    let plot_tab = harness.get_by_label("sine1.out — plot").rect();
+    // The dock ends where its areas' Float buttons end.
+    let dock_right = harness.get_all_by_label("Float").next().unwrap().rect().right();
+    let middle = Pos2::new(
+        f32::midpoint(image_tab.left(), dock_right),
+        f32::midpoint(image_tab.bottom(), plot_tab.top()),
+    );
+    drag(&mut harness, plot_tab.center(), middle);
+    assert_eq!(
+        outputs(&dock(&mut harness)),
+        owned(&[&["camera1.image", "sine1.out"], &["sine1.out"]])
+    );
+    // The tab clicked is the one drawn.
+    harness.get_by_label("sine1.out — plot").click();
+    harness.run_steps(2);
+    let in_front = harness.state().session.viewers.docked_in_front();
+    assert_eq!(in_front, ["sine1.out plot", "sine1.out table"]);
+    harness.get_by_label("camera1.image — image").click();
+    harness.run_steps(2);
+    let in_front = harness.state().session.viewers.docked_in_front();
+    assert_eq!(in_front, ["camera1.image image", "sine1.out table"]);
+
+    // The border between the two areas dragged down: the top one takes more of the height.
+    let table_tab = harness.get_by_label("sine1.out — latest samples").rect();
+    let border = Pos2::new(table_tab.center().x + 60.0, table_tab.top() - 1.0);
+    drag(&mut harness, border, border + Vec2::new(0.0, 500.0));
+    let areas = dock(&mut harness);
+    assert!(areas[0].1 > 1.3 && areas[1].1 < 0.7, "{areas:?}");
+
+    // Saved with the diagram, and the same dock in a new studio.
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("docked.ron");
+    save_as(&mut harness, &path);
+    let app = StudioApp::new(
+        Document::open(&path).unwrap(),
+        library(),
+        None,
+        "no runtime (test)".to_owned(),
+        None,
+    );
+    let mut reopened = Harness::builder()
+        .with_size(Vec2::new(1280.0, 2400.0))
+        .build_ui_state(|ui, app: &mut StudioApp| app.show(ui), app);
+    reopened.run_steps(2);
+    assert_eq!(dock(&mut reopened), areas);
+
+    // A tab's close button closes its viewer; the other tab stays in the area.
+    assert_eq!(
+        reopened.get_all_by_label("Close").count(),
+        3,
+        "a close button on each tab"
+    );
+    let plot_tab = reopened.get_by_label("sine1.out — plot").rect();
+    let close = reopened
+        .get_all_by_label("Close")
+        .map(|node| node.rect().center())
+        .find(|at| plot_tab.contains(*at))
+        .expect("the plot's tab has a close button");
+    reopened.hover_at(close);
+    reopened.run_steps(2);
+    for pressed in [true, false] {
+        reopened.event(egui::Event::PointerButton {
+            pos: close,
+            button: egui::PointerButton::Primary,
+            pressed,
+            modifiers: egui::Modifiers::NONE,
+        });
+        reopened.run_steps(1);
+    }
+    reopened.run_steps(2);
+    assert_eq!(
+        outputs(&dock(&mut reopened)),
+        owned(&[&["camera1.image"], &["sine1.out"]])
+    );
 }
 
 #[test]
@@ -515,7 +630,7 @@ fn a_table_of_long_samples_keeps_the_dock_bounded_and_the_canvas_in_view() {
     add_from_palette(&mut harness, "sensors.gnss", Pos2::new(500.0, 300.0));
     let inspector_before = harness.get_by_label("Inspector").rect().left();
     let viewers = &mut harness.state_mut().session.viewers;
-    viewers.open_kind("gnss1.fix".to_owned(), kairos_studio::viewers::ViewerKind::Table);
+    viewers.open_kind("gnss1.fix".to_owned(), ViewerKind::Table);
     let header = kairos_protocol::frame::SampleHeader {
         output: "gnss1.fix".to_owned(),
         data_type: "gnss_fix".to_owned(),
