@@ -857,6 +857,11 @@ impl Canvas {
             }
             return;
         }
+        // The first sight of the canvas with nothing to fit: at full size, where a first node dropped
+        // reads as the palette does.
+        if self.view_size.is_none() && size.x > 0.0 && size.y > 0.0 {
+            self.scene_rect = Rect::from_min_size(self.scene_rect.min, size);
+        }
         if let Some(before) = self.view_size.replace(size)
             && before != size
             && before.x > 0.0

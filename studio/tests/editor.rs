@@ -666,6 +666,18 @@ fn a_table_of_long_samples_keeps_the_dock_bounded_and_the_canvas_in_view() {
 }
 
 #[test]
+fn an_empty_canvas_opens_at_full_size_so_the_first_node_reads_as_the_palette_does() {
+    let mut harness = studio();
+    assert!(
+        (harness.state().canvas.zoom() - 1.0).abs() < 1e-3,
+        "an empty canvas opened at zoom {}",
+        harness.state().canvas.zoom()
+    );
+    add_from_palette(&mut harness, "core.sine", Pos2::new(500.0, 300.0));
+    assert!((harness.state().canvas.zoom() - 1.0).abs() < 1e-3);
+}
+
+#[test]
 fn docking_a_viewer_keeps_the_canvas_zoom() {
     let mut harness = studio();
     add_from_palette(&mut harness, "core.sine", Pos2::new(500.0, 300.0));
