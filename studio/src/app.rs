@@ -114,6 +114,14 @@ impl StudioApp {
         self
     }
 
+    /// Offers the examples of `folder` on an empty canvas (instead of those `KAIROS_EXAMPLES` or the
+    /// repository's `examples/` give).
+    #[must_use]
+    pub fn with_examples(mut self, folder: &std::path::Path) -> Self {
+        self.examples = crate::examples::in_folder(folder);
+        self
+    }
+
     /// Uses this `kairos` program to generate components and to run the local runtime.
     #[must_use]
     pub fn with_kairos_binary(mut self, binary: PathBuf) -> Self {
@@ -230,10 +238,11 @@ impl StudioApp {
                 );
             });
         if crate::transport::has_controls(&self.session.monitor) {
-            let requests = egui::Panel::bottom("transport")
+            let (requests, replay) = egui::Panel::bottom("transport")
                 .show(ui, |ui| self.transport.show(ui, &self.session.monitor))
                 .inner;
             self.commands.extend(requests.into_iter().map(Command::Request));
+            self.commands.extend(replay);
         }
         // After the log, so that the log spans under the canvas and the dock alike; bounded, so no
         // viewer's contents widen it over the canvas.
@@ -407,6 +416,10 @@ impl StudioApp {
             Command::StartUnlocked => self.session.start_unlocked(),
             Command::SetLockBound(bound) => self.session.set_lock_bound(bound),
             Command::Request(body) => self.session.request(body),
+            Command::Replay { recorder, file } => {
+                let replay = self.session.replay_diagram(&recorder, &file);
+                self.unless_unsaved(AfterDiscard::Unsaved(Box::new(replay)));
+            }
             Command::SetProperty {
                 component,
                 property,
@@ -509,6 +522,13 @@ impl StudioApp {
                 }
             }
             AfterDiscard::Quit => self.quitting = true,
+            AfterDiscard::Unsaved(diagram) => {
+                self.session.document = Document::unsaved(*diagram);
+                self.session.restore_viewers();
+                self.session.document_replaced();
+                self.canvas = Canvas::default();
+                self.canvas.fit(&self.session.document, &self.session.library);
+            }
         }
     }
 

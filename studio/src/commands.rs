@@ -11,7 +11,7 @@ use crate::session::ReaderSettings;
 use crate::settings::RemoteAddress;
 
 /// What to do once unsaved changes are saved or discarded.
-#[derive(Debug, Clone, PartialEq, Eq)]
+#[derive(Debug, Clone, PartialEq)]
 pub enum AfterDiscard {
     /// Start a new, empty diagram.
     New,
@@ -19,6 +19,8 @@ pub enum AfterDiscard {
     Open(PathBuf),
     /// Close the studio.
     Quit,
+    /// Open this diagram, not yet saved (a replay of a recording just made).
+    Unsaved(Box<kairos_diagram::Diagram>),
 }
 
 /// One thing the user asked for.
@@ -70,6 +72,14 @@ pub enum Command {
     SetLockBound(std::time::Duration),
     /// Send this request to the runtime (pause, resume, stop, the transport strip's controls).
     Request(RequestBody),
+    /// Replay what this recorder wrote last (`file`, as it named it) in a new diagram: a player on the
+    /// file, with the open viewers of what it recorded on the player's outputs.
+    Replay {
+        /// The recorder's id.
+        recorder: String,
+        /// Its last file.
+        file: String,
+    },
     /// Set a component's property.
     SetProperty {
         /// The component's id.

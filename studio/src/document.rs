@@ -39,6 +39,14 @@ impl Document {
         })
     }
 
+    /// A diagram made for the user (a replay of a recording) and not yet saved: it has changes to save.
+    pub fn unsaved(diagram: Diagram) -> Document {
+        Document {
+            diagram,
+            ..Document::default()
+        }
+    }
+
     /// The diagram.
     pub fn diagram(&self) -> &Diagram {
         &self.diagram

@@ -11,7 +11,7 @@ use std::time::Duration;
 
 use kairos_diagram::{LibraryInfo, PortRef, ReaderPolicy, Value};
 use kairos_protocol::{
-    ComponentState, ComponentTelemetry, LogLevel, ProtocolError, ReplyBody, Request, RequestBody,
+    ComponentState, ComponentTelemetry, ErrorCode, LogLevel, ProtocolError, ReplyBody, Request, RequestBody,
     RuntimeState, SampleTransport, Telemetry, Welcome,
 };
 
@@ -21,6 +21,25 @@ use crate::log::{Log, Tone};
 use crate::monitor::Monitor;
 use crate::settings::Settings;
 use crate::viewers::Viewers;
+
+/// The player of a diagram made to replay a recording.
+const REPLAY_PLAYER: &str = "player";
+
+/// The output a `recording.player` gives a recorded output (`camera.image` → `camera_image`): each
+/// character that is not a letter, a digit or `_` becomes `_`, as the player names its ports.
+fn recorded_port_name(output: &str) -> String {
+    let name: String = output
+        .chars()
+        .map(|c| {
+            if c.is_ascii_alphanumeric() || c == '_' {
+                c
+            } else {
+                '_'
+            }
+        })
+        .collect();
+    name.trim_matches('_').to_owned()
+}
 
 /// Viewers get at most this many samples a second per output, always the latest.
 const VIEWER_RATE_HZ: f64 = 30.0;
@@ -588,6 +607,17 @@ impl Session {
                         .map(|(port, problems)| (port, problems.join("\n")))
                         .collect();
             }
+            // An output the runtime does not have is not a failure of shared memory.
+            Some(Pending::Samples) if error.code == ErrorCode::NotFound => {
+                self.note(
+                    LogLevel::Warn,
+                    format!(
+                        "{}; its viewer shows it once a diagram that has it runs",
+                        error.message
+                    ),
+                );
+                return;
+            }
             Some(Pending::Samples) if self.uses_shared_memory() => {
                 self.socket_instead(&error.message);
                 return;
@@ -786,6 +816,50 @@ impl Session {
         );
     }
 
+    /// A diagram replaying `file`, which `recorder` wrote: a player on it, held at its end so that it
+    /// can be sought back, and each open viewer of an output the recorder took, on the player's output
+    /// for it.
+    pub fn replay_diagram(&mut self, recorder: &str, file: &str) -> kairos_diagram::Diagram {
+        let diagram = self.document.diagram();
+        let inputs: Vec<String> = diagram
+            .connections
+            .iter()
+            .filter(|c| c.to.component == recorder)
+            .map(|c| c.from.to_string())
+            .collect();
+        let on_player = |output: &String| format!("{REPLAY_PLAYER}.{}", recorded_port_name(output));
+        let taken = |output: &String| inputs.contains(output);
+        let viewers = self
+            .viewers
+            .specs()
+            .into_iter()
+            .filter(|v| taken(&v.output))
+            .map(|mut viewer| {
+                viewer.output = on_player(&viewer.output);
+                viewer.also = viewer.also.iter().filter(|o| taken(o)).map(on_player).collect();
+                viewer
+            })
+            .collect();
+        let mut player = kairos_diagram::ComponentInstance::new(REPLAY_PLAYER, "recording.player");
+        player.position = kairos_diagram::Position { x: 40.0, y: 40.0 };
+        player.properties = BTreeMap::from([
+            ("path".to_owned(), Value::Text(file.to_owned())),
+            ("at_end".to_owned(), Value::Text("hold".to_owned())),
+        ]);
+        let packs = diagram
+            .packs
+            .iter()
+            .filter(|p| p.name == "recording")
+            .cloned()
+            .collect();
+        kairos_diagram::Diagram {
+            packs,
+            components: vec![player],
+            viewers,
+            ..kairos_diagram::Diagram::default()
+        }
+    }
+
     /// Every output of the diagram with the name of its type (`camera.image`, `image`), in diagram order.
     pub fn outputs_with_types(&self) -> Vec<(String, String)> {
         let diagram = self.document.diagram();
@@ -861,7 +935,19 @@ impl Session {
             return;
         }
         self.request(RequestBody::UnsubscribeSamples { outputs: Vec::new() });
-        let outputs = self.viewers.outputs();
+        // Only what the runtime runs: a viewer of a diagram not deployed yet (opened, or made to replay
+        // a recording, while the last one is still deployed) subscribes once its diagram is.
+        let deployed = self.deployed.as_ref();
+        let outputs: Vec<String> = self
+            .viewers
+            .outputs()
+            .into_iter()
+            .filter(|output| {
+                deployed.is_none_or(|diagram| {
+                    PortRef::parse(output).is_some_and(|port| diagram.component(&port.component).is_some())
+                })
+            })
+            .collect();
         if outputs.is_empty() {
             self.effects.push(Effect::ReadShared(BTreeMap::new()));
             return;

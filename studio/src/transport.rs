@@ -9,6 +9,7 @@ use egui::{Color32, Pos2, Rect, RichText, Sense, Stroke, Vec2};
 use kairos_diagram::Value;
 use kairos_protocol::RequestBody;
 
+use crate::commands::Command;
 use crate::monitor::Monitor;
 
 /// Speeds offered for a replay.
@@ -46,8 +47,9 @@ pub fn has_controls(monitor: &Monitor) -> bool {
 }
 
 impl Transport {
-    /// Shows a row per recorder and player; returns the requests the user made.
-    pub fn show(&mut self, ui: &mut egui::Ui, monitor: &Monitor) -> Vec<RequestBody> {
+    /// Shows a row per recorder and player; returns the requests the user made, and a replay asked for.
+    pub fn show(&mut self, ui: &mut egui::Ui, monitor: &Monitor) -> (Vec<RequestBody>, Option<Command>) {
+        let mut replay = None;
         let mut requests = Vec::new();
         for component in monitor.components.values() {
             let Some(status) = &component.latest.status else {
@@ -55,12 +57,12 @@ impl Transport {
             };
             let id = component.latest.id.clone();
             match status.get("kind").and_then(serde_json::Value::as_str) {
-                Some("recorder") => recorder_row(ui, &id, status, &mut requests),
+                Some("recorder") => recorder_row(ui, &id, status, &mut requests, &mut replay),
                 Some("player") => self.player_row(ui, &id, status, &mut requests),
                 _ => {}
             }
         }
-        requests
+        (requests, replay)
     }
 
     fn player_row(
@@ -292,7 +294,13 @@ impl Transport {
     }
 }
 
-fn recorder_row(ui: &mut egui::Ui, id: &str, status: &serde_json::Value, requests: &mut Vec<RequestBody>) {
+fn recorder_row(
+    ui: &mut egui::Ui,
+    id: &str,
+    status: &serde_json::Value,
+    requests: &mut Vec<RequestBody>,
+    replay: &mut Option<Command>,
+) {
     let component = id.to_owned();
     let recording = flag(status, "recording");
     let pre_trigger = status.get("mode").and_then(serde_json::Value::as_str) == Some("pre_trigger");
@@ -359,9 +367,27 @@ fn recorder_row(ui: &mut egui::Ui, id: &str, status: &serde_json::Value, request
                     number(status, "bytes") / 1e6
                 ));
         }
-        let closed = number(status, "files_closed");
-        if closed > 0.0 {
-            ui.weak(format!("{closed} files closed"));
+        match status.get("files_closed").and_then(serde_json::Value::as_u64) {
+            None | Some(0) => {}
+            Some(1) => {
+                ui.weak("1 file closed");
+            }
+            Some(closed) => {
+                ui.weak(format!("{closed} files closed"));
+            }
+        }
+        if let Some(file) = status.get("last_file").and_then(serde_json::Value::as_str)
+            && ui
+                .button("Replay")
+                .on_hover_text(format!(
+                    "replay {file} in a new diagram: a player on it, with the viewers of what it recorded"
+                ))
+                .clicked()
+        {
+            *replay = Some(Command::Replay {
+                recorder: id.to_owned(),
+                file: file.to_owned(),
+            });
         }
     });
 }

@@ -364,6 +364,149 @@ fn viewers_and_monitoring_show_a_running_diagram() {
     harness.run_steps(1);
 }
 
+/// The newcomer's first session, through the interface alone: an example opened from the empty canvas,
+/// run, two viewers, a recording, its replay with the same viewers, saved, and opened again with them.
+#[test]
+fn a_newcomer_records_replays_saves_and_reopens_with_the_viewers() {
+    // The examples offered: the repository's recording example, writing into a folder of the test's.
+    let dir = tempfile::tempdir().unwrap();
+    let examples = dir.path().join("examples");
+    std::fs::create_dir(&examples).unwrap();
+    let recording = dir.path().join("drive.mcap");
+    let record = std::fs::read_to_string(
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../examples/record.ron"),
+    )
+    .unwrap()
+    .replace(
+        "\"drive.mcap\"",
+        &format!("{:?}", recording.display().to_string()),
+    );
+    std::fs::write(examples.join("record.ron"), record).unwrap();
+    let local = LocalRuntime::start_binary(&kairos_binary()).unwrap();
+    let client = RuntimeClient::connect(&local.url, Some(local.token.clone()), || {});
+    let app = StudioApp::new(
+        Document::default(),
+        kairos_diagram::LibraryInfo::default(),
+        Some(client),
+        format!("local runtime {}", local.url),
+        Some(local),
+    )
+    .with_kairos_binary(kairos_binary())
+    .with_examples(&examples);
+    let mut harness = Harness::builder()
+        .with_size(Vec2::new(1400.0, 900.0))
+        .build_ui_state(|ui, app: &mut StudioApp| app.show(ui), app);
+    run_until(&mut harness, "the connection", StudioApp::is_connected);
+
+    // Open an example → record.
+    harness.get_by_label("Open an example").click();
+    harness.run_steps(2);
+    harness.get_by_label_contains("Record a simulated camera").click();
+    harness.run_steps(2);
+    run_until(&mut harness, "the example's library", |app| {
+        app.session.document.diagram().components.len() == 4
+            && app.session.library.component("sensors.camera").is_some()
+    });
+    harness.run_steps(2);
+    open_viewer(
+        &mut harness,
+        "output camera.image (image)",
+        "Open a viewer (image)",
+    );
+    open_viewer(&mut harness, "output imu.imu (imu)", "Open a viewer (plot)");
+
+    // Run: the recorder records from the start, the viewers show the sensors.
+    harness.get_by_label("Run").click();
+    harness.run_steps(1);
+    run_until(&mut harness, "the recording and the viewers", |app| {
+        let list = &app.session.viewers.list;
+        status(app, "recorder", "recording") == Some(serde_json::json!(true))
+            && list[0].texture_size().is_some()
+            && !list[1].series().is_empty()
+    });
+    let started = Instant::now();
+    while started.elapsed() < Duration::from_secs(3) {
+        std::thread::sleep(Duration::from_millis(20));
+        harness.run_steps(1);
+    }
+    // The strip's Stop (the menu bar's comes first) closes the file; Replay is offered for it.
+    harness.get_all_by_label("Stop").last().unwrap().click();
+    harness.run_steps(1);
+    run_until(&mut harness, "the file closed", |app| {
+        status(app, "recorder", "last_file").is_some_and(|f| f.is_string())
+    });
+    harness.run_steps(2);
+    // The menu bar's Stop: the whole diagram.
+    harness.get_all_by_label("Stop").next().unwrap().click();
+    harness.run_steps(2);
+    harness.get_by_label("Replay").click();
+    harness.run_steps(2);
+
+    // The replay: a player on the file, the viewers on its outputs, not yet saved.
+    let document = &harness.state().session.document;
+    let player = document.diagram().component("player").unwrap();
+    assert_eq!(player.type_name, "recording.player");
+    assert_eq!(
+        player.properties["path"],
+        kairos_diagram::Value::Text(recording.display().to_string())
+    );
+    assert!(document.path().is_none() && document.is_dirty());
+    let shown = |app: &StudioApp| -> Vec<(String, String)> {
+        app.session
+            .viewers
+            .list
+            .iter()
+            .map(|v| (v.output.clone(), v.kind.key().to_owned()))
+            .collect()
+    };
+    let replay_viewers = vec![
+        ("player.camera_image".to_owned(), "image".to_owned()),
+        ("player.imu_imu".to_owned(), "plot".to_owned()),
+    ];
+    assert_eq!(shown(harness.state()), replay_viewers);
+    harness.get_by_label("Run").click();
+    harness.run_steps(1);
+    run_until(&mut harness, "the replayed frames in the viewers", |app| {
+        let list = &app.session.viewers.list;
+        list[0].texture_size() == Some([320, 240]) && list[1].series().len() == 6
+    });
+    // Viewers of the replay were opened while the recording's diagram was still deployed: nothing was
+    // an error, and frames still come through shared memory.
+    let errors: Vec<String> = harness
+        .state()
+        .session
+        .log
+        .lines()
+        .filter(|l| l.level == kairos_protocol::LogLevel::Error)
+        .map(|l| l.text.clone())
+        .collect();
+    assert!(errors.is_empty(), "{errors:?}");
+    assert!(harness.state().uses_shared_memory());
+    run_until(&mut harness, "the replay's end", |app| {
+        status(app, "player", "held_at_end") == Some(serde_json::json!(true))
+    });
+    let duration = status(harness.state(), "player", "duration_s")
+        .and_then(|d| d.as_f64())
+        .unwrap();
+    assert!(duration > 2.5, "a recording of {duration} s");
+
+    // Saved, and opened again in a new studio: with its viewers.
+    let saved = dir.path().join("replay.ron");
+    harness.state_mut().session.save_as(&saved);
+    // The menu bar's Stop: the whole diagram.
+    harness.get_all_by_label("Stop").next().unwrap().click();
+    harness.run_steps(2);
+    let reopened = StudioApp::new(
+        Document::open(&saved).unwrap(),
+        kairos_diagram::LibraryInfo::default(),
+        None,
+        "no runtime (test)".to_owned(),
+        None,
+    );
+    let reopened = Harness::new_ui_state(|ui, app: &mut StudioApp| app.show(ui), reopened);
+    assert_eq!(shown(reopened.state()), replay_viewers);
+}
+
 /// The status a component publishes, from the latest telemetry.
 fn status(app: &StudioApp, id: &str, key: &str) -> Option<serde_json::Value> {
     app.session

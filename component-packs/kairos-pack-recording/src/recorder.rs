@@ -86,6 +86,8 @@ pub struct Recorder {
     /// When the status was last published, and the files closed so far.
     published: Option<Instant>,
     closed_files: u32,
+    /// The last file closed whole, for the studio's Replay.
+    last_file: Option<PathBuf>,
     /// Markers written since the start.
     markers: u64,
     /// Pre-trigger mode: the ring, the end of the event being written, and the events so far.
@@ -419,6 +421,7 @@ impl Recorder {
             .and_then(|f| f.sync_all());
         result.map_err(|e| failed(&file.path, "cannot finish", with_causes(&e)))?;
         flushed.map_err(|e| failed(&file.path, "cannot flush", e))?;
+        self.last_file = Some(file.path.clone());
         tracing::info!(
             "closed {} ({} bytes of messages)",
             file.path.display(),
@@ -638,6 +641,7 @@ impl Recorder {
                 .is_ok_and(|f| f.sync_all().is_ok());
         if finished {
             self.closed_files += 1;
+            self.last_file = Some(path.clone());
             return format!(
                 "; {} is closed and valid, holding the event up to the failure",
                 path.display()
@@ -865,6 +869,7 @@ impl Recorder {
             "bytes": bytes,
             "disk_bytes": disk_bytes,
             "files_closed": self.closed_files,
+            "last_file": self.last_file.as_ref().map(|p| p.display().to_string()),
             "markers": self.markers,
             "mode": if self.pre_trigger { "pre_trigger" } else { "continuous" },
             "events": self.events,

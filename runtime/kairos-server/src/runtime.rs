@@ -628,7 +628,8 @@ impl Runtime {
         deployment.start_late_ns = None;
         let identity = self.identity(deployment.installed);
         self.generation.fetch_add(1, Ordering::Release);
-        tracing::info!("deployed a diagram of {components} components");
+        let plural = if components == 1 { "" } else { "s" };
+        tracing::info!("deployed a diagram of {components} component{plural}");
         Ok(DeployResult {
             diagnostics: part.diagnostics,
             components,
