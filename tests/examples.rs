@@ -33,6 +33,8 @@ fn every_example_validates() {
         "rig",
         "scale/threaded_900",
         "scale/grouped_900",
+        "subgraph/lane_pipeline",
+        "subgraph/two_cameras",
     ] {
         let path = example(name);
         let output = kairos(&root, &["validate", path.to_str().unwrap()]);
@@ -84,6 +86,75 @@ fn the_lane_marking_chain_handles_frames_at_every_stage() {
         assert!(cycles >= 1, "{stage} handled no frame: {row}");
     }
     assert!(!stderr.contains("failed"), "{stderr}");
+}
+
+#[test]
+fn a_subgraph_used_twice_runs_each_copy_under_its_instance_id() {
+    let root = common::repo_root();
+    let path = example("subgraph/two_cameras");
+    let output = kairos(&root, &["run", path.to_str().unwrap(), "--for", "2s", "--stats"]);
+    let (_, stderr) = text(&output);
+    assert!(output.status.success(), "{stderr}");
+    for instance in ["front", "rear"] {
+        for stage in ["grey", "blur", "edges", "lines", "overlay"] {
+            let id = format!("{instance}/{stage}");
+            let row = stderr
+                .lines()
+                .rev()
+                .find(|l| l.split_whitespace().next() == Some(id.as_str()))
+                .unwrap_or_else(|| panic!("{id} in the stats: {stderr}"));
+            let cycles: u64 = row.split_whitespace().nth(3).unwrap().parse().unwrap();
+            assert!(cycles >= 1, "{id} handled no frame: {row}");
+        }
+    }
+    // The exposed input feeds both inner inputs it names.
+    assert!(stderr.contains("front_camera.image -> front/grey.in"), "{stderr}");
+    assert!(
+        stderr.contains("front_camera.image -> front/overlay.image"),
+        "{stderr}"
+    );
+}
+
+#[test]
+fn a_fault_inside_a_subgraph_is_reported_inside_and_at_each_instance() {
+    let dir = tempfile::tempdir().unwrap();
+    let pipeline = std::fs::read_to_string(example("subgraph/lane_pipeline"))
+        .unwrap()
+        .replace("\"vision.canny\"", "\"vision.cany\"");
+    std::fs::write(dir.path().join("lane_pipeline.ron"), pipeline).unwrap();
+    let cameras = std::fs::read_to_string(example("subgraph/two_cameras")).unwrap();
+    std::fs::write(dir.path().join("two_cameras.ron"), &cameras).unwrap();
+    let output = kairos(dir.path(), &["validate", "two_cameras.ron"]);
+    let (_, stderr) = text(&output);
+    assert!(!output.status.success());
+    for instance in ["front", "rear"] {
+        assert!(
+            stderr.contains(&format!(
+                "error: unknown component type 'vision.cany' for '{instance}/edges'"
+            )),
+            "{stderr}"
+        );
+        assert!(
+            stderr.contains(&format!(
+                "note: '{instance}/edges' is written at lane_pipeline.ron:33:17"
+            )),
+            "{stderr}"
+        );
+    }
+    // A subgraph that uses the diagram using it is refused, named at its place.
+    std::fs::write(
+        dir.path().join("lane_pipeline.ron"),
+        r#"Diagram(format: 1, components: [Component(id: "back", type: "two_cameras.ron")])"#,
+    )
+    .unwrap();
+    let output = kairos(dir.path(), &["run", "two_cameras.ron", "--for", "1s"]);
+    let (_, stderr) = text(&output);
+    assert!(!output.status.success());
+    assert!(
+        stderr.contains("subgraph 'two_cameras.ron' includes itself: two_cameras.ron → lane_pipeline.ron → two_cameras.ron"),
+        "{stderr}"
+    );
+    assert!(stderr.contains("--> two_cameras.ron:13:19"), "{stderr}");
 }
 
 #[test]

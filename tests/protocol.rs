@@ -692,3 +692,69 @@ fn telemetry_flows_while_the_diagram_runs_and_rests_once_it_is_stopped() {
     let again = telemetry_within(&mut admin, Duration::from_secs(1));
     assert!(again.iter().filter(|s| *s == "running").count() >= 5, "{again:?}");
 }
+
+#[test]
+fn a_diagram_with_subgraphs_deploys_with_its_folder_and_is_refused_clearly_without() {
+    let _machine = shared_machine();
+    let dir = tempfile::tempdir().unwrap();
+    let server = serve(dir.path(), &[]);
+    let mut socket = operator(&server);
+    let folder = dir.path().join("rig");
+    std::fs::create_dir(&folder).unwrap();
+    std::fs::write(
+        folder.join("doubled.ron"),
+        r#"Diagram(format: 1,
+    exposes: Exposes(inputs: {"in": "twice.in"}, outputs: {"out": "twice.out"}, properties: {"factor": "twice.gain"}),
+    components: [Component(id: "twice", type: "core.gain", properties: {"gain": 2.0})],
+)"#,
+    )
+    .unwrap();
+    let diagram = r#"Diagram(format: 1,
+    components: [
+        Component(id: "count", type: "core.counter", properties: {"rate": 50.0}),
+        Component(id: "scale", type: "doubled.ron", properties: {"factor": 3.0}),
+    ],
+    connections: [Connection(from: "count.out", to: "scale.in")],
+)"#;
+    // Sent alone, the runtime cannot read the subgraph, and says so at the instance.
+    let reply = call(
+        &mut socket,
+        &json!({"id": 2, "type": "deploy", "diagram": diagram}),
+    );
+    assert_eq!(reply["error"]["code"], "invalid_diagram", "{reply}");
+    let message = reply["error"]["message"].as_str().unwrap();
+    assert!(
+        message.contains("cannot read subgraph 'doubled.ron': the diagram came without its folder"),
+        "{message}"
+    );
+    assert_eq!(
+        reply["error"]["diagnostics"][0]["code"], "invalid_subgraph",
+        "{reply}"
+    );
+    assert_eq!(reply["error"]["diagnostics"][0]["location"]["line"], 4, "{reply}");
+    // With its folder, it runs flat: the inner gain is `scale/twice`, set by the instance's property.
+    let reply = call(
+        &mut socket,
+        &json!({"id": 3, "type": "deploy", "diagram": diagram, "folder": folder.display().to_string()}),
+    );
+    assert_eq!(reply["ok"], true, "{reply}");
+    assert_eq!(call(&mut socket, &json!({"id": 4, "type": "start"}))["ok"], true);
+    let deployed = call(&mut socket, &json!({"id": 5, "type": "get_diagram"}));
+    let text = deployed["result"]["diagram"].as_str().unwrap();
+    let flat = kairos_diagram::parse(text).unwrap().diagram;
+    let inner = flat.component("scale/twice").unwrap();
+    assert_eq!(inner.properties["gain"], kairos_diagram::Value::F64(3.0));
+    assert!(
+        flat.connections
+            .iter()
+            .any(|c| c.to.to_string() == "scale/twice.in")
+    );
+    let status = call(&mut socket, &json!({"id": 6, "type": "status"}));
+    let ids: Vec<&str> = status["result"]["telemetry"]["components"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter_map(|c| c["id"].as_str())
+        .collect();
+    assert!(ids.contains(&"scale/twice"), "{ids:?}");
+}

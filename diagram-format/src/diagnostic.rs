@@ -100,6 +100,9 @@ pub enum DiagnosticCode {
     InvalidGroup,
     /// Components of one execution group that feed each other in a loop.
     GroupCycle,
+    /// A subgraph that cannot be used: its file cannot be read or has errors, it includes itself, an
+    /// instance names a port or property it does not expose, or it exposes one twice or one it lacks.
+    InvalidSubgraph,
 }
 
 /// Where a problem is in the source text.

@@ -22,6 +22,7 @@ pub mod library;
 pub mod model;
 pub mod read;
 mod ron_syntax;
+pub mod subgraph;
 pub mod validate;
 pub mod write;
 
@@ -35,13 +36,16 @@ pub use library::{
 };
 pub use model::{
     ComponentInstance, Connection, DEFAULT_RIDE_OUT_MB, DEFAULT_RIDE_OUT_S, DEFAULT_ZENOH_PORT, Diagram,
-    FORMAT_VERSION, HostSpec, MAX_BUFFER_SIZE, MAX_RIDE_OUT_MB, MAX_RIDE_OUT_S, OutputSettings,
+    Exposes, FORMAT_VERSION, HostSpec, MAX_BUFFER_SIZE, MAX_RIDE_OUT_MB, MAX_RIDE_OUT_S, OutputSettings,
     PackRequirement, PortRef, Position, SEQUENTIAL_GROUP, ThreadSettings, ViewerSpec,
 };
 pub use read::{
-    ComponentLocations, ConnectionLocations, EntryLocations, GroupLocations, HostLocations, LoadError,
-    OutputLocations, PackLocations, ParsedDiagram, SourceMap, load, parse,
+    ComponentLocations, ConnectionLocations, EntryLocations, ExposesLocations, GroupLocations, HostLocations,
+    LoadError, OutputLocations, PackLocations, ParsedDiagram, SourceMap, load, parse,
 };
 pub use ron_syntax::MAX_DEPTH;
-pub use validate::{is_valid_id, output_type, resolved_properties, validate, validate_with};
+pub use subgraph::{Flattened, Origins, flatten, is_subgraph_type, load_flattened};
+pub use validate::{
+    is_valid_id, is_valid_path_id, output_type, resolved_properties, validate, validate_with,
+};
 pub use write::save;

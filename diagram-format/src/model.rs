@@ -44,6 +44,25 @@ pub struct Diagram {
     /// does not runs with the default settings.
     #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
     pub groups: BTreeMap<String, ThreadSettings>,
+    /// What the diagram shows of itself when another uses it as a component (a subgraph): which inner
+    /// ports and properties, under which names. Run on its own, a diagram ignores it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub exposes: Option<Exposes>,
+}
+
+/// The inner inputs, outputs and properties a subgraph exposes, under the names its instances use.
+#[derive(Debug, Clone, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Exposes {
+    /// Outer input name → the inner inputs it feeds, one or several (`convert.in`).
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub inputs: BTreeMap<String, Vec<PortRef>>,
+    /// Outer output name → the inner output it is (`detect.boxes`).
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub outputs: BTreeMap<String, PortRef>,
+    /// Outer property name → the inner properties it sets, one or several (`detect.threshold`, written
+    /// as a port is: `component.property`).
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub properties: BTreeMap<String, Vec<PortRef>>,
 }
 
 /// The one group every component of a [`Diagram::sequential`] diagram runs in.
@@ -153,6 +172,7 @@ impl Default for Diagram {
             viewers: Vec::new(),
             sequential: false,
             groups: BTreeMap::new(),
+            exposes: None,
         }
     }
 }

@@ -7,8 +7,8 @@ use std::path::{Path, PathBuf};
 use crate::diagnostic::{Diagnostic, DiagnosticCode, LineIndex, Location, did_you_mean, render_all};
 use crate::library::{LibraryInfo, ReaderPolicy, Value};
 use crate::model::{
-    ComponentInstance, Connection, Diagram, HostSpec, OutputSettings, PackRequirement, PortRef, Position,
-    ThreadSettings, ViewerSpec,
+    ComponentInstance, Connection, Diagram, Exposes, HostSpec, OutputSettings, PackRequirement, PortRef,
+    Position, ThreadSettings, ViewerSpec,
 };
 use crate::ron_syntax::{Field, Node, NodeKind, Span, parse_document};
 
@@ -36,6 +36,19 @@ pub struct SourceMap {
     pub groups: BTreeMap<String, GroupLocations>,
     /// The `sequential` switch's value, when given.
     pub sequential: Option<Location>,
+    /// Where each exposed name and its inner targets are, when the diagram exposes any.
+    pub exposes: Option<ExposesLocations>,
+}
+
+/// Where a subgraph's exposed names are: each name's key, and each inner port or property it names.
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct ExposesLocations {
+    /// Each exposed input: its name, and each inner input's string.
+    pub inputs: BTreeMap<String, (Location, Vec<Location>)>,
+    /// Each exposed output: its name, and the inner output's string.
+    pub outputs: BTreeMap<String, EntryLocations>,
+    /// Each exposed property: its name, and each inner property's string.
+    pub properties: BTreeMap<String, (Location, Vec<Location>)>,
 }
 
 /// Where an execution group of the `groups` section is.
@@ -567,6 +580,7 @@ impl Reader<'_> {
                 "viewers",
                 "sequential",
                 "groups",
+                "exposes",
             ],
         )?;
         let (hosts, host_locations) = fields
@@ -587,6 +601,14 @@ impl Reader<'_> {
             .optional("groups")
             .map(|n| self.groups(n))
             .unwrap_or_default();
+        let exposes = fields.optional("exposes").map(|n| self.exposes(n));
+        let (exposes, exposes_locations) = match exposes {
+            Some(read) => {
+                let (exposes, locations) = read?;
+                (Some(exposes), Some(locations))
+            }
+            None => (None, None),
+        };
         let (format, format_node) = (format?, format_node?);
         let (packs, pack_locations) = packs.into_iter().unzip();
         let (components, component_locations) = components.into_iter().unzip();
@@ -602,11 +624,13 @@ impl Reader<'_> {
                 viewers,
                 sequential: sequential.ok()?.unwrap_or(false),
                 groups,
+                exposes,
             },
             source_map: SourceMap {
                 hosts: host_locations,
                 groups: group_locations,
                 sequential: sequential_node.map(|n| self.location(n.span)),
+                exposes: exposes_locations,
                 diagram: self.location(node.head),
                 format: self.location(format_node.span),
                 clock_source: clock_source_node.map(|n| self.location(n.span)),
@@ -783,6 +807,60 @@ impl Reader<'_> {
             groups.insert(name, settings);
         }
         (groups, locations)
+    }
+
+    /// `Exposes(inputs: {"image": ["convert.in", "overlay.image"]}, outputs: {"out": "overlay.out"},
+    /// properties: {"gain": ["a.gain", "b.gain"]})`: an input or a property may feed several inner ones.
+    fn exposes(&mut self, node: &Node) -> Option<(Exposes, ExposesLocations)> {
+        let fields = self.fields(node, "Exposes", &["inputs", "outputs", "properties"])?;
+        let mut exposes = Exposes::default();
+        let mut locations = ExposesLocations::default();
+        let mut complete = true;
+        if let Some(map) = fields.optional("outputs") {
+            for (name, name_span, value) in self.string_map(map, "output") {
+                let Some(port) = self.port(value) else {
+                    complete = false;
+                    continue;
+                };
+                let entry = EntryLocations {
+                    key: self.location(name_span),
+                    value: self.location(value.span),
+                };
+                exposes.outputs.insert(name.clone(), port);
+                locations.outputs.insert(name, entry);
+            }
+        }
+        for (field, what) in [("inputs", "input"), ("properties", "property")] {
+            let Some(map) = fields.optional(field) else {
+                continue;
+            };
+            for (name, name_span, value) in self.string_map(map, what) {
+                // One inner port or property as a string, or several as a list.
+                let targets: Vec<&Node> = match &value.kind {
+                    NodeKind::List(items) => items.iter().collect(),
+                    _ => vec![value],
+                };
+                let mut inner = Vec::new();
+                let mut places = Vec::new();
+                for target in targets {
+                    match self.port(target) {
+                        Some(port) => {
+                            inner.push(port);
+                            places.push(self.location(target.span));
+                        }
+                        None => complete = false,
+                    }
+                }
+                let (ports, place_map) = if field == "inputs" {
+                    (&mut exposes.inputs, &mut locations.inputs)
+                } else {
+                    (&mut exposes.properties, &mut locations.properties)
+                };
+                place_map.insert(name.clone(), (self.location(name_span), places));
+                ports.insert(name, inner);
+            }
+        }
+        complete.then_some((exposes, locations))
     }
 
     fn position(&mut self, node: &Node) -> Option<Position> {

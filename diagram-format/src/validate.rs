@@ -111,6 +111,12 @@ pub fn is_valid_id(id: &str) -> bool {
             .all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '-')
 }
 
+/// Whether `id` is valid for a component or an execution group: ids joined by `/`, as a flattened
+/// subgraph names its parts (`front/convert`).
+pub fn is_valid_path_id(id: &str) -> bool {
+    id.split('/').all(is_valid_id)
+}
+
 struct Validator<'a> {
     diagram: &'a Diagram,
     source_map: Option<&'a SourceMap>,
@@ -334,7 +340,7 @@ impl<'a> Validator<'a> {
         let mut unlisted_packs_reported: BTreeSet<&str> = BTreeSet::new();
         for (index, component) in self.diagram.components.iter().enumerate() {
             let at = self.component_at(index);
-            if !is_valid_id(&component.id) {
+            if !is_valid_path_id(&component.id) {
                 let message = format!(
                     "invalid component id {:?}: use ASCII letters, digits, '_' and '-' only",
                     component.id

@@ -98,6 +98,10 @@ impl fmt::Display for CanonicalRon<'_> {
             f.write_str("    },\n")?;
         }
 
+        if let Some(exposes) = &diagram.exposes {
+            write_exposes(f, exposes)?;
+        }
+
         let mut packs: Vec<&PackRequirement> = diagram.packs.iter().collect();
         packs.sort_by(|a, b| compare_packs(a, b));
         write_list(f, "packs", &packs, |f, pack| {
@@ -295,6 +299,51 @@ impl fmt::Display for RonThread<'_> {
         }
         write!(f, "({})", fields.join(", "))
     }
+}
+
+/// `exposes: Exposes(...)`, each map on lines of its own; an input or property feeding one inner one is
+/// written as a string, one feeding several as a list.
+fn write_exposes(f: &mut fmt::Formatter<'_>, exposes: &crate::model::Exposes) -> fmt::Result {
+    f.write_str("    exposes: Exposes(\n")?;
+    if !exposes.inputs.is_empty() {
+        write_targets(f, "inputs", &exposes.inputs)?;
+    }
+    if !exposes.outputs.is_empty() {
+        f.write_str("        outputs: {\n")?;
+        for (name, port) in &exposes.outputs {
+            writeln!(f, "            {}: {},", Quoted(name), Quoted(&port.to_string()))?;
+        }
+        f.write_str("        },\n")?;
+    }
+    if !exposes.properties.is_empty() {
+        write_targets(f, "properties", &exposes.properties)?;
+    }
+    f.write_str("    ),\n")
+}
+
+fn write_targets(
+    f: &mut fmt::Formatter<'_>,
+    field: &str,
+    targets_by_name: &std::collections::BTreeMap<String, Vec<crate::model::PortRef>>,
+) -> fmt::Result {
+    writeln!(f, "        {field}: {{")?;
+    for (name, targets) in targets_by_name {
+        write!(f, "            {}: ", Quoted(name))?;
+        if let [one] = targets.as_slice() {
+            write!(f, "{}", Quoted(&one.to_string()))?;
+        } else {
+            f.write_str("[")?;
+            for (index, target) in targets.iter().enumerate() {
+                if index > 0 {
+                    f.write_str(", ")?;
+                }
+                write!(f, "{}", Quoted(&target.to_string()))?;
+            }
+            f.write_str("]")?;
+        }
+        f.write_str(",\n")?;
+    }
+    f.write_str("        },\n")
 }
 
 #[cfg(test)]

@@ -210,6 +210,7 @@ fn diagram() -> impl Strategy<Value = Diagram> {
                 viewers: Vec::new(),
                 sequential: false,
                 groups: std::collections::BTreeMap::new(),
+                exposes: None,
             },
         )
 }

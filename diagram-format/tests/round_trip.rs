@@ -5,8 +5,8 @@ mod common;
 use std::collections::BTreeMap;
 
 use kairos_diagram::{
-    ComponentInstance, Connection, Diagram, HostSpec, OutputSettings, PackRequirement, PortRef, Position,
-    ReaderPolicy, ThreadSettings, Value, ViewerSpec, parse, resolved_properties,
+    ComponentInstance, Connection, Diagram, Exposes, HostSpec, OutputSettings, PackRequirement, PortRef,
+    Position, ReaderPolicy, ThreadSettings, Value, ViewerSpec, parse, resolved_properties,
 };
 
 const CANONICAL: &str = include_str!("corpus/canonical.ron");
@@ -154,6 +154,24 @@ fn scrambled_diagram() -> Diagram {
                 affinity: vec![1],
             },
         )]),
+        // A property fed to one inner property is written as a string, to several as a list.
+        exposes: Some(Exposes {
+            inputs: BTreeMap::from([(
+                "signal".to_owned(),
+                vec![PortRef::new("gain1", "in"), PortRef::new("sine1", "sync")],
+            )]),
+            outputs: BTreeMap::from([("scaled \"x\"".to_owned(), PortRef::new("gain1", "out"))]),
+            properties: BTreeMap::from([
+                ("gain".to_owned(), vec![PortRef::new("gain1", "gain")]),
+                (
+                    "frequency".to_owned(),
+                    vec![
+                        PortRef::new("sine1", "frequency"),
+                        PortRef::new("gain1", "frequency"),
+                    ],
+                ),
+            ]),
+        }),
     }
 }
 

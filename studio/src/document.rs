@@ -72,6 +72,7 @@ impl Document {
             viewers: _,
             sequential,
             groups,
+            exposes,
         } = &self.diagram;
         let saved = &self.saved;
         *format != saved.format
@@ -82,6 +83,7 @@ impl Document {
             || *hosts != saved.hosts
             || *sequential != saved.sequential
             || *groups != saved.groups
+            || *exposes != saved.exposes
     }
 
     /// Writes the diagram (canonical text) to its file. With no change since it was opened, the file is left

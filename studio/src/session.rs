@@ -944,7 +944,11 @@ impl Session {
             .into_iter()
             .filter(|output| {
                 deployed.is_none_or(|diagram| {
-                    PortRef::parse(output).is_some_and(|port| diagram.component(&port.component).is_some())
+                    // An inner output of a subgraph (`front/edges.out`) runs when its instance does.
+                    PortRef::parse(output).is_some_and(|port| {
+                        let instance = port.component.split('/').next().unwrap_or_default();
+                        diagram.component(&port.component).is_some() || diagram.component(instance).is_some()
+                    })
                 })
             })
             .collect();

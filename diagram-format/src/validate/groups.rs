@@ -7,7 +7,7 @@
 
 use std::collections::BTreeMap;
 
-use super::{Validator, is_valid_id, join_with_and, strongly_connected_components};
+use super::{Validator, is_valid_path_id, join_with_and, strongly_connected_components};
 use crate::diagnostic::{Diagnostic, DiagnosticCode, Location};
 use crate::library::ReaderPolicy;
 use crate::model::SEQUENTIAL_GROUP;
@@ -40,7 +40,7 @@ impl Validator<'_> {
     fn check_group_names(&mut self) {
         for (name, settings) in &self.diagram.groups {
             let at = self.source_map.and_then(|m| m.groups.get(name)).copied();
-            if !is_valid_id(name) {
+            if !is_valid_path_id(name) {
                 self.found.push(
                     Diagnostic::error(
                         DiagnosticCode::InvalidId,
@@ -103,7 +103,7 @@ impl Validator<'_> {
             }
             let Some(group) = &component.group else { continue };
             let at = self.component_at(index).and_then(|l| l.group);
-            if !is_valid_id(group) {
+            if !is_valid_path_id(group) {
                 self.found.push(
                     Diagnostic::error(
                         DiagnosticCode::InvalidId,

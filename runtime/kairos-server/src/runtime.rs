@@ -477,7 +477,7 @@ impl Runtime {
         network: Option<&kairos_protocol::LinkNetwork>,
         folder: Option<&Path>,
     ) -> Result<DeployResult, ProtocolError> {
-        let (diagram, diagnostics) = self.validated(text)?;
+        let (diagram, diagnostics) = self.validated(text, folder)?;
         if !is_spread(&diagram) {
             let part = self.build_part(diagram, diagnostics, network.cloned())?;
             return self.install(part, None);
@@ -506,7 +506,7 @@ impl Runtime {
         text: &str,
         network: Option<&kairos_protocol::LinkNetwork>,
     ) -> Result<kairos_protocol::Prepared, ProtocolError> {
-        let (diagram, diagnostics) = self.validated(text)?;
+        let (diagram, diagnostics) = self.validated(text, None)?;
         if is_spread(&diagram) {
             return Err(error(
                 ErrorCode::InvalidDiagram,
@@ -564,11 +564,31 @@ impl Runtime {
     }
 
     /// `text` parsed and validated against the library: the diagram and its warnings.
-    fn validated(&self, text: &str) -> Result<(Diagram, Vec<Diagnostic>), ProtocolError> {
+    /// `text` parsed, its subgraphs flattened (read from `folder`, the diagram's folder on this
+    /// machine, when the client gave it) and checked against the registry.
+    fn validated(
+        &self,
+        text: &str,
+        folder: Option<&Path>,
+    ) -> Result<(Diagram, Vec<Diagnostic>), ProtocolError> {
         let parsed = kairos_diagram::parse(text).map_err(|diagnostics| invalid(text, diagnostics))?;
-        let diagnostics = self
+        let file = folder.map_or_else(|| Path::new("diagram.ron").to_owned(), |f| f.join("diagram.ron"));
+        let mut read = |path: &Path| -> Result<String, String> {
+            if folder.is_none() {
+                return Err(format!(
+                    "the diagram came without its folder, so this runtime cannot read {}; deploy it from                      the machine that has the file (`kairos run --deploy`, the studio)",
+                    path.display()
+                ));
+            }
+            std::fs::read_to_string(path).map_err(|e| e.to_string())
+        };
+        let flattened = kairos_diagram::flatten(parsed, &file, &mut read)
+            .map_err(|diagnostics| invalid(text, diagnostics))?;
+        let parsed = flattened.parsed;
+        let mut diagnostics = self
             .registry()
             .validate(&parsed.diagram, Some(&parsed.source_map));
+        flattened.origins.annotate(&mut diagnostics);
         if diagnostics.iter().any(Diagnostic::is_error) {
             return Err(invalid(text, diagnostics));
         }

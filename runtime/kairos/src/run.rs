@@ -91,15 +91,17 @@ fn load_checked(
     path: &Path,
     options: &RunOptions,
 ) -> anyhow::Result<Option<kairos_diagram::ParsedDiagram>> {
-    let (source, mut parsed) = match kairos_diagram::load(path) {
+    let (source, flattened) = match kairos_diagram::load_flattened(path) {
         Ok(loaded) => loaded,
         Err(error) => {
             eprint!("{}", error.render());
             return Ok(None);
         }
     };
+    let mut parsed = flattened.parsed;
     apply_options(&mut parsed, options)?;
-    let diagnostics = registry.validate(&parsed.diagram, Some(&parsed.source_map));
+    let mut diagnostics = registry.validate(&parsed.diagram, Some(&parsed.source_map));
+    flattened.origins.annotate(&mut diagnostics);
     if !diagnostics.is_empty() {
         eprint!(
             "{}",

@@ -136,7 +136,9 @@ pub fn print(
         return Ok(reached_all);
     }
     let path = PathBuf::from(target);
-    let (_, parsed) = kairos_diagram::load(&path).map_err(|e| anyhow::anyhow!("{}", e.render()))?;
+    let (_, flattened) =
+        kairos_diagram::load_flattened(&path).map_err(|e| anyhow::anyhow!("{}", e.render()))?;
+    let parsed = flattened.parsed;
     let hosts = &parsed.diagram.hosts;
     anyhow::ensure!(
         !hosts.is_empty(),

@@ -86,13 +86,15 @@ impl DevicesArgs {
 fn validate(registry: &Registry, paths: &[PathBuf], searched: &[PathBuf]) -> ExitCode {
     let mut all_valid = true;
     for path in paths {
-        match kairos_diagram::load(path) {
+        match kairos_diagram::load_flattened(path) {
             Err(error) => {
                 all_valid = false;
                 eprint!("{}", error.render());
             }
-            Ok((source, parsed)) => {
-                let diagnostics = registry.validate(&parsed.diagram, Some(&parsed.source_map));
+            Ok((source, flattened)) => {
+                let parsed = flattened.parsed;
+                let mut diagnostics = registry.validate(&parsed.diagram, Some(&parsed.source_map));
+                flattened.origins.annotate(&mut diagnostics);
                 let name = path.display().to_string();
                 if diagnostics.is_empty() {
                     println!("{name}: valid");

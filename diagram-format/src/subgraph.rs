@@ -1,0 +1,644 @@
+//! Subgraphs: a diagram used as a component. An instance whose type names a diagram file
+//! (`Component(id: "front", type: "camera_pipeline.ron")`, the path relative to the file using it)
+//! stands for that diagram's components; the subgraph says, in its `exposes` section, which inner inputs,
+//! outputs and properties its instances see and under what names.
+//!
+//! [`flatten`] replaces every instance by the subgraph's components, to any depth, before anything
+//! else reads the diagram: ids become `front/convert`, links to the instance's ports are rewired to the
+//! inner ports they expose, a property set on the instance is set on each inner property it feeds. The
+//! engine, the validator, the statistics and the protocol then see one flat diagram. A fault inside a
+//! subgraph is reported at the instance that uses it, its message naming the file, line and column
+//! inside.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+use crate::diagnostic::{Diagnostic, DiagnosticCode, Location, Note, did_you_mean};
+use crate::model::{Connection, Diagram, Exposes, PortRef};
+use crate::read::{ComponentLocations, ConnectionLocations, LoadError, ParsedDiagram, SourceMap, parse};
+
+/// Whether a component type names a subgraph (a diagram file) rather than a component of a pack.
+pub fn is_subgraph_type(type_name: &str) -> bool {
+    Path::new(type_name)
+        .extension()
+        .is_some_and(|extension| extension.eq_ignore_ascii_case("ron"))
+}
+
+/// Whether `diagram` uses any subgraph (and so needs [`flatten`] before it runs).
+pub fn uses_subgraphs(diagram: &Diagram) -> bool {
+    diagram.components.iter().any(|c| is_subgraph_type(&c.type_name))
+}
+
+/// Where each component that came from a subgraph was written: its flat id → `file:line:column` (the
+/// files named as their users name them, `camera_pipeline.ron`, nested ones after their includers).
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct Origins(BTreeMap<String, String>);
+
+impl Origins {
+    /// Adds to each diagnostic that names an inner component (`'front/convert'`) a note saying where that
+    /// component is written.
+    pub fn annotate(&self, diagnostics: &mut [Diagnostic]) {
+        if self.0.is_empty() {
+            return;
+        }
+        for diagnostic in diagnostics {
+            let named: Vec<(&String, &String)> = self
+                .0
+                .iter()
+                .filter(|(id, _)| diagnostic.message.contains(&format!("'{id}'")))
+                .collect();
+            for (id, place) in named {
+                diagnostic.notes.push(Note {
+                    message: format!("'{id}' is written at {place}"),
+                    location: None,
+                });
+            }
+        }
+    }
+
+    /// Where the inner component `id` is written, if it came from a subgraph.
+    pub fn of(&self, id: &str) -> Option<&str> {
+        self.0.get(id).map(String::as_str)
+    }
+}
+
+/// A flat diagram, and where its inner components came from.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Flattened {
+    /// The diagram with every subgraph instance replaced by its components; its source map points
+    /// inner components and links at the instance that brought them.
+    pub parsed: ParsedDiagram,
+    /// Where each inner component is written.
+    pub origins: Origins,
+}
+
+/// Replaces every subgraph instance of `parsed` (read from `file`) by its components, reading subgraph
+/// files with `read` (a path → its text, or why it cannot be read). Errors are located in `file`.
+pub fn flatten(
+    parsed: ParsedDiagram,
+    file: &Path,
+    read: &mut dyn FnMut(&Path) -> Result<String, String>,
+) -> Result<Flattened, Vec<Diagnostic>> {
+    let mut origins = Origins::default();
+    let chain = vec![normal(file)];
+    let parsed = expand(parsed, file, &chain, read, &mut origins)?;
+    Ok(Flattened { parsed, origins })
+}
+
+/// A file's path with `.` and `..` taken out, to compare includes without touching the disk.
+fn normal(path: &Path) -> PathBuf {
+    let mut out = PathBuf::new();
+    for part in path.components() {
+        match part {
+            std::path::Component::CurDir => {}
+            std::path::Component::ParentDir if out.file_name().is_some() => {
+                out.pop();
+            }
+            other => out.push(other),
+        }
+    }
+    out
+}
+
+/// One subgraph instance once expanded: what it exposes, in flat ids.
+struct Instance {
+    file: String,
+    exposes: Exposes,
+}
+
+fn expand(
+    parsed: ParsedDiagram,
+    file: &Path,
+    chain: &[PathBuf],
+    read: &mut dyn FnMut(&Path) -> Result<String, String>,
+    origins: &mut Origins,
+) -> Result<ParsedDiagram, Vec<Diagnostic>> {
+    if !uses_subgraphs(&parsed.diagram) {
+        let mut parsed = parsed;
+        check_exposes(&mut parsed, &BTreeMap::new()).map_err(|d| vec![d])?;
+        return Ok(parsed);
+    }
+    let ParsedDiagram { diagram, source_map } = parsed;
+    let mut expansion = Expansion {
+        folder: file.parent().unwrap_or_else(|| Path::new("")),
+        chain,
+        read,
+        origins,
+        flat: Diagram {
+            components: Vec::new(),
+            connections: Vec::new(),
+            ..diagram.clone()
+        },
+        flat_map: SourceMap {
+            components: Vec::new(),
+            connections: Vec::new(),
+            ..source_map.clone()
+        },
+        instances: BTreeMap::new(),
+        problems: Vec::new(),
+    };
+    for (index, component) in diagram.components.iter().enumerate() {
+        let at = source_map.components.get(index);
+        if is_subgraph_type(&component.type_name) {
+            expansion.instance(component, at);
+        } else {
+            expansion.flat.components.push(component.clone());
+            expansion.flat_map.components.extend(at.cloned());
+        }
+    }
+    for (index, connection) in diagram.connections.iter().enumerate() {
+        expansion.connection(connection, source_map.connections.get(index).copied());
+    }
+    let Expansion {
+        flat,
+        flat_map,
+        instances,
+        mut problems,
+        ..
+    } = expansion;
+    let mut flat = ParsedDiagram {
+        diagram: flat,
+        source_map: flat_map,
+    };
+    if let Err(problem) = check_exposes(&mut flat, &instances) {
+        problems.push(problem);
+    }
+    if problems.is_empty() {
+        Ok(flat)
+    } else {
+        Err(problems)
+    }
+}
+
+/// One diagram being flattened: what is read, and the flat diagram so far.
+struct Expansion<'a, 'r> {
+    folder: &'a Path,
+    chain: &'a [PathBuf],
+    read: &'r mut dyn FnMut(&Path) -> Result<String, String>,
+    origins: &'a mut Origins,
+    flat: Diagram,
+    flat_map: SourceMap,
+    instances: BTreeMap<String, Instance>,
+    problems: Vec<Diagnostic>,
+}
+
+impl Expansion<'_, '_> {
+    /// Reads, flattens and puts in place the subgraph `component` instantiates.
+    fn instance(&mut self, component: &crate::model::ComponentInstance, at: Option<&ComponentLocations>) {
+        let type_at = at.map(|l| l.type_name);
+        let Some((inner, inner_origins)) = self.subgraph(component, type_at) else {
+            return;
+        };
+        let prefix = |id: &str| format!("{}/{id}", component.id);
+        for (i, inner_component) in inner.diagram.components.iter().enumerate() {
+            let here = inner.source_map.components.get(i).map_or_else(
+                || component.type_name.clone(),
+                |l| format!("{}:{}:{}", component.type_name, l.id.line, l.id.column),
+            );
+            let written = inner_origins
+                .of(&inner_component.id)
+                .map_or_else(|| here.clone(), |deeper| format!("{here}, in {deeper}"));
+            self.origins.0.insert(prefix(&inner_component.id), written);
+        }
+        let exposes = inner.diagram.exposes.clone().unwrap_or_default();
+        let mut placed = inner.diagram.clone();
+        place_inside(&mut placed, component, &exposes, at, &mut self.problems);
+        for inner_component in placed.components {
+            self.flat.components.push(inner_component);
+            self.flat_map.components.extend(at.map(inside_at));
+        }
+        for connection in placed.connections {
+            self.flat.connections.push(connection);
+            self.flat_map.connections.extend(at.map(|at| ConnectionLocations {
+                connection: at.type_name,
+                from: at.type_name,
+                to: at.type_name,
+                policy: None,
+                buffer_size: None,
+                subsampling: None,
+            }));
+        }
+        for pack in inner.diagram.packs {
+            if !self.flat.packs.iter().any(|p| p.name == pack.name) {
+                self.flat.packs.push(pack);
+            }
+        }
+        for (name, host) in inner.diagram.hosts {
+            self.flat.hosts.entry(name).or_insert(host);
+        }
+        for (name, settings) in inner.diagram.groups {
+            self.flat.groups.insert(prefix(&name), settings);
+        }
+        self.instances.insert(
+            component.id.clone(),
+            Instance {
+                file: component.type_name.clone(),
+                exposes: prefixed(&exposes, &component.id),
+            },
+        );
+    }
+
+    /// The subgraph `component` names, read and flattened, with where its inner components came from;
+    /// `None` (and the problem noted) when it cannot be.
+    fn subgraph(
+        &mut self,
+        component: &crate::model::ComponentInstance,
+        type_at: Option<Location>,
+    ) -> Option<(ParsedDiagram, Origins)> {
+        let path = normal(&self.folder.join(&component.type_name));
+        if let Some(first) = self.chain.iter().position(|p| *p == path) {
+            let mut names: Vec<String> = self.chain[first..]
+                .iter()
+                .map(|p| {
+                    p.file_name()
+                        .map_or_else(String::new, |n| n.to_string_lossy().into_owned())
+                })
+                .collect();
+            names.push(component.type_name.clone());
+            let message = format!(
+                "subgraph '{}' includes itself: {}",
+                component.type_name,
+                names.join(" → ")
+            );
+            self.problems
+                .push(Diagnostic::error(DiagnosticCode::InvalidSubgraph, message).at(type_at));
+            return None;
+        }
+        let text = match (self.read)(&path) {
+            Ok(text) => text,
+            Err(why) => {
+                let folder = if self.folder.as_os_str().is_empty() {
+                    ".".to_owned()
+                } else {
+                    self.folder.display().to_string()
+                };
+                self.problems.push(
+                    Diagnostic::error(
+                        DiagnosticCode::InvalidSubgraph,
+                        format!("cannot read subgraph '{}': {why}", component.type_name),
+                    )
+                    .at(type_at)
+                    .with_suggestion(Some(format!(
+                        "the path is relative to this diagram's folder ({folder})"
+                    ))),
+                );
+                return None;
+            }
+        };
+        let chain: Vec<PathBuf> = self.chain.iter().cloned().chain([path.clone()]).collect();
+        let mut origins = Origins::default();
+        match parse(&text).and_then(|inner| expand(inner, &path, &chain, self.read, &mut origins)) {
+            Ok(inner) => Some((inner, origins)),
+            Err(inside) => {
+                self.problems.extend(
+                    inside
+                        .into_iter()
+                        .map(|d| from_inside(d, &component.type_name, type_at)),
+                );
+                None
+            }
+        }
+    }
+
+    /// A link of the diagram, its ends on subgraph instances rewired to the inner ports they expose.
+    fn connection(&mut self, connection: &Connection, at: Option<ConnectionLocations>) {
+        let from = resolve(&connection.from, &self.instances, false, at.map(|l| l.from));
+        let to = resolve(&connection.to, &self.instances, true, at.map(|l| l.to));
+        match (from, to) {
+            (Ok(from), Ok(to)) => {
+                // An output is one port; an exposed input may feed several inner ones.
+                for from in &from {
+                    for to in &to {
+                        self.flat.connections.push(Connection {
+                            from: from.clone(),
+                            to: to.clone(),
+                            ..connection.clone()
+                        });
+                        self.flat_map.connections.extend(at);
+                    }
+                }
+            }
+            (from, to) => self.problems.extend(from.err().into_iter().chain(to.err())),
+        }
+    }
+}
+
+/// An inner component's place in the including file: the instance's, so that what the validator finds
+/// about it points at the instance.
+fn inside_at(at: &ComponentLocations) -> ComponentLocations {
+    ComponentLocations {
+        properties: BTreeMap::new(),
+        outputs: BTreeMap::new(),
+        ..at.clone()
+    }
+}
+
+/// `exposes` with its inner ids under `instance/`.
+fn prefixed(exposes: &Exposes, instance: &str) -> Exposes {
+    let port = |p: &PortRef| PortRef::new(format!("{instance}/{}", p.component), p.port.clone());
+    let all = |targets: &BTreeMap<String, Vec<PortRef>>| -> BTreeMap<String, Vec<PortRef>> {
+        targets
+            .iter()
+            .map(|(n, ps)| (n.clone(), ps.iter().map(port).collect()))
+            .collect()
+    };
+    Exposes {
+        inputs: all(&exposes.inputs),
+        outputs: exposes
+            .outputs
+            .iter()
+            .map(|(n, p)| (n.clone(), port(p)))
+            .collect(),
+        properties: all(&exposes.properties),
+    }
+}
+
+/// Puts `inner` (a flattened subgraph) in place of `instance`: ids under `instance/`, the instance's
+/// properties on the inner properties they feed, its host, group and output settings on its parts.
+fn place_inside(
+    inner: &mut Diagram,
+    instance: &crate::model::ComponentInstance,
+    exposes: &Exposes,
+    at: Option<&ComponentLocations>,
+    problems: &mut Vec<Diagnostic>,
+) {
+    let prefix = |id: &str| format!("{}/{id}", instance.id);
+    for (name, value) in &instance.properties {
+        let Some(targets) = exposes.properties.get(name) else {
+            let names: Vec<&str> = exposes.properties.keys().map(String::as_str).collect();
+            problems.push(
+                Diagnostic::error(
+                    DiagnosticCode::InvalidSubgraph,
+                    format!(
+                        "subgraph '{}' exposes no property '{name}' (it exposes {})",
+                        instance.type_name,
+                        listed(&names)
+                    ),
+                )
+                .at(at.and_then(|l| l.properties.get(name)).map(|e| e.key))
+                .with_suggestion(did_you_mean(name, names.iter().copied())),
+            );
+            continue;
+        };
+        for target in targets {
+            if let Some(component) = inner.component_mut(&target.component) {
+                component.properties.insert(target.port.clone(), value.clone());
+            }
+        }
+    }
+    for (name, settings) in &instance.outputs {
+        match exposes.outputs.get(name) {
+            Some(target) => {
+                if let Some(component) = inner.component_mut(&target.component) {
+                    component.outputs.insert(target.port.clone(), settings.clone());
+                }
+            }
+            None => problems.push(
+                Diagnostic::error(
+                    DiagnosticCode::InvalidSubgraph,
+                    format!(
+                        "subgraph '{}' exposes no output '{name}' to set",
+                        instance.type_name
+                    ),
+                )
+                .at(at.and_then(|l| l.outputs.get(name)).map(|o| o.key)),
+            ),
+        }
+    }
+    let sequential = inner.sequential.then(|| prefix(crate::model::SEQUENTIAL_GROUP));
+    for component in &mut inner.components {
+        component.id = prefix(&component.id);
+        if component.host.is_none() {
+            component.host.clone_from(&instance.host);
+        }
+        component.group = match component.group.take() {
+            Some(group) => Some(prefix(&group)),
+            None => sequential.clone().or_else(|| instance.group.clone()),
+        };
+        if component.thread == crate::model::ThreadSettings::default() {
+            component.thread = instance.thread.clone();
+        }
+    }
+    for connection in &mut inner.connections {
+        connection.from.component = prefix(&connection.from.component);
+        connection.to.component = prefix(&connection.to.component);
+    }
+}
+
+/// The inner ports a link's end stands for: itself, or, on a subgraph instance, the inner inputs (one
+/// or several) or the inner output its name exposes.
+fn resolve(
+    port: &PortRef,
+    instances: &BTreeMap<String, Instance>,
+    input: bool,
+    at: Option<Location>,
+) -> Result<Vec<PortRef>, Diagnostic> {
+    let Some(instance) = instances.get(&port.component) else {
+        return Ok(vec![port.clone()]);
+    };
+    let (found, names, what) = if input {
+        (
+            instance.exposes.inputs.get(&port.port).cloned(),
+            instance
+                .exposes
+                .inputs
+                .keys()
+                .map(String::as_str)
+                .collect::<Vec<_>>(),
+            "input",
+        )
+    } else {
+        (
+            instance.exposes.outputs.get(&port.port).map(|p| vec![p.clone()]),
+            instance.exposes.outputs.keys().map(String::as_str).collect(),
+            "output",
+        )
+    };
+    found.ok_or_else(|| {
+        Diagnostic::error(
+            DiagnosticCode::InvalidSubgraph,
+            format!(
+                "'{}' (subgraph '{}') exposes no {what} '{}' (it exposes {})",
+                port.component,
+                instance.file,
+                port.port,
+                listed(&names)
+            ),
+        )
+        .at(at)
+        .with_suggestion(did_you_mean(&port.port, names.iter().copied()))
+    })
+}
+
+/// Rewrites the diagram's own `exposes` through the instances it uses, and checks that each names a
+/// component it has and that no inner input or property is exposed under two names.
+fn check_exposes(
+    parsed: &mut ParsedDiagram,
+    instances: &BTreeMap<String, Instance>,
+) -> Result<(), Diagnostic> {
+    let Some(exposes) = parsed.diagram.exposes.take() else {
+        return Ok(());
+    };
+    let places = parsed.source_map.exposes.clone().unwrap_or_default();
+    let diagram = &parsed.diagram;
+    let mut resolved = Exposes::default();
+    for (name, port) in &exposes.outputs {
+        let at = places.outputs.get(name).map(|e| e.value);
+        for port in resolve(port, instances, false, at)? {
+            exists(diagram, "output", name, &port, at)?;
+            resolved.outputs.insert(name.clone(), port);
+        }
+    }
+    resolved.inputs = exposed_targets(diagram, instances, "input", &exposes.inputs, &places.inputs)?;
+    resolved.properties = exposed_targets(
+        diagram,
+        instances,
+        "property",
+        &exposes.properties,
+        &places.properties,
+    )?;
+    parsed.diagram.exposes = Some(resolved);
+    Ok(())
+}
+
+/// An error unless the diagram has the component `port` names.
+fn exists(
+    diagram: &Diagram,
+    what: &str,
+    name: &str,
+    port: &PortRef,
+    at: Option<Location>,
+) -> Result<(), Diagnostic> {
+    if diagram.component(&port.component).is_some() {
+        return Ok(());
+    }
+    Err(Diagnostic::error(
+        DiagnosticCode::InvalidSubgraph,
+        format!(
+            "exposed {what} '{name}' names '{port}', but the diagram has no component '{}'",
+            port.component
+        ),
+    )
+    .at(at))
+}
+
+/// Exposed inputs or properties, each name's targets resolved through the instances inside (whose
+/// exposed names they may use), each inner target exposed under one name only.
+fn exposed_targets(
+    diagram: &Diagram,
+    instances: &BTreeMap<String, Instance>,
+    what: &str,
+    targets_by_name: &BTreeMap<String, Vec<PortRef>>,
+    places: &BTreeMap<String, (Location, Vec<Location>)>,
+) -> Result<BTreeMap<String, Vec<PortRef>>, Diagnostic> {
+    let mut resolved = BTreeMap::new();
+    let mut fed: BTreeMap<String, &str> = BTreeMap::new();
+    for (name, targets) in targets_by_name {
+        let target_places = places.get(name).map(|(_, t)| t.as_slice()).unwrap_or_default();
+        let mut inner = Vec::new();
+        for (index, target) in targets.iter().enumerate() {
+            let at = target_places.get(index).copied();
+            let deeper = if let Some(instance) = instances.get(&target.component) {
+                let exposed = if what == "input" {
+                    instance.exposes.inputs.get(&target.port)
+                } else {
+                    instance.exposes.properties.get(&target.port)
+                };
+                exposed.cloned().ok_or_else(|| {
+                    Diagnostic::error(
+                        DiagnosticCode::InvalidSubgraph,
+                        format!(
+                            "exposed {what} '{name}' names '{target}', but '{}' (subgraph '{}') exposes no {what} '{}'",
+                            target.component, instance.file, target.port
+                        ),
+                    )
+                    .at(at)
+                })?
+            } else {
+                exists(diagram, what, name, target, at)?;
+                vec![target.clone()]
+            };
+            for target in deeper {
+                let key = target.to_string();
+                if let Some(first) = fed.get(&key) {
+                    return Err(Diagnostic::error(
+                        DiagnosticCode::InvalidSubgraph,
+                        format!("'{key}' is exposed twice: as '{first}' and as '{name}'"),
+                    )
+                    .at(at)
+                    .with_suggestion(Some(format!(
+                        "expose each inner {what} under one name; a name may feed several"
+                    ))));
+                }
+                fed.insert(key, name);
+                inner.push(target);
+            }
+        }
+        resolved.insert(name.clone(), inner);
+    }
+    Ok(resolved)
+}
+
+/// A problem found inside a subgraph, reported at the instance (`at`) that uses it, its message naming
+/// the place inside.
+fn from_inside(inside: Diagnostic, file: &str, at: Option<Location>) -> Diagnostic {
+    let place = inside
+        .location
+        .map_or_else(String::new, |l| format!(":{}:{}", l.line, l.column));
+    let notes = inside
+        .notes
+        .into_iter()
+        .map(|note| Note {
+            message: match note.location {
+                Some(l) => format!("{} ({file}:{}:{})", note.message, l.line, l.column),
+                None => note.message,
+            },
+            location: None,
+        })
+        .collect();
+    Diagnostic {
+        message: format!("in {file}{place}: {}", inside.message),
+        location: at,
+        notes,
+        ..inside
+    }
+}
+
+fn listed(names: &[&str]) -> String {
+    if names.is_empty() {
+        "none".to_owned()
+    } else {
+        names.join(", ")
+    }
+}
+
+/// The most subgraph files one diagram may read (each instance reads its file): far beyond a real
+/// rig, and a bound on a diagram that fans out through its includes.
+pub const MAX_SUBGRAPH_READS: usize = 10_000;
+
+/// Loads a diagram file and flattens its subgraphs, read beside the files that use them. Problems
+/// found while flattening are located in the file loaded, as a parse error is.
+pub fn load_flattened(path: &Path) -> Result<(String, Flattened), LoadError> {
+    let (text, parsed) = crate::read::load(path)?;
+    match flatten(parsed, path, &mut from_files(MAX_SUBGRAPH_READS)) {
+        Ok(flat) => Ok((text, flat)),
+        Err(diagnostics) => Err(LoadError::Invalid {
+            path: path.to_owned(),
+            text,
+            diagnostics,
+        }),
+    }
+}
+
+/// Reads subgraph files from the file system, refusing more than `limit` of them in one diagram (an
+/// include that fans out without end).
+pub fn from_files(limit: usize) -> impl FnMut(&Path) -> Result<String, String> {
+    let mut count = 0_usize;
+    move |path: &Path| {
+        count += 1;
+        if count > limit {
+            return Err(format!("more than {limit} subgraph instances in one diagram"));
+        }
+        std::fs::read_to_string(path).map_err(|e| e.to_string())
+    }
+}
