@@ -612,6 +612,113 @@ fn listed(names: &[&str]) -> String {
     }
 }
 
+/// What an instance of the subgraph in `file` looks like from outside, as a component type: its exposed
+/// inputs, outputs and properties, each described as the inner port or property it stands for (an
+/// output whose type follows an inner input follows the exposed input feeding it). `library` describes
+/// the inner components; the description names a problem with the file as text. With it, what the
+/// subgraph exposes, in the flat ids of its inside (`overlay.out`, `inner/edges.low`).
+pub fn describe(
+    file: &Path,
+    type_name: &str,
+    library: &crate::LibraryInfo,
+) -> Result<(crate::ComponentInfo, Exposes), String> {
+    let (text, flattened) = load_flattened(file).map_err(|error| error.to_string())?;
+    let diagram = &flattened.parsed.diagram;
+    let exposes = diagram.exposes.clone().unwrap_or_default();
+    let info_of = |port: &PortRef| {
+        diagram
+            .component(&port.component)
+            .and_then(|c| library.component_of(c))
+            .ok_or_else(|| {
+                format!(
+                    "{}: '{}' is of a type this library lacks",
+                    file.display(),
+                    port.component
+                )
+            })
+    };
+    let mut info = crate::ComponentInfo {
+        type_name: type_name.to_owned(),
+        pack: String::new(),
+        label: file
+            .file_stem()
+            .map_or_else(String::new, |stem| stem.to_string_lossy().replace('_', " ")),
+        category: "subgraphs".to_owned(),
+        // The file's first comment line says what it is.
+        doc: text
+            .lines()
+            .find_map(|line| line.trim().strip_prefix("//"))
+            .map_or_else(String::new, |line| line.trim().to_owned()),
+        mode: crate::ExecutionMode::Threaded,
+        inputs: Vec::new(),
+        outputs: Vec::new(),
+        properties: Vec::new(),
+        actions: Vec::new(),
+        time_source: false,
+        blocking: None,
+    };
+    for (name, targets) in &exposes.inputs {
+        let Some(first) = targets.first() else { continue };
+        let inner = info_of(first)?;
+        let mut input = inner.input(&first.port).cloned().ok_or_else(|| {
+            format!(
+                "exposed input '{name}': '{}' has no input '{}'",
+                first.component, first.port
+            )
+        })?;
+        input.name.clone_from(name);
+        info.inputs.push(input);
+    }
+    for (name, port) in &exposes.outputs {
+        let inner = info_of(port)?;
+        let mut output = inner.output(&port.port).cloned().ok_or_else(|| {
+            format!(
+                "exposed output '{name}': '{}' has no output '{}'",
+                port.component, port.port
+            )
+        })?;
+        output.name.clone_from(name);
+        match crate::validate::output_type(diagram, port, |c| library.component_of(c)) {
+            Some(data_type) => {
+                output.data_type = data_type;
+                output.follows_input = None;
+            }
+            None => {
+                // Fed from outside: it follows the exposed input that feeds the inner one it follows.
+                output.follows_input = output.follows_input.as_ref().and_then(|inner_input| {
+                    let fed = PortRef::new(port.component.clone(), inner_input.clone());
+                    exposes
+                        .inputs
+                        .iter()
+                        .find(|(_, targets)| targets.contains(&fed))
+                        .map(|(outer, _)| outer.clone())
+                });
+            }
+        }
+        info.outputs.push(output);
+    }
+    for (name, targets) in &exposes.properties {
+        let Some(first) = targets.first() else { continue };
+        let inner = info_of(first)?;
+        let mut property = inner.property(&first.port).cloned().ok_or_else(|| {
+            format!(
+                "exposed property '{name}': '{}' has no property '{}'",
+                first.component, first.port
+            )
+        })?;
+        // Its default is what the subgraph sets inside, if it sets it.
+        if let Some(set) = diagram
+            .component(&first.component)
+            .and_then(|c| c.properties.get(&first.port))
+        {
+            property.default = set.clone();
+        }
+        property.name.clone_from(name);
+        info.properties.push(property);
+    }
+    Ok((info, exposes))
+}
+
 /// The most subgraph files one diagram may read (each instance reads its file): far beyond a real
 /// rig, and a bound on a diagram that fans out through its includes.
 pub const MAX_SUBGRAPH_READS: usize = 10_000;

@@ -165,6 +165,7 @@ impl StudioApp {
         self.connection.poll(&mut self.session);
         self.connection.poll_restart(&ctx, &mut self.session);
         self.session.describe_instances();
+        self.session.describe_subgraphs();
         shortcuts(&ctx, &mut self.commands);
         crate::canvas::zoom_in_fine_steps(&ctx);
         if ctx.input(|i| i.viewport().close_requested()) && !self.quitting && self.session.document.is_dirty()

@@ -22,6 +22,20 @@ use crate::monitor::Monitor;
 use crate::settings::Settings;
 use crate::viewers::Viewers;
 
+/// Subgraph instances as the studio described them from their files, and what from: the document's
+/// folder, each instance's id and type, and how many component types the library had.
+#[derive(Debug, Default)]
+struct Subgraphs {
+    key: (PathBuf, Vec<(String, String)>, usize),
+    infos: BTreeMap<String, kairos_diagram::ComponentInfo>,
+    /// Each exposed output (`front.out`) → the inner output it is in the flat diagram the runtime runs
+    /// (`front/overlay.out`): viewers subscribe to the one and show the other.
+    outputs: BTreeMap<String, String>,
+    /// Each exposed property (`front.edge_low`) → the inner properties it sets in the flat diagram
+    /// (`front/edges`, `low`): a live change is sent to each.
+    properties: BTreeMap<String, Vec<(String, String)>>,
+}
+
 /// The player of a diagram made to replay a recording.
 const REPLAY_PLAYER: &str = "player";
 
@@ -223,6 +237,8 @@ pub struct Session {
     /// The diagram the runtime holds, as deployed and changed live since.
     deployed: Option<kairos_diagram::Diagram>,
     described: Described,
+    /// The subgraph instances described from their files, and what that description was made from.
+    subgraphs: Subgraphs,
     startup: Startup,
     frames: FramePath,
     effects: Vec<Effect>,
@@ -294,6 +310,7 @@ impl Session {
             deploy: Deploy::default(),
             deployed: None,
             described: Described::default(),
+            subgraphs: Subgraphs::default(),
             startup: Startup::default(),
             frames: FramePath::Socket,
             effects: Vec::new(),
@@ -429,7 +446,18 @@ impl Session {
             ClientEvent::Reply(reply) => self.take_reply(reply),
             ClientEvent::Telemetry(telemetry) => self.take_telemetry(&telemetry),
             ClientEvent::Log(record) => self.take_log(record),
-            ClientEvent::Sample(header, payload) => self.viewers.receive(&header, &payload),
+            ClientEvent::Sample(mut header, payload) => {
+                // A subgraph's exposed output, as its viewers name it.
+                if let Some((exposed, _)) = self
+                    .subgraphs
+                    .outputs
+                    .iter()
+                    .find(|(_, inner)| **inner == header.output)
+                {
+                    header.output.clone_from(exposed);
+                }
+                self.viewers.receive(&header, &payload);
+            }
             ClientEvent::SharedMemory(Ok(())) => {}
             ClientEvent::SharedMemory(Err(error)) => self.socket_instead(&error),
             ClientEvent::Disconnected(reason) => {
@@ -669,6 +697,8 @@ impl Session {
             (Some(Pending::Describe), ReplyBody::DescribeInstances(described)) => {
                 self.described.awaiting = false;
                 self.library.instances = described.instances;
+                // The runtime does not read subgraph files: the studio's descriptions of them stay.
+                self.library.instances.extend(self.subgraphs.infos.clone());
                 for (id, problem) in described.problems {
                     self.note(LogLevel::Error, format!("{id}: {}", problem.message));
                 }
@@ -765,20 +795,46 @@ impl Session {
 
     /// Deploys the document and starts it once the runtime accepts it.
     pub fn deploy_and_start(&mut self) {
+        // Token files, certificates and subgraph files beside the diagram, when the runtime sees this
+        // machine's files.
+        let folder = (self.frames != FramePath::Socket)
+            .then(|| self.document.path().and_then(Path::parent))
+            .flatten()
+            .map(Path::to_owned);
+        let mut text = self.document.diagram().to_ron();
+        // A runtime that cannot read the subgraph files (on another machine) is sent the diagram flat.
+        if folder.is_none() && kairos_diagram::subgraph::uses_subgraphs(self.document.diagram()) {
+            let file = self
+                .document
+                .path()
+                .map_or_else(|| PathBuf::from("untitled.ron"), Path::to_owned);
+            let parsed = kairos_diagram::parse(&text)
+                .map_err(|problems| problems.iter().map(ToString::to_string).collect::<Vec<_>>());
+            let flat = parsed.and_then(|parsed| {
+                let mut read =
+                    kairos_diagram::subgraph::from_files(kairos_diagram::subgraph::MAX_SUBGRAPH_READS);
+                kairos_diagram::flatten(parsed, &file, &mut read)
+                    .map_err(|problems| problems.iter().map(ToString::to_string).collect())
+            });
+            match flat {
+                Ok(flat) => text = flat.parsed.diagram.to_ron(),
+                Err(problems) => {
+                    for problem in problems {
+                        self.note(LogLevel::Error, problem);
+                    }
+                    return;
+                }
+            }
+        }
         self.deploy = Deploy {
-            text: self.document.diagram().to_ron(),
+            text,
             start_after: true,
         };
         self.request_for(
             RequestBody::Deploy {
                 diagram: self.deploy.text.clone(),
                 network: None,
-                // Token files and certificates of the hosts beside the diagram, when the runtime sees
-                // this machine's files.
-                folder: (self.frames != FramePath::Socket)
-                    .then(|| self.document.path().and_then(Path::parent))
-                    .flatten()
-                    .map(|folder| folder.display().to_string()),
+                folder: folder.map(|folder| folder.display().to_string()),
             },
             Pending::Deploy,
         );
@@ -814,6 +870,76 @@ impl Session {
             },
             Pending::Describe,
         );
+    }
+
+    /// Describes each subgraph instance (a component whose type is a diagram file) from its file, read
+    /// beside the document, whenever the instances, the document's file or the library changed: the
+    /// canvas then shows its exposed ports and the inspector its exposed properties. A subgraph that
+    /// cannot be described is said in the log once.
+    pub fn describe_subgraphs(&mut self) {
+        let diagram = self.document.diagram();
+        let any = diagram
+            .components
+            .iter()
+            .any(|c| kairos_diagram::is_subgraph_type(&c.type_name));
+        if (!any && self.subgraphs.key.1.is_empty()) || self.library.components.is_empty() {
+            return;
+        }
+        let folder = self
+            .document
+            .path()
+            .and_then(Path::parent)
+            .map_or_else(|| PathBuf::from("."), Path::to_owned);
+        let instances: Vec<(String, String)> = self
+            .document
+            .diagram()
+            .components
+            .iter()
+            .filter(|c| kairos_diagram::is_subgraph_type(&c.type_name))
+            .map(|c| (c.id.clone(), c.type_name.clone()))
+            .collect();
+        let key = (folder.clone(), instances, self.library.components.len());
+        if key == self.subgraphs.key {
+            return;
+        }
+        for id in self.subgraphs.infos.keys() {
+            self.library.instances.remove(id);
+        }
+        let mut infos = BTreeMap::new();
+        let mut outputs = BTreeMap::new();
+        let mut properties = BTreeMap::new();
+        let mut problems = Vec::new();
+        for (id, type_name) in &key.1 {
+            match kairos_diagram::subgraph::describe(&folder.join(type_name), type_name, &self.library) {
+                Ok((info, exposes)) => {
+                    infos.insert(id.clone(), info);
+                    for (name, inner) in exposes.outputs {
+                        outputs.insert(
+                            format!("{id}.{name}"),
+                            format!("{id}/{}.{}", inner.component, inner.port),
+                        );
+                    }
+                    for (name, targets) in exposes.properties {
+                        let flat = targets
+                            .into_iter()
+                            .map(|t| (format!("{id}/{}", t.component), t.port))
+                            .collect();
+                        properties.insert(format!("{id}.{name}"), flat);
+                    }
+                }
+                Err(why) => problems.push(format!("{id}: subgraph {type_name}: {why}")),
+            }
+        }
+        self.library.instances.extend(infos.clone());
+        self.subgraphs = Subgraphs {
+            key,
+            infos,
+            outputs,
+            properties,
+        };
+        for problem in problems {
+            self.note(LogLevel::Warn, problem);
+        }
     }
 
     /// A diagram replaying `file`, which `recorder` wrote: a player on it, held at its end so that it
@@ -888,6 +1014,8 @@ impl Session {
     /// What the command line asked for, once the library is known: viewers (`a.out+b.out` draws `b.out`
     /// over `a.out`'s viewer), and a run.
     fn start_up(&mut self) {
+        // Subgraphs' exposed outputs are outputs to view too.
+        self.describe_subgraphs();
         let Startup { views, run } = std::mem::take(&mut self.startup);
         for view in views {
             let mut outputs = view.split('+').map(str::to_owned);
@@ -938,10 +1066,12 @@ impl Session {
         // Only what the runtime runs: a viewer of a diagram not deployed yet (opened, or made to replay
         // a recording, while the last one is still deployed) subscribes once its diagram is.
         let deployed = self.deployed.as_ref();
+        let flat = &self.subgraphs.outputs;
         let outputs: Vec<String> = self
             .viewers
             .outputs()
             .into_iter()
+            .map(|output| flat.get(&output).cloned().unwrap_or(output))
             .filter(|output| {
                 deployed.is_none_or(|diagram| {
                     // An inner output of a subgraph (`front/edges.out`) runs when its instance does.
@@ -1004,11 +1134,21 @@ impl Session {
             if let Some(c) = self.deployed.as_mut().and_then(|d| d.component_mut(component)) {
                 c.properties.insert(property.to_owned(), value.clone());
             }
-            self.request(RequestBody::SetProperty {
-                component: component.to_owned(),
-                property: property.to_owned(),
-                value,
-            });
+            // A subgraph's exposed property is each inner property it feeds, in the flat diagram run.
+            let targets = self
+                .subgraphs
+                .properties
+                .get(&format!("{component}.{property}"))
+                .cloned()
+                .unwrap_or_else(|| vec![(component.to_owned(), property.to_owned())]);
+            let values = vec![value; targets.len()];
+            for ((component, property), value) in targets.into_iter().zip(values) {
+                self.request(RequestBody::SetProperty {
+                    component,
+                    property,
+                    value,
+                });
+            }
         } else if running {
             self.note(
                 LogLevel::Info,

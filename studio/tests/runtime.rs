@@ -507,6 +507,69 @@ fn a_newcomer_records_replays_saves_and_reopens_with_the_viewers() {
     assert_eq!(shown(reopened.state()), replay_viewers);
 }
 
+/// A diagram using a subgraph twice, in the studio: each instance shows the ports its file exposes,
+/// runs flat on the runtime, its exposed output is viewed and its exposed property changed live.
+#[test]
+fn a_subgraph_instance_shows_its_exposed_ports_runs_and_is_viewed_and_set_live() {
+    let dir = tempfile::tempdir().unwrap();
+    let examples = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../examples/subgraph");
+    for file in ["two_cameras.ron", "lane_pipeline.ron"] {
+        std::fs::copy(examples.join(file), dir.path().join(file)).unwrap();
+    }
+    let document = Document::open(&dir.path().join("two_cameras.ron")).unwrap();
+    let mut harness = studio_on_local_runtime(document, Vec2::new(1400.0, 900.0));
+    run_until(&mut harness, "the subgraphs described", |app| {
+        app.session
+            .library
+            .instances
+            .get("front")
+            .is_some_and(|info| info.outputs.len() == 2)
+    });
+    harness.run_steps(2);
+    let front = harness.state().session.library.instances["front"].clone();
+    let names = |ports: Vec<&str>| ports.join(" ");
+    assert_eq!(
+        names(front.inputs.iter().map(|i| i.name.as_str()).collect()),
+        "image"
+    );
+    assert_eq!(
+        names(front.outputs.iter().map(|o| o.name.as_str()).collect()),
+        "lines out"
+    );
+    let properties: Vec<&str> = front.properties.iter().map(|p| p.name.as_str()).collect();
+    assert_eq!(properties, ["edge_high", "edge_low", "label"]);
+    // On the canvas, with its ports and the camera's link into it.
+    assert!(harness.query_by_label("output front.out (image)").is_some());
+    assert!(harness.query_by_label("input front.image (image)").is_some());
+
+    open_viewer(&mut harness, "output front.out (image)", "Open a viewer (image)");
+    harness.get_by_label("Run").click();
+    harness.run_steps(1);
+    run_until(&mut harness, "the front pipeline's frames", |app| {
+        app.session.viewers.list[0].texture_size() == Some([640, 480])
+    });
+    harness
+        .state_mut()
+        .session
+        .set_property("front", "edge_low", kairos_diagram::Value::F64(30.0));
+    let started = Instant::now();
+    while started.elapsed() < Duration::from_millis(500) {
+        std::thread::sleep(Duration::from_millis(20));
+        harness.run_steps(1);
+    }
+    let errors: Vec<String> = harness
+        .state()
+        .session
+        .log
+        .lines()
+        .filter(|l| l.level == kairos_protocol::LogLevel::Error)
+        .map(|l| l.text.clone())
+        .collect();
+    assert!(errors.is_empty(), "{errors:?}");
+    harness.get_all_by_label("Stop").next().unwrap().click();
+    harness.run_steps(1);
+}
+
 /// The status a component publishes, from the latest telemetry.
 fn status(app: &StudioApp, id: &str, key: &str) -> Option<serde_json::Value> {
     app.session
