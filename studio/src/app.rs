@@ -53,6 +53,8 @@ pub struct StudioApp {
     quitting: bool,
     /// The example diagrams an empty canvas offers.
     examples: Vec<crate::examples::Example>,
+    /// The diagrams the open one was entered from, outermost first (double-clicking a subgraph).
+    breadcrumb: Vec<PathBuf>,
     /// The window title last sent: egui repaints after every viewport command, so sending the title each
     /// frame would keep the studio drawing for ever.
     window_title: String,
@@ -94,6 +96,7 @@ impl StudioApp {
             clipboard: Vec::new(),
             commands: Vec::new(),
             quitting: false,
+            breadcrumb: Vec::new(),
             examples: crate::examples::folder()
                 .map(|folder| crate::examples::in_folder(&folder))
                 .unwrap_or_default(),
@@ -262,6 +265,17 @@ impl StudioApp {
                 not_applied_ui(ui, &not_applied, &mut self.commands);
             });
         }
+        // Inside a subgraph: the way back out, each diagram a link.
+        if !self.breadcrumb.is_empty() {
+            egui::Panel::top("breadcrumb").show(ui, |ui| {
+                breadcrumb_ui(
+                    ui,
+                    &self.breadcrumb,
+                    self.session.document.path(),
+                    &mut self.commands,
+                );
+            });
+        }
         // Problems in a strip over the canvas rather than on it: they never cover a node.
         if self.session.monitor.has_notices() {
             egui::Panel::top("notices").show(ui, |ui| self.session.monitor.show_notices(ui));
@@ -287,6 +301,14 @@ impl StudioApp {
             }
             if let Some((output, publish)) = canvas.take_foxglove_request() {
                 session.publish_to_foxglove(&output.to_string(), publish);
+            }
+            if let Some(file) = canvas.take_subgraph_request() {
+                let folder = session
+                    .document
+                    .path()
+                    .and_then(std::path::Path::parent)
+                    .map_or_else(|| PathBuf::from("."), std::path::Path::to_owned);
+                commands.push(Command::OpenSubgraph(folder.join(file)));
             }
         });
         let choices = self.session.outputs_with_types();
@@ -355,6 +377,8 @@ impl StudioApp {
             Command::NewDiagram => self.unless_unsaved(AfterDiscard::New),
             Command::OpenDiagram => self.choose_file(Purpose::OpenDiagram),
             Command::OpenFile(path) => self.unless_unsaved(AfterDiscard::Open(path)),
+            Command::OpenSubgraph(path) => self.unless_unsaved(AfterDiscard::Inside(path)),
+            Command::BackTo(depth) => self.unless_unsaved(AfterDiscard::Back(depth)),
             Command::Save => self.save(),
             Command::SaveAs => self.choose_file(Purpose::SaveDiagram),
             Command::Quit => self.unless_unsaved(AfterDiscard::Quit),
@@ -510,20 +534,34 @@ impl StudioApp {
     fn proceed(&mut self, after: AfterDiscard) {
         match after {
             AfterDiscard::New => {
+                self.breadcrumb.clear();
                 self.session.document = Document::default();
                 self.session.restore_viewers();
                 self.session.document_replaced();
                 self.canvas = Canvas::default();
             }
             AfterDiscard::Open(path) => {
-                if self.session.open(&path) {
-                    self.session.document_replaced();
-                    self.canvas = Canvas::default();
-                    self.canvas.fit(&self.session.document, &self.session.library);
+                self.breadcrumb.clear();
+                self.open(&path);
+            }
+            AfterDiscard::Inside(path) => {
+                let outside = self.session.document.path().map(std::path::Path::to_owned);
+                if self.open(&path)
+                    && let Some(outside) = outside
+                {
+                    self.breadcrumb.push(outside);
+                }
+            }
+            AfterDiscard::Back(depth) => {
+                if let Some(path) = self.breadcrumb.get(depth).cloned()
+                    && self.open(&path)
+                {
+                    self.breadcrumb.truncate(depth);
                 }
             }
             AfterDiscard::Quit => self.quitting = true,
             AfterDiscard::Unsaved(diagram) => {
+                self.breadcrumb.clear();
                 self.session.document = Document::unsaved(*diagram);
                 self.session.restore_viewers();
                 self.session.document_replaced();
@@ -531,6 +569,17 @@ impl StudioApp {
                 self.canvas.fit(&self.session.document, &self.session.library);
             }
         }
+    }
+
+    /// Opens the diagram at `path` in place of the open one; whether it opened.
+    fn open(&mut self, path: &std::path::Path) -> bool {
+        let opened = self.session.open(path);
+        if opened {
+            self.session.document_replaced();
+            self.canvas = Canvas::default();
+            self.canvas.fit(&self.session.document, &self.session.library);
+        }
+        opened
     }
 
     fn save(&mut self) {
@@ -596,6 +645,37 @@ impl StudioApp {
             self.session.document.remove_components(&ids);
         }
     }
+}
+
+/// `outer.ron › inner.ron`: the diagrams a subgraph was entered from, each a link back to it.
+fn breadcrumb_ui(
+    ui: &mut egui::Ui,
+    breadcrumb: &[PathBuf],
+    here: Option<&std::path::Path>,
+    commands: &mut Vec<Command>,
+) {
+    let name = |path: &std::path::Path| {
+        path.file_name().map_or_else(
+            || path.display().to_string(),
+            |n| n.to_string_lossy().into_owned(),
+        )
+    };
+    ui.horizontal(|ui| {
+        ui.weak("inside a subgraph:");
+        for (depth, outside) in breadcrumb.iter().enumerate() {
+            if ui
+                .link(name(outside))
+                .on_hover_text(format!("back to {}", outside.display()))
+                .clicked()
+            {
+                commands.push(Command::BackTo(depth));
+            }
+            ui.weak("›");
+        }
+        if let Some(here) = here {
+            ui.strong(name(here));
+        }
+    });
 }
 
 /// What an empty canvas says: how to begin, and the examples to open.

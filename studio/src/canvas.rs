@@ -134,6 +134,8 @@ pub struct Canvas {
     rubber_band: Option<RubberBand>,
     /// An output the user asked to watch, until the studio takes it.
     viewer_request: Option<ViewerRequest>,
+    /// A subgraph instance double-clicked: its file, as its type names it, to open.
+    subgraph_request: Option<String>,
     /// An output to publish to Foxglove (true) or no longer (false), asked in its context menu.
     foxglove_request: Option<(PortRef, bool)>,
     /// The size of the canvas on the screen last frame, to keep the zoom when it changes.
@@ -159,6 +161,7 @@ impl Default for Canvas {
             to_screen: egui::emath::TSTransform::IDENTITY,
             rubber_band: None,
             viewer_request: None,
+            subgraph_request: None,
             foxglove_request: None,
             view_size: None,
             fit_frames: 0,
@@ -558,7 +561,8 @@ impl Canvas {
                 .monitor
                 .components
                 .get(&component.id)
-                .map(|f| &f.latest),
+                .map(|f| &f.latest)
+                .or_else(|| frame.shown.monitor.subgraphs.get(&component.id)),
             detail: frame.detail,
             group: frame.diagram.group_of(component),
         };
@@ -597,6 +601,12 @@ impl Canvas {
         diagram: &Diagram,
         document: &mut Document,
     ) {
+        if response.double_clicked()
+            && let Some(c) = diagram.component(id)
+            && kairos_diagram::is_subgraph_type(&c.type_name)
+        {
+            self.subgraph_request = Some(c.type_name.clone());
+        }
         if response.clicked() {
             if !ui.input(|i| i.modifiers.shift || i.modifiers.command) {
                 self.selected.clear();
@@ -825,6 +835,11 @@ impl Canvas {
     /// The output the user asked to open a viewer on, with the viewer's kind, if any since the last call.
     pub fn take_viewer_request(&mut self) -> Option<ViewerRequest> {
         self.viewer_request.take()
+    }
+
+    /// The subgraph file (as its instance's type names it) the user double-clicked to go inside.
+    pub fn take_subgraph_request(&mut self) -> Option<String> {
+        self.subgraph_request.take()
     }
 
     /// An output to publish to Foxglove (true) or no longer (false), if one was asked for since the last call.

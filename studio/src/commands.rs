@@ -17,6 +17,10 @@ pub enum AfterDiscard {
     New,
     /// Open this file.
     Open(PathBuf),
+    /// Open this subgraph file, the open diagram going on the breadcrumb.
+    Inside(PathBuf),
+    /// Open the breadcrumb's diagram at this depth, dropping those after it.
+    Back(usize),
     /// Close the studio.
     Quit,
     /// Open this diagram, not yet saved (a replay of a recording just made).
@@ -32,6 +36,11 @@ pub enum Command {
     OpenDiagram,
     /// Open this file (asking first about unsaved changes).
     OpenFile(PathBuf),
+    /// Go inside a subgraph: open its file (asking first about unsaved changes), the diagram using it
+    /// kept in the breadcrumb to come back to.
+    OpenSubgraph(PathBuf),
+    /// Back out of a subgraph to the diagram at this depth of the breadcrumb.
+    BackTo(usize),
     /// Save the diagram (asking for a file when it has none).
     Save,
     /// The file chooser, to save the diagram under another name.

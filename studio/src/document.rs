@@ -165,10 +165,14 @@ impl Document {
         library: &LibraryInfo,
         position: Position,
     ) -> String {
-        let base = info
-            .type_name
-            .rsplit('.')
-            .next()
+        // `core.sine` → `sine1`; a subgraph's file `lane_pipeline.ron` → `lane_pipeline1`.
+        let name = if kairos_diagram::is_subgraph_type(&info.type_name) {
+            info.type_name.trim_end_matches(".ron").rsplit('/').next()
+        } else {
+            info.type_name.rsplit('.').next()
+        };
+        let base = name
+            .filter(|n| kairos_diagram::is_valid_id(n))
             .unwrap_or("component")
             .to_owned();
         let id = fresh_id(&self.diagram, &base);

@@ -78,6 +78,9 @@ pub struct Monitor {
     pub cross_links: BTreeMap<String, kairos_protocol::CrossLinkTelemetry>,
     /// Each execution group's latest figures, by name.
     pub groups: BTreeMap<String, GroupTelemetry>,
+    /// Each subgraph instance's figures, rolled up from its inner components (`front/...`): cycles,
+    /// missed ticks and CPU added, the fastest rate, the worst state.
+    pub subgraphs: BTreeMap<String, ComponentTelemetry>,
     /// How many times each component failed in this deployment.
     failures: BTreeMap<String, u64>,
     /// The hosts not answering now, and how many times each was lost or each link cut.
@@ -89,6 +92,45 @@ pub struct Monitor {
     descending: bool,
 }
 
+/// The figures of each subgraph instance, from its inner components' (ids `instance/...`, nested ones
+/// counted in their outermost instance).
+pub fn rolled_up(components: &[ComponentTelemetry]) -> BTreeMap<String, ComponentTelemetry> {
+    use kairos_protocol::ComponentState;
+    // Which state a subgraph shows: a failed part fails it, a running part makes it run.
+    let rank = |state: ComponentState| match state {
+        ComponentState::Failed => 5,
+        ComponentState::Running => 4,
+        ComponentState::Paused => 3,
+        ComponentState::Idle => 2,
+        ComponentState::Finished => 1,
+        ComponentState::Stopped | ComponentState::Unknown => 0,
+    };
+    let mut rolled: BTreeMap<String, ComponentTelemetry> = BTreeMap::new();
+    for inner in components {
+        let Some((instance, _)) = inner.id.split_once('/') else {
+            continue;
+        };
+        let Some(sum) = rolled.get_mut(instance) else {
+            let mut first = inner.clone();
+            instance.clone_into(&mut first.id);
+            first.status = None;
+            first.group = None;
+            first.error = first.error.map(|e| format!("{}: {e}", inner.id));
+            rolled.insert(instance.to_owned(), first);
+            continue;
+        };
+        sum.cycles += inner.cycles;
+        sum.missed_ticks += inner.missed_ticks;
+        sum.cpu_share += inner.cpu_share;
+        sum.cycle_rate_hz = sum.cycle_rate_hz.max(inner.cycle_rate_hz);
+        if rank(inner.state) > rank(sum.state) {
+            sum.state = inner.state;
+            sum.error = inner.error.as_ref().map(|e| format!("{}: {e}", inner.id));
+        }
+    }
+    rolled
+}
+
 impl Default for Monitor {
     fn default() -> Self {
         Monitor {
@@ -97,6 +139,7 @@ impl Default for Monitor {
             notices: Notices::default(),
             cross_links: BTreeMap::new(),
             groups: BTreeMap::new(),
+            subgraphs: BTreeMap::new(),
             failures: BTreeMap::new(),
             lost_hosts: BTreeSet::new(),
             cut_links: BTreeSet::new(),
@@ -142,6 +185,7 @@ impl Monitor {
     /// problem and each end of one across hosts, and a link's losses again at most every few seconds.
     pub fn update(&mut self, telemetry: &Telemetry) -> Vec<(LogLevel, String)> {
         let now = Instant::now();
+        self.subgraphs = rolled_up(&telemetry.components);
         let mut raised = self.follow_hosts(telemetry);
         self.groups = telemetry
             .groups

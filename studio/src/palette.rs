@@ -17,7 +17,10 @@ fn capitalised(word: &str) -> String {
 /// A group's header: the category, and the pack when it says something more ("Generators (core)",
 /// "Sensors", never "Sensors (sensors)").
 pub fn group_header(pack: &str, category: &str) -> String {
-    if pack.eq_ignore_ascii_case(category) {
+    if pack.is_empty() {
+        // Subgraphs read from the diagram's folder belong to no pack.
+        format!("{} (beside the diagram)", capitalised(category))
+    } else if pack.eq_ignore_ascii_case(category) {
         capitalised(category)
     } else {
         format!("{} ({pack})", capitalised(category))

@@ -36,6 +36,36 @@ struct Subgraphs {
     properties: BTreeMap<String, Vec<(String, String)>>,
 }
 
+/// The diagram files in `folder` that expose something (subgraphs), but `document` itself: their
+/// types (file names) and paths, by name.
+fn subgraph_files(folder: &Path, document: Option<&Path>) -> Vec<(String, PathBuf)> {
+    // A diagram opened by a bare file name has an empty folder: the working one.
+    let folder = if folder.as_os_str().is_empty() {
+        Path::new(".")
+    } else {
+        folder
+    };
+    let document = document.and_then(|d| d.file_name()).map(|name| folder.join(name));
+    let Ok(entries) = std::fs::read_dir(folder) else {
+        return Vec::new();
+    };
+    let mut found: Vec<(String, PathBuf)> = entries
+        .map_while(Result::ok)
+        .map(|entry| entry.path())
+        .filter(|path| path.extension().is_some_and(|e| e == "ron") && Some(path) != document.as_ref())
+        .filter(|path| {
+            // A quick look before parsing: only subgraphs have an `exposes` section.
+            std::fs::read_to_string(path).is_ok_and(|text| {
+                text.contains("exposes")
+                    && kairos_diagram::parse(&text).is_ok_and(|p| p.diagram.exposes.is_some())
+            })
+        })
+        .filter_map(|path| Some((path.file_name()?.to_str()?.to_owned(), path)))
+        .collect();
+    found.sort();
+    found
+}
+
 /// The player of a diagram made to replay a recording.
 const REPLAY_PLAYER: &str = "player";
 
@@ -750,6 +780,12 @@ impl Session {
         for (level, notice) in self.monitor.update(telemetry) {
             self.note(level, notice);
         }
+        // A subgraph instance shows the state of its parts.
+        for (id, rolled) in &self.monitor.subgraphs {
+            self.states
+                .entry(id.clone())
+                .or_insert_with(|| NodeState::of(rolled));
+        }
     }
 
     /// How close to their master hosts' clocks must be for a start to go ahead; `None`: the runtime's
@@ -877,12 +913,7 @@ impl Session {
     /// canvas then shows its exposed ports and the inspector its exposed properties. A subgraph that
     /// cannot be described is said in the log once.
     pub fn describe_subgraphs(&mut self) {
-        let diagram = self.document.diagram();
-        let any = diagram
-            .components
-            .iter()
-            .any(|c| kairos_diagram::is_subgraph_type(&c.type_name));
-        if (!any && self.subgraphs.key.1.is_empty()) || self.library.components.is_empty() {
+        if self.library.components.is_empty() {
             return;
         }
         let folder = self
@@ -898,12 +929,27 @@ impl Session {
             .filter(|c| kairos_diagram::is_subgraph_type(&c.type_name))
             .map(|c| (c.id.clone(), c.type_name.clone()))
             .collect();
-        let key = (folder.clone(), instances, self.library.components.len());
+        let packs_components = self
+            .library
+            .components
+            .keys()
+            .filter(|t| !kairos_diagram::is_subgraph_type(t))
+            .count();
+        let key = (folder.clone(), instances, packs_components);
         if key == self.subgraphs.key {
             return;
         }
         for id in self.subgraphs.infos.keys() {
             self.library.instances.remove(id);
+        }
+        self.library
+            .components
+            .retain(|type_name, _| !kairos_diagram::is_subgraph_type(type_name));
+        // The palette offers the subgraphs beside the diagram: files there that expose something.
+        for (type_name, path) in subgraph_files(&folder, self.document.path()) {
+            if let Ok((info, _)) = kairos_diagram::subgraph::describe(&path, &type_name, &self.library) {
+                self.library.components.insert(type_name, info);
+            }
         }
         let mut infos = BTreeMap::new();
         let mut outputs = BTreeMap::new();

@@ -986,3 +986,66 @@ fn a_selection_is_put_in_an_execution_group_from_the_inspector_and_the_diagram_m
     assert!(harness.state().session.document.diagram().sequential);
     assert!(harness.state().session.document.is_dirty());
 }
+
+#[test]
+fn a_double_click_goes_inside_a_subgraph_and_the_breadcrumb_comes_back_out() {
+    let dir = tempfile::tempdir().unwrap();
+    let examples = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../examples/subgraph");
+    for file in ["two_cameras.ron", "lane_pipeline.ron"] {
+        std::fs::copy(examples.join(file), dir.path().join(file)).unwrap();
+    }
+    let outer = dir.path().join("two_cameras.ron");
+    let app = StudioApp::new(
+        Document::open(&outer).unwrap(),
+        library(),
+        None,
+        "no runtime (test)".to_owned(),
+        None,
+    );
+    // Frames at a desktop's pace: the two clicks of a double click come within its 0.3 s.
+    let mut harness = Harness::builder()
+        .with_size(Vec2::new(1280.0, 2400.0))
+        .with_step_dt(1.0 / 60.0)
+        .build_ui_state(|ui, app: &mut StudioApp| app.show(ui), app);
+    harness.run_steps(3);
+    // Described from its file: the instance has the ports its file exposes.
+    assert!(harness.query_by_label("output front.out (image)").is_some());
+
+    let at = on_canvas(&harness, "component front (lane_pipeline.ron)");
+    harness.hover_at(at);
+    harness.run_steps(1);
+    for pressed in [true, false, true, false] {
+        harness.event(egui::Event::PointerButton {
+            pos: at,
+            button: egui::PointerButton::Primary,
+            pressed,
+            modifiers: egui::Modifiers::NONE,
+        });
+    }
+    harness.run_steps(3);
+    let inside = harness
+        .state()
+        .session
+        .document
+        .path()
+        .map(std::path::Path::to_owned);
+    assert_eq!(inside, Some(dir.path().join("lane_pipeline.ron")));
+    assert!(
+        harness
+            .state()
+            .session
+            .document
+            .diagram()
+            .component("edges")
+            .is_some()
+    );
+
+    // The breadcrumb names the diagram it was entered from; a click goes back there.
+    harness.get_by_label("two_cameras.ron").click();
+    harness.run_steps(3);
+    assert_eq!(harness.state().session.document.path(), Some(outer.as_path()));
+    assert!(
+        harness.query_by_label("two_cameras.ron").is_none(),
+        "no breadcrumb at the top"
+    );
+}

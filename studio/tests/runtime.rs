@@ -541,6 +541,32 @@ fn a_subgraph_instance_shows_its_exposed_ports_runs_and_is_viewed_and_set_live()
     // On the canvas, with its ports and the camera's link into it.
     assert!(harness.query_by_label("output front.out (image)").is_some());
     assert!(harness.query_by_label("input front.image (image)").is_some());
+    // The palette offers the subgraph beside the diagram; dropped, it is one more instance.
+    assert!(harness.query_by_label("Subgraphs (beside the diagram)").is_some());
+    let from = harness.get_by_label("lane pipeline").rect().center();
+    drag(&mut harness, from, Pos2::new(700.0, 600.0));
+    let added = harness
+        .state()
+        .session
+        .document
+        .diagram()
+        .component("lane_pipeline1")
+        .map(|c| c.type_name.clone());
+    assert_eq!(added.as_deref(), Some("lane_pipeline.ron"));
+    run_until(&mut harness, "the new instance described", |app| {
+        app.session.library.instances.contains_key("lane_pipeline1")
+    });
+    harness.key_press_modifiers(egui::Modifiers::COMMAND, egui::Key::Z);
+    harness.run_steps(2);
+    assert!(
+        harness
+            .state()
+            .session
+            .document
+            .diagram()
+            .component("lane_pipeline1")
+            .is_none()
+    );
 
     open_viewer(&mut harness, "output front.out (image)", "Open a viewer (image)");
     harness.get_by_label("Run").click();
@@ -548,6 +574,16 @@ fn a_subgraph_instance_shows_its_exposed_ports_runs_and_is_viewed_and_set_live()
     run_until(&mut harness, "the front pipeline's frames", |app| {
         app.session.viewers.list[0].texture_size() == Some([640, 480])
     });
+    // Its node shows its parts' figures, rolled up: running, at the camera's rate.
+    run_until(&mut harness, "the rolled-up figures", |app| {
+        app.session.monitor.subgraphs.get("front").is_some_and(|f| {
+            f.state == kairos_protocol::ComponentState::Running && f.cycle_rate_hz > 1.0 && f.cpu_share > 0.0
+        })
+    });
+    assert_eq!(
+        harness.state().session.node_state("rear"),
+        Some(&NodeState::Running)
+    );
     harness
         .state_mut()
         .session
