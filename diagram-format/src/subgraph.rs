@@ -719,6 +719,144 @@ pub fn describe(
     Ok((info, exposes))
 }
 
+/// Moves the components `ids` of `diagram` into a new subgraph: returns the subgraph (their components
+/// and the links between them, placed from the origin, exposing each inner input fed from outside and
+/// each inner output read outside) and `diagram` with one instance `instance` of `type_name` (the
+/// subgraph's file) in their place, the links that crossed rewired to its exposed ports. An outside
+/// output feeding several moved inputs is one exposed input feeding them all. Viewers of an exposed
+/// output follow it; those of an output kept inside are dropped.
+pub fn extract(
+    diagram: &Diagram,
+    ids: &[String],
+    instance: &str,
+    type_name: &str,
+) -> Result<(Diagram, Diagram), String> {
+    let inside = |id: &str| ids.iter().any(|i| i == id);
+    if ids.is_empty() {
+        return Err("select the components to put in the subgraph".to_owned());
+    }
+    if let Some(missing) = ids.iter().find(|id| diagram.component(id).is_none()) {
+        return Err(format!("there is no component '{missing}'"));
+    }
+    if diagram.component(instance).is_some() && !inside(instance) {
+        return Err(format!(
+            "'{instance}' is taken: name the subgraph's instance otherwise"
+        ));
+    }
+    if let Some(clock) = diagram.clock_source.as_deref().filter(|c| inside(c)) {
+        return Err(format!(
+            "'{clock}' is the diagram's clock source: keep it outside the subgraph"
+        ));
+    }
+    let moved: Vec<&crate::model::ComponentInstance> =
+        diagram.components.iter().filter(|c| inside(&c.id)).collect();
+    let left = moved.iter().map(|c| c.position.x).fold(f32::INFINITY, f32::min);
+    let top = moved.iter().map(|c| c.position.y).fold(f32::INFINITY, f32::min);
+    let count = moved.len() as f32;
+    let centre = crate::model::Position {
+        x: moved.iter().map(|c| c.position.x).sum::<f32>() / count,
+        y: moved.iter().map(|c| c.position.y).sum::<f32>() / count,
+    };
+    let mut subgraph = Diagram {
+        packs: diagram.packs.clone(),
+        components: moved
+            .iter()
+            .map(|c| {
+                let mut inner = (*c).clone();
+                inner.position.x -= left - 40.0;
+                inner.position.y -= top - 40.0;
+                inner
+            })
+            .collect(),
+        ..Diagram::default()
+    };
+    let mut outer = Diagram {
+        components: diagram
+            .components
+            .iter()
+            .filter(|c| !inside(&c.id))
+            .cloned()
+            .collect(),
+        connections: Vec::new(),
+        ..diagram.clone()
+    };
+    let mut place = crate::model::ComponentInstance::new(instance, type_name);
+    place.position = centre;
+    outer.components.push(place);
+    let mut exposes = Exposes::default();
+    // An exposed name: the inner port's, or `component_port` when two would share it.
+    let name_for = |taken: &dyn Fn(&str) -> bool, port: &PortRef| {
+        if taken(&port.port) {
+            format!("{}_{}", port.component, port.port)
+        } else {
+            port.port.clone()
+        }
+    };
+    // Outside sources, each with the exposed input it became.
+    let mut sources: Vec<(PortRef, String)> = Vec::new();
+    for connection in &diagram.connections {
+        match (
+            inside(&connection.from.component),
+            inside(&connection.to.component),
+        ) {
+            (true, true) => subgraph.connections.push(connection.clone()),
+            (false, false) => outer.connections.push(connection.clone()),
+            (false, true) => {
+                let known = sources.iter().find(|(from, _)| *from == connection.from);
+                let name = if let Some((_, name)) = known {
+                    name.clone()
+                } else {
+                    let name = name_for(&|n| exposes.inputs.contains_key(n), &connection.to);
+                    sources.push((connection.from.clone(), name.clone()));
+                    outer.connections.push(Connection {
+                        to: PortRef::new(instance, name.clone()),
+                        ..connection.clone()
+                    });
+                    name
+                };
+                exposes
+                    .inputs
+                    .entry(name)
+                    .or_default()
+                    .push(connection.to.clone());
+            }
+            (true, false) => {
+                let known = exposes.outputs.iter().find(|(_, p)| **p == connection.from);
+                let name = if let Some((name, _)) = known {
+                    name.clone()
+                } else {
+                    let name = name_for(&|n| exposes.outputs.contains_key(n), &connection.from);
+                    exposes.outputs.insert(name.clone(), connection.from.clone());
+                    name
+                };
+                outer.connections.push(Connection {
+                    from: PortRef::new(instance, name),
+                    ..connection.clone()
+                });
+            }
+        }
+    }
+    outer.viewers = diagram
+        .viewers
+        .iter()
+        .filter_map(|viewer| {
+            let Some(port) = PortRef::parse(&viewer.output) else {
+                return Some(viewer.clone());
+            };
+            if !inside(&port.component) {
+                return Some(viewer.clone());
+            }
+            let (name, _) = exposes.outputs.iter().find(|(_, p)| **p == port)?;
+            Some(crate::model::ViewerSpec {
+                output: format!("{instance}.{name}"),
+                ..viewer.clone()
+            })
+        })
+        .collect();
+    subgraph.exposes = Some(exposes);
+    Ok((subgraph, outer))
+}
+
 /// The most subgraph files one diagram may read (each instance reads its file): far beyond a real
 /// rig, and a bound on a diagram that fans out through its includes.
 pub const MAX_SUBGRAPH_READS: usize = 10_000;

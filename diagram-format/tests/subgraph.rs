@@ -262,3 +262,88 @@ fn a_fault_inside_is_reported_at_its_own_line_and_at_the_instance() {
     assert_eq!(first.location.unwrap().line, 2);
     assert_eq!(first.notes[0].message, "'a/first' is written at gains.ron:9:23");
 }
+
+#[test]
+fn components_made_into_a_subgraph_run_as_they_did_through_its_exposed_ports() {
+    let main = r#"Diagram(format: 1,
+    packs: [Pack(name: "core", version: "^0.1")],
+    components: [
+        Component(id: "sine", type: "core.sine", position: (x: 0.0, y: 0.0)),
+        Component(id: "a", type: "core.gain", position: (x: 200.0, y: 100.0), properties: {"gain": 2.0}),
+        Component(id: "b", type: "core.gain", position: (x: 400.0, y: 100.0)),
+        Component(id: "console", type: "core.console"),
+        Component(id: "other", type: "core.console"),
+    ],
+    connections: [
+        Connection(from: "sine.out", to: "a.in", policy: NeverSkipping),
+        Connection(from: "a.out", to: "b.in"),
+        Connection(from: "b.out", to: "console.in"),
+        Connection(from: "a.out", to: "other.in"),
+    ],
+    viewers: [Viewer(output: "b.out", kind: "plot"), Viewer(output: "a.out", kind: "table")],
+)"#;
+    let original = parse(main).unwrap().diagram;
+    let ids = ["a".to_owned(), "b".to_owned()];
+    let (subgraph, outer) = kairos_diagram::subgraph::extract(&original, &ids, "pair", "pair.ron").unwrap();
+    let exposes = subgraph.exposes.clone().unwrap();
+    assert_eq!(exposes.inputs["in"], [kairos_diagram::PortRef::new("a", "in")]);
+    assert_eq!(exposes.outputs["out"], kairos_diagram::PortRef::new("b", "out"));
+    assert_eq!(exposes.outputs["a_out"], kairos_diagram::PortRef::new("a", "out"));
+    // Placed from the origin; what was set inside stays inside.
+    let a = subgraph.component("a").unwrap();
+    assert_eq!((a.position.x, a.position.y), (40.0, 40.0));
+    assert_eq!(a.properties["gain"], Value::F64(2.0));
+    let links: Vec<String> = outer
+        .connections
+        .iter()
+        .map(|c| format!("{} -> {}", c.from, c.to))
+        .collect();
+    assert_eq!(
+        links,
+        [
+            "sine.out -> pair.in",
+            "pair.out -> console.in",
+            "pair.a_out -> other.in"
+        ]
+    );
+    assert_eq!(
+        outer.connections[0].policy,
+        Some(kairos_diagram::ReaderPolicy::NeverSkipping)
+    );
+    // The viewer of an exposed output follows it; every exposed output is one, so both stay.
+    let viewed: Vec<&str> = outer.viewers.iter().map(|v| v.output.as_str()).collect();
+    assert_eq!(viewed, ["pair.out", "pair.a_out"]);
+
+    // Flattened, the diagram is the original one, its moved components under `pair/`.
+    let subgraph_text = subgraph.to_ron();
+    let flat = flatten(
+        parse(&outer.to_ron()).unwrap(),
+        Path::new("rig/main.ron"),
+        &mut files(&[("pair.ron", &subgraph_text)]),
+    )
+    .unwrap();
+    assert!(flat.parsed.validate(&common::library()).is_empty());
+    let mut flat_links: Vec<String> = flat
+        .parsed
+        .diagram
+        .connections
+        .iter()
+        .map(|c| format!("{} -> {}", c.from, c.to).replace("pair/", ""))
+        .collect();
+    let mut original_links: Vec<String> = original
+        .connections
+        .iter()
+        .map(|c| format!("{} -> {}", c.from, c.to))
+        .collect();
+    flat_links.sort();
+    original_links.sort();
+    assert_eq!(flat_links, original_links);
+
+    // Refused: nothing selected, a taken instance name, the clock source moved in.
+    assert!(kairos_diagram::subgraph::extract(&original, &[], "pair", "pair.ron").is_err());
+    let taken = kairos_diagram::subgraph::extract(&original, &ids, "console", "pair.ron").unwrap_err();
+    assert_eq!(
+        taken,
+        "'console' is taken: name the subgraph's instance otherwise"
+    );
+}

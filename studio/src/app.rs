@@ -357,6 +357,11 @@ impl StudioApp {
         match purpose {
             Purpose::OpenDiagram => self.unless_unsaved(AfterDiscard::Open(path)),
             Purpose::SaveDiagram => self.session.save_as(&path),
+            Purpose::MakeSubgraph(ids) => {
+                if let Some(instance) = self.session.make_subgraph(&ids, &path) {
+                    self.canvas.selected = std::collections::BTreeSet::from([instance]);
+                }
+            }
             Purpose::Property { component, property } => {
                 let written = chooser::as_written(&path);
                 self.session
@@ -433,6 +438,17 @@ impl StudioApp {
             }
             Command::FitDiagram => self.canvas.fit(&self.session.document, &self.session.library),
             Command::Zoom(factor) => self.canvas.zoom_by(factor),
+            Command::MakeSubgraphDialog => {
+                let ids: Vec<String> = self.canvas.selected.iter().cloned().collect();
+                if ids.is_empty() {
+                    self.session.note(
+                        LogLevel::Warn,
+                        "select the components to make a subgraph of (drag a box around them)".to_owned(),
+                    );
+                } else {
+                    self.choose_file(Purpose::MakeSubgraph(ids));
+                }
+            }
             Command::TidyLayout => {
                 auto_layout(&mut self.session.document);
                 self.canvas.fit(&self.session.document, &self.session.library);
@@ -592,8 +608,12 @@ impl StudioApp {
     fn choose_file(&mut self, purpose: Purpose) {
         let current = match (self.session.document.path(), &purpose) {
             (Some(path), Purpose::SaveDiagram) => path.display().to_string(),
+            (Some(path), Purpose::MakeSubgraph(_)) => {
+                path.with_file_name("subgraph.ron").display().to_string()
+            }
             (Some(path), _) => path.parent().map(|f| f.display().to_string()).unwrap_or_default(),
             (None, Purpose::SaveDiagram) => "diagram.ron".to_owned(),
+            (None, Purpose::MakeSubgraph(_)) => "subgraph.ron".to_owned(),
             (None, _) => String::new(),
         };
         self.dialogs.chooser = Some(FileChooser::new(purpose, &current));

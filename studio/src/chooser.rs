@@ -11,6 +11,8 @@ pub enum Purpose {
     OpenDiagram,
     /// Where to save the diagram: `.ron` is added when no extension is typed.
     SaveDiagram,
+    /// Where to write these components as a subgraph (a new file): `.ron` is added as for a diagram.
+    MakeSubgraph(Vec<String>),
     /// A path property of a component.
     Property {
         /// The component's id.
@@ -25,13 +27,18 @@ impl Purpose {
         match self {
             Purpose::OpenDiagram => "Open a diagram".to_owned(),
             Purpose::SaveDiagram => "Save the diagram as".to_owned(),
+            Purpose::MakeSubgraph(ids) => {
+                format!("Write the {} selected components as a subgraph", ids.len())
+            }
             Purpose::Property { component, property } => format!("Choose {property} of {component}"),
         }
     }
 
     fn shows(&self, path: &Path) -> bool {
         match self {
-            Purpose::OpenDiagram | Purpose::SaveDiagram => path.extension().is_some_and(|e| e == "ron"),
+            Purpose::OpenDiagram | Purpose::SaveDiagram | Purpose::MakeSubgraph(_) => {
+                path.extension().is_some_and(|e| e == "ron")
+            }
             Purpose::Property { .. } => true,
         }
     }
@@ -39,6 +46,7 @@ impl Purpose {
     fn button(&self) -> &'static str {
         match self {
             Purpose::SaveDiagram => "Save",
+            Purpose::MakeSubgraph(_) => "Write",
             Purpose::OpenDiagram => "Open",
             Purpose::Property { .. } => "Choose",
         }
@@ -113,10 +121,10 @@ impl FileChooser {
         let mut path = self.folder.join(typed);
         match self.purpose {
             Purpose::OpenDiagram if !path.is_file() => Err(format!("{} does not exist", path.display())),
-            Purpose::SaveDiagram if path.is_dir() => {
+            Purpose::SaveDiagram | Purpose::MakeSubgraph(_) if path.is_dir() => {
                 Err(format!("{} is a folder; type a file name", path.display()))
             }
-            Purpose::SaveDiagram => {
+            Purpose::SaveDiagram | Purpose::MakeSubgraph(_) => {
                 if path.extension().is_none() {
                     path.set_extension("ron");
                 }
@@ -127,6 +135,13 @@ impl FileChooser {
                             .map(Path::display)
                             .map(|d| d.to_string())
                             .unwrap_or_default()
+                    ));
+                }
+                // A subgraph goes into a new file: one that exists may be another diagram's.
+                if matches!(self.purpose, Purpose::MakeSubgraph(_)) && path.exists() {
+                    return Err(format!(
+                        "{} exists: a subgraph is written to a new file",
+                        path.display()
                     ));
                 }
                 Ok(path)
@@ -174,7 +189,7 @@ impl FileChooser {
                                 self.folder.clone_from(&path);
                             }
                         } else if ui.button(&name).clicked() {
-                            if self.purpose == Purpose::SaveDiagram {
+                            if matches!(self.purpose, Purpose::SaveDiagram | Purpose::MakeSubgraph(_)) {
                                 // Saving over a file is chosen with the Save button, not a single click.
                                 self.name = name;
                             } else {

@@ -73,6 +73,8 @@ pub enum Command {
     Delete,
     /// Lay the diagram out in columns.
     TidyLayout,
+    /// Ask where to write the selected components as a subgraph.
+    MakeSubgraphDialog,
     /// Deploy the diagram and start it.
     Run,
     /// Start the deployed diagram although some hosts' clocks are not locked.

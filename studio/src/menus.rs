@@ -39,6 +39,7 @@ pub fn menu_bar_ui(
                     ("Duplicate", "Ctrl+D", Command::Duplicate),
                     ("Delete", "Del", Command::Delete),
                     ("Tidy the layout", "", Command::TidyLayout),
+                    ("Make a subgraph…", "", Command::MakeSubgraphDialog),
                 ],
             );
         });

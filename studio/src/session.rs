@@ -988,6 +988,59 @@ impl Session {
         }
     }
 
+    /// Writes the components `ids` to a new subgraph file at `path` and puts one instance of it in their
+    /// place, the links that crossed rewired to its exposed ports: one edit, undone as one (the file
+    /// stays). Returns the instance's id; a refusal is said in the log.
+    pub fn make_subgraph(&mut self, ids: &[String], path: &Path) -> Option<String> {
+        let stem = path
+            .file_stem()
+            .map(|s| {
+                s.to_string_lossy()
+                    .replace(|c: char| !c.is_ascii_alphanumeric() && c != '_', "_")
+            })
+            .filter(|s| !s.is_empty())
+            .unwrap_or_else(|| "subgraph".to_owned());
+        let instance = crate::document::fresh_id(self.document.diagram(), &stem);
+        // Named from the diagram's folder, as a subgraph's type is; a file elsewhere by its full path.
+        let folder = self
+            .document
+            .path()
+            .and_then(Path::parent)
+            .unwrap_or_else(|| Path::new(""));
+        let type_name = path
+            .strip_prefix(folder)
+            .ok()
+            .filter(|_| !folder.as_os_str().is_empty())
+            .unwrap_or(path)
+            .display()
+            .to_string();
+        let made = kairos_diagram::subgraph::extract(self.document.diagram(), ids, &instance, &type_name);
+        let (subgraph, outer) = match made {
+            Ok(made) => made,
+            Err(why) => {
+                self.note(LogLevel::Warn, format!("no subgraph made: {why}"));
+                return None;
+            }
+        };
+        if let Err(error) = std::fs::write(path, subgraph.to_ron()) {
+            self.note(
+                LogLevel::Error,
+                format!("cannot write {}: {error}", path.display()),
+            );
+            return None;
+        }
+        self.document.edit(|diagram| *diagram = outer);
+        self.note(
+            LogLevel::Info,
+            format!(
+                "{} components are now subgraph {} ('{instance}'); double-click it to go inside; Undo puts                  them back (the file stays)",
+                ids.len(),
+                path.display()
+            ),
+        );
+        Some(instance)
+    }
+
     /// A diagram replaying `file`, which `recorder` wrote: a player on it, held at its end so that it
     /// can be sought back, and each open viewer of an output the recorder took, on the player's output
     /// for it.

@@ -1049,3 +1049,89 @@ fn a_double_click_goes_inside_a_subgraph_and_the_breadcrumb_comes_back_out() {
         "no breadcrumb at the top"
     );
 }
+
+#[test]
+fn selected_components_made_into_a_subgraph_are_one_instance_wired_as_they_were_and_one_undo() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("chain.ron");
+    std::fs::write(
+        &path,
+        r#"Diagram(format: 1,
+    packs: [Pack(name: "core", version: "^0.1")],
+    components: [
+        Component(id: "sine1", type: "core.sine", position: (x: 40.0, y: 40.0)),
+        Component(id: "gain1", type: "core.gain", position: (x: 300.0, y: 40.0), properties: {"gain": 2.0}),
+        Component(id: "gain2", type: "core.gain", position: (x: 560.0, y: 40.0)),
+        Component(id: "console1", type: "core.console", position: (x: 820.0, y: 40.0)),
+    ],
+    connections: [
+        Connection(from: "sine1.out", to: "gain1.in"),
+        Connection(from: "gain1.out", to: "gain2.in"),
+        Connection(from: "gain2.out", to: "console1.in"),
+    ],
+)"#,
+    )
+    .unwrap();
+    let app = StudioApp::new(
+        Document::open(&path).unwrap(),
+        library(),
+        None,
+        "no runtime (test)".to_owned(),
+        None,
+    );
+    let mut harness = Harness::builder()
+        .with_size(Vec2::new(1280.0, 2400.0))
+        .build_ui_state(|ui, app: &mut StudioApp| app.show(ui), app);
+    harness.run_steps(2);
+    harness.state_mut().canvas.selected = ["gain1", "gain2"].map(str::to_owned).into();
+    harness.get_by_label("Edit").click();
+    harness.run_steps(2);
+    harness.get_by_label_contains("Make a subgraph").click();
+    harness.run_steps(2);
+    harness.get_by_role_and_label(Role::TextInput, "File:").focus();
+    harness.run_steps(1);
+    harness.key_press_modifiers(egui::Modifiers::COMMAND, egui::Key::A);
+    harness
+        .get_by_role_and_label(Role::TextInput, "File:")
+        .type_text("amplifier");
+    harness.run_steps(1);
+    harness.get_by_label("Write").click();
+    harness.run_steps(3);
+
+    // The file: the two gains, the link between them, what they expose.
+    let written = kairos_diagram::load(&dir.path().join("amplifier.ron"))
+        .unwrap()
+        .1
+        .diagram;
+    let ids: Vec<&str> = written.components.iter().map(|c| c.id.as_str()).collect();
+    assert_eq!(ids, ["gain1", "gain2"]);
+    assert_eq!(
+        written.exposes.as_ref().unwrap().inputs["in"],
+        [PortRef::new("gain1", "in")]
+    );
+    // The diagram: one instance in their place, wired through its ports, which the canvas shows.
+    let diagram = harness.state().session.document.diagram().clone();
+    assert_eq!(
+        diagram.component("amplifier1").unwrap().type_name,
+        "amplifier.ron"
+    );
+    let links: Vec<String> = diagram
+        .connections
+        .iter()
+        .map(|c| format!("{} -> {}", c.from, c.to))
+        .collect();
+    assert_eq!(
+        links,
+        ["sine1.out -> amplifier1.in", "amplifier1.out -> console1.in"]
+    );
+    harness.run_steps(2);
+    assert!(harness.query_by_label("output amplifier1.out (f64)").is_some());
+    assert!(harness.state().session.document.is_dirty());
+
+    // One undo puts the components back; the file stays.
+    harness.key_press_modifiers(egui::Modifiers::COMMAND, egui::Key::Z);
+    harness.run_steps(2);
+    let back = harness.state().session.document.diagram();
+    assert!(back.component("gain1").is_some() && back.component("amplifier1").is_none());
+    assert!(dir.path().join("amplifier.ron").is_file());
+}
