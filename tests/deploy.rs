@@ -853,3 +853,69 @@ fn camera_frames_from_another_host_arrive_whole_in_a_recording_here() {
     // About 20 in 2 s at 10 Hz on a fast machine; each one whole.
     assert!(frames >= 1, "no frame arrived ({summary:?})");
 }
+
+#[test]
+fn a_subgraph_placed_on_a_host_runs_its_parts_there_flat() {
+    let _machine = shared_machine();
+    let [dir_a, dir_b, here] = folders();
+    let (a, b) = (serve(dir_a.path(), &[]), serve(dir_b.path(), &[]));
+    std::fs::write(here.path().join("a.token"), &a.token).unwrap();
+    std::fs::write(here.path().join("b.token"), &b.token).unwrap();
+    // A sine into a CSV, as a subgraph whose file name the CSV's path comes from.
+    std::fs::write(
+        here.path().join("logged_sine.ron"),
+        r#"Diagram(format: 1,
+    exposes: Exposes(properties: {"path": "csv.path"}),
+    components: [
+        Component(id: "sine", type: "core.sine"),
+        Component(id: "csv", type: "core.csv_writer"),
+    ],
+    connections: [Connection(from: "sine.out", to: "csv.in1")],
+)"#,
+    )
+    .unwrap();
+    // One instance placed on host a from outside; on host b, the host is said inside a subgraph of
+    // its own.
+    std::fs::write(
+        here.path().join("on_b.ron"),
+        r#"Diagram(format: 1,
+    exposes: Exposes(),
+    components: [Component(id: "inner", type: "logged_sine.ron", host: "b", properties: {"path": "b.csv"})],
+)"#,
+    )
+    .unwrap();
+    let diagram = here.path().join("spread.ron");
+    std::fs::write(
+        &diagram,
+        format!(
+            r#"Diagram(format: 1,
+    hosts: {{"a": Host(endpoint: "{}", token_file: "a.token"), "b": Host(endpoint: "{}", token_file: "b.token")}},
+    components: [
+        Component(id: "first", type: "logged_sine.ron", host: "a", properties: {{"path": "a.csv"}}),
+        Component(id: "second", type: "on_b.ron"),
+    ],
+)"#,
+            a.url, b.url
+        ),
+    )
+    .unwrap();
+    let deployed = common::kairos(
+        here.path(),
+        &["deploy", diagram.to_str().unwrap(), "--for", "1500ms"],
+    );
+    let (_, stderr) = text(&deployed);
+    assert!(deployed.status.success(), "{stderr}");
+    for (folder, file) in [(&dir_a, "a.csv"), (&dir_b, "b.csv")] {
+        let rows = std::fs::read_to_string(folder.path().join(file)).unwrap_or_default();
+        assert!(rows.lines().count() > 1, "{file}: no row: {rows:?}\n{stderr}");
+    }
+    // Each host was sent its part flat, the inner ids under their instances.
+    let mut on_b = operator(&b);
+    let part = call(&mut on_b, &json!({"id": 7, "type": "get_diagram"}));
+    let part_text = part["result"]["diagram"].as_str().unwrap_or_default();
+    assert!(part_text.contains(r#"id: "second/inner/csv""#), "{part}");
+    assert!(
+        !part_text.contains(".ron\""),
+        "no subgraph left in the part: {part}"
+    );
+}

@@ -347,3 +347,48 @@ fn components_made_into_a_subgraph_run_as_they_did_through_its_exposed_ports() {
         "'console' is taken: name the subgraph's instance otherwise"
     );
 }
+
+#[test]
+fn an_instance_s_host_and_group_reach_its_parts_and_its_own_groups_stay_its_copy_s() {
+    let grouped = r#"Diagram(format: 1,
+    exposes: Exposes(inputs: {"in": "first.in"}, outputs: {"out": "second.out"}),
+    groups: {"pair": (priority: 20)},
+    components: [
+        Component(id: "first", type: "core.gain", group: "pair"),
+        Component(id: "second", type: "core.gain"),
+    ],
+    connections: [Connection(from: "first.out", to: "second.in")],
+)"#;
+    let sequential = r#"Diagram(format: 1, sequential: true,
+    exposes: Exposes(inputs: {"in": "only.in"}),
+    components: [Component(id: "only", type: "core.console")],
+)"#;
+    let main = r#"Diagram(format: 1,
+    hosts: {"car": Host(endpoint: "ws://10.0.0.2:7400")},
+    components: [
+        Component(id: "sine", type: "core.sine"),
+        Component(id: "a", type: "grouped.ron", host: "car", group: "fast"),
+        Component(id: "b", type: "grouped.ron"),
+        Component(id: "log", type: "sequential.ron"),
+    ],
+    connections: [
+        Connection(from: "sine.out", to: "a.in"),
+        Connection(from: "a.out", to: "b.in"),
+        Connection(from: "b.out", to: "log.in"),
+    ],
+)"#;
+    let flat = flattened(main, &[("grouped.ron", grouped), ("sequential.ron", sequential)]).unwrap();
+    let diagram = &flat.parsed.diagram;
+    let placed = |id: &str| {
+        let c = diagram.component(id).unwrap();
+        (c.host.clone(), c.group.clone())
+    };
+    let car = Some("car".to_owned());
+    assert_eq!(placed("a/first"), (car.clone(), Some("a/pair".to_owned())));
+    assert_eq!(placed("a/second"), (car, Some("fast".to_owned())));
+    assert_eq!(placed("b/first"), (None, Some("b/pair".to_owned())));
+    assert_eq!(placed("b/second"), (None, None));
+    assert_eq!(placed("log/only"), (None, Some("log/sequential".to_owned())));
+    assert_eq!(diagram.groups["a/pair"].priority, Some(20));
+    assert_eq!(diagram.groups["b/pair"].priority, Some(20));
+}
