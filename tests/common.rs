@@ -40,3 +40,17 @@ pub fn text(output: &Output) -> (String, String) {
         String::from_utf8_lossy(&output.stderr).into_owned(),
     )
 }
+
+/// How many cycles `kairos run --stats` says component `id` ran, from the last table in `stderr`.
+#[allow(dead_code, reason = "not every test file uses every helper")]
+pub fn stats_cycles(stderr: &str, id: &str) -> u64 {
+    let row = stderr
+        .lines()
+        .rev()
+        .find(|l| l.split_whitespace().next() == Some(id))
+        .unwrap_or_else(|| panic!("{id} in the stats: {stderr}"));
+    row.split_whitespace()
+        .nth(3)
+        .and_then(|cycles| cycles.parse().ok())
+        .unwrap_or_else(|| panic!("{id}'s cycles in: {row}"))
+}

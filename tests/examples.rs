@@ -98,19 +98,46 @@ fn a_subgraph_used_twice_runs_each_copy_under_its_instance_id() {
     for instance in ["front", "rear"] {
         for stage in ["grey", "blur", "edges", "lines", "overlay"] {
             let id = format!("{instance}/{stage}");
-            let row = stderr
-                .lines()
-                .rev()
-                .find(|l| l.split_whitespace().next() == Some(id.as_str()))
-                .unwrap_or_else(|| panic!("{id} in the stats: {stderr}"));
-            let cycles: u64 = row.split_whitespace().nth(3).unwrap().parse().unwrap();
-            assert!(cycles >= 1, "{id} handled no frame: {row}");
+            assert!(common::stats_cycles(&stderr, &id) >= 1, "{id} handled no frame");
         }
     }
     // The exposed input feeds both inner inputs it names.
     assert!(stderr.contains("front_camera.image -> front/grey.in"), "{stderr}");
     assert!(
         stderr.contains("front_camera.image -> front/overlay.image"),
+        "{stderr}"
+    );
+}
+
+#[test]
+fn a_subgraph_the_vision_pack_ships_is_used_as_its_type() {
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::write(
+        dir.path().join("edges.ron"),
+        r#"Diagram(format: 1,
+    components: [
+        Component(id: "camera", type: "sensors.camera", properties: {"rate": 10.0}),
+        Component(id: "outline", type: "vision.edges", properties: {"low": 40.0}),
+    ],
+    connections: [Connection(from: "camera.image", to: "outline.image")],
+)"#,
+    )
+    .unwrap();
+    let output = kairos(dir.path(), &["run", "edges.ron", "--for", "2s", "--stats"]);
+    let (_, stderr) = text(&output);
+    assert!(output.status.success(), "{stderr}");
+    for id in ["outline/grey", "outline/blur", "outline/canny"] {
+        assert!(common::stats_cycles(&stderr, id) >= 1, "{id} handled no frame");
+    }
+    // A property it does not expose is refused at the instance, naming those it does.
+    let refused = std::fs::read_to_string(dir.path().join("edges.ron"))
+        .unwrap()
+        .replace(r#""low": 40.0"#, r#""lo": 40.0"#);
+    std::fs::write(dir.path().join("edges.ron"), refused).unwrap();
+    let output = kairos(dir.path(), &["validate", "edges.ron"]);
+    let (_, stderr) = text(&output);
+    assert!(
+        stderr.contains("subgraph 'vision.edges' exposes no property 'lo' (it exposes blur, high, low)"),
         "{stderr}"
     );
 }

@@ -988,3 +988,59 @@ fn sources_start_once_every_python_worker_is_ready_so_nothing_is_lost_at_start_o
     let strict = snapshot.components.iter().find(|c| c.id == "strict").unwrap();
     assert_eq!(strict.missed_ticks, 0, "the source never waited for its reader");
 }
+
+#[test]
+fn a_python_pack_ships_its_subgraphs_which_diagrams_use_as_the_pack_s_types() {
+    require_numpy();
+    let dir = tempfile::tempdir().unwrap();
+    let folder = write_pack(dir.path(), "py_sub", &[("constant.py", CONSTANT)]);
+    std::fs::create_dir(folder.join("subgraphs")).unwrap();
+    // A constant doubled: the pack's own component and core's, one subgraph.
+    std::fs::write(
+        folder.join("subgraphs/doubled.ron"),
+        r#"Diagram(format: 1,
+    exposes: Exposes(outputs: {"out": "twice.out"}, properties: {"factor": "twice.gain"}),
+    components: [
+        Component(id: "tick", type: "core.counter", properties: {"rate": 20.0}),
+        Component(id: "source", type: "py_sub.constant"),
+        Component(id: "twice", type: "core.gain", properties: {"gain": 2.0}),
+    ],
+    connections: [
+        Connection(from: "tick.out", to: "source.in"),
+        Connection(from: "source.out", to: "twice.in"),
+    ],
+)"#,
+    )
+    .unwrap();
+    let (registry, _) = registry_with(&[dir.path().to_owned()]);
+    assert!(
+        registry.subgraphs().contains_key("py_sub.doubled"),
+        "{:?}",
+        registry.subgraphs().keys()
+    );
+
+    std::fs::write(
+        dir.path().join("use.ron"),
+        r#"Diagram(format: 1,
+    components: [
+        Component(id: "d", type: "py_sub.doubled", properties: {"factor": 3.0}),
+        Component(id: "log", type: "core.console"),
+    ],
+    connections: [Connection(from: "d.out", to: "log.in")],
+)"#,
+    )
+    .unwrap();
+    let output = kairos(
+        dir.path(),
+        &["run", "use.ron", "--pack-path", ".", "--for", "2s", "--stats"],
+    );
+    let (stdout, stderr) = text(&output);
+    assert!(output.status.success(), "{stderr}");
+    for id in ["d/tick", "d/source", "d/twice"] {
+        assert!(
+            common::stats_cycles(&stderr, id) >= 1,
+            "{id} ran no cycle
+{stdout}"
+        );
+    }
+}

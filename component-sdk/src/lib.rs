@@ -30,7 +30,7 @@ pub use kairos_sdk_core::{
 };
 pub use kairos_sdk_core::{
     ComponentInfo, DataType, DescribeError, DeviceKind, ExecutionMode, LibraryInfo, OutputInfo, PackInfo,
-    PropertyKind, ReaderPolicy, TypeFilter, Value,
+    PropertyKind, ReaderPolicy, TypeFilter, Value, port_name_for_topic,
 };
 pub use kairos_sdk_core::{
     Describe, Factory, PackRegistrar, RefusedComponent, RegisteredComponent, Registry,

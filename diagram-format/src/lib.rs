@@ -32,7 +32,7 @@ pub use diagnostic::{
 pub use library::{
     ActionInfo, ComponentInfo, DataType, DescribeError, DeviceKind, ExecutionMode, InputInfo, InstanceInfos,
     LibraryInfo, OutputInfo, PackInfo, PropertyInfo, PropertyKind, ReaderPolicy, TypeFilter, Value,
-    ValueError, readable_type_name,
+    ValueError, port_name_for_topic, readable_type_name,
 };
 pub use model::{
     ComponentInstance, Connection, DEFAULT_RIDE_OUT_MB, DEFAULT_RIDE_OUT_S, DEFAULT_ZENOH_PORT, Diagram,
@@ -44,7 +44,7 @@ pub use read::{
     LoadError, OutputLocations, PackLocations, ParsedDiagram, SourceMap, load, parse,
 };
 pub use ron_syntax::MAX_DEPTH;
-pub use subgraph::{Flattened, Origins, flatten, is_subgraph_type, load_flattened};
+pub use subgraph::{Flattened, Origins, Sources, flatten, flatten_from, is_subgraph_type, load_flattened};
 pub use validate::{
     is_valid_id, is_valid_path_id, output_type, resolved_properties, validate, validate_with,
 };

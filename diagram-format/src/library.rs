@@ -644,6 +644,28 @@ const ACRONYMS: [&str; 12] = [
     "csv", "gnss", "imu", "can", "dbc", "nmea", "rgb", "mcap", "ekf", "enu", "gps", "id",
 ];
 
+/// The output a `recording.player` gives a recorded topic (`camera.image` → `camera_image`): each
+/// character that is not a letter, a digit or `_` becomes `_`, and `_` at either end goes (`channel` when
+/// nothing is left). The studio's Replay names the player's outputs by the same rule.
+pub fn port_name_for_topic(topic: &str) -> String {
+    let name: String = topic
+        .chars()
+        .map(|c| {
+            if c.is_ascii_alphanumeric() || c == '_' {
+                c
+            } else {
+                '_'
+            }
+        })
+        .collect();
+    let name = name.trim_matches('_');
+    if name.is_empty() {
+        "channel".to_owned()
+    } else {
+        name.to_owned()
+    }
+}
+
 /// A readable name made from a type name, for components whose pack gives no label: the part after the
 /// pack, words spaced and the first capitalised, acronyms in capitals (`core.moving_average` is
 /// "Moving average", `core.csv_writer` "CSV writer").
@@ -732,6 +754,10 @@ pub struct LibraryInfo {
     /// (`describe_instances`); empty in the library the runtime sends.
     #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
     pub instances: BTreeMap<String, ComponentInfo>,
+    /// The subgraphs packs ship, by type name (`vision.lane_pipeline`): each one's diagram text, used as
+    /// a subgraph file is (see [`crate::subgraph`]) and versioned with its pack.
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub subgraphs: BTreeMap<String, String>,
 }
 
 impl LibraryInfo {

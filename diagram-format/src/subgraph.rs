@@ -24,9 +24,39 @@ pub fn is_subgraph_type(type_name: &str) -> bool {
         .is_some_and(|extension| extension.eq_ignore_ascii_case("ron"))
 }
 
-/// Whether `diagram` uses any subgraph (and so needs [`flatten`] before it runs).
+/// Whether `diagram` uses any subgraph file (and so needs [`flatten`] before it runs).
 pub fn uses_subgraphs(diagram: &Diagram) -> bool {
     diagram.components.iter().any(|c| is_subgraph_type(&c.type_name))
+}
+
+/// Where subgraphs are read from: files, by path, and the subgraphs packs ship, by type name.
+pub struct Sources<'a> {
+    /// A file's text, or why it cannot be read.
+    pub read: &'a mut dyn FnMut(&Path) -> Result<String, String>,
+    /// Type name → diagram text of the subgraphs packs ship ([`crate::LibraryInfo::subgraphs`]).
+    pub shipped: &'a BTreeMap<String, String>,
+}
+
+impl std::fmt::Debug for Sources<'_> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Sources")
+            .field("shipped", &self.shipped.keys().collect::<Vec<_>>())
+            .finish_non_exhaustive()
+    }
+}
+
+impl Sources<'_> {
+    /// Whether `type_name` is a subgraph: a file, or one a pack ships.
+    pub fn names_subgraph(&self, type_name: &str) -> bool {
+        is_subgraph_type(type_name) || self.shipped.contains_key(type_name)
+    }
+
+    fn used_by(&self, diagram: &Diagram) -> bool {
+        diagram
+            .components
+            .iter()
+            .any(|c| self.names_subgraph(&c.type_name))
+    }
 }
 
 /// Where each component that came from a subgraph was written: its flat id → `file:line:column` (the
@@ -79,9 +109,19 @@ pub fn flatten(
     file: &Path,
     read: &mut dyn FnMut(&Path) -> Result<String, String>,
 ) -> Result<Flattened, Vec<Diagnostic>> {
+    let none = BTreeMap::new();
+    flatten_from(parsed, file, &mut Sources { read, shipped: &none })
+}
+
+/// [`flatten`], with the subgraphs packs ship as well as files.
+pub fn flatten_from(
+    parsed: ParsedDiagram,
+    file: &Path,
+    sources: &mut Sources<'_>,
+) -> Result<Flattened, Vec<Diagnostic>> {
     let mut origins = Origins::default();
     let chain = vec![normal(file)];
-    let parsed = expand(parsed, file, &chain, read, &mut origins)?;
+    let parsed = expand(parsed, file, &chain, sources, &mut origins)?;
     Ok(Flattened { parsed, origins })
 }
 
@@ -110,10 +150,10 @@ fn expand(
     parsed: ParsedDiagram,
     file: &Path,
     chain: &[PathBuf],
-    read: &mut dyn FnMut(&Path) -> Result<String, String>,
+    sources: &mut Sources<'_>,
     origins: &mut Origins,
 ) -> Result<ParsedDiagram, Vec<Diagnostic>> {
-    if !uses_subgraphs(&parsed.diagram) {
+    if !sources.used_by(&parsed.diagram) {
         let mut parsed = parsed;
         check_exposes(&mut parsed, &BTreeMap::new()).map_err(|d| vec![d])?;
         return Ok(parsed);
@@ -122,7 +162,7 @@ fn expand(
     let mut expansion = Expansion {
         folder: file.parent().unwrap_or_else(|| Path::new("")),
         chain,
-        read,
+        sources,
         origins,
         flat: Diagram {
             components: Vec::new(),
@@ -139,7 +179,7 @@ fn expand(
     };
     for (index, component) in diagram.components.iter().enumerate() {
         let at = source_map.components.get(index);
-        if is_subgraph_type(&component.type_name) {
+        if expansion.sources.names_subgraph(&component.type_name) {
             expansion.instance(component, at);
         } else {
             expansion.flat.components.push(component.clone());
@@ -171,10 +211,10 @@ fn expand(
 }
 
 /// One diagram being flattened: what is read, and the flat diagram so far.
-struct Expansion<'a, 'r> {
+struct Expansion<'a, 'r, 's> {
     folder: &'a Path,
     chain: &'a [PathBuf],
-    read: &'r mut dyn FnMut(&Path) -> Result<String, String>,
+    sources: &'r mut Sources<'s>,
     origins: &'a mut Origins,
     flat: Diagram,
     flat_map: SourceMap,
@@ -182,7 +222,7 @@ struct Expansion<'a, 'r> {
     problems: Vec<Diagnostic>,
 }
 
-impl Expansion<'_, '_> {
+impl Expansion<'_, '_, '_> {
     /// Reads, flattens and puts in place the subgraph `component` instantiates.
     fn instance(&mut self, component: &crate::model::ComponentInstance, at: Option<&ComponentLocations>) {
         let type_at = at.map(|l| l.type_name);
@@ -245,7 +285,13 @@ impl Expansion<'_, '_> {
         component: &crate::model::ComponentInstance,
         type_at: Option<Location>,
     ) -> Option<(ParsedDiagram, Origins)> {
-        let path = normal(&self.folder.join(&component.type_name));
+        let shipped = self.sources.shipped.get(&component.type_name).cloned();
+        // A pack's subgraph is named by its type; its own subgraphs are its pack's too.
+        let path = if shipped.is_some() {
+            Path::new("(packs)").join(&component.type_name)
+        } else {
+            normal(&self.folder.join(&component.type_name))
+        };
         if let Some(first) = self.chain.iter().position(|p| *p == path) {
             let mut names: Vec<String> = self.chain[first..]
                 .iter()
@@ -264,7 +310,11 @@ impl Expansion<'_, '_> {
                 .push(Diagnostic::error(DiagnosticCode::InvalidSubgraph, message).at(type_at));
             return None;
         }
-        let text = match (self.read)(&path) {
+        let read = match shipped {
+            Some(text) => Ok(text),
+            None => (self.sources.read)(&path),
+        };
+        let text = match read {
             Ok(text) => text,
             Err(why) => {
                 let folder = if self.folder.as_os_str().is_empty() {
@@ -287,7 +337,7 @@ impl Expansion<'_, '_> {
         };
         let chain: Vec<PathBuf> = self.chain.iter().cloned().chain([path.clone()]).collect();
         let mut origins = Origins::default();
-        match parse(&text).and_then(|inner| expand(inner, &path, &chain, self.read, &mut origins)) {
+        match parse(&text).and_then(|inner| expand(inner, &path, &chain, self.sources, &mut origins)) {
             Ok(inner) => Some((inner, origins)),
             Err(inside) => {
                 self.problems.extend(
@@ -612,7 +662,8 @@ fn listed(names: &[&str]) -> String {
     }
 }
 
-/// What an instance of the subgraph in `file` looks like from outside, as a component type: its exposed
+/// What an instance of the subgraph `type_name` (a pack's, or the file `file`) looks like from outside,
+/// as a component type: its exposed
 /// inputs, outputs and properties, each described as the inner port or property it stands for (an
 /// output whose type follows an inner input follows the exposed input feeding it). `library` describes
 /// the inner components; the description names a problem with the file as text. With it, what the
@@ -622,7 +673,27 @@ pub fn describe(
     type_name: &str,
     library: &crate::LibraryInfo,
 ) -> Result<(crate::ComponentInfo, Exposes), String> {
-    let (text, flattened) = load_flattened(file).map_err(|error| error.to_string())?;
+    let (text, flattened) = match library.subgraphs.get(type_name) {
+        Some(text) => {
+            let first = |problems: Vec<Diagnostic>| {
+                problems
+                    .first()
+                    .map_or_else(String::new, |p| format!("{type_name}: {p}"))
+            };
+            let parsed = parse(text).map_err(first)?;
+            let mut read = from_files(MAX_SUBGRAPH_READS);
+            let mut sources = Sources {
+                read: &mut read,
+                shipped: &library.subgraphs,
+            };
+            let shipped_at = Path::new("(packs)").join(type_name);
+            (
+                text.clone(),
+                flatten_from(parsed, &shipped_at, &mut sources).map_err(first)?,
+            )
+        }
+        None => load_flattened(file, &library.subgraphs).map_err(|error| error.to_string())?,
+    };
     let diagram = &flattened.parsed.diagram;
     let exposes = diagram.exposes.clone().unwrap_or_default();
     let info_of = |port: &PortRef| {
@@ -863,9 +934,21 @@ pub const MAX_SUBGRAPH_READS: usize = 10_000;
 
 /// Loads a diagram file and flattens its subgraphs, read beside the files that use them. Problems
 /// found while flattening are located in the file loaded, as a parse error is.
-pub fn load_flattened(path: &Path) -> Result<(String, Flattened), LoadError> {
+/// `shipped` are the subgraphs the packs ship ([`crate::LibraryInfo::subgraphs`]).
+pub fn load_flattened(
+    path: &Path,
+    shipped: &BTreeMap<String, String>,
+) -> Result<(String, Flattened), LoadError> {
     let (text, parsed) = crate::read::load(path)?;
-    match flatten(parsed, path, &mut from_files(MAX_SUBGRAPH_READS)) {
+    let mut read = from_files(MAX_SUBGRAPH_READS);
+    match flatten_from(
+        parsed,
+        path,
+        &mut Sources {
+            read: &mut read,
+            shipped,
+        },
+    ) {
         Ok(flat) => Ok((text, flat)),
         Err(diagnostics) => Err(LoadError::Invalid {
             path: path.to_owned(),

@@ -54,5 +54,6 @@ pub fn library_from_components_json(text: &str) -> Result<kairos_diagram::Librar
         components: components.into_iter().map(|c| (c.type_name.clone(), c)).collect(),
         custom_types: Vec::new(),
         instances: std::collections::BTreeMap::new(),
+        subgraphs: std::collections::BTreeMap::new(),
     })
 }

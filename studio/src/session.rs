@@ -69,22 +69,6 @@ fn subgraph_files(folder: &Path, document: Option<&Path>) -> Vec<(String, PathBu
 /// The player of a diagram made to replay a recording.
 const REPLAY_PLAYER: &str = "player";
 
-/// The output a `recording.player` gives a recorded output (`camera.image` → `camera_image`): each
-/// character that is not a letter, a digit or `_` becomes `_`, as the player names its ports.
-fn recorded_port_name(output: &str) -> String {
-    let name: String = output
-        .chars()
-        .map(|c| {
-            if c.is_ascii_alphanumeric() || c == '_' {
-                c
-            } else {
-                '_'
-            }
-        })
-        .collect();
-    name.trim_matches('_').to_owned()
-}
-
 /// Viewers get at most this many samples a second per output, always the latest.
 const VIEWER_RATE_HZ: f64 = 30.0;
 /// Wider images are sent scaled down by a whole factor.
@@ -839,7 +823,12 @@ impl Session {
             .map(Path::to_owned);
         let mut text = self.document.diagram().to_ron();
         // A runtime that cannot read the subgraph files (on another machine) is sent the diagram flat.
-        if folder.is_none() && kairos_diagram::subgraph::uses_subgraphs(self.document.diagram()) {
+        let shipped = &self.library.subgraphs;
+        let uses_subgraphs =
+            self.document.diagram().components.iter().any(|c| {
+                kairos_diagram::is_subgraph_type(&c.type_name) || shipped.contains_key(&c.type_name)
+            });
+        if folder.is_none() && uses_subgraphs {
             let file = self
                 .document
                 .path()
@@ -849,7 +838,11 @@ impl Session {
             let flat = parsed.and_then(|parsed| {
                 let mut read =
                     kairos_diagram::subgraph::from_files(kairos_diagram::subgraph::MAX_SUBGRAPH_READS);
-                kairos_diagram::flatten(parsed, &file, &mut read)
+                let mut sources = kairos_diagram::Sources {
+                    read: &mut read,
+                    shipped,
+                };
+                kairos_diagram::flatten_from(parsed, &file, &mut sources)
                     .map_err(|problems| problems.iter().map(ToString::to_string).collect())
             });
             match flat {
@@ -926,14 +919,20 @@ impl Session {
             .diagram()
             .components
             .iter()
-            .filter(|c| kairos_diagram::is_subgraph_type(&c.type_name))
+            .filter(|c| {
+                kairos_diagram::is_subgraph_type(&c.type_name)
+                    || self.library.subgraphs.contains_key(&c.type_name)
+            })
             .map(|c| (c.id.clone(), c.type_name.clone()))
             .collect();
+        let is_subgraph = |library: &LibraryInfo, type_name: &str| {
+            kairos_diagram::is_subgraph_type(type_name) || library.subgraphs.contains_key(type_name)
+        };
         let packs_components = self
             .library
             .components
             .keys()
-            .filter(|t| !kairos_diagram::is_subgraph_type(t))
+            .filter(|t| !is_subgraph(&self.library, t))
             .count();
         let key = (folder.clone(), instances, packs_components);
         if key == self.subgraphs.key {
@@ -942,12 +941,20 @@ impl Session {
         for id in self.subgraphs.infos.keys() {
             self.library.instances.remove(id);
         }
-        self.library
-            .components
-            .retain(|type_name, _| !kairos_diagram::is_subgraph_type(type_name));
-        // The palette offers the subgraphs beside the diagram: files there that expose something.
-        for (type_name, path) in subgraph_files(&folder, self.document.path()) {
-            if let Ok((info, _)) = kairos_diagram::subgraph::describe(&path, &type_name, &self.library) {
+        let shipped = std::mem::take(&mut self.library.subgraphs);
+        self.library.components.retain(|type_name, _| {
+            !kairos_diagram::is_subgraph_type(type_name) && !shipped.contains_key(type_name)
+        });
+        self.library.subgraphs = shipped;
+        // The palette offers the subgraphs beside the diagram (files there that expose something) and
+        // those the packs ship.
+        let mut offered = subgraph_files(&folder, self.document.path());
+        offered.extend(self.library.subgraphs.keys().map(|t| (t.clone(), PathBuf::new())));
+        for (type_name, path) in offered {
+            if let Ok((mut info, _)) = kairos_diagram::subgraph::describe(&path, &type_name, &self.library) {
+                if let Some((pack, _)) = type_name.split_once('.').filter(|_| path.as_os_str().is_empty()) {
+                    pack.clone_into(&mut info.pack);
+                }
                 self.library.components.insert(type_name, info);
             }
         }
@@ -1033,7 +1040,8 @@ impl Session {
         self.note(
             LogLevel::Info,
             format!(
-                "{} components are now subgraph {} ('{instance}'); double-click it to go inside; Undo puts                  them back (the file stays)",
+                "{} components are now subgraph {} ('{instance}'); double-click it to go inside; Undo puts \
+                 them back (the file stays)",
                 ids.len(),
                 path.display()
             ),
@@ -1052,7 +1060,8 @@ impl Session {
             .filter(|c| c.to.component == recorder)
             .map(|c| c.from.to_string())
             .collect();
-        let on_player = |output: &String| format!("{REPLAY_PLAYER}.{}", recorded_port_name(output));
+        let on_player =
+            |output: &String| format!("{REPLAY_PLAYER}.{}", kairos_diagram::port_name_for_topic(output));
         let taken = |output: &String| inputs.contains(output);
         let viewers = self
             .viewers

@@ -541,8 +541,18 @@ fn a_subgraph_instance_shows_its_exposed_ports_runs_and_is_viewed_and_set_live()
     // On the canvas, with its ports and the camera's link into it.
     assert!(harness.query_by_label("output front.out (image)").is_some());
     assert!(harness.query_by_label("input front.image (image)").is_some());
-    // The palette offers the subgraph beside the diagram; dropped, it is one more instance.
+    // The palette offers the subgraph beside the diagram, and those the packs ship; dropped, one is
+    // one more instance.
     assert!(harness.query_by_label("Subgraphs (beside the diagram)").is_some());
+    assert!(harness.query_by_label("Subgraphs (vision)").is_some());
+    assert!(
+        harness
+            .state()
+            .session
+            .library
+            .component("vision.edges")
+            .is_some()
+    );
     let from = harness.get_by_label("lane pipeline").rect().center();
     drag(&mut harness, from, Pos2::new(700.0, 600.0));
     let added = harness

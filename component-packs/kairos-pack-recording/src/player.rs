@@ -48,25 +48,6 @@ struct PlannedOutput {
     doc: String,
 }
 
-fn port_name(topic: &str) -> String {
-    let name: String = topic
-        .chars()
-        .map(|c| {
-            if c.is_ascii_alphanumeric() || c == '_' {
-                c
-            } else {
-                '_'
-            }
-        })
-        .collect();
-    let name = name.trim_matches('_');
-    if name.is_empty() {
-        "channel".to_owned()
-    } else {
-        name.to_owned()
-    }
-}
-
 /// The outputs for these recordings, in a deterministic order: files as given, channels by topic. Port
 /// names come from topics (`camera.image` → `camera_image`); a repeated name gets `_2`, `_3`, ...
 fn plan(files: &[Arc<RecordingIndex>]) -> Vec<PlannedOutput> {
@@ -78,7 +59,7 @@ fn plan(files: &[Arc<RecordingIndex>]) -> Vec<PlannedOutput> {
             .file_name()
             .map_or_else(String::new, |n| n.to_string_lossy().into_owned());
         for channel in index.channels() {
-            let base = port_name(&channel.topic);
+            let base = kairos_sdk::port_name_for_topic(&channel.topic);
             let mut name = base.clone();
             let mut n = 2;
             while !taken.insert(name.clone()) {

@@ -34,6 +34,7 @@ use kairos_sdk::Registry;
 pub fn register(registry: &mut Registry) {
     registry
         .pack("vision", env!("CARGO_PKG_VERSION"), "built-in")
+        .subgraph("edges", include_str!("../subgraphs/edges.ron"))
         .component::<images::Convert>(images::Convert::info())
         .component::<images::Resize>(images::Resize::info())
         .component::<images::Crop>(images::Crop::info())

@@ -39,7 +39,7 @@ pub use component::{
 pub use disciplined::{ClockState, ClockStatus, DisciplinedClock};
 pub use kairos_diagram::{
     ComponentInfo, DataType, DescribeError, DeviceKind, ExecutionMode, LibraryInfo, OutputInfo, PackInfo,
-    PropertyKind, ReaderPolicy, TypeFilter, Value,
+    PropertyKind, ReaderPolicy, TypeFilter, Value, port_name_for_topic,
 };
 pub use payload::{
     CanFrame, CustomPayload, FixStatus, GnssFix, Image, Imu, Matrix, Payload, PixelFormat, PointCloud, Pose,

@@ -73,6 +73,8 @@ pub struct Registry {
     /// What was refused, kept whole: a pack library exports these too, so that the runtime loading it
     /// refuses them where it can say so, with the library's path.
     refused_registrations: Vec<RegisteredComponent>,
+    /// The subgraphs packs ship: type name (`vision.lane_pipeline`) → diagram text.
+    subgraphs: BTreeMap<String, String>,
 }
 
 impl Registry {
@@ -110,6 +112,11 @@ impl Registry {
     /// Every pack, by name.
     pub fn packs(&self) -> impl Iterator<Item = &PackInfo> {
         self.packs.values()
+    }
+
+    /// The subgraphs packs ship: type name → diagram text.
+    pub fn subgraphs(&self) -> &BTreeMap<String, String> {
+        &self.subgraphs
     }
 
     /// Component types offered twice, and which pack won.
@@ -180,6 +187,7 @@ impl Registry {
                 .collect(),
             custom_types: self.custom_types.iter().cloned().collect(),
             instances: BTreeMap::new(),
+            subgraphs: self.subgraphs.clone(),
         }
     }
 }
@@ -212,6 +220,15 @@ impl PackRegistrar<'_> {
             Arc::new(|| Box::new(C::default())),
             Some(Arc::new(describe)),
         )
+    }
+
+    /// Ships a subgraph with the pack: a diagram (`text`, with an `exposes` section) that diagrams use
+    /// as the component type `pack.name`, versioned with the pack.
+    pub fn subgraph(&mut self, name: &str, text: &str) -> &mut Self {
+        self.registry
+            .subgraphs
+            .insert(format!("{}.{name}", self.pack), text.to_owned());
+        self
     }
 
     /// Registers a component type with its own factory.

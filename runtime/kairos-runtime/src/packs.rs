@@ -108,3 +108,29 @@ pub fn load_packs(registry: &mut Registry, folders: &[PathBuf]) -> PackScan {
     }
     scan
 }
+
+/// Ships with a pack the subgraphs in `folder` (each `NAME.ron` becomes the subgraph `pack.NAME`): the
+/// `subgraphs/` folder of a Python pack, `PACK.subgraphs/` beside a pack library. A file that cannot be
+/// read is left out, said in the log.
+pub(crate) fn register_subgraphs(registrar: &mut kairos_sdk_core::PackRegistrar<'_>, folder: &Path) {
+    let Ok(entries) = std::fs::read_dir(folder) else {
+        return;
+    };
+    let mut files: Vec<PathBuf> = entries
+        .map_while(Result::ok)
+        .map(|entry| entry.path())
+        .filter(|path| path.extension().is_some_and(|e| e == "ron"))
+        .collect();
+    files.sort();
+    for file in files {
+        let Some(name) = file.file_stem().and_then(|s| s.to_str()) else {
+            continue;
+        };
+        match std::fs::read_to_string(&file) {
+            Ok(text) => {
+                registrar.subgraph(name, &text);
+            }
+            Err(error) => tracing::warn!("subgraph {} left out: {error}", file.display()),
+        }
+    }
+}

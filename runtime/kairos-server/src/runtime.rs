@@ -576,18 +576,22 @@ impl Runtime {
         let mut read = |path: &Path| -> Result<String, String> {
             if folder.is_none() {
                 return Err(format!(
-                    "the diagram came without its folder, so this runtime cannot read {}; deploy it from                      the machine that has the file (`kairos run --deploy`, the studio)",
+                    "the diagram came without its folder, so this runtime cannot read {}; deploy it \
+                     from the machine that has the file (`kairos run --deploy`, the studio)",
                     path.display()
                 ));
             }
             std::fs::read_to_string(path).map_err(|e| e.to_string())
         };
-        let flattened = kairos_diagram::flatten(parsed, &file, &mut read)
+        let registry = self.registry();
+        let mut sources = kairos_diagram::Sources {
+            read: &mut read,
+            shipped: registry.subgraphs(),
+        };
+        let flattened = kairos_diagram::flatten_from(parsed, &file, &mut sources)
             .map_err(|diagnostics| invalid(text, diagnostics))?;
         let parsed = flattened.parsed;
-        let mut diagnostics = self
-            .registry()
-            .validate(&parsed.diagram, Some(&parsed.source_map));
+        let mut diagnostics = registry.validate(&parsed.diagram, Some(&parsed.source_map));
         flattened.origins.annotate(&mut diagnostics);
         if diagnostics.iter().any(Diagnostic::is_error) {
             return Err(invalid(text, diagnostics));

@@ -91,7 +91,7 @@ fn load_checked(
     path: &Path,
     options: &RunOptions,
 ) -> anyhow::Result<Option<kairos_diagram::ParsedDiagram>> {
-    let (source, flattened) = match kairos_diagram::load_flattened(path) {
+    let (source, flattened) = match kairos_diagram::load_flattened(path, registry.subgraphs()) {
         Ok(loaded) => loaded,
         Err(error) => {
             eprint!("{}", error.render());

@@ -136,8 +136,8 @@ pub fn print(
         return Ok(reached_all);
     }
     let path = PathBuf::from(target);
-    let (_, flattened) =
-        kairos_diagram::load_flattened(&path).map_err(|e| anyhow::anyhow!("{}", e.render()))?;
+    let (_, flattened) = kairos_diagram::load_flattened(&path, &std::collections::BTreeMap::new())
+        .map_err(|e| anyhow::anyhow!("{}", e.render()))?;
     let parsed = flattened.parsed;
     let hosts = &parsed.diagram.hosts;
     anyhow::ensure!(

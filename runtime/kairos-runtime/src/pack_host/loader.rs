@@ -120,6 +120,9 @@ impl LoadedPack {
     pub fn register(&self, registry: &mut Registry) {
         let origin = self.path.display().to_string();
         let mut pack = registry.pack(&self.name, &self.version, &origin);
+        if let Some(folder) = self.path.parent() {
+            crate::packs::register_subgraphs(&mut pack, &folder.join(format!("{}.subgraphs", self.name)));
+        }
         for (info, vtable) in &self.components {
             let vtable = *vtable;
             pack.component_with(info.clone(), move || Box::new(DynamicComponent::new(vtable)));

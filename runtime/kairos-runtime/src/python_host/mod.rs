@@ -142,6 +142,7 @@ pub fn load_python_pack(
             .join(".")
     );
     let mut registrar = registry.pack(&name, &spec.manifest.pack.version, &folder.display().to_string());
+    crate::packs::register_subgraphs(&mut registrar, &folder.join("subgraphs"));
     for component in described.components {
         let component_spec = Arc::new(ComponentSpec {
             pack: name.clone(),

@@ -86,7 +86,7 @@ impl DevicesArgs {
 fn validate(registry: &Registry, paths: &[PathBuf], searched: &[PathBuf]) -> ExitCode {
     let mut all_valid = true;
     for path in paths {
-        match kairos_diagram::load_flattened(path) {
+        match kairos_diagram::load_flattened(path, registry.subgraphs()) {
             Err(error) => {
                 all_valid = false;
                 eprint!("{}", error.render());
