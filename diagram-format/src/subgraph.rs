@@ -668,11 +668,7 @@ fn listed(names: &[&str]) -> String {
 /// output whose type follows an inner input follows the exposed input feeding it). `library` describes
 /// the inner components; the description names a problem with the file as text. With it, what the
 /// subgraph exposes, in the flat ids of its inside (`overlay.out`, `inner/edges.low`).
-pub fn describe(
-    file: &Path,
-    type_name: &str,
-    library: &crate::LibraryInfo,
-) -> Result<(crate::ComponentInfo, Exposes), String> {
+pub fn describe(file: &Path, type_name: &str, library: &crate::LibraryInfo) -> Result<Described, String> {
     let (text, flattened) = match library.subgraphs.get(type_name) {
         Some(text) => {
             let first = |problems: Vec<Diagnostic>| {
@@ -787,7 +783,56 @@ pub fn describe(
         property.name.clone_from(name);
         info.properties.push(property);
     }
-    Ok((info, exposes))
+    let inside = diagram
+        .components
+        .iter()
+        .filter_map(|component| {
+            let kind = library.component_of(component)?;
+            let outputs = kind
+                .outputs
+                .iter()
+                .filter_map(|output| {
+                    let at = PortRef::new(component.id.clone(), output.name.clone());
+                    let data_type = crate::validate::output_type(diagram, &at, |c| library.component_of(c))?;
+                    Some((output.name.clone(), data_type))
+                })
+                .collect();
+            let actions = kind.actions.iter().map(|a| a.name.clone()).collect();
+            Some(InnerPart {
+                id: component.id.clone(),
+                outputs,
+                actions,
+            })
+        })
+        .collect();
+    Ok(Described {
+        info,
+        exposes,
+        inside,
+    })
+}
+
+/// A subgraph as its users see it ([`describe`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Described {
+    /// Its instances as a component type: the exposed ports and properties.
+    pub info: crate::ComponentInfo,
+    /// What it exposes, in the flat ids of its inside.
+    pub exposes: Exposes,
+    /// Its inner components (flat ids inside it, `edges`, `inner/edges`), each with its outputs' types
+    /// (an output whose type follows an input fed from outside is left out) and its actions.
+    pub inside: Vec<InnerPart>,
+}
+
+/// One component inside a subgraph, as [`Described::inside`] lists it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct InnerPart {
+    /// Its id inside the subgraph.
+    pub id: String,
+    /// Its outputs and their types.
+    pub outputs: Vec<(String, crate::DataType)>,
+    /// Its actions' names.
+    pub actions: Vec<String>,
 }
 
 /// Moves the components `ids` of `diagram` into a new subgraph: returns the subgraph (their components

@@ -457,6 +457,7 @@ impl StudioApp {
             Command::StartUnlocked => self.session.start_unlocked(),
             Command::SetLockBound(bound) => self.session.set_lock_bound(bound),
             Command::Request(body) => self.session.request(body),
+            Command::OpenViewer { output, data_type } => self.session.viewers.open(output, &data_type),
             Command::Replay { recorder, file } => {
                 let replay = self.session.replay_diagram(&recorder, &file);
                 self.unless_unsaved(AfterDiscard::Unsaved(Box::new(replay)));

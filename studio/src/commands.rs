@@ -142,6 +142,13 @@ pub enum Command {
     },
     /// Run the whole diagram in one thread (sequential), or not.
     SetSequential(bool),
+    /// Open the usual viewer of `output` for its type (an output inside a subgraph, named flat).
+    OpenViewer {
+        /// `component.port`.
+        output: String,
+        /// Its type's name.
+        data_type: String,
+    },
     /// Trigger a component's action.
     TriggerAction {
         /// The component's id.

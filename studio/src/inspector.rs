@@ -148,6 +148,7 @@ fn component_ui(
         property_ui(ui, session, instance, property, commands);
     }
     actions_ui(ui, &instance.id, info, commands);
+    inside_ui(ui, session, &instance.id, commands);
     status_ui(ui, session, &instance.id);
     if let Some(NodeState::Failed(error)) = session.node_state(&instance.id) {
         ui.separator();
@@ -635,6 +636,46 @@ fn number_ui(
         event = FieldEvent::Refused(why);
     }
     (response.changed(), event)
+}
+
+/// Inside a subgraph instance: each inner component with a button per output to view it and per action
+/// to trigger it (ids under the instance's, as the runtime runs them).
+fn inside_ui(ui: &mut egui::Ui, session: &Session, instance: &str, commands: &mut Vec<Command>) {
+    let parts = session.inside_subgraph(instance);
+    if parts.is_empty() {
+        return;
+    }
+    ui.separator();
+    egui::CollapsingHeader::new("Inside")
+        .id_salt(("inside", instance))
+        .show(ui, |ui| {
+            ui.weak("its outputs, to view; its actions; double-click the node to edit it");
+            for part in parts {
+                let flat = format!("{instance}/{}", part.id);
+                ui.horizontal_wrapped(|ui| {
+                    for (output, data_type) in &part.outputs {
+                        if ui
+                            .small_button(format!("{}.{output}", part.id))
+                            .on_hover_text(format!("open a viewer on {flat}.{output}"))
+                            .clicked()
+                        {
+                            commands.push(Command::OpenViewer {
+                                output: format!("{flat}.{output}"),
+                                data_type: data_type.name().to_string(),
+                            });
+                        }
+                    }
+                    for action in &part.actions {
+                        if ui.small_button(action).clicked() {
+                            commands.push(Command::TriggerAction {
+                                component: flat.clone(),
+                                action: action.clone(),
+                            });
+                        }
+                    }
+                });
+            }
+        });
 }
 
 /// A button per action.

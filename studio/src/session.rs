@@ -34,6 +34,8 @@ struct Subgraphs {
     /// Each exposed property (`front.edge_low`) → the inner properties it sets in the flat diagram
     /// (`front/edges`, `low`): a live change is sent to each.
     properties: BTreeMap<String, Vec<(String, String)>>,
+    /// Each instance's inner components, their outputs and actions, ids inside it.
+    inside: BTreeMap<String, Vec<kairos_diagram::subgraph::InnerPart>>,
 }
 
 /// The diagram files in `folder` that expose something (subgraphs), but `document` itself: their
@@ -951,7 +953,8 @@ impl Session {
         let mut offered = subgraph_files(&folder, self.document.path());
         offered.extend(self.library.subgraphs.keys().map(|t| (t.clone(), PathBuf::new())));
         for (type_name, path) in offered {
-            if let Ok((mut info, _)) = kairos_diagram::subgraph::describe(&path, &type_name, &self.library) {
+            if let Ok(described) = kairos_diagram::subgraph::describe(&path, &type_name, &self.library) {
+                let mut info = described.info;
                 if let Some((pack, _)) = type_name.split_once('.').filter(|_| path.as_os_str().is_empty()) {
                     pack.clone_into(&mut info.pack);
                 }
@@ -961,11 +964,14 @@ impl Session {
         let mut infos = BTreeMap::new();
         let mut outputs = BTreeMap::new();
         let mut properties = BTreeMap::new();
+        let mut inside = BTreeMap::new();
         let mut problems = Vec::new();
         for (id, type_name) in &key.1 {
             match kairos_diagram::subgraph::describe(&folder.join(type_name), type_name, &self.library) {
-                Ok((info, exposes)) => {
-                    infos.insert(id.clone(), info);
+                Ok(described) => {
+                    let exposes = described.exposes;
+                    infos.insert(id.clone(), described.info);
+                    inside.insert(id.clone(), described.inside);
                     for (name, inner) in exposes.outputs {
                         outputs.insert(
                             format!("{id}.{name}"),
@@ -989,10 +995,17 @@ impl Session {
             infos,
             outputs,
             properties,
+            inside,
         };
         for problem in problems {
             self.note(LogLevel::Warn, problem);
         }
+    }
+
+    /// The components inside the subgraph instance `id` (their ids inside it), with their outputs'
+    /// types and their actions: what the inspector offers to view and trigger inside.
+    pub fn inside_subgraph(&self, id: &str) -> &[kairos_diagram::subgraph::InnerPart] {
+        self.subgraphs.inside.get(id).map_or(&[], Vec::as_slice)
     }
 
     /// Writes the components `ids` to a new subgraph file at `path` and puts one instance of it in their

@@ -594,6 +594,20 @@ fn a_subgraph_instance_shows_its_exposed_ports_runs_and_is_viewed_and_set_live()
         harness.state().session.node_state("rear"),
         Some(&NodeState::Running)
     );
+    // Inside it, from the inspector: a viewer on an inner output, as the runtime names it.
+    harness.state_mut().canvas.selected = ["front".to_owned()].into();
+    harness.run_steps(2);
+    harness.get_by_label("Inside").click();
+    harness.run_steps(2);
+    harness.get_by_label("edges.out").click();
+    harness.run_steps(2);
+    run_until(&mut harness, "the inner edges' frames", |app| {
+        app.session
+            .viewers
+            .list
+            .iter()
+            .any(|v| v.output == "front/edges.out" && v.texture_size() == Some([640, 480]))
+    });
     harness
         .state_mut()
         .session
