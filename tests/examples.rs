@@ -143,6 +143,56 @@ fn a_subgraph_the_vision_pack_ships_is_used_as_its_type() {
 }
 
 #[test]
+fn a_recorder_inside_a_subgraph_records_under_flat_names_and_the_replay_plays_them() {
+    let dir = tempfile::tempdir().unwrap();
+    // A sensor rig as a subgraph: an IMU recorded where it is, its output exposed too.
+    std::fs::write(
+        dir.path().join("rig.ron"),
+        r#"Diagram(format: 1,
+    exposes: Exposes(outputs: {"imu": "imu.imu"}, properties: {"file": "recorder.path"}),
+    components: [
+        Component(id: "imu", type: "sensors.imu"),
+        Component(id: "recorder", type: "recording.recorder"),
+    ],
+    connections: [Connection(from: "imu.imu", to: "recorder.in1")],
+)"#,
+    )
+    .unwrap();
+    std::fs::write(
+        dir.path().join("car.ron"),
+        r#"Diagram(format: 1,
+    components: [Component(id: "front", type: "rig.ron", properties: {"file": "front.mcap"})],
+)"#,
+    )
+    .unwrap();
+    let output = kairos(dir.path(), &["run", "car.ron", "--for", "1s"]);
+    assert!(output.status.success(), "{}", text(&output).1);
+    let output = kairos(dir.path(), &["inspect", "front.mcap"]);
+    let (stdout, stderr) = text(&output);
+    assert!(output.status.success(), "{stderr}");
+    assert!(
+        stdout.contains("front/imu.imu"),
+        "the topic is the flat output's name: {stdout}"
+    );
+    // Replayed, the player names its output after that topic.
+    std::fs::write(
+        dir.path().join("replay.ron"),
+        r#"Diagram(format: 1,
+    components: [
+        Component(id: "player", type: "recording.player", properties: {"path": "front.mcap"}),
+        Component(id: "log", type: "core.console"),
+    ],
+    connections: [Connection(from: "player.front_imu_imu", to: "log.in")],
+)"#,
+    )
+    .unwrap();
+    let output = kairos(dir.path(), &["run", "replay.ron", "--stats"]);
+    let (_, stderr) = text(&output);
+    assert!(output.status.success(), "{stderr}");
+    assert!(common::stats_cycles(&stderr, "log") >= 1, "{stderr}");
+}
+
+#[test]
 fn a_fault_inside_a_subgraph_is_reported_inside_and_at_each_instance() {
     let dir = tempfile::tempdir().unwrap();
     let pipeline = std::fs::read_to_string(example("subgraph/lane_pipeline"))

@@ -565,6 +565,13 @@ impl Canvas {
                 .or_else(|| frame.shown.monitor.subgraphs.get(&component.id)),
             detail: frame.detail,
             group: frame.diagram.group_of(component),
+            lost_inside: frame
+                .shown
+                .monitor
+                .lost_inside
+                .get(&component.id)
+                .copied()
+                .unwrap_or(0),
         };
         paint::paint_node(frame.painter, ui.visuals(), node.rect, &look);
         match (state, info) {

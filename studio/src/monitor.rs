@@ -81,6 +81,8 @@ pub struct Monitor {
     /// Each subgraph instance's figures, rolled up from its inner components (`front/...`): cycles,
     /// missed ticks and CPU added, the fastest rate, the worst state.
     pub subgraphs: BTreeMap<String, ComponentTelemetry>,
+    /// Per subgraph instance, the samples lost (overwritten) on the links into its parts.
+    pub lost_inside: BTreeMap<String, u64>,
     /// How many times each component failed in this deployment.
     failures: BTreeMap<String, u64>,
     /// The hosts not answering now, and how many times each was lost or each link cut.
@@ -140,6 +142,7 @@ impl Default for Monitor {
             cross_links: BTreeMap::new(),
             groups: BTreeMap::new(),
             subgraphs: BTreeMap::new(),
+            lost_inside: BTreeMap::new(),
             failures: BTreeMap::new(),
             lost_hosts: BTreeSet::new(),
             cut_links: BTreeSet::new(),
@@ -186,6 +189,16 @@ impl Monitor {
     pub fn update(&mut self, telemetry: &Telemetry) -> Vec<(LogLevel, String)> {
         let now = Instant::now();
         self.subgraphs = rolled_up(&telemetry.components);
+        self.lost_inside.clear();
+        for link in &telemetry.links {
+            // `a.out -> front/edges.in`: a reader inside `front`.
+            let reader = link.link.rsplit(" -> ").next().unwrap_or_default();
+            if let Some((instance, _)) = reader.split_once('/')
+                && link.overwritten > 0
+            {
+                *self.lost_inside.entry(instance.to_owned()).or_default() += link.overwritten;
+            }
+        }
         let mut raised = self.follow_hosts(telemetry);
         self.groups = telemetry
             .groups
@@ -586,6 +599,43 @@ mod tests {
                 transit_max_ns: None,
             }],
         }
+    }
+
+    #[test]
+    fn a_subgraph_instance_sums_its_parts_cpu_takes_their_fastest_rate_worst_state_and_losses_inside() {
+        let part = |id: &str, state: &str, rate: f64, cpu: f64| {
+            serde_json::json!({"id": id, "type_name": "core.gain", "state": state, "cycles": 10,
+                "cycle_rate_hz": rate, "cpu_share": cpu})
+        };
+        let link = |name: &str, overwritten: u64| {
+            serde_json::json!({"link": name, "policy": "Fifo", "written": 100, "read": 90, "skipped": 0,
+                "overwritten": overwritten, "queued": 0, "repeated": 0, "rate_hz": 10.0,
+                "latency": {"count": 0, "min_ns": 0, "mean_ns": 0, "p50_ns": 0, "p99_ns": 0, "max_ns": 0}})
+        };
+        let mut telemetry = telemetry(true, true);
+        telemetry.components = serde_json::from_value(serde_json::json!([
+            part("cam", "running", 30.0, 0.01),
+            part("front/grey", "running", 15.0, 0.05),
+            part("front/inner/edges", "failed", 12.0, 0.20),
+        ]))
+        .unwrap();
+        telemetry.links = serde_json::from_value(serde_json::json!([
+            link("cam.image -> front/grey.in", 3),
+            link("front/grey.out -> front/inner/edges.in", 4),
+            link("front/inner/edges.out -> log.in", 50),
+        ]))
+        .unwrap();
+        let mut monitor = Monitor::default();
+        monitor.update(&telemetry);
+        let front = &monitor.subgraphs["front"];
+        assert!((front.cpu_share - 0.25).abs() < 1e-9);
+        assert!((front.cycle_rate_hz - 15.0).abs() < 1e-9);
+        assert_eq!(front.cycles, 20);
+        assert_eq!(front.state, kairos_protocol::ComponentState::Failed);
+        assert!(!monitor.subgraphs.contains_key("cam"));
+        // Lost on the links into its parts; what a reader outside lost is not the subgraph's.
+        assert_eq!(monitor.lost_inside["front"], 7);
+        assert_eq!(monitor.lost_inside.len(), 1);
     }
 
     #[test]

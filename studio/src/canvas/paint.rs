@@ -222,6 +222,8 @@ pub struct NodeLook<'a> {
     pub detail: bool,
     /// The execution group it runs in, when it shares a thread.
     pub group: Option<&'a str>,
+    /// Samples lost on the links inside it (a subgraph instance), so far.
+    pub lost_inside: u64,
 }
 
 /// A node's box, state stripe, id, type and figures (its ports are painted on their own); a member of an
@@ -283,11 +285,20 @@ pub fn paint_node(painter: &Painter, visuals: &egui::Visuals, rect: Rect, look: 
             painter,
             rect.right_top() + Vec2::new(-8.0, 5.0),
             Align2::RIGHT_TOP,
-            format!(
-                "{:.0}/s · {:.0} % CPU",
-                figures.cycle_rate_hz,
-                figures.cpu_share * 100.0
-            ),
+            if look.lost_inside > 0 {
+                format!(
+                    "{:.0}/s · {:.0} % CPU · {} lost inside",
+                    figures.cycle_rate_hz,
+                    figures.cpu_share * 100.0,
+                    look.lost_inside
+                )
+            } else {
+                format!(
+                    "{:.0}/s · {:.0} % CPU",
+                    figures.cycle_rate_hz,
+                    figures.cpu_share * 100.0
+                )
+            },
             FontId::proportional(10.0),
             visuals.weak_text_color(),
         );
