@@ -766,6 +766,11 @@ impl LibraryInfo {
         self.components.get(type_name)
     }
 
+    /// Whether `type_name` names a subgraph: a diagram file, or one a pack of this library ships.
+    pub fn names_subgraph(&self, type_name: &str) -> bool {
+        crate::subgraph::is_subgraph_type(type_name) || self.subgraphs.contains_key(type_name)
+    }
+
     /// What `instance` is: its own description when one is known for it (and still of its type), else its
     /// type's.
     pub fn component_of(&self, instance: &crate::model::ComponentInstance) -> Option<&ComponentInfo> {

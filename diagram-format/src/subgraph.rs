@@ -24,11 +24,6 @@ pub fn is_subgraph_type(type_name: &str) -> bool {
         .is_some_and(|extension| extension.eq_ignore_ascii_case("ron"))
 }
 
-/// Whether `diagram` uses any subgraph file (and so needs [`flatten`] before it runs).
-pub fn uses_subgraphs(diagram: &Diagram) -> bool {
-    diagram.components.iter().any(|c| is_subgraph_type(&c.type_name))
-}
-
 /// Where subgraphs are read from: files, by path, and the subgraphs packs ship, by type name.
 pub struct Sources<'a> {
     /// A file's text, or why it cannot be read.

@@ -303,12 +303,7 @@ impl StudioApp {
                 session.publish_to_foxglove(&output.to_string(), publish);
             }
             if let Some(file) = canvas.take_subgraph_request() {
-                let folder = session
-                    .document
-                    .path()
-                    .and_then(std::path::Path::parent)
-                    .map_or_else(|| PathBuf::from("."), std::path::Path::to_owned);
-                commands.push(Command::OpenSubgraph(folder.join(file)));
+                commands.push(Command::OpenSubgraph(session.document_folder().join(file)));
             }
         });
         let choices = self.session.outputs_with_types();

@@ -41,12 +41,6 @@ struct Subgraphs {
 /// The diagram files in `folder` that expose something (subgraphs), but `document` itself: their
 /// types (file names) and paths, by name.
 fn subgraph_files(folder: &Path, document: Option<&Path>) -> Vec<(String, PathBuf)> {
-    // A diagram opened by a bare file name has an empty folder: the working one.
-    let folder = if folder.as_os_str().is_empty() {
-        Path::new(".")
-    } else {
-        folder
-    };
     let document = document.and_then(|d| d.file_name()).map(|name| folder.join(name));
     let Ok(entries) = std::fs::read_dir(folder) else {
         return Vec::new();
@@ -827,9 +821,7 @@ impl Session {
         // A runtime that cannot read the subgraph files (on another machine) is sent the diagram flat.
         let shipped = &self.library.subgraphs;
         let uses_subgraphs =
-            self.document.diagram().components.iter().any(|c| {
-                kairos_diagram::is_subgraph_type(&c.type_name) || shipped.contains_key(&c.type_name)
-            });
+            (self.document.diagram().components.iter()).any(|c| self.library.names_subgraph(&c.type_name));
         if folder.is_none() && uses_subgraphs {
             let file = self
                 .document
@@ -903,6 +895,16 @@ impl Session {
         );
     }
 
+    /// The folder of the document's file, where its subgraph files are: the working folder for a
+    /// document not saved yet or opened by a bare file name.
+    pub fn document_folder(&self) -> PathBuf {
+        self.document
+            .path()
+            .and_then(Path::parent)
+            .filter(|folder| !folder.as_os_str().is_empty())
+            .map_or_else(|| PathBuf::from("."), Path::to_owned)
+    }
+
     /// Describes each subgraph instance (a component whose type is a diagram file) from its file, read
     /// beside the document, whenever the instances, the document's file or the library changed: the
     /// canvas then shows its exposed ports and the inspector its exposed properties. A subgraph that
@@ -911,30 +913,20 @@ impl Session {
         if self.library.components.is_empty() {
             return;
         }
-        let folder = self
-            .document
-            .path()
-            .and_then(Path::parent)
-            .map_or_else(|| PathBuf::from("."), Path::to_owned);
+        let folder = self.document_folder();
         let instances: Vec<(String, String)> = self
             .document
             .diagram()
             .components
             .iter()
-            .filter(|c| {
-                kairos_diagram::is_subgraph_type(&c.type_name)
-                    || self.library.subgraphs.contains_key(&c.type_name)
-            })
+            .filter(|c| self.library.names_subgraph(&c.type_name))
             .map(|c| (c.id.clone(), c.type_name.clone()))
             .collect();
-        let is_subgraph = |library: &LibraryInfo, type_name: &str| {
-            kairos_diagram::is_subgraph_type(type_name) || library.subgraphs.contains_key(type_name)
-        };
         let packs_components = self
             .library
             .components
             .keys()
-            .filter(|t| !is_subgraph(&self.library, t))
+            .filter(|t| !self.library.names_subgraph(t))
             .count();
         let key = (folder.clone(), instances, packs_components);
         if key == self.subgraphs.key {
@@ -943,17 +935,25 @@ impl Session {
         for id in self.subgraphs.infos.keys() {
             self.library.instances.remove(id);
         }
-        let shipped = std::mem::take(&mut self.library.subgraphs);
+        let subgraphs = &self.library.subgraphs;
         self.library.components.retain(|type_name, _| {
-            !kairos_diagram::is_subgraph_type(type_name) && !shipped.contains_key(type_name)
+            !kairos_diagram::is_subgraph_type(type_name) && !subgraphs.contains_key(type_name)
         });
-        self.library.subgraphs = shipped;
+        // Each subgraph described once, whether the palette offers it, instances use it, or both.
+        let mut described: BTreeMap<String, Result<kairos_diagram::subgraph::Described, String>> =
+            BTreeMap::new();
+        let mut describe = |type_name: &str, path: &Path, library: &LibraryInfo| {
+            described
+                .entry(type_name.to_owned())
+                .or_insert_with(|| kairos_diagram::subgraph::describe(path, type_name, library))
+                .clone()
+        };
         // The palette offers the subgraphs beside the diagram (files there that expose something) and
         // those the packs ship.
         let mut offered = subgraph_files(&folder, self.document.path());
         offered.extend(self.library.subgraphs.keys().map(|t| (t.clone(), PathBuf::new())));
         for (type_name, path) in offered {
-            if let Ok(described) = kairos_diagram::subgraph::describe(&path, &type_name, &self.library) {
+            if let Ok(described) = describe(&type_name, &path, &self.library) {
                 let mut info = described.info;
                 if let Some((pack, _)) = type_name.split_once('.').filter(|_| path.as_os_str().is_empty()) {
                     pack.clone_into(&mut info.pack);
@@ -967,7 +967,7 @@ impl Session {
         let mut inside = BTreeMap::new();
         let mut problems = Vec::new();
         for (id, type_name) in &key.1 {
-            match kairos_diagram::subgraph::describe(&folder.join(type_name), type_name, &self.library) {
+            match describe(type_name, &folder.join(type_name), &self.library) {
                 Ok(described) => {
                     let exposes = described.exposes;
                     infos.insert(id.clone(), described.info);
