@@ -36,8 +36,8 @@ pub use library::{
 };
 pub use model::{
     ComponentInstance, Connection, DEFAULT_RIDE_OUT_MB, DEFAULT_RIDE_OUT_S, DEFAULT_ZENOH_PORT, Diagram,
-    Exposes, FORMAT_VERSION, HostSpec, MAX_BUFFER_SIZE, MAX_RIDE_OUT_MB, MAX_RIDE_OUT_S, OutputSettings,
-    PackRequirement, PortRef, Position, SEQUENTIAL_GROUP, ThreadSettings, ViewerSpec,
+    ExposedKind, Exposes, FORMAT_VERSION, HostSpec, MAX_BUFFER_SIZE, MAX_RIDE_OUT_MB, MAX_RIDE_OUT_S,
+    OutputSettings, PackRequirement, PortRef, Position, SEQUENTIAL_GROUP, ThreadSettings, ViewerSpec,
 };
 pub use read::{
     ComponentLocations, ConnectionLocations, EntryLocations, ExposesLocations, GroupLocations, HostLocations,

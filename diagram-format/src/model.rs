@@ -65,6 +65,158 @@ pub struct Exposes {
     pub properties: BTreeMap<String, Vec<PortRef>>,
 }
 
+/// What an exposed name stands for: an inner input, output or property.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum ExposedKind {
+    /// An inner input, fed from the subgraph's input of that name.
+    Input,
+    /// An inner output, shown as the subgraph's output of that name.
+    Output,
+    /// An inner property, set from the subgraph's property of that name.
+    Property,
+}
+
+impl ExposedKind {
+    /// The kind in words (`input`, `output`, `property`).
+    pub fn name(self) -> &'static str {
+        match self {
+            ExposedKind::Input => "input",
+            ExposedKind::Output => "output",
+            ExposedKind::Property => "property",
+        }
+    }
+}
+
+impl Exposes {
+    /// Whether nothing is exposed.
+    pub fn is_empty(&self) -> bool {
+        self.inputs.is_empty() && self.outputs.is_empty() && self.properties.is_empty()
+    }
+
+    /// The name `inner` is exposed under, if it is.
+    pub fn name_of(&self, kind: ExposedKind, inner: &PortRef) -> Option<&str> {
+        let name = match kind {
+            ExposedKind::Output => self
+                .outputs
+                .iter()
+                .find(|(_, port)| *port == inner)
+                .map(|(n, _)| n),
+            ExposedKind::Input => find_in(&self.inputs, inner),
+            ExposedKind::Property => find_in(&self.properties, inner),
+        };
+        name.map(String::as_str)
+    }
+
+    /// Exposes `inner` under `name`, or stops exposing it (`None`). An input or property given a name
+    /// already exposed joins it, so that one outer name feeds several inner ones; an output's name is
+    /// its own. Refused, with the reason, for a name that is not an id or that another output, or a port
+    /// of the other side, already has.
+    pub fn set(&mut self, kind: ExposedKind, inner: &PortRef, name: Option<&str>) -> Result<(), String> {
+        let name = name.map(str::trim);
+        if let Some(name) = name {
+            if !crate::validate::is_valid_id(name) {
+                return Err(format!(
+                    "\"{name}\" cannot name an exposed {}: use letters, digits, _ and -",
+                    kind.name()
+                ));
+            }
+            let clash = match kind {
+                ExposedKind::Output => self
+                    .outputs
+                    .get(name)
+                    .filter(|port| *port != inner)
+                    .map(|port| format!("output '{name}' already shows {port}"))
+                    .or_else(|| {
+                        self.inputs
+                            .contains_key(name)
+                            .then(|| format!("input '{name}' has that name"))
+                    }),
+                ExposedKind::Input => self
+                    .outputs
+                    .contains_key(name)
+                    .then(|| format!("output '{name}' has that name")),
+                ExposedKind::Property => None,
+            };
+            if let Some(clash) = clash {
+                return Err(format!("the subgraph's {clash}: choose another name"));
+            }
+        }
+        match kind {
+            ExposedKind::Output => {
+                self.outputs.retain(|_, port| port != inner);
+                if let Some(name) = name {
+                    self.outputs.insert(name.to_owned(), inner.clone());
+                }
+            }
+            ExposedKind::Input => set_in(&mut self.inputs, inner, name),
+            ExposedKind::Property => set_in(&mut self.properties, inner, name),
+        }
+        Ok(())
+    }
+
+    /// A name no exposed input, output or property has, for exposing `inner`: its own name, else its
+    /// component's and its own (`left_image`), numbered if need be. Two inner ports are never joined
+    /// under one name unless the user names them so.
+    pub fn free_name(&self, inner: &PortRef) -> String {
+        let taken = |name: &str| {
+            self.inputs.contains_key(name)
+                || self.outputs.contains_key(name)
+                || self.properties.contains_key(name)
+        };
+        let joined = format!("{}_{}", inner.component, inner.port);
+        // Fewer names are taken than there are numbers to try, so one of these is free.
+        let names_taken = self.inputs.len() + self.outputs.len() + self.properties.len();
+        [inner.port.clone(), joined.clone()]
+            .into_iter()
+            .chain((2..names_taken + 3).map(|n| format!("{joined}_{n}")))
+            .find(|name| !taken(name))
+            .unwrap_or(joined)
+    }
+
+    /// Follows a component's new id.
+    pub fn rename_component(&mut self, from: &str, to: &str) {
+        let follow = |port: &mut PortRef| {
+            if port.component == from {
+                to.clone_into(&mut port.component);
+            }
+        };
+        self.outputs.values_mut().for_each(follow);
+        for ports in self.inputs.values_mut().chain(self.properties.values_mut()) {
+            ports.iter_mut().for_each(follow);
+        }
+    }
+
+    /// Forgets what these components exposed (they are gone).
+    pub fn forget_components(&mut self, ids: &[String]) {
+        let kept = |port: &PortRef| !ids.contains(&port.component);
+        self.outputs.retain(|_, port| kept(port));
+        for map in [&mut self.inputs, &mut self.properties] {
+            for ports in map.values_mut() {
+                ports.retain(kept);
+            }
+            map.retain(|_, ports| !ports.is_empty());
+        }
+    }
+}
+
+/// The name whose targets include `inner`.
+fn find_in<'a>(map: &'a BTreeMap<String, Vec<PortRef>>, inner: &PortRef) -> Option<&'a String> {
+    map.iter()
+        .find(|(_, ports)| ports.contains(inner))
+        .map(|(name, _)| name)
+}
+
+/// Moves `inner` to the targets of `name` (or out of every name), dropping names left with none.
+fn set_in(map: &mut BTreeMap<String, Vec<PortRef>>, inner: &PortRef, name: Option<&str>) {
+    for ports in map.values_mut() {
+        ports.retain(|port| port != inner);
+    }
+    map.retain(|_, ports| !ports.is_empty());
+    if let Some(name) = name {
+        map.entry(name.to_owned()).or_default().push(inner.clone());
+    }
+}
+
 /// The one group every component of a [`Diagram::sequential`] diagram runs in.
 pub const SEQUENTIAL_GROUP: &str = "sequential";
 
@@ -352,5 +504,82 @@ impl Connection {
             buffer_size: None,
             subsampling: None,
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn port(text: &str) -> PortRef {
+        PortRef::parse(text).unwrap()
+    }
+
+    #[test]
+    fn a_property_given_an_exposed_name_joins_it_and_leaves_its_old_name() {
+        let mut exposes = Exposes::default();
+        let (a, b) = (port("a.gain"), port("b.gain"));
+        exposes.set(ExposedKind::Property, &a, Some("gain")).unwrap();
+        exposes.set(ExposedKind::Property, &b, Some("b_gain")).unwrap();
+        exposes.set(ExposedKind::Property, &b, Some("gain")).unwrap();
+        assert_eq!(exposes.properties.len(), 1, "b_gain, left empty, is gone");
+        assert_eq!(exposes.properties["gain"], vec![a.clone(), b.clone()]);
+        assert_eq!(exposes.name_of(ExposedKind::Property, &b), Some("gain"));
+        exposes.set(ExposedKind::Property, &a, None).unwrap();
+        assert_eq!(exposes.properties["gain"], vec![b]);
+        assert_eq!(exposes.name_of(ExposedKind::Property, &a), None);
+    }
+
+    #[test]
+    fn an_output_name_is_its_own_and_names_must_be_ids() {
+        let mut exposes = Exposes::default();
+        exposes
+            .set(ExposedKind::Output, &port("a.out"), Some("out"))
+            .unwrap();
+        let taken = exposes.set(ExposedKind::Output, &port("b.out"), Some("out"));
+        assert!(taken.unwrap_err().contains("already shows a.out"));
+        let clash = exposes.set(ExposedKind::Input, &port("b.in"), Some("out"));
+        assert!(clash.unwrap_err().contains("choose another name"));
+        let bad = exposes.set(ExposedKind::Input, &port("b.in"), Some("two words"));
+        assert!(bad.unwrap_err().contains("letters, digits"));
+        exposes
+            .set(ExposedKind::Output, &port("a.out"), Some("renamed"))
+            .unwrap();
+        assert_eq!(exposes.outputs.keys().collect::<Vec<_>>(), ["renamed"]);
+    }
+
+    #[test]
+    fn a_free_name_is_the_port_s_own_else_joined_with_its_component_s() {
+        let mut exposes = Exposes::default();
+        assert_eq!(exposes.free_name(&port("left.image")), "image");
+        exposes
+            .set(ExposedKind::Output, &port("left.image"), Some("image"))
+            .unwrap();
+        assert_eq!(exposes.free_name(&port("right.image")), "right_image");
+        exposes
+            .set(ExposedKind::Input, &port("x.in"), Some("right_image"))
+            .unwrap();
+        assert_eq!(exposes.free_name(&port("right.image")), "right_image_2");
+    }
+
+    #[test]
+    fn exposures_follow_a_renamed_component_and_go_with_a_removed_one() {
+        let mut exposes = Exposes::default();
+        exposes
+            .set(ExposedKind::Input, &port("a.in"), Some("in"))
+            .unwrap();
+        exposes
+            .set(ExposedKind::Input, &port("b.in"), Some("in"))
+            .unwrap();
+        exposes
+            .set(ExposedKind::Output, &port("b.out"), Some("out"))
+            .unwrap();
+        exposes.rename_component("a", "first");
+        assert_eq!(exposes.inputs["in"], vec![port("first.in"), port("b.in")]);
+        exposes.forget_components(&["b".to_owned()]);
+        assert_eq!(exposes.inputs["in"], vec![port("first.in")]);
+        assert!(exposes.outputs.is_empty());
+        exposes.forget_components(&["first".to_owned()]);
+        assert!(exposes.is_empty());
     }
 }

@@ -302,6 +302,9 @@ impl StudioApp {
             if let Some((output, publish)) = canvas.take_foxglove_request() {
                 session.publish_to_foxglove(&output.to_string(), publish);
             }
+            if let Some((kind, inner, name)) = canvas.take_expose_request() {
+                commands.push(Command::SetExposed { kind, inner, name });
+            }
             if let Some(file) = canvas.take_subgraph_request() {
                 commands.push(Command::OpenSubgraph(session.document_folder().join(file)));
             }
@@ -482,6 +485,9 @@ impl StudioApp {
                         }
                     }
                 });
+            }
+            Command::SetExposed { kind, inner, name } => {
+                self.session.set_exposed(kind, &inner, name.as_deref());
             }
             Command::SetSequential(sequential) => {
                 self.session

@@ -17,8 +17,8 @@ use std::time::{Duration, Instant};
 
 use egui::{Color32, Pos2, Rect, Sense, Stroke, Vec2, WidgetInfo};
 use kairos_diagram::{
-    ComponentInfo, ComponentInstance, Connection, DataType, Diagram, InputInfo, LibraryInfo, PortRef,
-    Position, ReaderPolicy,
+    ComponentInfo, ComponentInstance, Connection, DataType, Diagram, ExposedKind, Exposes, InputInfo,
+    LibraryInfo, PortRef, Position, ReaderPolicy,
 };
 use kairos_protocol::LinkTelemetry;
 
@@ -138,6 +138,8 @@ pub struct Canvas {
     subgraph_request: Option<String>,
     /// An output to publish to Foxglove (true) or no longer (false), asked in its context menu.
     foxglove_request: Option<(PortRef, bool)>,
+    /// A port to expose to diagrams using this one, or no longer, asked in its context menu.
+    expose_request: Option<ExposeRequest>,
     /// The size of the canvas on the screen last frame, to keep the zoom when it changes.
     view_size: Option<Vec2>,
     /// Frames left in which a fit follows the canvas's size instead of keeping the zoom: the panels
@@ -163,6 +165,7 @@ impl Default for Canvas {
             viewer_request: None,
             subgraph_request: None,
             foxglove_request: None,
+            expose_request: None,
             view_size: None,
             fit_frames: 0,
             outside_view: 0,
@@ -238,8 +241,51 @@ fn policy_of(connection: &Connection, diagram: &Diagram, library: &LibraryInfo) 
     })
 }
 
-/// An input: what it accepts on hover, or the runtime's problem with it.
-fn input_ui(ui: &egui::Ui, frame: &Frame<'_>, component: &str, spot: &PortSpot, input: &InputInfo) {
+/// A port to expose under a name to the diagrams using this one as a subgraph, or no longer (`None`).
+pub type ExposeRequest = (ExposedKind, PortRef, Option<String>);
+
+/// A port's context-menu entry: expose it to the diagrams that use this one as a subgraph (under a free
+/// name, renamed in the inspector), or no longer.
+fn expose_menu(
+    ui: &mut egui::Ui,
+    exposes: Option<&Exposes>,
+    kind: ExposedKind,
+    port: &PortRef,
+    request: &mut Option<ExposeRequest>,
+) {
+    let asked = match exposes.and_then(|e| e.name_of(kind, port)) {
+        Some(name) => ui
+            .button(format!("Stop exposing (as '{name}')"))
+            .clicked()
+            .then(|| (kind, port.clone(), None)),
+        None => ui
+            .button(format!("Expose as the subgraph's {}", kind.name()))
+            .on_hover_text(
+                "Diagrams that use this one as a component (a subgraph) see this port under a name of its \
+                 own: rename it in the inspector",
+            )
+            .clicked()
+            .then(|| {
+                let name = exposes.map_or_else(|| port.port.clone(), |e| e.free_name(port));
+                (kind, port.clone(), Some(name))
+            }),
+    };
+    if asked.is_some() {
+        *request = asked;
+        ui.close();
+    }
+}
+
+/// An input: what it accepts on hover, or the runtime's problem with it; its context menu exposes it to
+/// diagrams using this one as a subgraph.
+fn input_ui(
+    ui: &egui::Ui,
+    frame: &Frame<'_>,
+    component: &str,
+    spot: &PortSpot,
+    input: &InputInfo,
+    expose_request: &mut Option<ExposeRequest>,
+) {
     let port = PortRef::new(component, &spot.name);
     let accepts = input.filter.to_string();
     let response = interact_port(
@@ -251,10 +297,14 @@ fn input_ui(ui: &egui::Ui, frame: &Frame<'_>, component: &str, spot: &PortSpot, 
     );
     let problem = frame.shown.port_problems.get(&port);
     if let Some(problem) = problem {
-        response.on_hover_text(problem);
+        response.clone().on_hover_text(problem);
     } else if response.hovered() {
-        response.on_hover_text(format!("{}: {} ({accepts})", spot.name, input.doc));
+        response
+            .clone()
+            .on_hover_text(format!("{}: {} ({accepts})", spot.name, input.doc));
     }
+    let exposes = frame.diagram.exposes.as_ref();
+    response.context_menu(|ui| expose_menu(ui, exposes, ExposedKind::Input, &port, expose_request));
     // While a connection is dragged, each input says whether it would take it: another component's, of
     // a type it accepts, and not fed already.
     let fit = frame.dragging.as_ref().map(|(from, data_type)| {
@@ -271,6 +321,7 @@ fn input_ui(ui: &egui::Ui, frame: &Frame<'_>, component: &str, spot: &PortSpot, 
         },
         fit,
         detail: frame.detail,
+        exposed: exposes.and_then(|e| e.name_of(ExposedKind::Input, &port)),
     };
     paint::paint_port(frame.painter, ui.visuals(), spot.at, Side::Input, &look);
 }
@@ -589,7 +640,7 @@ impl Canvas {
         };
         let Some(info) = info else { return false };
         for (spot, input) in node.inputs.iter().zip(&info.inputs) {
-            input_ui(ui, frame, &component.id, spot, input);
+            input_ui(ui, frame, &component.id, spot, input, &mut self.expose_request);
         }
         let mut released = false;
         for spot in &node.outputs {
@@ -693,6 +744,7 @@ impl Canvas {
                 .clone()
                 .on_hover_text(format!("Published to Foxglove on {address}"));
         }
+        let exposes = frame.diagram.exposes.as_ref();
         response.context_menu(|ui| {
             for kind in ViewerKind::choices(&type_name) {
                 if ui.button(format!("Open a viewer ({})", kind.name())).clicked() {
@@ -719,6 +771,8 @@ impl Canvas {
             if published && let Some(address) = &foxglove.address {
                 ui.label(egui::RichText::new(address).weak());
             }
+            ui.separator();
+            expose_menu(ui, exposes, ExposedKind::Output, &port, &mut self.expose_request);
         });
         let look = PortLook {
             name: &spot.name,
@@ -730,6 +784,7 @@ impl Canvas {
             },
             fit: None,
             detail: frame.detail,
+            exposed: exposes.and_then(|e| e.name_of(ExposedKind::Output, &port)),
         };
         paint::paint_port(frame.painter, ui.visuals(), spot.at, Side::Output, &look);
         released
@@ -852,6 +907,11 @@ impl Canvas {
     /// An output to publish to Foxglove (true) or no longer (false), if one was asked for since the last call.
     pub fn take_foxglove_request(&mut self) -> Option<(PortRef, bool)> {
         self.foxglove_request.take()
+    }
+
+    /// A port to expose (or no longer), if one was asked for since the last call.
+    pub fn take_expose_request(&mut self) -> Option<ExposeRequest> {
+        self.expose_request.take()
     }
 
     /// Where a point of the canvas (a node's or port's accessible bounds, which are in canvas coordinates)

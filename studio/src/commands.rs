@@ -140,6 +140,16 @@ pub enum Command {
         /// The group's name.
         group: Option<String>,
     },
+    /// Expose an inner port or property to the diagrams using this one as a subgraph, under `name`, or
+    /// stop exposing it (`None`).
+    SetExposed {
+        /// An input, an output or a property.
+        kind: kairos_diagram::ExposedKind,
+        /// `component.port` or `component.property`.
+        inner: PortRef,
+        /// The name outside.
+        name: Option<String>,
+    },
     /// Run the whole diagram in one thread (sequential), or not.
     SetSequential(bool),
     /// Open the usual viewer of `output` for its type (an output inside a subgraph, named flat).

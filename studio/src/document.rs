@@ -4,8 +4,8 @@
 use std::path::{Path, PathBuf};
 
 use kairos_diagram::{
-    ComponentInfo, ComponentInstance, Connection, DataType, Diagram, LibraryInfo, PackRequirement, PortRef,
-    Position, TypeFilter,
+    ComponentInfo, ComponentInstance, Connection, DataType, Diagram, ExposedKind, LibraryInfo,
+    PackRequirement, PortRef, Position, TypeFilter,
 };
 
 /// How many edits can be undone.
@@ -207,6 +207,9 @@ impl Document {
             {
                 diagram.clock_source = None;
             }
+            if let Some(exposes) = &mut diagram.exposes {
+                exposes.forget_components(ids);
+            }
         });
     }
 
@@ -244,7 +247,25 @@ impl Document {
             if diagram.clock_source.as_deref() == Some(from) {
                 diagram.clock_source = Some(to.to_owned());
             }
+            if let Some(exposes) = &mut diagram.exposes {
+                exposes.rename_component(from, to);
+            }
         });
+        Ok(())
+    }
+
+    /// Exposes an inner port or property under `name` to the diagrams that use this one as a subgraph,
+    /// or stops exposing it (`None`); one undoable edit. Exposing the first makes the diagram a subgraph;
+    /// nothing exposed, it is a plain diagram again.
+    pub fn set_exposed(
+        &mut self,
+        kind: ExposedKind,
+        inner: &PortRef,
+        name: Option<&str>,
+    ) -> Result<(), String> {
+        let mut exposes = self.diagram.exposes.clone().unwrap_or_default();
+        exposes.set(kind, inner, name)?;
+        self.edit(|diagram| diagram.exposes = (!exposes.is_empty()).then_some(exposes));
         Ok(())
     }
 

@@ -4,7 +4,8 @@
 
 use egui::{Color32, RichText};
 use kairos_diagram::{
-    ComponentInfo, ComponentInstance, Connection, PropertyInfo, PropertyKind, ReaderPolicy, Value,
+    ComponentInfo, ComponentInstance, Connection, ExposedKind, Exposes, PortRef, PropertyInfo, PropertyKind,
+    ReaderPolicy, Value,
 };
 
 use crate::canvas::{Canvas, ConnectionRef};
@@ -34,6 +35,9 @@ pub fn inspector_ui(ui: &mut egui::Ui, session: &Session, canvas: &Canvas, comma
     let [id] = selected.as_slice() else {
         if selected.is_empty() {
             ui.label("Select a component or a connection.");
+            if let Some(exposes) = &session.document.diagram().exposes {
+                exposes_overview_ui(ui, exposes, commands);
+            }
         } else {
             ui.label(format!(
                 "{} components selected: select one alone to see its properties.",
@@ -149,6 +153,7 @@ fn component_ui(
     }
     actions_ui(ui, &instance.id, info, commands);
     inside_ui(ui, session, &instance.id, commands);
+    exposed_ui(ui, session, &instance.id, info, commands);
     status_ui(ui, session, &instance.id);
     if let Some(NodeState::Failed(error)) = session.node_state(&instance.id) {
         ui.separator();
@@ -676,6 +681,163 @@ fn inside_ui(ui: &mut egui::Ui, session: &Session, instance: &str, commands: &mu
                 });
             }
         });
+}
+
+/// What diagrams using this one as a subgraph see of the component: each input, output and property
+/// ticked to expose it, with the name it has outside. Open when something of it is exposed.
+fn exposed_ui(
+    ui: &mut egui::Ui,
+    session: &Session,
+    component: &str,
+    info: &ComponentInfo,
+    commands: &mut Vec<Command>,
+) {
+    let exposes = session.document.diagram().exposes.as_ref();
+    let items: Vec<(ExposedKind, &str)> = info
+        .inputs
+        .iter()
+        .map(|i| (ExposedKind::Input, i.name.as_str()))
+        .chain(
+            info.outputs
+                .iter()
+                .map(|o| (ExposedKind::Output, o.name.as_str())),
+        )
+        .chain(
+            info.properties
+                .iter()
+                .map(|p| (ExposedKind::Property, p.name.as_str())),
+        )
+        .collect();
+    if items.is_empty() {
+        return;
+    }
+    let any_exposed = items.iter().any(|(kind, name)| {
+        exposes.is_some_and(|e| e.name_of(*kind, &PortRef::new(component, *name)).is_some())
+    });
+    ui.separator();
+    egui::CollapsingHeader::new("Exposed as a subgraph")
+        .id_salt(("exposed", component))
+        .default_open(any_exposed)
+        .show(ui, |ui| {
+            ui.weak(
+                "What a diagram using this one as a component sees of it. Inputs or properties given one \
+                 name are set together.",
+            );
+            egui::Grid::new(("exposed grid", component))
+                .num_columns(2)
+                .show(ui, |ui| {
+                    for (kind, name) in items {
+                        exposed_row(
+                            ui,
+                            session,
+                            exposes,
+                            kind,
+                            &PortRef::new(component, name),
+                            commands,
+                        );
+                        ui.end_row();
+                    }
+                });
+        });
+}
+
+/// The whole diagram as a subgraph: every exposed name with what it stands for inside, each removable.
+fn exposes_overview_ui(ui: &mut egui::Ui, exposes: &Exposes, commands: &mut Vec<Command>) {
+    ui.separator();
+    ui.label(RichText::new("Exposed as a subgraph").strong());
+    ui.weak("Select a component to expose more of it or rename what it exposes.");
+    let outputs = exposes
+        .outputs
+        .iter()
+        .map(|(name, port)| (ExposedKind::Output, name, port));
+    let rows = each_target(ExposedKind::Input, &exposes.inputs)
+        .chain(outputs)
+        .chain(each_target(ExposedKind::Property, &exposes.properties));
+    egui::Grid::new("exposes overview").num_columns(3).show(ui, |ui| {
+        for (kind, name, port) in rows {
+            ui.label(format!("{} {name}", kind.name()));
+            ui.monospace(port.to_string());
+            if ui
+                .small_button("remove")
+                .on_hover_text(format!("Stop exposing {port}"))
+                .clicked()
+            {
+                commands.push(Command::SetExposed {
+                    kind,
+                    inner: port.clone(),
+                    name: None,
+                });
+            }
+            ui.end_row();
+        }
+    });
+}
+
+/// Each name with each inner port or property it stands for.
+fn each_target(
+    kind: ExposedKind,
+    map: &std::collections::BTreeMap<String, Vec<PortRef>>,
+) -> impl Iterator<Item = (ExposedKind, &String, &PortRef)> {
+    map.iter()
+        .flat_map(move |(name, ports)| ports.iter().map(move |port| (kind, name, port)))
+}
+
+/// One input, output or property: a tick to expose it and, exposed, its outer name, edited in place.
+fn exposed_row(
+    ui: &mut egui::Ui,
+    session: &Session,
+    exposes: Option<&Exposes>,
+    kind: ExposedKind,
+    inner: &PortRef,
+    commands: &mut Vec<Command>,
+) {
+    let current = exposes.and_then(|e| e.name_of(kind, inner));
+    let mut ticked = current.is_some();
+    let tick = ui
+        .checkbox(&mut ticked, format!("{} {}", kind.name(), inner.port))
+        .on_hover_text(format!(
+            "Expose this {} to the diagrams that use this one as a subgraph",
+            kind.name()
+        ));
+    if tick.changed() {
+        let name = ticked.then(|| exposes.map_or_else(|| inner.port.clone(), |e| e.free_name(inner)));
+        commands.push(Command::SetExposed {
+            kind,
+            inner: inner.clone(),
+            name,
+        });
+    }
+    ui.vertical(|ui| {
+        if let Some(current) = current {
+            let edit_id = egui::Id::unique(("exposed name", kind.name(), inner));
+            let mut text = ui
+                .data(|d| d.get_temp::<String>(edit_id))
+                .unwrap_or_else(|| current.to_owned());
+            let response = ui
+                .add(egui::TextEdit::singleline(&mut text).desired_width(120.0))
+                .labelled_by(tick.id)
+                .on_hover_text(
+                    "Its name outside; one name given to several inputs or properties sets them together",
+                );
+            if response.changed() {
+                ui.data_mut(|d| d.insert_temp(edit_id, text.clone()));
+            }
+            if response.lost_focus() {
+                ui.data_mut(|d| d.remove_temp::<String>(edit_id));
+                if text.trim() != current && !ui.input(|i| i.key_pressed(egui::Key::Escape)) {
+                    commands.push(Command::SetExposed {
+                        kind,
+                        inner: inner.clone(),
+                        name: Some(text.trim().to_owned()),
+                    });
+                }
+            }
+        }
+        let field = crate::session::exposed_field(kind, &inner.port);
+        if let Some(note) = session.field_note(&inner.component, &field) {
+            ui.colored_label(crate::log_panel::WARN_COLOR, note);
+        }
+    });
 }
 
 /// A button per action.

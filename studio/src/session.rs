@@ -1313,6 +1313,32 @@ impl Session {
         }
     }
 
+    /// Exposes an inner port or property under `name` (or stops exposing it), one undoable edit; a
+    /// refused name is said at its field in the inspector and in the log.
+    pub fn set_exposed(&mut self, kind: kairos_diagram::ExposedKind, inner: &PortRef, name: Option<&str>) {
+        let field = exposed_field(kind, &inner.port);
+        match self.document.set_exposed(kind, inner, name) {
+            Ok(()) => {
+                self.field_notes.remove(&(inner.component.clone(), field));
+                let said = match name {
+                    Some(name) => format!("{} {inner} is exposed as '{}'", kind.name(), name.trim()),
+                    None => format!("{} {inner} is no longer exposed", kind.name()),
+                };
+                self.succeeded(said);
+            }
+            Err(why) => {
+                let key = (inner.component.clone(), field);
+                if self.field_notes.get(&key) != Some(&why) {
+                    self.note(
+                        LogLevel::Warn,
+                        format!("{} {inner} not exposed: {why}", kind.name()),
+                    );
+                    self.field_notes.insert(key, why);
+                }
+            }
+        }
+    }
+
     /// A value typed for a property was refused or clamped: the inspector says `why` at the field, and the
     /// log keeps it.
     pub fn field_refused(&mut self, component: &str, property: &str, why: String) {
@@ -1453,6 +1479,11 @@ impl Session {
             );
         }
     }
+}
+
+/// The inspector field where a refused exposure of a component's `name` (port or property) is said.
+pub fn exposed_field(kind: kairos_diagram::ExposedKind, name: &str) -> String {
+    format!("exposed {} {name}", kind.name())
 }
 
 #[cfg(test)]

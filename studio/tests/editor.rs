@@ -1135,3 +1135,161 @@ fn selected_components_made_into_a_subgraph_are_one_instance_wired_as_they_were_
     assert!(back.component("gain1").is_some() && back.component("amplifier1").is_none());
     assert!(dir.path().join("amplifier.ron").is_file());
 }
+
+/// Clicks `menu_entry` in the context menu of the port labelled `port` on the canvas.
+fn port_menu_entry(harness: &mut Harness<'_, StudioApp>, port: &str, menu_entry: &str) {
+    let at = on_canvas(harness, port);
+    harness.hover_at(at);
+    harness.run_steps(1);
+    for pressed in [true, false] {
+        harness.event(egui::Event::PointerButton {
+            pos: at,
+            button: egui::PointerButton::Secondary,
+            pressed,
+            modifiers: egui::Modifiers::NONE,
+        });
+        harness.run_steps(1);
+    }
+    harness.run_steps(1);
+    harness.get_by_label(menu_entry).click();
+    harness.run_steps(2);
+}
+
+#[test]
+fn ports_and_properties_are_exposed_from_the_canvas_and_inspector_renamed_joined_and_followed() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("pair.ron");
+    std::fs::write(
+        &path,
+        r#"Diagram(format: 1,
+    packs: [Pack(name: "core", version: "^0.1")],
+    components: [
+        Component(id: "left", type: "core.gain", position: (x: 40.0, y: 40.0)),
+        Component(id: "right", type: "core.gain", position: (x: 40.0, y: 240.0)),
+    ],
+    connections: [],
+)"#,
+    )
+    .unwrap();
+    let app = StudioApp::new(
+        Document::open(&path).unwrap(),
+        library(),
+        None,
+        "no runtime (test)".to_owned(),
+        None,
+    );
+    let mut harness = Harness::builder()
+        .with_size(Vec2::new(1280.0, 1400.0))
+        .build_ui_state(|ui, app: &mut StudioApp| app.show(ui), app);
+    harness.run_steps(2);
+    let exposes = |harness: &Harness<'_, StudioApp>| {
+        harness
+            .state()
+            .session
+            .document
+            .diagram()
+            .exposes
+            .clone()
+            .unwrap_or_default()
+    };
+
+    // From the canvas: both outputs, the second under a name of its own.
+    port_menu_entry(
+        &mut harness,
+        "output left.out (f64)",
+        "Expose as the subgraph's output",
+    );
+    port_menu_entry(
+        &mut harness,
+        "output right.out (f64)",
+        "Expose as the subgraph's output",
+    );
+    assert_eq!(exposes(&harness).outputs["out"], PortRef::new("left", "out"));
+    assert_eq!(
+        exposes(&harness).outputs["right_out"],
+        PortRef::new("right", "out")
+    );
+    port_menu_entry(
+        &mut harness,
+        "input left.in (f64 | i64 | bool)",
+        "Expose as the subgraph's input",
+    );
+    assert_eq!(exposes(&harness).inputs["in"], [PortRef::new("left", "in")]);
+
+    // From the inspector: both gains exposed, then given one name, which sets them together.
+    for id in ["left", "right"] {
+        click_on_canvas(&mut harness, &format!("component {id} (core.gain)"));
+        if harness.query_by_label("property gain").is_none() {
+            harness.get_by_label("Exposed as a subgraph").click();
+            harness.run_steps(1);
+        }
+        harness.get_by_label("property gain").click();
+        harness.run_steps(2);
+    }
+    assert_eq!(
+        exposes(&harness).properties["gain"],
+        [PortRef::new("left", "gain")]
+    );
+    assert_eq!(
+        exposes(&harness).properties["right_gain"],
+        [PortRef::new("right", "gain")]
+    );
+    harness
+        .get_by_role_and_label(Role::TextInput, "property gain")
+        .focus();
+    harness.run_steps(1);
+    harness.key_press_modifiers(egui::Modifiers::COMMAND, egui::Key::A);
+    harness.run_steps(1);
+    harness
+        .get_by_role_and_label(Role::TextInput, "property gain")
+        .type_text("gain");
+    harness.run_steps(1);
+    harness.key_press(egui::Key::Enter);
+    harness.run_steps(2);
+    assert_eq!(
+        exposes(&harness).properties["gain"],
+        [PortRef::new("left", "gain"), PortRef::new("right", "gain")]
+    );
+    assert!(!exposes(&harness).properties.contains_key("right_gain"));
+
+    // A name another output has is refused at its field (right is selected), and nothing changes.
+    harness.state_mut().session.set_exposed(
+        kairos_diagram::ExposedKind::Output,
+        &PortRef::new("right", "out"),
+        Some("out"),
+    );
+    harness.run_steps(2);
+    assert_eq!(
+        harness
+            .query_all_by_label_contains("already shows left.out")
+            .count(),
+        2,
+        "said at the field and in the log"
+    );
+    assert_eq!(
+        exposes(&harness).outputs["right_out"],
+        PortRef::new("right", "out")
+    );
+
+    // A renamed component's exposures follow it, and the saved file is a subgraph that loads.
+    harness.state_mut().session.rename_component("right", "second");
+    harness.run_steps(1);
+    assert_eq!(
+        exposes(&harness).outputs["right_out"],
+        PortRef::new("second", "out")
+    );
+    harness.state_mut().session.document.save().unwrap();
+    let saved = kairos_diagram::load(&path).unwrap().1.diagram;
+    assert_eq!(saved.exposes.as_ref(), Some(&exposes(&harness)));
+
+    // Nothing selected: the overview lists every exposure; its remove stops one.
+    harness.state_mut().canvas.selected.clear();
+    harness.run_steps(2);
+    // Inputs come first.
+    harness.get_all_by_label("remove").next().unwrap().click();
+    harness.run_steps(2);
+    assert!(exposes(&harness).inputs.is_empty());
+    // And the canvas's menu says what an exposed port is exposed as, and takes it back.
+    port_menu_entry(&mut harness, "output left.out (f64)", "Stop exposing (as 'out')");
+    assert!(!exposes(&harness).outputs.contains_key("out"));
+}

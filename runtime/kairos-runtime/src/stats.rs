@@ -255,7 +255,79 @@ impl StatsSnapshot {
         if !self.groups.is_empty() {
             self.group_table(&mut out);
         }
+        self.subgraph_table(&mut out);
         out
+    }
+
+    /// Each subgraph instance's parts added up (nested ones in their outermost instance), as the
+    /// studio's node shows them: the worst state, the fastest rate, CPU and missed ticks added, and the
+    /// samples overwritten on the links into its parts.
+    fn subgraph_table(&self, out: &mut String) {
+        use std::fmt::Write as _;
+        #[derive(Default)]
+        struct Instance {
+            parts: usize,
+            state: Option<&'static str>,
+            rate: f64,
+            cpu: f64,
+            missed: u64,
+            lost_inside: u64,
+        }
+        // Which state an instance shows: a failed part fails it, a running part makes it run.
+        let rank = |word: &str| match word {
+            "FAILED" => 5,
+            "running" => 4,
+            "paused" => 3,
+            "idle" => 2,
+            "finished" => 1,
+            _ => 0,
+        };
+        let mut instances: BTreeMap<&str, Instance> = BTreeMap::new();
+        for component in &self.components {
+            let Some((outer, _)) = component.id.split_once('/') else {
+                continue;
+            };
+            let instance = instances.entry(outer).or_default();
+            instance.parts += 1;
+            let word = component.state.word();
+            if instance.state.is_none_or(|shown| rank(word) > rank(shown)) {
+                instance.state = Some(word);
+            }
+            instance.rate = instance.rate.max(component.cycle_rate_hz);
+            instance.cpu += component.cpu_share;
+            instance.missed += component.missed_ticks;
+        }
+        if instances.is_empty() {
+            return;
+        }
+        for link in &self.links {
+            let reader = link.link.rsplit(" -> ").next().unwrap_or_default();
+            if let Some((outer, _)) = reader.split_once('/')
+                && let Some(instance) = instances.get_mut(outer)
+            {
+                instance.lost_inside += link.counters.overwritten;
+            }
+        }
+        let width = instances.keys().map(|name| name.len()).max().unwrap_or(8).max(8);
+        let _ = writeln!(out);
+        let _ = writeln!(
+            out,
+            "{:<width$}  {:>5} {:<8} {:>9} {:>6} {:>7} {:>11}",
+            "subgraph", "parts", "state", "cycles/s", "cpu%", "missed", "lost inside"
+        );
+        for (name, instance) in &instances {
+            let _ = writeln!(
+                out,
+                "{:<width$}  {:>5} {:<8} {:>9.1} {:>6.1} {:>7} {:>11}",
+                name,
+                instance.parts,
+                instance.state.unwrap_or("-"),
+                instance.rate,
+                instance.cpu * 100.0,
+                instance.missed,
+                instance.lost_inside,
+            );
+        }
     }
 
     fn group_table(&self, out: &mut String) {
@@ -348,5 +420,60 @@ mod tests {
             status_counters(&python).as_deref(),
             Some("python.images 46, python.pid 7, python.reload_error \"a.py:3: SyntaxError\"")
         );
+    }
+
+    #[test]
+    fn each_subgraph_instance_adds_up_its_parts_and_the_losses_on_the_links_into_them() {
+        let component = |id: &str, state: ComponentState, cpu_share: f64, missed_ticks: u64| ComponentStats {
+            id: id.to_owned(),
+            type_name: "core.gain".to_owned(),
+            state,
+            cycles: 10,
+            busy_nanos: 0,
+            missed_ticks,
+            cycle_rate_hz: 10.0,
+            cpu_share,
+            status: None,
+            group: None,
+        };
+        let link = |name: &str, overwritten: u64| LinkStats {
+            link: name.to_owned(),
+            policy: ReaderPolicy::Fifo,
+            counters: LinkCounters {
+                overwritten,
+                ..LinkCounters::default()
+            },
+            rate_hz: 0.0,
+        };
+        let snapshot = StatsSnapshot {
+            components: vec![
+                component("camera", ComponentState::Running, 0.5, 0),
+                component("front/grey", ComponentState::Running, 0.1, 1),
+                component("front/deep/edges", ComponentState::Failed("x".into()), 0.2, 2),
+            ],
+            links: vec![
+                link("camera.out -> front/grey.in", 7),
+                link("front/grey.out -> front/deep/edges.in", 3),
+                link("front/grey.out -> camera.in", 100),
+            ],
+            ..StatsSnapshot::default()
+        };
+        let table = snapshot.table();
+        let row = table
+            .lines()
+            .find(|line| line.starts_with("front "))
+            .unwrap_or_else(|| panic!("no row for front in\n{table}"));
+        let words: Vec<&str> = row.split_whitespace().collect();
+        assert_eq!(words, ["front", "2", "FAILED", "10.0", "30.0", "3", "10"]);
+        assert!(
+            !table
+                .lines()
+                .any(|line| line.starts_with("camera ") && line.contains("parts"))
+        );
+        let plain = StatsSnapshot {
+            components: vec![component("camera", ComponentState::Running, 0.5, 0)],
+            ..StatsSnapshot::default()
+        };
+        assert!(!plain.table().contains("subgraph"));
     }
 }

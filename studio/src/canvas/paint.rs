@@ -17,6 +17,8 @@ pub const PROBLEM_COLOR: Color32 = Color32::from_rgb(230, 90, 80);
 /// The ring of an input that would take the connection being dragged.
 const FIT_COLOR: Color32 = Color32::from_rgb(110, 210, 120);
 /// The ring of an output published to Foxglove.
+/// The mark of a port exposed to the diagrams that use this one as a subgraph.
+const EXPOSED_COLOR: Color32 = Color32::from_rgb(90, 200, 210);
 const PUBLISHED_COLOR: Color32 = Color32::from_rgb(160, 120, 255);
 
 /// A reader policy in a few letters, for connections too short for its name.
@@ -318,6 +320,8 @@ pub struct PortLook<'a> {
     pub fit: Option<bool>,
     /// Whether there is room for its name.
     pub detail: bool,
+    /// The name it is exposed under to diagrams using this one as a subgraph, if it is.
+    pub exposed: Option<&'a str>,
 }
 
 /// What a port's rings say.
@@ -361,6 +365,9 @@ pub fn paint_port(
         None => look.color,
     };
     painter.circle_filled(at, PORT_RADIUS, color);
+    if let Some(exposed) = look.exposed {
+        paint_exposed(painter, at, side, exposed, look.detail);
+    }
     if look.detail {
         let (offset, align) = match side {
             super::hit_test::Side::Input => (Vec2::new(9.0, 0.0), Align2::LEFT_CENTER),
@@ -377,6 +384,36 @@ pub fn paint_port(
             } else {
                 visuals.text_color()
             },
+        );
+    }
+}
+
+/// An exposed port's mark outside its node: an arrow into an input from the left, out of an output to
+/// the right, with the name diagrams using this one see.
+fn paint_exposed(painter: &Painter, at: Pos2, side: super::hit_test::Side, name: &str, detail: bool) {
+    let (tip, direction, align) = match side {
+        super::hit_test::Side::Input => (at - Vec2::new(PORT_RADIUS + 3.0, 0.0), -1.0, Align2::RIGHT_CENTER),
+        super::hit_test::Side::Output => (at + Vec2::new(PORT_RADIUS + 14.0, 0.0), 1.0, Align2::LEFT_CENTER),
+    };
+    // A triangle pointing right: into the input, out of the output.
+    let back = tip - Vec2::new(9.0, 0.0);
+    painter.add(egui::Shape::convex_polygon(
+        vec![tip, back + Vec2::new(0.0, -5.0), back + Vec2::new(0.0, 5.0)],
+        EXPOSED_COLOR,
+        Stroke::NONE,
+    ));
+    if detail {
+        let label_at = match side {
+            super::hit_test::Side::Input => back,
+            super::hit_test::Side::Output => tip,
+        } + Vec2::new(3.0 * direction, 0.0);
+        crisp_text(
+            painter,
+            label_at,
+            align,
+            name,
+            FontId::proportional(11.0),
+            EXPOSED_COLOR,
         );
     }
 }
