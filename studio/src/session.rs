@@ -7,7 +7,7 @@
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use kairos_diagram::{LibraryInfo, PortRef, ReaderPolicy, Value};
 use kairos_protocol::{
@@ -27,6 +27,11 @@ use crate::viewers::Viewers;
 #[derive(Debug, Default)]
 struct Subgraphs {
     key: (PathBuf, Vec<(String, String)>, usize),
+    /// When each diagram file beside the document and each used subgraph file was last modified, as of
+    /// the last look: a file edited elsewhere is described again.
+    stamps: Vec<(PathBuf, Option<std::time::SystemTime>)>,
+    /// When the files were last looked at (at most once a second).
+    looked: Option<Instant>,
     infos: BTreeMap<String, kairos_diagram::ComponentInfo>,
     /// Each exposed output (`front.out`) → the inner output it is in the flat diagram the runtime runs
     /// (`front/overlay.out`): viewers subscribe to the one and show the other.
@@ -36,6 +41,36 @@ struct Subgraphs {
     properties: BTreeMap<String, Vec<(String, String)>>,
     /// Each instance's inner components, their outputs and actions, ids inside it.
     inside: BTreeMap<String, Vec<kairos_diagram::subgraph::InnerPart>>,
+}
+
+/// How often the studio looks whether a subgraph file changed on disk.
+const FILES_LOOKED_AT: Duration = Duration::from_secs(1);
+
+/// When each diagram file in `folder` and each file `instances` use was last modified, sorted.
+fn subgraph_stamps(
+    folder: &Path,
+    instances: &[(String, String)],
+) -> Vec<(PathBuf, Option<std::time::SystemTime>)> {
+    let beside = std::fs::read_dir(folder)
+        .into_iter()
+        .flatten()
+        .map_while(Result::ok)
+        .map(|entry| entry.path())
+        .filter(|path| path.extension().is_some_and(|e| e == "ron"));
+    let used = instances
+        .iter()
+        .filter(|(_, type_name)| kairos_diagram::is_subgraph_type(type_name))
+        .map(|(_, type_name)| folder.join(type_name));
+    let mut stamps: Vec<_> = beside
+        .chain(used)
+        .map(|path| {
+            let modified = std::fs::metadata(&path).and_then(|m| m.modified()).ok();
+            (path, modified)
+        })
+        .collect();
+    stamps.sort();
+    stamps.dedup();
+    stamps
 }
 
 /// The diagram files in `folder` that expose something (subgraphs), but `document` itself: their
@@ -930,8 +965,19 @@ impl Session {
             .count();
         let key = (folder.clone(), instances, packs_components);
         if key == self.subgraphs.key {
-            return;
+            if self
+                .subgraphs
+                .looked
+                .is_some_and(|at| at.elapsed() < FILES_LOOKED_AT)
+            {
+                return;
+            }
+            self.subgraphs.looked = Some(Instant::now());
+            if subgraph_stamps(&folder, &key.1) == self.subgraphs.stamps {
+                return;
+            }
         }
+        let stamps = subgraph_stamps(&folder, &key.1);
         for id in self.subgraphs.infos.keys() {
             self.library.instances.remove(id);
         }
@@ -992,6 +1038,8 @@ impl Session {
         self.library.instances.extend(infos.clone());
         self.subgraphs = Subgraphs {
             key,
+            stamps,
+            looked: Some(Instant::now()),
             infos,
             outputs,
             properties,

@@ -1293,3 +1293,42 @@ fn ports_and_properties_are_exposed_from_the_canvas_and_inspector_renamed_joined
     port_menu_entry(&mut harness, "output left.out (f64)", "Stop exposing (as 'out')");
     assert!(!exposes(&harness).outputs.contains_key("out"));
 }
+
+#[test]
+fn a_subgraph_file_edited_elsewhere_shows_its_new_ports_on_its_instances() {
+    let dir = tempfile::tempdir().unwrap();
+    let examples = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../examples/subgraph");
+    for file in ["two_cameras.ron", "lane_pipeline.ron"] {
+        std::fs::copy(examples.join(file), dir.path().join(file)).unwrap();
+    }
+    let app = StudioApp::new(
+        Document::open(&dir.path().join("two_cameras.ron")).unwrap(),
+        library(),
+        None,
+        "no runtime (test)".to_owned(),
+        None,
+    );
+    let mut harness = Harness::builder()
+        .with_size(Vec2::new(1280.0, 1400.0))
+        .build_ui_state(|ui, app: &mut StudioApp| app.show(ui), app);
+    harness.run_steps(2);
+    assert!(harness.query_by_label("output front.out (image)").is_some());
+
+    // Another editor renames the exposed output.
+    let inner = dir.path().join("lane_pipeline.ron");
+    let text = std::fs::read_to_string(&inner).unwrap();
+    std::thread::sleep(std::time::Duration::from_millis(20));
+    std::fs::write(
+        &inner,
+        text.replace(r#""out": "overlay.out""#, r#""annotated": "overlay.out""#),
+    )
+    .unwrap();
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(5);
+    while harness.query_by_label("output front.annotated (image)").is_none() {
+        assert!(std::time::Instant::now() < deadline, "the edit was never seen");
+        std::thread::sleep(std::time::Duration::from_millis(100));
+        harness.run_steps(1);
+    }
+    assert!(harness.query_by_label("output rear.annotated (image)").is_some());
+    assert!(harness.query_by_label("output front.out (image)").is_none());
+}
