@@ -9,6 +9,7 @@ use std::time::Duration;
 use kairos_diagram::{DataType, Value};
 
 use crate::buffer::{OutputBuffer, ReadError, Reader, WriteError};
+use crate::name_key::{NameKey, position_of};
 use crate::payload::Payload;
 use crate::sample::Sample;
 use crate::signal::RunSignal;
@@ -156,10 +157,24 @@ impl StatusSchedule {
     }
 }
 
+/// The properties whose names fit a [`NameKey`], by key.
+fn keyed(properties: &BTreeMap<String, Value>) -> Vec<(NameKey, Value)> {
+    properties
+        .iter()
+        .map(|(name, value)| (NameKey::of(name), value.clone()))
+        .filter(|(key, _)| key.is_whole())
+        .collect()
+}
+
 /// Names a port either by its index in the descriptor or by its name.
 pub trait PortKey: Copy + fmt::Display {
     /// The index among `names`, if any.
     fn index_in<'a>(self, names: impl Iterator<Item = &'a str>) -> Option<usize>;
+
+    /// The name, when the key is one: looked up by the ports' inline keys rather than their heap names.
+    fn as_name(&self) -> Option<&str> {
+        None
+    }
 }
 
 impl PortKey for usize {
@@ -172,12 +187,17 @@ impl PortKey for &str {
     fn index_in<'a>(self, mut names: impl Iterator<Item = &'a str>) -> Option<usize> {
         names.position(|name| name == self)
     }
+
+    fn as_name(&self) -> Option<&str> {
+        Some(self)
+    }
 }
 
 /// An input port as a component sees it.
 #[derive(Debug)]
 pub struct InputPort {
     name: String,
+    key: NameKey,
     /// The output feeding it, as `component.output`.
     source: Option<String>,
     /// In the process that runs the component: the reader of the source's buffer.
@@ -187,8 +207,10 @@ pub struct InputPort {
 impl InputPort {
     /// An input read through `reader`, unconnected without one.
     pub(crate) fn new(name: impl Into<String>, reader: Option<Reader>) -> Self {
+        let name = name.into();
         InputPort {
-            name: name.into(),
+            key: NameKey::of(&name),
+            name,
             source: reader.as_ref().map(|r| r.output().to_owned()),
             reader,
         }
@@ -196,8 +218,10 @@ impl InputPort {
 
     /// An input of a component in a pack library: the host reads it; this side knows its source.
     pub(crate) fn remote(name: impl Into<String>, source: Option<String>) -> Self {
+        let name = name.into();
         InputPort {
-            name: name.into(),
+            key: NameKey::of(&name),
+            name,
             source,
             reader: None,
         }
@@ -254,6 +278,7 @@ pub(crate) trait HostPorts: Send + fmt::Debug {
 #[derive(Debug)]
 pub struct OutputPort {
     name: String,
+    key: NameKey,
     data_type: Option<DataType>,
     buffer: OutputBuffer,
     subsampling: u64,
@@ -270,8 +295,10 @@ impl OutputPort {
         buffer: OutputBuffer,
         subsampling: u32,
     ) -> Self {
+        let name = name.into();
         OutputPort {
-            name: name.into(),
+            key: NameKey::of(&name),
+            name,
             data_type,
             buffer,
             subsampling: u64::from(subsampling.max(1)),
@@ -315,6 +342,9 @@ pub struct Context {
     inputs: Vec<InputPort>,
     outputs: Vec<OutputPort>,
     properties: BTreeMap<String, Value>,
+    /// The properties whose names fit a [`NameKey`], by key: what a component asks for at every call is
+    /// found without following a pointer. Kept equal to `properties`.
+    property_keys: Vec<(NameKey, Value)>,
     clock: Arc<dyn Clock>,
     signal: Arc<RunSignal>,
     period: Option<Duration>,
@@ -355,6 +385,7 @@ impl Context {
             id: parts.id,
             inputs: parts.inputs,
             outputs: parts.outputs,
+            property_keys: keyed(&parts.properties),
             properties: parts.properties,
             clock: parts.clock,
             signal: parts.signal,
@@ -531,7 +562,15 @@ impl Context {
 
     /// A property's current value.
     pub fn property(&self, name: &str) -> Option<&Value> {
-        self.properties.get(name)
+        let key = NameKey::of(name);
+        if key.is_whole() {
+            self.property_keys
+                .iter()
+                .find(|(candidate, _)| *candidate == key)
+                .map(|(_, value)| value)
+        } else {
+            self.properties.get(name)
+        }
     }
 
     /// Every property's current value.
@@ -541,7 +580,9 @@ impl Context {
 
     /// Replaces a property's value (the runtime does this before calling `property_changed`).
     pub(crate) fn set_property(&mut self, name: &str, value: Value) -> Option<Value> {
-        self.properties.insert(name.to_owned(), value)
+        let before = self.properties.insert(name.to_owned(), value);
+        self.property_keys = keyed(&self.properties);
+        before
     }
 
     fn typed<T>(
@@ -551,8 +592,7 @@ impl Context {
         kind: &str,
     ) -> Result<T, ComponentError> {
         let value = self
-            .properties
-            .get(name)
+            .property(name)
             .ok_or_else(|| ComponentError::failed(format_args!("no property '{name}'")))?;
         get(value)
             .ok_or_else(|| ComponentError::failed(format_args!("property '{name}' is not {kind}: {value}")))
@@ -614,8 +654,11 @@ impl Context {
     // ----- inputs -----
 
     fn input_index(&self, key: impl PortKey) -> Result<usize, ComponentError> {
-        key.index_in(self.inputs.iter().map(InputPort::name))
-            .ok_or_else(|| ComponentError::failed(format_args!("component has no input '{key}'")))
+        let found = match key.as_name() {
+            Some(name) => position_of(name, self.inputs.iter().map(|p| (p.key, p.name.as_str()))),
+            None => key.index_in(self.inputs.iter().map(InputPort::name)),
+        };
+        found.ok_or_else(|| ComponentError::failed(format_args!("component has no input '{key}'")))
     }
 
     /// The input ports.
@@ -766,8 +809,11 @@ impl Context {
     // ----- outputs -----
 
     fn output_index(&self, key: impl PortKey) -> Result<usize, ComponentError> {
-        key.index_in(self.outputs.iter().map(OutputPort::name))
-            .ok_or_else(|| ComponentError::failed(format_args!("component has no output '{key}'")))
+        let found = match key.as_name() {
+            Some(name) => position_of(name, self.outputs.iter().map(|p| (p.key, p.name.as_str()))),
+            None => key.index_in(self.outputs.iter().map(OutputPort::name)),
+        };
+        found.ok_or_else(|| ComponentError::failed(format_args!("component has no output '{key}'")))
     }
 
     /// The output ports.

@@ -21,6 +21,7 @@ pub mod disciplined;
 pub mod files;
 pub mod harness;
 pub mod host;
+mod name_key;
 pub mod payload;
 pub mod pixels;
 pub mod registry;
