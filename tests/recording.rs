@@ -9,6 +9,7 @@
 mod common;
 
 use std::collections::BTreeMap;
+use std::fmt::Write as _;
 use std::path::Path;
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
@@ -1012,5 +1013,183 @@ fn lz4_and_uncompressed_chunks_are_read_by_inspect_the_player_and_python() {
             .map(|b| index.read_block(b).unwrap().len())
             .sum();
         assert_eq!(Some(blocks as u64), report["messages"].as_u64(), "{compression}");
+    }
+}
+
+/// A rosbag2 recording written by the `rosbags` package (`recording/write_rosbag2.py`): the bag and
+/// what it holds, per topic.
+fn rosbag2(dir: &Path) -> (std::path::PathBuf, serde_json::Value) {
+    let script = repo_root().join("tests/recording/write_rosbag2.py");
+    let written = Command::new("python3")
+        .arg(&script)
+        .arg(dir)
+        .output()
+        .expect("python3");
+    assert!(
+        written.status.success(),
+        "{}",
+        String::from_utf8_lossy(&written.stderr)
+    );
+    let expected = std::fs::read_to_string(dir.join("expected.json")).unwrap();
+    (
+        dir.join("drive/drive.mcap"),
+        serde_json::from_str(&expected).unwrap(),
+    )
+}
+
+fn close(a: f64, b: &serde_json::Value) -> bool {
+    (a - b.as_f64().unwrap()).abs() <= 1e-9 * a.abs().max(1.0)
+}
+
+fn close3([x, y, z]: [f64; 3], b: &serde_json::Value) -> bool {
+    close(x, &b[0]) && close(y, &b[1]) && close(z, &b[2])
+}
+
+#[test]
+fn a_rosbag2_recording_replays_each_message_as_its_kairos_type_at_its_header_stamp() {
+    use kairos_sdk_core::{FixStatus, Payload};
+    let dir = tempfile::tempdir().unwrap();
+    let (bag, expected) = rosbag2(dir.path());
+
+    // kairos inspect names each topic's ROS type and the Kairos type it replays as.
+    let (code, report) = inspect(dir.path(), &bag);
+    assert_eq!(code, Some(0), "{report}");
+    for (topic, schema, kairos_type) in [
+        ("/imu", "sensor_msgs/msg/Imu", "imu"),
+        ("/fix", "sensor_msgs/msg/NavSatFix", "gnss_fix"),
+        ("/camera/image_raw", "sensor_msgs/msg/Image", "image"),
+        ("/points", "sensor_msgs/msg/PointCloud2", "point_cloud"),
+        ("/speed", "std_msgs/msg/Float64", "f64"),
+        ("/pose", "geometry_msgs/msg/PoseStamped", "pose"),
+        ("/temperature", "sensor_msgs/msg/Temperature", "text"),
+    ] {
+        let channel = channel(&report, topic);
+        assert_eq!(channel["schema"], schema, "{channel}");
+        assert_eq!(channel["kairos_type"], kairos_type, "{channel}");
+        assert_eq!(
+            channel["messages"].as_u64().unwrap() as usize,
+            expected[topic].as_array().unwrap().len()
+        );
+    }
+
+    // Replayed through the player into a Kairos recorder, every link NeverSkipping.
+    let topics = [
+        "/imu",
+        "/fix",
+        "/camera/image_raw",
+        "/points",
+        "/speed",
+        "/pose",
+        "/temperature",
+    ];
+    let copy = dir.path().join("copy.mcap");
+    let mut connections = String::new();
+    for (i, topic) in topics.iter().enumerate() {
+        let _ = writeln!(
+            connections,
+            "Connection(from: \"player.{}\", to: \"copy.in{}\", policy: NeverSkipping),",
+            kairos_sdk_core::port_name_for_topic(topic),
+            i + 1
+        );
+    }
+    let diagram = dir.path().join("replay.ron");
+    std::fs::write(
+        &diagram,
+        format!(
+            r#"Diagram(format: 1, packs: [Pack(name: "recording", version: "^0.1")],
+    components: [
+        Component(id: "player", type: "recording.player", properties: {{"path": "{}"}}),
+        Component(id: "copy", type: "recording.recorder", properties: {{"path": "{}"}}),
+    ],
+    connections: [{connections}],
+)"#,
+            // The bag's folder, as `ros2 bag record` leaves it: its one MCAP file replays.
+            bag.parent().unwrap().display(),
+            copy.display()
+        ),
+    )
+    .unwrap();
+    let output = kairos(dir.path(), &["run", diagram.to_str().unwrap()]);
+    let (_, stderr) = text(&output);
+    assert!(output.status.success(), "{stderr}");
+    assert!(!stderr.contains("cannot be decoded"), "{stderr}");
+
+    let replayed = decoded_messages(&copy);
+    for topic in topics {
+        let sent = expected[topic].as_array().unwrap();
+        let got = &replayed[&format!("player.{}", kairos_sdk_core::port_name_for_topic(topic))];
+        assert_eq!(got.len(), sent.len(), "{topic}");
+        for ((timestamp, time_of_issue, payload), values) in got.iter().zip(sent) {
+            // The header stamp is the timestamp, the bag's log time the time of issue.
+            if topic != "/speed" {
+                assert_eq!(*timestamp, values["stamp_ns"].as_u64().unwrap(), "{topic}");
+            }
+            assert_eq!(*time_of_issue, values["log_ns"].as_u64().unwrap(), "{topic}");
+            let matches = match payload {
+                Payload::Imu(imu) => {
+                    close3(imu.angular_velocity.to_array(), &values["angular_velocity"])
+                        && close3(imu.linear_acceleration.to_array(), &values["linear_acceleration"])
+                        && match (imu.orientation, &values["orientation"]) {
+                            (None, serde_json::Value::Null) => true,
+                            (Some(q), wanted) => {
+                                close(q.x, &wanted[0]) && close(q.z, &wanted[2]) && close(q.w, &wanted[3])
+                            }
+                            _ => false,
+                        }
+                }
+                Payload::GnssFix(fix) => {
+                    let status = match fix.status {
+                        FixStatus::NoFix => "no_fix",
+                        FixStatus::Fix => "fix",
+                        _ => "differential",
+                    };
+                    close(fix.latitude_deg, &values["latitude"])
+                        && close(fix.longitude_deg, &values["longitude"])
+                        && close(fix.altitude_m, &values["altitude"])
+                        && close(fix.horizontal_accuracy_m, &values["horizontal_accuracy"])
+                        && close(fix.vertical_accuracy_m, &values["vertical_accuracy"])
+                        && status == values["status"]
+                }
+                Payload::Image(image) => {
+                    let data: Vec<u8> = values["data"]
+                        .as_array()
+                        .unwrap()
+                        .iter()
+                        .map(|v| v.as_u64().unwrap() as u8)
+                        .collect();
+                    image.width == 5
+                        && image.height == 3
+                        && image.stride == 16
+                        && image.pixels[..] == data[..]
+                }
+                Payload::PointCloud(cloud) => {
+                    let xyz = values["xyz"].as_array().unwrap();
+                    cloud.points.len() == xyz.len()
+                        && cloud
+                            .points
+                            .iter()
+                            .zip(xyz)
+                            .all(|(p, w)| close3(p.as_dvec3().to_array(), w))
+                        && cloud.intensity.as_ref().is_some_and(|i| {
+                            i.iter()
+                                .zip(values["intensity"].as_array().unwrap())
+                                .all(|(a, b)| close(f64::from(*a), b))
+                        })
+                }
+                Payload::F64(value) => close(*value, &values["data"]),
+                Payload::Pose(pose) => {
+                    close3(pose.position.to_array(), &values["position"])
+                        && close(pose.orientation.y, &values["orientation"][1])
+                        && close(pose.orientation.w, &values["orientation"][3])
+                }
+                Payload::Text(text) => {
+                    let json: serde_json::Value = serde_json::from_str(text).unwrap();
+                    close(json["temperature"].as_f64().unwrap(), &values["temperature"])
+                        && json["header"]["frame_id"] == values["frame_id"]
+                }
+                other => panic!("{topic} replayed as {other:?}"),
+            };
+            assert!(matches, "{topic}: {payload:?} is not {values}");
+        }
     }
 }

@@ -1349,6 +1349,13 @@ impl Viewers {
 fn table_text(data_type: &str, value: &serde_json::Value, payload_len: usize) -> String {
     match value {
         serde_json::Value::Null => format!("{payload_len} bytes"),
+        // A structured value carried as text (a ROS message Kairos has no type for) reads as its fields.
+        serde_json::Value::String(text) if text.starts_with('{') => {
+            match serde_json::from_str::<serde_json::Value>(text) {
+                Ok(object @ serde_json::Value::Object(_)) => fields_text(&object),
+                _ => text.clone(),
+            }
+        }
         serde_json::Value::String(text) => text.clone(),
         frame if data_type == "can_frame" => {
             let id = frame["id"].as_u64().unwrap_or(0);
@@ -1478,6 +1485,16 @@ mod tests {
         let remote = serde_json::json!({"id": 291, "extended": false, "fd": false, "data": [], "remote": true, "length": 4});
         assert_eq!(table_text("can_frame", &remote, 0), "123 [4] remote request");
         assert_eq!(table_text("f64", &serde_json::json!(0.5), 0), "0.5");
+        // A ROS message carried as JSON text reads as its fields; text that only looks like JSON stays.
+        let message = serde_json::json!(r#"{"header": {"frame_id": "room"}, "temperature": 21.5}"#);
+        assert_eq!(
+            table_text("text", &message, 0),
+            "header.frame_id = room; temperature = 21.5"
+        );
+        assert_eq!(
+            table_text("text", &serde_json::json!("{not json"), 0),
+            "{not json"
+        );
         // Structured values read as fields, nested ones with dotted names, lists cut short.
         let fix =
             serde_json::json!({"latitude": 48.85, "longitude": 2.35, "quality": "rtk fixed", "hdop": null});

@@ -42,6 +42,75 @@ pub fn data_type_of(schema: &str) -> DataType {
     }
 }
 
+/// How one channel's messages become payloads: by the schema's name for Kairos recordings (and raw
+/// bytes for foreign schemas), through the definition the file carries for rosbag2 channels.
+#[derive(Debug, Clone)]
+pub enum ChannelDecoder {
+    /// A schema of ours, or a foreign one replayed raw, by its name.
+    Named(String),
+    /// A rosbag2 channel: CDR messages of this definition.
+    Ros2(Arc<crate::ros2::Definitions>),
+    /// A rosbag2 channel whose definition cannot be read: each message is refused with the reason.
+    Unreadable {
+        /// The message type's name.
+        schema: String,
+        /// What is wrong with its definition.
+        why: String,
+    },
+}
+
+impl ChannelDecoder {
+    /// The decoder of `channel`'s messages.
+    pub fn of(channel: &mcap::Channel<'_>) -> ChannelDecoder {
+        let Some(schema) = &channel.schema else {
+            return ChannelDecoder::Named(String::new());
+        };
+        if schema.encoding != crate::ros2::SCHEMA_ENCODING {
+            return ChannelDecoder::Named(schema.name.clone());
+        }
+        if channel.message_encoding != crate::ros2::MESSAGE_ENCODING {
+            return ChannelDecoder::Unreadable {
+                schema: schema.name.clone(),
+                why: format!(
+                    "ROS 2 messages encoded as '{}' (only cdr is read)",
+                    channel.message_encoding
+                ),
+            };
+        }
+        let text = String::from_utf8_lossy(&schema.data);
+        match crate::ros2::Definitions::parse(&schema.name, &text) {
+            Ok(definitions) => ChannelDecoder::Ros2(Arc::new(definitions)),
+            Err(why) => ChannelDecoder::Unreadable {
+                schema: schema.name.clone(),
+                why,
+            },
+        }
+    }
+
+    /// The data type the channel replays as.
+    pub fn data_type(&self) -> DataType {
+        match self {
+            ChannelDecoder::Named(schema) => data_type_of(schema),
+            ChannelDecoder::Ros2(definitions) => crate::ros2::data_type_of(definitions.type_name()),
+            ChannelDecoder::Unreadable { schema, .. } => crate::ros2::data_type_of(schema),
+        }
+    }
+
+    /// Decodes one message; with it, the timestamp the message itself carries (a ROS header's stamp),
+    /// when it has one.
+    pub fn decode(&self, data: &[u8]) -> Result<(Payload, Option<kairos_sdk::Timestamp>), String> {
+        match self {
+            ChannelDecoder::Named(schema) => decode(schema, data).map(|payload| (payload, None)),
+            ChannelDecoder::Ros2(definitions) => {
+                let value = definitions.decode(data)?;
+                let payload = crate::ros2::to_payload(definitions, &value)?;
+                Ok((payload, crate::ros2::header_stamp(definitions, &value)))
+            }
+            ChannelDecoder::Unreadable { why, .. } => Err(why.clone()),
+        }
+    }
+}
+
 /// Decodes one message of a channel with schema `schema` into the payload [`data_type_of`] promises.
 pub fn decode(schema: &str, data: &[u8]) -> Result<Payload, String> {
     match data_type_of(schema) {
@@ -190,15 +259,7 @@ fn decode_json(data_type: &DataType, json: &Json) -> Result<Payload, String> {
 
 fn decode_image(data: &[u8]) -> Result<Payload, String> {
     let message = RawImage::decode(data).map_err(|e| format!("not a foxglove.RawImage: {e}"))?;
-    let format = match message.encoding.as_str() {
-        "mono8" | "8UC1" => PixelFormat::Gray8,
-        "mono16" | "16UC1" => PixelFormat::Gray16,
-        "rgb8" => PixelFormat::Rgb8,
-        "rgba8" => PixelFormat::Rgba8,
-        "bgr8" | "8UC3" => PixelFormat::Bgr8,
-        "bgra8" => PixelFormat::Bgra8,
-        other => return Err(format!("image encoding '{other}' is not one Kairos images have")),
-    };
+    let format = pixel_format_of(&message.encoding)?;
     let image = Image::with_stride(
         message.width,
         message.height,
@@ -208,6 +269,19 @@ fn decode_image(data: &[u8]) -> Result<Payload, String> {
     )
     .map_err(|e| e.to_string())?;
     Ok(Payload::Image(image))
+}
+
+/// The pixel format an image encoding names, as ROS and Foxglove name them (`rgb8`, `mono16`, `8UC3`).
+pub fn pixel_format_of(encoding: &str) -> Result<PixelFormat, String> {
+    Ok(match encoding {
+        "mono8" | "8UC1" => PixelFormat::Gray8,
+        "mono16" | "16UC1" => PixelFormat::Gray16,
+        "rgb8" => PixelFormat::Rgb8,
+        "rgba8" => PixelFormat::Rgba8,
+        "bgr8" | "8UC3" => PixelFormat::Bgr8,
+        "bgra8" => PixelFormat::Bgra8,
+        other => return Err(format!("image encoding '{other}' is not one Kairos images have")),
+    })
 }
 
 /// Reads one numeric field of a packed point as `f32`.

@@ -144,6 +144,12 @@ pub fn inspect_with_progress(
 ) -> Result<Report, InspectError> {
     use std::io::Read as _;
     let shown = path.display().to_string();
+    // A rosbag2 folder: its MCAP file.
+    let file = crate::timeline::recording_file(path).map_err(|reason| InspectError::NotMcap {
+        path: shown.clone(),
+        reason,
+    })?;
+    let path = file.as_path();
     let io_error = |error| InspectError::Io {
         path: shown.clone(),
         error,
@@ -203,7 +209,14 @@ fn inspect_bytes_with_progress(
                         .as_ref()
                         .map_or_else(String::new, |s| s.name.clone()),
                     encoding: channel.message_encoding.clone(),
-                    kairos_type: channel.metadata.get("kairos.type").cloned(),
+                    kairos_type: channel.metadata.get("kairos.type").cloned().or_else(|| {
+                        // A rosbag2 channel: the type it replays as.
+                        channel
+                            .schema
+                            .as_ref()
+                            .filter(|s| s.encoding == crate::ros2::SCHEMA_ENCODING)
+                            .map(|s| crate::ros2::data_type_of(&s.name).to_string())
+                    }),
                     first: message.publish_time,
                     ..Tally::default()
                 });
@@ -308,15 +321,22 @@ impl Report {
             .max()
             .unwrap_or(5)
             .max(5);
+        let schema_width = self
+            .channels
+            .iter()
+            .map(|c| c.schema.len())
+            .max()
+            .unwrap_or(0)
+            .max(24);
         let _ = writeln!(
             out,
-            "\n{:<width$}  {:<24} {:<14} {:>9} {:>9}",
+            "\n{:<width$}  {:<schema_width$} {:<14} {:>9} {:>9}",
             "topic", "schema", "type", "messages", "rate/s"
         );
         for channel in &self.channels {
             let _ = writeln!(
                 out,
-                "{:<width$}  {:<24} {:<14} {:>9} {:>9.2}",
+                "{:<width$}  {:<schema_width$} {:<14} {:>9} {:>9.2}",
                 channel.topic,
                 channel.schema,
                 channel.kairos_type.as_deref().unwrap_or("-"),

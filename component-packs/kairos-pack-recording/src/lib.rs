@@ -6,6 +6,8 @@
 //! originated) and its log time the sample's time of issue (when it was last written). Images, point
 //! clouds, GNSS fixes and poses use the Foxglove well-known schemas (protobuf); every other type a JSON
 //! schema of ours (`kairos.F64`, `kairos.Imu`, ...), so each channel decodes from the file alone.
+//! rosbag2 recordings (MCAP, ROS 2 messages in CDR) replay too, decoded through the message definitions
+//! they carry ([`ros2`]).
 
 pub mod decode;
 pub mod encode;
@@ -15,6 +17,7 @@ pub mod player;
 pub mod pretrigger;
 pub mod recorder;
 pub mod recover;
+pub mod ros2;
 pub mod safe_read;
 pub mod timeline;
 

@@ -17,7 +17,7 @@ use kairos_sdk::{
     Timestamp, Value,
 };
 
-use crate::decode::{data_type_of, decode};
+use crate::decode::{ChannelDecoder, data_type_of};
 use crate::timeline::{RawMessage, RecordingIndex, seconds_to_nanos};
 
 /// The properties naming the recordings, in the order their channels become outputs.
@@ -70,7 +70,10 @@ fn plan(files: &[Arc<RecordingIndex>]) -> Vec<PlannedOutput> {
                 file,
                 channel: channel.id,
                 name,
-                data_type: data_type_of(&channel.schema),
+                data_type: index.channel_definition(channel.id).map_or_else(
+                    || data_type_of(&channel.schema),
+                    |c| ChannelDecoder::of(c).data_type(),
+                ),
                 doc: format!(
                     "'{}' of {file_name} ({}, {} messages)",
                     channel.topic,
@@ -101,8 +104,9 @@ fn open_files(properties: &BTreeMap<String, Value>) -> Result<Vec<Arc<RecordingI
             }
             continue;
         }
-        let index =
-            RecordingIndex::open(Path::new(path)).map_err(|e| DescribeError::property(property, e))?;
+        let file = crate::timeline::recording_file(Path::new(path))
+            .map_err(|e| DescribeError::property(property, format!("{path}: {e}")))?;
+        let index = RecordingIndex::open(&file).map_err(|e| DescribeError::property(property, e))?;
         if index.channels().is_empty() {
             let why = index.damage().map_or_else(String::new, |d| format!(" ({d})"));
             return Err(DescribeError::property(
@@ -127,8 +131,8 @@ struct Source {
     index: Arc<RecordingIndex>,
     /// Added to the file's log times to place them on the timeline.
     shift: i64,
-    /// Channel id → (output index, schema).
-    routes: BTreeMap<u16, (usize, String)>,
+    /// Channel id → (output index, how its messages decode).
+    routes: BTreeMap<u16, (usize, ChannelDecoder)>,
     next_block: usize,
     pending: VecDeque<RawMessage>,
 }
@@ -373,7 +377,7 @@ impl Player {
     }
 
     fn emit(&mut self, ctx: &mut Context, source: usize, message: &RawMessage) -> ComponentResult {
-        let Some((output, schema)) = self
+        let Some((output, decoder)) = self
             .sources
             .get(source)
             .and_then(|s| s.routes.get(&message.channel))
@@ -381,8 +385,8 @@ impl Player {
             return Ok(());
         };
         let output = *output;
-        let payload = match decode(schema, &message.data) {
-            Ok(payload) => payload,
+        let (payload, stamp) = match decoder.decode(&message.data) {
+            Ok(payload_and_stamp) => payload_and_stamp,
             Err(error) => {
                 let count = self.undecodable.entry(output).or_insert(0);
                 if *count == 0 {
@@ -397,7 +401,11 @@ impl Player {
                 return Ok(());
             }
         };
-        let publish = i64::try_from(message.publish_time).unwrap_or(i64::MAX);
+        // A ROS message's header stamp is its timestamp; otherwise the publish time is.
+        let publish = stamp.map_or_else(
+            || i64::try_from(message.publish_time).unwrap_or(i64::MAX),
+            |t| t.0,
+        );
         let log = i64::try_from(message.log_time).unwrap_or(i64::MAX);
         if let Some(source) = self.sources.get(source) {
             self.reached = to_timeline(message.log_time, source.shift);
@@ -550,12 +558,18 @@ impl Component for Player {
             let Some(source) = self.sources.get_mut(output.file) else {
                 continue;
             };
-            let schema = source
-                .index
-                .channels()
-                .iter()
-                .find(|c| c.id == output.channel)
-                .map_or_else(String::new, |c| c.schema.clone());
+            let decoder = source.index.channel_definition(output.channel).map_or_else(
+                || {
+                    let schema = source
+                        .index
+                        .channels()
+                        .iter()
+                        .find(|c| c.id == output.channel)
+                        .map_or_else(String::new, |c| c.schema.clone());
+                    ChannelDecoder::Named(schema)
+                },
+                |channel| ChannelDecoder::of(channel),
+            );
             let messages = source
                 .index
                 .channels()
@@ -563,7 +577,7 @@ impl Component for Player {
                 .find(|c| c.id == output.channel)
                 .map_or(0, |c| c.messages);
             self.tracks.push((output.name.clone(), output.file, messages));
-            source.routes.insert(output.channel, (port, schema));
+            source.routes.insert(output.channel, (port, decoder));
         }
         let first = self
             .sources

@@ -16,6 +16,34 @@ use std::time::SystemTime;
 
 use crate::safe_read::{Catalog, read_records, walk};
 
+/// The MCAP file a path names: `path` itself, or the one file of a rosbag2 folder (`metadata.yaml` beside
+/// its storage files), as `ros2 bag record` leaves it.
+pub fn recording_file(path: &Path) -> Result<PathBuf, String> {
+    if !path.is_dir() {
+        return Ok(path.to_owned());
+    }
+    let mut files: Vec<PathBuf> = std::fs::read_dir(path)
+        .map_err(|e| format!("cannot list {}: {e}", path.display()))?
+        .map_while(Result::ok)
+        .map(|entry| entry.path())
+        .filter(|file| file.extension().is_some_and(|e| e == "mcap"))
+        .collect();
+    files.sort();
+    match files.as_slice() {
+        [one] => Ok(one.clone()),
+        [] => Err(
+            "a folder with no MCAP file (a rosbag2 folder in sqlite3 storage, .db3, is not read: convert \
+             it with `ros2 bag convert` to MCAP)"
+                .to_owned(),
+        ),
+        several => Err(format!(
+            "a folder of {} MCAP files (a split recording): give them as path, path2, ... in order, first {}",
+            several.len(),
+            several[0].display()
+        )),
+    }
+}
+
 /// One recorded channel.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct ChannelEntry {

@@ -1,0 +1,774 @@
+//! rosbag2 recordings: ROS 2 messages in CDR (what ROS 2 sends and rosbag2 stores in MCAP, message
+//! encoding `cdr`), read through the `ros2msg` definitions the file carries with each channel (schema
+//! encoding `ros2msg`), so no compiled message types are needed. Common messages become Kairos
+//! payloads ([`to_payload`]); any other is a structured value.
+//!
+//! CDR as ROS 2 writes it (XCDR version 1, plain): a 4-byte encapsulation header whose second byte says
+//! the byte order (1: little-endian, 0: big-endian), then the fields in order, each primitive aligned to
+//! its own size counted from the end of the header; a string is a 4-byte length (its NUL included) and
+//! its bytes; a sequence a 4-byte count and its elements; a fixed array its elements alone.
+
+use std::collections::HashMap;
+use std::sync::Arc;
+
+use glam::{DQuat, DVec3, Vec3};
+use kairos_sdk::{DataType, FixStatus, GnssFix, Image, Imu, Payload, PointCloud, Pose, Timestamp};
+use serde_json::Value as Json;
+
+/// The schema encoding of ROS 2 message definitions in MCAP.
+pub const SCHEMA_ENCODING: &str = "ros2msg";
+/// The message encoding of ROS 2 messages in MCAP.
+pub const MESSAGE_ENCODING: &str = "cdr";
+
+/// How deep messages may nest: a definition that includes itself is refused rather than followed.
+const MAX_DEPTH: usize = 32;
+
+/// A primitive field type.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Primitive {
+    Bool,
+    I8,
+    U8,
+    I16,
+    U16,
+    I32,
+    U32,
+    I64,
+    U64,
+    F32,
+    F64,
+}
+
+impl Primitive {
+    fn named(name: &str) -> Option<Primitive> {
+        Some(match name {
+            "bool" => Primitive::Bool,
+            "int8" => Primitive::I8,
+            // ROS 2's `byte` is an octet and its `char` an unsigned 8-bit integer.
+            "uint8" | "byte" | "char" => Primitive::U8,
+            "int16" => Primitive::I16,
+            "uint16" => Primitive::U16,
+            "int32" => Primitive::I32,
+            "uint32" => Primitive::U32,
+            "int64" => Primitive::I64,
+            "uint64" => Primitive::U64,
+            "float32" => Primitive::F32,
+            "float64" => Primitive::F64,
+            _ => return None,
+        })
+    }
+}
+
+/// What one field holds.
+#[derive(Debug, Clone, PartialEq, Eq)]
+enum Kind {
+    Primitive(Primitive),
+    String,
+    /// Another message, by its full name (`geometry_msgs/Vector3`).
+    Message(String),
+}
+
+/// How many values a field holds.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Count {
+    One,
+    Fixed(usize),
+    /// A sequence, bounded or not: its length comes first.
+    Sequence,
+}
+
+#[derive(Debug, Clone, PartialEq, Eq)]
+struct Field {
+    name: String,
+    kind: Kind,
+    count: Count,
+}
+
+/// A message type's definition with every type it uses, as a rosbag2 file carries it.
+#[derive(Debug)]
+pub struct Definitions {
+    /// The message's type (`sensor_msgs/Imu`).
+    root: String,
+    types: HashMap<String, Vec<Field>>,
+}
+
+/// `pkg/msg/Type` and `pkg/Type` name one type: the latter is kept.
+fn normalized(type_name: &str) -> String {
+    match type_name.split('/').collect::<Vec<_>>().as_slice() {
+        [package, "msg", name] => format!("{package}/{name}"),
+        _ => type_name.to_owned(),
+    }
+}
+
+impl Definitions {
+    /// Parses the definition `text` of message type `type_name` (`sensor_msgs/msg/Imu`): its own fields,
+    /// then each type it uses after a line of `=` and `MSG: package/Type`.
+    pub fn parse(type_name: &str, text: &str) -> Result<Definitions, String> {
+        let root = normalized(type_name);
+        let mut types = HashMap::new();
+        let mut current = root.clone();
+        let mut fields = Vec::new();
+        for (number, raw_line) in text.lines().enumerate() {
+            let line = raw_line.split('#').next().unwrap_or("").trim();
+            if line.is_empty() {
+                continue;
+            }
+            if line.chars().all(|c| c == '=') {
+                types.insert(std::mem::take(&mut current), std::mem::take(&mut fields));
+                continue;
+            }
+            if let Some(name) = line.strip_prefix("MSG:") {
+                current = normalized(name.trim());
+                continue;
+            }
+            let package = current.split('/').next().unwrap_or("");
+            match parse_field(line, package) {
+                Ok(Some(field)) => fields.push(field),
+                Ok(None) => {}
+                Err(why) => {
+                    return Err(format!(
+                        "the definition of {type_name}, line {}: {why} ('{}')",
+                        number + 1,
+                        raw_line.trim()
+                    ));
+                }
+            }
+        }
+        types.insert(current, fields);
+        types.remove("");
+        let definitions = Definitions { root, types };
+        definitions.check_resolved()?;
+        Ok(definitions)
+    }
+
+    /// Every message type a field names is defined.
+    fn check_resolved(&self) -> Result<(), String> {
+        if !self.types.contains_key(&self.root) {
+            return Err(format!("the definition does not define {}", self.root));
+        }
+        for (owner, fields) in &self.types {
+            for field in fields {
+                if let Kind::Message(name) = &field.kind
+                    && !self.types.contains_key(name)
+                {
+                    return Err(format!(
+                        "{owner}.{} is a {name}, which the definition does not include",
+                        field.name
+                    ));
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// The message's type (`sensor_msgs/Imu`).
+    pub fn type_name(&self) -> &str {
+        &self.root
+    }
+
+    /// Decodes one CDR message of this type.
+    pub fn decode(&self, data: &[u8]) -> Result<RosValue, String> {
+        let little_endian = match data.get(..4) {
+            Some([0, 1, _, _]) => true,
+            Some([0, 0, _, _]) => false,
+            Some(header) => {
+                return Err(format!(
+                    "a CDR header {:02x}{:02x} that is not plain CDR (only XCDR version 1 is read)",
+                    header[0], header[1]
+                ));
+            }
+            None => return Err("a message shorter than its CDR header".to_owned()),
+        };
+        let mut reader = Cdr {
+            data,
+            at: 4,
+            little_endian,
+        };
+        self.message(&self.root, &mut reader, 0)
+    }
+
+    fn message(&self, type_name: &str, reader: &mut Cdr<'_>, depth: usize) -> Result<RosValue, String> {
+        if depth > MAX_DEPTH {
+            return Err(format!(
+                "messages nested deeper than {MAX_DEPTH} (does {type_name} include itself?)"
+            ));
+        }
+        let fields = self
+            .types
+            .get(type_name)
+            .ok_or_else(|| format!("no definition of {type_name}"))?;
+        let mut values = Vec::with_capacity(fields.len());
+        for field in fields {
+            let value = self
+                .field(field, reader, depth)
+                .map_err(|why| format!("{type_name}.{}: {why}", field.name))?;
+            values.push((field.name.clone(), value));
+        }
+        Ok(RosValue::Message(values))
+    }
+
+    fn field(&self, field: &Field, reader: &mut Cdr<'_>, depth: usize) -> Result<RosValue, String> {
+        let count = match field.count {
+            Count::One => return self.one(&field.kind, reader, depth),
+            Count::Fixed(count) => count,
+            Count::Sequence => reader.u32()? as usize,
+        };
+        match &field.kind {
+            Kind::Primitive(Primitive::U8) => Ok(RosValue::Bytes(reader.bytes(count)?.to_vec())),
+            kind => {
+                // Each element takes a byte at least: a count the message cannot hold is refused before
+                // anything is allocated for it.
+                if count > reader.remaining() {
+                    return Err(format!("{count} values in the {} bytes left", reader.remaining()));
+                }
+                let mut values = Vec::with_capacity(count);
+                for _ in 0..count {
+                    values.push(self.one(kind, reader, depth)?);
+                }
+                Ok(RosValue::List(values))
+            }
+        }
+    }
+
+    fn one(&self, kind: &Kind, reader: &mut Cdr<'_>, depth: usize) -> Result<RosValue, String> {
+        match kind {
+            Kind::Primitive(primitive) => reader.primitive(*primitive),
+            Kind::String => reader.string().map(RosValue::Text),
+            Kind::Message(name) => self.message(name, reader, depth + 1),
+        }
+    }
+}
+
+/// One field's line (`float64[9] covariance`, `geometry_msgs/Vector3 linear`, `string<=8 name`,
+/// `int32[<=4] values 0`); `None` for a constant (`uint8 FIX=0`).
+fn parse_field(line: &str, package: &str) -> Result<Option<Field>, String> {
+    let mut words = line.split_whitespace();
+    let (Some(type_word), Some(name)) = (words.next(), words.next()) else {
+        return Err("a field needs a type and a name".to_owned());
+    };
+    if name.contains('=') || words.next().is_some_and(|w| w.starts_with('=')) {
+        return Ok(None);
+    }
+    let (base, count) = match type_word.split_once('[') {
+        Some((base, rest)) => {
+            let inside = rest
+                .strip_suffix(']')
+                .ok_or_else(|| format!("'{type_word}' has no closing ]"))?;
+            let count = if inside.is_empty() || inside.starts_with("<=") {
+                Count::Sequence
+            } else {
+                Count::Fixed(
+                    inside
+                        .parse()
+                        .map_err(|_| format!("'{inside}' is not an array length"))?,
+                )
+            };
+            (base, count)
+        }
+        None => (type_word, Count::One),
+    };
+    // A bounded string (`string<=8`) is read as any string.
+    let base = base.split("<=").next().unwrap_or(base);
+    let kind = if let Some(primitive) = Primitive::named(base) {
+        Kind::Primitive(primitive)
+    } else {
+        match base {
+            "string" => Kind::String,
+            "wstring" => return Err("wstring fields are not read".to_owned()),
+            "time" => Kind::Message("builtin_interfaces/Time".to_owned()),
+            "duration" => Kind::Message("builtin_interfaces/Duration".to_owned()),
+            "Header" => Kind::Message("std_msgs/Header".to_owned()),
+            full if full.contains('/') => Kind::Message(normalized(full)),
+            relative => Kind::Message(format!("{package}/{relative}")),
+        }
+    };
+    Ok(Some(Field {
+        name: name.to_owned(),
+        kind,
+        count,
+    }))
+}
+
+/// A CDR message being read.
+struct Cdr<'a> {
+    data: &'a [u8],
+    at: usize,
+    little_endian: bool,
+}
+
+impl Cdr<'_> {
+    fn remaining(&self) -> usize {
+        self.data.len().saturating_sub(self.at)
+    }
+
+    /// Skips to the next multiple of `size` counted from the end of the 4-byte header.
+    fn align(&mut self, size: usize) {
+        let offset = self.at - 4;
+        self.at += (size - offset % size) % size;
+    }
+
+    fn bytes(&mut self, count: usize) -> Result<&[u8], String> {
+        let end = self
+            .at
+            .checked_add(count)
+            .filter(|end| *end <= self.data.len())
+            .ok_or_else(|| format!("{count} bytes wanted, {} left", self.remaining()))?;
+        let bytes = &self.data[self.at..end];
+        self.at = end;
+        Ok(bytes)
+    }
+
+    fn array<const N: usize>(&mut self) -> Result<[u8; N], String> {
+        self.align(N);
+        let mut bytes: [u8; N] = self.bytes(N)?.try_into().map_err(|_| "short read".to_owned())?;
+        if !self.little_endian {
+            bytes.reverse();
+        }
+        Ok(bytes)
+    }
+
+    fn u32(&mut self) -> Result<u32, String> {
+        self.array::<4>().map(u32::from_le_bytes)
+    }
+
+    fn string(&mut self) -> Result<String, String> {
+        let length = self.u32()? as usize;
+        let bytes = self.bytes(length)?;
+        let text = bytes.strip_suffix(&[0]).unwrap_or(bytes);
+        Ok(String::from_utf8_lossy(text).into_owned())
+    }
+
+    fn primitive(&mut self, primitive: Primitive) -> Result<RosValue, String> {
+        Ok(match primitive {
+            Primitive::Bool => RosValue::Bool(self.bytes(1)?[0] != 0),
+            Primitive::I8 => RosValue::Int(i64::from(self.bytes(1)?[0].cast_signed())),
+            Primitive::U8 => RosValue::UInt(u64::from(self.bytes(1)?[0])),
+            Primitive::I16 => RosValue::Int(i64::from(i16::from_le_bytes(self.array()?))),
+            Primitive::U16 => RosValue::UInt(u64::from(u16::from_le_bytes(self.array()?))),
+            Primitive::I32 => RosValue::Int(i64::from(i32::from_le_bytes(self.array()?))),
+            Primitive::U32 => RosValue::UInt(u64::from(u32::from_le_bytes(self.array()?))),
+            Primitive::I64 => RosValue::Int(i64::from_le_bytes(self.array()?)),
+            Primitive::U64 => RosValue::UInt(u64::from_le_bytes(self.array()?)),
+            Primitive::F32 => RosValue::Float(f64::from(f32::from_le_bytes(self.array()?))),
+            Primitive::F64 => RosValue::Float(f64::from_le_bytes(self.array()?)),
+        })
+    }
+}
+
+/// A decoded ROS 2 message, field by field.
+#[derive(Debug, Clone, PartialEq)]
+pub enum RosValue {
+    Bool(bool),
+    Int(i64),
+    UInt(u64),
+    Float(f64),
+    Text(String),
+    /// A `uint8[]`, `byte[]` or `char[]` (image data, point data), kept as bytes.
+    Bytes(Vec<u8>),
+    List(Vec<RosValue>),
+    /// A message's fields in their order.
+    Message(Vec<(String, RosValue)>),
+}
+
+/// How many bytes of a byte array a structured value lists; longer ones are given by their size.
+const LISTED_BYTES: usize = 64;
+
+impl RosValue {
+    /// The field `path` names (`header.stamp.sec`).
+    pub fn get(&self, path: &str) -> Option<&RosValue> {
+        path.split('.').try_fold(self, |value, name| match value {
+            RosValue::Message(fields) => fields.iter().find(|(n, _)| n == name).map(|(_, v)| v),
+            _ => None,
+        })
+    }
+
+    fn number(&self) -> Option<f64> {
+        match self {
+            RosValue::Float(value) => Some(*value),
+            RosValue::Int(value) => Some(*value as f64),
+            RosValue::UInt(value) => Some(*value as f64),
+            _ => None,
+        }
+    }
+
+    fn f64_at(&self, path: &str) -> Result<f64, String> {
+        self.get(path)
+            .and_then(RosValue::number)
+            .ok_or_else(|| format!("no number at '{path}'"))
+    }
+
+    /// A `bool` field, or an integer one used as a flag (`is_bigendian` is a `uint8` in Image).
+    fn flag_at(&self, path: &str) -> Result<bool, String> {
+        match self.get(path) {
+            Some(RosValue::Bool(flag)) => Ok(*flag),
+            Some(other) => other
+                .number()
+                .map(|n| n != 0.0)
+                .ok_or_else(|| format!("no flag at '{path}'")),
+            None => Err(format!("no flag at '{path}'")),
+        }
+    }
+
+    fn u32_at(&self, path: &str) -> Result<u32, String> {
+        match self.get(path) {
+            Some(RosValue::UInt(value)) => u32::try_from(*value).map_err(|_| format!("'{path}' is {value}")),
+            Some(RosValue::Int(value)) => u32::try_from(*value).map_err(|_| format!("'{path}' is {value}")),
+            _ => Err(format!("no integer at '{path}'")),
+        }
+    }
+
+    fn vector3_at(&self, path: &str) -> Result<DVec3, String> {
+        Ok(DVec3::new(
+            self.f64_at(&format!("{path}.x"))?,
+            self.f64_at(&format!("{path}.y"))?,
+            self.f64_at(&format!("{path}.z"))?,
+        ))
+    }
+
+    fn quaternion_at(&self, path: &str) -> Result<DQuat, String> {
+        Ok(DQuat::from_xyzw(
+            self.f64_at(&format!("{path}.x"))?,
+            self.f64_at(&format!("{path}.y"))?,
+            self.f64_at(&format!("{path}.z"))?,
+            self.f64_at(&format!("{path}.w"))?,
+        ))
+    }
+
+    fn numbers_at(&self, path: &str) -> Result<Vec<f64>, String> {
+        match self.get(path) {
+            Some(RosValue::List(values)) => values
+                .iter()
+                .map(|v| {
+                    v.number()
+                        .ok_or_else(|| format!("'{path}' holds a value that is not a number"))
+                })
+                .collect(),
+            _ => Err(format!("no list of numbers at '{path}'")),
+        }
+    }
+
+    fn text_at(&self, path: &str) -> Result<&str, String> {
+        match self.get(path) {
+            Some(RosValue::Text(text)) => Ok(text),
+            _ => Err(format!("no text at '{path}'")),
+        }
+    }
+
+    fn bytes_at(&self, path: &str) -> Result<&[u8], String> {
+        match self.get(path) {
+            Some(RosValue::Bytes(bytes)) => Ok(bytes),
+            _ => Err(format!("no bytes at '{path}'")),
+        }
+    }
+
+    /// The value as JSON: fields by name, byte arrays longer than [`LISTED_BYTES`] by their size.
+    pub fn to_json(&self) -> Json {
+        match self {
+            RosValue::Bool(value) => Json::Bool(*value),
+            RosValue::Int(value) => Json::from(*value),
+            RosValue::UInt(value) => Json::from(*value),
+            RosValue::Float(value) => serde_json::Number::from_f64(*value).map_or(Json::Null, Json::Number),
+            RosValue::Text(text) => Json::String(text.clone()),
+            RosValue::Bytes(bytes) if bytes.len() > LISTED_BYTES => {
+                Json::String(format!("<{} bytes>", bytes.len()))
+            }
+            RosValue::Bytes(bytes) => Json::Array(bytes.iter().map(|b| Json::from(*b)).collect()),
+            RosValue::List(values) => Json::Array(values.iter().map(RosValue::to_json).collect()),
+            RosValue::Message(fields) => Json::Object(
+                fields
+                    .iter()
+                    .map(|(name, value)| (name.clone(), value.to_json()))
+                    .collect(),
+            ),
+        }
+    }
+}
+
+/// The message's `header.stamp` (or a `builtin_interfaces/Time` message's own time) as a timestamp:
+/// what the message says its data was taken at.
+pub fn header_stamp(definitions: &Definitions, value: &RosValue) -> Option<Timestamp> {
+    let stamp = if definitions.type_name() == "builtin_interfaces/Time" {
+        value
+    } else {
+        value.get("header.stamp")?
+    };
+    let seconds = stamp.f64_at("sec").ok()? as i64;
+    let nanoseconds = stamp.f64_at("nanosec").ok()? as i64;
+    Some(Timestamp(
+        seconds.checked_mul(1_000_000_000)?.checked_add(nanoseconds)?,
+    ))
+}
+
+/// The Kairos type a ROS 2 message type replays as: the common ones as the matching type, any other as
+/// text holding the message as JSON.
+pub fn data_type_of(type_name: &str) -> DataType {
+    match normalized(type_name).as_str() {
+        "std_msgs/Float64" | "std_msgs/Float32" => DataType::F64,
+        "std_msgs/Int8" | "std_msgs/Int16" | "std_msgs/Int32" | "std_msgs/Int64" | "std_msgs/UInt8"
+        | "std_msgs/UInt16" | "std_msgs/UInt32" | "std_msgs/UInt64" => DataType::I64,
+        "std_msgs/Bool" => DataType::Bool,
+        "sensor_msgs/Imu" => DataType::Imu,
+        "sensor_msgs/NavSatFix" => DataType::GnssFix,
+        "sensor_msgs/Image" => DataType::Image,
+        "sensor_msgs/PointCloud2" => DataType::PointCloud,
+        "geometry_msgs/PoseStamped" | "geometry_msgs/Pose" => DataType::Pose,
+        "geometry_msgs/TwistStamped" | "geometry_msgs/Twist" => DataType::Vector,
+        _ => DataType::Text,
+    }
+}
+
+/// The payload [`data_type_of`] promises for a decoded message.
+pub fn to_payload(definitions: &Definitions, value: &RosValue) -> Result<Payload, String> {
+    let type_name = definitions.type_name();
+    if type_name == "std_msgs/String" {
+        return Ok(Payload::Text(Arc::from(value.text_at("data")?)));
+    }
+    Ok(match data_type_of(type_name) {
+        DataType::F64 => Payload::F64(value.f64_at("data")?),
+        DataType::I64 => match value.get("data") {
+            Some(RosValue::Int(number)) => Payload::I64(*number),
+            Some(RosValue::UInt(number)) => {
+                Payload::I64(i64::try_from(*number).map_err(|_| format!("{number} does not fit an i64"))?)
+            }
+            _ => return Err("no integer at 'data'".to_owned()),
+        },
+        DataType::Bool => match value.get("data") {
+            Some(RosValue::Bool(flag)) => Payload::Bool(*flag),
+            _ => return Err("no boolean at 'data'".to_owned()),
+        },
+        DataType::Imu => imu(value)?,
+        DataType::GnssFix => fix(value)?,
+        DataType::Image => image(value)?,
+        DataType::PointCloud => point_cloud(value)?,
+        DataType::Pose => {
+            let pose = if type_name.ends_with("Stamped") {
+                "pose"
+            } else {
+                ""
+            };
+            let at = |field: &str| {
+                if pose.is_empty() {
+                    field.to_owned()
+                } else {
+                    format!("{pose}.{field}")
+                }
+            };
+            Payload::Pose(Pose {
+                position: value.vector3_at(&at("position"))?,
+                orientation: value.quaternion_at(&at("orientation"))?,
+            })
+        }
+        DataType::Vector => {
+            let twist = if type_name.ends_with("Stamped") {
+                "twist."
+            } else {
+                ""
+            };
+            let linear = value.vector3_at(&format!("{twist}linear"))?;
+            let angular = value.vector3_at(&format!("{twist}angular"))?;
+            Payload::Vector(Arc::from(
+                [linear.x, linear.y, linear.z, angular.x, angular.y, angular.z].as_slice(),
+            ))
+        }
+        _ => Payload::Text(Arc::from(value.to_json().to_string())),
+    })
+}
+
+fn imu(value: &RosValue) -> Result<Payload, String> {
+    // A first orientation covariance of -1 says the sensor gives no orientation (sensor_msgs/Imu).
+    let has_orientation = value
+        .numbers_at("orientation_covariance")
+        .ok()
+        .and_then(|c| c.first().copied())
+        .is_none_or(|first| first >= 0.0);
+    Ok(Payload::Imu(Imu {
+        angular_velocity: value.vector3_at("angular_velocity")?,
+        linear_acceleration: value.vector3_at("linear_acceleration")?,
+        orientation: has_orientation
+            .then(|| value.quaternion_at("orientation"))
+            .transpose()?,
+    }))
+}
+
+fn fix(value: &RosValue) -> Result<Payload, String> {
+    // sensor_msgs/NavSatStatus: -1 no fix, 0 fix, 1 satellite-based augmentation, 2 ground-based.
+    let status = match value.f64_at("status.status")? as i64 {
+        i64::MIN..=-1 => FixStatus::NoFix,
+        0 => FixStatus::Fix,
+        _ => FixStatus::Differential,
+    };
+    // The diagonal of the position covariance, east, north and up variances in m²; unknown (type 0)
+    // leaves the accuracies unknown.
+    let known = value.f64_at("position_covariance_type").unwrap_or(0.0) > 0.0;
+    let covariance = value.numbers_at("position_covariance").unwrap_or_default();
+    let deviation = |index: usize| {
+        covariance
+            .get(index)
+            .filter(|_| known)
+            .map_or(f64::NAN, |variance| variance.max(0.0).sqrt())
+    };
+    Ok(Payload::GnssFix(GnssFix {
+        latitude_deg: value.f64_at("latitude")?,
+        longitude_deg: value.f64_at("longitude")?,
+        altitude_m: value.f64_at("altitude")?,
+        horizontal_accuracy_m: deviation(0).max(deviation(4)),
+        vertical_accuracy_m: deviation(8),
+        status,
+    }))
+}
+
+fn image(value: &RosValue) -> Result<Payload, String> {
+    let encoding = value.text_at("encoding")?;
+    let format = crate::decode::pixel_format_of(encoding)?;
+    if value.flag_at("is_bigendian").unwrap_or(false) && encoding.contains("16") {
+        return Err("a big-endian 16-bit image (Kairos images are little-endian)".to_owned());
+    }
+    let image = Image::with_stride(
+        value.u32_at("width")?,
+        value.u32_at("height")?,
+        format,
+        value.u32_at("step")?,
+        Arc::<[u8]>::from(value.bytes_at("data")?),
+    )
+    .map_err(|e| e.to_string())?;
+    Ok(Payload::Image(image))
+}
+
+/// `sensor_msgs/PointField` data types: `FLOAT32` and `FLOAT64` are read.
+const POINT_FLOAT32: u64 = 7;
+const POINT_FLOAT64: u64 = 8;
+
+fn point_cloud(value: &RosValue) -> Result<Payload, String> {
+    if value.flag_at("is_bigendian")? {
+        return Err("a big-endian point cloud".to_owned());
+    }
+    let step = value.u32_at("point_step")? as usize;
+    if step == 0 {
+        return Err("a point cloud with a point step of 0".to_owned());
+    }
+    let Some(RosValue::List(fields)) = value.get("fields") else {
+        return Err("no point fields".to_owned());
+    };
+    let offset_of = |name: &str| -> Result<Option<(usize, u64)>, String> {
+        let Some(field) = fields.iter().find(|f| f.text_at("name").is_ok_and(|n| n == name)) else {
+            return Ok(None);
+        };
+        let datatype = field.f64_at("datatype")? as u64;
+        if datatype != POINT_FLOAT32 && datatype != POINT_FLOAT64 {
+            return Err(format!("point field '{name}' is neither float32 nor float64"));
+        }
+        Ok(Some((field.u32_at("offset")? as usize, datatype)))
+    };
+    let read = |point: &[u8], (offset, datatype): (usize, u64)| -> Option<f32> {
+        #[allow(clippy::cast_possible_truncation, reason = "points are f32 in Kairos")]
+        if datatype == POINT_FLOAT64 {
+            Some(f64::from_le_bytes(point.get(offset..offset + 8)?.try_into().ok()?) as f32)
+        } else {
+            Some(f32::from_le_bytes(
+                point.get(offset..offset + 4)?.try_into().ok()?,
+            ))
+        }
+    };
+    let (Some(x), Some(y), Some(z)) = (offset_of("x")?, offset_of("y")?, offset_of("z")?) else {
+        return Err("a point cloud without x, y and z fields".to_owned());
+    };
+    let intensity_field = offset_of("intensity")?;
+    let data = value.bytes_at("data")?;
+    let count = (value.u32_at("width")? as usize).saturating_mul(value.u32_at("height")? as usize);
+    let mut points = Vec::with_capacity(count.min(data.len() / step));
+    let mut intensity = intensity_field.map(|_| Vec::with_capacity(points.capacity()));
+    for point in data.chunks_exact(step).take(count) {
+        let (Some(px), Some(py), Some(pz)) = (read(point, x), read(point, y), read(point, z)) else {
+            return Err("a point field lies outside the point step".to_owned());
+        };
+        points.push(Vec3::new(px, py, pz));
+        if let (Some(field), Some(values)) = (intensity_field, &mut intensity) {
+            values.push(read(point, field).unwrap_or(0.0));
+        }
+    }
+    Ok(Payload::PointCloud(Arc::new(PointCloud { points, intensity })))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const VECTOR3: &str = "float64 x\nfloat64 y\nfloat64 z\n";
+
+    /// A little-endian CDR message of `body` (already aligned as CDR wants it).
+    fn cdr(body: &[u8]) -> Vec<u8> {
+        let mut data = vec![0, 1, 0, 0];
+        data.extend_from_slice(body);
+        data
+    }
+
+    #[test]
+    fn fields_align_to_their_size_from_the_header_s_end() {
+        let definitions =
+            Definitions::parse("test_msgs/msg/Mixed", "uint8 a\nfloat64 b\nstring c\nint16[] d\n").unwrap();
+        let mut body = vec![7];
+        body.extend_from_slice(&[0; 7]);
+        body.extend_from_slice(&2.5f64.to_le_bytes());
+        body.extend_from_slice(&3u32.to_le_bytes());
+        body.extend_from_slice(b"hi\0");
+        body.push(0);
+        body.extend_from_slice(&2u32.to_le_bytes());
+        body.extend_from_slice(&(-3i16).to_le_bytes());
+        body.extend_from_slice(&4i16.to_le_bytes());
+        let value = definitions.decode(&cdr(&body)).unwrap();
+        assert_eq!(value.get("a"), Some(&RosValue::UInt(7)));
+        assert_eq!(value.get("b"), Some(&RosValue::Float(2.5)));
+        assert_eq!(value.get("c"), Some(&RosValue::Text("hi".to_owned())));
+        assert_eq!(
+            value.get("d"),
+            Some(&RosValue::List(vec![RosValue::Int(-3), RosValue::Int(4)]))
+        );
+    }
+
+    #[test]
+    fn nested_types_constants_comments_and_relative_names_resolve() {
+        let text = format!(
+            "# a twist\nuint8 KIND=3\nVector3 linear  # same package\ngeometry_msgs/msg/Vector3 angular\n\
+             {}\nMSG: geometry_msgs/Vector3\n{VECTOR3}",
+            "=".repeat(80)
+        );
+        let definitions = Definitions::parse("geometry_msgs/msg/Twist", &text).unwrap();
+        let body: Vec<u8> = [1.0f64, 2.0, 3.0, 4.0, 5.0, 6.0]
+            .iter()
+            .flat_map(|v| v.to_le_bytes())
+            .collect();
+        let value = definitions.decode(&cdr(&body)).unwrap();
+        let Payload::Vector(vector) = to_payload(&definitions, &value).unwrap() else {
+            panic!("a twist is a vector");
+        };
+        assert_eq!(&vector[..], &[1.0, 2.0, 3.0, 4.0, 5.0, 6.0]);
+    }
+
+    #[test]
+    fn malformed_definitions_and_messages_are_errors_that_say_where() {
+        let missing = Definitions::parse("a/msg/B", "c/D field\n").unwrap_err();
+        assert!(missing.contains("a/B.field is a c/D"), "{missing}");
+        let bad = Definitions::parse("a/msg/B", "float64[x] values\n").unwrap_err();
+        assert!(bad.contains("line 1") && bad.contains("array length"), "{bad}");
+        let looping = Definitions::parse(
+            "a/msg/B",
+            &format!("B inner\n{}\nMSG: a/B\nB inner\n", "=".repeat(3)),
+        )
+        .unwrap();
+        assert!(looping.decode(&cdr(&[])).unwrap_err().contains("include itself"));
+        let definitions = Definitions::parse("a/msg/B", "float64[] values\nstring name\n").unwrap();
+        let huge = cdr(&u32::MAX.to_le_bytes());
+        assert!(definitions.decode(&huge).unwrap_err().contains("a/B.values"));
+        assert!(definitions.decode(&[0, 1]).is_err());
+        assert!(definitions.decode(&[0, 9, 0, 0]).unwrap_err().contains("XCDR"));
+    }
+
+    #[test]
+    fn big_endian_messages_read_the_same() {
+        let definitions = Definitions::parse("std_msgs/msg/Float64", "float64 data\n").unwrap();
+        let mut data = vec![0, 0, 0, 0];
+        data.extend_from_slice(&1.25f64.to_be_bytes());
+        let value = definitions.decode(&data).unwrap();
+        assert_eq!(to_payload(&definitions, &value).unwrap(), Payload::F64(1.25));
+    }
+}
