@@ -421,8 +421,8 @@ fn read_decoded(file: &Path) -> (Decoded, Option<String>) {
     let damage = kairos_pack_recording::safe_read::read_intact(
         &bytes,
         |message| {
-            let schema = message.channel.schema.as_ref().map_or("", |s| s.name.as_str());
-            let payload = kairos_pack_recording::decode::decode(schema, &message.data).unwrap();
+            let decoder = kairos_pack_recording::decode::ChannelDecoder::of(&message.channel);
+            let (payload, _) = decoder.decode(&message.data).unwrap();
             topics.entry(message.channel.topic.clone()).or_default().push((
                 message.publish_time,
                 message.log_time,
@@ -1141,7 +1141,8 @@ fn a_rosbag2_recording_replays_each_message_as_its_kairos_type_at_its_header_sta
                     let status = match fix.status {
                         FixStatus::NoFix => "no_fix",
                         FixStatus::Fix => "fix",
-                        _ => "differential",
+                        FixStatus::Differential => "differential",
+                        FixStatus::RtkFixed => "rtk_fixed",
                     };
                     close(fix.latitude_deg, &values["latitude"])
                         && close(fix.longitude_deg, &values["longitude"])
@@ -1190,6 +1191,86 @@ fn a_rosbag2_recording_replays_each_message_as_its_kairos_type_at_its_header_sta
                 other => panic!("{topic} replayed as {other:?}"),
             };
             assert!(matches, "{topic}: {payload:?} is not {values}");
+        }
+    }
+}
+
+#[test]
+fn the_rosbag2_profile_writes_what_ros_readers_decode_and_kairos_reads_back_the_same() {
+    use kairos_sdk_core::Payload;
+    let _serial = one_at_a_time();
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("drive_ros.mcap");
+    let output = record_for(dir.path(), &file, "1s", &["recorder.profile=rosbag2"]);
+    assert!(output.status.success(), "{}", text(&output).1);
+
+    // Two independent ROS 2 readers decode every message alike (the script checks they agree).
+    let checked = Command::new("python3")
+        .arg(repo_root().join("tests/recording/check_rosbag2.py"))
+        .arg(&file)
+        .output()
+        .expect("python3");
+    assert!(
+        checked.status.success(),
+        "{}",
+        String::from_utf8_lossy(&checked.stderr)
+    );
+    let report: serde_json::Value = serde_json::from_slice(&checked.stdout).unwrap();
+    assert_eq!(report["profile"], "ros2");
+    let ours = decoded_messages(&file);
+    for (topic, schema) in [
+        ("/camera/image", "sensor_msgs/msg/Image"),
+        ("/imu/imu", "sensor_msgs/msg/Imu"),
+        ("/imu/pose", "geometry_msgs/msg/PoseStamped"),
+        ("/gnss/fix", "sensor_msgs/msg/NavSatFix"),
+    ] {
+        let theirs = &report["topics"][topic];
+        assert_eq!(theirs["schema"], schema, "{topic}");
+        assert_eq!(theirs["message_encoding"], "cdr");
+        let theirs = theirs["messages"].as_array().unwrap();
+        let ours = &ours[topic];
+        assert!(!ours.is_empty());
+        assert_eq!(ours.len(), theirs.len(), "{topic}");
+        for ((timestamp, time_of_issue, payload), message) in ours.iter().zip(theirs) {
+            // The header's stamp is the timestamp, the log time the time of issue.
+            assert_eq!(*timestamp, message["stamp"].as_u64().unwrap(), "{topic}");
+            assert_eq!(*time_of_issue, message["log_time"].as_u64().unwrap(), "{topic}");
+            let same = match payload {
+                Payload::Image(image) => {
+                    let sum: u64 = image.pixels.iter().map(|b| u64::from(*b)).sum();
+                    message["width"] == image.width
+                        && message["height"] == image.height
+                        && message["step"] == image.stride
+                        && message["encoding"] == "rgb8"
+                        && message["sum"] == sum
+                }
+                Payload::Imu(imu) => {
+                    close3(imu.angular_velocity.to_array(), &message["angular_velocity"])
+                        && close3(
+                            imu.linear_acceleration.to_array(),
+                            &message["linear_acceleration"],
+                        )
+                        && imu
+                            .orientation
+                            .is_some_and(|q| close(q.w, &message["orientation"][3]))
+                }
+                Payload::Pose(pose) => {
+                    close3(pose.position.to_array(), &message["position"])
+                        && close(pose.orientation.z, &message["orientation"][2])
+                }
+                Payload::GnssFix(fix) => {
+                    close(fix.latitude_deg, &message["latitude"])
+                        && close(fix.longitude_deg, &message["longitude"])
+                        && close(fix.altitude_m, &message["altitude"])
+                        && close(fix.horizontal_accuracy_m.powi(2), &message["covariance"][0])
+                        && close(fix.vertical_accuracy_m.powi(2), &message["covariance"][8])
+                }
+                other => panic!("{topic} read back as {other:?}"),
+            };
+            assert!(
+                same,
+                "{topic}: Kairos read {payload:?}, the ROS readers {message}"
+            );
         }
     }
 }

@@ -78,7 +78,7 @@ def fix(i, stamp):
     )
     return message, {"latitude": latitude, "longitude": longitude, "altitude": altitude,
                      "horizontal_accuracy": 3.0, "vertical_accuracy": 4.0,
-                     "status": ["no_fix", "fix", "differential"][i % 3]}
+                     "status": ["no_fix", "fix", "rtk_fixed"][i % 3]}
 
 
 def image(i, stamp):

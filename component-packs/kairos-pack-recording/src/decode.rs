@@ -48,8 +48,8 @@ pub fn data_type_of(schema: &str) -> DataType {
 pub enum ChannelDecoder {
     /// A schema of ours, or a foreign one replayed raw, by its name.
     Named(String),
-    /// A rosbag2 channel: CDR messages of this definition.
-    Ros2(Arc<crate::ros2::Definitions>),
+    /// A rosbag2 channel: CDR messages of this definition, replayed as this type.
+    Ros2(Arc<crate::ros2::Definitions>, DataType),
     /// A rosbag2 channel whose definition cannot be read: each message is refused with the reason.
     Unreadable {
         /// The message type's name.
@@ -79,7 +79,11 @@ impl ChannelDecoder {
         }
         let text = String::from_utf8_lossy(&schema.data);
         match crate::ros2::Definitions::parse(&schema.name, &text) {
-            Ok(definitions) => ChannelDecoder::Ros2(Arc::new(definitions)),
+            Ok(definitions) => {
+                let noted = channel.metadata.get("kairos.type").map(String::as_str);
+                let data_type = crate::ros2::data_type_noted(&schema.name, noted);
+                ChannelDecoder::Ros2(Arc::new(definitions), data_type)
+            }
             Err(why) => ChannelDecoder::Unreadable {
                 schema: schema.name.clone(),
                 why,
@@ -91,7 +95,7 @@ impl ChannelDecoder {
     pub fn data_type(&self) -> DataType {
         match self {
             ChannelDecoder::Named(schema) => data_type_of(schema),
-            ChannelDecoder::Ros2(definitions) => crate::ros2::data_type_of(definitions.type_name()),
+            ChannelDecoder::Ros2(_, data_type) => data_type.clone(),
             ChannelDecoder::Unreadable { schema, .. } => crate::ros2::data_type_of(schema),
         }
     }
@@ -101,9 +105,9 @@ impl ChannelDecoder {
     pub fn decode(&self, data: &[u8]) -> Result<(Payload, Option<kairos_sdk::Timestamp>), String> {
         match self {
             ChannelDecoder::Named(schema) => decode(schema, data).map(|payload| (payload, None)),
-            ChannelDecoder::Ros2(definitions) => {
+            ChannelDecoder::Ros2(definitions, data_type) => {
                 let value = definitions.decode(data)?;
-                let payload = crate::ros2::to_payload(definitions, &value)?;
+                let payload = crate::ros2::to_payload(definitions, &value, data_type)?;
                 Ok((payload, crate::ros2::header_stamp(definitions, &value)))
             }
             ChannelDecoder::Unreadable { why, .. } => Err(why.clone()),

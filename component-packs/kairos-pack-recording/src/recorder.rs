@@ -60,6 +60,8 @@ struct OpenFile {
     counts: BTreeMap<usize, u64>,
     /// Pre-trigger mode: per input, the samples the ring pushed out since the previous event's file.
     ring_dropped_before: BTreeMap<usize, u64>,
+    /// Written as a rosbag2 recording: ROS 2 messages in CDR, topics named as ROS names them.
+    rosbag2: bool,
 }
 
 /// After an event could not be written, how long new triggers wait before another file is tried: a
@@ -201,6 +203,11 @@ impl Recorder {
             .property(
                 Property::choice("compression", &["zstd", "lz4", "none"], "zstd").doc("Chunk compression"),
             )
+            .property(Property::choice("profile", &["kairos", "rosbag2"], "kairos").doc(
+                "kairos: Foxglove's schemas and ours, every Kairos type exactly; rosbag2: ROS 2 messages in CDR \
+                 (sensor_msgs, geometry_msgs, std_msgs, can_msgs) under ROS topic names (camera.image as \
+                 /camera/image), which ROS 2 tools read",
+            ))
             .property(
                 Property::i64("chunk_size_kb", 1024)
                     .unit("KiB")
@@ -276,9 +283,10 @@ impl Recorder {
             _ => None,
         };
         let chunk_size = u64::try_from(ctx.i64_property("chunk_size_kb")?).unwrap_or(1024) * 1024;
+        let rosbag2 = ctx.text_property("profile")? == "rosbag2";
         let (file, path) =
             kairos_sdk::files::create_for(ctx, &path).map_err(|e| failed(&path, "cannot create", e))?;
-        let writer = match Self::start_file(ctx, file, &path, compression, chunk_size) {
+        let writer = match Self::start_file(ctx, file, &path, compression, chunk_size, rosbag2) {
             Ok(writer) => writer,
             Err(error) => {
                 // A file that could not even be started (a full disk) is not left behind empty.
@@ -311,6 +319,7 @@ impl Recorder {
             schemas: BTreeMap::new(),
             counts: BTreeMap::new(),
             ring_dropped_before,
+            rosbag2,
         });
         Ok(())
     }
@@ -322,11 +331,13 @@ impl Recorder {
         path: &Path,
         compression: Option<mcap::Compression>,
         chunk_size: u64,
+        rosbag2: bool,
     ) -> Result<mcap::Writer<BufWriter<File>>, ComponentError> {
         let mut writer = mcap::WriteOptions::new()
             .compression(compression)
             .chunk_size(Some(chunk_size))
-            .profile("kairos")
+            // MCAP's profile for ROS 2 recordings, as rosbag2 writes it.
+            .profile(if rosbag2 { "ros2" } else { "kairos" })
             .library(concat!("kairos-pack-recording ", env!("CARGO_PKG_VERSION")))
             .create(BufWriter::new(file))
             .map_err(|e| failed(path, "cannot start", with_causes(&e)))?;
@@ -442,7 +453,17 @@ impl Recorder {
             entry.1 = entry.1.wrapping_add(1);
             *entry
         } else {
-            let spec = schema_for(&sample.payload);
+            let spec = if file.rosbag2 {
+                let ros_type = crate::ros2::write::ros_type_of(&sample.payload);
+                crate::encode::SchemaSpec {
+                    name: ros_type.to_owned(),
+                    encoding: crate::ros2::SCHEMA_ENCODING.to_owned(),
+                    data: crate::ros2::write::definition_of(ros_type).into_bytes(),
+                    message_encoding: crate::ros2::MESSAGE_ENCODING.to_owned(),
+                }
+            } else {
+                schema_for(&sample.payload)
+            };
             let schema = if let Some(id) = file.schemas.get(&spec.name) {
                 *id
             } else {
@@ -454,11 +475,14 @@ impl Recorder {
                 id
             };
             let source = ctx.inputs().get(input).and_then(kairos_sdk::InputPort::source);
-            let topic = if input == MARK_INPUT {
+            let mut topic = if input == MARK_INPUT {
                 MARKERS_TOPIC.to_owned()
             } else {
                 source.map_or_else(|| input_name(input).to_owned(), str::to_owned)
             };
+            if file.rosbag2 {
+                topic = crate::ros2::write::ros_topic(&topic);
+            }
             let metadata = BTreeMap::from([
                 ("input".to_owned(), input_name(input).to_owned()),
                 ("kairos.type".to_owned(), sample.payload.data_type().to_string()),
@@ -475,8 +499,12 @@ impl Recorder {
             .get(input)
             .and_then(kairos_sdk::InputPort::source)
             .unwrap_or("");
-        encode(&sample.payload, sample.timestamp, frame_id, &mut self.scratch)
-            .map_err(|e| failed(&path, "cannot encode a sample for", e))?;
+        if file.rosbag2 {
+            crate::ros2::write::encode(&sample.payload, sample.timestamp, frame_id, &mut self.scratch)
+        } else {
+            encode(&sample.payload, sample.timestamp, frame_id, &mut self.scratch)
+        }
+        .map_err(|e| failed(&path, "cannot encode a sample for", e))?;
         let header = MessageHeader {
             channel_id: channel,
             sequence,

@@ -12,8 +12,13 @@ use std::collections::HashMap;
 use std::sync::Arc;
 
 use glam::{DQuat, DVec3, Vec3};
-use kairos_sdk::{DataType, FixStatus, GnssFix, Image, Imu, Payload, PointCloud, Pose, Timestamp};
+use kairos_sdk::{
+    CanFrame, CustomPayload, DataType, FixStatus, GnssFix, Image, Imu, Matrix, Payload, PointCloud, Pose,
+    Timestamp,
+};
 use serde_json::Value as Json;
+
+pub mod write;
 
 /// The schema encoding of ROS 2 message definitions in MCAP.
 pub const SCHEMA_ENCODING: &str = "ros2msg";
@@ -512,18 +517,67 @@ pub fn data_type_of(type_name: &str) -> DataType {
         "sensor_msgs/Image" => DataType::Image,
         "sensor_msgs/PointCloud2" => DataType::PointCloud,
         "geometry_msgs/PoseStamped" | "geometry_msgs/Pose" => DataType::Pose,
-        "geometry_msgs/TwistStamped" | "geometry_msgs/Twist" => DataType::Vector,
+        "geometry_msgs/TwistStamped" | "geometry_msgs/Twist" | "std_msgs/Float64MultiArray" => {
+            DataType::Vector
+        }
+        "std_msgs/UInt8MultiArray" => DataType::Bytes,
+        "can_msgs/Frame" => DataType::CanFrame,
         _ => DataType::Text,
     }
 }
 
-/// The payload [`data_type_of`] promises for a decoded message.
-pub fn to_payload(definitions: &Definitions, value: &RosValue) -> Result<Payload, String> {
+/// The Kairos type a channel of ROS type `type_name` replays as, given the `kairos.type` a Kairos
+/// recorder noted on it: that type when the ROS type is the one Kairos writes it as (a matrix and a
+/// vector share `Float64MultiArray`, a pack's type and bytes `UInt8MultiArray`), else the usual one.
+pub fn data_type_noted(type_name: &str, noted: Option<&str>) -> DataType {
+    noted
+        .map(DataType::from_name)
+        .filter(|data_type| normalized(write::ros_type_for(data_type)) == normalized(type_name))
+        .unwrap_or_else(|| data_type_of(type_name))
+}
+
+/// A decoded message as a payload of `data_type` (what [`data_type_noted`] says the channel replays as).
+pub fn to_payload(
+    definitions: &Definitions,
+    value: &RosValue,
+    data_type: &DataType,
+) -> Result<Payload, String> {
     let type_name = definitions.type_name();
     if type_name == "std_msgs/String" {
         return Ok(Payload::Text(Arc::from(value.text_at("data")?)));
     }
-    Ok(match data_type_of(type_name) {
+    if type_name == "std_msgs/Float64MultiArray" {
+        let values = value.numbers_at("data")?;
+        return Ok(if *data_type == DataType::Matrix {
+            let sizes: Vec<usize> = match value.get("layout.dim") {
+                Some(RosValue::List(dims)) => dims
+                    .iter()
+                    .map(|d| d.u32_at("size").map_or(0, |s| s as usize))
+                    .collect(),
+                _ => Vec::new(),
+            };
+            let [rows, cols] = sizes[..] else {
+                return Err(format!("a matrix of {} dimensions", sizes.len()));
+            };
+            if rows * cols != values.len() {
+                return Err(format!("a {rows}×{cols} matrix of {} values", values.len()));
+            }
+            Payload::Matrix(Arc::new(Matrix { rows, cols, values }))
+        } else {
+            Payload::Vector(Arc::from(values))
+        });
+    }
+    if type_name == "std_msgs/UInt8MultiArray" {
+        let bytes = value.bytes_at("data")?;
+        return Ok(match data_type {
+            DataType::Custom(name) => Payload::Custom(CustomPayload {
+                type_name: Arc::from(name.as_str()),
+                data: Arc::from(bytes),
+            }),
+            _ => Payload::Bytes(Arc::from(bytes)),
+        });
+    }
+    Ok(match data_type {
         DataType::F64 => Payload::F64(value.f64_at("data")?),
         DataType::I64 => match value.get("data") {
             Some(RosValue::Int(number)) => Payload::I64(*number),
@@ -537,6 +591,7 @@ pub fn to_payload(definitions: &Definitions, value: &RosValue) -> Result<Payload
             _ => return Err("no boolean at 'data'".to_owned()),
         },
         DataType::Imu => imu(value)?,
+        DataType::CanFrame => can_frame(value)?,
         DataType::GnssFix => fix(value)?,
         DataType::Image => image(value)?,
         DataType::PointCloud => point_cloud(value)?,
@@ -574,6 +629,22 @@ pub fn to_payload(definitions: &Definitions, value: &RosValue) -> Result<Payload
     })
 }
 
+fn can_frame(value: &RosValue) -> Result<Payload, String> {
+    let id = value.u32_at("id")?;
+    let extended = value.flag_at("is_extended")?;
+    let length = u8::try_from(value.u32_at("dlc")?).map_err(|_| "a dlc over 255".to_owned())?;
+    let frame = if value.flag_at("is_rtr")? {
+        CanFrame::remote_request(id, extended, length)
+    } else {
+        let data = value.bytes_at("data")?;
+        data.get(..usize::from(length))
+            .and_then(|data| CanFrame::new(id, extended, data))
+    };
+    frame
+        .map(Payload::CanFrame)
+        .ok_or_else(|| format!("a CAN frame of length {length}"))
+}
+
 fn imu(value: &RosValue) -> Result<Payload, String> {
     // A first orientation covariance of -1 says the sensor gives no orientation (sensor_msgs/Imu).
     let has_orientation = value
@@ -591,11 +662,13 @@ fn imu(value: &RosValue) -> Result<Payload, String> {
 }
 
 fn fix(value: &RosValue) -> Result<Payload, String> {
-    // sensor_msgs/NavSatStatus: -1 no fix, 0 fix, 1 satellite-based augmentation, 2 ground-based.
+    // sensor_msgs/NavSatStatus: -1 no fix, 0 fix, 1 satellite-based augmentation (SBAS), 2 ground-based
+    // augmentation (RTK, as Kairos writes its RTK fixes).
     let status = match value.f64_at("status.status")? as i64 {
         i64::MIN..=-1 => FixStatus::NoFix,
         0 => FixStatus::Fix,
-        _ => FixStatus::Differential,
+        1 => FixStatus::Differential,
+        _ => FixStatus::RtkFixed,
     };
     // The diagonal of the position covariance, east, north and up variances in m²; unknown (type 0)
     // leaves the accuracies unknown.
@@ -738,7 +811,9 @@ mod tests {
             .flat_map(|v| v.to_le_bytes())
             .collect();
         let value = definitions.decode(&cdr(&body)).unwrap();
-        let Payload::Vector(vector) = to_payload(&definitions, &value).unwrap() else {
+        let Payload::Vector(vector) =
+            to_payload(&definitions, &value, &data_type_of(definitions.type_name())).unwrap()
+        else {
             panic!("a twist is a vector");
         };
         assert_eq!(&vector[..], &[1.0, 2.0, 3.0, 4.0, 5.0, 6.0]);
@@ -769,6 +844,9 @@ mod tests {
         let mut data = vec![0, 0, 0, 0];
         data.extend_from_slice(&1.25f64.to_be_bytes());
         let value = definitions.decode(&data).unwrap();
-        assert_eq!(to_payload(&definitions, &value).unwrap(), Payload::F64(1.25));
+        assert_eq!(
+            to_payload(&definitions, &value, &data_type_of(definitions.type_name())).unwrap(),
+            Payload::F64(1.25)
+        );
     }
 }
