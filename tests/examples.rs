@@ -35,6 +35,7 @@ fn every_example_validates() {
         "scale/grouped_900",
         "subgraph/lane_pipeline",
         "subgraph/two_cameras",
+        "ros2/record",
     ] {
         let path = example(name);
         let output = kairos(&root, &["validate", path.to_str().unwrap()]);
@@ -66,6 +67,49 @@ fn replay_fuses_a_recording_as_if_the_sensors_were_live() {
         let (a, b): (i64, i64) = (row[imu].parse().unwrap(), row[gnss].parse().unwrap());
         assert!((a - b).abs() <= 5_000_000, "matched within 5 ms: {row:?}");
     }
+}
+
+#[test]
+fn a_rosbag2_recording_made_by_the_ros2_example_replays_through_the_lane_pipeline() {
+    let dir = tempfile::tempdir().unwrap();
+    let record = kairos(
+        dir.path(),
+        &["run", example("ros2/record").to_str().unwrap(), "--for", "1500ms"],
+    );
+    assert!(record.status.success(), "{}", text(&record).1);
+    let inspected = kairos(dir.path(), &["inspect", "drive_ros.mcap"]);
+    let (report, _) = text(&inspected);
+    assert!(
+        report.contains("/camera/image") && report.contains("sensor_msgs/msg/Image"),
+        "{report}"
+    );
+    // No --for: the replay ends with the bag.
+    let output = kairos(
+        dir.path(),
+        &["run", example("ros2/lanes_from_bag").to_str().unwrap(), "--stats"],
+    );
+    let (stdout, stderr) = text(&output);
+    assert!(output.status.success(), "{stderr}");
+    // Every image in the bag went through every stage of the pipeline, and its lines to the console.
+    let images = report
+        .lines()
+        .find(|l| l.starts_with("/camera/image"))
+        .and_then(|l| l.split_whitespace().nth(3))
+        .and_then(|n| n.parse::<u64>().ok())
+        .unwrap();
+    assert!(images > 0, "{report}");
+    for stage in ["grey", "blur", "edges", "lines", "overlay"] {
+        assert_eq!(
+            common::stats_cycles(&stderr, &format!("lanes/{stage}")),
+            images,
+            "{stage}: {stderr}"
+        );
+    }
+    assert_eq!(
+        stdout.lines().filter(|l| l.starts_with("lines:")).count() as u64,
+        images,
+        "{stdout}"
+    );
 }
 
 #[test]

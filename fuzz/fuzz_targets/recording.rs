@@ -2,7 +2,7 @@
 //! fine, panics and aborts are not. Run with `cargo +nightly fuzz run recording` in `fuzz/`.
 #![no_main]
 
-use kairos_pack_recording::decode::decode;
+use kairos_pack_recording::decode::ChannelDecoder;
 use kairos_pack_recording::inspect_bytes;
 use kairos_pack_recording::timeline::RecordingIndex;
 use libfuzzer_sys::fuzz_target;
@@ -20,12 +20,13 @@ fuzz_target!(|tail: &[u8]| {
     let Ok(index) = RecordingIndex::open(&path) else { return };
     for block in 0..index.block_count() {
         for message in index.read_block(block).unwrap_or_default() {
-            let schema = index
-                .channels()
-                .iter()
-                .find(|c| c.id == message.channel)
-                .map_or("", |c| c.schema.as_str());
-            let _ = decode(schema, &message.data);
+            // Each channel as the player decodes it: by its schema's name, or a rosbag2 channel through
+            // the definition the file carries.
+            let decoder = index.channel_definition(message.channel).map_or_else(
+                || ChannelDecoder::Named(String::new()),
+                |channel| ChannelDecoder::of(channel),
+            );
+            let _ = decoder.decode(&message.data);
         }
     }
 });

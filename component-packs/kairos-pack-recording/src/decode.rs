@@ -420,7 +420,9 @@ mod tests {
         CanFrame, FixStatus, GnssFix, Image, Payload, PixelFormat, PointCloud, Pose, Timestamp,
     };
 
-    use super::{decode, unbase64};
+    use std::sync::Arc;
+
+    use super::{ChannelDecoder, DataType, decode, unbase64};
     use crate::encode::{encode, schema_for};
 
     fn round_trip(payload: &Payload) -> Payload {
@@ -499,6 +501,50 @@ mod tests {
         };
         assert_eq!(&*custom.type_name, "ros2msg/sensor_msgs/msg/Range");
         assert_eq!(&*custom.data, &[1, 2, 3]);
+    }
+
+    /// A channel as MCAP gives it, with a `ros2msg` schema.
+    fn ros_channel(type_name: &str, definition: &str, message_encoding: &str) -> mcap::Channel<'static> {
+        mcap::Channel {
+            id: 1,
+            topic: "/topic".to_owned(),
+            schema: Some(Arc::new(mcap::Schema {
+                id: 1,
+                name: type_name.to_owned(),
+                encoding: "ros2msg".to_owned(),
+                data: std::borrow::Cow::Owned(definition.as_bytes().to_vec()),
+            })),
+            message_encoding: message_encoding.to_owned(),
+            metadata: std::collections::BTreeMap::new(),
+        }
+    }
+
+    #[test]
+    fn a_rosbag2_channel_whose_definition_is_broken_refuses_each_message_saying_why() {
+        let incomplete = ros_channel("sensor_msgs/msg/Imu", "std_msgs/Header header\n", "cdr");
+        let decoder = ChannelDecoder::of(&incomplete);
+        assert_eq!(
+            decoder.data_type(),
+            DataType::Imu,
+            "typed from its name all the same"
+        );
+        let why = decoder.decode(&[0, 1, 0, 0]).unwrap_err();
+        assert!(
+            why.contains("sensor_msgs/Imu.header is a std_msgs/Header"),
+            "{why}"
+        );
+        let json_encoded = ros_channel("std_msgs/msg/Float64", "float64 data\n", "json");
+        let why = ChannelDecoder::of(&json_encoded).decode(b"{}").unwrap_err();
+        assert!(why.contains("only cdr is read"), "{why}");
+        let fine = ChannelDecoder::of(&ros_channel("std_msgs/msg/Float64", "float64 data\n", "cdr"));
+        let mut message = vec![0, 1, 0, 0];
+        message.extend_from_slice(&2.5f64.to_le_bytes());
+        assert_eq!(fine.decode(&message).unwrap(), (Payload::F64(2.5), None));
+        assert!(
+            fine.decode(&message[..7])
+                .unwrap_err()
+                .contains("std_msgs/Float64.data")
+        );
     }
 
     #[test]

@@ -533,6 +533,70 @@ mod tests {
     }
 
     #[test]
+    fn cut_or_corrupted_messages_are_errors_never_panics() {
+        let stamp = Timestamp(1_795_000_000_000_000_000);
+        let samples = [
+            Payload::Image(Image::packed(4, 3, PixelFormat::Rgb8, vec![7; 36]).unwrap()),
+            Payload::PointCloud(Arc::new(PointCloud {
+                points: vec![glam::Vec3::ONE; 5],
+                intensity: Some(vec![1.0; 5]),
+            })),
+            Payload::GnssFix(GnssFix {
+                latitude_deg: 1.0,
+                longitude_deg: 2.0,
+                altitude_m: 3.0,
+                horizontal_accuracy_m: 1.0,
+                vertical_accuracy_m: 1.0,
+                status: FixStatus::Fix,
+            }),
+            Payload::Matrix(Arc::new(Matrix {
+                rows: 2,
+                cols: 2,
+                values: vec![1.0; 4],
+            })),
+            Payload::CanFrame(CanFrame::new(5, false, &[1, 2]).unwrap()),
+        ];
+        // A fixed sequence of pseudo-random bytes: the same corruptions every run.
+        let mut state = 0x9E37_79B9_7F4A_7C15_u64;
+        let mut next = move || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            state
+        };
+        let mut refused = 0;
+        for payload in &samples {
+            let ros_type = ros_type_of(payload);
+            let definitions = Definitions::parse(ros_type, &definition_of(ros_type)).unwrap();
+            let data_type = data_type_noted(ros_type, Some(&payload.data_type().to_string()));
+            let mut data = Vec::new();
+            encode(payload, stamp, "x", &mut data).unwrap();
+            let mut tries: Vec<Vec<u8>> = (0..data.len()).map(|cut| data[..cut].to_vec()).collect();
+            for _ in 0..2000 {
+                let mut corrupted = data.clone();
+                for _ in 0..=(next() % 4) {
+                    let at = (next() % corrupted.len() as u64) as usize;
+                    corrupted[at] = next() as u8;
+                }
+                tries.push(corrupted);
+            }
+            for message in tries {
+                match definitions.decode(&message) {
+                    Ok(value) => {
+                        let _ = to_payload(&definitions, &value, &data_type);
+                        let _ = value.to_json();
+                    }
+                    Err(why) => {
+                        assert!(!why.is_empty());
+                        refused += 1;
+                    }
+                }
+            }
+        }
+        assert!(refused > 0, "every cut message was accepted");
+    }
+
+    #[test]
     fn a_definition_lists_each_type_it_uses_once_after_a_separator() {
         let text = definition_of("sensor_msgs/msg/Imu");
         assert!(text.starts_with("std_msgs/Header header\n"));
