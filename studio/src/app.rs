@@ -302,6 +302,9 @@ impl StudioApp {
             if let Some((output, publish)) = canvas.take_foxglove_request() {
                 session.publish_to_foxglove(&output.to_string(), publish);
             }
+            if let Some(file) = canvas.take_file_request() {
+                commands.push(Command::OpenFile(file));
+            }
             if let Some((kind, inner, name)) = canvas.take_expose_request() {
                 commands.push(Command::SetExposed { kind, inner, name });
             }

@@ -13,12 +13,13 @@ pub mod paint;
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::fmt::Write as _;
+use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
 use egui::{Color32, Pos2, Rect, Sense, Stroke, Vec2, WidgetInfo};
 use kairos_diagram::{
     ComponentInfo, ComponentInstance, Connection, DataType, Diagram, ExposedKind, Exposes, InputInfo,
-    LibraryInfo, PortRef, Position, ReaderPolicy,
+    LibraryInfo, PortRef, Position, ReaderPolicy, Value,
 };
 use kairos_protocol::LinkTelemetry;
 
@@ -138,6 +139,8 @@ pub struct Canvas {
     subgraph_request: Option<String>,
     /// An output to publish to Foxglove (true) or no longer (false), asked in its context menu.
     foxglove_request: Option<(PortRef, bool)>,
+    /// A diagram file dropped on the canvas, to open.
+    file_request: Option<PathBuf>,
     /// A port to expose to diagrams using this one, or no longer, asked in its context menu.
     expose_request: Option<ExposeRequest>,
     /// The size of the canvas on the screen last frame, to keep the zoom when it changes.
@@ -165,10 +168,37 @@ impl Default for Canvas {
             viewer_request: None,
             subgraph_request: None,
             foxglove_request: None,
+            file_request: None,
             expose_request: None,
             view_size: None,
             fit_frames: 0,
             outside_view: 0,
+        }
+    }
+}
+
+/// The component a recording dropped on the canvas becomes.
+const PLAYER: &str = "recording.player";
+
+/// What a file dropped on the canvas is.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum DroppedFile {
+    /// An MCAP file, or a rosbag2 recording's folder (its `metadata.yaml` beside its files).
+    Recording,
+    /// A diagram (`.ron`).
+    Diagram,
+    Other,
+}
+
+impl DroppedFile {
+    fn of(path: &std::path::Path) -> DroppedFile {
+        let extension = path.extension().and_then(|e| e.to_str()).unwrap_or("");
+        if extension.eq_ignore_ascii_case("mcap") || path.join("metadata.yaml").is_file() {
+            DroppedFile::Recording
+        } else if extension.eq_ignore_ascii_case("ron") {
+            DroppedFile::Diagram
+        } else {
+            DroppedFile::Other
         }
     }
 }
@@ -853,6 +883,64 @@ impl Canvas {
             );
             self.selected = BTreeSet::from([id]);
         }
+        self.files_dropped(ui, cursor, document, library);
+    }
+
+    /// Files dropped on the canvas from the desktop: a recording (an MCAP file, a rosbag2 folder) becomes
+    /// a player on it where it was let go, its topics its outputs; a diagram is opened.
+    fn files_dropped(
+        &mut self,
+        ui: &egui::Ui,
+        cursor: Option<Pos2>,
+        document: &mut Document,
+        library: &LibraryInfo,
+    ) {
+        let dropped: Vec<PathBuf> = ui.input(|i| {
+            i.raw
+                .dropped_files
+                .iter()
+                .map(|f| f.path().to_path_buf())
+                .collect()
+        });
+        let mut at = cursor.unwrap_or_else(|| self.scene_rect.center());
+        for path in dropped {
+            match DroppedFile::of(&path) {
+                DroppedFile::Recording => {
+                    let Some(info) = library.component(PLAYER) else {
+                        self.refusal_to_log = Some(format!(
+                            "{} is a recording, but the runtime has no {PLAYER} to replay it",
+                            path.display()
+                        ));
+                        continue;
+                    };
+                    let position = Position {
+                        x: at.x - NODE_WIDTH / 2.0,
+                        y: at.y - 15.0,
+                    };
+                    let id = document.add_component(info, library, position);
+                    let before = document.diagram().clone();
+                    document.edit(|diagram| {
+                        if let Some(player) = diagram.component_mut(&id) {
+                            player
+                                .properties
+                                .insert("path".to_owned(), Value::Text(path.display().to_string()));
+                        }
+                    });
+                    // Placed and pointed at its file: one step to undo.
+                    document.squash_last(&before);
+                    self.selected = BTreeSet::from([id]);
+                    at.y += 90.0;
+                }
+                DroppedFile::Diagram => self.file_request = Some(path),
+                DroppedFile::Other => {
+                    self.refusal_to_log = Some(format!(
+                        "{} was dropped: the canvas takes diagrams (.ron) and recordings (.mcap, or a \
+                         rosbag2 folder)",
+                        path.display()
+                    ));
+                }
+            }
+        }
     }
 
     /// Box selection: a primary drag on the background selects every node the box touches.
@@ -907,6 +995,11 @@ impl Canvas {
     /// An output to publish to Foxglove (true) or no longer (false), if one was asked for since the last call.
     pub fn take_foxglove_request(&mut self) -> Option<(PortRef, bool)> {
         self.foxglove_request.take()
+    }
+
+    /// A diagram file dropped on the canvas, if one was since the last call.
+    pub fn take_file_request(&mut self) -> Option<PathBuf> {
+        self.file_request.take()
     }
 
     /// A port to expose (or no longer), if one was asked for since the last call.

@@ -121,6 +121,13 @@ impl Document {
         result
     }
 
+    /// Makes the last two edits one undoable step: `before` is the diagram between them.
+    pub fn squash_last(&mut self, before: &Diagram) {
+        if self.undo.last() == Some(before) {
+            self.undo.pop();
+        }
+    }
+
     /// Makes the change from `before` to now one undoable step (for a drag applied frame by frame).
     pub fn record(&mut self, before: Diagram) {
         if before != self.diagram {

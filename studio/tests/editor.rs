@@ -1332,3 +1332,75 @@ fn a_subgraph_file_edited_elsewhere_shows_its_new_ports_on_its_instances() {
     assert!(harness.query_by_label("output rear.annotated (image)").is_some());
     assert!(harness.query_by_label("output front.out (image)").is_none());
 }
+
+/// A file dropped from the desktop, as the window hands it over.
+#[derive(Debug)]
+struct Dropped(std::path::PathBuf);
+
+impl egui::DroppedFile for Dropped {
+    fn path(&self) -> &std::path::Path {
+        &self.0
+    }
+
+    fn bytes(&self) -> Result<Vec<u8>, String> {
+        std::fs::read(&self.0).map_err(|e| e.to_string())
+    }
+}
+
+fn drop_file(harness: &mut Harness<'_, StudioApp>, path: &std::path::Path) {
+    harness
+        .input_mut()
+        .dropped_files
+        .push(std::sync::Arc::new(Dropped(path.to_owned())));
+    harness.run_steps(2);
+}
+
+#[test]
+fn a_recording_dropped_on_the_canvas_becomes_a_player_on_it_and_a_diagram_opens() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut harness = studio();
+    // A rosbag2 folder (its metadata.yaml beside its MCAP file) and an MCAP file.
+    let bag = dir.path().join("drive_bag");
+    std::fs::create_dir(&bag).unwrap();
+    std::fs::write(bag.join("metadata.yaml"), "rosbag2_bagfile_information: {}\n").unwrap();
+    drop_file(&mut harness, &bag);
+    let file = dir.path().join("drive.mcap");
+    std::fs::write(&file, b"").unwrap();
+    drop_file(&mut harness, &file);
+    let players: Vec<(String, String)> = harness
+        .state()
+        .session
+        .document
+        .diagram()
+        .components
+        .iter()
+        .filter(|c| c.type_name == "recording.player")
+        .map(|c| (c.id.clone(), c.properties["path"].as_text().unwrap().to_owned()))
+        .collect();
+    assert_eq!(
+        players,
+        [
+            ("player1".to_owned(), bag.display().to_string()),
+            ("player2".to_owned(), file.display().to_string())
+        ]
+    );
+    // Placed and pointed at its file in one step: one undo takes the last player away whole.
+    harness.state_mut().session.document.undo();
+    assert_eq!(harness.state().session.document.diagram().components.len(), 1);
+
+    // Something else is said, not taken.
+    drop_file(&mut harness, &dir.path().join("notes.txt"));
+    assert!(harness.query_by_label_contains("notes.txt was dropped").is_some());
+
+    // A diagram opens (the unsaved players are asked about first).
+    let diagram = dir.path().join("other.ron");
+    std::fs::copy(
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../examples/hello.ron"),
+        &diagram,
+    )
+    .unwrap();
+    drop_file(&mut harness, &diagram);
+    harness.get_by_label("Discard").click();
+    harness.run_steps(3);
+    assert_eq!(harness.state().session.document.path(), Some(diagram.as_path()));
+}
