@@ -5,11 +5,15 @@ Each topic has its own message type: the common ones Kairos maps to its types, a
 (sensor_msgs/Temperature), which replays as a structured value. Header stamps and log times differ (the
 log time is 5 ms after the stamp), so the test can tell which time went where.
 
-Usage: python3 write_rosbag2.py DIR   (writes DIR/drive/ and DIR/expected.json)
+Usage: python3 write_rosbag2.py DIR [STORAGE]   (writes DIR/drive/ and DIR/expected.json)
+
+STORAGE is `mcap` (the default), `sqlite3` (a .db3 bag with its message definitions, as ROS 2 Iron and
+later write it) or `sqlite3-old` (the same without them, as bags recorded before Iron are).
 """
 
 import json
 import math
+import sqlite3
 import sys
 from pathlib import Path
 
@@ -138,10 +142,11 @@ TOPICS = {
 }
 
 
-def main(out):
+def main(out, storage="mcap"):
     out = Path(out)
     expected = {}
-    with Writer(out / "drive", version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+    plugin = StoragePlugin.MCAP if storage == "mcap" else StoragePlugin.SQLITE3
+    with Writer(out / "drive", version=9, storage_plugin=plugin) as writer:
         connections = {topic: writer.add_connection(topic, kind, typestore=STORE) for topic, (kind, _, _) in TOPICS.items()}
         # Interleaved in log-time order, 10 ms apart, as a recorder would receive them.
         messages = []
@@ -154,8 +159,13 @@ def main(out):
                 expected.setdefault(topic, []).append(values)
         for log_ns, topic, kind, message in sorted(messages, key=lambda m: m[0]):
             writer.write(connections[topic], log_ns, STORE.serialize_cdr(message, kind))
+    if storage == "sqlite3-old":
+        database = sqlite3.connect(out / "drive" / "drive.db3")
+        database.execute("DROP TABLE message_definitions")
+        database.commit()
+        database.close()
     (out / "expected.json").write_text(json.dumps(expected))
 
 
 if __name__ == "__main__":
-    main(sys.argv[1])
+    main(*sys.argv[1:])

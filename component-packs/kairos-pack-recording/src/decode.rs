@@ -77,7 +77,22 @@ impl ChannelDecoder {
                 ),
             };
         }
-        let text = String::from_utf8_lossy(&schema.data);
+        // An older SQLite bag carries no definitions: the types Kairos writes are read with its own.
+        let text = if schema.data.is_empty() {
+            crate::ros2::write::definition_of(&schema.name)
+        } else {
+            String::from_utf8_lossy(&schema.data).into_owned()
+        };
+        if text.is_empty() && !schema.name.ends_with("/Empty") {
+            return ChannelDecoder::Unreadable {
+                schema: schema.name.clone(),
+                why: format!(
+                    "the recording carries no definition of {} (a bag recorded before ROS 2 Iron, of a type \
+                     Kairos has no definition of)",
+                    schema.name
+                ),
+            };
+        }
         match crate::ros2::Definitions::parse(&schema.name, &text) {
             Ok(definitions) => {
                 let noted = channel.metadata.get("kairos.type").map(String::as_str);

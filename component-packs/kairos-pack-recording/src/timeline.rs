@@ -17,25 +17,32 @@ use std::time::SystemTime;
 use crate::safe_read::{Catalog, read_records, walk};
 
 /// The MCAP file a path names: `path` itself, or the one file of a rosbag2 folder (`metadata.yaml` beside
-/// its storage files), as `ros2 bag record` leaves it.
+/// its storage files), as `ros2 bag record` leaves it. A `SQLite` bag (`.db3`, or a folder of them) is
+/// converted once to MCAP ([`crate::ros2::db3`]) and that file named.
 pub fn recording_file(path: &Path) -> Result<PathBuf, String> {
+    let has_extension = |file: &Path, wanted: &str| file.extension().is_some_and(|e| e == wanted);
     if !path.is_dir() {
+        if has_extension(path, "db3") {
+            return crate::ros2::db3::as_mcap(&[path.to_owned()]);
+        }
         return Ok(path.to_owned());
     }
     let mut files: Vec<PathBuf> = std::fs::read_dir(path)
         .map_err(|e| format!("cannot list {}: {e}", path.display()))?
         .map_while(Result::ok)
         .map(|entry| entry.path())
-        .filter(|file| file.extension().is_some_and(|e| e == "mcap"))
         .collect();
     files.sort();
-    match files.as_slice() {
-        [one] => Ok(one.clone()),
-        [] => Err(
-            "a folder with no MCAP file (a rosbag2 folder in sqlite3 storage, .db3, is not read: convert \
-             it with `ros2 bag convert` to MCAP)"
-                .to_owned(),
-        ),
+    let mcap: Vec<&PathBuf> = files.iter().filter(|f| has_extension(f, "mcap")).collect();
+    let db3: Vec<PathBuf> = files
+        .iter()
+        .filter(|f| has_extension(f, "db3"))
+        .cloned()
+        .collect();
+    match mcap.as_slice() {
+        [one] => Ok((*one).clone()),
+        [] if !db3.is_empty() => crate::ros2::db3::as_mcap(&db3),
+        [] => Err("a folder with no MCAP or .db3 file".to_owned()),
         several => Err(format!(
             "a folder of {} MCAP files (a split recording): give them as path, path2, ... in order, first {}",
             several.len(),

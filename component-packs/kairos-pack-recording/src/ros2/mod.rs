@@ -18,6 +18,8 @@ use kairos_sdk::{
 };
 use serde_json::Value as Json;
 
+pub mod db3;
+mod sqlite;
 pub mod write;
 
 /// The schema encoding of ROS 2 message definitions in MCAP.
