@@ -132,6 +132,93 @@ pub fn definition_of(ros_type: &str) -> String {
     text
 }
 
+/// The type hash ROS 2 names `ros_type` by (`RIHS01_` and the SHA-256 of its type description, REP 2011),
+/// as `rmw_zenoh` puts it in key expressions and liveliness tokens; `None` for a type Kairos does not write.
+pub fn type_hash(ros_type: &str) -> Option<String> {
+    use sha2::Digest as _;
+    let root = super::normalized(ros_type);
+    if fields_of(&root).is_empty() {
+        return None;
+    }
+    let mut referenced = BTreeSet::new();
+    let mut pending = used_types(&root);
+    while let Some(next) = pending.pop() {
+        if referenced.insert(next.clone()) {
+            pending.extend(used_types(&next));
+        }
+    }
+    // Python's `json.dumps` with its default separators, keys in the order REP 2011 gives them: what
+    // `rosidl` hashes.
+    let referenced: Vec<String> = referenced.iter().map(|t| description_json(t)).collect();
+    let text = format!(
+        "{{\"type_description\": {}, \"referenced_type_descriptions\": [{}]}}",
+        description_json(&root),
+        referenced.join(", ")
+    );
+    let digest = sha2::Sha256::digest(text.as_bytes());
+    let hex: String = digest.iter().map(|b| format!("{b:02x}")).collect();
+    Some(format!("RIHS01_{hex}"))
+}
+
+/// One type's description: its name (`pkg/msg/Type`) and its fields with their REP 2011 type ids.
+fn description_json(type_name: &str) -> String {
+    let fields: Vec<String> = fields_of(type_name)
+        .lines()
+        .filter_map(|line| {
+            let mut words = line.split_whitespace();
+            Some((words.next()?, words.next()?))
+        })
+        .map(|(type_word, name)| {
+            let (base, array) = match type_word.split_once('[') {
+                Some((base, rest)) => (base, Some(rest.trim_end_matches(']'))),
+                None => (type_word, None),
+            };
+            // type_description_interfaces/FieldType: the scalar's id, +48 for an array of fixed size,
+            // +96 for a bounded sequence, +144 for an unbounded one.
+            let (scalar, nested) = match base {
+                "int8" => (2, String::new()),
+                "uint8" => (3, String::new()),
+                "int16" => (4, String::new()),
+                "uint16" => (5, String::new()),
+                "int32" => (6, String::new()),
+                "uint32" => (7, String::new()),
+                "int64" => (8, String::new()),
+                "uint64" => (9, String::new()),
+                "float32" => (10, String::new()),
+                "float64" => (11, String::new()),
+                "char" => (13, String::new()),
+                "bool" => (15, String::new()),
+                "byte" => (16, String::new()),
+                "string" => (17, String::new()),
+                message => (1, with_msg(message)),
+            };
+            let (type_id, capacity) = match array {
+                None => (scalar, 0),
+                Some("") => (scalar + 144, 0),
+                Some(bound) if bound.starts_with("<=") => (scalar + 96, bound[2..].parse().unwrap_or(0)),
+                Some(size) => (scalar + 48, size.parse().unwrap_or(0)),
+            };
+            format!(
+                "{{\"name\": \"{name}\", \"type\": {{\"type_id\": {type_id}, \"capacity\": {capacity}, \
+                 \"string_capacity\": 0, \"nested_type_name\": \"{nested}\"}}}}"
+            )
+        })
+        .collect();
+    format!(
+        "{{\"type_name\": \"{}\", \"fields\": [{}]}}",
+        with_msg(type_name),
+        fields.join(", ")
+    )
+}
+
+/// `pkg/Type` as REP 2011 names it: `pkg/msg/Type`.
+fn with_msg(type_name: &str) -> String {
+    match type_name.split_once('/') {
+        Some((package, name)) if !name.contains('/') => format!("{package}/msg/{name}"),
+        _ => type_name.to_owned(),
+    }
+}
+
 /// The message types `type_name`'s own fields name, in order.
 fn used_types(type_name: &str) -> Vec<String> {
     fields_of(type_name)
@@ -594,6 +681,26 @@ mod tests {
             }
         }
         assert!(refused > 0, "every cut message was accepted");
+    }
+
+    #[test]
+    fn type_hashes_are_the_ones_ros_2_computes() {
+        // rmw_zenoh's design document gives std_msgs/msg/String's.
+        assert_eq!(
+            type_hash("std_msgs/msg/String").as_deref(),
+            Some("RIHS01_df668c740482bbd48fb39d76a70dfd4bd59db1288021743503259e948f6b1a18")
+        );
+        // These as the `rosbags` package computes them for ROS 2 Jazzy (0.11.9).
+        for (ros_type, hash) in [
+            ("sensor_msgs/msg/Imu", "7d9a00ff131080897a5ec7e26e315954b8eae3353c3f995c55faf71574000b5b"),
+            ("sensor_msgs/msg/NavSatFix", "62223ab3fe210a15976021da7afddc9e200dc9ec75231c1b6a557fc598a65404"),
+            ("sensor_msgs/msg/Image", "d31d41a9a4c4bc8eae9be757b0beed306564f7526c88ea6a4588fb9582527d47"),
+            ("sensor_msgs/msg/PointCloud2", "9198cabf7da3796ae6fe19c4cb3bdd3525492988c70522628af5daa124bae2b5"),
+            ("geometry_msgs/msg/PoseStamped", "10f3786d7d40fd2b54367835614bff85d4ad3b5dab62bf8bca0cc232d73b4cd8"),
+        ] {
+            assert_eq!(type_hash(ros_type), Some(format!("RIHS01_{hash}")), "{ros_type}");
+        }
+        assert_eq!(type_hash("unknown_msgs/msg/Thing"), None);
     }
 
     #[test]
