@@ -36,6 +36,7 @@ fn every_example_validates() {
         "subgraph/lane_pipeline",
         "subgraph/two_cameras",
         "ros2/record",
+        "ros2/live",
     ] {
         let path = example(name);
         let output = kairos(&root, &["validate", path.to_str().unwrap()]);
@@ -110,6 +111,87 @@ fn a_rosbag2_recording_made_by_the_ros2_example_replays_through_the_lane_pipelin
         images,
         "{stdout}"
     );
+}
+
+#[test]
+fn the_live_ros2_example_talks_to_a_ros2_node_as_rmw_zenoh_makes_one() {
+    let port = std::net::TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port();
+    let endpoint = format!("tcp/127.0.0.1:{port}");
+    // A ROS 2 node in Python (eclipse-zenoh and rosbags), listening where Kairos connects.
+    let mut peer = std::process::Command::new("python3")
+        .arg(common::repo_root().join("tests/ros2/live_peer.py"))
+        .args([&endpoint, "8"])
+        .stdout(std::process::Stdio::piped())
+        .spawn()
+        .expect("python3");
+    let mut lines = std::io::BufRead::lines(std::io::BufReader::new(peer.stdout.take().unwrap()));
+    assert_eq!(lines.next().unwrap().unwrap(), "ready");
+    let dir = tempfile::tempdir().unwrap();
+    let routers: Vec<String> = ["camera_to_ros", "imu_to_ros", "speed_from_ros"]
+        .iter()
+        .map(|id| format!("{id}.router={endpoint}"))
+        .collect();
+    let diagram = example("ros2/live");
+    let mut args = vec!["run", diagram.to_str().unwrap(), "--for", "4s", "--stats"];
+    for router in &routers {
+        args.extend(["--set", router.as_str()]);
+    }
+    let output = kairos(dir.path(), &args);
+    let (stdout, stderr) = text(&output);
+    assert!(output.status.success(), "{stderr}");
+    let report: serde_json::Value = serde_json::from_str(&lines.next().unwrap().unwrap()).unwrap();
+    assert!(peer.wait().unwrap().success());
+
+    // Kairos' IMU as the node received it: on the key rmw_zenoh uses (the type hash rosbags computes),
+    // numbered without a gap (from 1, less what was put before the node's subscription reached Kairos),
+    // decoded by rosbags.
+    assert_eq!(report["problems"], serde_json::json!([]), "{report}");
+    let imu = report["imu"].as_array().unwrap();
+    assert!(imu.len() >= 50, "{} IMU messages", imu.len());
+    let first = imu[0]["sequence"].as_u64().unwrap();
+    assert!(first >= 1);
+    for (index, message) in imu.iter().enumerate() {
+        assert_eq!(message["sequence"], first + index as u64);
+        assert_eq!(message["frame_id"], "imu.imu");
+        assert!(
+            (message["acceleration_z"].as_f64().unwrap() - 9.81).abs() < 0.5,
+            "{message}"
+        );
+    }
+    // The graph: each node and its publisher or subscription, as `ros2 topic list` reads them.
+    let tokens: Vec<&str> = report["tokens"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter_map(|t| t.as_str())
+        .collect();
+    for wanted in [
+        "/MP/%/%/kairos/%kairos%imu/sensor_msgs::msg::dds_::Imu_/RIHS01_7d9a00ff131080897a5ec7e26e315954b8eae3353c3f995c55faf71574000b5b/::,10:,:,:,,",
+        "/MP/%/%/kairos/%kairos%camera%image/sensor_msgs::msg::dds_::Image_/RIHS01_",
+        "/MS/%/%/kairos/%speed/std_msgs::msg::dds_::Float64_/RIHS01_",
+        "/NN/%/%/kairos",
+    ] {
+        assert!(
+            tokens.iter().any(|t| t.contains(wanted)),
+            "{wanted} in {tokens:?}"
+        );
+    }
+    // The node's topic: 19 values printed (number 11 never sent), and the one gap counted lost.
+    let speeds: Vec<f64> = stdout
+        .lines()
+        .filter(|l| l.starts_with("speed:"))
+        .filter_map(|l| l.rsplit(' ').next()?.parse().ok())
+        .collect();
+    let sent: Vec<f64> = (1..=20)
+        .filter(|n| *n != 11)
+        .map(|n| f64::from(n) * 0.5)
+        .collect();
+    assert_eq!(speeds, sent, "{stdout}");
+    assert!(stderr.contains("lost 1, received 19"), "{stderr}");
 }
 
 #[test]

@@ -90,6 +90,8 @@ const RULES: &[(&str, &[&str])] = &[
     ),
     // a sensor pack reads through the serial pack's links.
     ("kairos-pack-gnss", &["kairos-sdk", "kairos-pack-serial"]),
+    // ROS 2 messages, their definitions and type hashes are the recording pack's, for bags and live alike.
+    ("kairos-pack-ros2", &["kairos-sdk", "kairos-pack-recording"]),
     ("kairos-pack-*", &["kairos-sdk"]),
     ("kairos-test-pack-*", &["kairos-sdk"]),
     // The engine, and the clock synchronisation between runtimes: the SDK's runtime half.

@@ -156,8 +156,11 @@ pub fn type_hash(ros_type: &str) -> Option<String> {
         referenced.join(", ")
     );
     let digest = sha2::Sha256::digest(text.as_bytes());
-    let hex: String = digest.iter().map(|b| format!("{b:02x}")).collect();
-    Some(format!("RIHS01_{hex}"))
+    let mut hash = String::from("RIHS01_");
+    for byte in digest {
+        let _ = write!(hash, "{byte:02x}");
+    }
+    Some(hash)
 }
 
 /// One type's description: its name (`pkg/msg/Type`) and its fields with their REP 2011 type ids.
@@ -692,11 +695,26 @@ mod tests {
         );
         // These as the `rosbags` package computes them for ROS 2 Jazzy (0.11.9).
         for (ros_type, hash) in [
-            ("sensor_msgs/msg/Imu", "7d9a00ff131080897a5ec7e26e315954b8eae3353c3f995c55faf71574000b5b"),
-            ("sensor_msgs/msg/NavSatFix", "62223ab3fe210a15976021da7afddc9e200dc9ec75231c1b6a557fc598a65404"),
-            ("sensor_msgs/msg/Image", "d31d41a9a4c4bc8eae9be757b0beed306564f7526c88ea6a4588fb9582527d47"),
-            ("sensor_msgs/msg/PointCloud2", "9198cabf7da3796ae6fe19c4cb3bdd3525492988c70522628af5daa124bae2b5"),
-            ("geometry_msgs/msg/PoseStamped", "10f3786d7d40fd2b54367835614bff85d4ad3b5dab62bf8bca0cc232d73b4cd8"),
+            (
+                "sensor_msgs/msg/Imu",
+                "7d9a00ff131080897a5ec7e26e315954b8eae3353c3f995c55faf71574000b5b",
+            ),
+            (
+                "sensor_msgs/msg/NavSatFix",
+                "62223ab3fe210a15976021da7afddc9e200dc9ec75231c1b6a557fc598a65404",
+            ),
+            (
+                "sensor_msgs/msg/Image",
+                "d31d41a9a4c4bc8eae9be757b0beed306564f7526c88ea6a4588fb9582527d47",
+            ),
+            (
+                "sensor_msgs/msg/PointCloud2",
+                "9198cabf7da3796ae6fe19c4cb3bdd3525492988c70522628af5daa124bae2b5",
+            ),
+            (
+                "geometry_msgs/msg/PoseStamped",
+                "10f3786d7d40fd2b54367835614bff85d4ad3b5dab62bf8bca0cc232d73b4cd8",
+            ),
         ] {
             assert_eq!(type_hash(ros_type), Some(format!("RIHS01_{hash}")), "{ros_type}");
         }

@@ -1,0 +1,233 @@
+//! `ros2.subscriber`: a ROS 2 topic from nodes running `rmw_zenoh`, each message a sample of the Kairos
+//! type its ROS message maps to.
+
+use std::collections::{BTreeMap, HashMap};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::mpsc::{Receiver, SyncSender, TrySendError, sync_channel};
+use std::time::Duration;
+
+use kairos_pack_recording::ros2::write::{definition_of, type_hash};
+use kairos_pack_recording::ros2::{Definitions, data_type_of, header_stamp, to_payload};
+use kairos_sdk::descriptor::{Descriptor, Property};
+use kairos_sdk::{
+    Component, ComponentError, ComponentInfo, ComponentResult, Context, DataType, DescribeError, Timestamp,
+    Value,
+};
+use zenoh::Wait as _;
+use zenoh::liveliness::LivelinessToken;
+use zenoh::pubsub::Subscriber as ZenohSubscriber;
+
+use crate::names::{self, Attachment};
+
+/// Messages received and not yet written, at most: past it, the newest are dropped and counted.
+const QUEUE: usize = 1024;
+/// How long one wait for a message lasts, so stop and control requests get through.
+const RECEIVE_WAIT: Duration = Duration::from_millis(100);
+
+fn base() -> Descriptor {
+    let mut descriptor = Descriptor::new(
+        "ros2.subscriber",
+        "ros2",
+        "Receives a ROS 2 topic from nodes running rmw_zenoh: each message a sample of the Kairos type its \
+         ROS message maps to (docs/ros2.md), stamped with its header's time",
+    )
+    .label("ROS 2 subscriber")
+    .property(Property::text("topic", "/chatter").doc("The ROS 2 topic (/imu/data)"))
+    .property(
+        Property::choice("type", &names::TYPES, "std_msgs/msg/String")
+            .doc("The topic's ROS message type (`ros2 topic info` says it)"),
+    );
+    for property in names::common_properties() {
+        descriptor = descriptor.property(property);
+    }
+    descriptor
+}
+
+/// The output for messages of `ros_type`.
+fn with_output(ros_type: &str) -> ComponentInfo {
+    base()
+        .output("out", data_type_of(ros_type), "Each message received")
+        .build()
+}
+
+/// The descriptor of `ros2.subscriber` as listed (a `std_msgs/msg/String` topic).
+pub fn descriptor() -> ComponentInfo {
+    with_output(names::TYPES[0])
+}
+
+/// The descriptor of one `ros2.subscriber`: its output typed from its `type`.
+pub fn describe(properties: &BTreeMap<String, Value>) -> Result<ComponentInfo, DescribeError> {
+    let ros_type = properties
+        .get("type")
+        .and_then(Value::as_text)
+        .unwrap_or(names::TYPES[0]);
+    Ok(with_output(ros_type))
+}
+
+/// One message as it arrived.
+struct Arrived {
+    payload: Vec<u8>,
+    attachment: Option<Vec<u8>>,
+}
+
+/// `ros2.subscriber`. See [`descriptor`].
+#[derive(Default)]
+pub struct Subscriber {
+    session: Option<zenoh::Session>,
+    tokens: Vec<LivelinessToken>,
+    subscription: Option<ZenohSubscriber<()>>,
+    messages: Option<Receiver<Arrived>>,
+    definitions: Option<Definitions>,
+    data_type: Option<DataType>,
+    /// The last sequence number seen from each publisher (by `GID`): a jump is messages lost.
+    last_sequence: HashMap<[u8; 16], i64>,
+    received: u64,
+    lost: u64,
+    undecodable: u64,
+    dropped: Arc<AtomicU64>,
+    key: String,
+}
+
+impl Subscriber {
+    fn write(&mut self, ctx: &mut Context, arrived: &Arrived) -> ComponentResult {
+        self.received += 1;
+        let attachment = arrived.attachment.as_deref().and_then(Attachment::parse);
+        if let Some(attachment) = attachment {
+            let last = self.last_sequence.insert(attachment.gid, attachment.sequence);
+            if let Some(last) = last
+                && attachment.sequence > last + 1
+            {
+                self.lost += u64::try_from(attachment.sequence - last - 1).unwrap_or(0);
+            }
+        }
+        let (Some(definitions), Some(data_type)) = (&self.definitions, &self.data_type) else {
+            return Err(ComponentError::Stopped);
+        };
+        let decoded = definitions.decode(&arrived.payload).and_then(|value| {
+            Ok((
+                to_payload(definitions, &value, data_type)?,
+                header_stamp(definitions, &value),
+            ))
+        });
+        match decoded {
+            Ok((payload, stamp)) => {
+                // The header's stamp, else the publisher's source time, else now.
+                let stamp = stamp
+                    .filter(|s| s.as_nanos() > 0)
+                    .or_else(|| attachment.map(|a| Timestamp(a.source_time_ns)));
+                match stamp {
+                    Some(stamp) => ctx.write_at("out", payload, stamp),
+                    None => ctx.write("out", payload),
+                }
+            }
+            Err(why) => {
+                if self.undecodable == 0 {
+                    tracing::warn!(
+                        "{}: a message on {} cannot be decoded: {why}; such messages are counted and skipped",
+                        ctx.id(),
+                        self.key
+                    );
+                }
+                self.undecodable += 1;
+                Ok(())
+            }
+        }
+    }
+}
+
+impl Component for Subscriber {
+    fn birth(&mut self, ctx: &mut Context) -> ComponentResult {
+        let topic = ctx.text_property("topic")?;
+        names::check_topic(&topic)?;
+        let ros_type = ctx.text_property("type")?;
+        let definition = definition_of(&ros_type);
+        let (Some(hash), false) = (type_hash(&ros_type), definition.is_empty()) else {
+            return Err(ComponentError::failed(format_args!(
+                "{ros_type} is not a type Kairos reads live (docs/ros2.md lists them)"
+            )));
+        };
+        let definitions = Definitions::parse(&ros_type, &definition).map_err(ComponentError::failed)?;
+        let session = names::open_session(&ctx.text_property("router")?)?;
+        let node = names::node_name(ctx, &session)?;
+        let mut tokens = Vec::new();
+        for token in [
+            node.node_token(),
+            node.entity_token("MS", &topic, &ros_type, &hash, &names::qos_words(true, 10)),
+        ] {
+            tokens.push(
+                session
+                    .liveliness()
+                    .declare_token(token.clone())
+                    .wait()
+                    .map_err(|e| ComponentError::failed(format_args!("cannot declare {token}: {e}")))?,
+            );
+        }
+        // Any type hash: publishers of another ROS 2 release hash the same message differently.
+        self.key = names::topic_key(node.domain, &topic, &ros_type, "*");
+        let (sender, receiver): (SyncSender<Arrived>, _) = sync_channel(QUEUE);
+        let dropped = Arc::clone(&self.dropped);
+        let subscriber = session
+            .declare_subscriber(self.key.clone())
+            .callback(move |sample| {
+                let arrived = Arrived {
+                    payload: sample.payload().to_bytes().into_owned(),
+                    attachment: sample.attachment().map(|a| a.to_bytes().into_owned()),
+                };
+                if let Err(TrySendError::Full(_)) = sender.try_send(arrived) {
+                    dropped.fetch_add(1, Ordering::Relaxed);
+                }
+            })
+            .wait()
+            .map_err(|e| ComponentError::failed(format_args!("cannot subscribe to {}: {e}", self.key)))?;
+        tracing::info!("{}: receiving {topic} ({ros_type}) on {}", ctx.id(), self.key);
+        self.definitions = Some(definitions);
+        self.data_type = Some(data_type_of(&ros_type));
+        self.subscription = Some(subscriber);
+        self.tokens = tokens;
+        self.messages = Some(receiver);
+        self.session = Some(session);
+        Ok(())
+    }
+
+    fn core(&mut self, ctx: &mut Context) -> ComponentResult {
+        let Some(messages) = &self.messages else {
+            return Err(ComponentError::Stopped);
+        };
+        match messages.recv_timeout(RECEIVE_WAIT) {
+            Ok(arrived) => self.write(ctx, &arrived),
+            // Nothing yet: the loop comes back, for stop and control requests.
+            Err(_) => Ok(()),
+        }
+    }
+
+    fn status(&self) -> Option<serde_json::Value> {
+        Some(serde_json::json!({
+            "kind": "ros2",
+            "key": self.key,
+            "received": self.received,
+            "lost": self.lost,
+            "undecodable": self.undecodable,
+            "dropped": self.dropped.load(Ordering::Relaxed),
+        }))
+    }
+
+    fn death(&mut self, _ctx: &mut Context) -> ComponentResult {
+        self.subscription = None;
+        self.tokens.clear();
+        if let Some(session) = self.session.take() {
+            let _ = session.close().wait();
+        }
+        Ok(())
+    }
+}
+
+impl std::fmt::Debug for Subscriber {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Subscriber")
+            .field("key", &self.key)
+            .field("received", &self.received)
+            .field("lost", &self.lost)
+            .finish_non_exhaustive()
+    }
+}
