@@ -776,9 +776,13 @@ fn an_empty_canvas_says_what_to_do_and_opens_an_example() {
     harness.run_steps(2);
     harness.get_by_label("vision/");
     // Below the fold of the menu's list: scrolled to, as a user would.
-    harness.get_by_label_contains("Lane markings on the simulated camera").scroll_to_me();
+    harness
+        .get_by_label_contains("Lane markings on the simulated camera")
+        .scroll_to_me();
     harness.run_steps(3);
-    harness.get_by_label_contains("Lane markings on the simulated camera").click();
+    harness
+        .get_by_label_contains("Lane markings on the simulated camera")
+        .click();
     harness.run_steps(3);
     let path = harness
         .state()
