@@ -19,6 +19,31 @@ fn library() -> LibraryInfo {
     kairos_studio::library_from_components_json(include_str!("library.json")).unwrap()
 }
 
+/// A studio on the diagram file at `path`, with no runtime, its window `size`.
+fn studio_on(path: &std::path::Path, size: Vec2) -> Harness<'static, StudioApp> {
+    studio_on_paced(path, size, None)
+}
+
+/// [`studio_on`] with frames at a desktop's pace: the two clicks of a double click come within its 0.3 s.
+fn studio_on_at_desktop_pace(path: &std::path::Path, size: Vec2) -> Harness<'static, StudioApp> {
+    studio_on_paced(path, size, Some(1.0 / 60.0))
+}
+
+fn studio_on_paced(path: &std::path::Path, size: Vec2, step: Option<f32>) -> Harness<'static, StudioApp> {
+    let app = StudioApp::new(
+        Document::open(path).unwrap(),
+        library(),
+        None,
+        "no runtime (test)".to_owned(),
+        None,
+    );
+    let mut builder = Harness::builder().with_size(size);
+    if let Some(step) = step {
+        builder = builder.with_step_dt(step);
+    }
+    builder.build_ui_state(|ui, app: &mut StudioApp| app.show(ui), app)
+}
+
 fn studio() -> Harness<'static, StudioApp> {
     studio_with(None)
 }
@@ -999,18 +1024,7 @@ fn a_double_click_goes_inside_a_subgraph_and_the_breadcrumb_comes_back_out() {
         std::fs::copy(examples.join(file), dir.path().join(file)).unwrap();
     }
     let outer = dir.path().join("two_cameras.ron");
-    let app = StudioApp::new(
-        Document::open(&outer).unwrap(),
-        library(),
-        None,
-        "no runtime (test)".to_owned(),
-        None,
-    );
-    // Frames at a desktop's pace: the two clicks of a double click come within its 0.3 s.
-    let mut harness = Harness::builder()
-        .with_size(Vec2::new(1280.0, 2400.0))
-        .with_step_dt(1.0 / 60.0)
-        .build_ui_state(|ui, app: &mut StudioApp| app.show(ui), app);
+    let mut harness = studio_on_at_desktop_pace(&outer, Vec2::new(1280.0, 2400.0));
     harness.run_steps(3);
     // Described from its file: the instance has the ports its file exposes.
     assert!(harness.query_by_label("output front.out (image)").is_some());
@@ -1076,16 +1090,7 @@ fn selected_components_made_into_a_subgraph_are_one_instance_wired_as_they_were_
 )"#,
     )
     .unwrap();
-    let app = StudioApp::new(
-        Document::open(&path).unwrap(),
-        library(),
-        None,
-        "no runtime (test)".to_owned(),
-        None,
-    );
-    let mut harness = Harness::builder()
-        .with_size(Vec2::new(1280.0, 2400.0))
-        .build_ui_state(|ui, app: &mut StudioApp| app.show(ui), app);
+    let mut harness = studio_on(&path, Vec2::new(1280.0, 2400.0));
     harness.run_steps(2);
     harness.state_mut().canvas.selected = ["gain1", "gain2"].map(str::to_owned).into();
     harness.get_by_label("Edit").click();
@@ -1175,16 +1180,7 @@ fn ports_and_properties_are_exposed_from_the_canvas_and_inspector_renamed_joined
 )"#,
     )
     .unwrap();
-    let app = StudioApp::new(
-        Document::open(&path).unwrap(),
-        library(),
-        None,
-        "no runtime (test)".to_owned(),
-        None,
-    );
-    let mut harness = Harness::builder()
-        .with_size(Vec2::new(1280.0, 1400.0))
-        .build_ui_state(|ui, app: &mut StudioApp| app.show(ui), app);
+    let mut harness = studio_on(&path, Vec2::new(1280.0, 1400.0));
     harness.run_steps(2);
     let exposes = |harness: &Harness<'_, StudioApp>| {
         harness
@@ -1305,16 +1301,7 @@ fn a_subgraph_file_edited_elsewhere_shows_its_new_ports_on_its_instances() {
     for file in ["two_cameras.ron", "lane_pipeline.ron"] {
         std::fs::copy(examples.join(file), dir.path().join(file)).unwrap();
     }
-    let app = StudioApp::new(
-        Document::open(&dir.path().join("two_cameras.ron")).unwrap(),
-        library(),
-        None,
-        "no runtime (test)".to_owned(),
-        None,
-    );
-    let mut harness = Harness::builder()
-        .with_size(Vec2::new(1280.0, 1400.0))
-        .build_ui_state(|ui, app: &mut StudioApp| app.show(ui), app);
+    let mut harness = studio_on(&dir.path().join("two_cameras.ron"), Vec2::new(1280.0, 1400.0));
     harness.run_steps(2);
     assert!(harness.query_by_label("output front.out (image)").is_some());
 

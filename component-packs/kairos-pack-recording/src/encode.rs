@@ -123,7 +123,9 @@ fn base64(bytes: &[u8]) -> String {
     out
 }
 
-fn image_encoding(format: PixelFormat) -> &'static str {
+/// An image's encoding as ROS and Foxglove name pixel formats (`rgb8`, `mono16`): the inverse of
+/// [`crate::decode::pixel_format_of`].
+pub fn image_encoding(format: PixelFormat) -> &'static str {
     match format {
         PixelFormat::Gray8 => "mono8",
         PixelFormat::Gray16 => "mono16",

@@ -5,7 +5,7 @@
 use std::collections::BTreeSet;
 use std::fmt::Write as _;
 
-use kairos_sdk::{DataType, FixStatus, Payload, PixelFormat, Timestamp};
+use kairos_sdk::{DataType, FixStatus, Payload, Timestamp};
 
 /// Each message type this side writes, with its own fields as `ros2msg` text (no comments, constants
 /// left out): the types the definitions of the written ones need.
@@ -371,18 +371,6 @@ fn diagonal(diagonal: [f64; 3]) -> [f64; 9] {
     [a, 0.0, 0.0, 0.0, b, 0.0, 0.0, 0.0, c]
 }
 
-/// The ROS image encoding of a pixel format.
-fn image_encoding(format: PixelFormat) -> &'static str {
-    match format {
-        PixelFormat::Gray8 => "mono8",
-        PixelFormat::Gray16 => "mono16",
-        PixelFormat::Rgb8 => "rgb8",
-        PixelFormat::Rgba8 => "rgba8",
-        PixelFormat::Bgr8 => "bgr8",
-        PixelFormat::Bgra8 => "bgra8",
-    }
-}
-
 /// `sensor_msgs/PointField` data type `FLOAT32`.
 const POINT_FLOAT32: u8 = 7;
 
@@ -467,7 +455,7 @@ fn write_message(
             cdr.header(timestamp, frame_id)?;
             cdr.u32(image.height);
             cdr.u32(image.width);
-            cdr.string(image_encoding(image.format))?;
+            cdr.string(crate::encode::image_encoding(image.format))?;
             cdr.u8(0);
             cdr.u32(image.stride);
             cdr.byte_sequence(&image.pixels)?;
@@ -541,7 +529,7 @@ fn write_message(
 mod tests {
     use std::sync::Arc;
 
-    use kairos_sdk::{CanFrame, CustomPayload, GnssFix, Image, Imu, Matrix, PointCloud, Pose};
+    use kairos_sdk::{CanFrame, CustomPayload, GnssFix, Image, Imu, Matrix, PixelFormat, PointCloud, Pose};
 
     use super::*;
     use crate::ros2::{Definitions, data_type_noted, header_stamp, to_payload};
