@@ -1,9 +1,14 @@
 //! How `rmw_zenoh` names ROS 2 on Zenoh: key expressions, liveliness tokens, `QoS` in words, attachments,
 //! and the Zenoh session that reaches ROS 2 nodes. Shared by the publisher and the subscriber.
 
+use std::collections::HashMap;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, Mutex, OnceLock, PoisonError, Weak};
+
 use kairos_sdk::descriptor::Property;
 use kairos_sdk::{ComponentError, Context};
 use zenoh::Wait as _;
+use zenoh::liveliness::LivelinessToken;
 
 /// The message types the components carry: those Kairos has definitions of (docs/ros2.md lists them).
 pub const TYPES: [&str; 12] = [
@@ -91,9 +96,10 @@ impl NodeName {
         )
     }
 
-    /// A publisher's (`MP`) or subscription's (`MS`) liveliness token.
+    /// A publisher's (`MP`) or subscription's (`MS`) liveliness token; `entity` numbers it in the session.
     pub fn entity_token(
         &self,
+        entity: u64,
         kind: &str,
         topic: &str,
         ros_type: &str,
@@ -101,7 +107,7 @@ impl NodeName {
         qos: &str,
     ) -> String {
         format!(
-            "@ros2_lv/{}/{}/0/1/{kind}/%/{}/{}/{}/{}/{type_hash}/{qos}",
+            "@ros2_lv/{}/{}/0/{entity}/{kind}/%/{}/{}/{}/{}/{type_hash}/{qos}",
             self.domain,
             self.session,
             mangled(&self.namespace),
@@ -172,8 +178,42 @@ pub fn check_topic(topic: &str) -> Result<(), ComponentError> {
     }
 }
 
-/// The node's name, namespace and domain, checked, with this session's id.
-pub fn node_name(ctx: &Context, session: &zenoh::Session) -> Result<NodeName, ComponentError> {
+/// A ROS 2 node on one Zenoh session, shared by the components of this process that name the same
+/// router, domain, node and namespace: one node in `ros2 node list`, each component an entity of it.
+pub struct SharedNode {
+    /// The session (closed when the last component lets the node go).
+    pub session: zenoh::Session,
+    /// Its names.
+    pub name: NodeName,
+    _token: LivelinessToken,
+    next_entity: AtomicU64,
+}
+
+impl SharedNode {
+    /// A number for a new publisher or subscription, unique in the session (the node is 0).
+    pub fn entity_id(&self) -> u64 {
+        self.next_entity.fetch_add(1, Ordering::Relaxed)
+    }
+}
+
+impl std::fmt::Debug for SharedNode {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("SharedNode")
+            .field("name", &self.name)
+            .finish_non_exhaustive()
+    }
+}
+
+impl Drop for SharedNode {
+    fn drop(&mut self) {
+        let _ = self.session.close().wait();
+    }
+}
+
+/// The node a component's properties name: the process's, if another component already opened it.
+pub fn node(ctx: &Context) -> Result<Arc<SharedNode>, ComponentError> {
+    type Nodes = Mutex<HashMap<(String, i64, String, String), Weak<SharedNode>>>;
+    static NODES: OnceLock<Nodes> = OnceLock::new();
     let node = ctx.text_property("node")?;
     if node.is_empty()
         || node.starts_with(|c: char| c.is_ascii_digit())
@@ -191,12 +231,37 @@ pub fn node_name(ctx: &Context, session: &zenoh::Session) -> Result<NodeName, Co
             ))
         })?;
     }
-    Ok(NodeName {
-        domain: ctx.i64_property("domain_id")?,
+    let router = ctx.text_property("router")?;
+    let domain = ctx.i64_property("domain_id")?;
+    let key = (router.clone(), domain, node.clone(), namespace.clone());
+    let mut nodes = NODES
+        .get_or_init(Nodes::default)
+        .lock()
+        .unwrap_or_else(PoisonError::into_inner);
+    if let Some(shared) = nodes.get(&key).and_then(Weak::upgrade) {
+        return Ok(shared);
+    }
+    let session = open_session(&router)?;
+    let name = NodeName {
+        domain,
         session: session.zid().to_string(),
         node,
         namespace,
-    })
+    };
+    let token = session
+        .liveliness()
+        .declare_token(name.node_token())
+        .wait()
+        .map_err(|e| ComponentError::failed(format_args!("cannot declare the node's liveliness: {e}")))?;
+    let shared = Arc::new(SharedNode {
+        session,
+        name,
+        _token: token,
+        next_entity: AtomicU64::new(1),
+    });
+    nodes.retain(|_, node| node.strong_count() > 0);
+    nodes.insert(key, Arc::downgrade(&shared));
+    Ok(shared)
 }
 
 /// A Zenoh session as `rmw_zenoh`'s peers open theirs: a peer, connecting to `router`, with no multicast
@@ -258,13 +323,14 @@ mod tests {
         );
         assert_eq!(
             node.entity_token(
+                10,
                 "MP",
                 "/chatter",
                 "std_msgs/msg/String",
                 "RIHS01_x",
                 &qos_words(true, 7)
             ),
-            "@ros2_lv/2/8b20917502ee955ac4476e0266340d5c/0/1/MP/%/%/talker/%chatter/std_msgs::msg::dds_::String_/RIHS01_x/::,7:,:,:,,"
+            "@ros2_lv/2/8b20917502ee955ac4476e0266340d5c/0/10/MP/%/%/talker/%chatter/std_msgs::msg::dds_::String_/RIHS01_x/::,7:,:,:,,"
         );
     }
 

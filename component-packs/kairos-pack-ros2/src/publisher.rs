@@ -9,7 +9,7 @@ use zenoh::liveliness::LivelinessToken;
 use zenoh::pubsub::Publisher as ZenohPublisher;
 use zenoh::qos::CongestionControl;
 
-use crate::names::{self, Attachment, NodeName};
+use crate::names::{self, Attachment, SharedNode};
 
 /// The descriptor of `ros2.publisher`.
 pub fn descriptor() -> ComponentInfo {
@@ -51,9 +51,7 @@ struct Declared {
 /// `ros2.publisher`. See [`descriptor`].
 #[derive(Default)]
 pub struct Publisher {
-    session: Option<zenoh::Session>,
-    node: Option<NodeName>,
-    node_token: Option<LivelinessToken>,
+    node: Option<std::sync::Arc<SharedNode>>,
     topic: String,
     declared: Option<Declared>,
     key: String,
@@ -65,21 +63,24 @@ pub struct Publisher {
 impl Publisher {
     /// Declares the topic for `ros_type`: its liveliness token, then its publisher.
     fn declare(&mut self, ctx: &Context, ros_type: &'static str) -> ComponentResult {
-        let (Some(session), Some(node)) = (&self.session, &self.node) else {
+        let Some(node) = &self.node else {
             return Err(ComponentError::Stopped);
         };
+        let session = &node.session;
         let hash = type_hash(ros_type).ok_or_else(|| {
             ComponentError::failed(format_args!("no ROS 2 type hash is known for {ros_type}"))
         })?;
         let reliable = ctx.text_property("reliability")? == "reliable";
         let qos = names::qos_words(reliable, ctx.i64_property("depth")?);
-        let token_key = node.entity_token("MP", &self.topic, ros_type, &hash, &qos);
+        let token_key = node
+            .name
+            .entity_token(node.entity_id(), "MP", &self.topic, ros_type, &hash, &qos);
         let token = session
             .liveliness()
             .declare_token(token_key.clone())
             .wait()
             .map_err(|e| ComponentError::failed(format_args!("cannot declare {token_key}: {e}")))?;
-        self.key = names::topic_key(node.domain, &self.topic, ros_type, &hash);
+        self.key = names::topic_key(node.name.domain, &self.topic, ros_type, &hash);
         // As `rmw_zenoh` for keep-last history: a full queue drops. Over TCP every sample travels reliably;
         // best effort is what ROS 2's graph is told (Zenoh's reliability switch is not in its stable API).
         let publisher = session
@@ -115,17 +116,8 @@ impl Component for Publisher {
             topic = kairos_pack_recording::ros2::write::ros_topic(source);
         }
         names::check_topic(&topic)?;
-        let session = names::open_session(&ctx.text_property("router")?)?;
-        let node = names::node_name(ctx, &session)?;
-        let token = session
-            .liveliness()
-            .declare_token(node.node_token())
-            .wait()
-            .map_err(|e| ComponentError::failed(format_args!("cannot declare the node's liveliness: {e}")))?;
+        self.node = Some(names::node(ctx)?);
         self.topic = topic;
-        self.node_token = Some(token);
-        self.node = Some(node);
-        self.session = Some(session);
         Ok(())
     }
 
@@ -184,12 +176,9 @@ impl Component for Publisher {
     }
 
     fn death(&mut self, _ctx: &mut Context) -> ComponentResult {
-        // The tokens go first: ROS 2's graph sees the publisher leave before its session closes.
+        // The publisher leaves ROS 2's graph before its node does (with the last of its components).
         self.declared = None;
-        self.node_token = None;
-        if let Some(session) = self.session.take() {
-            let _ = session.close().wait();
-        }
+        self.node = None;
         Ok(())
     }
 }

@@ -74,8 +74,8 @@ struct Arrived {
 /// `ros2.subscriber`. See [`descriptor`].
 #[derive(Default)]
 pub struct Subscriber {
-    session: Option<zenoh::Session>,
-    tokens: Vec<LivelinessToken>,
+    node: Option<Arc<names::SharedNode>>,
+    token: Option<LivelinessToken>,
     subscription: Option<ZenohSubscriber<()>>,
     messages: Option<Receiver<Arrived>>,
     definitions: Option<Definitions>,
@@ -148,26 +148,27 @@ impl Component for Subscriber {
             )));
         };
         let definitions = Definitions::parse(&ros_type, &definition).map_err(ComponentError::failed)?;
-        let session = names::open_session(&ctx.text_property("router")?)?;
-        let node = names::node_name(ctx, &session)?;
-        let mut tokens = Vec::new();
-        for token in [
-            node.node_token(),
-            node.entity_token("MS", &topic, &ros_type, &hash, &names::qos_words(true, 10)),
-        ] {
-            tokens.push(
-                session
-                    .liveliness()
-                    .declare_token(token.clone())
-                    .wait()
-                    .map_err(|e| ComponentError::failed(format_args!("cannot declare {token}: {e}")))?,
-            );
-        }
+        let node = names::node(ctx)?;
+        let token_key = node.name.entity_token(
+            node.entity_id(),
+            "MS",
+            &topic,
+            &ros_type,
+            &hash,
+            &names::qos_words(true, 10),
+        );
+        let token = node
+            .session
+            .liveliness()
+            .declare_token(token_key.clone())
+            .wait()
+            .map_err(|e| ComponentError::failed(format_args!("cannot declare {token_key}: {e}")))?;
         // Any type hash: publishers of another ROS 2 release hash the same message differently.
-        self.key = names::topic_key(node.domain, &topic, &ros_type, "*");
+        self.key = names::topic_key(node.name.domain, &topic, &ros_type, "*");
         let (sender, receiver): (SyncSender<Arrived>, _) = sync_channel(QUEUE);
         let dropped = Arc::clone(&self.dropped);
-        let subscriber = session
+        let subscriber = node
+            .session
             .declare_subscriber(self.key.clone())
             .callback(move |sample| {
                 let arrived = Arrived {
@@ -184,9 +185,9 @@ impl Component for Subscriber {
         self.definitions = Some(definitions);
         self.data_type = Some(data_type_of(&ros_type));
         self.subscription = Some(subscriber);
-        self.tokens = tokens;
+        self.token = Some(token);
         self.messages = Some(receiver);
-        self.session = Some(session);
+        self.node = Some(node);
         Ok(())
     }
 
@@ -213,11 +214,10 @@ impl Component for Subscriber {
     }
 
     fn death(&mut self, _ctx: &mut Context) -> ComponentResult {
+        // The subscription leaves ROS 2's graph before its node does (with the last of its components).
         self.subscription = None;
-        self.tokens.clear();
-        if let Some(session) = self.session.take() {
-            let _ = session.close().wait();
-        }
+        self.token = None;
+        self.node = None;
         Ok(())
     }
 }
