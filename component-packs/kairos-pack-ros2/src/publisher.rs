@@ -88,12 +88,7 @@ impl Publisher {
             .congestion_control(CongestionControl::Drop)
             .wait()
             .map_err(|e| ComponentError::failed(format_args!("cannot publish on {}: {e}", self.key)))?;
-        tracing::info!(
-            "{}: publishing {} as {ros_type} on {}",
-            ctx.id(),
-            self.topic,
-            self.key
-        );
+        tracing::info!("publishing {} as {ros_type} on {}", self.topic, self.key);
         self.declared = Some(Declared {
             publisher,
             ros_type,
@@ -146,7 +141,7 @@ impl Component for Publisher {
             .unwrap_or("");
         if let Err(why) = encode(&sample.payload, sample.timestamp, frame_id, &mut self.scratch) {
             self.refused += 1;
-            tracing::warn!("{}: a sample is not published: {why}", ctx.id());
+            tracing::warn!("a sample is not published: {why}");
             return Ok(());
         }
         // `rmw_zenoh` numbers a publisher's samples from 1.

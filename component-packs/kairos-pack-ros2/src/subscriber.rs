@@ -124,8 +124,7 @@ impl Subscriber {
             Err(why) => {
                 if self.undecodable == 0 {
                     tracing::warn!(
-                        "{}: a message on {} cannot be decoded: {why}; such messages are counted and skipped",
-                        ctx.id(),
+                        "a message on {} cannot be decoded: {why}; such messages are counted and skipped",
                         self.key
                     );
                 }
@@ -181,7 +180,7 @@ impl Component for Subscriber {
             })
             .wait()
             .map_err(|e| ComponentError::failed(format_args!("cannot subscribe to {}: {e}", self.key)))?;
-        tracing::info!("{}: receiving {topic} ({ros_type}) on {}", ctx.id(), self.key);
+        tracing::info!("receiving {topic} ({ros_type}) on {}", self.key);
         self.definitions = Some(definitions);
         self.data_type = Some(data_type_of(&ros_type));
         self.subscription = Some(subscriber);
