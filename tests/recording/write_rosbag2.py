@@ -131,6 +131,28 @@ def temperature(i, stamp):
     return message, {"temperature": value, "variance": 0.25, "frame_id": "room"}
 
 
+def compressed(i, stamp):
+    """A PNG in colour, a PNG in grey, then a JPEG, as cv_bridge compresses (OpenCV, from BGR)."""
+    import cv2
+    width, height = 6, 4
+    bgr = np.array([[[(x * 40 + i) % 256, (y * 60) % 256, (x * y * 9) % 256] for x in range(width)]
+                    for y in range(height)], dtype=np.uint8)
+    if i % 3 == 0:
+        encoded, kind = cv2.imencode(".png", bgr)[1], "bgr8; png compressed bgr8"
+        values = {"format": "Rgb8", "step": width * 3, "data": bgr[..., ::-1].reshape(-1).tolist()}
+    elif i % 3 == 1:
+        grey = bgr[..., 1].copy()
+        encoded, kind = cv2.imencode(".png", grey)[1], "mono8; png compressed mono8"
+        values = {"format": "Gray8", "step": width, "data": grey.reshape(-1).tolist()}
+    else:
+        encoded, kind = cv2.imencode(".jpg", bgr)[1], "jpeg"
+        values = {"format": "Rgb8", "step": width * 3}
+    message = T["sensor_msgs/msg/CompressedImage"](header=header(stamp, "camera"), format=kind,
+                                                   data=np.frombuffer(encoded.tobytes(), dtype=np.uint8))
+    values.update({"width": width, "height": height})
+    return message, values
+
+
 TOPICS = {
     "/imu": ("sensor_msgs/msg/Imu", imu, 20),
     "/fix": ("sensor_msgs/msg/NavSatFix", fix, 6),
@@ -139,6 +161,7 @@ TOPICS = {
     "/speed": ("std_msgs/msg/Float64", speed, 10),
     "/pose": ("geometry_msgs/msg/PoseStamped", pose, 3),
     "/temperature": ("sensor_msgs/msg/Temperature", temperature, 4),
+    "/camera/compressed": ("sensor_msgs/msg/CompressedImage", compressed, 3),
 }
 
 

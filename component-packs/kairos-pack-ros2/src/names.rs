@@ -11,7 +11,7 @@ use zenoh::Wait as _;
 use zenoh::liveliness::LivelinessToken;
 
 /// The message types the components carry: those Kairos has definitions of (docs/ros2.md lists them).
-pub const TYPES: [&str; 12] = [
+pub const TYPES: [&str; 13] = [
     "std_msgs/msg/String",
     "std_msgs/msg/Float64",
     "std_msgs/msg/Int64",
@@ -21,6 +21,7 @@ pub const TYPES: [&str; 12] = [
     "sensor_msgs/msg/Imu",
     "sensor_msgs/msg/NavSatFix",
     "sensor_msgs/msg/Image",
+    "sensor_msgs/msg/CompressedImage",
     "sensor_msgs/msg/PointCloud2",
     "geometry_msgs/msg/PoseStamped",
     "can_msgs/msg/Frame",

@@ -13,8 +13,8 @@ use std::sync::Arc;
 
 use glam::{DQuat, DVec3, Vec3};
 use kairos_sdk::{
-    CanFrame, CustomPayload, DataType, FixStatus, GnssFix, Image, Imu, Matrix, Payload, PointCloud, Pose,
-    Timestamp,
+    CanFrame, CustomPayload, DataType, FixStatus, GnssFix, Image, Imu, Matrix, Payload, PixelFormat,
+    PointCloud, Pose, Timestamp,
 };
 use serde_json::Value as Json;
 
@@ -516,7 +516,7 @@ pub fn data_type_of(type_name: &str) -> DataType {
         "std_msgs/Bool" => DataType::Bool,
         "sensor_msgs/Imu" => DataType::Imu,
         "sensor_msgs/NavSatFix" => DataType::GnssFix,
-        "sensor_msgs/Image" => DataType::Image,
+        "sensor_msgs/Image" | "sensor_msgs/CompressedImage" => DataType::Image,
         "sensor_msgs/PointCloud2" => DataType::PointCloud,
         "geometry_msgs/PoseStamped" | "geometry_msgs/Pose" => DataType::Pose,
         "geometry_msgs/TwistStamped" | "geometry_msgs/Twist" | "std_msgs/Float64MultiArray" => {
@@ -692,7 +692,50 @@ fn fix(value: &RosValue) -> Result<Payload, String> {
     }))
 }
 
+/// The largest image a compressed one may decode to, 7680 × 4320 RGBA: a damaged header can claim any size.
+const LARGEST_IMAGE_BYTES: u64 = 7680 * 4320 * 4;
+
+/// A `sensor_msgs/CompressedImage`: JPEG or PNG, told by its bytes (the `format` field's words vary
+/// between drivers), decoded to grey, grey 16, RGB or RGBA as it was compressed.
+fn compressed_image(value: &RosValue) -> Result<Payload, String> {
+    use image::ImageDecoder as _;
+    let data = value.bytes_at("data")?;
+    let format = image::guess_format(data)
+        .ok()
+        .filter(|f| matches!(f, image::ImageFormat::Jpeg | image::ImageFormat::Png))
+        .ok_or_else(|| {
+            format!(
+                "a compressed image in neither JPEG nor PNG (format '{}')",
+                value.text_at("format").unwrap_or("")
+            )
+        })?;
+    let decoder = image::ImageReader::with_format(std::io::Cursor::new(data), format)
+        .into_decoder()
+        .map_err(|e| e.to_string())?;
+    if decoder.total_bytes() > LARGEST_IMAGE_BYTES {
+        let (width, height) = decoder.dimensions();
+        return Err(format!("a compressed image claiming {width}×{height} pixels"));
+    }
+    let picture = image::DynamicImage::from_decoder(decoder).map_err(|e| e.to_string())?;
+    let (width, height) = (picture.width(), picture.height());
+    let (format, bytes) = match picture {
+        image::DynamicImage::ImageLuma8(grey) => (PixelFormat::Gray8, grey.into_raw()),
+        image::DynamicImage::ImageLuma16(grey) => (
+            PixelFormat::Gray16,
+            grey.into_raw().iter().flat_map(|v| v.to_le_bytes()).collect(),
+        ),
+        image::DynamicImage::ImageRgba8(rgba) => (PixelFormat::Rgba8, rgba.into_raw()),
+        other => (PixelFormat::Rgb8, other.into_rgb8().into_raw()),
+    };
+    Image::packed(width, height, format, bytes)
+        .map(Payload::Image)
+        .map_err(|e| e.to_string())
+}
+
 fn image(value: &RosValue) -> Result<Payload, String> {
+    if value.get("format").is_some() && value.get("encoding").is_none() {
+        return compressed_image(value);
+    }
     let encoding = value.text_at("encoding")?;
     let format = crate::decode::pixel_format_of(encoding)?;
     if value.flag_at("is_bigendian").unwrap_or(false) && encoding.contains("16") {

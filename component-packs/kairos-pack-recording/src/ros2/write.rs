@@ -7,8 +7,9 @@ use std::fmt::Write as _;
 
 use kairos_sdk::{DataType, FixStatus, Payload, Timestamp};
 
-/// Each message type this side writes, with its own fields as `ros2msg` text (no comments, constants
-/// left out): the types the definitions of the written ones need.
+/// Each message type this side writes or reads without a definition of the bag's (an older `SQLite` bag, a
+/// live topic), with its own fields as `ros2msg` text (no comments, constants left out), and the types
+/// their definitions need.
 const FIELDS: &[(&str, &str)] = &[
     ("builtin_interfaces/Time", "int32 sec\nuint32 nanosec\n"),
     (
@@ -65,6 +66,11 @@ const FIELDS: &[(&str, &str)] = &[
         "sensor_msgs/Image",
         "std_msgs/Header header\nuint32 height\nuint32 width\nstring encoding\nuint8 is_bigendian\n\
          uint32 step\nuint8[] data\n",
+    ),
+    // Read, never written: Kairos writes raw images; bags and cameras often carry these.
+    (
+        "sensor_msgs/CompressedImage",
+        "std_msgs/Header header\nstring format\nuint8[] data\n",
     ),
     (
         "sensor_msgs/PointField",
@@ -702,6 +708,10 @@ mod tests {
             (
                 "geometry_msgs/msg/PoseStamped",
                 "10f3786d7d40fd2b54367835614bff85d4ad3b5dab62bf8bca0cc232d73b4cd8",
+            ),
+            (
+                "sensor_msgs/msg/CompressedImage",
+                "15640771531571185e2efc8a100baf923961a4d15d5569652e6cb6691e8e371a",
             ),
         ] {
             assert_eq!(type_hash(ros_type), Some(format!("RIHS01_{hash}")), "{ros_type}");
