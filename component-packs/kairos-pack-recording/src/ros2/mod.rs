@@ -174,7 +174,7 @@ impl Definitions {
     }
 
     /// Decodes one CDR message of this type.
-    pub fn decode(&self, data: &[u8]) -> Result<RosValue, String> {
+    pub fn decode<'a>(&self, data: &'a [u8]) -> Result<RosValue<'a>, String> {
         let little_endian = match data.get(..4) {
             Some([0, 1, _, _]) => true,
             Some([0, 0, _, _]) => false,
@@ -194,7 +194,12 @@ impl Definitions {
         self.message(&self.root, &mut reader, 0)
     }
 
-    fn message(&self, type_name: &str, reader: &mut Cdr<'_>, depth: usize) -> Result<RosValue, String> {
+    fn message<'a>(
+        &self,
+        type_name: &str,
+        reader: &mut Cdr<'a>,
+        depth: usize,
+    ) -> Result<RosValue<'a>, String> {
         if depth > MAX_DEPTH {
             return Err(format!(
                 "messages nested deeper than {MAX_DEPTH} (does {type_name} include itself?)"
@@ -214,14 +219,14 @@ impl Definitions {
         Ok(RosValue::Message(values))
     }
 
-    fn field(&self, field: &Field, reader: &mut Cdr<'_>, depth: usize) -> Result<RosValue, String> {
+    fn field<'a>(&self, field: &Field, reader: &mut Cdr<'a>, depth: usize) -> Result<RosValue<'a>, String> {
         let count = match field.count {
             Count::One => return self.one(&field.kind, reader, depth),
             Count::Fixed(count) => count,
             Count::Sequence => reader.u32()? as usize,
         };
         match &field.kind {
-            Kind::Primitive(Primitive::U8) => Ok(RosValue::Bytes(reader.bytes(count)?.to_vec())),
+            Kind::Primitive(Primitive::U8) => Ok(RosValue::Bytes(reader.bytes(count)?)),
             kind => {
                 // Each element takes a byte at least: a count the message cannot hold is refused before
                 // anything is allocated for it.
@@ -237,7 +242,7 @@ impl Definitions {
         }
     }
 
-    fn one(&self, kind: &Kind, reader: &mut Cdr<'_>, depth: usize) -> Result<RosValue, String> {
+    fn one<'a>(&self, kind: &Kind, reader: &mut Cdr<'a>, depth: usize) -> Result<RosValue<'a>, String> {
         match kind {
             Kind::Primitive(primitive) => reader.primitive(*primitive),
             Kind::String => reader.string().map(RosValue::Text),
@@ -303,7 +308,7 @@ struct Cdr<'a> {
     little_endian: bool,
 }
 
-impl Cdr<'_> {
+impl<'a> Cdr<'a> {
     fn remaining(&self) -> usize {
         self.data.len().saturating_sub(self.at)
     }
@@ -314,7 +319,7 @@ impl Cdr<'_> {
         self.at += (size - offset % size) % size;
     }
 
-    fn bytes(&mut self, count: usize) -> Result<&[u8], String> {
+    fn bytes(&mut self, count: usize) -> Result<&'a [u8], String> {
         let end = self
             .at
             .checked_add(count)
@@ -345,7 +350,7 @@ impl Cdr<'_> {
         Ok(String::from_utf8_lossy(text).into_owned())
     }
 
-    fn primitive(&mut self, primitive: Primitive) -> Result<RosValue, String> {
+    fn primitive(&mut self, primitive: Primitive) -> Result<RosValue<'a>, String> {
         Ok(match primitive {
             Primitive::Bool => RosValue::Bool(self.bytes(1)?[0] != 0),
             Primitive::I8 => RosValue::Int(i64::from(self.bytes(1)?[0].cast_signed())),
@@ -362,27 +367,28 @@ impl Cdr<'_> {
     }
 }
 
-/// A decoded ROS 2 message, field by field.
+/// A decoded ROS 2 message, field by field; its byte arrays are borrowed from the message.
 #[derive(Debug, Clone, PartialEq)]
-pub enum RosValue {
+pub enum RosValue<'a> {
     Bool(bool),
     Int(i64),
     UInt(u64),
     Float(f64),
     Text(String),
-    /// A `uint8[]`, `byte[]` or `char[]` (image data, point data), kept as bytes.
-    Bytes(Vec<u8>),
-    List(Vec<RosValue>),
+    /// A `uint8[]`, `byte[]` or `char[]` (image data, point data), as the message holds it: an image's
+    /// pixels are copied once, into the image, rather than into the decoded value first.
+    Bytes(&'a [u8]),
+    List(Vec<RosValue<'a>>),
     /// A message's fields in their order.
-    Message(Vec<(String, RosValue)>),
+    Message(Vec<(String, RosValue<'a>)>),
 }
 
 /// How many bytes of a byte array a structured value lists; longer ones are given by their size.
 const LISTED_BYTES: usize = 64;
 
-impl RosValue {
+impl<'a> RosValue<'a> {
     /// The field `path` names (`header.stamp.sec`).
-    pub fn get(&self, path: &str) -> Option<&RosValue> {
+    pub fn get(&self, path: &str) -> Option<&RosValue<'a>> {
         path.split('.').try_fold(self, |value, name| match value {
             RosValue::Message(fields) => fields.iter().find(|(n, _)| n == name).map(|(_, v)| v),
             _ => None,
@@ -833,7 +839,8 @@ mod tests {
         body.extend_from_slice(&2u32.to_le_bytes());
         body.extend_from_slice(&(-3i16).to_le_bytes());
         body.extend_from_slice(&4i16.to_le_bytes());
-        let value = definitions.decode(&cdr(&body)).unwrap();
+        let message = cdr(&body);
+        let value = definitions.decode(&message).unwrap();
         assert_eq!(value.get("a"), Some(&RosValue::UInt(7)));
         assert_eq!(value.get("b"), Some(&RosValue::Float(2.5)));
         assert_eq!(value.get("c"), Some(&RosValue::Text("hi".to_owned())));
@@ -855,7 +862,8 @@ mod tests {
             .iter()
             .flat_map(|v| v.to_le_bytes())
             .collect();
-        let value = definitions.decode(&cdr(&body)).unwrap();
+        let message = cdr(&body);
+        let value = definitions.decode(&message).unwrap();
         let Payload::Vector(vector) =
             to_payload(&definitions, &value, &data_type_of(definitions.type_name())).unwrap()
         else {
