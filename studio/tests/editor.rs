@@ -7,6 +7,9 @@
     reason = "a failed unwrap is a failed test"
 )]
 
+mod common;
+
+use common::context_menu_entry;
 use egui::accesskit::Role;
 use egui::{Pos2, Vec2};
 use egui_kittest::Harness;
@@ -1145,25 +1148,6 @@ fn selected_components_made_into_a_subgraph_are_one_instance_wired_as_they_were_
     assert!(dir.path().join("amplifier.ron").is_file());
 }
 
-/// Clicks `menu_entry` in the context menu of the port labelled `port` on the canvas.
-fn port_menu_entry(harness: &mut Harness<'_, StudioApp>, port: &str, menu_entry: &str) {
-    let at = on_canvas(harness, port);
-    harness.hover_at(at);
-    harness.run_steps(1);
-    for pressed in [true, false] {
-        harness.event(egui::Event::PointerButton {
-            pos: at,
-            button: egui::PointerButton::Secondary,
-            pressed,
-            modifiers: egui::Modifiers::NONE,
-        });
-        harness.run_steps(1);
-    }
-    harness.run_steps(1);
-    harness.get_by_label(menu_entry).click();
-    harness.run_steps(2);
-}
-
 #[test]
 fn ports_and_properties_are_exposed_from_the_canvas_and_inspector_renamed_joined_and_followed() {
     let dir = tempfile::tempdir().unwrap();
@@ -1194,12 +1178,12 @@ fn ports_and_properties_are_exposed_from_the_canvas_and_inspector_renamed_joined
     };
 
     // From the canvas: both outputs, the second under a name of its own.
-    port_menu_entry(
+    context_menu_entry(
         &mut harness,
         "output left.out (f64)",
         "Expose as the subgraph's output",
     );
-    port_menu_entry(
+    context_menu_entry(
         &mut harness,
         "output right.out (f64)",
         "Expose as the subgraph's output",
@@ -1209,7 +1193,7 @@ fn ports_and_properties_are_exposed_from_the_canvas_and_inspector_renamed_joined
         exposes(&harness).outputs["right_out"],
         PortRef::new("right", "out")
     );
-    port_menu_entry(
+    context_menu_entry(
         &mut harness,
         "input left.in (f64 | i64 | bool)",
         "Expose as the subgraph's input",
@@ -1290,7 +1274,7 @@ fn ports_and_properties_are_exposed_from_the_canvas_and_inspector_renamed_joined
     harness.run_steps(2);
     assert!(exposes(&harness).inputs.is_empty());
     // And the canvas's menu says what an exposed port is exposed as, and takes it back.
-    port_menu_entry(&mut harness, "output left.out (f64)", "Stop exposing (as 'out')");
+    context_menu_entry(&mut harness, "output left.out (f64)", "Stop exposing (as 'out')");
     assert!(!exposes(&harness).outputs.contains_key("out"));
 }
 

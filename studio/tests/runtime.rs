@@ -10,7 +10,7 @@ mod common;
 
 use std::time::{Duration, Instant};
 
-use common::kairos_binary;
+use common::{context_menu_entry, kairos_binary};
 use egui::{Pos2, Vec2};
 use egui_kittest::Harness;
 use egui_kittest::kittest::Queryable as _;
@@ -242,26 +242,6 @@ fn the_connect_dialog_connects_to_a_runtime_and_remembers_it() {
 /// Opens a viewer on `output` through its context menu on the canvas.
 fn open_viewer(harness: &mut Harness<'_, StudioApp>, output: &str, menu_entry: &str) {
     context_menu_entry(harness, output, menu_entry);
-}
-
-/// Clicks `menu_entry` in the context menu of `output` on the canvas.
-fn context_menu_entry(harness: &mut Harness<'_, StudioApp>, output: &str, menu_entry: &str) {
-    let port = harness.get_by_label(output).rect().center();
-    let at = harness.state().canvas.to_screen(port);
-    harness.hover_at(at);
-    harness.run_steps(1);
-    for pressed in [true, false] {
-        harness.event(egui::Event::PointerButton {
-            pos: at,
-            button: egui::PointerButton::Secondary,
-            pressed,
-            modifiers: egui::Modifiers::NONE,
-        });
-        harness.run_steps(1);
-    }
-    harness.run_steps(1);
-    harness.get_by_label(menu_entry).click();
-    harness.run_steps(2);
 }
 
 #[test]

@@ -185,6 +185,25 @@ fn encode_raw_image(image: &kairos_sdk::Image, timestamp: Timestamp, frame_id: &
     length_delimited(7, frame_id.as_bytes(), out);
 }
 
+/// The bytes of one point as [`append_packed_points`] packs them: `x`, `y`, `z`, and `intensity` when
+/// the cloud has it.
+pub fn packed_point_stride(cloud: &kairos_sdk::PointCloud) -> u32 {
+    if cloud.intensity.is_some() { 16 } else { 12 }
+}
+
+/// Appends a cloud's points to `out` as little-endian `f32` fields, one point after the other: the
+/// layout both Foxglove's and ROS's point clouds describe with their field lists.
+pub fn append_packed_points(cloud: &kairos_sdk::PointCloud, out: &mut Vec<u8>) {
+    for (index, point) in cloud.points.iter().enumerate() {
+        for value in point.to_array() {
+            out.extend_from_slice(&value.to_le_bytes());
+        }
+        if let Some(intensity) = &cloud.intensity {
+            out.extend_from_slice(&intensity.get(index).copied().unwrap_or(0.0).to_le_bytes());
+        }
+    }
+}
+
 /// Encodes `payload` (of a sample stamped `timestamp`) in its schema's message encoding into `out`.
 pub fn encode(
     payload: &Payload,
@@ -201,16 +220,9 @@ pub fn encode(
         }
         Payload::PointCloud(cloud) => {
             let with_intensity = cloud.intensity.is_some();
-            let stride: u32 = if with_intensity { 16 } else { 12 };
+            let stride = packed_point_stride(cloud);
             let mut data = Vec::with_capacity(cloud.points.len() * stride as usize);
-            for (index, point) in cloud.points.iter().enumerate() {
-                for value in point.to_array() {
-                    data.extend_from_slice(&value.to_le_bytes());
-                }
-                if let Some(intensity) = &cloud.intensity {
-                    data.extend_from_slice(&intensity.get(index).copied().unwrap_or(0.0).to_le_bytes());
-                }
-            }
+            append_packed_points(cloud, &mut data);
             let field = |name: &str, offset: u32| PackedElementField {
                 name: name.to_owned(),
                 offset,

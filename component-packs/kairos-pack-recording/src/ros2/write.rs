@@ -469,7 +469,7 @@ fn write_message(
         Payload::PointCloud(cloud) => {
             cdr.header(timestamp, frame_id)?;
             let with_intensity = cloud.intensity.is_some();
-            let step: u32 = if with_intensity { 16 } else { 12 };
+            let step = crate::encode::packed_point_stride(cloud);
             let count = u32::try_from(cloud.points.len()).map_err(|_| "too many points".to_owned())?;
             cdr.u32(1);
             cdr.u32(count);
@@ -489,15 +489,7 @@ fn write_message(
             cdr.u32(step);
             cdr.u32(step.saturating_mul(count));
             cdr.length(cloud.points.len() * step as usize)?;
-            for (index, point) in cloud.points.iter().enumerate() {
-                for value in point.to_array() {
-                    cdr.out.extend_from_slice(&value.to_le_bytes());
-                }
-                if let Some(intensity) = &cloud.intensity {
-                    let value = intensity.get(index).copied().unwrap_or(0.0);
-                    cdr.out.extend_from_slice(&value.to_le_bytes());
-                }
-            }
+            crate::encode::append_packed_points(cloud, &mut cdr.out);
             cdr.bool(cloud.points.iter().all(|p| p.is_finite()));
         }
         Payload::Pose(pose) => {
