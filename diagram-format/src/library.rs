@@ -590,6 +590,15 @@ pub struct ComponentInfo {
     /// as a GNSS receiver does).
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub time_source: bool,
+    /// Whether its time is simulated time (a simulator): as the diagram's clock source it does not
+    /// discipline the runtime clock, it is the runtime clock, paced by its `time_scale` property (1: real
+    /// time, 0: as fast as the diagram runs, which needs a sequential diagram).
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub simulated_time: bool,
+    /// Whether it reads its inputs at its own ticks as held values (a simulator's commands): the links
+    /// into it do not order an execution group, so a loop through it is allowed there.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub holds_inputs: bool,
     /// Why a call of it may wait for long (on a device, a socket, its own timing), in words ("waits for
     /// each frame of the camera"): such a
     /// component cannot share an execution group's thread, except as the group's driver.
@@ -822,6 +831,8 @@ mod tests {
             properties: Vec::new(),
             actions: Vec::new(),
             time_source: false,
+            simulated_time: false,
+            holds_inputs: false,
             blocking: None,
         };
         assert_eq!(unlabelled.display_name(), "Sine");

@@ -717,6 +717,8 @@ pub fn describe(file: &Path, type_name: &str, library: &crate::LibraryInfo) -> R
         properties: Vec::new(),
         actions: Vec::new(),
         time_source: false,
+        simulated_time: false,
+        holds_inputs: false,
         blocking: None,
     };
     for (name, targets) in &exposes.inputs {

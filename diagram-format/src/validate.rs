@@ -188,6 +188,10 @@ impl<'a> Validator<'a> {
             Some(instance) => match self.library.components.get(&instance.type_name) {
                 // An unknown type is reported on the component itself.
                 None => return,
+                Some(info) if info.simulated_time => {
+                    self.check_simulated_time(instance, info);
+                    return;
+                }
                 Some(info) if info.time_source => return,
                 Some(_) => format!(
                     "'{source}' ({}) cannot be the clock source: it does not give the time",
@@ -199,6 +203,37 @@ impl<'a> Validator<'a> {
             Diagnostic::error(DiagnosticCode::InvalidClockSource, message)
                 .at(location)
                 .with_suggestion(Some(suggestion)),
+        );
+    }
+
+    /// Simulated time as fast as possible jumps to each deadline: right for one thread running every
+    /// component in turn, meaningless for threads that each wait on their own.
+    fn check_simulated_time(&mut self, instance: &ComponentInstance, info: &ComponentInfo) {
+        let time_scale = instance
+            .properties
+            .get("time_scale")
+            .or_else(|| info.property("time_scale").map(|p| &p.default))
+            .and_then(Value::as_f64)
+            .unwrap_or(0.0);
+        if time_scale > 0.0 || self.diagram.sequential {
+            return;
+        }
+        let location = self.source_map.and_then(|m| m.clock_source);
+        self.found.push(
+            Diagnostic::error(
+                DiagnosticCode::InvalidClockSource,
+                format!(
+                    "'{}' runs simulated time as fast as possible (time_scale 0), which needs every \
+                     component to run in turn in one thread",
+                    instance.id
+                ),
+            )
+            .at(location)
+            .with_suggestion(Some(
+                "add `sequential: true` to the diagram, or give the simulator a time_scale above 0 (1: real \
+                 time)"
+                    .to_owned(),
+            )),
         );
     }
 

@@ -705,6 +705,13 @@ impl Context {
         Ok(sample)
     }
 
+    /// Whether `input`'s stream ended (its producer finished) and every sample of it was read: a
+    /// component polling an input with [`Context::try_read`] finishes on it.
+    pub fn input_ended(&self, input: impl PortKey) -> bool {
+        self.input_index(input)
+            .is_ok_and(|index| self.input_exhausted(index))
+    }
+
     /// Reads one sample from `input` if one is there under its policy, without blocking.
     pub fn try_read(&mut self, input: impl PortKey) -> Result<Option<Sample>, ComponentError> {
         let index = self.input_index(input)?;

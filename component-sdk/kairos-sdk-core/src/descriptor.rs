@@ -46,6 +46,8 @@ impl Descriptor {
                 properties: Vec::new(),
                 actions: Vec::new(),
                 time_source: false,
+                simulated_time: false,
+                holds_inputs: false,
                 blocking: None,
             },
         }
@@ -55,6 +57,22 @@ impl Descriptor {
     /// [`crate::Context::clock_reference`] with the true time it receives (a GNSS receiver's UTC).
     pub fn time_source(mut self) -> Self {
         self.info.time_source = true;
+        self
+    }
+
+    /// Declares that the component keeps simulated time (a simulator): as the diagram's clock source it
+    /// is the runtime clock, paced by its `time_scale` property, which it must declare (1: real time, 0:
+    /// as fast as the diagram runs, for a sequential diagram).
+    pub fn simulated_time(mut self) -> Self {
+        self.info.time_source = true;
+        self.info.simulated_time = true;
+        self
+    }
+
+    /// Declares that the component reads its inputs at its own ticks, as held values (a simulator's
+    /// commands): links into it do not order an execution group, so a loop may close through it.
+    pub fn holds_inputs(mut self) -> Self {
+        self.info.holds_inputs = true;
         self
     }
 

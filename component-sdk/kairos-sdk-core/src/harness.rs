@@ -30,7 +30,7 @@
 //! assert_eq!(out.samples("out")[0].timestamp, Timestamp::from_millis(10));
 //! ```
 
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, BTreeSet};
 use std::sync::Arc;
 
 use kairos_diagram::{ComponentInfo, ReaderPolicy, Value, ValueError};
@@ -123,6 +123,7 @@ pub struct Harness {
     component: Box<dyn Component>,
     properties: BTreeMap<String, Value>,
     policies: BTreeMap<String, ReaderPolicy>,
+    unconnected: BTreeSet<String>,
     pending: Vec<(usize, Sample)>,
     clock: Arc<ManualClock>,
     output_capacity: usize,
@@ -172,6 +173,7 @@ impl Harness {
             component,
             properties,
             policies: BTreeMap::new(),
+            unconnected: BTreeSet::new(),
             pending: Vec::new(),
             clock: Arc::new(ManualClock::new(Timestamp::ZERO)),
             output_capacity: OUTPUT_CAPACITY,
@@ -216,6 +218,13 @@ impl Harness {
     /// it runs in a diagram instead of being made anew each time.
     pub fn set_output_capacity(&mut self, capacity: usize) -> &mut Self {
         self.output_capacity = capacity.max(1);
+        self
+    }
+
+    /// Leaves `input` unconnected, as in a diagram with no link to it (before the first run): for a
+    /// component whose optional input changes what it does.
+    pub fn leave_unconnected(&mut self, input: &str) -> &mut Self {
+        self.unconnected.insert(input.to_owned());
         self
     }
 
@@ -273,7 +282,8 @@ impl Harness {
                 ReaderConfig::new(policy, format!("harness -> {}", input.name)),
                 Arc::clone(&signal),
             );
-            inputs.push(InputPort::new(input.name.clone(), Some(reader)));
+            let connected = !self.unconnected.contains(&input.name);
+            inputs.push(InputPort::new(input.name.clone(), connected.then_some(reader)));
             input_buffers.push(buffer);
         }
         let mut outputs = Vec::new();
@@ -374,14 +384,30 @@ impl Harness {
     }
 
     /// Runs a periodic component (or any component, once per tick) for `cycles` periods from the current
-    /// harness time, jumping the clock from tick to tick.
+    /// harness time, jumping the clock from tick to tick. Samples pushed meanwhile arrive at their
+    /// timestamps: those due by a tick are on the inputs when it comes.
     pub fn run_periodic(&mut self, cycles: usize) -> Result<HarnessOutput, HarnessError> {
+        if let Some((_, unknown)) = self.pending.iter().find(|(index, _)| *index == usize::MAX) {
+            return Err(HarnessError::UnknownInput(unknown.payload.to_string()));
+        }
         self.start()?;
         let Some(running) = self.running.as_mut() else {
             return Ok(HarnessOutput::default());
         };
+        self.pending.sort_by_key(|(_, sample)| sample.timestamp);
         let mut out = HarnessOutput::default();
         for _ in 0..cycles {
+            let now = self.clock.now();
+            let due = self
+                .pending
+                .iter()
+                .take_while(|(_, sample)| sample.timestamp <= now)
+                .count();
+            for (index, sample) in self.pending.drain(..due) {
+                if let Some(buffer) = running.input_buffers.get(index) {
+                    let _ = buffer.write(sample, &running.feeder);
+                }
+            }
             let period = running.ctx.period().ok_or(HarnessError::NoPeriod)?;
             running.ctx.begin_cycle();
             let component = &mut self.component;

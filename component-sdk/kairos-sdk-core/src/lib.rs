@@ -51,7 +51,7 @@ pub use sample::Sample;
 pub use signal::RunSignal;
 pub use stats::{LatencySummary, LinkCounters};
 pub use throttle::{STATUS_PERIOD, Throttle, WARNING_PERIOD};
-pub use time::{Clock, ManualClock, RealTimeClock, Timestamp, wait_in_real_time};
+pub use time::{Clock, ManualClock, RealTimeClock, SimulatedClock, Timestamp, wait_in_real_time};
 
 /// The text of a panic payload, for reports.
 pub fn panic_message(payload: &(dyn std::any::Any + Send)) -> String {

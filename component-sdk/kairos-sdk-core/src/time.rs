@@ -110,6 +110,13 @@ pub trait Clock: Send + Sync + fmt::Debug {
     fn status(&self) -> Option<crate::disciplined::ClockStatus> {
         None
     }
+
+    /// Whether waiting on the clock takes no real time: it jumps to the deadline (simulated time run as
+    /// fast as possible). A thread with nothing to do until a deadline then waits on the clock rather
+    /// than sleeping.
+    fn jumps(&self) -> bool {
+        false
+    }
 }
 
 /// Real time: the wall clock read once at creation, advanced by the monotonic clock.
@@ -180,6 +187,94 @@ pub fn wait_in_real_time(clock: &dyn Clock, deadline: Timestamp, signal: &RunSig
     }
 }
 
+/// Simulated time: the clock of a diagram whose clock source is a simulator.
+///
+/// It starts at a fixed `epoch`, so that a simulation run twice stamps its samples alike, and advances
+/// `time_scale` simulated seconds per real second; at time scale 0 it advances only when waited on,
+/// straight to the deadline, so a diagram run in one thread (a sequential diagram) runs as fast as its
+/// components compute, each tick at its exact simulated time.
+#[derive(Debug)]
+pub struct SimulatedClock {
+    epoch: Timestamp,
+    time_scale: f64,
+    /// At time scale 0: simulated nanoseconds since the epoch, moved by waits.
+    jumped_nanos: AtomicI64,
+    started: Instant,
+}
+
+impl SimulatedClock {
+    /// A clock at `epoch` now, advancing `time_scale` seconds per real second (0: only when waited on).
+    /// A negative or non-finite scale is taken as 0.
+    pub fn new(epoch: Timestamp, time_scale: f64) -> Self {
+        SimulatedClock {
+            epoch,
+            time_scale: if time_scale.is_finite() && time_scale > 0.0 {
+                time_scale
+            } else {
+                0.0
+            },
+            jumped_nanos: AtomicI64::new(0),
+            started: Instant::now(),
+        }
+    }
+
+    /// Simulated seconds per real second; 0 when it runs as fast as possible.
+    pub fn time_scale(&self) -> f64 {
+        self.time_scale
+    }
+}
+
+impl Clock for SimulatedClock {
+    fn now(&self) -> Timestamp {
+        if self.jumps() {
+            return Timestamp(
+                self.epoch
+                    .0
+                    .saturating_add(self.jumped_nanos.load(Ordering::Acquire)),
+            );
+        }
+        let elapsed = self.started.elapsed().as_secs_f64() * self.time_scale;
+        Timestamp(self.epoch.0.saturating_add((elapsed * 1e9) as i64))
+    }
+
+    fn wait_until(&self, deadline: Timestamp, signal: &RunSignal) -> bool {
+        if !self.jumps() {
+            loop {
+                if signal.wants_attention() {
+                    return false;
+                }
+                let now = self.now();
+                if now >= deadline {
+                    return true;
+                }
+                let simulated = deadline.duration_since(now).as_secs_f64();
+                signal.park_timeout(Duration::from_secs_f64(simulated / self.time_scale));
+            }
+        }
+        if signal.wants_attention() {
+            return false;
+        }
+        self.jumped_nanos
+            .fetch_max(deadline.nanos_since(self.epoch), Ordering::AcqRel);
+        true
+    }
+
+    fn describe(&self) -> String {
+        if self.jumps() {
+            format!("simulated time from {}, as fast as the diagram runs", self.epoch)
+        } else {
+            format!(
+                "simulated time from {}, {} simulated seconds per real second",
+                self.epoch, self.time_scale
+            )
+        }
+    }
+
+    fn jumps(&self) -> bool {
+        self.time_scale == 0.0
+    }
+}
+
 /// A clock that moves only when told to; waiting on it jumps straight to the deadline.
 ///
 /// Used by the offline harness so periodic components run as fast as possible with exact timestamps.
@@ -223,5 +318,9 @@ impl Clock for ManualClock {
 
     fn describe(&self) -> String {
         "manual (moved by its owner)".to_owned()
+    }
+
+    fn jumps(&self) -> bool {
+        true
     }
 }

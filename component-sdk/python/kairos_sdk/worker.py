@@ -109,7 +109,8 @@ class WorkerContext(ContextBase):
 
     def read(self, input_name):
         """The next sample of `input_name` under its connection's policy, waiting for it."""
-        _, body = self._request("r", struct.pack("<BH", 0, self.input_index(input_name)))
+        reply, body = self._request("r", struct.pack("<BH", 0, self.input_index(input_name)))
+        self._leave_if_nothing(reply)
         return self._sample(wire.Reader(body, 2))
 
     def try_read(self, input_name):
@@ -120,7 +121,8 @@ class WorkerContext(ContextBase):
     def read_any(self, input_names):
         """(name, sample) from whichever of `input_names` has data first; none starves."""
         indices = [self.input_index(name) for name in input_names]
-        _, body = self._request("y", wire.U16.pack(len(indices)) + struct.pack(f"<{len(indices)}H", *indices))
+        reply, body = self._request("y", wire.U16.pack(len(indices)) + struct.pack(f"<{len(indices)}H", *indices))
+        self._leave_if_nothing(reply)
         position = wire.U16.unpack_from(body)[0]
         return input_names[position], self._sample(wire.Reader(body, 2))
 
@@ -128,9 +130,17 @@ class WorkerContext(ContextBase):
         """One sample per input, their timestamps within `tolerance` seconds of each other (data fusion)."""
         indices = [self.input_index(name) for name in input_names]
         body = struct.pack("<qH", int(tolerance * 1e9), len(indices)) + struct.pack(f"<{len(indices)}H", *indices)
-        _, reply = self._request("z", body)
+        kind, reply = self._request("z", body)
+        self._leave_if_nothing(kind)
         reader = wire.Reader(reply)
         return [self._sample(reader) for _ in range(reader.one(wire.U16))]
+
+    @staticmethod
+    def _leave_if_nothing(reply):
+        # In an execution group a read never waits: with nothing there the call ends, and the group calls
+        # `core` again when a sample comes.
+        if reply == "n":
+            raise Interrupted()
 
     def _sample(self, reader):
         timestamp, time_of_issue, sequence, handle = reader.take(wire.SAMPLE_HEAD)

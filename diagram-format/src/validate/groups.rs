@@ -320,7 +320,12 @@ impl Validator<'_> {
             ) else {
                 continue;
             };
-            if from_group != to_group {
+            // A member that holds its inputs (a simulator) is not ordered by them: a loop closes there.
+            let holds = components
+                .get(to)
+                .and_then(|c| self.info_of(c))
+                .is_some_and(|info| info.holds_inputs);
+            if from_group != to_group || holds {
                 continue;
             }
             edges.entry(from).or_default().push(to);

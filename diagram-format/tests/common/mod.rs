@@ -50,6 +50,8 @@ fn component(type_name: &str, pack: &str, mode: ExecutionMode) -> ComponentInfo 
         properties: Vec::new(),
         actions: Vec::new(),
         time_source: false,
+        simulated_time: false,
+        holds_inputs: false,
         blocking: None,
     }
 }

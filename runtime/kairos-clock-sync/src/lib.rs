@@ -601,6 +601,10 @@ impl Clock for NotedClock {
         self.inner.forbid_steps();
     }
 
+    fn jumps(&self) -> bool {
+        self.inner.jumps()
+    }
+
     fn status(&self) -> Option<ClockStatus> {
         self.inner.status().or_else(|| {
             self.master.then(|| ClockStatus {

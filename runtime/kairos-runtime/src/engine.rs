@@ -633,6 +633,7 @@ impl Pending {
             let member = Member {
                 id: self.id.clone(),
                 mode: self.info.mode,
+                holds_inputs: self.info.holds_inputs,
                 drives: role.drives,
                 component: self.component,
                 ctx,
@@ -1040,17 +1041,31 @@ impl Engine {
         self.state = EngineState::Stopped;
     }
 
-    /// Whether every threaded component has finished or failed on its own (e.g. its stream ended).
+    /// Whether every threaded component has finished or failed on its own (e.g. its stream ended), or the
+    /// simulator that keeps the diagram's time has.
     pub fn all_finished(&self) -> bool {
-        self.slots
-            .iter()
-            .filter(|s| matches!(s.driver, Driver::Threaded { .. } | Driver::Grouped(_)))
-            .all(|s| {
-                matches!(
-                    s.monitor.state(),
-                    ComponentState::Finished | ComponentState::Failed(_)
-                )
+        // A simulation ends with its simulator: what else runs (a constant, a timer) lives in its time.
+        let simulation_over = self.clock_source.as_ref().is_some_and(|source| {
+            self.slots.iter().any(|slot| {
+                &slot.id == source
+                    && slot.info.simulated_time
+                    && matches!(
+                        slot.monitor.state(),
+                        ComponentState::Finished | ComponentState::Failed(_)
+                    )
             })
+        });
+        simulation_over
+            || self
+                .slots
+                .iter()
+                .filter(|s| matches!(s.driver, Driver::Threaded { .. } | Driver::Grouped(_)))
+                .all(|s| {
+                    matches!(
+                        s.monitor.state(),
+                        ComponentState::Finished | ComponentState::Failed(_)
+                    )
+                })
     }
 
     /// Changes a property: checked against its kind and range and whether it may change while running,
@@ -1284,7 +1299,8 @@ fn group_slots(
                 .filter(|id| members.contains_key(**id))
                 .map(|id| (*id).to_owned())
                 .collect();
-            let member_ids = crate::group::run_order(diagram, &ids);
+            let holds = |id: &str| members.get(id).is_some_and(|m| m.holds_inputs);
+            let member_ids = crate::group::run_order(diagram, &ids, &holds);
             let ordered = member_ids.iter().filter_map(|id| members.remove(id)).collect();
             GroupSlot {
                 settings: diagram.groups.get(&name).cloned().unwrap_or_default(),

@@ -132,6 +132,8 @@ impl GroupShared {
 pub(crate) struct Member {
     pub(crate) id: String,
     pub(crate) mode: ExecutionMode,
+    /// Links into it do not order the group (see [`run_order`]).
+    pub(crate) holds_inputs: bool,
     /// It waits inside its calls: called first at every turn of the loop, never skipped.
     pub(crate) drives: bool,
     pub(crate) component: Box<dyn Component>,
@@ -514,6 +516,13 @@ impl GroupRun {
             if tick <= now {
                 return;
             }
+            // Simulated time run as fast as possible: nothing happens in between, so time moves on.
+            if self.clock.jumps()
+                && let Some(first) = self.members.first()
+            {
+                self.clock.wait_until(tick, &first.signal);
+                return;
+            }
             timeout = timeout.min(tick.duration_since(now));
         }
         std::thread::park_timeout(timeout);
@@ -550,9 +559,15 @@ fn next_tick(tick: Timestamp, period: Duration, now: Timestamp) -> (Timestamp, u
 }
 
 /// The order a group's members run in: the order of the links between them (a producer before its
-/// readers), ties and anything the links leave free in the diagram's order. Validation refuses loops
-/// inside a group; were one there, its members would follow in the diagram's order.
-pub(crate) fn run_order(diagram: &kairos_diagram::Diagram, members: &[String]) -> Vec<String> {
+/// readers), ties and anything the links leave free in the diagram's order. A link into a member that
+/// `holds` its inputs (a simulator reading its commands at its ticks) does not order it, so a loop may
+/// close through it. Validation refuses other loops inside a group; were one there, its members would
+/// follow in the diagram's order.
+pub(crate) fn run_order(
+    diagram: &kairos_diagram::Diagram,
+    members: &[String],
+    holds: &dyn Fn(&str) -> bool,
+) -> Vec<String> {
     use std::collections::{BTreeMap, BTreeSet};
     let position: BTreeMap<&str, usize> = members
         .iter()
@@ -569,6 +584,7 @@ pub(crate) fn run_order(diagram: &kairos_diagram::Diagram, members: &[String]) -
             continue;
         };
         if from != to
+            && !holds(&connection.to.component)
             && let Some(targets) = feeds.get_mut(from)
             && targets.insert(to)
             && let Some(count) = fed_by.get_mut(to)
@@ -630,7 +646,7 @@ mod tests {
             &[("source", "gain1"), ("gain1", "gain2"), ("gain2", "sink")],
         );
         assert_eq!(
-            run_order(&diagram, &members),
+            run_order(&diagram, &members, &|_| false),
             ["source", "gain1", "gain2", "sink", "lone"]
         );
     }
@@ -638,7 +654,24 @@ mod tests {
     #[test]
     fn a_loop_that_slipped_past_validation_keeps_every_member() {
         let (diagram, members) = chain(&["a", "b", "c"], &[("a", "b"), ("b", "a"), ("c", "a")]);
-        assert_eq!(run_order(&diagram, &members), ["c", "a", "b"]);
+        assert_eq!(run_order(&diagram, &members, &|_| false), ["c", "a", "b"]);
+    }
+
+    #[test]
+    fn a_loop_closes_through_a_member_that_holds_its_inputs_which_runs_first() {
+        // A simulator feeds a camera, whose processing feeds the simulator's commands back.
+        let (diagram, members) = chain(
+            &["controller", "camera", "vehicle"],
+            &[
+                ("vehicle", "camera"),
+                ("camera", "controller"),
+                ("controller", "vehicle"),
+            ],
+        );
+        assert_eq!(
+            run_order(&diagram, &members, &|id| id == "vehicle"),
+            ["vehicle", "camera", "controller"]
+        );
     }
 
     #[test]

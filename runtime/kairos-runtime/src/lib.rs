@@ -15,13 +15,34 @@ pub use engine::{BuildError, ControlError, Engine, EngineState, LongWait};
 
 use std::sync::Arc;
 
-use kairos_sdk_core::{Clock, DisciplinedClock, RealTimeClock};
+use kairos_sdk_core::{Clock, DisciplinedClock, RealTimeClock, Registry, SimulatedClock, Timestamp};
 
-/// The clock a diagram runs on: real time, or real time disciplined by its `clock_source`.
-pub fn clock_for(diagram: &kairos_diagram::Diagram) -> Arc<dyn Clock> {
-    match &diagram.clock_source {
-        Some(source) => Arc::new(DisciplinedClock::new(source.clone())),
-        None => RealTimeClock::shared(),
+/// The clock a diagram runs on: real time; real time disciplined by its `clock_source`; or, when that
+/// source is a simulator, its simulated time (from its `start_time`, at its `time_scale`).
+pub fn clock_for(diagram: &kairos_diagram::Diagram, registry: &Registry) -> Arc<dyn Clock> {
+    let Some(source) = &diagram.clock_source else {
+        return RealTimeClock::shared();
+    };
+    let simulator = diagram.component(source).and_then(|instance| {
+        let info = &registry.component(&instance.type_name)?.info;
+        info.simulated_time.then_some((instance, info))
+    });
+    match simulator {
+        Some((instance, info)) => {
+            let number = |name: &str| {
+                instance
+                    .properties
+                    .get(name)
+                    .or_else(|| info.property(name).map(|p| &p.default))
+                    .and_then(kairos_diagram::Value::as_f64)
+                    .unwrap_or(0.0)
+            };
+            Arc::new(SimulatedClock::new(
+                Timestamp::from_secs_f64(number("start_time")),
+                number("time_scale"),
+            ))
+        }
+        None => Arc::new(DisciplinedClock::new(source.clone())),
     }
 }
 pub use packs::{PackScan, RefusedLibrary, load_packs, pack_path};

@@ -105,14 +105,15 @@ mod tests {
             ["fast".into(), "slow".into()],
             Duration::from_secs(10),
         ));
+        // Measured from before the spawn: a thread started late under load still waits until the end.
+        let started = Instant::now();
         let fast = {
             let gate = Arc::clone(&gate);
             std::thread::Builder::new()
                 .name("fast".to_owned())
                 .spawn(move || {
-                    let waited = Instant::now();
                     assert!(gate.arrive_and_wait("fast", &RunSignal::new()));
-                    waited.elapsed()
+                    started.elapsed()
                 })
                 .unwrap()
         };

@@ -285,10 +285,10 @@ impl Runtime {
     }
 
     /// The clock a diagram deployed here runs on.
-    fn clock_for(&self, diagram: &Diagram) -> Arc<dyn kairos_sdk_core::Clock> {
+    fn clock_for(&self, diagram: &Diagram, registry: &Registry) -> Arc<dyn kairos_sdk_core::Clock> {
         let clock = match self.clock.lock().ok().and_then(|slot| slot.clone()) {
             Some(shared) => shared,
-            None => kairos_runtime::clock_for(diagram),
+            None => kairos_runtime::clock_for(diagram, registry),
         };
         let noted = kairos_clock_sync::NotedClock::new(clock, Arc::clone(&self.start_note));
         if self.clock_master.load(Ordering::Acquire) {
@@ -606,8 +606,11 @@ impl Runtime {
         diagnostics: Vec<Diagnostic>,
         network: Option<kairos_protocol::LinkNetwork>,
     ) -> Result<Part, ProtocolError> {
-        let engine = Engine::build(&diagram, &self.registry(), self.clock_for(&diagram))
-            .map_err(|e| error(ErrorCode::InvalidDiagram, e.to_string()))?;
+        let engine = {
+            let registry = self.registry();
+            Engine::build(&diagram, &registry, self.clock_for(&diagram, &registry))
+        }
+        .map_err(|e| error(ErrorCode::InvalidDiagram, e.to_string()))?;
         Ok(Part {
             diagram,
             engine,
@@ -711,8 +714,11 @@ impl Runtime {
             .as_ref()
             .is_none_or(|e| e.state() == EngineState::Stopped);
         if stale {
-            let engine = Engine::build(&diagram, &self.registry(), self.clock_for(&diagram))
-                .map_err(|e| error(ErrorCode::InvalidDiagram, e.to_string()))?;
+            let engine = {
+                let registry = self.registry();
+                Engine::build(&diagram, &registry, self.clock_for(&diagram, &registry))
+            }
+            .map_err(|e| error(ErrorCode::InvalidDiagram, e.to_string()))?;
             deployment.engine = Some(engine);
             deployment.previous = None;
             self.generation.fetch_add(1, Ordering::Release);

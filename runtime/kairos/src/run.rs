@@ -125,7 +125,10 @@ pub fn run(registry: &Registry, path: &Path, options: &RunOptions) -> anyhow::Re
 
     let note = kairos_clock_sync::StartNote::default();
     let build = |diagram: &Diagram| -> anyhow::Result<Engine> {
-        let clock = kairos_clock_sync::NotedClock::new(kairos_runtime::clock_for(diagram), Arc::clone(&note));
+        let clock = kairos_clock_sync::NotedClock::new(
+            kairos_runtime::clock_for(diagram, registry),
+            Arc::clone(&note),
+        );
         Engine::build(diagram, registry, Arc::new(clock)).map_err(|error| anyhow::anyhow!("{error}"))
     };
     // Deploying: every host's part and this machine's are prepared before any host's is committed, and
