@@ -92,6 +92,8 @@ const RULES: &[(&str, &[&str])] = &[
     ("kairos-pack-gnss", &["kairos-sdk", "kairos-pack-serial"]),
     // ROS 2 messages, their definitions and type hashes are the recording pack's, for bags and live alike.
     ("kairos-pack-ros2", &["kairos-sdk", "kairos-pack-recording"]),
+    // The simulator's world travels as the sensors pack's `sim_world`, which its sensors render.
+    ("kairos-pack-sim", &["kairos-sdk", "kairos-pack-sensors"]),
     ("kairos-pack-*", &["kairos-sdk"]),
     ("kairos-test-pack-*", &["kairos-sdk"]),
     // The engine, and the clock synchronisation between runtimes: the SDK's runtime half.

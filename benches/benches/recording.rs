@@ -20,6 +20,7 @@ fn frames(count: usize) -> Vec<Payload> {
         kairos_pack_sensors::camera::descriptor(),
         kairos_pack_sensors::CameraSensor::default(),
     );
+    camera.leave_unconnected("vehicle");
     let _ = camera.set_property("width", i64::from(WIDTH));
     let _ = camera.set_property("height", i64::from(HEIGHT));
     let _ = camera.set_property("rate", 1.0);
@@ -36,14 +37,18 @@ fn compression_ratios(dir: &std::path::Path) {
         streams.extend(out.samples(port).iter().map(|s| (input, s.clone())));
     };
     let mut cam = Harness::new(camera::descriptor(), kairos_pack_sensors::CameraSensor::default());
+    cam.leave_unconnected("vehicle");
     let _ = cam.set_property("width", 640_i64);
     let _ = cam.set_property("height", 480_i64);
     collect("in1", cam.run_periodic(150).unwrap_or_default(), "image");
     let mut scanner = Harness::new(lidar::descriptor(), lidar::LidarSensor::default());
+    scanner.leave_unconnected("vehicle");
     collect("in2", scanner.run_periodic(50).unwrap_or_default(), "points");
     let mut unit = Harness::new(imu::descriptor(), kairos_pack_sensors::ImuSensor::default());
+    unit.leave_unconnected("vehicle");
     collect("in3", unit.run_periodic(500).unwrap_or_default(), "imu");
     let mut receiver = Harness::new(gnss::descriptor(), kairos_pack_sensors::GnssSensor::default());
+    receiver.leave_unconnected("vehicle");
     collect("in4", receiver.run_periodic(50).unwrap_or_default(), "fix");
     streams.sort_by_key(|(_, s)| s.timestamp);
     let mut sizes = Vec::new();

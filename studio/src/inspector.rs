@@ -131,11 +131,20 @@ fn component_ui(
     if info.time_source {
         let follows = session.document.diagram().clock_source.as_deref() == Some(instance.id.as_str());
         let mut checked = follows;
-        ui.checkbox(&mut checked, "The runtime clock follows its time")
-            .on_hover_text(
-                "The diagram's clock source: the runtime clock is set to this component's time when the \
-                 diagram starts (a GNSS receiver's UTC), then slewed to follow it, never going backwards",
-            );
+        if info.simulated_time {
+            ui.checkbox(&mut checked, "The runtime clock is its simulated time")
+                .on_hover_text(
+                    "The diagram's clock source: every component runs on the simulation's time, from its \
+                     start_time, at its time_scale (1: real time; 0: as fast as the diagram computes, with \
+                     the diagram sequential)",
+                );
+        } else {
+            ui.checkbox(&mut checked, "The runtime clock follows its time")
+                .on_hover_text(
+                    "The diagram's clock source: the runtime clock is set to this component's time when the \
+                     diagram starts (a GNSS receiver's UTC), then slewed to follow it, never going backwards",
+                );
+        }
         if checked != follows {
             commands.push(Command::SetClockSource(checked.then(|| instance.id.clone())));
         }

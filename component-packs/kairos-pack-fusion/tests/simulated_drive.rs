@@ -18,8 +18,10 @@ const SECONDS: usize = 90;
 /// The simulated IMU (100 Hz) and GNSS (10 Hz) for `SECONDS`, in time order, with the true poses.
 fn drive(gnss_properties: &[(&str, f64)]) -> (Vec<(&'static str, Sample)>, BTreeMap<i64, Pose>) {
     let mut imu = Harness::new(imu::descriptor(), ImuSensor::default());
+    imu.leave_unconnected("vehicle");
     let imu_out = imu.run_periodic(SECONDS * 100).unwrap();
     let mut receiver = Harness::new(gnss::descriptor(), GnssSensor::default());
+    receiver.leave_unconnected("vehicle");
     for (name, value) in gnss_properties {
         receiver.set_property(name, *value).unwrap();
     }

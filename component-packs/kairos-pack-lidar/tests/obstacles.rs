@@ -16,6 +16,7 @@ fn scan() -> Sample {
         kairos_pack_sensors::lidar::descriptor(),
         kairos_pack_sensors::lidar::LidarSensor::default(),
     );
+    lidar.leave_unconnected("vehicle");
     // One revolution a second: twelve seconds in thirteen scans.
     lidar.set_property("rate", 1.0).unwrap();
     let out = lidar.run_periodic(13).unwrap();

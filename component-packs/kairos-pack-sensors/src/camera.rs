@@ -10,20 +10,21 @@ use kairos_sdk::{
 
 use crate::render::{Canvas, Pattern, Scene, read_barcode, render};
 use crate::trajectory::Trajectory;
-use crate::{TimeBase, apply_rate, rate_changed, rate_property};
+use crate::world::WorldView;
+use crate::{Seen, TimeBase, apply_rate, rate_changed, rate_property, seen, with_vehicle_input};
 
 /// The component's type name.
 pub const TYPE_NAME: &str = "sensors.camera";
 
 /// The descriptor of `sensors.camera`.
 pub fn descriptor() -> ComponentInfo {
-    Descriptor::new(
+    with_vehicle_input(Descriptor::new(
         TYPE_NAME,
         "sensors",
         "Simulated forward camera on the simulated vehicle: a road scene (sky, mountains that turn with the \
-         heading, a scrolling road that bends with the path, a car ahead) or colour bars, with the frame \
-         number as a bar code along the top-left edge",
-    )
+         heading, a scrolling road that bends with the path, a car ahead; with a simulator, its road and \
+         obstacles) or colour bars, with the frame number as a bar code along the top-left edge",
+    ))
     .label("Simulated camera")
     .mode(ExecutionMode::Periodic)
     .output_with_buffer("image", DataType::Image, 8, "RGB8 frames, rows packed tightly")
@@ -73,6 +74,8 @@ pub struct CameraSensor {
     /// Metres driven up to `last`, and the trajectory time and speed of the last frame.
     travelled_m: f64,
     last: Option<(f64, f64)>,
+    /// A simulator's newest world, when the `vehicle` input is connected.
+    world: Option<WorldView>,
 }
 
 impl Default for CameraSensor {
@@ -86,6 +89,7 @@ impl Default for CameraSensor {
             frame: 0,
             travelled_m: 0.0,
             last: None,
+            world: None,
         }
     }
 }
@@ -141,8 +145,15 @@ impl Component for CameraSensor {
 
     fn core(&mut self, ctx: &mut Context) -> ComponentResult {
         let now = ctx.now();
-        let time_s = self.time.elapsed_s(now);
-        let state = self.trajectory.state(time_s);
+        let Some(seen) = seen(ctx, &self.trajectory, &mut self.time, &mut self.world)? else {
+            // The simulator has not stepped yet: nothing to show.
+            return Ok(());
+        };
+        let state = *seen.state();
+        let (time_s, world) = match &seen {
+            Seen::Trajectory(_) => (state.time_s, None),
+            Seen::World(view) => (state.time_s, Some(&**view)),
+        };
         // Distance driven, by the trapezoid rule between frames (the path has no closed-form length).
         if let Some((last_time, last_speed)) = self.last {
             self.travelled_m += 0.5 * (last_speed + state.speed()) * (time_s - last_time).max(0.0);
@@ -151,7 +162,8 @@ impl Component for CameraSensor {
         let scene = Scene {
             frame: self.frame,
             state,
-            travelled_m: self.travelled_m,
+            travelled_m: world.map_or(self.travelled_m, |w| w.station_m),
+            world,
         };
         let started = Instant::now();
         let image = render_image(self.width, self.height, self.pattern, &scene)?;
@@ -192,6 +204,7 @@ mod tests {
 
     fn harness(properties: &[(&str, Value)]) -> Harness {
         let mut harness = Harness::new(descriptor(), CameraSensor::default());
+        harness.leave_unconnected("vehicle");
         for (name, value) in properties {
             harness.set_property(name, value.clone()).expect("property");
         }
@@ -291,6 +304,7 @@ mod tests {
                     frame,
                     state: trajectory.state(20.0 + f64::from(frame) / 30.0),
                     travelled_m: 100.0 + f64::from(frame) * 0.3,
+                    world: None,
                 };
                 let image = render_image(640, 480, pattern, &scene).expect("renders");
                 assert_eq!(decode_frame_number(&image), Some(frame));

@@ -9,7 +9,8 @@ use kairos_sdk::{
 
 use crate::geo::{GeoPoint, LocalFrame};
 use crate::trajectory::Trajectory;
-use crate::{TimeBase, apply_rate, rate_changed, rate_property};
+use crate::world::WorldView;
+use crate::{Seen, TimeBase, apply_rate, rate_changed, rate_property, seen, with_vehicle_input};
 use kairos_sdk::rng::NoiseRng;
 
 /// The component's type name.
@@ -23,12 +24,12 @@ const VERTICAL_FACTOR: f64 = 1.5;
 
 /// The descriptor of `sensors.gnss`.
 pub fn descriptor() -> ComponentInfo {
-    Descriptor::new(
+    with_vehicle_input(Descriptor::new(
         TYPE_NAME,
         "sensors",
-        "Simulated GNSS receiver on the simulated vehicle: WGS84 fixes around a reference point, with \
-         time-correlated noise and an outage action",
-    )
+        "Simulated GNSS receiver on the simulated vehicle: WGS84 fixes around a reference point (with a \
+         simulator, its world's origin), with time-correlated noise and an outage action",
+    ))
     .label("Simulated GNSS receiver")
     .mode(ExecutionMode::Periodic)
     .output(
@@ -86,6 +87,8 @@ pub struct GnssSensor {
     error: Option<(DVec3, f64)>,
     outage: bool,
     last_fix: Option<GnssFix>,
+    /// A simulator's newest world, when the `vehicle` input is connected.
+    world: Option<WorldView>,
 }
 
 impl Default for GnssSensor {
@@ -100,6 +103,7 @@ impl Default for GnssSensor {
             error: None,
             outage: false,
             last_fix: None,
+            world: None,
         }
     }
 }
@@ -161,7 +165,16 @@ impl Component for GnssSensor {
 
     fn core(&mut self, ctx: &mut Context) -> ComponentResult {
         let now = ctx.now();
-        let time_s = self.time.elapsed_s(now);
+        let Some(seen) = seen(ctx, &self.trajectory, &mut self.time, &mut self.world)? else {
+            return Ok(());
+        };
+        if let Seen::World(view) = &seen
+            && self.frame.origin() != view.origin
+        {
+            self.frame = LocalFrame::new(view.origin);
+        }
+        let state = *seen.state();
+        let time_s = state.time_s;
         // The error keeps evolving during an outage, so the fix resumes where the noise would be.
         let error = self.error_at(time_s);
         let fix = if self.outage {
@@ -181,7 +194,6 @@ impl Component for GnssSensor {
                 ..last
             }
         } else {
-            let state = self.trajectory.state(time_s);
             let point = self.frame.to_geodetic(state.position + error);
             let fix = GnssFix {
                 latitude_deg: point.latitude_deg,
@@ -243,6 +255,7 @@ mod tests {
 
     fn harness(properties: &[(&str, Value)]) -> Harness {
         let mut harness = Harness::new(descriptor(), GnssSensor::default());
+        harness.leave_unconnected("vehicle");
         for (name, value) in properties {
             harness.set_property(name, value.clone()).expect("property");
         }

@@ -7,7 +7,8 @@ use kairos_sdk::{
 };
 
 use crate::trajectory::Trajectory;
-use crate::{TimeBase, apply_rate, rate_changed, rate_property};
+use crate::world::WorldView;
+use crate::{TimeBase, apply_rate, rate_changed, rate_property, seen, with_vehicle_input};
 use kairos_sdk::rng::NoiseRng;
 
 /// The component's type name.
@@ -18,12 +19,12 @@ const NOISE_SALT: u64 = 0x1A1B_1C1D;
 
 /// The descriptor of `sensors.imu`.
 pub fn descriptor() -> ComponentInfo {
-    Descriptor::new(
+    with_vehicle_input(Descriptor::new(
         TYPE_NAME,
         "sensors",
         "Simulated IMU on the simulated vehicle: body-frame angular velocity and specific force (gravity \
          included, +9.81 m/s² on z at rest), true orientation, plus the ground-truth pose",
-    )
+    ))
     .label("Simulated IMU")
     .mode(ExecutionMode::Periodic)
     .output(
@@ -66,6 +67,8 @@ pub struct ImuSensor {
     rng: NoiseRng,
     gyro_noise: f64,
     accel_noise: f64,
+    /// A simulator's newest world, when the `vehicle` input is connected.
+    world: Option<WorldView>,
 }
 
 impl Default for ImuSensor {
@@ -76,6 +79,7 @@ impl Default for ImuSensor {
             rng: NoiseRng::new(1, NOISE_SALT),
             gyro_noise: 0.0,
             accel_noise: 0.0,
+            world: None,
         }
     }
 }
@@ -103,7 +107,10 @@ impl Component for ImuSensor {
 
     fn core(&mut self, ctx: &mut Context) -> ComponentResult {
         let now = ctx.now();
-        let state = self.trajectory.state(self.time.elapsed_s(now));
+        let Some(seen) = seen(ctx, &self.trajectory, &mut self.time, &mut self.world)? else {
+            return Ok(());
+        };
+        let state = *seen.state();
         let imu = Imu {
             angular_velocity: state.angular_velocity_body + self.noise(self.gyro_noise),
             linear_acceleration: state.specific_force_body + self.noise(self.accel_noise),
@@ -166,6 +173,7 @@ mod tests {
 
     fn run(properties: &[(&str, Value)], cycles: usize) -> HarnessOutput {
         let mut harness = Harness::new(descriptor(), ImuSensor::default());
+        harness.leave_unconnected("vehicle");
         for (name, value) in properties {
             harness.set_property(name, value.clone()).expect("property");
         }
@@ -258,6 +266,7 @@ mod tests {
     #[test]
     fn timestamps_follow_the_live_rate() {
         let mut harness = Harness::new(descriptor(), ImuSensor::default());
+        harness.leave_unconnected("vehicle");
         let first = harness.run_periodic(5).expect("runs");
         harness.set_property("rate", Value::F64(20.0)).expect("live");
         let second = harness.run_periodic(5).expect("runs");

@@ -24,9 +24,12 @@ pub mod imu;
 pub mod lidar;
 mod render;
 pub mod trajectory;
+pub mod world;
 
-use kairos_sdk::descriptor::Property;
-use kairos_sdk::{ComponentResult, Context, Registry, Timestamp, Value};
+use kairos_sdk::descriptor::{Descriptor, Property};
+use kairos_sdk::{
+    ComponentError, ComponentResult, Context, ReaderPolicy, Registry, Timestamp, TypeFilter, Value,
+};
 
 pub use camera::{CameraSensor, decode_frame_number};
 pub use geo::{GeoPoint, LocalFrame};
@@ -35,6 +38,7 @@ pub use imu::ImuSensor;
 pub use kairos_sdk::rng::NoiseRng;
 pub use render::Pattern;
 pub use trajectory::{Trajectory, VehicleState};
+pub use world::WorldView;
 
 /// The pack's name.
 pub const PACK_NAME: &str = "sensors";
@@ -46,7 +50,63 @@ pub fn register(registry: &mut Registry) {
         .component::<ImuSensor>(imu::descriptor())
         .component::<GnssSensor>(gnss::descriptor())
         .component::<CameraSensor>(camera::descriptor())
-        .component::<lidar::LidarSensor>(lidar::descriptor());
+        .component::<lidar::LidarSensor>(lidar::descriptor())
+        .custom_type(world::TYPE_NAME);
+}
+
+/// The input every sensor has for a simulator's world.
+const VEHICLE: &str = "vehicle";
+
+/// Adds the `vehicle` input: connected to a simulator, the sensor sees its world.
+fn with_vehicle_input(descriptor: Descriptor) -> Descriptor {
+    descriptor.input_with_policy(
+        VEHICLE,
+        TypeFilter::only(world::data_type()),
+        ReaderPolicy::LastOrNext,
+        "Optional: a simulator's world (sim.vehicle's `world`); connected, the sensor sees the simulated \
+         vehicle and its world instead of following the fixed figure-eight",
+    )
+}
+
+/// Where a sensor's vehicle is at a tick.
+#[derive(Debug, Clone)]
+enum Seen {
+    /// On the fixed trajectory (no simulator connected).
+    Trajectory(VehicleState),
+    /// In a simulator's world.
+    World(Box<WorldView>),
+}
+
+/// What a sensor sees at `now`: the simulator's newest world when its `vehicle` input is connected
+/// (`None` until the first one arrives), else the fixed trajectory at the sensor's own time. A
+/// simulator that finished ends the sensor's stream.
+fn seen(
+    ctx: &mut Context,
+    trajectory: &Trajectory,
+    time: &mut TimeBase,
+    held: &mut Option<WorldView>,
+) -> Result<Option<Seen>, ComponentError> {
+    if !ctx.is_connected(VEHICLE) {
+        let now = ctx.now();
+        return Ok(Some(Seen::Trajectory(trajectory.state(time.elapsed_s(now)))));
+    }
+    if let Some(sample) = ctx.try_read(VEHICLE)? {
+        let view = WorldView::from_payload(&sample.payload)
+            .map_err(|e| ComponentError::failed(format_args!("input 'vehicle': {e}")))?;
+        *held = Some(view);
+    } else if ctx.input_ended(VEHICLE) {
+        return Err(ComponentError::EndOfStream);
+    }
+    Ok(held.clone().map(|view| Seen::World(Box::new(view))))
+}
+
+impl Seen {
+    fn state(&self) -> &VehicleState {
+        match self {
+            Seen::Trajectory(state) => state,
+            Seen::World(view) => &view.state,
+        }
+    }
 }
 
 /// The live `rate` property every sensor has, in hertz.
@@ -113,7 +173,14 @@ mod tests {
             assert_eq!(component.info.pack, "sensors");
             assert_eq!(component.info.category, "sensors");
             assert_eq!(component.info.mode, ExecutionMode::Periodic);
-            assert!(component.info.inputs.is_empty());
+            let inputs: Vec<(&str, kairos_sdk::TypeFilter)> = component
+                .info
+                .inputs
+                .iter()
+                .map(|i| (i.name.as_str(), i.filter.clone()))
+                .collect();
+            let world = kairos_sdk::TypeFilter::only(super::world::data_type());
+            assert_eq!(inputs, [("vehicle", world)], "{name}");
             let found: Vec<(&str, DataType)> = component
                 .info
                 .outputs
@@ -133,6 +200,7 @@ mod tests {
             // The registered factory makes a working component.
             let mut harness =
                 kairos_sdk::harness::Harness::boxed(component.info.clone(), (component.factory)());
+            harness.leave_unconnected("vehicle");
             let out = harness.run_periodic(2).expect("runs");
             assert!(out.all().values().all(|samples| samples.len() == 2), "{name}");
         }

@@ -2,6 +2,8 @@
 //!
 //! The world it scans is simple and deterministic: flat ground under the vehicle, posts along both sides of
 //! the figure-eight every few metres, and a car driving ahead on the same path (the one the camera shows).
+//! Connected to a simulator, it scans the simulator's world instead: posts along both sides of its road
+//! and its obstacles.
 //! Each scan casts `channels` × `columns` rays from the sensor, 1.9 m above the vehicle, and returns the
 //! nearest hit of each within range, in the sensor frame (x forward, y left, z up), with an intensity that
 //! depends on what was hit and range noise.
@@ -16,7 +18,8 @@ use kairos_sdk::{
 };
 
 use crate::trajectory::Trajectory;
-use crate::{TimeBase, apply_rate, rate_changed, rate_property};
+use crate::world::WorldView;
+use crate::{Seen, TimeBase, apply_rate, rate_changed, rate_property, seen, with_vehicle_input};
 
 /// The component's type name.
 pub const TYPE_NAME: &str = "sensors.lidar";
@@ -41,12 +44,12 @@ const CAR_INTENSITY: f32 = 0.55;
 
 /// The descriptor of `sensors.lidar`.
 pub fn descriptor() -> ComponentInfo {
-    Descriptor::new(
+    with_vehicle_input(Descriptor::new(
         TYPE_NAME,
         "sensors",
         "Simulated spinning lidar on the simulated vehicle: the ground, posts along the road and the car \
-         ahead, as a point cloud in the sensor frame with intensities",
-    )
+         ahead (with a simulator, its obstacles), as a point cloud in the sensor frame with intensities",
+    ))
     .label("Simulated lidar")
     .mode(ExecutionMode::Periodic)
     .output(
@@ -155,14 +158,71 @@ fn hit_post(origin: DVec3, direction: DVec3, post: Post, ground: f64) -> Option<
     (t > 0.0 && z >= ground && z <= ground + POST_HEIGHT_M).then_some(t)
 }
 
-/// Distance to an oriented box (centre, yaw, half extents), by the slab method in the box's frame.
-fn hit_box(origin: DVec3, direction: DVec3, centre: DVec3, yaw: f64) -> Option<f64> {
-    let to_box = DQuat::from_rotation_z(-yaw);
-    let o = to_box * (origin - centre);
+/// Posts every [`POST_SPACING_M`] along a simulator's road, on both sides, in the world frame.
+fn posts_along(view: &WorldView) -> Vec<Post> {
+    let state = &view.state;
+    let to_world = |x: f64, y: f64| {
+        let (sin, cos) = state.yaw.sin_cos();
+        (
+            state.position.x + cos * x - sin * y,
+            state.position.y + sin * x + cos * y,
+        )
+    };
+    let offset = view.lane_width_m + POST_OFFSET_M - 3.5;
+    let mut posts = Vec::new();
+    for pair in view.road.windows(2) {
+        let [before, after] = pair else { continue };
+        let mark = (after.station_m / POST_SPACING_M).floor() * POST_SPACING_M;
+        if mark <= before.station_m || after.station_m <= before.station_m {
+            continue;
+        }
+        let share = (mark - before.station_m) / (after.station_m - before.station_m);
+        let (dx, dy) = (after.x - before.x, after.y - before.y);
+        let (along_x, along_y) = (before.x + dx * share, before.y + dy * share);
+        let length = dx.hypot(dy).max(f64::EPSILON);
+        let (normal_x, normal_y) = (-dy / length, dx / length);
+        for side in [offset, -offset] {
+            let (east, north) = to_world(along_x + normal_x * side, along_y + normal_y * side);
+            posts.push(Post { east, north });
+        }
+    }
+    posts
+}
+
+/// A box a ray may hit: centre, heading and half extents, in the world frame.
+#[derive(Debug, Clone, Copy)]
+struct Target {
+    centre: DVec3,
+    yaw: f64,
+    half: DVec3,
+}
+
+/// A simulator's obstacles as boxes in the world frame.
+fn targets_in(view: &WorldView) -> Vec<Target> {
+    let state = &view.state;
+    let (sin, cos) = state.yaw.sin_cos();
+    view.obstacles
+        .iter()
+        .map(|o| Target {
+            centre: DVec3::new(
+                state.position.x + cos * o.x - sin * o.y,
+                state.position.y + sin * o.x + cos * o.y,
+                state.position.z + 0.5 * o.height,
+            ),
+            yaw: state.yaw + o.yaw,
+            half: 0.5 * DVec3::new(o.length, o.width, o.height),
+        })
+        .collect()
+}
+
+/// Distance to an oriented box, by the slab method in the box's frame.
+fn hit_box(origin: DVec3, direction: DVec3, target: &Target) -> Option<f64> {
+    let to_box = DQuat::from_rotation_z(-target.yaw);
+    let o = to_box * (origin - target.centre);
     let d = to_box * direction;
     let (mut near, mut far) = (f64::NEG_INFINITY, f64::INFINITY);
     for axis in 0..3 {
-        let (o, d, half) = (o[axis], d[axis], CAR_HALF[axis]);
+        let (o, d, half) = (o[axis], d[axis], target.half[axis]);
         if d.abs() < 1e-12 {
             if o.abs() > half {
                 return None;
@@ -187,6 +247,8 @@ pub struct LidarSensor {
     rays: Vec<DVec3>,
     max_range: f64,
     range_noise: f64,
+    /// A simulator's newest world, when the `vehicle` input is connected.
+    world: Option<WorldView>,
 }
 
 impl Default for LidarSensor {
@@ -200,20 +262,32 @@ impl Default for LidarSensor {
             rays: Vec::new(),
             max_range: 80.0,
             range_noise: 0.0,
+            world: None,
         }
     }
 }
 
 impl LidarSensor {
-    /// One revolution at trajectory time `time_s`.
-    fn scan(&mut self, time_s: f64) -> PointCloud {
-        let state = self.trajectory.state(time_s);
+    /// One revolution, of the figure-eight or of a simulator's world.
+    fn scan(&mut self, seen: &Seen) -> PointCloud {
+        let state = *seen.state();
         let origin = state.position + state.orientation * DVec3::new(0.0, 0.0, MOUNT_HEIGHT_M);
         let ground = state.position.z;
-        let ahead = self.trajectory.state(time_s + CAR_AHEAD_S);
-        let car_centre = ahead.position + DVec3::new(0.0, 0.0, CAR_HALF.z);
-        let near: Vec<Post> = self
-            .posts
+        let (posts, targets) = match seen {
+            Seen::Trajectory(_) => {
+                let ahead = self.trajectory.state(state.time_s + CAR_AHEAD_S);
+                let car = Target {
+                    centre: ahead.position + DVec3::new(0.0, 0.0, CAR_HALF.z),
+                    yaw: ahead.yaw,
+                    half: CAR_HALF,
+                };
+                (None, vec![car])
+            }
+            Seen::World(view) => (Some(posts_along(view)), targets_in(view)),
+        };
+        let near: Vec<Post> = posts
+            .as_ref()
+            .unwrap_or(&self.posts)
             .iter()
             .copied()
             .filter(|p| {
@@ -240,7 +314,9 @@ impl LidarSensor {
             for post in &near {
                 consider(hit_post(origin, direction, *post, ground), POST_INTENSITY);
             }
-            consider(hit_box(origin, direction, car_centre, ahead.yaw), CAR_INTENSITY);
+            for target in &targets {
+                consider(hit_box(origin, direction, target), CAR_INTENSITY);
+            }
             if let Some((range, what)) = best {
                 let range = (range + self.rng.normal(self.range_noise)).max(0.0);
                 points.push((*ray * range).as_vec3());
@@ -290,8 +366,10 @@ impl Component for LidarSensor {
 
     fn core(&mut self, ctx: &mut Context) -> ComponentResult {
         let now = ctx.now();
-        let time_s = self.time.elapsed_s(now);
-        let cloud = self.scan(time_s);
+        let Some(seen) = seen(ctx, &self.trajectory, &mut self.time, &mut self.world)? else {
+            return Ok(());
+        };
+        let cloud = self.scan(&seen);
         ctx.write_at("points", Payload::PointCloud(std::sync::Arc::new(cloud)), now)
     }
 
@@ -317,6 +395,7 @@ mod tests {
     #[test]
     fn a_scan_sees_the_ground_the_posts_and_the_car_ahead() {
         let mut harness = Harness::new(descriptor(), LidarSensor::default());
+        harness.leave_unconnected("vehicle");
         for (name, value) in [
             ("channels", Value::I64(16)),
             ("columns", Value::I64(360)),

@@ -7,6 +7,7 @@
 use std::f64::consts::{PI, TAU};
 
 use crate::trajectory::VehicleState;
+use crate::world::WorldView;
 
 /// One RGB colour.
 pub(crate) type Rgb = [u8; 3];
@@ -36,13 +37,15 @@ impl Pattern {
 
 /// What one frame depicts.
 #[derive(Debug, Clone, Copy)]
-pub(crate) struct Scene {
+pub(crate) struct Scene<'a> {
     /// The frame's number, drawn as a bar code and in digits.
     pub frame: u32,
     /// The vehicle at the frame's time.
     pub state: VehicleState,
     /// Metres driven since the start, for scrolling the road.
     pub travelled_m: f64,
+    /// A simulator's world: its road and obstacles replace the figure-eight's road and the car ahead.
+    pub world: Option<&'a WorldView>,
 }
 
 /// Horizontal field of view, radians.
@@ -223,7 +226,10 @@ pub(crate) fn render(canvas: &mut Canvas<'_>, pattern: Pattern, scene: &Scene) {
             let view = View::new(canvas, scene.state.pitch);
             draw_sky(canvas, &view, scene);
             draw_ground(canvas, &view, scene);
-            draw_lead_car(canvas, &view, scene);
+            match scene.world {
+                Some(world) => draw_obstacles(canvas, &view, world),
+                None => draw_lead_car(canvas, &view, scene),
+            }
         }
         Pattern::ColorBars => draw_color_bars(canvas, scene.frame),
     }
@@ -288,8 +294,24 @@ fn draw_ground(canvas: &mut Canvas<'_>, view: &View, scene: &Scene) {
             continue;
         }
         let fog = (ahead / FOG_DISTANCE).powf(0.7);
-        // Road position of this row: the same marks come closer as the vehicle drives on.
-        let along = ahead + scene.travelled_m;
+        // Lateral position (right of the camera) of the road's centre line, and the road position of
+        // this row (the same marks come closer as the vehicle drives on). On the figure-eight the
+        // vehicle is in the right lane, weaving gently, and the road bends with the path's curvature.
+        let (center, along, lane_width) = match scene.world {
+            Some(world) => {
+                // Beyond the road the view holds, grass.
+                let Some((left, station)) = world.centre_line_at(ahead) else {
+                    canvas.span(y, 0, width, mix(pick(GRASS, false), HAZE, fog));
+                    continue;
+                };
+                (-left, station, world.lane_width_m)
+            }
+            None => (
+                -0.5 * LANE_WIDTH - weave - 0.5 * curvature * ahead * ahead,
+                ahead + scene.travelled_m,
+                LANE_WIDTH,
+            ),
+        };
         let stripe = (along / 4.0).floor().rem_euclid(2.0) >= 1.0;
         let grass = mix(pick(GRASS, stripe), HAZE, fog);
         let asphalt = mix(pick(ASPHALT, stripe), HAZE, fog);
@@ -300,11 +322,8 @@ fn draw_ground(canvas: &mut Canvas<'_>, view: &View, scene: &Scene) {
             asphalt
         };
 
-        // Lateral position (right of the camera) of the road's centre line: the vehicle is in the right
-        // lane, and the road bends with the path's curvature.
-        let center = -0.5 * LANE_WIDTH - weave - 0.5 * curvature * ahead * ahead;
-        let left = center - LANE_WIDTH;
-        let right = center + LANE_WIDTH;
+        let left = center - lane_width;
+        let right = center + lane_width;
         let edges = [
             (0, grass),
             (view.column(left, ahead), paint),
@@ -354,6 +373,42 @@ fn draw_lead_car(canvas: &mut Canvas<'_>, view: &View, scene: &Scene) {
         bottom,
         BLACK,
     );
+}
+
+/// A simulator's obstacles, farthest first so that nearer ones hide them: each a box seen from behind
+/// or the side, drawn as its silhouette.
+fn draw_obstacles(canvas: &mut Canvas<'_>, view: &View, world: &WorldView) {
+    let mut visible: Vec<_> = world.obstacles.iter().filter(|o| o.x > 1.0).collect();
+    visible.sort_by(|a, b| b.x.total_cmp(&a.x));
+    for obstacle in visible {
+        // The silhouette's half width across the line of sight.
+        let (sin, cos) = obstacle.yaw.sin_cos();
+        let half = 0.5 * (obstacle.width * cos.abs() + obstacle.length * sin.abs());
+        let near = obstacle.x - 0.5 * (obstacle.length * cos.abs() + obstacle.width * sin.abs());
+        let ahead = near.max(1.0);
+        let lateral = -obstacle.y;
+        let (x0, x1) = (
+            view.column(lateral - half, ahead),
+            view.column(lateral + half, ahead),
+        );
+        let (bottom, top) = (view.row(0.0, ahead), view.row(obstacle.height, ahead));
+        let (width, height) = (x1 - x0, bottom - top);
+        canvas.rect(x0, top, x1, bottom, CAR_BODY);
+        canvas.rect(
+            x0 + width / 10,
+            top + height / 8,
+            x1 - width / 10,
+            top + height * 4 / 9,
+            CAR_WINDOW,
+        );
+        canvas.rect(
+            x0 - width / 20,
+            bottom - height / 12,
+            x1 + width / 20,
+            bottom,
+            BLACK,
+        );
+    }
 }
 
 fn draw_color_bars(canvas: &mut Canvas<'_>, frame: u32) {

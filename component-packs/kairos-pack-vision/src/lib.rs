@@ -17,6 +17,7 @@
 //! | `vision.jpeg_encode` / `vision.jpeg_decode` | JPEG bytes and back |
 //! | `vision.from_yuv` / `vision.to_yuv` | raw YUYV and NV12 frames and back |
 //! | `vision.hough_lines` | straight segments in an edge mask |
+//! | `vision.lane_detector` | the ego lane's centre line, in the vehicle frame, from an edge mask |
 //! | `vision.overlay` | segments, boxes and a label drawn onto a copy |
 //!
 //! [`kernels`] holds the algorithms as pure functions on byte rows; the components take images apart
@@ -26,6 +27,7 @@ pub mod codecs;
 pub mod image_io;
 pub mod images;
 pub mod kernels;
+pub mod lanes;
 pub mod lines;
 
 use kairos_sdk::Registry;
@@ -52,5 +54,6 @@ pub fn register(registry: &mut Registry) {
         .component::<codecs::FromYuv>(codecs::FromYuv::info())
         .component::<codecs::ToYuv>(codecs::ToYuv::info())
         .component::<lines::HoughLines>(lines::HoughLines::info())
+        .component::<lanes::LaneDetector>(lanes::LaneDetector::info())
         .component::<lines::Overlay>(lines::Overlay::info());
 }

@@ -31,6 +31,7 @@ pub fn builtin_registry() -> Registry {
     kairos_pack_fusion::register(&mut registry);
     kairos_pack_link::register(&mut registry);
     kairos_pack_ros2::register(&mut registry);
+    kairos_pack_sim::register(&mut registry);
     registry
 }
 
