@@ -54,6 +54,61 @@ fn validate_reports_every_problem_with_its_place_and_a_fix() {
     );
 }
 
+/// A diagram where a simulator's speed feeds a gain that drives its throttle: a closed loop.
+fn closed_loop(sequential: bool, time_scale: f64, road: &str) -> String {
+    format!(
+        r#"Diagram(
+    format: 1,
+    packs: [Pack(name: "core", version: "^0.1"), Pack(name: "sim", version: "^0.1")],
+    clock_source: "vehicle",
+    sequential: {sequential},
+    components: [
+        Component(id: "vehicle", type: "sim.vehicle", properties: {{"time_scale": {time_scale:?}, "road": "{road}"}}),
+        Component(id: "gain", type: "core.gain"),
+        Component(id: "gain2", type: "core.gain"),
+    ],
+    connections: [
+        Connection(from: "vehicle.speed", to: "gain.in"),
+        Connection(from: "gain.out", to: "vehicle.throttle"),
+        Connection(from: "gain2.out", to: "gain2.in"),
+    ],
+)
+"#
+    )
+}
+
+#[test]
+fn a_simulator_s_loops_time_and_road_are_checked_before_anything_runs() {
+    let dir = tempfile::tempdir().unwrap();
+    let check = |name: &str, diagram: &str| {
+        let path = dir.path().join(name);
+        std::fs::write(&path, diagram).unwrap();
+        let output = kairos(dir.path(), &["validate", path.to_str().unwrap()]);
+        let (stdout, stderr) = text(&output);
+        (output.status.success(), format!("{stdout}{stderr}"))
+    };
+    // The loop through the simulator is allowed (it reads its commands at its ticks); the loop of a
+    // component into itself is not.
+    let (ok, said) = check("loop.ron", &closed_loop(true, 0.0, "straight 100"));
+    assert!(!ok, "{said}");
+    assert!(said.contains("'gain2' feeds itself"), "{said}");
+    assert!(!said.contains("'gain' and 'vehicle'"), "{said}");
+    assert!(!said.contains("'vehicle' and 'gain'"), "{said}");
+    // As fast as possible needs one thread for all.
+    let (ok, said) = check("threads.ron", &closed_loop(false, 0.0, "straight 100"));
+    assert!(!ok, "{said}");
+    assert!(said.contains("time_scale 0"), "{said}");
+    assert!(said.contains("add `sequential: true`"), "{said}");
+    // A road that does not read is reported on its property, with an example.
+    let (ok, said) = check("road.ron", &closed_loop(false, 1.0, "straight 100; left 200"));
+    assert!(!ok, "{said}");
+    assert!(
+        said.contains("segment 2 ('left 200'): the angle is missing"),
+        "{said}"
+    );
+    assert!(!said.contains("time_scale 0"), "{said}");
+}
+
 #[test]
 fn validate_accepts_several_files_and_fails_if_one_is_bad() {
     let dir = tempfile::tempdir().unwrap();

@@ -37,6 +37,8 @@ fn every_example_validates() {
         "subgraph/two_cameras",
         "ros2/record",
         "ros2/live",
+        "sim/lane_keeping",
+        "sim/gym_mountain_car",
     ] {
         let path = example(name);
         let output = kairos(&root, &["validate", path.to_str().unwrap()]);
@@ -444,6 +446,147 @@ fn run_to_csv(name: &str) -> (Vec<String>, Vec<Vec<String>>) {
     let (_, stderr) = text(&output);
     assert!(output.status.success(), "{stderr}");
     csv_rows(&csv)
+}
+
+/// Runs the lane-keeping showcase headless in simulated time as fast as it computes, its CSV in `csv`.
+fn lane_keeping_to(csv: &std::path::Path) -> String {
+    let set = format!("csv.path={}", csv.display());
+    let path = example("sim/lane_keeping");
+    let output = kairos(
+        &common::repo_root(),
+        &[
+            "run",
+            path.to_str().unwrap(),
+            "--set",
+            "vehicle.time_scale=0",
+            "--set",
+            &set,
+        ],
+    );
+    let (_, stderr) = text(&output);
+    assert!(output.status.success(), "{stderr}");
+    stderr
+}
+
+#[test]
+fn lane_keeping_in_closed_loop_holds_the_lane_centre_and_runs_the_same_twice() {
+    let dir = tempfile::tempdir().unwrap();
+    let (first, second) = (dir.path().join("first.csv"), dir.path().join("second.csv"));
+    let log = lane_keeping_to(&first);
+    assert!(log.contains("simulation over after 60.0 s"), "{log}");
+    assert!(log.contains("0 lane departures, 0 collisions"), "{log}");
+    assert!(!log.contains("failed"), "{log}");
+    let (header, rows) = csv_rows(&first);
+    assert_eq!(header.last().map(String::as_str), Some("value"), "{header:?}");
+    // 0 to 60 simulated seconds at the vehicle's 100 Hz, stamped in simulated time from its start time.
+    assert_eq!(rows.len(), 6001);
+    let stamps: Vec<i64> = rows.iter().map(|r| r[1].parse().unwrap()).collect();
+    assert_eq!(stamps[0], 1_767_225_600_000_000_000);
+    assert!(stamps.windows(2).all(|w| w[1] - w[0] == 10_000_000));
+    let errors: Vec<f64> = rows.iter().map(|r| r.last().unwrap().parse().unwrap()).collect();
+    let rms = (errors.iter().map(|e| e * e).sum::<f64>() / errors.len() as f64).sqrt();
+    let worst = errors.iter().fold(0.0_f64, |m, e| m.max(e.abs()));
+    assert!(rms <= 0.3, "lateral error RMS {rms:.3} m");
+    assert!(
+        worst < 0.85,
+        "largest lateral error {worst:.3} m: a wheel on the line"
+    );
+    // Simulated time in one thread: the same run again is the same file, byte for byte.
+    lane_keeping_to(&second);
+    assert_eq!(std::fs::read(&first).unwrap(), std::fs::read(&second).unwrap());
+}
+
+#[test]
+fn a_simulator_from_pypi_is_driven_by_a_policy_to_the_hilltop() {
+    let dir = tempfile::tempdir().unwrap();
+    let csv = dir.path().join("mountain_car.csv");
+    let set = format!("csv.path={}", csv.display());
+    let path = example("sim/gym_mountain_car");
+    let output = kairos(
+        dir.path(),
+        &["run", path.to_str().unwrap(), "--for", "8s", "--set", &set],
+    );
+    let (_, stderr) = text(&output);
+    assert!(output.status.success(), "{stderr}");
+    // The textbook policy reaches the goal in about 80 to 110 steps: at 30 steps a second, twice at least.
+    assert!(stderr.contains("episode 1: "), "{stderr}");
+    assert!(stderr.contains("terminated (goal reached)"), "{stderr}");
+    let (header, rows) = csv_rows(&csv);
+    let column = |name: &str| header.iter().position(|h| h == name).unwrap();
+    let (position, sim_time) = (column("in1.v0"), column("in2.value"));
+    let highest = rows
+        .iter()
+        .map(|r| r[position].parse::<f64>().unwrap())
+        .fold(f64::MIN, f64::max);
+    assert!(highest >= 0.45, "the car never reached the hilltop: {highest}");
+    // The environment's own time goes a step (1/30 s) a tick, beside the runtime clock's stamp.
+    let times: Vec<f64> = rows.iter().map(|r| r[sim_time].parse().unwrap()).collect();
+    assert!(times.len() > 150, "{} rows", times.len());
+    assert!(times.windows(2).all(|w| {
+        let steps = (w[1] - w[0]) * 30.0;
+        steps > 0.5 && (steps - steps.round()).abs() < 1e-6
+    }));
+}
+
+#[test]
+fn a_simulator_in_its_own_process_is_bridged_over_udp_in_lock_step_with_both_times() {
+    let dir = tempfile::tempdir().unwrap();
+    let csv = dir.path().join("bridge.csv");
+    let free = || {
+        std::net::UdpSocket::bind("127.0.0.1:0")
+            .unwrap()
+            .local_addr()
+            .unwrap()
+            .port()
+    };
+    let (to_diagram, to_simulator) = (format!("127.0.0.1:{}", free()), format!("127.0.0.1:{}", free()));
+    let path = example("sim/gym_over_udp");
+    let mut diagram = std::process::Command::new(env!("CARGO_BIN_EXE_kairos"))
+        .args(["run", path.to_str().unwrap(), "--for", "6s"])
+        .args(["--set", &format!("csv.path={}", csv.display())])
+        .args(["--set", &format!("from_sim.address={to_diagram}")])
+        .args(["--set", &format!("to_sim.destination={to_simulator}")])
+        .current_dir(dir.path())
+        .env("RUST_LOG", "info")
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let log = once_running(&mut diagram);
+    // The Python worker of the policy starts with the diagram; give it a moment before the first frame.
+    std::thread::sleep(std::time::Duration::from_secs(2));
+    let simulator = std::process::Command::new("python3")
+        .arg(common::repo_root().join("examples/sim/bridge/udp_mountain_car.py"))
+        .args(["--to", &to_diagram, "--listen", &to_simulator, "--episodes", "2"])
+        .output()
+        .unwrap();
+    let said = String::from_utf8_lossy(&simulator.stdout).into_owned();
+    let complaints = String::from_utf8_lossy(&simulator.stderr).into_owned();
+    assert!(simulator.status.success(), "{said}{complaints}");
+    assert_eq!(said.matches("terminated (goal reached)").count(), 2, "{said}");
+    let _ = diagram.wait();
+    let log = log.join().unwrap();
+    let (header, rows) = csv_rows(&csv);
+    assert_eq!(
+        &header[..4],
+        ["input", "timestamp_ns", "time_of_issue_ns", "sequence"],
+        "{log}"
+    );
+    assert!(rows.len() > 150, "{} rows: {log}", rows.len());
+    // Each observation keeps both times: the simulation's as its timestamp, a step (1/30 s) apart from a
+    // fixed start, and the wall clock's when it was sent as its time of issue.
+    for row in &rows {
+        let (stamp, issued, sequence): (i64, i64, i64) = (
+            row[1].parse().unwrap(),
+            row[2].parse().unwrap(),
+            row[3].parse().unwrap(),
+        );
+        assert_eq!(
+            stamp,
+            1_767_225_600_000_000_000 + sequence * 33_333_333,
+            "{row:?}"
+        );
+        assert!(issued > 1_790_000_000_000_000_000, "{row:?}");
+    }
 }
 
 #[test]
