@@ -347,11 +347,27 @@ fn draw_lead_car(canvas: &mut Canvas<'_>, view: &View, scene: &Scene) {
     let ahead = 20.0 + 8.0 * (0.23 * t).sin();
     let weave = 0.25 * (0.4 * t).sin();
     let lateral = -weave + 0.4 * (0.17 * t).sin() - 0.5 * scene.state.curvature() * ahead * ahead;
+    // Brake lights come on while the gap closes.
+    let light = pick(TAIL_LIGHT, (0.23 * t).cos() < 0.0);
+    draw_car(canvas, view, (lateral, 0.9), ahead, 1.5, Some(light));
+}
+
+/// A car's silhouette `ahead` metres away: body, rear window, shadow, and tail lights when given.
+/// `across` is its centre's position right of the camera axis and its half width, metres.
+fn draw_car(
+    canvas: &mut Canvas<'_>,
+    view: &View,
+    across: (f64, f64),
+    ahead: f64,
+    height_m: f64,
+    lights: Option<Rgb>,
+) {
+    let (lateral, half) = across;
     let (x0, x1) = (
-        view.column(lateral - 0.9, ahead),
-        view.column(lateral + 0.9, ahead),
+        view.column(lateral - half, ahead),
+        view.column(lateral + half, ahead),
     );
-    let (bottom, top) = (view.row(0.0, ahead), view.row(1.5, ahead));
+    let (bottom, top) = (view.row(0.0, ahead), view.row(height_m, ahead));
     let (width, height) = (x1 - x0, bottom - top);
     canvas.rect(x0, top, x1, bottom, CAR_BODY);
     canvas.rect(
@@ -361,11 +377,11 @@ fn draw_lead_car(canvas: &mut Canvas<'_>, view: &View, scene: &Scene) {
         top + height * 4 / 9,
         CAR_WINDOW,
     );
-    // Brake lights come on while the gap closes.
-    let light = pick(TAIL_LIGHT, (0.23 * t).cos() < 0.0);
-    let (light_top, light_bottom) = (top + height * 3 / 5, top + height * 3 / 4);
-    canvas.rect(x0 + width / 20, light_top, x0 + width / 4, light_bottom, light);
-    canvas.rect(x1 - width / 4, light_top, x1 - width / 20, light_bottom, light);
+    if let Some(light) = lights {
+        let (light_top, light_bottom) = (top + height * 3 / 5, top + height * 3 / 4);
+        canvas.rect(x0 + width / 20, light_top, x0 + width / 4, light_bottom, light);
+        canvas.rect(x1 - width / 4, light_top, x1 - width / 20, light_bottom, light);
+    }
     canvas.rect(
         x0 - width / 20,
         bottom - height / 12,
@@ -385,28 +401,13 @@ fn draw_obstacles(canvas: &mut Canvas<'_>, view: &View, world: &WorldView) {
         let (sin, cos) = obstacle.yaw.sin_cos();
         let half = 0.5 * (obstacle.width * cos.abs() + obstacle.length * sin.abs());
         let near = obstacle.x - 0.5 * (obstacle.length * cos.abs() + obstacle.width * sin.abs());
-        let ahead = near.max(1.0);
-        let lateral = -obstacle.y;
-        let (x0, x1) = (
-            view.column(lateral - half, ahead),
-            view.column(lateral + half, ahead),
-        );
-        let (bottom, top) = (view.row(0.0, ahead), view.row(obstacle.height, ahead));
-        let (width, height) = (x1 - x0, bottom - top);
-        canvas.rect(x0, top, x1, bottom, CAR_BODY);
-        canvas.rect(
-            x0 + width / 10,
-            top + height / 8,
-            x1 - width / 10,
-            top + height * 4 / 9,
-            CAR_WINDOW,
-        );
-        canvas.rect(
-            x0 - width / 20,
-            bottom - height / 12,
-            x1 + width / 20,
-            bottom,
-            BLACK,
+        draw_car(
+            canvas,
+            view,
+            (-obstacle.y, half),
+            near.max(1.0),
+            obstacle.height,
+            None,
         );
     }
 }

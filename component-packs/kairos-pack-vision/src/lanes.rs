@@ -167,15 +167,8 @@ impl Component for LaneDetector {
         let settings = Settings::read(ctx)?;
         let sample = ctx.read("in")?;
         let view = grey_view(image_of(&sample, "in")?, WHAT)?;
-        let packed: Vec<u8>;
-        let mask = if let Some(pixels) = view.pixels() {
-            pixels
-        } else {
-            packed = (0..view.height)
-                .flat_map(|y| view.row(y).iter().copied())
-                .collect();
-            &packed
-        };
+        let packed = view.contiguous();
+        let mask: &[u8] = &packed;
         let camera = Camera::new(view.width, view.height, &settings);
         let [left, right] = if view.width > 0 && mask.len() >= view.width * view.height {
             detect(mask, view.width, view.height, &camera, &settings)

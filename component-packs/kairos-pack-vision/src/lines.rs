@@ -104,15 +104,8 @@ impl Component for HoughLines {
         let top = ctx.f64_property("top")?.clamp(0.0, 1.0);
         let sample = ctx.read("in")?;
         let view = grey_view(image_of(&sample, "in")?, "vision.hough_lines")?;
-        let packed: Vec<u8>;
-        let mask = if let Some(pixels) = view.pixels() {
-            pixels
-        } else {
-            packed = (0..view.height)
-                .flat_map(|y| view.row(y).iter().copied())
-                .collect();
-            &packed
-        };
+        let packed = view.contiguous();
+        let mask: &[u8] = &packed;
         let first_row = (view.height as f64 * top) as usize;
         let segments = find_lines(mask, view.width, view.height, first_row, &search);
         let matrix = Matrix {

@@ -111,6 +111,12 @@ pub trait Clock: Send + Sync + fmt::Debug {
         None
     }
 
+    /// Holds the clock still (`true`) or lets it go on (`false`), for a clock that stops with the diagram:
+    /// simulated time stands still while the diagram is paused. Real time goes on; the default ignores it.
+    fn hold(&self, held: bool) {
+        let _ = held;
+    }
+
     /// Whether waiting on the clock takes no real time: it jumps to the deadline (simulated time run as
     /// fast as possible). A thread with nothing to do until a deadline then waits on the clock rather
     /// than sleeping.
@@ -200,6 +206,8 @@ pub struct SimulatedClock {
     /// At time scale 0: simulated nanoseconds since the epoch, moved by waits.
     jumped_nanos: AtomicI64,
     started: Instant,
+    /// Real time the clock was held still: the spans before, and since when it is held now.
+    held: std::sync::Mutex<(Duration, Option<Instant>)>,
 }
 
 impl SimulatedClock {
@@ -215,7 +223,20 @@ impl SimulatedClock {
             },
             jumped_nanos: AtomicI64::new(0),
             started: Instant::now(),
+            held: std::sync::Mutex::new((Duration::ZERO, None)),
         }
+    }
+
+    /// Real time since the start, less the time held still.
+    fn running_time(&self) -> Duration {
+        let now = Instant::now();
+        let (before, since) = *self
+            .held
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        let holding = since.map_or(Duration::ZERO, |since| now.saturating_duration_since(since));
+        now.saturating_duration_since(self.started)
+            .saturating_sub(before + holding)
     }
 
     /// Simulated seconds per real second; 0 when it runs as fast as possible.
@@ -233,7 +254,7 @@ impl Clock for SimulatedClock {
                     .saturating_add(self.jumped_nanos.load(Ordering::Acquire)),
             );
         }
-        let elapsed = self.started.elapsed().as_secs_f64() * self.time_scale;
+        let elapsed = self.running_time().as_secs_f64() * self.time_scale;
         Timestamp(self.epoch.0.saturating_add((elapsed * 1e9) as i64))
     }
 
@@ -272,6 +293,21 @@ impl Clock for SimulatedClock {
 
     fn jumps(&self) -> bool {
         self.time_scale == 0.0
+    }
+
+    fn hold(&self, held: bool) {
+        let mut state = self
+            .held
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        match (held, state.1) {
+            (true, None) => state.1 = Some(Instant::now()),
+            (false, Some(since)) => {
+                state.0 += since.elapsed();
+                state.1 = None;
+            }
+            _ => {}
+        }
     }
 }
 
@@ -322,5 +358,55 @@ impl Clock for ManualClock {
 
     fn jumps(&self) -> bool {
         true
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const EPOCH: Timestamp = Timestamp(1_767_225_600_000_000_000);
+
+    #[test]
+    fn simulated_time_as_fast_as_possible_jumps_to_each_deadline_and_never_back() {
+        let clock = SimulatedClock::new(EPOCH, 0.0);
+        let signal = RunSignal::new();
+        assert!(clock.jumps());
+        assert_eq!(clock.now(), EPOCH);
+        let later = EPOCH.after(Duration::from_hours(1));
+        let started = Instant::now();
+        assert!(clock.wait_until(later, &signal));
+        assert!(
+            started.elapsed() < Duration::from_millis(100),
+            "no real time spent"
+        );
+        assert_eq!(clock.now(), later);
+        assert!(clock.wait_until(EPOCH, &signal));
+        assert_eq!(clock.now(), later, "never backwards");
+    }
+
+    #[test]
+    fn simulated_time_at_a_scale_runs_that_much_faster_and_stands_still_when_held() {
+        let clock = SimulatedClock::new(EPOCH, 10.0);
+        assert!(!clock.jumps());
+        std::thread::sleep(Duration::from_millis(50));
+        let first = clock.now().nanos_since(EPOCH);
+        assert!(first >= 500_000_000, "{first} ns after 50 ms at 10×");
+        clock.hold(true);
+        let held = clock.now();
+        std::thread::sleep(Duration::from_millis(50));
+        assert!(clock.now().nanos_since(held) < 20_000_000, "held still");
+        clock.hold(false);
+        std::thread::sleep(Duration::from_millis(20));
+        assert!(clock.now() > held);
+        // Waiting for a simulated second takes a tenth of one.
+        let deadline = clock.now().after(Duration::from_secs(1));
+        let started = Instant::now();
+        assert!(clock.wait_until(deadline, &RunSignal::new()));
+        let waited = started.elapsed();
+        assert!(
+            waited >= Duration::from_millis(90) && waited < Duration::from_millis(600),
+            "{waited:?}"
+        );
     }
 }

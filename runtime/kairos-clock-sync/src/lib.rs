@@ -605,6 +605,10 @@ impl Clock for NotedClock {
         self.inner.jumps()
     }
 
+    fn hold(&self, held: bool) {
+        self.inner.hold(held);
+    }
+
     fn status(&self) -> Option<ClockStatus> {
         self.inner.status().or_else(|| {
             self.master.then(|| ClockStatus {

@@ -972,6 +972,8 @@ impl Engine {
                     slot.monitor.set_state(ComponentState::Paused);
                 }
             }
+            // Simulated time stands still with the diagram.
+            self.clock.hold(true);
             self.state = EngineState::Paused;
         }
     }
@@ -979,6 +981,7 @@ impl Engine {
     /// Resumes after [`Engine::pause`].
     pub fn resume(&mut self) {
         if self.state == EngineState::Paused {
+            self.clock.hold(false);
             for slot in &self.slots {
                 slot.signal.set_paused(false);
                 if !slot.monitor.is_failed() && matches!(slot.driver, Driver::Reactive(_)) {

@@ -432,6 +432,30 @@ fn pause_holds_sources_and_resume_restarts_them() {
 }
 
 #[test]
+fn simulated_time_stands_still_while_the_diagram_is_paused() {
+    let d = diagram(
+        vec![component("sine", "core.sine", &[("rate", Value::F64(100.0))])],
+        vec![],
+    );
+    let start = kairos_sdk_core::Timestamp::from_secs_f64(1_767_225_600.0);
+    let clock: Arc<dyn kairos_sdk_core::Clock> = Arc::new(kairos_sdk_core::SimulatedClock::new(start, 1.0));
+    let mut engine = Engine::build(&d, &registry(), Arc::clone(&clock)).unwrap();
+    engine.start().unwrap();
+    sleep(Duration::from_millis(100));
+    engine.pause();
+    let paused = clock.now();
+    sleep(Duration::from_millis(300));
+    assert!(
+        clock.now().nanos_since(paused) < 50_000_000,
+        "simulated time went on while paused"
+    );
+    engine.resume();
+    sleep(Duration::from_millis(100));
+    assert!(clock.now().nanos_since(paused) >= 90_000_000, "and goes on after");
+    engine.stop();
+}
+
+#[test]
 fn an_invalid_diagram_is_refused_with_every_problem() {
     let d = diagram(
         vec![

@@ -74,6 +74,16 @@ impl<'a> View<'a> {
             .get(..self.row_bytes() * self.height)
             .filter(|_| self.is_packed())
     }
+
+    /// All pixels as one slice: borrowed when packed, else its rows copied together.
+    pub fn contiguous(&self) -> std::borrow::Cow<'a, [u8]> {
+        match self.pixels() {
+            Some(pixels) => std::borrow::Cow::Borrowed(pixels),
+            None => (0..self.height)
+                .flat_map(|y| self.row(y).iter().copied())
+                .collect(),
+        }
+    }
 }
 
 /// Row `y` reflected into `0..height` the way OpenCV's default border does (`gfedcb|abcdefgh|gfedcba`),
