@@ -39,6 +39,8 @@ fn every_example_validates() {
         "ros2/live",
         "sim/lane_keeping",
         "sim/gym_mountain_car",
+        "sim/all_sensors",
+        "sim/gym_over_udp",
     ] {
         let path = example(name);
         let output = kairos(&root, &["validate", path.to_str().unwrap()]);
