@@ -642,6 +642,17 @@ impl ComponentInfo {
         self.properties.iter().find(|p| p.name == name)
     }
 
+    /// The value of property `name` among an instance's `properties`, else its default.
+    pub fn property_value<'a>(
+        &'a self,
+        properties: &'a BTreeMap<String, Value>,
+        name: &str,
+    ) -> Option<&'a Value> {
+        properties
+            .get(name)
+            .or_else(|| self.property(name).map(|p| &p.default))
+    }
+
     /// The action with this name.
     pub fn action(&self, name: &str) -> Option<&ActionInfo> {
         self.actions.iter().find(|a| a.name == name)

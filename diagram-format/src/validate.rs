@@ -209,10 +209,8 @@ impl<'a> Validator<'a> {
     /// Simulated time as fast as possible jumps to each deadline: right for one thread running every
     /// component in turn, meaningless for threads that each wait on their own.
     fn check_simulated_time(&mut self, instance: &ComponentInstance, info: &ComponentInfo) {
-        let time_scale = instance
-            .properties
-            .get("time_scale")
-            .or_else(|| info.property("time_scale").map(|p| &p.default))
+        let time_scale = info
+            .property_value(&instance.properties, "time_scale")
             .and_then(Value::as_f64)
             .unwrap_or(0.0);
         if time_scale > 0.0 || self.diagram.sequential {

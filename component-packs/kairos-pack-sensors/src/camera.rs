@@ -150,9 +150,10 @@ impl Component for CameraSensor {
             return Ok(());
         };
         let state = *seen.state();
-        let (time_s, world) = match &seen {
-            Seen::Trajectory(_) => (state.time_s, None),
-            Seen::World(view) => (state.time_s, Some(&**view)),
+        let time_s = state.time_s;
+        let world = match &seen {
+            Seen::Trajectory(_) => None,
+            Seen::World(view) => Some(&**view),
         };
         // Distance driven, by the trapezoid rule between frames (the path has no closed-form length).
         if let Some((last_time, last_speed)) = self.last {

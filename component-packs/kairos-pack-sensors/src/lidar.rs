@@ -168,6 +168,7 @@ fn posts_along(view: &WorldView) -> Vec<Post> {
             state.position.y + sin * x + cos * y,
         )
     };
+    // As far beyond the road's edge as the figure-eight's posts stand beyond its 3.5 m lanes.
     let offset = view.lane_width_m + POST_OFFSET_M - 3.5;
     let mut posts = Vec::new();
     for pair in view.road.windows(2) {

@@ -388,10 +388,11 @@ impl SimVehicle {
         }
         self.departed = departed;
         let colliding = view.obstacles.iter().any(|o| {
-            // The vehicle's footprint against the box, both as circles along their lengths: close
-            // enough for a warning, exact for boxes side by side.
-            (o.x.abs() < 0.5 * o.length + FRONT_OVERHANG_M.max(REAR_OVERHANG_M))
-                && (o.y.abs() < 0.5 * o.width + HALF_WIDTH_M)
+            // The vehicle's footprint against the box, taken as aligned with the vehicle: exact for
+            // obstacles along the road, which is how they are placed.
+            o.x - 0.5 * o.length < FRONT_OVERHANG_M
+                && o.x + 0.5 * o.length > -REAR_OVERHANG_M
+                && o.y.abs() < 0.5 * o.width + HALF_WIDTH_M
         });
         if colliding && !self.colliding {
             self.collisions += 1;

@@ -356,12 +356,18 @@ impl Harness {
         }
     }
 
+    /// A sample pushed to an input the component does not have is an error of the next run.
+    fn refuse_unknown_inputs(&self) -> Result<(), HarnessError> {
+        match self.pending.iter().find(|(index, _)| *index == usize::MAX) {
+            Some((_, unknown)) => Err(HarnessError::UnknownInput(unknown.payload.to_string())),
+            None => Ok(()),
+        }
+    }
+
     /// Delivers every sample pushed since the last run, one at a time, and returns what the component
     /// wrote meanwhile.
     pub fn run(&mut self) -> Result<HarnessOutput, HarnessError> {
-        if let Some((_, unknown)) = self.pending.iter().find(|(index, _)| *index == usize::MAX) {
-            return Err(HarnessError::UnknownInput(unknown.payload.to_string()));
-        }
+        self.refuse_unknown_inputs()?;
         self.start()?;
         let Some(running) = self.running.as_mut() else {
             return Ok(HarnessOutput::default());
@@ -387,9 +393,7 @@ impl Harness {
     /// harness time, jumping the clock from tick to tick. Samples pushed meanwhile arrive at their
     /// timestamps: those due by a tick are on the inputs when it comes.
     pub fn run_periodic(&mut self, cycles: usize) -> Result<HarnessOutput, HarnessError> {
-        if let Some((_, unknown)) = self.pending.iter().find(|(index, _)| *index == usize::MAX) {
-            return Err(HarnessError::UnknownInput(unknown.payload.to_string()));
-        }
+        self.refuse_unknown_inputs()?;
         self.start()?;
         let Some(running) = self.running.as_mut() else {
             return Ok(HarnessOutput::default());

@@ -30,10 +30,7 @@ pub fn clock_for(diagram: &kairos_diagram::Diagram, registry: &Registry) -> Arc<
     match simulator {
         Some((instance, info)) => {
             let number = |name: &str| {
-                instance
-                    .properties
-                    .get(name)
-                    .or_else(|| info.property(name).map(|p| &p.default))
+                info.property_value(&instance.properties, name)
                     .and_then(kairos_diagram::Value::as_f64)
                     .unwrap_or(0.0)
             };
