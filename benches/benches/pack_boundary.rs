@@ -30,15 +30,15 @@ fn library_path() -> Option<PathBuf> {
         .find(|p| p.exists())
 }
 
-fn registries(library: &std::path::Path) -> Result<(Registry, Registry), String> {
+fn registries(
+    library: &std::path::Path,
+) -> Result<(Registry, Registry), kairos_runtime::pack_host::PackLoadError> {
     let mut built_in = Registry::new();
     kairos_pack_core::register(&mut built_in);
     kairos_pack_filters::register(&mut built_in);
     let mut loaded = Registry::new();
     kairos_pack_core::register(&mut loaded);
-    kairos_runtime::pack_host::load_pack(library)
-        .map_err(|e| e.to_string())?
-        .register(&mut loaded);
+    kairos_runtime::pack_host::load_pack(library)?.register(&mut loaded);
     Ok((built_in, loaded))
 }
 

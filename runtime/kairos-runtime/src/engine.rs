@@ -95,7 +95,7 @@ pub enum EngineState {
     Stopped,
 }
 
-type Reply = SyncSender<Result<(), String>>;
+type Reply = SyncSender<Result<(), ComponentError>>;
 
 enum ControlRequest {
     SetProperty {
@@ -198,13 +198,20 @@ impl Component for FailedConstruction {
 
 /// Runs one lifecycle call, turning a panic into an error so it never leaves the component.
 pub(crate) fn guarded(call: impl FnOnce() -> Result<(), ComponentError>) -> Result<(), ComponentError> {
-    match std::panic::catch_unwind(std::panic::AssertUnwindSafe(call)) {
-        Ok(result) => result,
-        Err(panic) => Err(ComponentError::Failed(format!(
-            "panicked: {}",
-            kairos_sdk_core::panic_message(panic.as_ref())
-        ))),
-    }
+    unwinding(call).unwrap_or_else(|panicked| Err(ComponentError::failed(panicked)))
+}
+
+/// A component's code that panicked: the component fails, whichever call it was.
+#[derive(Debug, thiserror::Error)]
+#[error("panicked: {0}")]
+pub(crate) struct Panicked(String);
+
+/// Calls a component's code, telling a panic apart from the error it returned.
+fn unwinding(
+    call: impl FnOnce() -> Result<(), ComponentError>,
+) -> Result<Result<(), ComponentError>, Panicked> {
+    std::panic::catch_unwind(std::panic::AssertUnwindSafe(call))
+        .map_err(|panic| Panicked(kairos_sdk_core::panic_message(panic.as_ref())))
 }
 
 /// Applies queued property changes and actions on the component's own thread.
@@ -221,34 +228,44 @@ pub(crate) fn apply_controls(
         match request {
             ControlRequest::SetProperty { name, value, reply } => {
                 let old = ctx.set_property(&name, value.clone());
-                let result = guarded(|| component.property_changed(&name, &value, ctx));
-                let answer = match result {
-                    Ok(()) => Ok(()),
-                    Err(error) => {
-                        if let Some(old) = old {
-                            ctx.set_property(&name, old);
-                        }
-                        if error.to_string().starts_with("panicked") {
-                            monitor.fail(id, "property_changed", &error.to_string());
-                            let _ = reply.try_send(Err(error.to_string()));
-                            return false;
-                        }
-                        Err(error.to_string())
-                    }
-                };
-                let _ = reply.try_send(answer);
-            }
-            ControlRequest::Action { name, reply } => {
-                let result = guarded(|| component.action(&name, ctx));
-                if let Err(error) = &result
-                    && error.to_string().starts_with("panicked")
+                let result = unwinding(|| component.property_changed(&name, &value, ctx));
+                if !matches!(result, Ok(Ok(())))
+                    && let Some(old) = old
                 {
-                    monitor.fail(id, "action", &error.to_string());
-                    let _ = reply.try_send(Err(error.to_string()));
+                    ctx.set_property(&name, old);
+                }
+                if !answer_control(id, "property_changed", result, &reply, monitor) {
                     return false;
                 }
-                let _ = reply.try_send(result.map_err(|e| e.to_string()));
             }
+            ControlRequest::Action { name, reply } => {
+                let result = unwinding(|| component.action(&name, ctx));
+                if !answer_control(id, "action", result, &reply, monitor) {
+                    return false;
+                }
+            }
+        }
+    }
+}
+
+/// Answers a control request with its outcome; a panic fails the component too. Returns whether the
+/// component may go on.
+fn answer_control(
+    id: &str,
+    call: &str,
+    result: Result<Result<(), ComponentError>, Panicked>,
+    reply: &Reply,
+    monitor: &Monitor,
+) -> bool {
+    match result {
+        Ok(answer) => {
+            let _ = reply.try_send(answer);
+            true
+        }
+        Err(panicked) => {
+            monitor.fail(id, call, &panicked.to_string());
+            let _ = reply.try_send(Err(ComponentError::failed(panicked)));
+            false
         }
     }
 }
@@ -269,9 +286,9 @@ const CLOCK_LOCK_WAIT: Duration = Duration::from_secs(10);
 /// The component's answer: waited for yielding the core for a while, then through `long_wait`, 2 s at
 /// most.
 fn wait_for_answer(
-    answer: &Receiver<Result<(), String>>,
+    answer: &Receiver<Result<(), ComponentError>>,
     long_wait: LongWait<'_>,
-) -> Result<Result<(), String>, RecvTimeoutError> {
+) -> Result<Result<(), ComponentError>, RecvTimeoutError> {
     let spinning = Instant::now();
     loop {
         match answer.try_recv() {
@@ -1162,7 +1179,7 @@ impl Engine {
         &self,
         slot: &Slot,
         request: ControlRequest,
-        answer: &Receiver<Result<(), String>>,
+        answer: &Receiver<Result<(), ComponentError>>,
         long_wait: LongWait<'_>,
     ) -> Result<(), ControlError> {
         let refused = |reason: String| ControlError::Refused {
@@ -1215,7 +1232,7 @@ impl Engine {
         }
         match wait_for_answer(answer, long_wait) {
             Ok(Ok(())) => Ok(()),
-            Ok(Err(reason)) => Err(refused(reason)),
+            Ok(Err(reason)) => Err(refused(reason.to_string())),
             Err(_) => Err(refused(
                 "no answer within 2 s (the component is busy in a long cycle); the request stays queued"
                     .to_owned(),

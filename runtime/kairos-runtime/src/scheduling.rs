@@ -30,42 +30,68 @@ pub fn apply_to_current_thread(component: &str, settings: &ThreadSettings) {
     }
 }
 
+/// Why the operating system did not give a thread the scheduling asked for.
+#[derive(Debug, thiserror::Error)]
+enum SchedulingRefused {
+    /// A priority outside the real-time range (the text is the priority crate's).
+    #[error("priority {priority}: {reason}")]
+    PriorityOutOfRange { priority: u8, reason: String },
+    /// Most often a missing `CAP_SYS_NICE` or rtprio limit.
+    #[error("{0:?}")]
+    Priority(thread_priority::Error),
+    /// A CPU number beyond what the kernel's CPU set holds.
+    #[error("CPU {cpu}: {source}")]
+    Cpu { cpu: usize, source: nix::Error },
+    /// The kernel refused the set (CPUs offline or outside the cgroup's).
+    #[error("{0}")]
+    Affinity(nix::Error),
+    /// Not on this operating system.
+    #[allow(dead_code, reason = "only built off Linux")]
+    #[error("{0}")]
+    Unsupported(&'static str),
+}
+
 #[cfg(unix)]
-fn set_realtime_priority(priority: u8) -> Result<(), String> {
+fn set_realtime_priority(priority: u8) -> Result<(), SchedulingRefused> {
     use thread_priority::unix::{
         RealtimeThreadSchedulePolicy, ThreadSchedulePolicy, set_thread_priority_and_policy, thread_native_id,
     };
     use thread_priority::{ThreadPriority, ThreadPriorityValue};
-    let value =
-        ThreadPriorityValue::try_from(priority.min(99)).map_err(|e| format!("priority {priority}: {e}"))?;
+    let value = ThreadPriorityValue::try_from(priority.min(99))
+        .map_err(|reason| SchedulingRefused::PriorityOutOfRange { priority, reason })?;
     set_thread_priority_and_policy(
         thread_native_id(),
         ThreadPriority::Crossplatform(value),
         ThreadSchedulePolicy::Realtime(RealtimeThreadSchedulePolicy::Fifo),
     )
-    .map_err(|e| format!("{e:?}"))
+    .map_err(SchedulingRefused::Priority)
 }
 
 #[cfg(not(unix))]
-fn set_realtime_priority(_priority: u8) -> Result<(), String> {
-    Err("real-time priorities are supported on Linux only".to_owned())
+fn set_realtime_priority(_priority: u8) -> Result<(), SchedulingRefused> {
+    Err(SchedulingRefused::Unsupported(
+        "real-time priorities are supported on Linux only",
+    ))
 }
 
 #[cfg(target_os = "linux")]
-fn set_affinity(cpus: &[usize]) -> Result<(), String> {
+fn set_affinity(cpus: &[usize]) -> Result<(), SchedulingRefused> {
     use nix::sched::{CpuSet, sched_setaffinity};
     use nix::unistd::Pid;
     let mut set = CpuSet::new();
-    for cpu in cpus {
-        set.set(*cpu).map_err(|e| format!("CPU {cpu}: {e}"))?;
+    for &cpu in cpus {
+        set.set(cpu)
+            .map_err(|source| SchedulingRefused::Cpu { cpu, source })?;
     }
     // Pid 0 is the calling thread.
-    sched_setaffinity(Pid::from_raw(0), &set).map_err(|e| e.to_string())
+    sched_setaffinity(Pid::from_raw(0), &set).map_err(SchedulingRefused::Affinity)
 }
 
 #[cfg(not(target_os = "linux"))]
-fn set_affinity(_cpus: &[usize]) -> Result<(), String> {
-    Err("CPU affinity is supported on Linux only".to_owned())
+fn set_affinity(_cpus: &[usize]) -> Result<(), SchedulingRefused> {
+    Err(SchedulingRefused::Unsupported(
+        "CPU affinity is supported on Linux only",
+    ))
 }
 
 /// CPU time consumed by the calling thread, in nanoseconds (0 where unsupported).

@@ -62,6 +62,38 @@ fn fill(target: &mut [MaybeUninit<u8>], parts: &[&[u8]]) {
     }
 }
 
+/// Why an output cannot be published in shared memory: the client is told to use the socket transport.
+#[derive(Debug, thiserror::Error)]
+pub enum ShmError {
+    /// iceoryx2 could not make its node (no `/dev/shm`, out of descriptors).
+    #[error("cannot start iceoryx2: {0:?}")]
+    Node(iceoryx2::node::NodeCreationFailure),
+    /// The service's name is not one iceoryx2 accepts.
+    #[error("bad service name {service}: {reason:?}")]
+    ServiceName {
+        service: String,
+        reason: iceoryx2::service::service_name::ServiceNameError,
+    },
+    /// The service could not be opened or made (another of that name with other settings).
+    #[error("cannot create the service {service}: {reason:?}")]
+    Service {
+        service: String,
+        reason: iceoryx2::service::builder::publish_subscribe::PublishSubscribeOpenOrCreateError,
+    },
+    /// The publisher port could not be made.
+    #[error("cannot publish on {service}: {reason:?}")]
+    Publisher {
+        service: String,
+        reason: iceoryx2::port::publisher::PublisherCreateError,
+    },
+    /// The system would not give the publisher its thread.
+    #[error("cannot start a publisher thread: {0}")]
+    Thread(#[source] std::io::Error),
+    /// The publisher thread did not say it was ready in time.
+    #[error("iceoryx2 did not start in 10 s")]
+    NotReady,
+}
+
 /// Starts publishing `output`'s frames on the iceoryx2 service `service`; returns when the service is
 /// ready (or why it cannot be).
 pub fn publish(
@@ -72,21 +104,25 @@ pub fn publish(
     max_image_width: Option<u32>,
     pixels_in: PixelsIn,
     client: String,
-) -> Result<ShmPublication, String> {
+) -> Result<ShmPublication, ShmError> {
     let stop = Arc::new(AtomicBool::new(false));
     let stopping = Arc::clone(&stop);
-    let (ready_tx, ready_rx) = mpsc::channel::<Result<(), String>>();
+    let (ready_tx, ready_rx) = mpsc::channel::<Result<(), ShmError>>();
     let thread = std::thread::Builder::new()
         .name("k:shm".to_owned())
         .spawn(move || {
-            let setup = || -> Result<_, String> {
+            let setup = || -> Result<_, ShmError> {
                 let node = NodeBuilder::new()
                     .create::<ipc::Service>()
-                    .map_err(|e| format!("cannot start iceoryx2: {e:?}"))?;
-                let name: ServiceName = service
-                    .as_str()
-                    .try_into()
-                    .map_err(|e| format!("bad service name {service}: {e:?}"))?;
+                    .map_err(ShmError::Node)?;
+                let name: ServiceName =
+                    service
+                        .as_str()
+                        .try_into()
+                        .map_err(|reason| ShmError::ServiceName {
+                            service: service.clone(),
+                            reason,
+                        })?;
                 let port_factory = node
                     .service_builder(&name)
                     .publish_subscribe::<[u8]>()
@@ -95,14 +131,20 @@ pub fn publish(
                     .max_publishers(1)
                     .max_subscribers(4)
                     .open_or_create()
-                    .map_err(|e| format!("cannot create the service {service}: {e:?}"))?;
+                    .map_err(|reason| ShmError::Service {
+                        service: service.clone(),
+                        reason,
+                    })?;
                 let publisher = port_factory
                     .publisher_builder()
                     .initial_max_slice_len(64 * 1024)
                     .allocation_strategy(AllocationStrategy::PowerOfTwo)
                     .backpressure_strategy(BackpressureStrategy::DiscardData)
                     .create()
-                    .map_err(|e| format!("cannot publish on {service}: {e:?}"))?;
+                    .map_err(|reason| ShmError::Publisher {
+                        service: service.clone(),
+                        reason,
+                    })?;
                 Ok((node, port_factory, publisher))
             };
             let (_node, _port_factory, publisher) = match setup() {
@@ -148,13 +190,13 @@ pub fn publish(
                 }
             }
         })
-        .map_err(|e| format!("cannot start a publisher thread: {e}"))?;
+        .map_err(ShmError::Thread)?;
     match ready_rx.recv_timeout(Duration::from_secs(10)) {
         Ok(Ok(())) => Ok(ShmPublication {
             stop,
             thread: Some(thread),
         }),
         Ok(Err(error)) => Err(error),
-        Err(_) => Err("iceoryx2 did not start in 10 s".to_owned()),
+        Err(_) => Err(ShmError::NotReady),
     }
 }

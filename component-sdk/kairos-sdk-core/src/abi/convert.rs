@@ -194,11 +194,43 @@ pub fn sample_to_c(sample: &Sample, scratch: &mut Vec<u8>) -> KSample {
     k
 }
 
+/// Why a sample's C description is not a sample: the write (or read) across the pack boundary fails.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum ForeignSampleError {
+    /// `rows × cols` is not the number of values given.
+    #[error("matrix of {rows}x{cols} with {values} values")]
+    MatrixShape { rows: usize, cols: usize, values: usize },
+    /// Text must be UTF-8 on both sides.
+    #[error("text is not UTF-8: {0}")]
+    TextNotUtf8(std::str::Utf8Error),
+    /// A pixel format code this side does not know.
+    #[error("unknown pixel format {0}")]
+    UnknownPixelFormat(u32),
+    /// The image's geometry does not fit its pixels.
+    #[error(transparent)]
+    ImageSize(#[from] crate::payload::ImageSizeError),
+    /// Fewer floats than the points (and intensities) need.
+    #[error("point cloud of {points} points with {floats} floats")]
+    PointCloudShort { points: usize, floats: usize },
+    /// A remote request longer than a classic frame.
+    #[error("a remote request for {0} bytes")]
+    RemoteRequestLength(u32),
+    /// More data than a CAN FD frame holds.
+    #[error("CAN frame of {0} bytes")]
+    CanFrameLength(usize),
+    /// A custom type's name must be UTF-8: it is matched against descriptors.
+    #[error("custom type name is not UTF-8")]
+    CustomNameNotUtf8,
+    /// A payload kind code this side does not know (a newer pack).
+    #[error("unknown payload kind {0}")]
+    UnknownKind(u32),
+}
+
 /// Builds a sample from its C description, copying any borrowed bytes into memory of this side.
 ///
 /// # Safety
 /// `k.data` must point to `k.data_len` readable bytes and `k.type_name` must be valid, for the call.
-pub unsafe fn sample_from_c(k: &KSample) -> Result<Sample, String> {
+pub unsafe fn sample_from_c(k: &KSample) -> Result<Sample, ForeignSampleError> {
     let data: &[u8] = if k.data_len == 0 || k.data.is_null() {
         &[]
     } else {
@@ -215,34 +247,38 @@ pub unsafe fn sample_from_c(k: &KSample) -> Result<Sample, String> {
             let values = f64s_from(data);
             let (rows, cols) = (k.height as usize, k.width as usize);
             if rows * cols != values.len() {
-                return Err(format!("matrix of {rows}x{cols} with {} values", values.len()));
+                let values = values.len();
+                return Err(ForeignSampleError::MatrixShape { rows, cols, values });
             }
             Payload::Matrix(Arc::new(Matrix { rows, cols, values }))
         }
         kind::TEXT => Payload::Text(Arc::from(
-            std::str::from_utf8(data).map_err(|e| format!("text is not UTF-8: {e}"))?,
+            std::str::from_utf8(data).map_err(ForeignSampleError::TextNotUtf8)?,
         )),
         kind::BYTES => Payload::Bytes(Arc::from(data)),
         kind::IMAGE => {
             let format = pixel_format_from(k.pixel_format)
-                .ok_or_else(|| format!("unknown pixel format {}", k.pixel_format))?;
+                .ok_or(ForeignSampleError::UnknownPixelFormat(k.pixel_format))?;
             // The one copy across the boundary goes into a buffer that local viewers can map as it is.
             let mut pixels = crate::pixels::PixelsMut::new(data.len());
             pixels.copy_from_slice(data);
-            Payload::Image(
-                Image::with_stride(k.width, k.height, format, k.stride, pixels.freeze())
-                    .map_err(|e| e.to_string())?,
-            )
+            Payload::Image(Image::with_stride(
+                k.width,
+                k.height,
+                format,
+                k.stride,
+                pixels.freeze(),
+            )?)
         }
         kind::POINT_CLOUD => {
             let count = k.width as usize;
             let floats = f32s_from(data);
             let needed = count * if k.flags & 1 == 1 { 4 } else { 3 };
             if floats.len() < needed {
-                return Err(format!(
-                    "point cloud of {count} points with {} floats",
-                    floats.len()
-                ));
+                return Err(ForeignSampleError::PointCloudShort {
+                    points: count,
+                    floats: floats.len(),
+                });
             }
             let points = floats
                 .chunks_exact(3)
@@ -277,10 +313,9 @@ pub unsafe fn sample_from_c(k: &KSample) -> Result<Sample, String> {
                 u8::try_from(k.width)
                     .ok()
                     .and_then(|length| CanFrame::remote_request(id, extended, length))
-                    .ok_or_else(|| format!("a remote request for {} bytes", k.width))?
+                    .ok_or(ForeignSampleError::RemoteRequestLength(k.width))?
             } else {
-                CanFrame::new(id, extended, data)
-                    .ok_or_else(|| format!("CAN frame of {} bytes", data.len()))?
+                CanFrame::new(id, extended, data).ok_or(ForeignSampleError::CanFrameLength(data.len()))?
             };
             frame.fd |= k.flags & 2 != 0;
             Payload::CanFrame(frame)
@@ -291,13 +326,13 @@ pub unsafe fn sample_from_c(k: &KSample) -> Result<Sample, String> {
         }),
         kind::CUSTOM => {
             // SAFETY: guaranteed by the caller.
-            let name = unsafe { k.type_name.as_str() }.ok_or("custom type name is not UTF-8")?;
+            let name = unsafe { k.type_name.as_str() }.ok_or(ForeignSampleError::CustomNameNotUtf8)?;
             Payload::Custom(CustomPayload {
                 type_name: Arc::from(name),
                 data: Arc::from(data),
             })
         }
-        other => return Err(format!("unknown payload kind {other}")),
+        other => return Err(ForeignSampleError::UnknownKind(other)),
     };
     Ok(Sample {
         payload,

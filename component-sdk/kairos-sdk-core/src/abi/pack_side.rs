@@ -85,7 +85,7 @@ impl RemotePorts {
     fn receive(code: i32, described: &KSample) -> Result<Sample, ComponentError> {
         status_error(code, || "reading failed in the host".to_owned())?;
         // SAFETY: the host filled `described` with bytes it keeps alive until our next read of this input.
-        unsafe { sample_from_c(described) }.map_err(ComponentError::Failed)
+        unsafe { sample_from_c(described) }.map_err(ComponentError::failed)
     }
 }
 

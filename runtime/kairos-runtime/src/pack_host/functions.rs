@@ -154,7 +154,7 @@ unsafe extern "C" fn host_write(
             Ok(decoded) => decoded,
             Err(message) => {
                 // SAFETY: the pack passes a valid error buffer for the call.
-                unsafe { write_error(error, &message) };
+                unsafe { write_error(error, &message.to_string()) };
                 return status::FAILED;
             }
         };

@@ -15,7 +15,7 @@ use kairos_sdk_core::{
 };
 
 use super::ComponentSpec;
-use super::wire::{self, Connection, Fields, ImagePixels, SentPixels, Written};
+use super::wire::{self, Connection, Fields, ImagePixels, SentPixels, WireError, Written};
 use super::worker::Worker;
 
 /// How long a component that was asked to stop may take to leave Python before its process is ended.
@@ -423,7 +423,7 @@ impl Session {
         request: u8,
         body: &[u8],
         served: &mut Served<'_>,
-    ) -> Result<(), String> {
+    ) -> Result<(), WireError> {
         let mut fields = Fields::new(body);
         // Requests that want an answer get the refused write's error instead, so the Python code stops there.
         if matches!(request, b'r' | b'y' | b'z' | b'a' | b'u' | b'p')
@@ -449,7 +449,7 @@ impl Session {
                     let written = match payload {
                         Ok(payload) if has_timestamp => ctx.write_at(output, payload, Timestamp(timestamp)),
                         Ok(payload) => ctx.write(output, payload),
-                        Err(reason) => Err(ComponentError::failed(reason)),
+                        Err(unusable) => Err(ComponentError::failed(unusable)),
                     };
                     if let Err(error) = written {
                         let name = ctx.outputs().get(output).map_or("?", |o| o.name());
@@ -489,11 +489,9 @@ impl Session {
                 self.connection().send(b'v', &[stop]);
             }
             b'g' => {
-                *served.python_status = Some(
-                    serde_json::from_slice(body).map_err(|e| format!("a status that is not JSON: {e}"))?,
-                );
+                *served.python_status = Some(serde_json::from_slice(body).map_err(WireError::StatusNotJson)?);
             }
-            other => return Err(format!("an unknown request '{}'", char::from(other))),
+            other => return Err(WireError::UnknownRequest(other)),
         }
         Ok(())
     }
@@ -505,7 +503,7 @@ impl Session {
         request: u8,
         fields: &mut Fields<'_>,
         stats: &mut ImageStats,
-    ) -> Result<(), String> {
+    ) -> Result<(), WireError> {
         match request {
             b'r' => {
                 let blocking = fields.u8("a read")? == 0;
@@ -704,13 +702,13 @@ impl Session {
         self.connection().send(b'b', &answer);
     }
 
-    /// The payload of a write: `Err(String)` outside when the frame is malformed, `Ok(Err)` when the
-    /// payload cannot be made (an image whose geometry does not fit its pixels).
+    /// The payload of a write: `Err` outside when the frame is malformed, `Ok(Err)` when the payload
+    /// cannot be made (an image whose geometry does not fit its pixels).
     fn written_payload(
         &mut self,
         fields: &mut Fields<'_>,
         stats: &mut ImageStats,
-    ) -> Result<Result<Payload, String>, String> {
+    ) -> Result<Result<Payload, UnusableImage>, WireError> {
         let image = match wire::decode_payload(fields)? {
             Written::Payload(payload) => return Ok(Ok(payload)),
             Written::Image(image) => image,
@@ -723,12 +721,10 @@ impl Session {
             }
             ImagePixels::Allocated { handle, copied } => {
                 let Some(at) = self.allocated.iter().position(|(h, _)| *h == handle) else {
-                    return Ok(Err(format!(
-                        "image buffer {handle} is not one the runtime allocated (or was already written)"
-                    )));
+                    return Ok(Err(UnusableImage::NotAllocated(handle)));
                 };
                 let Some((_, pixels)) = self.allocated.remove(at) else {
-                    return Ok(Err("image buffer lost".to_owned()));
+                    return Ok(Err(UnusableImage::BufferLost));
                 };
                 if copied {
                     stats.copied_bytes += pixels.len() as u64;
@@ -738,21 +734,36 @@ impl Session {
             ImagePixels::Held(handle) => match self.held.get(&handle).map(|s| &s.payload) {
                 Some(Payload::Image(held)) => held.pixels.clone(),
                 _ => {
-                    return Ok(Err(format!(
-                        "input image {handle} is no longer held for this component"
-                    )));
+                    return Ok(Err(UnusableImage::NoLongerHeld(handle)));
                 }
             },
         };
         Ok(
             Image::with_stride(image.width, image.height, image.format, image.stride, pixels)
                 .map(Payload::Image)
-                .map_err(|e| e.to_string()),
+                .map_err(UnusableImage::Size),
         )
     }
 }
 
-fn indices(fields: &mut Fields<'_>) -> Result<Vec<usize>, String> {
+/// Why an image a worker wrote cannot be made into a sample: the write is refused, the worker goes on.
+#[derive(Debug, thiserror::Error)]
+enum UnusableImage {
+    /// A handle the runtime never gave, or whose buffer was already written.
+    #[error("image buffer {0} is not one the runtime allocated (or was already written)")]
+    NotAllocated(u64),
+    /// The buffer was found and then could not be taken.
+    #[error("image buffer lost")]
+    BufferLost,
+    /// An input's image released before it was written on.
+    #[error("input image {0} is no longer held for this component")]
+    NoLongerHeld(u64),
+    /// The geometry does not fit the pixels.
+    #[error(transparent)]
+    Size(#[from] kairos_sdk_core::payload::ImageSizeError),
+}
+
+fn indices(fields: &mut Fields<'_>) -> Result<Vec<usize>, WireError> {
     let count = fields.u16("a list of inputs")?;
     (0..count)
         .map(|_| fields.u16("a list of inputs").map(usize::from))

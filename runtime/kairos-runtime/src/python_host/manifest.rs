@@ -64,11 +64,73 @@ pub struct PythonPackSpec {
     pub modules: Vec<PathBuf>,
 }
 
+/// Why a Python pack's manifest refuses the pack; each names the manifest and, where it can, the fix.
+#[derive(Debug, thiserror::Error)]
+pub enum ManifestError {
+    /// The file could not be read.
+    #[error("cannot read {}: {source}", .path.display())]
+    Read { path: PathBuf, source: std::io::Error },
+    /// Not TOML, or not the manifest's sections and keys.
+    #[error("{}: {source}", .path.display())]
+    Toml { path: PathBuf, source: toml::de::Error },
+    /// The name becomes the first half of every component's type, so it must be an identifier.
+    #[error("{}: pack name '{name}' must be letters, digits and '_', starting with a letter", .path.display())]
+    BadName { path: PathBuf, name: String },
+    /// The version is compared when packs are shipped and listed.
+    #[error("{}: version '{version}' is not a semantic version (write it as 1.2.3)", .path.display())]
+    BadVersion { path: PathBuf, version: String },
+    /// The interpreter cannot be found; `fix` says what to change, after where its name came from.
+    #[error("pack '{pack}' ({}): {reason}; {fix}", .path.display())]
+    Interpreter {
+        pack: String,
+        path: PathBuf,
+        reason: InterpreterError,
+        fix: &'static str,
+    },
+    /// The component files cannot be found.
+    #[error("{}: {reason}", .path.display())]
+    Modules { path: PathBuf, reason: ModulesError },
+}
+
+/// Why an interpreter's name stands for no interpreter.
+#[derive(Debug, thiserror::Error)]
+pub enum InterpreterError {
+    /// A bare command searched on the `PATH`, not found there.
+    #[error("the Python interpreter '{0}' is not on the PATH")]
+    NotOnPath(String),
+    /// A folder named as a virtual environment that has no interpreter.
+    #[error("'{}' is a folder without bin/python3: not a virtual environment", .0.display())]
+    NotAVirtualEnvironment(PathBuf),
+    /// A path to nothing.
+    #[error("the Python interpreter '{}' does not exist", .0.display())]
+    Missing(PathBuf),
+}
+
+/// Why a pack's component files cannot be listed.
+#[derive(Debug, thiserror::Error)]
+pub enum ModulesError {
+    /// A file `modules` lists is not there.
+    #[error("module '{0}' listed under [python] is not in the pack's folder")]
+    NotInFolder(String),
+    /// The folder could not be listed.
+    #[error("cannot read the pack's folder: {0}")]
+    Folder(#[source] std::io::Error),
+    /// A pack with no component file offers nothing; most likely the wrong folder.
+    #[error("the pack's folder holds no .py file")]
+    NoPythonFile,
+}
+
 /// Reads `folder/kairos-pack.toml`; every error names the file and, where it can, the fix.
-pub fn read(folder: &Path) -> Result<PythonPackSpec, String> {
+pub fn read(folder: &Path) -> Result<PythonPackSpec, ManifestError> {
     let path = folder.join(MANIFEST);
-    let text = std::fs::read_to_string(&path).map_err(|e| format!("cannot read {}: {e}", path.display()))?;
-    let manifest: Manifest = toml::from_str(&text).map_err(|e| format!("{}: {e}", path.display()))?;
+    let text = match std::fs::read_to_string(&path) {
+        Ok(text) => text,
+        Err(source) => return Err(ManifestError::Read { path, source }),
+    };
+    let manifest: Manifest = match toml::from_str(&text) {
+        Ok(manifest) => manifest,
+        Err(source) => return Err(ManifestError::Toml { path, source }),
+    };
     let name = &manifest.pack.name;
     let valid_name = name
         .chars()
@@ -76,23 +138,31 @@ pub fn read(folder: &Path) -> Result<PythonPackSpec, String> {
         .is_some_and(|c| c.is_ascii_alphabetic() || c == '_')
         && name.chars().all(|c| c.is_ascii_alphanumeric() || c == '_');
     if !valid_name {
-        return Err(format!(
-            "{}: pack name '{name}' must be letters, digits and '_', starting with a letter",
-            path.display()
-        ));
+        let name = name.clone();
+        return Err(ManifestError::BadName { path, name });
     }
     if semver::Version::parse(&manifest.pack.version).is_err() {
-        return Err(format!(
-            "{}: version '{}' is not a semantic version (write it as 1.2.3)",
-            path.display(),
-            manifest.pack.version
-        ));
+        let version = manifest.pack.version.clone();
+        return Err(ManifestError::BadVersion { path, version });
     }
     let (interpreter_named, named_by) = choose_interpreter(folder, &manifest);
-    let interpreter = resolve_interpreter(folder, &interpreter_named)
-        .map_err(|reason| format!("pack '{name}' ({}): {reason}; {}", path.display(), named_by.fix()))?;
-    let modules = modules(folder, manifest.python.modules.as_deref())
-        .map_err(|reason| format!("{}: {reason}", path.display()))?;
+    let interpreter = match resolve_interpreter(folder, &interpreter_named) {
+        Ok(interpreter) => interpreter,
+        Err(reason) => {
+            let pack = name.clone();
+            let fix = named_by.fix();
+            return Err(ManifestError::Interpreter {
+                pack,
+                path,
+                reason,
+                fix,
+            });
+        }
+    };
+    let modules = match modules(folder, manifest.python.modules.as_deref()) {
+        Ok(modules) => modules,
+        Err(reason) => return Err(ManifestError::Modules { path, reason }),
+    };
     Ok(PythonPackSpec {
         folder: folder.to_owned(),
         manifest,
@@ -152,14 +222,14 @@ fn choose_interpreter(folder: &Path, manifest: &Manifest) -> (String, NamedBy) {
 
 /// The interpreter `named` stands for: a path from the pack's folder when one is there or `named` has a
 /// `/` (a virtual environment's folder gives its `bin/python3`), else a command searched on the `PATH`.
-pub fn resolve_interpreter(folder: &Path, named: &str) -> Result<PathBuf, String> {
+pub fn resolve_interpreter(folder: &Path, named: &str) -> Result<PathBuf, InterpreterError> {
     let path = folder.join(named);
     if !named.contains('/') && !path.exists() {
         let search = std::env::var_os("PATH").unwrap_or_default();
         return std::env::split_paths(&search)
             .map(|dir| dir.join(named))
             .find(|candidate| candidate.is_file())
-            .ok_or_else(|| format!("the Python interpreter '{named}' is not on the PATH"));
+            .ok_or_else(|| InterpreterError::NotOnPath(named.to_owned()));
     }
     if path.is_dir() {
         for inside in ["bin/python3", "bin/python"] {
@@ -167,37 +237,29 @@ pub fn resolve_interpreter(folder: &Path, named: &str) -> Result<PathBuf, String
                 return Ok(path.join(inside));
             }
         }
-        return Err(format!(
-            "'{}' is a folder without bin/python3: not a virtual environment",
-            path.display()
-        ));
+        return Err(InterpreterError::NotAVirtualEnvironment(path));
     }
     if !path.is_file() {
-        return Err(format!(
-            "the Python interpreter '{}' does not exist",
-            path.display()
-        ));
+        return Err(InterpreterError::Missing(path));
     }
     Ok(path)
 }
 
-fn modules(folder: &Path, listed: Option<&[String]>) -> Result<Vec<PathBuf>, String> {
+fn modules(folder: &Path, listed: Option<&[String]>) -> Result<Vec<PathBuf>, ModulesError> {
     let mut files = match listed {
         Some(listed) => {
             let mut files = Vec::new();
             for name in listed {
                 let file = folder.join(name);
                 if !file.is_file() {
-                    return Err(format!(
-                        "module '{name}' listed under [python] is not in the pack's folder"
-                    ));
+                    return Err(ModulesError::NotInFolder(name.clone()));
                 }
                 files.push(file);
             }
             files
         }
         None => std::fs::read_dir(folder)
-            .map_err(|e| format!("cannot read the pack's folder: {e}"))?
+            .map_err(ModulesError::Folder)?
             .filter_map(Result::ok)
             .map(|entry| entry.path())
             .filter(|path| path.is_file() && path.extension().is_some_and(|e| e == "py"))
@@ -205,7 +267,7 @@ fn modules(folder: &Path, listed: Option<&[String]>) -> Result<Vec<PathBuf>, Str
     };
     files.sort();
     if files.is_empty() {
-        return Err("the pack's folder holds no .py file".to_owned());
+        return Err(ModulesError::NoPythonFile);
     }
     Ok(files)
 }

@@ -97,7 +97,7 @@ pub fn load_python_pack(
     let spec = match manifest::read(folder) {
         Ok(spec) => spec,
         Err(reason) => {
-            refuse(refused, reason);
+            refuse(refused, reason.to_string());
             return None;
         }
     };
@@ -109,7 +109,7 @@ pub fn load_python_pack(
     let sdk = match sdk::sdk_folder() {
         Ok(sdk) => sdk,
         Err(reason) => {
-            refuse(refused, reason);
+            refuse(refused, reason.to_string());
             return None;
         }
     };
@@ -159,8 +159,44 @@ pub fn load_python_pack(
     Some(name)
 }
 
+/// Why a pack's files could not be described: the pack is refused with this.
+#[derive(Debug, thiserror::Error)]
+enum DescribeError {
+    /// The interpreter would not start.
+    #[error("cannot start the Python interpreter '{named}' ({}): {source}", .path.display())]
+    Start {
+        named: String,
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    /// Without threads draining its pipes a module printing a lot would block it.
+    #[error("cannot start a thread to read the interpreter's output: {0}")]
+    DrainThread(#[source] std::io::Error),
+    /// A module that never finishes importing would hold the runtime's start.
+    #[error("importing its modules took more than {} s; the pack's code hangs at import", DESCRIBE_TIMEOUT.as_secs())]
+    ImportHangs,
+    /// The interpreter's process could not be waited for.
+    #[error("waiting for the Python interpreter: {0}")]
+    Wait(#[source] std::io::Error),
+    /// It exited with an error: the last lines it wrote say why.
+    #[error("the Python interpreter '{named}' could not describe it ({status}): {tail}")]
+    Failed {
+        named: String,
+        status: std::process::ExitStatus,
+        tail: String,
+    },
+    /// Its answer was not the description's JSON: most likely a Python too old for the SDK.
+    #[error(
+        "the Python interpreter '{named}' gave an unreadable description ({source}); is it Python 3.9 or newer?"
+    )]
+    Unreadable {
+        named: String,
+        source: serde_json::Error,
+    },
+}
+
 /// Runs `python -m kairos_sdk.describe` on the pack's files.
-fn describe(spec: &manifest::PythonPackSpec, sdk: &Path) -> Result<Described, String> {
+fn describe(spec: &manifest::PythonPackSpec, sdk: &Path) -> Result<Described, DescribeError> {
     let interpreter = &spec.interpreter_named;
     let mut child = Command::new(&spec.interpreter)
         .args(["-m", "kairos_sdk.describe", &spec.manifest.pack.name])
@@ -171,11 +207,10 @@ fn describe(spec: &manifest::PythonPackSpec, sdk: &Path) -> Result<Described, St
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
         .spawn()
-        .map_err(|e| {
-            format!(
-                "cannot start the Python interpreter '{interpreter}' ({}): {e}",
-                spec.interpreter.display()
-            )
+        .map_err(|source| DescribeError::Start {
+            named: interpreter.clone(),
+            path: spec.interpreter.clone(),
+            source,
         })?;
     // Read both pipes while it runs: a module printing a lot must not block on a full pipe.
     let mut stdout = child.stdout.take();
@@ -202,9 +237,7 @@ fn describe(spec: &manifest::PythonPackSpec, sdk: &Path) -> Result<Described, St
         (Err(e), _) | (_, Err(e)) => {
             let _ = child.kill();
             let _ = child.wait();
-            return Err(format!(
-                "cannot start a thread to read the interpreter's output: {e}"
-            ));
+            return Err(DescribeError::DrainThread(e));
         }
     };
     let started = Instant::now();
@@ -214,13 +247,10 @@ fn describe(spec: &manifest::PythonPackSpec, sdk: &Path) -> Result<Described, St
             Ok(None) if started.elapsed() > DESCRIBE_TIMEOUT => {
                 let _ = child.kill();
                 let _ = child.wait();
-                return Err(format!(
-                    "importing its modules took more than {} s; the pack's code hangs at import",
-                    DESCRIBE_TIMEOUT.as_secs()
-                ));
+                return Err(DescribeError::ImportHangs);
             }
             Ok(None) => std::thread::sleep(Duration::from_millis(5)),
-            Err(error) => return Err(format!("waiting for the Python interpreter: {error}")),
+            Err(error) => return Err(DescribeError::Wait(error)),
         }
     };
     let out = out.join().unwrap_or_default();
@@ -234,12 +264,14 @@ fn describe(spec: &manifest::PythonPackSpec, sdk: &Path) -> Result<Described, St
             .into_iter()
             .rev()
             .collect();
-        return Err(format!(
-            "the Python interpreter '{interpreter}' could not describe it ({status}): {}",
-            tail.join(" | ")
-        ));
+        return Err(DescribeError::Failed {
+            named: interpreter.clone(),
+            status,
+            tail: tail.join(" | "),
+        });
     }
-    serde_json::from_str(&out).map_err(|e| {
-        format!("the Python interpreter '{interpreter}' gave an unreadable description ({e}); is it Python 3.9 or newer?")
+    serde_json::from_str(&out).map_err(|source| DescribeError::Unreadable {
+        named: interpreter.clone(),
+        source,
     })
 }

@@ -41,9 +41,27 @@ const FILES: [(&str, &str); 8] = [
     ),
 ];
 
+/// Why the Python SDK could not be written where workers import it from (a full or read-only cache).
+#[derive(Debug, Clone, thiserror::Error)]
+#[error("cannot write the Python SDK into {}{}", .folder.display(), .cause.as_ref().map(|e| format!(": {e}")).unwrap_or_default())]
+pub struct SdkUnwritable {
+    folder: PathBuf,
+    /// Shared: the first failure is kept and given to every pack that asks afterwards.
+    cause: Option<std::sync::Arc<std::io::Error>>,
+}
+
+impl SdkUnwritable {
+    fn at(folder: &Path) -> impl FnOnce(std::io::Error) -> SdkUnwritable + '_ {
+        move |error| SdkUnwritable {
+            folder: folder.to_owned(),
+            cause: Some(std::sync::Arc::new(error)),
+        }
+    }
+}
+
 /// The folder to put on `PYTHONPATH` (it holds `kairos_sdk/`), written on first use.
-pub fn sdk_folder() -> Result<&'static Path, String> {
-    static FOLDER: OnceLock<Result<PathBuf, String>> = OnceLock::new();
+pub fn sdk_folder() -> Result<&'static Path, SdkUnwritable> {
+    static FOLDER: OnceLock<Result<PathBuf, SdkUnwritable>> = OnceLock::new();
     FOLDER
         .get_or_init(write_once)
         .as_ref()
@@ -51,7 +69,7 @@ pub fn sdk_folder() -> Result<&'static Path, String> {
         .map_err(Clone::clone)
 }
 
-fn write_once() -> Result<PathBuf, String> {
+fn write_once() -> Result<PathBuf, SdkUnwritable> {
     // The folder is named by the contents, so two runtimes of different versions never share one.
     let mut hash: u64 = 0xcbf2_9ce4_8422_2325;
     for (name, text) in FILES {
@@ -72,11 +90,9 @@ fn write_once() -> Result<PathBuf, String> {
     // Written beside, then renamed into place: a runtime starting meanwhile never sees half a package.
     let partial = base.join(format!("{hash:016x}.{}", std::process::id()));
     let package = partial.join("kairos_sdk");
-    std::fs::create_dir_all(&package)
-        .map_err(|e| format!("cannot write the Python SDK into {}: {e}", package.display()))?;
+    std::fs::create_dir_all(&package).map_err(SdkUnwritable::at(&package))?;
     for (name, text) in FILES {
-        std::fs::write(package.join(name), text)
-            .map_err(|e| format!("cannot write the Python SDK into {}: {e}", package.display()))?;
+        std::fs::write(package.join(name), text).map_err(SdkUnwritable::at(&package))?;
     }
     if std::fs::rename(&partial, &folder).is_err() {
         // Another runtime put it there first.
@@ -85,7 +101,7 @@ fn write_once() -> Result<PathBuf, String> {
     if folder.join("kairos_sdk").join("__init__.py").is_file() {
         Ok(folder)
     } else {
-        Err(format!("cannot write the Python SDK into {}", folder.display()))
+        Err(SdkUnwritable { folder, cause: None })
     }
 }
 

@@ -132,6 +132,48 @@ impl Connection {
     }
 }
 
+/// Why a worker's frame is not one the worker protocol allows: the worker broke the protocol, and its
+/// component fails naming what was malformed.
+#[derive(Debug, thiserror::Error)]
+pub enum WireError {
+    /// The frame ended before the field being read.
+    #[error("the worker's frame ends inside {0}")]
+    EndsInside(&'static str),
+    /// A count of values whose bytes overflow the address space.
+    #[error("too many values")]
+    TooManyValues,
+    /// A matrix whose rows × columns overflow.
+    #[error("a matrix too large")]
+    MatrixTooLarge,
+    /// Text fields must be UTF-8.
+    #[error("{0} that is not UTF-8")]
+    NotUtf8(&'static str),
+    /// A payload tag this runtime does not know.
+    #[error("an unknown payload tag {0}")]
+    UnknownPayloadTag(u8),
+    /// A fix status beyond [`FixStatus::ALL`].
+    #[error("an unknown fix status")]
+    UnknownFixStatus,
+    /// A pixel format beyond [`PixelFormat::ALL`].
+    #[error("an unknown pixel format")]
+    UnknownPixelFormat,
+    /// An image's pixels in none of the places [`PIXELS_INLINE`], [`PIXELS_SHARED`], [`PIXELS_HELD`].
+    #[error("pixels in an unknown place {0}")]
+    UnknownPixelPlace(u8),
+    /// A remote request cannot ask for more than a classic frame holds.
+    #[error("a remote request for more than 8 bytes")]
+    RemoteRequestTooLong,
+    /// A CAN FD frame holds 64 bytes at most.
+    #[error("a CAN frame of more than 64 bytes")]
+    CanFrameTooLong,
+    /// A request kind this runtime does not know.
+    #[error("an unknown request '{}'", char::from(*.0))]
+    UnknownRequest(u8),
+    /// A status the worker published that is not JSON.
+    #[error("a status that is not JSON: {0}")]
+    StatusNotJson(#[source] serde_json::Error),
+}
+
 /// Reads fields off a frame's body in order; a frame that ends early is an error naming what was read.
 #[derive(Debug)]
 pub struct Fields<'a> {
@@ -143,61 +185,61 @@ impl<'a> Fields<'a> {
         Fields { data }
     }
 
-    pub fn bytes(&mut self, count: usize, what: &str) -> Result<&'a [u8], String> {
+    pub fn bytes(&mut self, count: usize, what: &'static str) -> Result<&'a [u8], WireError> {
         if self.data.len() < count {
-            return Err(format!("the worker's frame ends inside {what}"));
+            return Err(WireError::EndsInside(what));
         }
         let (head, rest) = self.data.split_at(count);
         self.data = rest;
         Ok(head)
     }
 
-    fn array<const N: usize>(&mut self, what: &str) -> Result<[u8; N], String> {
+    fn array<const N: usize>(&mut self, what: &'static str) -> Result<[u8; N], WireError> {
         let bytes = self.bytes(N, what)?;
         let mut array = [0_u8; N];
         array.copy_from_slice(bytes);
         Ok(array)
     }
 
-    pub fn u8(&mut self, what: &str) -> Result<u8, String> {
+    pub fn u8(&mut self, what: &'static str) -> Result<u8, WireError> {
         Ok(self.array::<1>(what)?[0])
     }
 
-    pub fn u16(&mut self, what: &str) -> Result<u16, String> {
+    pub fn u16(&mut self, what: &'static str) -> Result<u16, WireError> {
         Ok(u16::from_le_bytes(self.array(what)?))
     }
 
-    pub fn u32(&mut self, what: &str) -> Result<u32, String> {
+    pub fn u32(&mut self, what: &'static str) -> Result<u32, WireError> {
         Ok(u32::from_le_bytes(self.array(what)?))
     }
 
-    pub fn u64(&mut self, what: &str) -> Result<u64, String> {
+    pub fn u64(&mut self, what: &'static str) -> Result<u64, WireError> {
         Ok(u64::from_le_bytes(self.array(what)?))
     }
 
-    pub fn i64(&mut self, what: &str) -> Result<i64, String> {
+    pub fn i64(&mut self, what: &'static str) -> Result<i64, WireError> {
         Ok(i64::from_le_bytes(self.array(what)?))
     }
 
-    pub fn f64(&mut self, what: &str) -> Result<f64, String> {
+    pub fn f64(&mut self, what: &'static str) -> Result<f64, WireError> {
         Ok(f64::from_le_bytes(self.array(what)?))
     }
 
-    fn f32(&mut self, what: &str) -> Result<f32, String> {
+    fn f32(&mut self, what: &'static str) -> Result<f32, WireError> {
         Ok(f32::from_le_bytes(self.array(what)?))
     }
 
-    fn sized(&mut self, what: &str) -> Result<&'a [u8], String> {
+    fn sized(&mut self, what: &'static str) -> Result<&'a [u8], WireError> {
         let length = self.u32(what)? as usize;
         self.bytes(length, what)
     }
 
-    fn dvec3(&mut self, what: &str) -> Result<DVec3, String> {
+    fn dvec3(&mut self, what: &'static str) -> Result<DVec3, WireError> {
         Ok(DVec3::new(self.f64(what)?, self.f64(what)?, self.f64(what)?))
     }
 
-    fn floats(&mut self, count: usize, what: &str) -> Result<Vec<f64>, String> {
-        let bytes = self.bytes(count.checked_mul(8).ok_or("too many values")?, what)?;
+    fn floats(&mut self, count: usize, what: &'static str) -> Result<Vec<f64>, WireError> {
+        let bytes = self.bytes(count.checked_mul(8).ok_or(WireError::TooManyValues)?, what)?;
         Ok(bytes
             .chunks_exact(8)
             .map(|c| f64::from_le_bytes(c.try_into().unwrap_or_default()))
@@ -233,15 +275,14 @@ pub enum Written<'a> {
 }
 
 /// Decodes a payload of a write.
-pub fn decode_payload<'a>(fields: &mut Fields<'a>) -> Result<Written<'a>, String> {
+pub fn decode_payload<'a>(fields: &mut Fields<'a>) -> Result<Written<'a>, WireError> {
     let tag = fields.u8("the payload's tag")?;
     let payload = match tag {
         0 => Payload::F64(fields.f64("a float")?),
         1 => Payload::I64(fields.i64("an integer")?),
         2 => Payload::Bool(fields.u8("a boolean")? != 0),
         3 => {
-            let text = std::str::from_utf8(fields.sized("text")?)
-                .map_err(|_| "text that is not UTF-8".to_owned())?;
+            let text = std::str::from_utf8(fields.sized("text")?).map_err(|_| WireError::NotUtf8("text"))?;
             Payload::Text(text.into())
         }
         4 => Payload::Bytes(fields.sized("bytes")?.into()),
@@ -252,7 +293,10 @@ pub fn decode_payload<'a>(fields: &mut Fields<'a>) -> Result<Written<'a>, String
         6 => {
             let rows = fields.u32("a matrix's rows")? as usize;
             let cols = fields.u32("a matrix's columns")? as usize;
-            let values = fields.floats(rows.checked_mul(cols).ok_or("a matrix too large")?, "a matrix")?;
+            let values = fields.floats(
+                rows.checked_mul(cols).ok_or(WireError::MatrixTooLarge)?,
+                "a matrix",
+            )?;
             Payload::Matrix(std::sync::Arc::new(Matrix { rows, cols, values }))
         }
         7 => return decode_image(fields).map(Written::Image),
@@ -260,19 +304,19 @@ pub fn decode_payload<'a>(fields: &mut Fields<'a>) -> Result<Written<'a>, String
         13 => {
             let length = usize::from(fields.u16("a type name")?);
             let name = std::str::from_utf8(fields.bytes(length, "a type name")?)
-                .map_err(|_| "a type name that is not UTF-8".to_owned())?;
+                .map_err(|_| WireError::NotUtf8("a type name"))?;
             Payload::Custom(kairos_sdk_core::CustomPayload {
                 type_name: name.into(),
                 data: fields.sized("custom data")?.into(),
             })
         }
-        other => return Err(format!("an unknown payload tag {other}")),
+        other => return Err(WireError::UnknownPayloadTag(other)),
     };
     Ok(Written::Payload(payload))
 }
 
 /// The fixed records: point clouds, IMU readings, fixes, CAN frames, poses.
-fn decode_record(tag: u8, fields: &mut Fields<'_>) -> Result<Payload, String> {
+fn decode_record(tag: u8, fields: &mut Fields<'_>) -> Result<Payload, WireError> {
     Ok(match tag {
         8 => {
             let count = fields.u32("a point count")? as usize;
@@ -322,7 +366,7 @@ fn decode_record(tag: u8, fields: &mut Fields<'_>) -> Result<Payload, String> {
             ];
             let status = *FixStatus::ALL
                 .get(usize::from(fields.u8("a fix status")?))
-                .ok_or("an unknown fix status")?;
+                .ok_or(WireError::UnknownFixStatus)?;
             Payload::GnssFix(GnssFix {
                 latitude_deg: values[0],
                 longitude_deg: values[1],
@@ -338,11 +382,10 @@ fn decode_record(tag: u8, fields: &mut Fields<'_>) -> Result<Payload, String> {
             let flags = fields.u8("a CAN frame")?;
             let length = fields.u8("a CAN frame")?;
             let mut frame = if flags & 4 != 0 {
-                CanFrame::remote_request(id, flags & 1 != 0, length)
-                    .ok_or("a remote request for more than 8 bytes")?
+                CanFrame::remote_request(id, flags & 1 != 0, length).ok_or(WireError::RemoteRequestTooLong)?
             } else {
                 let data = fields.bytes(usize::from(length), "a CAN frame's data")?;
-                CanFrame::new(id, flags & 1 != 0, data).ok_or("a CAN frame of more than 64 bytes")?
+                CanFrame::new(id, flags & 1 != 0, data).ok_or(WireError::CanFrameTooLong)?
             };
             frame.fd |= flags & 2 != 0;
             Payload::CanFrame(frame)
@@ -360,17 +403,17 @@ fn decode_record(tag: u8, fields: &mut Fields<'_>) -> Result<Payload, String> {
                 orientation: DQuat::from_xyzw(q[0], q[1], q[2], q[3]),
             })
         }
-        _ => return Err(format!("an unknown payload tag {tag}")),
+        _ => return Err(WireError::UnknownPayloadTag(tag)),
     })
 }
 
-fn decode_image<'a>(fields: &mut Fields<'a>) -> Result<ImageFields<'a>, String> {
+fn decode_image<'a>(fields: &mut Fields<'a>) -> Result<ImageFields<'a>, WireError> {
     let width = fields.u32("an image")?;
     let height = fields.u32("an image")?;
     let stride = fields.u32("an image")?;
     let format = *PixelFormat::ALL
         .get(usize::from(fields.u8("an image's format")?))
-        .ok_or("an unknown pixel format")?;
+        .ok_or(WireError::UnknownPixelFormat)?;
     let pixels = match fields.u8("where an image's pixels are")? {
         PIXELS_INLINE => ImagePixels::Inline(fields.sized("an image's pixels")?),
         PIXELS_SHARED => ImagePixels::Allocated {
@@ -378,7 +421,7 @@ fn decode_image<'a>(fields: &mut Fields<'a>) -> Result<ImageFields<'a>, String> 
             copied: fields.u8("a buffer handle")? != 0,
         },
         PIXELS_HELD => ImagePixels::Held(fields.u64("a held sample's handle")?),
-        other => return Err(format!("pixels in an unknown place {other}")),
+        other => return Err(WireError::UnknownPixelPlace(other)),
     };
     Ok(ImageFields {
         width,

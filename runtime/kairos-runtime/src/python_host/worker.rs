@@ -108,6 +108,35 @@ fn spawn_with_death_signal(command: &mut Command) -> std::io::Result<Child> {
     command.spawn()
 }
 
+/// Why a worker could not be started: the component fails at its birth with this.
+#[derive(Debug, thiserror::Error)]
+pub enum WorkerStartError {
+    /// The socket the runtime and the worker talk over.
+    #[error("cannot make the worker's socket: {0}")]
+    Socket(#[source] std::io::Error),
+    /// The interpreter would not start (moved, not executable, out of processes).
+    #[error("cannot start the Python interpreter {}: {source}", .interpreter.display())]
+    Interpreter {
+        interpreter: std::path::PathBuf,
+        source: std::io::Error,
+    },
+    /// Without a thread draining its output the worker would block at its first long print.
+    #[error("cannot start the thread that logs the worker's output: {0}")]
+    LogThread(#[source] std::io::Error),
+    /// The socket that ends the monitor thread.
+    #[error("cannot make the monitor's socket: {0}")]
+    MonitorSocket(#[source] std::io::Error),
+    /// The monitor's copy of the worker's socket, on which it sees the worker hang up.
+    #[error("cannot watch the worker's socket: {0}")]
+    WatchSocket(#[source] std::io::Error),
+    /// The thread that wakes the component when the worker dies or a file changes.
+    #[error("cannot start the worker's monitor: {0}")]
+    MonitorThread(#[source] std::io::Error),
+    /// The socket could not be set up for framed reads.
+    #[error("cannot use the worker's socket: {0}")]
+    Connection(#[source] std::io::Error),
+}
+
 /// A running worker process.
 #[derive(Debug)]
 pub struct Worker {
@@ -123,9 +152,8 @@ pub struct Worker {
 
 impl Worker {
     /// Starts the worker of component `id` and its monitor, which wakes `signal`.
-    pub fn start(spec: &ComponentSpec, id: &str, signal: Arc<RunSignal>) -> Result<Worker, String> {
-        let (ours, theirs) =
-            UnixStream::pair().map_err(|e| format!("cannot make the worker's socket: {e}"))?;
+    pub fn start(spec: &ComponentSpec, id: &str, signal: Arc<RunSignal>) -> Result<Worker, WorkerStartError> {
+        let (ours, theirs) = UnixStream::pair().map_err(WorkerStartError::Socket)?;
         let mut command = Command::new(&spec.interpreter);
         command
             .args(["-m", "kairos_sdk.worker", "--component", id])
@@ -139,12 +167,11 @@ impl Worker {
             .stdin(Stdio::from(OwnedFd::from(theirs)))
             .stdout(Stdio::piped())
             .stderr(Stdio::piped());
-        let mut child = spawn_ended_with_this_process(command).map_err(|e| {
-            format!(
-                "cannot start the Python interpreter {}: {e}",
-                spec.interpreter.display()
-            )
-        })?;
+        let mut child =
+            spawn_ended_with_this_process(command).map_err(|source| WorkerStartError::Interpreter {
+                interpreter: spec.interpreter.clone(),
+                source,
+            })?;
         let pid = child.id();
         let stderr_tail = Arc::new(Mutex::new(VecDeque::new()));
         // A pipe nobody drains would block the worker at its first long print: without the thread that
@@ -168,25 +195,20 @@ impl Worker {
         if let Err(e) = logging {
             let _ = child.kill();
             let _ = child.wait();
-            return Err(format!(
-                "cannot start the thread that logs the worker's output: {e}"
-            ));
+            return Err(WorkerStartError::LogThread(e));
         }
         let watch = Arc::new(Watch::default());
-        let (quit_ours, quit_theirs) =
-            UnixStream::pair().map_err(|e| format!("cannot make the monitor's socket: {e}"))?;
-        let hang_up = ours
-            .try_clone()
-            .map_err(|e| format!("cannot watch the worker's socket: {e}"))?;
+        let (quit_ours, quit_theirs) = UnixStream::pair().map_err(WorkerStartError::MonitorSocket)?;
+        let hang_up = ours.try_clone().map_err(WorkerStartError::WatchSocket)?;
         let monitor = {
             let watch = Arc::clone(&watch);
             let folder = spec.folder.clone();
             std::thread::Builder::new()
                 .name(format!("{id} monitor"))
                 .spawn(move || monitor(&hang_up, &quit_theirs, &folder, &watch, &signal))
-                .map_err(|e| format!("cannot start the worker's monitor: {e}"))?
+                .map_err(WorkerStartError::MonitorThread)?
         };
-        let connection = Connection::new(ours).map_err(|e| format!("cannot use the worker's socket: {e}"))?;
+        let connection = Connection::new(ours).map_err(WorkerStartError::Connection)?;
         Ok(Worker {
             child,
             connection,
