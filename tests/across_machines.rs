@@ -1,5 +1,6 @@
 //! Hosts on separate network stacks (network namespaces joined by veth pairs, made by the test as root):
-//! a cut link reported and resumed, fusion over three hosts, and TLS between hosts.
+//! a cut link reported and resumed, fusion over three hosts, TLS between hosts, Zenoh partitions, thirty
+//! seconds without a network, a host killed and restarted while cut off, and the clock master killed.
 #![allow(
     clippy::unwrap_used,
     clippy::expect_used,
@@ -545,7 +546,7 @@ fn deploy_over_tls_trusts_the_named_certificate_and_refuses_another() {
 /// by `kairos deploy --for 90s`, its part started on both.
 struct TwoHostRun {
     /// Kept to the end: dropping them stops the servers and removes the folder.
-    _servers: (Server, Server),
+    servers: (Server, Server),
     _here: tempfile::TempDir,
     dir_a: tempfile::TempDir,
     dir_b: tempfile::TempDir,
@@ -603,7 +604,7 @@ impl TwoHostRun {
         wait_for_log(&log, "host 'b' started its part", Duration::from_secs(30));
         std::thread::sleep(Duration::from_secs(1));
         TwoHostRun {
-            _servers: (a, b),
+            servers: (a, b),
             _here: here,
             dir_a,
             dir_b,
@@ -812,4 +813,178 @@ fn thirty_seconds_without_a_network_leave_both_hosts_running_and_count_every_sam
     let missing = back.missing;
     assert!(missing > 1000, "only {missing} lost in 30 s kept for 5 s\n{said}");
     back.assert_every_missing_value_counted(50, &said);
+}
+
+#[test]
+fn a_host_killed_while_cut_off_and_restarted_gets_its_part_again_in_a_new_file_and_every_loss_is_counted() {
+    let _machine = whole_machine();
+    let Some(namespaces) = Namespaces::make() else {
+        return;
+    };
+    // A counter on host a, through host b (which writes what it gets) and back to a, nothing skipping.
+    let mut run = TwoHostRun::start(
+        &namespaces,
+        "",
+        r#"components: [
+            Component(id: "count", type: "core.counter", host: "a", properties: {"rate": 100.0}),
+            Component(id: "gain", type: "core.gain", host: "b", properties: {"gain": 1.0}),
+            Component(id: "csv_b", type: "core.csv_writer", host: "b", properties: {"path": "b.csv"}),
+            Component(id: "csv", type: "core.csv_writer", host: "a", properties: {"path": "back.csv"}),
+        ],
+        connections: [
+            Connection(from: "count.out", to: "gain.in", policy: NeverSkipping),
+            Connection(from: "gain.out", to: "csv_b.in1", policy: NeverSkipping),
+            Connection(from: "gain.out", to: "csv.in1", policy: NeverSkipping),
+        ]"#,
+    );
+    namespaces.set_link(false);
+    let reported = wait_for_log(&run.log, "host 'b' is lost", Duration::from_secs(3));
+    assert!(reported < Duration::from_secs(1), "reported after {reported:?}");
+    // While nobody can reach it, host b dies and is started again (a power cut, a watchdog).
+    let b = &mut run.servers.1;
+    let _ = b.child.kill();
+    let _ = b.child.wait();
+    let first_life = csv_values(&run.dir_b.path().join("b.csv"));
+    run.servers.1 = serve_in(
+        Some(&namespaces.names[1]),
+        run.dir_b.path(),
+        &format!("{}:7400", namespaces.address(2)),
+        &[],
+        &[],
+    );
+    std::thread::sleep(Duration::from_secs(2));
+    namespaces.set_link(true);
+    wait_for_log(&run.log, "host 'b' is back", Duration::from_secs(30));
+    wait_for_log(
+        &run.log,
+        "link count.out on host 'a' -> gain.in on host 'b' resumed",
+        Duration::from_secs(30),
+    );
+    std::thread::sleep(Duration::from_secs(2));
+    let (status, said) = run.stop();
+    assert!(status.success(), "{said}");
+    // Its part is deployed again, its first file kept whole, its second life written beside it.
+    assert!(
+        said.contains("host 'b' is back after a restart: its part was deployed and started again"),
+        "{said}"
+    );
+    assert!(!first_life.is_empty(), "b wrote nothing before the cut\n{said}");
+    let still = csv_values(&run.dir_b.path().join("b.csv"));
+    assert!(
+        still.len() >= first_life.len() && still[..first_life.len()] == first_life[..],
+        "b's first file changed after its restart\n{said}"
+    );
+    assert!(
+        !csv_values(&run.dir_b.path().join("b-1.csv")).is_empty(),
+        "b's second life wrote no b-1.csv\n{said}"
+    );
+    // Back on a, each value at most once, in order; every value missing counted lost on one of the links.
+    let values: Vec<f64> = csv_values(&run.dir_a.path().join("back.csv"))
+        .into_iter()
+        .map(|(_, value)| value)
+        .collect();
+    RoundTrip::of(values, &said).assert_every_missing_value_counted(100, &said);
+}
+
+#[test]
+fn the_clock_master_killed_leaves_its_slave_running_in_holdover_said_by_kairos_deploy() {
+    let _machine = whole_machine();
+    let Some(namespaces) = Namespaces::make() else {
+        return;
+    };
+    let [dir_master, dir_b, here] = folders();
+    let (address_a, address_b) = (namespaces.address(1), namespaces.address(2));
+    // The master on host a, its slave on host b, their references over the veth pair.
+    let clock = format!("{address_a}:7401");
+    let mut master = serve_in(
+        Some(&namespaces.names[0]),
+        dir_master.path(),
+        &format!("{address_a}:7400"),
+        &["--clock-master", &clock],
+        &[],
+    );
+    let b = serve_in(
+        Some(&namespaces.names[1]),
+        dir_b.path(),
+        &format!("{address_b}:7400"),
+        &["--clock-slave-of", &clock],
+        &[],
+    );
+    std::fs::write(here.path().join("b.token"), &b.token).unwrap();
+    std::fs::write(
+        here.path().join("on_b.ron"),
+        format!(
+            r#"Diagram(format: 1,
+                hosts: {{"b": Host(endpoint: "{}", token_file: "b.token")}},
+                components: [
+                    Component(id: "count", type: "core.counter", host: "b", properties: {{"rate": 100.0}}),
+                    Component(id: "csv", type: "core.csv_writer", host: "b", properties: {{"path": "b.csv"}}),
+                ],
+                connections: [Connection(from: "count.out", to: "csv.in1", policy: NeverSkipping)])"#,
+            b.url
+        ),
+    )
+    .unwrap();
+    // Deploying starts nothing on an unlocked clock: b's locks to the master across the namespaces first.
+    let waiting = std::time::Instant::now();
+    loop {
+        let shown = Command::new("ip")
+            .args([
+                "netns",
+                "exec",
+                &namespaces.names[0],
+                env!("CARGO_BIN_EXE_kairos"),
+                "status",
+                &b.url,
+            ])
+            .arg("--token-file")
+            .arg(dir_b.path().join("token.txt"))
+            .arg("--allow-clear-text-tokens")
+            .output()
+            .unwrap();
+        let line = String::from_utf8_lossy(&shown.stdout).into_owned();
+        if line.contains("clock locked") {
+            break;
+        }
+        assert!(
+            waiting.elapsed() < Duration::from_secs(30),
+            "b's clock never locked: {line}"
+        );
+        std::thread::sleep(Duration::from_millis(250));
+    }
+    let log = here.path().join("deploy.log");
+    let mut deploying = deploy_in_background(
+        Some(&namespaces.names[0]),
+        here.path(),
+        &["on_b.ron", "--for", "60s", "--allow-clear-text-tokens"],
+        &log,
+    );
+    wait_for_log(&log, "host 'b' started its part", Duration::from_secs(40));
+    std::thread::sleep(Duration::from_secs(1));
+    // The master dies (SIGKILL): b's clock goes into holdover, said by the deployer, and b runs on.
+    let _ = master.child.kill();
+    let _ = master.child.wait();
+    let killed_rows = csv_values(&dir_b.path().join("b.csv")).len();
+    wait_for_log(
+        &log,
+        "host 'b': its clock left lock (holdover",
+        Duration::from_secs(10),
+    );
+    std::thread::sleep(Duration::from_secs(2));
+    let (status, said) = interrupt(&mut deploying, &log);
+    assert!(status.success(), "{said}");
+    assert!(!said.contains("host 'b' is lost"), "b kept answering: {said}");
+    let rows = csv_values(&dir_b.path().join("b.csv"));
+    assert!(
+        rows.len() > killed_rows + 100,
+        "b wrote {} rows after the master died\n{said}",
+        rows.len() - killed_rows
+    );
+    // Its clock held its course: every timestamp after the one before, the counter without a gap.
+    assert!(
+        rows.windows(2)
+            .all(|w| w[1].0 > w[0].0 && (w[1].1 - w[0].1 - 1.0).abs() < 0.5),
+        "b's timestamps went back or its counter jumped in holdover\n{said}"
+    );
+    drop(b);
 }
