@@ -23,13 +23,75 @@ fn failed(error: impl std::fmt::Display) -> ComponentError {
     ComponentError::failed(error)
 }
 
+/// Why the `filters` property cannot be read.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("{0:?} is not a hexadecimal identifier")]
+pub struct FilterError(String);
+
+/// Why a bus could not be opened: the system, the interface, or its configuration.
+#[derive(Debug, thiserror::Error)]
+enum OpenError {
+    /// The kernel has no SocketCAN: the fix is a module, not the diagram.
+    #[error(
+        "cannot open CAN interface '{interface}': this system has no SocketCAN ({source}); load the \
+             kernel's can and can_raw modules (modprobe can_raw)"
+    )]
+    NoSocketCan {
+        interface: String,
+        source: std::io::Error,
+    },
+    /// No such interface: the fix is its name, or a virtual bus.
+    #[error(
+        "no CAN interface '{interface}' ({source}); `kairos devices` lists those present; a virtual bus: \
+             ip link add dev vcan0 type vcan && ip link set up vcan0"
+    )]
+    NoInterface {
+        interface: String,
+        source: std::io::Error,
+    },
+    /// Any other refusal to open it (permissions, a busy device).
+    #[error("cannot open CAN interface '{interface}': {source}")]
+    Open {
+        interface: String,
+        source: std::io::Error,
+    },
+    /// Opened, but its filters or timeouts could not be set.
+    #[error("cannot configure CAN interface '{interface}': {source}")]
+    Configure {
+        interface: String,
+        source: std::io::Error,
+    },
+}
+
+/// Why a frame was not sent: counted, and said once a second.
+#[derive(Debug, thiserror::Error)]
+enum SendError {
+    /// An identifier beyond its width.
+    #[error("{id:#x} is not a valid {} identifier", if *.extended { "29-bit" } else { "11-bit" })]
+    BadId { id: u32, extended: bool },
+    /// A remote request longer than the bus allows.
+    #[error("a remote request the bus cannot carry")]
+    RemoteTooLong,
+    /// FD data on a socket opened for classic frames.
+    #[error("a CAN FD frame on a classic socket: set 'fd' to send it")]
+    FdOnClassic,
+    /// More data than the frame kind holds.
+    #[error("a frame the bus cannot carry")]
+    TooLong,
+    /// `ENOBUFS`: frames wait for an acknowledgement that does not come.
+    #[error("the interface's transmit queue is full (the bus is saturated, or nobody acknowledges)")]
+    QueueFull,
+    /// What the kernel said otherwise.
+    #[error(transparent)]
+    Io(std::io::Error),
+}
+
 /// Parses `filters`: comma-separated `ID` (that identifier alone) or `ID:MASK` (the identifiers whose
 /// masked bits equal ID's), hexadecimal with or without `0x`. Empty: every frame.
-pub fn parse_filters(text: &str) -> Result<Vec<(u32, u32)>, String> {
+pub fn parse_filters(text: &str) -> Result<Vec<(u32, u32)>, FilterError> {
     let hex = |part: &str| {
         let digits = part.trim().trim_start_matches("0x").trim_start_matches("0X");
-        u32::from_str_radix(digits, 16)
-            .map_err(|_| format!("{:?} is not a hexadecimal identifier", part.trim()))
+        u32::from_str_radix(digits, 16).map_err(|_| FilterError(part.trim().to_owned()))
     };
     text.split(',')
         .filter(|part| !part.trim().is_empty())
@@ -42,20 +104,15 @@ pub fn parse_filters(text: &str) -> Result<Vec<(u32, u32)>, String> {
 }
 
 /// Why an interface cannot be opened, in words that say what to do.
-fn open_error(interface: &str, error: &std::io::Error) -> String {
+fn open_error(interface: &str, source: std::io::Error) -> OpenError {
+    let interface = interface.to_owned();
     if !Path::new("/proc/net/can").exists() {
-        return format!(
-            "cannot open CAN interface '{interface}': this system has no SocketCAN ({error}); load the \
-             kernel's can and can_raw modules (modprobe can_raw)"
-        );
+        return OpenError::NoSocketCan { interface, source };
     }
-    if error.raw_os_error() == Some(libc_enodev()) || error.kind() == ErrorKind::NotFound {
-        return format!(
-            "no CAN interface '{interface}' ({error}); `kairos devices` lists those present; a virtual bus: \
-             ip link add dev vcan0 type vcan && ip link set up vcan0"
-        );
+    if source.raw_os_error() == Some(libc_enodev()) || source.kind() == ErrorKind::NotFound {
+        return OpenError::NoInterface { interface, source };
     }
-    format!("cannot open CAN interface '{interface}': {error}")
+    OpenError::Open { interface, source }
 }
 
 /// `ENODEV`, the error for a network interface that does not exist.
@@ -84,13 +141,13 @@ enum Received {
 }
 
 impl Bus {
-    fn open(interface: &str, fd: bool, filters: &[(u32, u32)]) -> Result<Self, String> {
+    fn open(interface: &str, fd: bool, filters: &[(u32, u32)]) -> Result<Self, OpenError> {
         let bus = if fd {
             CanFdSocket::open(interface).map(Bus::Fd)
         } else {
             CanSocket::open(interface).map(Bus::Classic)
         }
-        .map_err(|e| open_error(interface, &e))?;
+        .map_err(|e| open_error(interface, e))?;
         let filters: Vec<CanFilter> = filters
             .iter()
             .map(|(id, mask)| CanFilter::new(*id, *mask))
@@ -99,7 +156,10 @@ impl Bus {
             Bus::Classic(socket) => Self::configure(socket, &filters),
             Bus::Fd(socket) => Self::configure(socket, &filters),
         };
-        configured.map_err(|e| format!("cannot configure CAN interface '{interface}': {e}"))?;
+        configured.map_err(|source| OpenError::Configure {
+            interface: interface.to_owned(),
+            source,
+        })?;
         Ok(bus)
     }
 
@@ -130,7 +190,7 @@ impl Bus {
         })
     }
 
-    fn write(&self, frame: &CanFrame) -> Result<(), String> {
+    fn write(&self, frame: &CanFrame) -> Result<(), SendError> {
         let id: Id = if frame.extended {
             ExtendedId::new(frame.id).map(Id::Extended)
         } else {
@@ -139,42 +199,36 @@ impl Bus {
                 .and_then(StandardId::new)
                 .map(Id::Standard)
         }
-        .ok_or_else(|| {
-            format!(
-                "{:#x} is not a valid {} identifier",
-                frame.id,
-                if frame.extended { "29-bit" } else { "11-bit" }
-            )
+        .ok_or(SendError::BadId {
+            id: frame.id,
+            extended: frame.extended,
         })?;
-        let remote = || {
-            CanRemoteFrame::new_remote(id, usize::from(frame.length()))
-                .ok_or("a remote request the bus cannot carry")
-        };
+        let remote =
+            || CanRemoteFrame::new_remote(id, usize::from(frame.length())).ok_or(SendError::RemoteTooLong);
         let written = match self {
             Bus::Classic(socket) if frame.remote => socket.write_frame(&remote()?),
             Bus::Fd(socket) if frame.remote => socket.write_frame(&remote()?),
             Bus::Classic(socket) => {
                 if frame.fd || frame.data().len() > 8 {
-                    return Err("a CAN FD frame on a classic socket: set 'fd' to send it".to_owned());
+                    return Err(SendError::FdOnClassic);
                 }
-                let data = CanDataFrame::new(id, frame.data()).ok_or("a frame the bus cannot carry")?;
+                let data = CanDataFrame::new(id, frame.data()).ok_or(SendError::TooLong)?;
                 socket.write_frame(&data)
             }
             Bus::Fd(socket) if frame.fd || frame.data().len() > 8 => {
-                let data = CanFdFrame::new(id, frame.data()).ok_or("a frame the bus cannot carry")?;
+                let data = CanFdFrame::new(id, frame.data()).ok_or(SendError::TooLong)?;
                 socket.write_frame(&data)
             }
             Bus::Fd(socket) => {
-                let data = CanDataFrame::new(id, frame.data()).ok_or("a frame the bus cannot carry")?;
+                let data = CanDataFrame::new(id, frame.data()).ok_or(SendError::TooLong)?;
                 socket.write_frame(&data)
             }
         };
         written.map_err(|e| {
             if e.raw_os_error() == Some(ENOBUFS) {
-                "the interface's transmit queue is full (the bus is saturated, or nobody acknowledges)"
-                    .to_owned()
+                SendError::QueueFull
             } else {
-                e.to_string()
+                SendError::Io(e)
             }
         })
     }
@@ -389,6 +443,6 @@ mod tests {
             Ok(vec![(0x100, 0x7FF), (0x18FF_0000, 0x1FFF_0000)])
         );
         assert_eq!(parse_filters("18FEF100"), Ok(vec![(0x18FE_F100, 0x1FFF_FFFF)]));
-        assert!(parse_filters("12G").unwrap_err().contains("\"12G\""));
+        assert!(parse_filters("12G").unwrap_err().to_string().contains("\"12G\""));
     }
 }

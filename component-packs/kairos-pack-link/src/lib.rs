@@ -385,7 +385,7 @@ impl LinkSender {
                 Err(std::sync::mpsc::TryRecvError::Empty) if since.elapsed() < ASK_WAIT + ASK_SLACK => {
                     return true;
                 }
-                Err(_) => Err(format!("no answer within {} ms", ASK_WAIT.as_millis())),
+                Err(_) => Err(network::AskError::Unanswered(ASK_WAIT)),
                 Ok(answer) => answer,
             };
             // Unanswered (the far end flapping as it comes back): asked again while the samples held
@@ -415,7 +415,7 @@ impl LinkSender {
 
     /// Puts again every kept frame after the newest the receiver received (without its answer, those held
     /// while asking), and says how the cut went.
-    fn put_again_after(&mut self, end: &network::SenderEnd, newest: &Result<Option<u64>, String>) {
+    fn put_again_after(&mut self, end: &network::SenderEnd, newest: &Result<Option<u64>, network::AskError>) {
         let first = match newest {
             Ok(Some(newest)) => newest + 1,
             Ok(None) => {

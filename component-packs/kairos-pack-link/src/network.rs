@@ -48,7 +48,29 @@ fn newest_key(key: &str) -> String {
 
 /// Where a receiving end's answer comes: the newest sequence number it received (`None`: none yet), or
 /// why it did not say.
-pub type Answer = std::sync::mpsc::Receiver<Result<Option<u64>, String>>;
+pub type Answer = std::sync::mpsc::Receiver<Result<Option<u64>, AskError>>;
+
+/// Why a receiving end did not say what it received: the sender then counts what it missed as lost.
+#[derive(Debug, thiserror::Error)]
+pub enum AskError {
+    /// It answered something else than a sequence number (another version?).
+    #[error("an answer that is not a number")]
+    NotANumber,
+    /// It answered with an error, whose text Zenoh carries.
+    #[error("an error: {0}")]
+    Refused(String),
+    /// The question could not be sent.
+    #[error("{0}")]
+    Query(zenoh::Error),
+    /// No answer in time (the far end flapping as it comes back).
+    #[error("no answer within {} ms", .0.as_millis())]
+    Unanswered(Duration),
+}
+
+/// The link's session closed under a receiving end.
+#[derive(Debug, thiserror::Error)]
+#[error("{0}")]
+pub struct Closed(zenoh::Error);
 
 /// No sequence number received yet.
 const NONE_YET: u64 = u64::MAX;
@@ -74,10 +96,9 @@ impl SenderEnd {
                             .ok()
                             .and_then(|text| text.parse::<u64>().ok())
                             .map(|newest| (newest != NONE_YET).then_some(newest))
-                            .ok_or_else(|| "an answer that is not a number".to_owned()),
-                        Err(error) => Err(format!(
-                            "an error: {}",
-                            error.payload().try_to_string().unwrap_or_default()
+                            .ok_or(AskError::NotANumber),
+                        Err(error) => Err(AskError::Refused(
+                            error.payload().try_to_string().unwrap_or_default().into_owned(),
                         )),
                     };
                     let _ = answer.try_send(newest);
@@ -85,7 +106,7 @@ impl SenderEnd {
             })
             .wait();
         if let Err(error) = asked {
-            let _ = answer.try_send(Err(error.to_string()));
+            let _ = answer.try_send(Err(AskError::Query(error)));
         }
         answered
     }
@@ -111,21 +132,21 @@ impl std::fmt::Debug for Incoming {
 
 impl Incoming {
     /// The next sample if one is queued, without waiting; `Err` once the session is closed.
-    pub fn try_recv(&self) -> Result<Option<ZenohSample>, String> {
+    pub fn try_recv(&self) -> Result<Option<ZenohSample>, Closed> {
         match self {
             Incoming::Fifo(subscriber) => subscriber.try_recv(),
             Incoming::Ring(subscriber) => subscriber.try_recv(),
         }
-        .map_err(|e| e.to_string())
+        .map_err(Closed)
     }
 
     /// The next sample, waiting at most `wait`; `Err` once the session is closed.
-    pub fn recv_timeout(&self, wait: Duration) -> Result<Option<ZenohSample>, String> {
+    pub fn recv_timeout(&self, wait: Duration) -> Result<Option<ZenohSample>, Closed> {
         match self {
             Incoming::Fifo(subscriber) => subscriber.recv_timeout(wait),
             Incoming::Ring(subscriber) => subscriber.recv_timeout(wait),
         }
-        .map_err(|e| e.to_string())
+        .map_err(Closed)
     }
 }
 

@@ -166,7 +166,7 @@ impl SampleReceiver {
 
     fn take_decoded(
         &mut self,
-        decoded: Result<sample_frame::Received, String>,
+        decoded: Result<sample_frame::Received, sample_frame::FrameDecodeError>,
         peer: &str,
         ctx: &mut Context,
     ) -> ComponentResult {

@@ -83,36 +83,59 @@ fn push(bytes: &mut Vec<u8>, values: &[f64]) {
     }
 }
 
+/// Why bytes or a sample are not a `sim_world` view.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum WorldError {
+    /// Another payload type on the input.
+    #[error("expected a {TYPE_NAME} sample, got {0}")]
+    NotAWorld(String),
+    /// Bytes without the magic.
+    #[error("not a sim_world sample (it does not start with KSW1)")]
+    NoMagic,
+    /// Cut before a field.
+    #[error("a sim_world sample ends before its {0}")]
+    EndsBefore(&'static str),
+    /// Cut before a list's count.
+    #[error("a sim_world sample ends before its number of {0}")]
+    EndsBeforeCount(&'static str),
+    /// A count larger than the bytes that follow: refused, not allocated.
+    #[error("a sim_world sample says it holds {count} {what}, but has bytes for fewer")]
+    CountTooLarge {
+        /// The count the bytes say.
+        count: usize,
+        /// What is counted.
+        what: &'static str,
+    },
+}
+
 /// Reads the encoding field by field, saying what is missing.
 struct Fields<'a> {
     bytes: &'a [u8],
 }
 
 impl Fields<'_> {
-    fn f64(&mut self, what: &str) -> Result<f64, String> {
+    fn f64(&mut self, what: &'static str) -> Result<f64, WorldError> {
         let (head, rest) = self
             .bytes
             .split_first_chunk::<8>()
-            .ok_or_else(|| format!("a sim_world sample ends before its {what}"))?;
+            .ok_or(WorldError::EndsBefore(what))?;
         self.bytes = rest;
         Ok(f64::from_le_bytes(*head))
     }
 
-    fn vec3(&mut self, what: &str) -> Result<DVec3, String> {
+    fn vec3(&mut self, what: &'static str) -> Result<DVec3, WorldError> {
         Ok(DVec3::new(self.f64(what)?, self.f64(what)?, self.f64(what)?))
     }
 
-    fn count(&mut self, what: &str, each: usize) -> Result<usize, String> {
+    fn count(&mut self, what: &'static str, each: usize) -> Result<usize, WorldError> {
         let (head, rest) = self
             .bytes
             .split_first_chunk::<4>()
-            .ok_or_else(|| format!("a sim_world sample ends before its number of {what}"))?;
+            .ok_or(WorldError::EndsBeforeCount(what))?;
         self.bytes = rest;
         let count = usize::try_from(u32::from_le_bytes(*head)).unwrap_or(usize::MAX);
         if count.saturating_mul(each * 8) > self.bytes.len() {
-            return Err(format!(
-                "a sim_world sample says it holds {count} {what}, but has bytes for fewer"
-            ));
+            return Err(WorldError::CountTooLarge { count, what });
         }
         Ok(count)
     }
@@ -181,9 +204,9 @@ impl WorldView {
     /// # Errors
     ///
     /// Bytes that are not a `sim_world` sample: what is wrong with them.
-    pub fn decode(bytes: &[u8]) -> Result<WorldView, String> {
+    pub fn decode(bytes: &[u8]) -> Result<WorldView, WorldError> {
         let Some(rest) = bytes.strip_prefix(MAGIC) else {
-            return Err("not a sim_world sample (it does not start with KSW1)".to_owned());
+            return Err(WorldError::NoMagic);
         };
         let mut f = Fields { bytes: rest };
         let time_s = f.f64("time")?;
@@ -263,13 +286,10 @@ impl WorldView {
     /// # Errors
     ///
     /// Another type, or bytes that do not decode.
-    pub fn from_payload(payload: &Payload) -> Result<WorldView, String> {
+    pub fn from_payload(payload: &Payload) -> Result<WorldView, WorldError> {
         match payload {
             Payload::Custom(custom) if &*custom.type_name == TYPE_NAME => WorldView::decode(&custom.data),
-            other => Err(format!(
-                "expected a {TYPE_NAME} sample, got {}",
-                other.data_type()
-            )),
+            other => Err(WorldError::NotAWorld(other.data_type().to_string())),
         }
     }
 
@@ -337,13 +357,18 @@ mod tests {
         let bytes = view().encode();
         for cut in [0, 3, 4, 50, 230, bytes.len() - 1] {
             let error = WorldView::decode(bytes.get(..cut).expect("cut")).expect_err("cut short");
-            assert!(error.contains("sim_world"), "{error}");
+            assert!(error.to_string().contains("sim_world"), "{error}");
         }
         // A count larger than the bytes that follow is refused, not allocated.
         let mut lying = bytes.clone();
         let at = 4 + 29 * 8;
         lying.splice(at..at + 4, u32::MAX.to_le_bytes());
-        assert!(WorldView::decode(&lying).expect_err("lies").contains("holds"));
+        assert!(
+            WorldView::decode(&lying)
+                .expect_err("lies")
+                .to_string()
+                .contains("holds")
+        );
         assert!(WorldView::from_payload(&Payload::F64(1.0)).is_err());
     }
 

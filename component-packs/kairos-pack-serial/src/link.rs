@@ -27,13 +27,53 @@ pub struct SerialSettings {
     pub flow_control: String,
 }
 
+/// Why a link could not be opened: a serial port, a UDP address to listen on, a TCP server to reach.
+#[derive(Debug, thiserror::Error)]
+pub enum LinkError {
+    /// The port is missing, taken, or refuses its settings.
+    #[error("cannot open the serial port {device}: {source}")]
+    Serial {
+        device: String,
+        source: serialport::Error,
+    },
+    /// The address is in use or not this machine's.
+    #[error("cannot listen on UDP {address}: {source}")]
+    UdpBind { address: String, source: std::io::Error },
+    /// The socket's read timeout could not be set.
+    #[error("UDP {address}: {source}")]
+    UdpConfigure { address: String, source: std::io::Error },
+    /// The server's name did not resolve.
+    #[error("cannot resolve {address}: {source}")]
+    Resolve { address: String, source: std::io::Error },
+    /// The name resolved to nothing to connect to.
+    #[error("{address} resolves to no address")]
+    NoAddress { address: String },
+    /// Nobody listens there, or it did not answer within a second.
+    #[error("cannot connect to TCP {address}: {source}")]
+    TcpConnect { address: String, source: std::io::Error },
+    /// The stream's read timeout could not be set.
+    #[error("TCP {address}: {source}")]
+    TcpConfigure { address: String, source: std::io::Error },
+}
+
+/// Why a file of lines could not be read for replay.
+#[derive(Debug, thiserror::Error)]
+pub enum FileError {
+    /// Missing, or not readable by this user.
+    #[error("cannot open {path}: {source}")]
+    Open { path: String, source: std::io::Error },
+    /// It went wrong part way.
+    #[error("cannot read {path}: {source}")]
+    Read { path: String, source: std::io::Error },
+}
+
 impl SerialSettings {
     /// Opens the port, with reads that wait [`READ_WAIT`] at most.
     ///
     /// # Errors
     ///
     /// The port cannot be opened or configured; the message names it and the cause.
-    pub fn open(&self) -> Result<Box<dyn serialport::SerialPort>, String> {
+    pub fn open(&self) -> Result<Box<dyn serialport::SerialPort>, LinkError> {
         let parity = match self.parity.as_str() {
             "even" => serialport::Parity::Even,
             "odd" => serialport::Parity::Odd,
@@ -56,7 +96,10 @@ impl SerialSettings {
             .flow_control(flow_control)
             .timeout(READ_WAIT)
             .open()
-            .map_err(|e| format!("cannot open the serial port {}: {e}", self.device))
+            .map_err(|source| LinkError::Serial {
+                device: self.device.clone(),
+                source,
+            })
     }
 }
 
@@ -88,28 +131,46 @@ impl Endpoint {
         }
     }
 
-    fn open(&self) -> Result<Link, String> {
+    fn open(&self) -> Result<Link, LinkError> {
         match self {
             Endpoint::Serial(settings) => settings.open().map(Link::Serial),
             Endpoint::Udp(address) => {
-                let socket =
-                    UdpSocket::bind(address).map_err(|e| format!("cannot listen on UDP {address}: {e}"))?;
+                let socket = UdpSocket::bind(address).map_err(|source| LinkError::UdpBind {
+                    address: address.clone(),
+                    source,
+                })?;
                 socket
                     .set_read_timeout(Some(READ_WAIT))
-                    .map_err(|e| format!("UDP {address}: {e}"))?;
+                    .map_err(|source| LinkError::UdpConfigure {
+                        address: address.clone(),
+                        source,
+                    })?;
                 Ok(Link::Udp(socket))
             }
             Endpoint::Tcp(address) => {
                 let target = address
                     .to_socket_addrs()
-                    .map_err(|e| format!("cannot resolve {address}: {e}"))?
+                    .map_err(|source| LinkError::Resolve {
+                        address: address.clone(),
+                        source,
+                    })?
                     .next()
-                    .ok_or_else(|| format!("{address} resolves to no address"))?;
-                let stream = TcpStream::connect_timeout(&target, Duration::from_secs(1))
-                    .map_err(|e| format!("cannot connect to TCP {address}: {e}"))?;
+                    .ok_or_else(|| LinkError::NoAddress {
+                        address: address.clone(),
+                    })?;
+                let stream =
+                    TcpStream::connect_timeout(&target, Duration::from_secs(1)).map_err(|source| {
+                        LinkError::TcpConnect {
+                            address: address.clone(),
+                            source,
+                        }
+                    })?;
                 stream
                     .set_read_timeout(Some(READ_WAIT))
-                    .map_err(|e| format!("TCP {address}: {e}"))?;
+                    .map_err(|source| LinkError::TcpConfigure {
+                        address: address.clone(),
+                        source,
+                    })?;
                 Ok(Link::Tcp(stream))
             }
         }
@@ -207,7 +268,7 @@ impl LiveSource {
     /// # Errors
     ///
     /// The device cannot be opened or the address not bound or reached.
-    pub fn open_now(&mut self) -> Result<(), String> {
+    pub fn open_now(&mut self) -> Result<(), LinkError> {
         self.link = Some(self.endpoint.open()?);
         Ok(())
     }
@@ -252,6 +313,7 @@ impl LiveSource {
                     received.recovered = self.failed.take().is_some();
                 }
                 Err(reason) => {
+                    let reason = reason.to_string();
                     let first = self.failed.is_none();
                     self.failed = Some((Instant::now(), reason.clone()));
                     if first {
@@ -299,15 +361,19 @@ impl LiveSource {
 /// # Errors
 ///
 /// The file cannot be read; the message names it and the cause.
-pub fn file_lines(path: &str, longest: usize) -> Result<(Vec<Vec<u8>>, u64), String> {
-    let file = File::open(path).map_err(|e| format!("cannot open {path}: {e}"))?;
+pub fn file_lines(path: &str, longest: usize) -> Result<(Vec<Vec<u8>>, u64), FileError> {
+    let file = File::open(path).map_err(|source| FileError::Open {
+        path: path.to_owned(),
+        source,
+    })?;
     let mut splitter = LineSplitter::new(longest);
     let mut lines = Vec::new();
     let mut reader = BufReader::new(file);
     loop {
-        let chunk = reader
-            .fill_buf()
-            .map_err(|e| format!("cannot read {path}: {e}"))?;
+        let chunk = reader.fill_buf().map_err(|source| FileError::Read {
+            path: path.to_owned(),
+            source,
+        })?;
         if chunk.is_empty() {
             break;
         }

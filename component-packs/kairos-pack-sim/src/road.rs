@@ -73,12 +73,62 @@ pub struct Road {
     samples: Vec<RoadSample>,
 }
 
+/// Why a road description does not read: the segment (1-based) and its text, and what was expected.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum RoadError {
+    /// A segment lacks a number.
+    #[error("segment {index} ('{part}'): the {what} is missing")]
+    Missing {
+        /// Which segment, from 1.
+        index: usize,
+        /// Its text.
+        part: String,
+        /// The number missing.
+        what: &'static str,
+    },
+    /// A number that is not positive and finite.
+    #[error("segment {index} ('{part}'): the {what} '{word}' is not a positive number")]
+    NotPositive {
+        /// Which segment, from 1.
+        index: usize,
+        /// Its text.
+        part: String,
+        /// The number expected.
+        what: &'static str,
+        /// What was written.
+        word: String,
+    },
+    /// A first word that is no kind of segment.
+    #[error(
+        "segment {index} ('{part}') is not 'straight LENGTH', 'left RADIUS ANGLE' or 'right RADIUS ANGLE'"
+    )]
+    UnknownKind {
+        /// Which segment, from 1.
+        index: usize,
+        /// Its text.
+        part: String,
+    },
+    /// Words beyond the segment's numbers.
+    #[error("segment {index} ('{part}') has more than {expected} words")]
+    TooManyWords {
+        /// Which segment, from 1.
+        index: usize,
+        /// Its text.
+        part: String,
+        /// How many its kind takes.
+        expected: usize,
+    },
+    /// Nothing to drive on.
+    #[error("the road has no segment: write e.g. 'straight 100; left 200 45'")]
+    Empty,
+}
+
 /// Parses a road description (see the module's documentation).
 ///
 /// # Errors
 ///
 /// A segment that does not read, with its number and what was expected.
-pub fn parse_segments(text: &str) -> Result<Vec<Segment>, String> {
+pub fn parse_segments(text: &str) -> Result<Vec<Segment>, RoadError> {
     let mut segments = Vec::new();
     for (index, part) in text
         .split([';', '\n'])
@@ -87,18 +137,20 @@ pub fn parse_segments(text: &str) -> Result<Vec<Segment>, String> {
         .enumerate()
     {
         let words: Vec<&str> = part.split_whitespace().collect();
-        let number = |at: usize, what: &str| -> Result<f64, String> {
-            let word = words
-                .get(at)
-                .ok_or_else(|| format!("segment {} ('{part}'): the {what} is missing", index + 1))?;
+        let number = |at: usize, what: &'static str| -> Result<f64, RoadError> {
+            let word = words.get(at).ok_or_else(|| RoadError::Missing {
+                index: index + 1,
+                part: part.to_owned(),
+                what,
+            })?;
             word.parse::<f64>()
                 .ok()
                 .filter(|v| v.is_finite() && *v > 0.0)
-                .ok_or_else(|| {
-                    format!(
-                        "segment {} ('{part}'): the {what} '{word}' is not a positive number",
-                        index + 1
-                    )
+                .ok_or_else(|| RoadError::NotPositive {
+                    index: index + 1,
+                    part: part.to_owned(),
+                    what,
+                    word: (*word).to_owned(),
                 })
         };
         let (length_m, curvature, expected) = match words.first().copied() {
@@ -110,23 +162,23 @@ pub fn parse_segments(text: &str) -> Result<Vec<Segment>, String> {
                 (radius * angle * PI / 180.0, sign / radius, 3)
             }
             _ => {
-                return Err(format!(
-                    "segment {} ('{part}') is not 'straight LENGTH', 'left RADIUS ANGLE' or 'right RADIUS \
-                     ANGLE'",
-                    index + 1
-                ));
+                return Err(RoadError::UnknownKind {
+                    index: index + 1,
+                    part: part.to_owned(),
+                });
             }
         };
         if words.len() > expected {
-            return Err(format!(
-                "segment {} ('{part}') has more than {expected} words",
-                index + 1
-            ));
+            return Err(RoadError::TooManyWords {
+                index: index + 1,
+                part: part.to_owned(),
+                expected,
+            });
         }
         segments.push(Segment { length_m, curvature });
     }
     if segments.is_empty() {
-        return Err("the road has no segment: write e.g. 'straight 100; left 200 45'".to_owned());
+        return Err(RoadError::Empty);
     }
     Ok(segments)
 }
@@ -204,7 +256,7 @@ impl Road {
     /// # Errors
     ///
     /// The description does not read (see [`parse_segments`]).
-    pub fn parse(text: &str, transition_m: f64) -> Result<Road, String> {
+    pub fn parse(text: &str, transition_m: f64) -> Result<Road, RoadError> {
         Ok(Road::new(&parse_segments(text)?, transition_m))
     }
 
@@ -312,7 +364,7 @@ mod tests {
             ("straight 10 20", "more than 2 words"),
         ] {
             let error = parse_segments(text).expect_err(text);
-            assert!(error.contains(expected), "{text}: {error}");
+            assert!(error.to_string().contains(expected), "{text}: {error}");
         }
     }
 

@@ -182,12 +182,35 @@ pub struct PlacedObstacle {
     pub size: (f64, f64, f64),
 }
 
+/// Why the `obstacles` property does not read: the obstacle (1-based) and its text.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum ObstacleError {
+    /// Words that are not finite numbers.
+    #[error("obstacle {index} ('{part}') is not numbers")]
+    NotNumbers {
+        /// Which obstacle, from 1.
+        index: usize,
+        /// Its text.
+        part: String,
+    },
+    /// Neither a place alone nor a place and a positive size.
+    #[error(
+        "obstacle {index} ('{part}') is not 'STATION LATERAL' or 'STATION LATERAL LENGTH WIDTH HEIGHT' with a positive size"
+    )]
+    Shape {
+        /// Which obstacle, from 1.
+        index: usize,
+        /// Its text.
+        part: String,
+    },
+}
+
 /// Parses the `obstacles` property.
 ///
 /// # Errors
 ///
 /// An obstacle that does not read, with its number.
-pub fn parse_obstacles(text: &str) -> Result<Vec<PlacedObstacle>, String> {
+pub fn parse_obstacles(text: &str) -> Result<Vec<PlacedObstacle>, ObstacleError> {
     let mut found = Vec::new();
     for (index, part) in text
         .split([';', '\n'])
@@ -199,18 +222,20 @@ pub fn parse_obstacles(text: &str) -> Result<Vec<PlacedObstacle>, String> {
         let numbers = numbers
             .ok()
             .filter(|n| n.iter().all(|v| v.is_finite()))
-            .ok_or_else(|| format!("obstacle {} ('{part}') is not numbers", index + 1))?;
+            .ok_or_else(|| ObstacleError::NotNumbers {
+                index: index + 1,
+                part: part.to_owned(),
+            })?;
         let size = match numbers.as_slice() {
             [_, _] => (4.5, 1.8, 1.5),
             [_, _, length, width, height] if *length > 0.0 && *width > 0.0 && *height > 0.0 => {
                 (*length, *width, *height)
             }
             _ => {
-                return Err(format!(
-                    "obstacle {} ('{part}') is not 'STATION LATERAL' or 'STATION LATERAL LENGTH WIDTH \
-                     HEIGHT' with a positive size",
-                    index + 1
-                ));
+                return Err(ObstacleError::Shape {
+                    index: index + 1,
+                    part: part.to_owned(),
+                });
             }
         };
         let (Some(&station_m), Some(&lateral_m)) = (numbers.first(), numbers.get(1)) else {
@@ -240,10 +265,12 @@ pub fn describe(properties: &BTreeMap<String, Value>) -> Result<ComponentInfo, D
             .to_owned()
     };
     crate::road::parse_segments(&text("road", DEFAULT_ROAD)).map_err(|e| {
-        DescribeError::property("road", e).with_suggestion("e.g. 'straight 100; left 200 45; straight 50'")
+        DescribeError::property("road", e.to_string())
+            .with_suggestion("e.g. 'straight 100; left 200 45; straight 50'")
     })?;
     parse_obstacles(&text("obstacles", DEFAULT_OBSTACLES)).map_err(|e| {
-        DescribeError::property("obstacles", e).with_suggestion("e.g. '250 -5.2; 600 1.75 4.5 1.8 1.5'")
+        DescribeError::property("obstacles", e.to_string())
+            .with_suggestion("e.g. '250 -5.2; 600 1.75 4.5 1.8 1.5'")
     })?;
     Ok(descriptor().build())
 }
@@ -409,11 +436,13 @@ impl SimVehicle {
 
 impl Component for SimVehicle {
     fn birth(&mut self, ctx: &mut Context) -> ComponentResult {
-        let property = |e: String, name: &str| ComponentError::failed(format_args!("property '{name}': {e}"));
+        let property = |e: &dyn std::fmt::Display, name: &str| {
+            ComponentError::failed(format_args!("property '{name}': {e}"))
+        };
         let transition = ctx.f64_property("transition")?;
-        let road = Road::parse(&ctx.text_property("road")?, transition).map_err(|e| property(e, "road"))?;
+        let road = Road::parse(&ctx.text_property("road")?, transition).map_err(|e| property(&e, "road"))?;
         self.obstacles =
-            parse_obstacles(&ctx.text_property("obstacles")?).map_err(|e| property(e, "obstacles"))?;
+            parse_obstacles(&ctx.text_property("obstacles")?).map_err(|e| property(&e, "obstacles"))?;
         self.lane_width = ctx.f64_property("lane_width")?;
         self.duration_s = ctx.f64_property("duration")?;
         self.origin = Some(GeoPoint::new(

@@ -66,15 +66,64 @@ pub struct Frame {
     pub offset_s: Option<f64>,
 }
 
+/// Why a folder of images cannot be replayed as a sequence; each names the file and, where it can, the fix.
+#[derive(Debug, thiserror::Error)]
+pub enum SequenceError {
+    /// The folder is missing or not readable.
+    #[error("cannot read the folder {}: {source}", .folder.display())]
+    Folder { folder: PathBuf, source: std::io::Error },
+    /// Nothing in it to replay.
+    #[error("the folder {} holds no image (.png, .jpg, .jpeg)", .0.display())]
+    NoImage(PathBuf),
+    /// `timing: csv` names no file.
+    #[error("timing is csv but no csv file is given: set the property csv")]
+    NoCsv,
+    /// The CSV file is missing or not readable.
+    #[error("cannot read {}: {source}", .csv.display())]
+    Csv { csv: PathBuf, source: std::io::Error },
+    /// A line of the CSV that is not `name,seconds`.
+    #[error("{}:{line}: expected `file name,time in seconds`, found {found:?}", .csv.display())]
+    CsvLine {
+        csv: PathBuf,
+        line: usize,
+        found: String,
+    },
+    /// An image the CSV gives no time for.
+    #[error("{} gives no time for {name}", .csv.display())]
+    NoTime { csv: PathBuf, name: String },
+    /// `timing: names` and a file name without digits.
+    #[error("{} has no number in its name to take its time from", .0.display())]
+    NoNumber(PathBuf),
+}
+
+/// Why an image file is not an image sample.
+#[derive(Debug, thiserror::Error)]
+pub enum ImageFileError {
+    /// Not readable, or not an image the decoder knows.
+    #[error("cannot read the image {}: {source}", .path.display())]
+    Decode {
+        path: PathBuf,
+        source: image::ImageError,
+    },
+    /// Decoded, but its size does not fit its pixels.
+    #[error("{}: {source}", .path.display())]
+    Size {
+        path: PathBuf,
+        source: kairos_sdk::payload::ImageSizeError,
+    },
+}
+
 /// The images of `folder`, in name order, with their times for `timing`.
 ///
 /// # Errors
 ///
 /// The folder or the CSV cannot be read, holds no image, or a time cannot be found; the message says
 /// which file and line.
-pub fn frames(folder: &Path, timing: &str, csv: &Path, name_unit: &str) -> Result<Vec<Frame>, String> {
-    let entries =
-        std::fs::read_dir(folder).map_err(|e| format!("cannot read the folder {}: {e}", folder.display()))?;
+pub fn frames(folder: &Path, timing: &str, csv: &Path, name_unit: &str) -> Result<Vec<Frame>, SequenceError> {
+    let entries = std::fs::read_dir(folder).map_err(|source| SequenceError::Folder {
+        folder: folder.to_owned(),
+        source,
+    })?;
     let mut paths: Vec<PathBuf> = entries
         .filter_map(Result::ok)
         .map(|entry| entry.path())
@@ -86,10 +135,7 @@ pub fn frames(folder: &Path, timing: &str, csv: &Path, name_unit: &str) -> Resul
         .collect();
     paths.sort();
     if paths.is_empty() {
-        return Err(format!(
-            "the folder {} holds no image (.png, .jpg, .jpeg)",
-            folder.display()
-        ));
+        return Err(SequenceError::NoImage(folder.to_owned()));
     }
     let times: Vec<Option<f64>> = match timing {
         "csv" => {
@@ -102,7 +148,10 @@ pub fn frames(folder: &Path, timing: &str, csv: &Path, name_unit: &str) -> Resul
                         .get(name)
                         .copied()
                         .map(Some)
-                        .ok_or_else(|| format!("{} gives no time for {name}", csv.display()))
+                        .ok_or_else(|| SequenceError::NoTime {
+                            csv: csv.to_owned(),
+                            name: name.to_owned(),
+                        })
                 })
                 .collect::<Result<_, _>>()?
         }
@@ -125,12 +174,7 @@ pub fn frames(folder: &Path, timing: &str, csv: &Path, name_unit: &str) -> Resul
                     digits
                         .parse::<u64>()
                         .map(|n| Some(n as f64 * scale))
-                        .map_err(|_| {
-                            format!(
-                                "{} has no number in its name to take its time from",
-                                path.display()
-                            )
-                        })
+                        .map_err(|_| SequenceError::NoNumber(path.clone()))
                 })
                 .collect::<Result<_, _>>()?
         }
@@ -148,11 +192,14 @@ pub fn frames(folder: &Path, timing: &str, csv: &Path, name_unit: &str) -> Resul
 }
 
 /// `name,seconds` lines of a CSV; a first line that does not parse is a header.
-fn csv_times(csv: &Path) -> Result<BTreeMap<String, f64>, String> {
+fn csv_times(csv: &Path) -> Result<BTreeMap<String, f64>, SequenceError> {
     if csv.as_os_str().is_empty() {
-        return Err("timing is csv but no csv file is given: set the property csv".to_owned());
+        return Err(SequenceError::NoCsv);
     }
-    let text = std::fs::read_to_string(csv).map_err(|e| format!("cannot read {}: {e}", csv.display()))?;
+    let text = std::fs::read_to_string(csv).map_err(|source| SequenceError::Csv {
+        csv: csv.to_owned(),
+        source,
+    })?;
     let mut table = BTreeMap::new();
     for (index, line) in text.lines().enumerate() {
         let line = line.trim();
@@ -168,11 +215,11 @@ fn csv_times(csv: &Path) -> Result<BTreeMap<String, f64>, String> {
             }
             _ if index == 0 => {}
             _ => {
-                return Err(format!(
-                    "{}:{}: expected `file name,time in seconds`, found {line:?}",
-                    csv.display(),
-                    index + 1
-                ));
+                return Err(SequenceError::CsvLine {
+                    csv: csv.to_owned(),
+                    line: index + 1,
+                    found: line.to_owned(),
+                });
             }
         }
     }
@@ -185,8 +232,11 @@ fn csv_times(csv: &Path) -> Result<BTreeMap<String, f64>, String> {
 /// # Errors
 ///
 /// The file cannot be read or decoded.
-pub fn load(path: &Path) -> Result<Image, String> {
-    let decoded = image::open(path).map_err(|e| format!("cannot read the image {}: {e}", path.display()))?;
+pub fn load(path: &Path) -> Result<Image, ImageFileError> {
+    let decoded = image::open(path).map_err(|source| ImageFileError::Decode {
+        path: path.to_owned(),
+        source,
+    })?;
     let (width, height) = (decoded.width(), decoded.height());
     let (format, bytes) = match decoded {
         image::DynamicImage::ImageLuma8(grey) => (PixelFormat::Gray8, grey.into_raw()),
@@ -203,7 +253,10 @@ pub fn load(path: &Path) -> Result<Image, String> {
     };
     let mut pixels = PixelsMut::new(bytes.len());
     pixels.copy_from_slice(&bytes);
-    Image::packed(width, height, format, pixels.freeze()).map_err(|e| format!("{}: {e}", path.display()))
+    Image::packed(width, height, format, pixels.freeze()).map_err(|source| ImageFileError::Size {
+        path: path.to_owned(),
+        source,
+    })
 }
 
 /// `video.image_sequence`. See [`sequence_descriptor`].
@@ -318,7 +371,12 @@ pub struct ImageWriter {
 }
 
 /// `image` as the `image` crate's buffer, 8 bits per channel, without row padding.
-fn to_dynamic(image: &Image) -> Result<image::DynamicImage, String> {
+/// Why an image sample cannot be written as a file.
+#[derive(Debug, thiserror::Error)]
+#[error("the image's pixels are shorter than its size")]
+struct PixelsShort;
+
+fn to_dynamic(image: &Image) -> Result<image::DynamicImage, PixelsShort> {
     let bpp = image.format.bytes_per_pixel() as usize;
     let (w, h) = (image.width as usize, image.height as usize);
     let mut packed = Vec::with_capacity(w * h * bpp);
@@ -326,21 +384,21 @@ fn to_dynamic(image: &Image) -> Result<image::DynamicImage, String> {
         let start = row * image.stride as usize;
         packed.extend_from_slice(image.pixels.get(start..start + w * bpp).unwrap_or_default());
     }
-    let too_short = || "the image's pixels are shorter than its size".to_owned();
+
     Ok(match image.format {
         PixelFormat::Gray8 => image::GrayImage::from_raw(image.width, image.height, packed)
-            .ok_or_else(too_short)?
+            .ok_or(PixelsShort)?
             .into(),
         PixelFormat::Rgb8 => image::RgbImage::from_raw(image.width, image.height, packed)
-            .ok_or_else(too_short)?
+            .ok_or(PixelsShort)?
             .into(),
         PixelFormat::Rgba8 => image::RgbaImage::from_raw(image.width, image.height, packed)
-            .ok_or_else(too_short)?
+            .ok_or(PixelsShort)?
             .into(),
         PixelFormat::Bgr8 => {
             let rgb: Vec<u8> = packed.chunks_exact(3).flat_map(|p| [p[2], p[1], p[0]]).collect();
             image::RgbImage::from_raw(image.width, image.height, rgb)
-                .ok_or_else(too_short)?
+                .ok_or(PixelsShort)?
                 .into()
         }
         PixelFormat::Bgra8 => {
@@ -349,7 +407,7 @@ fn to_dynamic(image: &Image) -> Result<image::DynamicImage, String> {
                 .flat_map(|p| [p[2], p[1], p[0], p[3]])
                 .collect();
             image::RgbaImage::from_raw(image.width, image.height, rgba)
-                .ok_or_else(too_short)?
+                .ok_or(PixelsShort)?
                 .into()
         }
         PixelFormat::Gray16 => {
@@ -358,7 +416,7 @@ fn to_dynamic(image: &Image) -> Result<image::DynamicImage, String> {
                 .map(|p| u16::from_le_bytes([p[0], p[1]]))
                 .collect();
             image::ImageBuffer::<image::Luma<u16>, _>::from_raw(image.width, image.height, grey)
-                .ok_or_else(too_short)?
+                .ok_or(PixelsShort)?
                 .into()
         }
     })

@@ -7,30 +7,29 @@
 )]
 
 use kairos_pack_vision::{codecs, images, lines};
-use kairos_sdk::harness::Harness;
+use kairos_sdk::harness::{Harness, HarnessError};
 use kairos_sdk::{Component, ComponentInfo, Image, Payload, PixelFormat, Sample, Timestamp};
 
-/// Runs one component on `image` with `properties`; its first output's sample, or the failure.
+/// Runs one component on `image` with `properties`; its first output's sample, or the failure in words.
 fn through(
     info: ComponentInfo,
     component: impl Component,
     properties: &[(&str, kairos_sdk::Value)],
     input: &str,
     payload: Payload,
-) -> Result<Sample, String> {
+) -> Result<Sample, HarnessError> {
     let output = info.outputs[0].name.clone();
     let mut harness = Harness::new(info, component);
     for (name, value) in properties {
-        harness
-            .set_property(name, value.clone())
-            .map_err(|e| e.to_string())?;
+        harness.set_property(name, value.clone())?;
     }
     harness.push(input, payload, Timestamp::from_millis(40));
-    let out = harness.run().map_err(|e| e.to_string())?;
-    out.samples(&output)
+    let out = harness.run()?;
+    Ok(out
+        .samples(&output)
         .first()
         .cloned()
-        .ok_or_else(|| "no output".to_owned())
+        .expect("the component wrote its output"))
 }
 
 fn image(sample: &Sample) -> &Image {
@@ -189,7 +188,8 @@ fn images_of_the_wrong_format_are_failed_with_the_reason_and_the_fix() {
         "in",
         Payload::Image(road()),
     )
-    .unwrap_err();
+    .unwrap_err()
+    .to_string();
     assert!(
         error.contains("grey images") && error.contains("Rgb8") && error.contains("vision.convert"),
         "{error}"
@@ -202,7 +202,8 @@ fn images_of_the_wrong_format_are_failed_with_the_reason_and_the_fix() {
         "in",
         Payload::Image(deep),
     )
-    .unwrap_err();
+    .unwrap_err()
+    .to_string();
     assert!(error.contains("8-bit") && error.contains("Gray16"), "{error}");
     let error = through(
         images::Convert::info(),
@@ -211,7 +212,8 @@ fn images_of_the_wrong_format_are_failed_with_the_reason_and_the_fix() {
         "in",
         Payload::F64(1.0),
     )
-    .unwrap_err();
+    .unwrap_err()
+    .to_string();
     assert!(error.contains("expects an image"), "{error}");
     let error = through(
         codecs::JpegDecode::info(),
@@ -220,7 +222,8 @@ fn images_of_the_wrong_format_are_failed_with_the_reason_and_the_fix() {
         "in",
         Payload::Bytes(b"GIF89a".as_slice().into()),
     )
-    .unwrap_err();
+    .unwrap_err()
+    .to_string();
     assert!(error.contains("not a readable JPEG"), "{error}");
 }
 
@@ -234,7 +237,8 @@ fn zero_sized_and_outside_regions_and_even_blur_sizes_are_refused() {
         "in",
         Payload::Image(road()),
     )
-    .unwrap_err();
+    .unwrap_err()
+    .to_string();
     assert!(error.contains("width"), "{error}");
     let error = through(
         images::Crop::info(),
@@ -243,7 +247,8 @@ fn zero_sized_and_outside_regions_and_even_blur_sizes_are_refused() {
         "in",
         Payload::Image(road()),
     )
-    .unwrap_err();
+    .unwrap_err()
+    .to_string();
     assert!(error.contains("does not fit in the 320×240 image"), "{error}");
     let error = through(
         images::GaussianBlur::info(),
@@ -252,7 +257,8 @@ fn zero_sized_and_outside_regions_and_even_blur_sizes_are_refused() {
         "in",
         Payload::Image(road()),
     )
-    .unwrap_err();
+    .unwrap_err()
+    .to_string();
     assert!(
         error.contains("must be odd") && error.contains("set it to 5"),
         "{error}"
@@ -264,7 +270,8 @@ fn zero_sized_and_outside_regions_and_even_blur_sizes_are_refused() {
         "in",
         Payload::Image(road()),
     )
-    .unwrap_err();
+    .unwrap_err()
+    .to_string();
     assert!(error.contains("scale"), "{error}");
 }
 
@@ -399,7 +406,8 @@ fn undistortion_refuses_a_bad_calibration_file_and_an_image_of_another_size() {
         "in",
         Payload::Image(small),
     )
-    .unwrap_err();
+    .unwrap_err()
+    .to_string();
     assert!(
         error.contains("for 320×240 images, this one is 160×120"),
         "{error}"
@@ -416,7 +424,8 @@ fn undistortion_refuses_a_bad_calibration_file_and_an_image_of_another_size() {
         "in",
         Payload::Image(road()),
     )
-    .unwrap_err();
+    .unwrap_err()
+    .to_string();
     assert!(
         error.contains("camera.toml:3:6") && error.contains("must be positive"),
         "{error}"
@@ -476,7 +485,8 @@ fn yuv_frames_convert_both_ways_and_a_short_frame_is_refused_with_the_sizes() {
         "in",
         Payload::Bytes(vec![0_u8; 1000].into()),
     )
-    .unwrap_err();
+    .unwrap_err()
+    .to_string();
     assert!(error.contains("needs 115200 bytes, this one has 1000"), "{error}");
     let odd = Image::packed(3, 2, PixelFormat::Rgb8, vec![0_u8; 18]).unwrap();
     let error = through(
@@ -486,6 +496,7 @@ fn yuv_frames_convert_both_ways_and_a_short_frame_is_refused_with_the_sizes() {
         "in",
         Payload::Image(odd),
     )
-    .unwrap_err();
+    .unwrap_err()
+    .to_string();
     assert!(error.contains("even sides"), "{error}");
 }

@@ -28,7 +28,7 @@ use kairos_sdk::{
     CanFrame, CustomPayload, FixStatus, GnssFix, Imu, Matrix, Payload, PixelFormat, Pose, Sample, Timestamp,
 };
 
-use crate::{Received, image_of_pieces, point_bytes, points_of};
+use crate::{FrameDecodeError, Received, image_of_pieces, point_bytes, points_of};
 
 /// The first bytes of a binary frame.
 pub const MAGIC: &[u8; 4] = b"KSB1";
@@ -240,32 +240,32 @@ fn kind_of(payload: &Payload) -> Option<Kind> {
 struct Fields<'b>(&'b [u8]);
 
 impl<'b> Fields<'b> {
-    fn take<const N: usize>(&mut self, what: &str) -> Result<[u8; N], String> {
+    fn take<const N: usize>(&mut self, what: &'static str) -> Result<[u8; N], FrameDecodeError> {
         let (field, rest) = self
             .0
             .split_first_chunk::<N>()
-            .ok_or_else(|| format!("a binary frame that ends before its {what}"))?;
+            .ok_or(FrameDecodeError::EndsBefore(what))?;
         self.0 = rest;
         Ok(*field)
     }
 
-    fn u8(&mut self, what: &str) -> Result<u8, String> {
+    fn u8(&mut self, what: &'static str) -> Result<u8, FrameDecodeError> {
         Ok(self.take::<1>(what)?[0])
     }
 
-    fn u32(&mut self, what: &str) -> Result<usize, String> {
-        usize::try_from(u32::from_le_bytes(self.take(what)?)).map_err(|_| format!("a {what} too large"))
+    fn u32(&mut self, what: &'static str) -> Result<usize, FrameDecodeError> {
+        usize::try_from(u32::from_le_bytes(self.take(what)?)).map_err(|_| FrameDecodeError::TooLarge(what))
     }
 
-    fn i64(&mut self, what: &str) -> Result<i64, String> {
+    fn i64(&mut self, what: &'static str) -> Result<i64, FrameDecodeError> {
         Ok(i64::from_le_bytes(self.take(what)?))
     }
 
-    fn f64(&mut self, what: &str) -> Result<f64, String> {
+    fn f64(&mut self, what: &'static str) -> Result<f64, FrameDecodeError> {
         Ok(f64::from_le_bytes(self.take(what)?))
     }
 
-    fn f64s<const N: usize>(&mut self, what: &str) -> Result<[f64; N], String> {
+    fn f64s<const N: usize>(&mut self, what: &'static str) -> Result<[f64; N], FrameDecodeError> {
         let mut values = [0.0; N];
         for value in &mut values {
             *value = self.f64(what)?;
@@ -273,23 +273,23 @@ impl<'b> Fields<'b> {
         Ok(values)
     }
 
-    fn name(&mut self, what: &str) -> Result<&'b str, String> {
+    fn name(&mut self, what: &'static str) -> Result<&'b str, FrameDecodeError> {
         let length = usize::from(u16::from_le_bytes(self.take(what)?));
         let (name, rest) = self
             .0
             .split_at_checked(length)
-            .ok_or_else(|| format!("a binary frame that ends inside its {what}"))?;
+            .ok_or(FrameDecodeError::EndsInside(what))?;
         self.0 = rest;
-        std::str::from_utf8(name).map_err(|_| format!("a {what} that is not UTF-8"))
+        std::str::from_utf8(name).map_err(|_| FrameDecodeError::NameNotUtf8(what))
     }
 
     /// What is left, all of it the payload's: f64s.
-    fn rest_f64s(&self, what: &str) -> Result<Vec<f64>, String> {
+    fn rest_f64s(&self, what: &'static str) -> Result<Vec<f64>, FrameDecodeError> {
         if !self.0.len().is_multiple_of(8) {
-            return Err(format!(
-                "{} bytes of {what} are not a whole number of f64s",
-                self.0.len()
-            ));
+            return Err(FrameDecodeError::NotWholeF64s {
+                bytes: self.0.len(),
+                what,
+            });
         }
         Ok(self
             .0
@@ -308,11 +308,9 @@ struct Start<'b> {
     sequence: u64,
 }
 
-fn start<'b>(fields: &mut Fields<'b>) -> Result<Start<'b>, String> {
+fn start<'b>(fields: &mut Fields<'b>) -> Result<Start<'b>, FrameDecodeError> {
     let kind = fields.u8("kind")?;
-    let kind = Kind::of(kind).ok_or_else(|| {
-        format!("a binary frame of kind {kind}, which this version does not know (a newer sender?)")
-    })?;
+    let kind = Kind::of(kind).ok_or(FrameDecodeError::UnknownKind(kind))?;
     Ok(Start {
         kind,
         output: fields.name("output name")?,
@@ -333,7 +331,7 @@ fn received(start: &Start<'_>, payload: Payload) -> Received {
 }
 
 /// Reads a binary frame, its magic already taken off.
-pub(crate) fn decode(bytes: &[u8]) -> Result<Received, String> {
+pub(crate) fn decode(bytes: &[u8]) -> Result<Received, FrameDecodeError> {
     let mut fields = Fields(bytes);
     let start = start(&mut fields)?;
     let payload = match start.kind {
@@ -341,7 +339,7 @@ pub(crate) fn decode(bytes: &[u8]) -> Result<Received, String> {
         Kind::I64 => Payload::I64(fields.i64("value")?),
         Kind::Bool => Payload::Bool(fields.u8("value")? != 0),
         Kind::Text => Payload::Text(Arc::from(
-            std::str::from_utf8(fields.0).map_err(|_| "text that is not UTF-8".to_owned())?,
+            std::str::from_utf8(fields.0).map_err(|_| FrameDecodeError::TextNotUtf8)?,
         )),
         Kind::Bytes => Payload::Bytes(Arc::from(fields.0)),
         Kind::Vector => Payload::Vector(Arc::from(fields.rest_f64s("vector")?)),
@@ -349,7 +347,8 @@ pub(crate) fn decode(bytes: &[u8]) -> Result<Received, String> {
             let (rows, cols) = (fields.u32("row count")?, fields.u32("column count")?);
             let values = fields.rest_f64s("matrix")?;
             if rows.checked_mul(cols) != Some(values.len()) {
-                return Err(format!("a {rows}×{cols} matrix with {} values", values.len()));
+                let values = values.len();
+                return Err(FrameDecodeError::MatrixShape { rows, cols, values });
             }
             Payload::Matrix(Arc::new(Matrix { rows, cols, values }))
         }
@@ -379,7 +378,7 @@ pub(crate) fn decode(bytes: &[u8]) -> Result<Received, String> {
             let status = fields.u8("fix status")?;
             let status = *FixStatus::ALL
                 .get(usize::from(status))
-                .ok_or_else(|| format!("an unknown fix status {status}"))?;
+                .ok_or(FrameDecodeError::UnknownFixStatus(status))?;
             Payload::GnssFix(GnssFix {
                 latitude_deg,
                 longitude_deg,
@@ -396,9 +395,9 @@ pub(crate) fn decode(bytes: &[u8]) -> Result<Received, String> {
             let mut frame = if flags & 4 != 0 {
                 let length = fields.u8("a remote request's length")?;
                 CanFrame::remote_request(id, extended, length)
-                    .ok_or("a remote request for more than 8 bytes")?
+                    .ok_or(FrameDecodeError::RemoteRequestTooLong)?
             } else {
-                CanFrame::new(id, extended, fields.0).ok_or("more than 64 CAN data bytes")?
+                CanFrame::new(id, extended, fields.0).ok_or(FrameDecodeError::CanFrameTooLong)?
             };
             frame.fd |= flags & 2 != 0;
             Payload::CanFrame(frame)
@@ -430,7 +429,7 @@ pub(crate) fn decode(bytes: &[u8]) -> Result<Received, String> {
 /// An image's width, height, stride and format.
 pub(crate) type ImageLayout = (u32, u32, u32, PixelFormat);
 
-fn image_layout(fields: &mut Fields<'_>) -> Result<ImageLayout, String> {
+fn image_layout(fields: &mut Fields<'_>) -> Result<ImageLayout, FrameDecodeError> {
     let (width, height, stride) = (
         u32::from_le_bytes(fields.take("image width")?),
         u32::from_le_bytes(fields.take("image height")?),
@@ -439,13 +438,16 @@ fn image_layout(fields: &mut Fields<'_>) -> Result<ImageLayout, String> {
     let format = fields.u8("pixel format")?;
     let format = *PixelFormat::ALL
         .get(usize::from(format))
-        .ok_or_else(|| format!("an unknown pixel format {format}"))?;
+        .ok_or(FrameDecodeError::UnknownPixelFormat(format))?;
     Ok((width, height, stride, format))
 }
 
 /// An image frame in pieces whose start lies whole in the first: its pixels copied from the pieces straight
 /// into the shared pixel pool. `None` for any other frame.
-pub(crate) fn decode_image_pieces(first: &[u8], rest: &[&[u8]]) -> Option<Result<Received, String>> {
+pub(crate) fn decode_image_pieces(
+    first: &[u8],
+    rest: &[&[u8]],
+) -> Option<Result<Received, FrameDecodeError>> {
     let mut fields = Fields(first.strip_prefix(MAGIC)?);
     let start = start(&mut fields).ok()?;
     if start.kind != Kind::Image {

@@ -22,6 +22,113 @@ use kairos_sdk::{
 };
 use serde_json::{Value as Json, json};
 
+/// Why bytes are not a sample frame: the sender's fault (or a newer sender's), named so that a receiver
+/// can count and report it.
+#[derive(Debug, thiserror::Error)]
+pub enum FrameDecodeError {
+    /// Not a control-protocol frame either.
+    #[error(transparent)]
+    Frame(#[from] frame::FrameError),
+    /// A binary frame cut before a field.
+    #[error("a binary frame that ends before its {0}")]
+    EndsBefore(&'static str),
+    /// A binary frame cut inside a field.
+    #[error("a binary frame that ends inside its {0}")]
+    EndsInside(&'static str),
+    /// A count beyond what this machine addresses.
+    #[error("a {0} too large")]
+    TooLarge(&'static str),
+    /// A name that is not UTF-8.
+    #[error("a {0} that is not UTF-8")]
+    NameNotUtf8(&'static str),
+    /// Text that is not UTF-8.
+    #[error("text that is not UTF-8")]
+    TextNotUtf8,
+    /// Bytes of numbers that are not a whole number of them.
+    #[error("{bytes} bytes of {what} are not a whole number of f64s")]
+    NotWholeF64s {
+        /// The bytes given.
+        bytes: usize,
+        /// What they hold.
+        what: &'static str,
+    },
+    /// A kind of payload this version does not know.
+    #[error("a binary frame of kind {0}, which this version does not know (a newer sender?)")]
+    UnknownKind(u8),
+    /// A pixel format by number this version does not know.
+    #[error("an unknown pixel format {0}")]
+    UnknownPixelFormat(u8),
+    /// A pixel format by name this version does not know.
+    #[error("an unknown pixel format {0:?}")]
+    UnknownPixelFormatName(String),
+    /// An image frame's header without the image's layout.
+    #[error("an image frame without its layout")]
+    NoImageLayout,
+    /// The image's geometry does not fit its pixels.
+    #[error(transparent)]
+    ImageSize(#[from] kairos_sdk::payload::ImageSizeError),
+    /// A header whose value is missing.
+    #[error("a {0} frame without its value")]
+    NoValue(DataType),
+    /// A header value of the wrong kind.
+    #[error("the value is not {0}")]
+    ValueNot(&'static str),
+    /// A JSON number expected.
+    #[error("{0} is not a number")]
+    NotANumber(Json),
+    /// A JSON array of numbers expected.
+    #[error("expected an array of numbers")]
+    NotNumbers,
+    /// A JSON array of this many numbers expected.
+    #[error("expected {0}")]
+    Expected(&'static str),
+    /// A field of the value missing.
+    #[error("no field {0:?}")]
+    NoField(&'static str),
+    /// A dimension that is not a count.
+    #[error("{0} is not a count")]
+    NotACount(&'static str),
+    /// Rows × columns is not the number of values.
+    #[error("a {rows}×{cols} matrix with {values} values")]
+    MatrixShape {
+        /// Rows.
+        rows: usize,
+        /// Columns.
+        cols: usize,
+        /// Values given.
+        values: usize,
+    },
+    /// A fix status by name this version does not know.
+    #[error("an unknown fix status")]
+    UnknownFixStatusName,
+    /// A fix status by number this version does not know.
+    #[error("an unknown fix status {0}")]
+    UnknownFixStatus(u8),
+    /// The CAN id is not a 32-bit number.
+    #[error("the CAN id is not a 32-bit number")]
+    CanId,
+    /// The CAN data is not an array.
+    #[error("the CAN data is not an array")]
+    CanDataNotArray,
+    /// The CAN data holds something other than bytes.
+    #[error("the CAN data are not bytes")]
+    CanDataNotBytes,
+    /// A remote request longer than a classic frame.
+    #[error("a remote request for more than 8 bytes")]
+    RemoteRequestTooLong,
+    /// More data than a CAN FD frame holds.
+    #[error("more than 64 CAN data bytes")]
+    CanFrameTooLong,
+    /// Point bytes that are not a whole number of points.
+    #[error("{bytes} bytes of points are not a whole number of {stride}-byte points")]
+    PointsNotWhole {
+        /// The bytes given.
+        bytes: usize,
+        /// The bytes of one point.
+        stride: usize,
+    },
+}
+
 /// The name of a pixel format in frames (`rgb8`).
 pub fn format_name(format: PixelFormat) -> &'static str {
     match format {
@@ -186,11 +293,11 @@ pub struct Received {
 }
 
 /// Decodes a frame of either layout back into its sample.
-pub fn decode(bytes: &[u8]) -> Result<Received, String> {
+pub fn decode(bytes: &[u8]) -> Result<Received, FrameDecodeError> {
     if let Some(binary) = bytes.strip_prefix(binary::MAGIC) {
         return binary::decode(binary);
     }
-    let (header, body) = frame::decode(bytes).map_err(|e| e.to_string())?;
+    let (header, body) = frame::decode(bytes)?;
     let payload = payload_of(&header, body)?;
     let mut sample = Sample::new(payload, Timestamp(header.timestamp_ns));
     sample.time_of_issue = Timestamp(header.time_of_issue_ns);
@@ -203,7 +310,7 @@ pub fn decode(bytes: &[u8]) -> Result<Received, String> {
 
 /// [`decode`] for a frame in pieces, in order. An image whose header lies whole in the first piece has its
 /// pixels copied from the pieces straight into the shared pixel pool; any other frame is joined first.
-pub fn decode_pieces(pieces: &[&[u8]]) -> Result<Received, String> {
+pub fn decode_pieces(pieces: &[&[u8]]) -> Result<Received, FrameDecodeError> {
     match pieces {
         [] => decode(&[]),
         [whole] => decode(whole),
@@ -233,10 +340,10 @@ pub fn decode_pieces(pieces: &[&[u8]]) -> Result<Received, String> {
 fn image_of<'b>(
     header: &SampleHeader,
     body: impl Iterator<Item = &'b [u8]> + Clone,
-) -> Result<Payload, String> {
-    let layout = header.image.as_ref().ok_or("an image frame without its layout")?;
-    let format =
-        format_of(&layout.format).ok_or_else(|| format!("an unknown pixel format {:?}", layout.format))?;
+) -> Result<Payload, FrameDecodeError> {
+    let layout = header.image.as_ref().ok_or(FrameDecodeError::NoImageLayout)?;
+    let format = format_of(&layout.format)
+        .ok_or_else(|| FrameDecodeError::UnknownPixelFormatName(layout.format.clone()))?;
     image_of_pieces((layout.width, layout.height, layout.stride, format), body)
 }
 
@@ -245,7 +352,7 @@ fn image_of<'b>(
 fn image_of_pieces<'b>(
     (width, height, stride, format): binary::ImageLayout,
     body: impl Iterator<Item = &'b [u8]> + Clone,
-) -> Result<Payload, String> {
+) -> Result<Payload, FrameDecodeError> {
     let length = body.clone().map(<[u8]>::len).sum();
     let mut pixels = PixelsMut::new(length);
     let mut at = 0;
@@ -253,59 +360,73 @@ fn image_of_pieces<'b>(
         pixels[at..at + piece.len()].copy_from_slice(piece);
         at += piece.len();
     }
-    Image::with_stride(width, height, format, stride, pixels.freeze())
-        .map(Payload::Image)
-        .map_err(|e| e.to_string())
+    Ok(Payload::Image(Image::with_stride(
+        width,
+        height,
+        format,
+        stride,
+        pixels.freeze(),
+    )?))
 }
 
-fn number(value: &Json) -> Result<f64, String> {
+fn number(value: &Json) -> Result<f64, FrameDecodeError> {
     match value {
         // JSON has no NaN: a NaN was sent as null.
         Json::Null => Ok(f64::NAN),
-        other => other.as_f64().ok_or_else(|| format!("{other} is not a number")),
+        other => other
+            .as_f64()
+            .ok_or_else(|| FrameDecodeError::NotANumber(other.clone())),
     }
 }
 
-fn numbers(value: Option<&Json>) -> Result<Vec<f64>, String> {
+fn numbers(value: Option<&Json>) -> Result<Vec<f64>, FrameDecodeError> {
     value
         .and_then(Json::as_array)
-        .ok_or("expected an array of numbers")?
+        .ok_or(FrameDecodeError::NotNumbers)?
         .iter()
         .map(number)
         .collect()
 }
 
-fn field<'v>(value: &'v Json, name: &str) -> Result<&'v Json, String> {
-    value.get(name).ok_or_else(|| format!("no field {name:?}"))
+fn field<'v>(value: &'v Json, name: &'static str) -> Result<&'v Json, FrameDecodeError> {
+    value.get(name).ok_or(FrameDecodeError::NoField(name))
 }
 
-fn vector3(value: Option<&Json>) -> Result<DVec3, String> {
+fn vector3(value: Option<&Json>) -> Result<DVec3, FrameDecodeError> {
     match numbers(value)?[..] {
         [x, y, z] => Ok(DVec3::new(x, y, z)),
-        _ => Err("expected [x, y, z]".to_owned()),
+        _ => Err(FrameDecodeError::Expected("[x, y, z]")),
     }
 }
 
-fn quaternion(value: Option<&Json>) -> Result<DQuat, String> {
+fn quaternion(value: Option<&Json>) -> Result<DQuat, FrameDecodeError> {
     match numbers(value)?[..] {
         [x, y, z, w] => Ok(DQuat::from_xyzw(x, y, z, w)),
-        _ => Err("expected [x, y, z, w]".to_owned()),
+        _ => Err(FrameDecodeError::Expected("[x, y, z, w]")),
     }
 }
 
-fn payload_of(header: &SampleHeader, body: &[u8]) -> Result<Payload, String> {
+fn payload_of(header: &SampleHeader, body: &[u8]) -> Result<Payload, FrameDecodeError> {
     let data_type = DataType::from_name(&header.data_type);
     let value = || {
         header
             .value
             .as_ref()
-            .ok_or_else(|| format!("a {data_type} frame without its value"))
+            .ok_or_else(|| FrameDecodeError::NoValue(data_type.clone()))
     };
     let payload = match data_type {
         // A NaN went as null, which the header reads back as no value.
         DataType::F64 => Payload::F64(header.value.as_ref().map_or(Ok(f64::NAN), number)?),
-        DataType::I64 => Payload::I64(value()?.as_i64().ok_or("the value is not an integer")?),
-        DataType::Bool => Payload::Bool(value()?.as_bool().ok_or("the value is not a boolean")?),
+        DataType::I64 => Payload::I64(
+            value()?
+                .as_i64()
+                .ok_or(FrameDecodeError::ValueNot("an integer"))?,
+        ),
+        DataType::Bool => Payload::Bool(
+            value()?
+                .as_bool()
+                .ok_or(FrameDecodeError::ValueNot("a boolean"))?,
+        ),
         DataType::Vector => Payload::Vector(Arc::from(numbers(Some(value()?))?)),
         DataType::Matrix => {
             let value = value()?;
@@ -313,16 +434,19 @@ fn payload_of(header: &SampleHeader, body: &[u8]) -> Result<Payload, String> {
                 field(value, name)?
                     .as_u64()
                     .and_then(|n| usize::try_from(n).ok())
-                    .ok_or_else(|| format!("{name} is not a count"))
+                    .ok_or(FrameDecodeError::NotACount(name))
             };
             let (rows, cols) = (dimension("rows")?, dimension("cols")?);
             let values = numbers(value.get("values"))?;
             if rows.checked_mul(cols) != Some(values.len()) {
-                return Err(format!("a {rows}×{cols} matrix with {} values", values.len()));
+                let values = values.len();
+                return Err(FrameDecodeError::MatrixShape { rows, cols, values });
             }
             Payload::Matrix(Arc::new(Matrix { rows, cols, values }))
         }
-        DataType::Text => Payload::Text(Arc::from(value()?.as_str().ok_or("the value is not text")?)),
+        DataType::Text => Payload::Text(Arc::from(
+            value()?.as_str().ok_or(FrameDecodeError::ValueNot("text"))?,
+        )),
         DataType::Imu => {
             let value = value()?;
             let orientation = match value.get("orientation") {
@@ -342,7 +466,7 @@ fn payload_of(header: &SampleHeader, body: &[u8]) -> Result<Payload, String> {
                 Some("fix") => FixStatus::Fix,
                 Some("differential") => FixStatus::Differential,
                 Some("rtk_fixed") => FixStatus::RtkFixed,
-                _ => return Err("an unknown fix status".to_owned()),
+                _ => return Err(FrameDecodeError::UnknownFixStatusName),
             };
             Payload::GnssFix(GnssFix {
                 latitude_deg: number(field(value, "latitude_deg")?)?,
@@ -358,14 +482,14 @@ fn payload_of(header: &SampleHeader, body: &[u8]) -> Result<Payload, String> {
             let id = field(value, "id")?
                 .as_u64()
                 .and_then(|id| u32::try_from(id).ok())
-                .ok_or("the CAN id is not a 32-bit number")?;
+                .ok_or(FrameDecodeError::CanId)?;
             let data: Vec<u8> = field(value, "data")?
                 .as_array()
-                .ok_or("the CAN data is not an array")?
+                .ok_or(FrameDecodeError::CanDataNotArray)?
                 .iter()
                 .map(|byte| byte.as_u64().and_then(|b| u8::try_from(b).ok()))
                 .collect::<Option<_>>()
-                .ok_or("the CAN data are not bytes")?;
+                .ok_or(FrameDecodeError::CanDataNotBytes)?;
             let flag = |name: &str| value.get(name).and_then(Json::as_bool).unwrap_or(false);
             let extended = flag("extended");
             let mut frame = if flag("remote") {
@@ -373,9 +497,9 @@ fn payload_of(header: &SampleHeader, body: &[u8]) -> Result<Payload, String> {
                 u8::try_from(length)
                     .ok()
                     .and_then(|length| CanFrame::remote_request(id, extended, length))
-                    .ok_or("a remote request for more than 8 bytes")?
+                    .ok_or(FrameDecodeError::RemoteRequestTooLong)?
             } else {
-                CanFrame::new(id, extended, &data).ok_or("more than 64 CAN data bytes")?
+                CanFrame::new(id, extended, &data).ok_or(FrameDecodeError::CanFrameTooLong)?
             };
             frame.fd |= flag("fd");
             Payload::CanFrame(frame)
@@ -399,13 +523,13 @@ fn payload_of(header: &SampleHeader, body: &[u8]) -> Result<Payload, String> {
 }
 
 /// Points from their bytes: x, y, z and, with `intensity`, a fourth f32, little-endian.
-fn points_of(body: &[u8], intensity: bool) -> Result<PointCloud, String> {
+fn points_of(body: &[u8], intensity: bool) -> Result<PointCloud, FrameDecodeError> {
     let stride = if intensity { 16 } else { 12 };
     if !body.len().is_multiple_of(stride) {
-        return Err(format!(
-            "{} bytes of points are not a whole number of {stride}-byte points",
-            body.len()
-        ));
+        return Err(FrameDecodeError::PointsNotWhole {
+            bytes: body.len(),
+            stride,
+        });
     }
     let float = |bytes: &[u8], at: usize| {
         bytes
@@ -623,7 +747,12 @@ mod tests {
         let mut frame = encode_whole("a.b", &Sample::new(Payload::F64(1.0), Timestamp(1)));
         frame[4] = 200;
         let error = decode(&frame).unwrap_err();
-        assert!(error.contains("kind 200") && error.contains("newer"), "{error}");
+        assert!(
+            matches!(error, crate::FrameDecodeError::UnknownKind(200)),
+            "{error:?}"
+        );
+        let said = error.to_string();
+        assert!(said.contains("kind 200") && said.contains("newer"), "{said}");
     }
 
     #[test]
@@ -697,10 +826,10 @@ mod tests {
                 .unwrap();
             let image = Sample::new(image, Timestamp(1));
             let bytes = encode("camera.image", &image);
-            let error = decode(&bytes[..bytes.len() - 1]).unwrap_err();
+            let error = decode(&bytes[..bytes.len() - 1]).unwrap_err().to_string();
             assert!(error.contains("buffer") || error.contains("bytes"), "{error}");
         }
-        assert!(decode(b"garbage").unwrap_err().contains("KSF1"));
+        assert!(decode(b"garbage").unwrap_err().to_string().contains("KSF1"));
     }
 
     #[test]
