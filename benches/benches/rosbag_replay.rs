@@ -126,9 +126,5 @@ fn main() {
         Some(Goal::AtLeast(1.0)),
     );
     ratios.print();
-    println!(
-        "{:.0} MB of messages in {}",
-        bytes as f64 / 1e6,
-        folder.display()
-    );
+    println!("{:.0} MB of messages in {}", bytes as f64 / 1e6, folder.display());
 }
