@@ -2,8 +2,27 @@
 
 use std::time::Duration;
 
+/// Why text is not a duration: said with what to write instead.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum DurationError {
+    /// No number in front.
+    #[error("'{0}' is not a duration; write e.g. 10s, 500ms, 2m or 1h")]
+    NotADuration(String),
+    /// A unit this parser does not know.
+    #[error("unknown unit '{unit}' in '{text}'; use ms, s, m or h")]
+    UnknownUnit {
+        /// The unit written.
+        unit: String,
+        /// The whole text.
+        text: String,
+    },
+    /// Negative, or beyond what a `Duration` holds.
+    #[error("'{0}' is out of range")]
+    OutOfRange(String),
+}
+
 /// Parses a duration; a bare number means seconds.
-pub fn parse_duration(text: &str) -> Result<Duration, String> {
+pub fn parse_duration(text: &str) -> Result<Duration, DurationError> {
     let text = text.trim();
     let split = text
         .find(|c: char| !(c.is_ascii_digit() || c == '.'))
@@ -11,16 +30,21 @@ pub fn parse_duration(text: &str) -> Result<Duration, String> {
     let (number, unit) = text.split_at(split);
     let value: f64 = number
         .parse()
-        .map_err(|_| format!("'{text}' is not a duration; write e.g. 10s, 500ms, 2m or 1h"))?;
+        .map_err(|_| DurationError::NotADuration(text.to_owned()))?;
     let seconds = match unit.trim() {
         "" | "s" | "sec" | "secs" => value,
         "ms" => value / 1e3,
         "us" | "µs" => value / 1e6,
         "m" | "min" => value * 60.0,
         "h" => value * 3600.0,
-        other => return Err(format!("unknown unit '{other}' in '{text}'; use ms, s, m or h")),
+        other => {
+            return Err(DurationError::UnknownUnit {
+                unit: other.to_owned(),
+                text: text.to_owned(),
+            });
+        }
     };
-    Duration::try_from_secs_f64(seconds).map_err(|_| format!("'{text}' is out of range"))
+    Duration::try_from_secs_f64(seconds).map_err(|_| DurationError::OutOfRange(text.to_owned()))
 }
 
 #[cfg(test)]

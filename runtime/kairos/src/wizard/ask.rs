@@ -3,7 +3,7 @@
 use std::path::{Path, PathBuf};
 
 use super::check::{check_name, parse_port, property_view};
-use super::{ComponentSpec, Mode};
+use super::{ComponentSpec, Mode, Refusal, refuse};
 
 /// Asks for a component's answers one by one on `input` (a terminal, or a script's lines), checking each
 /// before the next and asking again with the reason when it is refused. Lists are comma-separated; an
@@ -12,7 +12,7 @@ pub fn ask(
     input: &mut impl std::io::BufRead,
     output: &mut impl std::io::Write,
 ) -> std::io::Result<(ComponentSpec, PathBuf)> {
-    let mut question = |text: &str, default: &str, check: &dyn Fn(&str) -> Result<(), String>| {
+    let mut question = |text: &str, default: &str, check: &dyn Fn(&str) -> Result<(), Refusal>| {
         loop {
             if default.is_empty() {
                 write!(output, "{text}: ")?;
@@ -44,46 +44,39 @@ pub fn ask(
             .map(str::to_owned)
             .collect()
     };
-    let name = question("Component name", "", &|a| {
-        check_name("component", a).map_err(|r| r.to_string())
-    })?;
+    let name = question("Component name", "", &|a| check_name("component", a))?;
     let pack = question("Pack folder", ".", &|a| {
         let folder = Path::new(a);
         if folder.join("src/lib.rs").is_file() || folder.join("src/pack.cpp").is_file() {
             Ok(())
         } else {
-            Err(format!("{a} is not a pack made by `kairos new pack`"))
+            Err(refuse(
+                format!("{a} is not a pack made by `kairos new pack`"),
+                None,
+            ))
         }
     })?;
     let mode = question("Mode (threaded, reactive, periodic)", "threaded", &|a| {
         ["threaded", "reactive", "periodic"]
             .contains(&a)
             .then_some(())
-            .ok_or_else(|| "one of threaded, reactive, periodic".to_owned())
+            .ok_or_else(|| refuse("one of threaded, reactive, periodic", None))
     })?;
     let inputs = question("Inputs, name:type, comma-separated", "", &|a| {
-        list(a).iter().try_for_each(|i| {
-            parse_port("input", i, true)
-                .map(|_| ())
-                .map_err(|r| r.to_string())
-        })
+        list(a)
+            .iter()
+            .try_for_each(|i| parse_port("input", i, true).map(|_| ()))
     })?;
     let outputs = question("Outputs, name:type", "", &|a| {
-        list(a).iter().try_for_each(|o| {
-            parse_port("output", o, false)
-                .map(|_| ())
-                .map_err(|r| r.to_string())
-        })
+        list(a)
+            .iter()
+            .try_for_each(|o| parse_port("output", o, false).map(|_| ()))
     })?;
     let properties = question("Properties, name:type=default", "", &|a| {
-        list(a)
-            .iter()
-            .try_for_each(|p| property_view(p).map(|_| ()).map_err(|r| r.to_string()))
+        list(a).iter().try_for_each(|p| property_view(p).map(|_| ()))
     })?;
     let actions = question("Actions, names", "", &|a| {
-        list(a)
-            .iter()
-            .try_for_each(|n| check_name("action", n).map_err(|r| r.to_string()))
+        list(a).iter().try_for_each(|n| check_name("action", n))
     })?;
     let spec = ComponentSpec {
         name,

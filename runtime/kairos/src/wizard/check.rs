@@ -236,15 +236,19 @@ pub(super) fn property_view(text: &str) -> Result<PropertyView, Refusal> {
 
 /// Refuses a new pack's name that a pack of `library` (the built-in ones and those on the pack path)
 /// already has: both could not be loaded together.
-pub(super) fn check_pack_name_free(name: &str, library: &kairos_diagram::LibraryInfo) -> Result<(), String> {
+pub(super) fn check_pack_name_free(name: &str, library: &kairos_diagram::LibraryInfo) -> Result<(), Refusal> {
     match library.packs.get(name) {
         None => Ok(()),
-        Some(pack) if pack.origin == "built-in" => {
-            Err(format!("'{name}' is the name of a built-in pack; choose another"))
-        }
-        Some(pack) => Err(format!(
-            "'{name}' is the name of a pack on the pack path ({}); choose another",
-            pack.origin
+        Some(pack) if pack.origin == "built-in" => Err(refuse(
+            format!("'{name}' is the name of a built-in pack"),
+            Some("choose another".to_owned()),
+        )),
+        Some(pack) => Err(refuse(
+            format!(
+                "'{name}' is the name of a pack on the pack path ({})",
+                pack.origin
+            ),
+            Some("choose another".to_owned()),
         )),
     }
 }

@@ -108,6 +108,79 @@ impl std::fmt::Display for Refusal {
     }
 }
 
+impl std::error::Error for Refusal {}
+
+/// Why the wizard made nothing, or stopped part way: an answer refused (before anything is written), or
+/// the file system or a template failing.
+#[derive(Debug, thiserror::Error)]
+pub enum WizardError {
+    /// An answer refused, with what would do.
+    #[error(transparent)]
+    Refused(#[from] Refusal),
+    /// A Rust or C++ pack needs the SDK's sources to build against.
+    #[error("no kairos-sdk at {} (it is found beside the sources kairos was built from); give --sdk PATH", .0.display())]
+    NoSdk(PathBuf),
+    /// The folder already holds a pack.
+    #[error("{} already holds a pack; --force overwrites it", .0.display())]
+    PackExists(PathBuf),
+    /// A file the wizard would write is there already.
+    #[error("{} exists; --force overwrites it", .0.display())]
+    FileExists(PathBuf),
+    /// A folder could not be made.
+    #[error("cannot create {}: {source}", .path.display())]
+    Create {
+        /// The folder.
+        path: PathBuf,
+        /// What the system said.
+        source: std::io::Error,
+    },
+    /// A file could not be read.
+    #[error("cannot read {}: {source}", .path.display())]
+    Read {
+        /// The file.
+        path: PathBuf,
+        /// What the system said.
+        source: std::io::Error,
+    },
+    /// A file could not be written.
+    #[error("cannot write {}: {source}", .path.display())]
+    Write {
+        /// The file.
+        path: PathBuf,
+        /// What the system said.
+        source: std::io::Error,
+    },
+    /// The pack's index is not one `kairos new pack` made.
+    #[error("{} is not a pack made by `kairos new pack` (cannot read {}: {source})", .pack.display(), .index.display())]
+    NotAPack {
+        /// The pack's folder.
+        pack: PathBuf,
+        /// The index file looked for.
+        index: PathBuf,
+        /// What the system said.
+        source: std::io::Error,
+    },
+    /// A template carried in this binary does not parse: a defect of this build.
+    #[error("the template {name} is broken: {source}")]
+    Template {
+        /// The template.
+        name: &'static str,
+        /// What minijinja said.
+        source: minijinja::Error,
+    },
+    /// A template failed with these answers.
+    #[error("cannot render {template}: {source}")]
+    Render {
+        /// The template.
+        template: String,
+        /// What minijinja said.
+        source: minijinja::Error,
+    },
+    /// A C++ component's descriptor could not be written as JSON.
+    #[error("cannot write the descriptor: {0}")]
+    Descriptor(#[source] serde_json::Error),
+}
+
 fn refuse(problem: impl Into<String>, suggestion: Option<String>) -> Refusal {
     Refusal {
         problem: problem.into(),
@@ -130,14 +203,11 @@ pub fn new_pack(
     library: &kairos_diagram::LibraryInfo,
     lang: Lang,
     force: bool,
-) -> Result<(PathBuf, Vec<String>), String> {
-    check_name("pack", name).map_err(|r| r.to_string())?;
+) -> Result<(PathBuf, Vec<String>), WizardError> {
+    check_name("pack", name)?;
     check_pack_name_free(name, library)?;
     if lang != Lang::Python && !sdk.join("Cargo.toml").is_file() {
-        return Err(format!(
-            "no kairos-sdk at {} (it is found beside the sources kairos was built from); give --sdk PATH",
-            sdk.display()
-        ));
+        return Err(WizardError::NoSdk(sdk.to_owned()));
     }
     let crate_name = format!("kairos-pack-{}", name.replace('_', "-"));
     // In this repository's component-packs/ folder a pack is a member of its workspace, picked up by the
@@ -152,17 +222,17 @@ pub fn new_pack(
         || folder.join("Makefile").exists()
         || folder.join(PYTHON_MANIFEST_FILE).exists();
     if exists && !force {
-        return Err(format!(
-            "{} already holds a pack; --force overwrites it",
-            folder.display()
-        ));
+        return Err(WizardError::PackExists(folder));
     }
     let sources = if lang == Lang::Python {
         folder.clone()
     } else {
         folder.join("src")
     };
-    std::fs::create_dir_all(&sources).map_err(|e| format!("cannot create {}: {e}", folder.display()))?;
+    std::fs::create_dir_all(&sources).map_err(|source| WizardError::Create {
+        path: folder.clone(),
+        source,
+    })?;
     let values = context! {
         pack_name => name,
         crate_name => crate_name,
@@ -248,10 +318,11 @@ pub fn check_component(
     pack: &Path,
     library: &kairos_diagram::LibraryInfo,
     force: bool,
-) -> Result<(), String> {
+) -> Result<(), WizardError> {
     let target = locate(spec, pack, library, force)?;
     check_python_mode(spec, &target)?;
-    plan::plan(spec).map(|_| ())
+    plan::plan(spec)?;
+    Ok(())
 }
 
 /// Generates a component in the pack at `pack` (Rust or C++, as the pack is) and registers it. Every answer
@@ -261,7 +332,7 @@ pub fn new_component(
     pack: &Path,
     library: &kairos_diagram::LibraryInfo,
     force: bool,
-) -> Result<Vec<String>, String> {
+) -> Result<Vec<String>, WizardError> {
     let target = locate(spec, pack, library, force)?;
     let plan = plan::plan(spec)?;
     match target.lang {
@@ -322,7 +393,8 @@ mod tests {
             false,
         )
         .unwrap_err();
-        assert!(error.contains("built-in pack"), "{error}");
+        assert!(matches!(error, WizardError::Refused(_)), "{error:?}");
+        assert!(error.to_string().contains("built-in pack"), "{error}");
         // `filters` is a loadable pack, not a built-in one: the name is free unless it is on the pack path.
         let error = new_pack(
             "filters",
@@ -333,7 +405,7 @@ mod tests {
             false,
         )
         .unwrap_err();
-        assert!(error.contains("no kairos-sdk"), "{error}");
+        assert!(matches!(error, WizardError::NoSdk(_)), "{error:?}");
         library.packs.insert(
             "filters".to_owned(),
             kairos_diagram::PackInfo {
@@ -351,7 +423,10 @@ mod tests {
             false,
         )
         .unwrap_err();
-        assert!(error.contains("/opt/packs/libkairos_pack_filters.so"), "{error}");
+        assert!(
+            error.to_string().contains("/opt/packs/libkairos_pack_filters.so"),
+            "{error}"
+        );
     }
 
     #[test]

@@ -11,7 +11,7 @@ use super::check::{
 };
 use super::{
     CPP_COMPONENTS_MARKER, CPP_DECLARATIONS_MARKER, ComponentSpec, Lang, MODULES_MARKER, Mode,
-    PYTHON_MANIFEST_FILE, REGISTER_MARKER,
+    PYTHON_MANIFEST_FILE, REGISTER_MARKER, Refusal, WizardError, refuse,
 };
 
 /// The descriptor of a C++ component as the runtime reads it from the library (the JSON of a
@@ -20,7 +20,7 @@ pub(super) fn cpp_descriptor(
     spec: &ComponentSpec,
     type_name: &str,
     pack_name: &str,
-) -> Result<String, String> {
+) -> Result<String, WizardError> {
     use kairos_sdk_core::descriptor::{Descriptor, Property};
     let mode = match spec.mode {
         Mode::Threaded => kairos_diagram::ExecutionMode::Threaded,
@@ -33,14 +33,14 @@ pub(super) fn cpp_descriptor(
     );
     let mut descriptor = Descriptor::new(type_name, pack_name, &doc).mode(mode);
     for text in &spec.inputs {
-        let (name, data_type) = parse_port("input", text, true).map_err(|r| r.to_string())?;
+        let (name, data_type) = parse_port("input", text, true)?;
         let filter = data_type.map_or(kairos_diagram::TypeFilter::Any, |t| {
             kairos_diagram::TypeFilter::OneOf(vec![t])
         });
         descriptor = descriptor.input(&name, filter, &name);
     }
     for text in &spec.outputs {
-        let (name, data_type) = parse_port("output", text, false).map_err(|r| r.to_string())?;
+        let (name, data_type) = parse_port("output", text, false)?;
         descriptor = descriptor.output(&name, data_type.unwrap_or(DataType::F64), &name);
     }
     for text in &spec.properties {
@@ -60,7 +60,7 @@ pub(super) fn cpp_descriptor(
     }
     let mut info = descriptor.build();
     pack_name.clone_into(&mut info.pack);
-    serde_json::to_string_pretty(&info).map_err(|e| format!("cannot write the descriptor: {e}"))
+    serde_json::to_string_pretty(&info).map_err(WizardError::Descriptor)
 }
 
 /// The pack's name, from its `lib.rs` or `pack.cpp`.
@@ -90,8 +90,8 @@ pub(super) fn locate(
     pack: &Path,
     library: &kairos_diagram::LibraryInfo,
     force: bool,
-) -> Result<Target, String> {
-    check_name("component", &spec.name).map_err(|r| r.to_string())?;
+) -> Result<Target, WizardError> {
+    check_name("component", &spec.name)?;
     if pack.join(PYTHON_MANIFEST_FILE).is_file() {
         return locate_python(spec, pack, library, force);
     }
@@ -104,27 +104,29 @@ pub(super) fn locate(
     } else {
         (pack.join("src/lib.rs"), [MODULES_MARKER, REGISTER_MARKER])
     };
-    let index = std::fs::read_to_string(&index_path).map_err(|e| {
-        format!(
-            "{} is not a pack made by `kairos new pack` (cannot read {}: {e})",
-            pack.display(),
-            index_path.display()
-        )
-    })?;
+    let index = match std::fs::read_to_string(&index_path) {
+        Ok(index) => index,
+        Err(source) => {
+            let pack = pack.to_owned();
+            return Err(WizardError::NotAPack {
+                pack,
+                index: index_path,
+                source,
+            });
+        }
+    };
     if markers.iter().any(|m| !index.contains(m)) {
-        return Err(format!(
-            "{} lacks the `kairos new` markers; add the lines '{}' and '{}'",
-            index_path.display(),
-            markers[0],
-            markers[1]
-        ));
+        return Err(refuse(
+            format!("{} lacks the `kairos new` markers", index_path.display()),
+            Some(format!("add the lines '{}' and '{}'", markers[0], markers[1])),
+        )
+        .into());
     }
-    let pack_name = pack_name(&index).ok_or_else(|| format!("{} has no pack name", index_path.display()))?;
+    let pack_name = pack_name(&index)
+        .ok_or_else(|| refuse(format!("{} has no pack name", index_path.display()), None))?;
     let type_name = format!("{pack_name}.{}", spec.name);
     if library.component(&type_name).is_some() && !force {
-        return Err(format!(
-            "the component library already has a type '{type_name}'; choose another name"
-        ));
+        return Err(type_taken(&type_name).into());
     }
     let module_path = pack
         .join("src")
@@ -135,10 +137,7 @@ pub(super) fn locate(
         index.contains(&format!("pub mod {};", spec.name))
     };
     if (registered || module_path.exists()) && !force {
-        return Err(format!(
-            "the pack {pack_name} already has a component '{}'; choose another name (or --force)",
-            spec.name
-        ));
+        return Err(component_taken(&pack_name, &spec.name).into());
     }
     Ok(Target {
         lang: if cpp { Lang::Cpp } else { Lang::Rust },
@@ -151,16 +150,50 @@ pub(super) fn locate(
     })
 }
 
+/// Two ports with one name.
+fn ports_named_alike(name: &str) -> Refusal {
+    refuse(
+        format!(
+            "two ports are named '{name}': each input and output needs a name of its own (e.g. --input \
+             {name}:... --output {name}_out:...)"
+        ),
+        None,
+    )
+}
+
+/// A type name the library has already.
+fn type_taken(type_name: &str) -> Refusal {
+    refuse(
+        format!("the component library already has a type '{type_name}'"),
+        Some("choose another name".to_owned()),
+    )
+}
+
+/// A component name the pack has already.
+fn component_taken(pack_name: &str, name: &str) -> Refusal {
+    refuse(
+        format!("the pack {pack_name} already has a component '{name}'"),
+        Some("choose another name (or --force)".to_owned()),
+    )
+}
+
 /// [`locate`] for a Python pack: its manifest names it, and a component is a file of its own.
 pub(super) fn locate_python(
     spec: &ComponentSpec,
     pack: &Path,
     library: &kairos_diagram::LibraryInfo,
     force: bool,
-) -> Result<Target, String> {
+) -> Result<Target, WizardError> {
     let index_path = pack.join(PYTHON_MANIFEST_FILE);
-    let index = std::fs::read_to_string(&index_path)
-        .map_err(|e| format!("cannot read {}: {e}", index_path.display()))?;
+    let index = match std::fs::read_to_string(&index_path) {
+        Ok(index) => index,
+        Err(source) => {
+            return Err(WizardError::Read {
+                path: index_path,
+                source,
+            });
+        }
+    };
     // `name = "..."` under [pack]: the manifest's only `name`.
     let pack_name = index
         .lines()
@@ -176,23 +209,21 @@ pub(super) fn locate_python(
         })
         .map(str::to_owned)
         .ok_or_else(|| {
-            format!(
-                "{} has no pack name (name = \"...\" under [pack])",
-                index_path.display()
+            refuse(
+                format!(
+                    "{} has no pack name (name = \"...\" under [pack])",
+                    index_path.display()
+                ),
+                None,
             )
         })?;
     let type_name = format!("{pack_name}.{}", spec.name);
     if library.component(&type_name).is_some() && !force {
-        return Err(format!(
-            "the component library already has a type '{type_name}'; choose another name"
-        ));
+        return Err(type_taken(&type_name).into());
     }
     let module_path = pack.join(format!("{}.py", spec.name));
     if module_path.exists() && !force {
-        return Err(format!(
-            "the pack {pack_name} already has a component '{}'; choose another name (or --force)",
-            spec.name
-        ));
+        return Err(component_taken(&pack_name, &spec.name).into());
     }
     Ok(Target {
         lang: Lang::Python,
@@ -233,16 +264,13 @@ impl Plan {
 }
 
 /// Checks every answer (before anything is written) and works out the generated code's shape.
-pub(super) fn plan(spec: &ComponentSpec) -> Result<Plan, String> {
+pub(super) fn plan(spec: &ComponentSpec) -> Result<Plan, Refusal> {
     let mut taken = BTreeSet::new();
     let mut inputs = Vec::new();
     for text in &spec.inputs {
-        let (name, data_type) = parse_port("input", text, true).map_err(|r| r.to_string())?;
+        let (name, data_type) = parse_port("input", text, true)?;
         if !taken.insert(name.clone()) {
-            return Err(format!(
-                "two ports are named '{name}': each input and output needs a name of its own (e.g. \
-                 --input {name}:... --output {name}_out:...)"
-            ));
+            return Err(ports_named_alike(&name));
         }
         inputs.push(PortView {
             filter: data_type.as_ref().map_or_else(
@@ -258,13 +286,10 @@ pub(super) fn plan(spec: &ComponentSpec) -> Result<Plan, String> {
     }
     let mut outputs = Vec::new();
     for text in &spec.outputs {
-        let (name, data_type) = parse_port("output", text, false).map_err(|r| r.to_string())?;
+        let (name, data_type) = parse_port("output", text, false)?;
         let data_type = data_type.unwrap_or(DataType::F64);
         if !taken.insert(name.clone()) {
-            return Err(format!(
-                "two ports are named '{name}': each input and output needs a name of its own (e.g. \
-                 --input {name}:... --output {name}_out:...)"
-            ));
+            return Err(ports_named_alike(&name));
         }
         outputs.push(PortView {
             type_expr: type_expr(&data_type),
@@ -278,24 +303,24 @@ pub(super) fn plan(spec: &ComponentSpec) -> Result<Plan, String> {
     let mut properties = Vec::new();
     let mut property_names = BTreeSet::new();
     for text in &spec.properties {
-        let view = property_view(text).map_err(|r| r.to_string())?;
+        let view = property_view(text)?;
         if !property_names.insert(view.name.clone()) {
-            return Err(format!("two properties are named '{}'", view.name));
+            return Err(refuse(format!("two properties are named '{}'", view.name), None));
         }
         properties.push(view);
     }
     let mut action_names = BTreeSet::new();
     for action in &spec.actions {
-        check_name("action", action).map_err(|r| r.to_string())?;
+        check_name("action", action)?;
         if !action_names.insert(action.clone()) {
-            return Err(format!("two actions are named '{action}'"));
+            return Err(refuse(format!("two actions are named '{action}'"), None));
         }
     }
     if spec.mode == Mode::Reactive && inputs.is_empty() {
-        return Err(
-            "a reactive component runs when a sample arrives: give it an --input (or --mode periodic)"
-                .to_owned(),
-        );
+        return Err(refuse(
+            "a reactive component runs when a sample arrives: give it an --input (or --mode periodic)",
+            None,
+        ));
     }
     let (first_input, first_output) = (inputs.first(), outputs.first());
     let same_type = matches!((first_input, first_output), (Some(i), Some(o)) if i.type_name == o.type_name);

@@ -5,6 +5,8 @@ use std::path::{Path, PathBuf};
 
 use minijinja::Environment;
 
+use super::WizardError;
+
 pub(super) const PACK_CARGO: &str = include_str!("../../../../templates/rust/pack/Cargo.toml.j2");
 pub(super) const PACK_LIB: &str = include_str!("../../../../templates/rust/pack/lib.rs.j2");
 pub(super) const PACK_README: &str = include_str!("../../../../templates/rust/pack/README.md.j2");
@@ -20,7 +22,7 @@ pub(super) const PYTHON_README: &str = include_str!("../../../../templates/pytho
 pub(super) const PYTHON_COMPONENT: &str = include_str!("../../../../templates/python/component.py.j2");
 pub(super) const PYTHON_TEST: &str = include_str!("../../../../templates/python/test_component.py.j2");
 
-pub(super) fn environment() -> Result<Environment<'static>, String> {
+pub(super) fn environment() -> Result<Environment<'static>, WizardError> {
     let mut env = Environment::new();
     env.set_keep_trailing_newline(true);
     for (name, source) in [
@@ -39,23 +41,29 @@ pub(super) fn environment() -> Result<Environment<'static>, String> {
         ("python/test_component.py", PYTHON_TEST),
     ] {
         env.add_template(name, source)
-            .map_err(|e| format!("the template {name} is broken: {e}"))?;
+            .map_err(|source| WizardError::Template { name, source })?;
     }
     Ok(env)
 }
 
-pub(super) fn render(template: &str, values: minijinja::Value) -> Result<String, String> {
+pub(super) fn render(template: &str, values: minijinja::Value) -> Result<String, WizardError> {
     let env = environment()?;
     env.get_template(template)
         .and_then(|t| t.render(values))
-        .map_err(|e| format!("cannot render {template}: {e}"))
+        .map_err(|source| WizardError::Render {
+            template: template.to_owned(),
+            source,
+        })
 }
 
-pub(super) fn write_new(path: &Path, text: &str, force: bool) -> Result<(), String> {
+pub(super) fn write_new(path: &Path, text: &str, force: bool) -> Result<(), WizardError> {
     if path.exists() && !force {
-        return Err(format!("{} exists; --force overwrites it", path.display()));
+        return Err(WizardError::FileExists(path.to_owned()));
     }
-    std::fs::write(path, text).map_err(|e| format!("cannot write {}: {e}", path.display()))
+    std::fs::write(path, text).map_err(|source| WizardError::Write {
+        path: path.to_owned(),
+        source,
+    })
 }
 
 /// Formats `files` with rustfmt when it is installed; says so when it is not.

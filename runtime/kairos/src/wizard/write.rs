@@ -9,7 +9,7 @@ use super::plan::{Plan, Target, cpp_descriptor, doc_line};
 use super::render::{format, render, write_new};
 use super::{
     CPP_COMPONENTS_MARKER, CPP_DECLARATIONS_MARKER, ComponentSpec, Lang, MODULES_MARKER, Mode,
-    REGISTER_MARKER,
+    REGISTER_MARKER, Refusal, WizardError, refuse,
 };
 
 /// Writes a Rust component and registers it in the pack's `lib.rs`.
@@ -18,7 +18,7 @@ pub(super) fn write_rust(
     target: &Target,
     plan: &Plan,
     force: bool,
-) -> Result<Vec<String>, String> {
+) -> Result<Vec<String>, WizardError> {
     let mut sdk_uses = vec![
         "Component",
         "ComponentInfo",
@@ -83,21 +83,22 @@ pub(super) fn write_rust(
                 ),
                 1,
             );
-        std::fs::write(&target.index_path, index)
-            .map_err(|e| format!("cannot write {}: {e}", target.index_path.display()))?;
+        std::fs::write(&target.index_path, index).map_err(|source| WizardError::Write {
+            path: target.index_path.clone(),
+            source,
+        })?;
     }
     Ok(format(&[target.module_path.clone(), target.index_path.clone()])
         .into_iter()
         .collect())
 }
 
-pub(super) fn check_python_mode(spec: &ComponentSpec, target: &Target) -> Result<(), String> {
+pub(super) fn check_python_mode(spec: &ComponentSpec, target: &Target) -> Result<(), Refusal> {
     if target.lang == Lang::Python && spec.mode == Mode::Reactive {
-        return Err(
-            "a Python component runs threaded or periodic (a reactive one would run Python in its producer's thread): \
-             use --mode threaded"
-                .to_owned(),
-        );
+        return Err(refuse(
+            "a Python component runs threaded or periodic (a reactive one would run Python in its producer's thread)",
+            Some("use --mode threaded".to_owned()),
+        ));
     }
     Ok(())
 }
@@ -127,7 +128,7 @@ pub(super) fn write_python(
     target: &Target,
     plan: &Plan,
     force: bool,
-) -> Result<Vec<String>, String> {
+) -> Result<Vec<String>, WizardError> {
     check_python_mode(spec, target)?;
     let mut imports = BTreeSet::from(["Component".to_owned(), "Descriptor".to_owned()]);
     if !plan.properties.is_empty() {
@@ -239,7 +240,7 @@ pub(super) fn write_cpp(
     target: &Target,
     plan: &Plan,
     force: bool,
-) -> Result<Vec<String>, String> {
+) -> Result<Vec<String>, WizardError> {
     let descriptor = cpp_descriptor(spec, &target.type_name, &target.pack_name)?;
     let factor_default = plan
         .factor
@@ -290,8 +291,10 @@ pub(super) fn write_cpp(
                 &format!("{}_component(),\n        {CPP_COMPONENTS_MARKER}", spec.name),
                 1,
             );
-        std::fs::write(&target.index_path, index)
-            .map_err(|e| format!("cannot write {}: {e}", target.index_path.display()))?;
+        std::fs::write(&target.index_path, index).map_err(|source| WizardError::Write {
+            path: target.index_path.clone(),
+            source,
+        })?;
     }
     Ok(Vec::new())
 }
