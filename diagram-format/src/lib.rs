@@ -36,8 +36,9 @@ pub use library::{
 };
 pub use model::{
     ComponentInstance, Connection, DEFAULT_RIDE_OUT_MB, DEFAULT_RIDE_OUT_S, DEFAULT_ZENOH_PORT, Diagram,
-    ExposedKind, Exposes, FORMAT_VERSION, HostSpec, MAX_BUFFER_SIZE, MAX_RIDE_OUT_MB, MAX_RIDE_OUT_S,
-    OutputSettings, PackRequirement, PortRef, Position, SEQUENTIAL_GROUP, ThreadSettings, ViewerSpec,
+    ExposeError, ExposedKind, Exposes, FORMAT_VERSION, HostSpec, MAX_BUFFER_SIZE, MAX_RIDE_OUT_MB,
+    MAX_RIDE_OUT_S, OutputSettings, PackRequirement, PortRef, Position, SEQUENTIAL_GROUP, ThreadSettings,
+    ViewerSpec,
 };
 pub use read::{
     ComponentLocations, ConnectionLocations, EntryLocations, ExposesLocations, GroupLocations, HostLocations,

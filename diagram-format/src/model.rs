@@ -87,6 +87,35 @@ impl ExposedKind {
     }
 }
 
+/// Why a port or property cannot be exposed under a name: nothing changes.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum ExposeError {
+    /// Outer names are ids, so that `instance.name` reads as a port.
+    #[error("\"{name}\" cannot name an exposed {}: use letters, digits, _ and -", .kind.name())]
+    NotAnId {
+        /// The name given.
+        name: String,
+        /// What was to be exposed.
+        kind: ExposedKind,
+    },
+    /// Another inner output is shown under that name.
+    #[error("the subgraph's output '{name}' already shows {port}: choose another name")]
+    OutputShows {
+        /// The name given.
+        name: String,
+        /// The inner output it shows.
+        port: PortRef,
+    },
+    /// A port of the other side has that name.
+    #[error("the subgraph's {} '{name}' has that name: choose another name", .by.name())]
+    Taken {
+        /// The name given.
+        name: String,
+        /// Which side has it.
+        by: ExposedKind,
+    },
+}
+
 impl Exposes {
     /// Whether nothing is exposed.
     pub fn is_empty(&self) -> bool {
@@ -111,34 +140,38 @@ impl Exposes {
     /// already exposed joins it, so that one outer name feeds several inner ones; an output's name is
     /// its own. Refused, with the reason, for a name that is not an id or that another output, or a port
     /// of the other side, already has.
-    pub fn set(&mut self, kind: ExposedKind, inner: &PortRef, name: Option<&str>) -> Result<(), String> {
+    pub fn set(&mut self, kind: ExposedKind, inner: &PortRef, name: Option<&str>) -> Result<(), ExposeError> {
         let name = name.map(str::trim);
         if let Some(name) = name {
             if !crate::validate::is_valid_id(name) {
-                return Err(format!(
-                    "\"{name}\" cannot name an exposed {}: use letters, digits, _ and -",
-                    kind.name()
-                ));
+                return Err(ExposeError::NotAnId {
+                    name: name.to_owned(),
+                    kind,
+                });
             }
             let clash = match kind {
                 ExposedKind::Output => self
                     .outputs
                     .get(name)
                     .filter(|port| *port != inner)
-                    .map(|port| format!("output '{name}' already shows {port}"))
+                    .map(|port| ExposeError::OutputShows {
+                        name: name.to_owned(),
+                        port: port.clone(),
+                    })
                     .or_else(|| {
-                        self.inputs
-                            .contains_key(name)
-                            .then(|| format!("input '{name}' has that name"))
+                        self.inputs.contains_key(name).then(|| ExposeError::Taken {
+                            name: name.to_owned(),
+                            by: ExposedKind::Input,
+                        })
                     }),
-                ExposedKind::Input => self
-                    .outputs
-                    .contains_key(name)
-                    .then(|| format!("output '{name}' has that name")),
+                ExposedKind::Input => self.outputs.contains_key(name).then(|| ExposeError::Taken {
+                    name: name.to_owned(),
+                    by: ExposedKind::Output,
+                }),
                 ExposedKind::Property => None,
             };
             if let Some(clash) = clash {
-                return Err(format!("the subgraph's {clash}: choose another name"));
+                return Err(clash);
             }
         }
         match kind {
@@ -537,11 +570,11 @@ mod tests {
             .set(ExposedKind::Output, &port("a.out"), Some("out"))
             .unwrap();
         let taken = exposes.set(ExposedKind::Output, &port("b.out"), Some("out"));
-        assert!(taken.unwrap_err().contains("already shows a.out"));
+        assert!(taken.unwrap_err().to_string().contains("already shows a.out"));
         let clash = exposes.set(ExposedKind::Input, &port("b.in"), Some("out"));
-        assert!(clash.unwrap_err().contains("choose another name"));
+        assert!(clash.unwrap_err().to_string().contains("choose another name"));
         let bad = exposes.set(ExposedKind::Input, &port("b.in"), Some("two words"));
-        assert!(bad.unwrap_err().contains("letters, digits"));
+        assert!(bad.unwrap_err().to_string().contains("letters, digits"));
         exposes
             .set(ExposedKind::Output, &port("a.out"), Some("renamed"))
             .unwrap();

@@ -24,10 +24,82 @@ pub fn is_subgraph_type(type_name: &str) -> bool {
         .is_some_and(|extension| extension.eq_ignore_ascii_case("ron"))
 }
 
+/// Why a subgraph's file could not be read; said at the instance, with the folder it is relative to.
+#[derive(Debug, thiserror::Error)]
+pub enum SubgraphReadError {
+    /// An include that fans out without end.
+    #[error("more than {0} subgraph instances in one diagram")]
+    TooMany(usize),
+    /// What the file system said.
+    #[error("{0}")]
+    Io(#[from] std::io::Error),
+    /// A runtime sent a diagram without its folder cannot read the files it names.
+    #[error(
+        "the diagram came without its folder, so this runtime cannot read {}; deploy it from the machine \
+         that has the file (`kairos run --deploy`, the studio)",
+        .0.display()
+    )]
+    WithoutFolder(PathBuf),
+}
+
+/// Why a subgraph cannot be described as a component type. Cloned: clients keep the description, or
+/// why there is none, until the file changes.
+#[derive(Debug, Clone, thiserror::Error)]
+pub enum DescribeSubgraphError {
+    /// A subgraph a pack ships that does not read or flatten: its first problem.
+    #[error("{type_name}: {problem}")]
+    Shipped {
+        /// The pack's subgraph type.
+        type_name: String,
+        /// The first problem found.
+        problem: Box<Diagnostic>,
+    },
+    /// The file does not load or flatten.
+    #[error(transparent)]
+    Load(std::sync::Arc<LoadError>),
+    /// A component inside of a type the library lacks.
+    #[error("{}: '{component}' is of a type this library lacks", .file.display())]
+    UnknownType {
+        /// The subgraph's file.
+        file: PathBuf,
+        /// The component's id inside.
+        component: String,
+    },
+    /// An exposure naming a port or property its component does not have.
+    #[error("exposed {kind} '{name}': '{component}' has no {kind} '{port}'")]
+    NoSuchPort {
+        /// `input`, `output` or `property`.
+        kind: &'static str,
+        /// The outer name.
+        name: String,
+        /// The inner component.
+        component: String,
+        /// The port or property named.
+        port: String,
+    },
+}
+
+/// Why components cannot be made into a subgraph: nothing changes.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum ExtractError {
+    /// Nothing selected.
+    #[error("select the components to put in the subgraph")]
+    NothingSelected,
+    /// An id that is not in the diagram.
+    #[error("there is no component '{0}'")]
+    NoComponent(String),
+    /// The instance's name is another component's.
+    #[error("'{0}' is taken: name the subgraph's instance otherwise")]
+    InstanceNameTaken(String),
+    /// The diagram's clock must stay where its id is.
+    #[error("'{0}' is the diagram's clock source: keep it outside the subgraph")]
+    ClockSource(String),
+}
+
 /// Where subgraphs are read from: files, by path, and the subgraphs packs ship, by type name.
 pub struct Sources<'a> {
     /// A file's text, or why it cannot be read.
-    pub read: &'a mut dyn FnMut(&Path) -> Result<String, String>,
+    pub read: &'a mut dyn FnMut(&Path) -> Result<String, SubgraphReadError>,
     /// Type name → diagram text of the subgraphs packs ship ([`crate::LibraryInfo::subgraphs`]).
     pub shipped: &'a BTreeMap<String, String>,
 }
@@ -102,7 +174,7 @@ pub struct Flattened {
 pub fn flatten(
     parsed: ParsedDiagram,
     file: &Path,
-    read: &mut dyn FnMut(&Path) -> Result<String, String>,
+    read: &mut dyn FnMut(&Path) -> Result<String, SubgraphReadError>,
 ) -> Result<Flattened, Vec<Diagnostic>> {
     let none = BTreeMap::new();
     flatten_from(parsed, file, &mut Sources { read, shipped: &none })
@@ -663,13 +735,18 @@ fn listed(names: &[&str]) -> String {
 /// output whose type follows an inner input follows the exposed input feeding it). `library` describes
 /// the inner components; the description names a problem with the file as text. With it, what the
 /// subgraph exposes, in the flat ids of its inside (`overlay.out`, `inner/edges.low`).
-pub fn describe(file: &Path, type_name: &str, library: &crate::LibraryInfo) -> Result<Described, String> {
+pub fn describe(
+    file: &Path,
+    type_name: &str,
+    library: &crate::LibraryInfo,
+) -> Result<Described, DescribeSubgraphError> {
     let (text, flattened) = match library.subgraphs.get(type_name) {
         Some(text) => {
-            let first = |problems: Vec<Diagnostic>| {
-                problems
-                    .first()
-                    .map_or_else(String::new, |p| format!("{type_name}: {p}"))
+            let first = |problems: Vec<Diagnostic>| DescribeSubgraphError::Shipped {
+                type_name: type_name.to_owned(),
+                problem: Box::new(problems.into_iter().next().unwrap_or_else(|| {
+                    Diagnostic::error(DiagnosticCode::InvalidSubgraph, "it does not flatten")
+                })),
             };
             let parsed = parse(text).map_err(first)?;
             let mut read = from_files(MAX_SUBGRAPH_READS);
@@ -683,7 +760,8 @@ pub fn describe(file: &Path, type_name: &str, library: &crate::LibraryInfo) -> R
                 flatten_from(parsed, &shipped_at, &mut sources).map_err(first)?,
             )
         }
-        None => load_flattened(file, &library.subgraphs).map_err(|error| error.to_string())?,
+        None => load_flattened(file, &library.subgraphs)
+            .map_err(|error| DescribeSubgraphError::Load(std::sync::Arc::new(error)))?,
     };
     let diagram = &flattened.parsed.diagram;
     let exposes = diagram.exposes.clone().unwrap_or_default();
@@ -691,12 +769,9 @@ pub fn describe(file: &Path, type_name: &str, library: &crate::LibraryInfo) -> R
         diagram
             .component(&port.component)
             .and_then(|c| library.component_of(c))
-            .ok_or_else(|| {
-                format!(
-                    "{}: '{}' is of a type this library lacks",
-                    file.display(),
-                    port.component
-                )
+            .ok_or_else(|| DescribeSubgraphError::UnknownType {
+                file: file.to_owned(),
+                component: port.component.clone(),
             })
     };
     let mut info = crate::ComponentInfo {
@@ -724,23 +799,19 @@ pub fn describe(file: &Path, type_name: &str, library: &crate::LibraryInfo) -> R
     for (name, targets) in &exposes.inputs {
         let Some(first) = targets.first() else { continue };
         let inner = info_of(first)?;
-        let mut input = inner.input(&first.port).cloned().ok_or_else(|| {
-            format!(
-                "exposed input '{name}': '{}' has no input '{}'",
-                first.component, first.port
-            )
-        })?;
+        let mut input = inner
+            .input(&first.port)
+            .cloned()
+            .ok_or_else(|| no_such_port("input", name, first))?;
         input.name.clone_from(name);
         info.inputs.push(input);
     }
     for (name, port) in &exposes.outputs {
         let inner = info_of(port)?;
-        let mut output = inner.output(&port.port).cloned().ok_or_else(|| {
-            format!(
-                "exposed output '{name}': '{}' has no output '{}'",
-                port.component, port.port
-            )
-        })?;
+        let mut output = inner
+            .output(&port.port)
+            .cloned()
+            .ok_or_else(|| no_such_port("output", name, port))?;
         output.name.clone_from(name);
         match crate::validate::output_type(diagram, port, |c| library.component_of(c)) {
             Some(data_type) => {
@@ -764,12 +835,10 @@ pub fn describe(file: &Path, type_name: &str, library: &crate::LibraryInfo) -> R
     for (name, targets) in &exposes.properties {
         let Some(first) = targets.first() else { continue };
         let inner = info_of(first)?;
-        let mut property = inner.property(&first.port).cloned().ok_or_else(|| {
-            format!(
-                "exposed property '{name}': '{}' has no property '{}'",
-                first.component, first.port
-            )
-        })?;
+        let mut property = inner
+            .property(&first.port)
+            .cloned()
+            .ok_or_else(|| no_such_port("property", name, first))?;
         // Its default is what the subgraph sets inside, if it sets it.
         if let Some(set) = diagram
             .component(&first.component)
@@ -809,6 +878,15 @@ pub fn describe(file: &Path, type_name: &str, library: &crate::LibraryInfo) -> R
     })
 }
 
+fn no_such_port(kind: &'static str, name: &str, inner: &PortRef) -> DescribeSubgraphError {
+    DescribeSubgraphError::NoSuchPort {
+        kind,
+        name: name.to_owned(),
+        component: inner.component.clone(),
+        port: inner.port.clone(),
+    }
+}
+
 /// A subgraph as its users see it ([`describe`]).
 #[derive(Debug, Clone, PartialEq)]
 pub struct Described {
@@ -843,23 +921,19 @@ pub fn extract(
     ids: &[String],
     instance: &str,
     type_name: &str,
-) -> Result<(Diagram, Diagram), String> {
+) -> Result<(Diagram, Diagram), ExtractError> {
     let inside = |id: &str| ids.iter().any(|i| i == id);
     if ids.is_empty() {
-        return Err("select the components to put in the subgraph".to_owned());
+        return Err(ExtractError::NothingSelected);
     }
     if let Some(missing) = ids.iter().find(|id| diagram.component(id).is_none()) {
-        return Err(format!("there is no component '{missing}'"));
+        return Err(ExtractError::NoComponent(missing.clone()));
     }
     if diagram.component(instance).is_some() && !inside(instance) {
-        return Err(format!(
-            "'{instance}' is taken: name the subgraph's instance otherwise"
-        ));
+        return Err(ExtractError::InstanceNameTaken(instance.to_owned()));
     }
     if let Some(clock) = diagram.clock_source.as_deref().filter(|c| inside(c)) {
-        return Err(format!(
-            "'{clock}' is the diagram's clock source: keep it outside the subgraph"
-        ));
+        return Err(ExtractError::ClockSource(clock.to_owned()));
     }
     let moved: Vec<&crate::model::ComponentInstance> =
         diagram.components.iter().filter(|c| inside(&c.id)).collect();
@@ -1002,13 +1076,13 @@ pub fn load_flattened(
 
 /// Reads subgraph files from the file system, refusing more than `limit` of them in one diagram (an
 /// include that fans out without end).
-pub fn from_files(limit: usize) -> impl FnMut(&Path) -> Result<String, String> {
+pub fn from_files(limit: usize) -> impl FnMut(&Path) -> Result<String, SubgraphReadError> {
     let mut count = 0_usize;
     move |path: &Path| {
         count += 1;
         if count > limit {
-            return Err(format!("more than {limit} subgraph instances in one diagram"));
+            return Err(SubgraphReadError::TooMany(limit));
         }
-        std::fs::read_to_string(path).map_err(|e| e.to_string())
+        Ok(std::fs::read_to_string(path)?)
     }
 }

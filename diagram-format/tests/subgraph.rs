@@ -10,6 +10,7 @@ mod common;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
+use kairos_diagram::subgraph::{ExtractError, SubgraphReadError};
 use kairos_diagram::{Value, flatten, parse};
 
 /// Two gains in a row, exposing their input, output and one gain for both.
@@ -28,7 +29,7 @@ const GAINS: &str = r#"Diagram(format: 1,
 )"#;
 
 /// Files by name, read as a folder would be.
-fn files(entries: &[(&str, &str)]) -> impl FnMut(&Path) -> Result<String, String> {
+fn files(entries: &[(&str, &str)]) -> impl FnMut(&Path) -> Result<String, SubgraphReadError> {
     let files: BTreeMap<PathBuf, String> = entries
         .iter()
         .map(|(name, text)| (Path::new("rig").join(name), (*text).to_owned()))
@@ -37,7 +38,7 @@ fn files(entries: &[(&str, &str)]) -> impl FnMut(&Path) -> Result<String, String
         files
             .get(path)
             .cloned()
-            .ok_or_else(|| "No such file or directory (os error 2)".to_owned())
+            .ok_or_else(|| std::io::Error::from_raw_os_error(2).into())
     }
 }
 
@@ -342,8 +343,9 @@ fn components_made_into_a_subgraph_run_as_they_did_through_its_exposed_ports() {
     // Refused: nothing selected, a taken instance name, the clock source moved in.
     assert!(kairos_diagram::subgraph::extract(&original, &[], "pair", "pair.ron").is_err());
     let taken = kairos_diagram::subgraph::extract(&original, &ids, "console", "pair.ron").unwrap_err();
+    assert_eq!(taken, ExtractError::InstanceNameTaken("console".to_owned()));
     assert_eq!(
-        taken,
+        taken.to_string(),
         "'console' is taken: name the subgraph's instance otherwise"
     );
 }

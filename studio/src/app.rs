@@ -522,7 +522,7 @@ impl StudioApp {
             match crate::settings::read_token(std::path::Path::new(&remote.token_file)) {
                 Ok(token) => Some(token),
                 Err(error) => {
-                    self.session.note(LogLevel::Error, error);
+                    self.session.note(LogLevel::Error, error.to_string());
                     self.dialogs.connect = Some(crate::dialogs::ConnectDialog {
                         known: self.session.settings.remembered_remotes().unwrap_or_default(),
                         remote,

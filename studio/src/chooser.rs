@@ -22,6 +22,26 @@ pub enum Purpose {
     },
 }
 
+/// Why a typed name is not a file the dialog can take; said under it.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+enum PathRefused {
+    /// Nothing typed or picked.
+    #[error("type a file name or pick a file")]
+    Empty,
+    /// A diagram to open that is not there.
+    #[error("{} does not exist", .0.display())]
+    Missing(PathBuf),
+    /// A folder where a file to write was expected.
+    #[error("{} is a folder; type a file name", .0.display())]
+    Folder(PathBuf),
+    /// A file in a folder that is not there.
+    #[error("the folder {} does not exist", .0.display())]
+    NoFolder(PathBuf),
+    /// A subgraph goes into a new file: one that exists may be another diagram's.
+    #[error("{} exists: a subgraph is written to a new file", .0.display())]
+    SubgraphExists(PathBuf),
+}
+
 impl Purpose {
     fn title(&self) -> String {
         match self {
@@ -113,36 +133,27 @@ impl FileChooser {
     }
 
     /// The path the typed name stands for, as the purpose wants it.
-    fn typed_path(&self) -> Result<PathBuf, String> {
+    fn typed_path(&self) -> Result<PathBuf, PathRefused> {
         let typed = self.name.trim();
         if typed.is_empty() {
-            return Err("type a file name or pick a file".to_owned());
+            return Err(PathRefused::Empty);
         }
         let mut path = self.folder.join(typed);
         match self.purpose {
-            Purpose::OpenDiagram if !path.is_file() => Err(format!("{} does not exist", path.display())),
+            Purpose::OpenDiagram if !path.is_file() => Err(PathRefused::Missing(path)),
             Purpose::SaveDiagram | Purpose::MakeSubgraph(_) if path.is_dir() => {
-                Err(format!("{} is a folder; type a file name", path.display()))
+                Err(PathRefused::Folder(path))
             }
             Purpose::SaveDiagram | Purpose::MakeSubgraph(_) => {
                 if path.extension().is_none() {
                     path.set_extension("ron");
                 }
-                if path.parent().is_some_and(|p| !p.is_dir()) {
-                    return Err(format!(
-                        "the folder {} does not exist",
-                        path.parent()
-                            .map(Path::display)
-                            .map(|d| d.to_string())
-                            .unwrap_or_default()
-                    ));
+                if let Some(parent) = path.parent().filter(|p| !p.is_dir()) {
+                    return Err(PathRefused::NoFolder(parent.to_owned()));
                 }
                 // A subgraph goes into a new file: one that exists may be another diagram's.
                 if matches!(self.purpose, Purpose::MakeSubgraph(_)) && path.exists() {
-                    return Err(format!(
-                        "{} exists: a subgraph is written to a new file",
-                        path.display()
-                    ));
+                    return Err(PathRefused::SubgraphExists(path));
                 }
                 Ok(path)
             }
@@ -223,7 +234,7 @@ impl FileChooser {
                             self.replace = Some(path);
                         }
                         Ok(path) => choice = Choice::Chosen(path),
-                        Err(problem) => self.problem = Some(problem),
+                        Err(problem) => self.problem = Some(problem.to_string()),
                     }
                 }
                 if let Some(problem) = &self.problem {
@@ -259,10 +270,16 @@ mod tests {
         chooser.name = "drive".to_owned();
         assert_eq!(chooser.typed_path().unwrap(), folder.join("drive.ron"));
         chooser.name = "missing/drive.ron".to_owned();
-        assert!(chooser.typed_path().unwrap_err().contains("does not exist"));
+        assert!(matches!(chooser.typed_path(), Err(PathRefused::NoFolder(_))));
         chooser.purpose = Purpose::OpenDiagram;
         chooser.name = "nothing.ron".to_owned();
-        assert!(chooser.typed_path().unwrap_err().contains("does not exist"));
+        assert!(
+            chooser
+                .typed_path()
+                .unwrap_err()
+                .to_string()
+                .contains("does not exist")
+        );
         std::fs::remove_dir_all(&folder).unwrap();
     }
 }

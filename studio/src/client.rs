@@ -41,7 +41,7 @@ pub enum ClientEvent {
     Sample(kairos_protocol::frame::SampleHeader, Vec<u8>),
     /// Whether the shared-memory reader asked for with [`RuntimeClient::receive_shared`] could open its
     /// services; on an error, no frames come from it.
-    SharedMemory(Result<(), String>),
+    SharedMemory(Result<(), crate::shared::SharedMemoryError>),
     /// The connection failed or ended, and why.
     Disconnected(String),
 }
@@ -269,7 +269,10 @@ impl RuntimeClient {
     /// Returns at once: whether the services could be opened arrives as [`ClientEvent::SharedMemory`] (on
     /// an error the caller subscribes through the socket). An empty map only stops the reading. An error
     /// here says the reader's thread could not be started.
-    pub fn receive_shared(&mut self, services: BTreeMap<String, String>) -> Result<(), String> {
+    pub fn receive_shared(
+        &mut self,
+        services: BTreeMap<String, String>,
+    ) -> Result<(), crate::shared::SharedMemoryError> {
         if let Some(stop) = self.shared.take() {
             stop.store(true, Ordering::Relaxed);
         }
@@ -281,7 +284,7 @@ impl RuntimeClient {
         std::thread::Builder::new()
             .name("studio:shm".to_owned())
             .spawn(move || crate::shared::read_frames(&services, &stopping, &events))
-            .map_err(|e| format!("cannot start the shared-memory reader's thread: {e}"))?;
+            .map_err(|e| crate::shared::SharedMemoryError::Thread(Arc::new(e)))?;
         self.shared = Some(stop);
         Ok(())
     }
@@ -333,6 +336,22 @@ impl RuntimeClient {
     }
 }
 
+/// Why a session ended while requests were sent.
+#[derive(Debug, thiserror::Error)]
+enum SessionEnded {
+    /// The interface is gone.
+    #[error("the studio closed the connection")]
+    Closed,
+    /// The connection broke.
+    #[error("lost the runtime at {url}: {source}")]
+    Lost {
+        /// The runtime's address.
+        url: String,
+        /// What the connection said.
+        source: tungstenite::Error,
+    },
+}
+
 /// Sends every request the interface queued, remembering what each asked so that its reply can be read
 /// as that request's result; `Err` says why the session ends.
 fn send_requests(
@@ -341,15 +360,20 @@ fn send_requests(
     awaiting: &mut BTreeMap<u64, RequestKind>,
     events: &EventSender,
     url: &str,
-) -> Result<(), String> {
-    let closed = || "the studio closed the connection".to_owned();
+) -> Result<(), SessionEnded> {
+    let closed = || SessionEnded::Closed;
     loop {
         match requests.try_recv() {
             Ok(request) => match socket.send_request(&request) {
                 Ok(()) => {
                     awaiting.insert(request.id, request.body.kind());
                 }
-                Err(CallError::Lost(e)) => return Err(format!("lost the runtime at {url}: {e}")),
+                Err(CallError::Lost(source)) => {
+                    return Err(SessionEnded::Lost {
+                        url: url.to_owned(),
+                        source,
+                    });
+                }
                 Err(error) => {
                     let message = format!("a request was not sent: {error}");
                     let record = studio_record(kairos_protocol::LogLevel::Error, message);
@@ -394,7 +418,7 @@ fn run(url: &str, options: &ConnectOptions, requests: &Receiver<Request>, events
     let mut awaiting: BTreeMap<u64, RequestKind> = BTreeMap::new();
     loop {
         if let Err(why) = send_requests(&mut socket, requests, &mut awaiting, events, url) {
-            return why;
+            return why.to_string();
         }
         match socket.read() {
             Ok(Message::Text(text)) => {

@@ -8,7 +8,7 @@ use std::sync::mpsc::{Receiver, TryRecvError, channel};
 use kairos_protocol::{LogLevel, Token};
 
 use crate::client::RuntimeClient;
-use crate::local::LocalRuntime;
+use crate::local::{LocalRuntime, LocalStartError};
 use crate::session::{Effect, Session};
 
 /// A runtime's address and token, to connect to it again.
@@ -47,7 +47,7 @@ impl Reach {
 struct Restart {
     /// The folder whose packs it loads, for the log.
     folder: PathBuf,
-    started: Receiver<Result<LocalRuntime, String>>,
+    started: Receiver<Result<LocalRuntime, LocalStartError>>,
 }
 
 /// The connection to the runtime and the local runtime behind it.
@@ -222,9 +222,7 @@ impl Connection {
         let result = match restart.started.try_recv() {
             Ok(result) => result,
             Err(TryRecvError::Empty) => return,
-            Err(TryRecvError::Disconnected) => {
-                Err("the thread restarting the local runtime ended".to_owned())
-            }
+            Err(TryRecvError::Disconnected) => Err(LocalStartError::RestartThreadEnded),
         };
         let Some(restart) = self.restart.take() else {
             return;
@@ -240,7 +238,7 @@ impl Connection {
                 self.use_local(ctx, session);
                 session.succeeded(format!("loaded the packs in {}", restart.folder.display()));
             }
-            Err(error) => session.note(LogLevel::Error, error),
+            Err(error) => session.note(LogLevel::Error, error.to_string()),
         }
     }
 }

@@ -26,10 +26,48 @@ pub struct Document {
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct Refusal(pub String);
 
+/// Why a diagram file could not be opened or saved.
+#[derive(Debug, thiserror::Error)]
+pub enum DocumentError {
+    /// Not readable, or not a valid diagram: every problem rendered with its line and column.
+    #[error("{}", .0.render())]
+    Load(#[from] kairos_diagram::LoadError),
+    /// Never saved: Save would not know where.
+    #[error("the diagram has no file yet: use Save as")]
+    NoFile,
+    /// The file could not be written.
+    #[error("cannot write {}: {source}", .path.display())]
+    Write {
+        /// The file.
+        path: PathBuf,
+        /// What the system said.
+        source: std::io::Error,
+    },
+}
+
+/// Why a component cannot take a new name: nothing changes.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum RenameError {
+    /// Ids are letters, digits, `_` and `-`.
+    #[error("\"{to}\" cannot name a component: use letters, digits, _ and - (for example {from}_2)")]
+    NotAnId {
+        /// The name asked for.
+        to: String,
+        /// The component's name now.
+        from: String,
+    },
+    /// Another component has it.
+    #[error("there is already a component named {0}: choose another name")]
+    Taken(String),
+    /// No component has the old name.
+    #[error("no component named {0}")]
+    NoComponent(String),
+}
+
 impl Document {
     /// Opens a diagram file; syntax errors are returned rendered, with their line and column.
-    pub fn open(path: &Path) -> Result<Document, String> {
-        let (_, parsed) = kairos_diagram::load(path).map_err(|e| e.render())?;
+    pub fn open(path: &Path) -> Result<Document, DocumentError> {
+        let (_, parsed) = kairos_diagram::load(path)?;
         Ok(Document {
             saved: parsed.diagram.clone(),
             diagram: parsed.diagram,
@@ -88,9 +126,9 @@ impl Document {
 
     /// Writes the diagram (canonical text) to its file. With no change since it was opened, the file is left
     /// as it is, byte for byte.
-    pub fn save(&mut self) -> Result<(), String> {
+    pub fn save(&mut self) -> Result<(), DocumentError> {
         let Some(path) = self.path.clone() else {
-            return Err("the diagram has no file yet: use Save as".to_owned());
+            return Err(DocumentError::NoFile);
         };
         if self.diagram == self.saved && path.exists() {
             return Ok(());
@@ -99,9 +137,11 @@ impl Document {
     }
 
     /// Writes the diagram to `path`, which becomes its file.
-    pub fn save_as(&mut self, path: &Path) -> Result<(), String> {
-        kairos_diagram::save(path, &self.diagram)
-            .map_err(|e| format!("cannot write {}: {e}", path.display()))?;
+    pub fn save_as(&mut self, path: &Path) -> Result<(), DocumentError> {
+        kairos_diagram::save(path, &self.diagram).map_err(|source| DocumentError::Write {
+            path: path.to_owned(),
+            source,
+        })?;
         self.path = Some(path.to_owned());
         self.saved = self.diagram.clone();
         Ok(())
@@ -222,23 +262,22 @@ impl Document {
 
     /// Renames a component, its connections following; one undoable edit. Refused, with the reason and the
     /// fix, when the name is not a valid id or another component has it.
-    pub fn rename_component(&mut self, from: &str, to: &str) -> Result<(), String> {
+    pub fn rename_component(&mut self, from: &str, to: &str) -> Result<(), RenameError> {
         let to = to.trim();
         if to == from {
             return Ok(());
         }
         if !kairos_diagram::is_valid_id(to) {
-            return Err(format!(
-                "\"{to}\" cannot name a component: use letters, digits, _ and - (for example {from}_2)"
-            ));
+            return Err(RenameError::NotAnId {
+                to: to.to_owned(),
+                from: from.to_owned(),
+            });
         }
         if self.diagram.component(to).is_some() {
-            return Err(format!(
-                "there is already a component named {to}: choose another name"
-            ));
+            return Err(RenameError::Taken(to.to_owned()));
         }
         if self.diagram.component(from).is_none() {
-            return Err(format!("no component named {from}"));
+            return Err(RenameError::NoComponent(from.to_owned()));
         }
         self.edit(|diagram| {
             if let Some(component) = diagram.component_mut(from) {
@@ -269,7 +308,7 @@ impl Document {
         kind: ExposedKind,
         inner: &PortRef,
         name: Option<&str>,
-    ) -> Result<(), String> {
+    ) -> Result<(), kairos_diagram::ExposeError> {
         let mut exposes = self.diagram.exposes.clone().unwrap_or_default();
         exposes.set(kind, inner, name)?;
         self.edit(|diagram| diagram.exposes = (!exposes.is_empty()).then_some(exposes));

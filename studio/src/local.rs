@@ -54,6 +54,47 @@ pub fn kairos_binary() -> Option<PathBuf> {
     })
 }
 
+/// Why the studio's own runtime did not start: the studio runs on without one, and says this.
+#[derive(Debug, thiserror::Error)]
+pub enum LocalStartError {
+    /// No `kairos` binary beside the studio or on the PATH.
+    #[error(
+        "cannot find the `kairos` runtime beside the studio or on PATH; build it with `cargo build --release`"
+    )]
+    NoBinary,
+    /// The runtime's private folder could not be made.
+    #[error("cannot create {}: {source}", .folder.display())]
+    Folder {
+        /// The folder.
+        folder: PathBuf,
+        /// What the system said.
+        source: std::io::Error,
+    },
+    /// The binary would not start.
+    #[error("cannot start {}: {source}", .binary.display())]
+    Spawn {
+        /// The binary.
+        binary: PathBuf,
+        /// What the system said.
+        source: std::io::Error,
+    },
+    /// Its pipes were not made.
+    #[error("no {0} the runtime")]
+    NoPipe(&'static str),
+    /// It exited before saying where it listens.
+    #[error("{} stopped before listening", .0.display())]
+    StoppedEarly(PathBuf),
+    /// Without the thread that forwards its output, the runtime would stall on a full pipe.
+    #[error("cannot start a thread for the runtime's output: {0}")]
+    OutputThread(#[source] std::io::Error),
+    /// Its token file could not be read.
+    #[error("cannot read the runtime's token: {0}")]
+    Token(#[source] std::io::Error),
+    /// The thread starting it ended without a word (it panicked).
+    #[error("the thread restarting the local runtime ended")]
+    RestartThreadEnded,
+}
+
 impl LocalRuntime {
     /// The file holding its token (private to this user).
     pub fn token_file(&self) -> PathBuf {
@@ -61,16 +102,13 @@ impl LocalRuntime {
     }
 
     /// Starts `kairos serve` and waits until it listens.
-    pub fn start() -> Result<LocalRuntime, String> {
+    pub fn start() -> Result<LocalRuntime, LocalStartError> {
         Self::start_for(None)
     }
 
     /// Starts `kairos serve` for `diagram`: with the `packs/` folder beside it, as `kairos run` finds it.
-    pub fn start_for(diagram: Option<&std::path::Path>) -> Result<LocalRuntime, String> {
-        let binary = kairos_binary().ok_or_else(|| {
-            "cannot find the `kairos` runtime beside the studio or on PATH; build it with `cargo build --release`"
-                .to_owned()
-        })?;
+    pub fn start_for(diagram: Option<&std::path::Path>) -> Result<LocalRuntime, LocalStartError> {
+        let binary = kairos_binary().ok_or(LocalStartError::NoBinary)?;
         let beside: Vec<PathBuf> = diagram
             .and_then(std::path::Path::parent)
             .map(|folder| folder.join("packs"))
@@ -81,18 +119,23 @@ impl LocalRuntime {
     }
 
     /// Starts `binary serve` (a `kairos` at a known place) and waits until it listens.
-    pub fn start_binary(binary: &std::path::Path) -> Result<LocalRuntime, String> {
+    pub fn start_binary(binary: &std::path::Path) -> Result<LocalRuntime, LocalStartError> {
         Self::start_with_packs(binary, &[])
     }
 
     /// Starts `binary serve` loading the pack libraries in `packs` too, and waits until it listens.
     /// Told to [`trust_the_network`], it sends the tokens of the hosts it coordinates over plain ws://.
-    pub fn start_with_packs(binary: &std::path::Path, packs: &[PathBuf]) -> Result<LocalRuntime, String> {
+    pub fn start_with_packs(
+        binary: &std::path::Path,
+        packs: &[PathBuf],
+    ) -> Result<LocalRuntime, LocalStartError> {
         // One folder per runtime started, so two in one process never share a token file.
         static STARTED: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
         let serial = STARTED.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
         let folder = std::env::temp_dir().join(format!("kairos-studio-{}-{serial}", std::process::id()));
-        std::fs::create_dir_all(&folder).map_err(|e| format!("cannot create {}: {e}", folder.display()))?;
+        if let Err(source) = std::fs::create_dir_all(&folder) {
+            return Err(LocalStartError::Folder { folder, source });
+        }
         let token_file = folder.join("token");
         // A token file from an earlier runtime of the same process id; none is the usual case.
         let _ = std::fs::remove_file(&token_file);
@@ -119,14 +162,20 @@ impl LocalRuntime {
             .stdout(Stdio::piped())
             .stderr(Stdio::inherit())
             .spawn()
-            .map_err(|e| format!("cannot start {}: {e}", binary.display()))?;
-        let lifeline = child.stdin.take().ok_or("no input to the runtime")?;
-        let stdout = child.stdout.take().ok_or("no output from the runtime")?;
+            .map_err(|source| LocalStartError::Spawn {
+                binary: binary.to_owned(),
+                source,
+            })?;
+        let lifeline = child.stdin.take().ok_or(LocalStartError::NoPipe("input to"))?;
+        let stdout = child
+            .stdout
+            .take()
+            .ok_or(LocalStartError::NoPipe("output from"))?;
         let mut lines = BufReader::new(stdout).lines();
         let url = loop {
             let Some(Ok(line)) = lines.next() else {
                 let _ = child.kill();
-                return Err(format!("{} stopped before listening", binary.display()));
+                return Err(LocalStartError::StoppedEarly(binary.to_owned()));
             };
             if let Some(url) = line.strip_prefix("listening on ") {
                 break url.to_owned();
@@ -143,11 +192,11 @@ impl LocalRuntime {
             })
         {
             let _ = child.kill();
-            return Err(format!("cannot start a thread for the runtime's output: {error}"));
+            return Err(LocalStartError::OutputThread(error));
         }
         let token = kairos_protocol::Token::new(
             std::fs::read_to_string(&token_file)
-                .map_err(|e| format!("cannot read the runtime's token: {e}"))?
+                .map_err(LocalStartError::Token)?
                 .trim(),
         );
         Ok(LocalRuntime {

@@ -18,7 +18,31 @@ struct Arguments {
     run: bool,
 }
 
-fn arguments() -> Result<Arguments, String> {
+/// The usage, printed for --help.
+const USAGE: &str = "usage: kairos-studio [FILE] [--connect ws://HOST:PORT --token-file FILE] \
+                     [--certificate FILE] [--allow-clear-text-tokens] [--view OUTPUT]... [--run]\n  \
+                     --connect wss://HOST:PORT  a runtime served over TLS: give --certificate, its certificate \
+                     or its authority's (PEM)\n  \
+                     --allow-clear-text-tokens  send tokens over plain ws:// to another machine: the runtime's, \
+                     and the hosts' of a diagram spread over them (a network you trust)\n  \
+                     --view camera.image        opens a viewer on that output\n  \
+                     --run                      deploys and starts the diagram once connected";
+
+/// Why the command line is not one the studio takes (or asks for its usage).
+#[derive(Debug, thiserror::Error)]
+enum ArgumentsError {
+    /// `--help`: the usage, printed as it is.
+    #[error("{USAGE}")]
+    Help,
+    /// An option without its value.
+    #[error("{0}")]
+    Missing(&'static str),
+    /// An option the studio does not know.
+    #[error("unknown option {0}")]
+    Unknown(String),
+}
+
+fn arguments() -> Result<Arguments, ArgumentsError> {
     let mut parsed = Arguments {
         file: None,
         connect: None,
@@ -30,36 +54,38 @@ fn arguments() -> Result<Arguments, String> {
     let mut args = std::env::args().skip(1);
     while let Some(arg) = args.next() {
         match arg.as_str() {
-            "--connect" => parsed.connect = Some(args.next().ok_or("--connect needs ws://HOST:PORT")?),
+            "--connect" => {
+                parsed.connect = Some(
+                    args.next()
+                        .ok_or(ArgumentsError::Missing("--connect needs ws://HOST:PORT"))?,
+                );
+            }
             "--token-file" => {
-                parsed.token_file = Some(args.next().ok_or("--token-file needs a file")?.into());
+                parsed.token_file = Some(
+                    args.next()
+                        .ok_or(ArgumentsError::Missing("--token-file needs a file"))?
+                        .into(),
+                );
             }
             "--certificate" => {
-                parsed.reach.certificate = Some(args.next().ok_or("--certificate needs a PEM file")?.into());
+                parsed.reach.certificate = Some(
+                    args.next()
+                        .ok_or(ArgumentsError::Missing("--certificate needs a PEM file"))?
+                        .into(),
+                );
             }
             // The plural as `kairos deploy` and `kairos serve` spell it, the singular as studios before.
             "--allow-clear-text-tokens" | "--allow-clear-text-token" => {
                 parsed.reach.allow_clear_text_token = true;
                 kairos_studio::local::trust_the_network();
             }
-            "--view" => parsed
-                .views
-                .push(args.next().ok_or("--view needs an output (component.port)")?),
+            "--view" => parsed.views.push(
+                args.next()
+                    .ok_or(ArgumentsError::Missing("--view needs an output (component.port)"))?,
+            ),
             "--run" => parsed.run = true,
-            "-h" | "--help" => {
-                return Err(
-                    "usage: kairos-studio [FILE] [--connect ws://HOST:PORT --token-file FILE] \
-                     [--certificate FILE] [--allow-clear-text-tokens] [--view OUTPUT]... [--run]\n  \
-                     --connect wss://HOST:PORT  a runtime served over TLS: give --certificate, its certificate \
-                     or its authority's (PEM)\n  \
-                     --allow-clear-text-tokens  send tokens over plain ws:// to another machine: the runtime's, \
-                     and the hosts' of a diagram spread over them (a network you trust)\n  \
-                     --view camera.image        opens a viewer on that output\n  \
-                     --run                      deploys and starts the diagram once connected"
-                        .to_owned(),
-                );
-            }
-            other if other.starts_with('-') => return Err(format!("unknown option {other}")),
+            "-h" | "--help" => return Err(ArgumentsError::Help),
+            other if other.starts_with('-') => return Err(ArgumentsError::Unknown(other.to_owned())),
             file => parsed.file = Some(file.into()),
         }
     }
@@ -110,10 +136,11 @@ fn main() -> ExitCode {
     if std::env::var_os("DISPLAY").is_none() && std::env::var_os("WAYLAND_DISPLAY").is_none() {
         return headless(arguments.file.as_deref());
     }
-    let mut notes = Vec::new();
+    // What went wrong before the window opens, said in its log once it does.
+    let mut notes: Vec<String> = Vec::new();
     let document = match &arguments.file {
         Some(path) => Document::open(path).unwrap_or_else(|error| {
-            notes.push(error);
+            notes.push(error.to_string());
             Document::default()
         }),
         None => Document::default(),
@@ -124,7 +151,7 @@ fn main() -> ExitCode {
             // runtime that needs one refuses it, and says so too).
             let token = arguments.token_file.as_ref().and_then(|f| {
                 kairos_studio::settings::read_token(f)
-                    .map_err(|e| notes.push(e))
+                    .map_err(|e| notes.push(e.to_string()))
                     .ok()
             });
             (None, Some(url.clone()), token)
@@ -135,7 +162,7 @@ fn main() -> ExitCode {
                 (Some(local), Some(url), Some(token))
             }
             Err(error) => {
-                notes.push(error);
+                notes.push(error.to_string());
                 (None, None, None)
             }
         },

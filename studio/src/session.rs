@@ -504,7 +504,7 @@ impl Session {
                 self.viewers.receive(&header, &payload);
             }
             ClientEvent::SharedMemory(Ok(())) => {}
-            ClientEvent::SharedMemory(Err(error)) => self.socket_instead(&error),
+            ClientEvent::SharedMemory(Err(error)) => self.socket_instead(&error.to_string()),
             ClientEvent::Disconnected(reason) => {
                 if let Some(runtime) = &mut self.runtime {
                     runtime.connected = false;
@@ -986,8 +986,10 @@ impl Session {
             !kairos_diagram::is_subgraph_type(type_name) && !subgraphs.contains_key(type_name)
         });
         // Each subgraph described once, whether the palette offers it, instances use it, or both.
-        let mut described: BTreeMap<String, Result<kairos_diagram::subgraph::Described, String>> =
-            BTreeMap::new();
+        let mut described: BTreeMap<
+            String,
+            Result<kairos_diagram::subgraph::Described, kairos_diagram::subgraph::DescribeSubgraphError>,
+        > = BTreeMap::new();
         let mut describe = |type_name: &str, path: &Path, library: &LibraryInfo| {
             described
                 .entry(type_name.to_owned())
@@ -1355,7 +1357,7 @@ impl Session {
                 true
             }
             Err(why) => {
-                self.field_refused(from, "name", why);
+                self.field_refused(from, "name", why.to_string());
                 false
             }
         }
@@ -1376,6 +1378,7 @@ impl Session {
             }
             Err(why) => {
                 let key = (inner.component.clone(), field);
+                let why = why.to_string();
                 if self.field_notes.get(&key) != Some(&why) {
                     self.note(
                         LogLevel::Warn,
@@ -1485,7 +1488,7 @@ impl Session {
                 true
             }
             Err(error) => {
-                self.note(LogLevel::Error, error);
+                self.note(LogLevel::Error, error.to_string());
                 false
             }
         }
@@ -1502,7 +1505,7 @@ impl Session {
                 self.note(LogLevel::Info, format!("saved {}", path.display()));
                 self.remember_recent(path);
             }
-            Err(error) => self.note(LogLevel::Error, error),
+            Err(error) => self.note(LogLevel::Error, error.to_string()),
         }
         Saved::Done
     }
@@ -1515,7 +1518,7 @@ impl Session {
                 self.note(LogLevel::Info, format!("saved {}", path.display()));
                 self.remember_recent(path.to_owned());
             }
-            Err(error) => self.note(LogLevel::Error, error),
+            Err(error) => self.note(LogLevel::Error, error.to_string()),
         }
     }
 
@@ -1823,7 +1826,11 @@ mod tests {
         ));
         assert!(matches!(session.take_effects().as_slice(), [Effect::ReadShared(s)] if s.len() == 1));
         // The reader thread could not open the services: the socket takes over.
-        session.handle(ClientEvent::SharedMemory(Err("no /dev/shm".to_owned())));
+        session.handle(ClientEvent::SharedMemory(Err(
+            crate::shared::SharedMemoryError::Node(
+                iceoryx2::node::NodeCreationFailure::InsufficientPermissions,
+            ),
+        )));
         assert!(!session.uses_shared_memory());
         let again = sent(&mut session);
         assert!(again.iter().any(|r| matches!(
@@ -1834,10 +1841,8 @@ mod tests {
             }
         )));
         assert!(
-            session
-                .log
-                .lines()
-                .any(|l| l.text == "no /dev/shm; viewers use the socket instead")
+            session.log.lines().any(|l| l.text
+                == "cannot start iceoryx2: InsufficientPermissions; viewers use the socket instead")
         );
     }
 

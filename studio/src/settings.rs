@@ -71,12 +71,54 @@ pub fn default_folder() -> Option<PathBuf> {
     Some(base.join("kairos"))
 }
 
+/// Why what the studio remembers could not be read or written: it starts without it, and says so.
+#[derive(Debug, thiserror::Error)]
+pub enum SettingsError {
+    /// A file there that cannot be read.
+    #[error("cannot read {}: {source}", .path.display())]
+    Read {
+        /// The file.
+        path: PathBuf,
+        /// What the system said.
+        source: std::io::Error,
+    },
+    /// The settings' folder could not be made.
+    #[error("cannot create {}: {source}", .path.display())]
+    Create {
+        /// The folder.
+        path: PathBuf,
+        /// What the system said.
+        source: std::io::Error,
+    },
+    /// A file could not be written.
+    #[error("cannot write {}: {source}", .path.display())]
+    Write {
+        /// The file.
+        path: PathBuf,
+        /// What the system said.
+        source: std::io::Error,
+    },
+}
+
+/// Why a token file named for a runtime cannot be used.
+#[derive(Debug, thiserror::Error)]
+#[error("cannot read the token file {}: {source}", .path.display())]
+pub struct TokenFileError {
+    /// The file.
+    pub path: PathBuf,
+    /// What the system said.
+    pub source: std::io::Error,
+}
+
 /// The text of `file`, `None` when it does not exist yet.
-fn read_if_any(file: &Path) -> Result<Option<String>, String> {
+fn read_if_any(file: &Path) -> Result<Option<String>, SettingsError> {
     match std::fs::read_to_string(file) {
         Ok(text) => Ok(Some(text)),
         Err(error) if error.kind() == std::io::ErrorKind::NotFound => Ok(None),
-        Err(error) => Err(format!("cannot read {}: {error}", file.display())),
+        Err(source) => Err(SettingsError::Read {
+            path: file.to_owned(),
+            source,
+        }),
     }
 }
 
@@ -110,17 +152,20 @@ impl Settings {
         self.folder.as_deref()
     }
 
-    fn write(&self, name: &str, text: &str) -> Result<(), String> {
+    fn write(&self, name: &str, text: &str) -> Result<(), SettingsError> {
         let Some(folder) = &self.folder else {
             return Ok(());
         };
-        std::fs::create_dir_all(folder).map_err(|e| format!("cannot create {}: {e}", folder.display()))?;
+        std::fs::create_dir_all(folder).map_err(|source| SettingsError::Create {
+            path: folder.clone(),
+            source,
+        })?;
         let file = folder.join(name);
-        std::fs::write(&file, text).map_err(|e| format!("cannot write {}: {e}", file.display()))
+        std::fs::write(&file, text).map_err(|source| SettingsError::Write { path: file, source })
     }
 
     /// Puts `path` first among the recent files and writes them.
-    pub fn remember_recent(&mut self, path: PathBuf) -> Result<(), String> {
+    pub fn remember_recent(&mut self, path: PathBuf) -> Result<(), SettingsError> {
         self.recent.retain(|p| p != &path);
         self.recent.insert(0, path);
         self.recent.truncate(RECENT_FILES);
@@ -129,7 +174,7 @@ impl Settings {
     }
 
     /// The remote runtimes connected to, the latest first (none yet: empty).
-    pub fn remembered_remotes(&self) -> Result<Vec<RemoteAddress>, String> {
+    pub fn remembered_remotes(&self) -> Result<Vec<RemoteAddress>, SettingsError> {
         let Some(folder) = &self.folder else {
             return Ok(Vec::new());
         };
@@ -154,13 +199,13 @@ impl Settings {
     }
 
     /// The last remote runtime connected to; the connect dialog's default address when none was.
-    pub fn remembered_remote(&self) -> Result<RemoteAddress, String> {
+    pub fn remembered_remote(&self) -> Result<RemoteAddress, SettingsError> {
         Ok(self.remembered_remotes()?.into_iter().next().unwrap_or_default())
     }
 
     /// Remembers `remote` first among the remote runtimes (its address, token file and certificate; the
     /// token and any key are never written).
-    pub fn remember_remote(&self, remote: &RemoteAddress) -> Result<(), String> {
+    pub fn remember_remote(&self, remote: &RemoteAddress) -> Result<(), SettingsError> {
         let mut remotes = self.remembered_remotes().unwrap_or_default();
         remotes.retain(|known| known.url != remote.url);
         remotes.insert(0, remote.clone());
@@ -171,10 +216,13 @@ impl Settings {
 }
 
 /// Reads a token from the first line of `file`.
-pub fn read_token(file: &Path) -> Result<kairos_protocol::Token, String> {
+pub fn read_token(file: &Path) -> Result<kairos_protocol::Token, TokenFileError> {
     std::fs::read_to_string(file)
         .map(|text| kairos_protocol::Token::new(text.lines().next().unwrap_or_default().trim()))
-        .map_err(|e| format!("cannot read the token file {}: {e}", file.display()))
+        .map_err(|source| TokenFileError {
+            path: file.to_owned(),
+            source,
+        })
 }
 
 #[cfg(test)]
@@ -241,7 +289,8 @@ mod tests {
         std::fs::write(&blocked, "").unwrap();
         let (mut settings, _) = Settings::load(Some(blocked.join("kairos")));
         let error = settings.remember_recent("a.ron".into()).unwrap_err();
-        assert!(error.contains("cannot create"), "{error}");
+        assert!(matches!(error, super::SettingsError::Create { .. }), "{error}");
+        assert!(error.to_string().contains("cannot create"), "{error}");
         assert!(settings.remember_remote(&RemoteAddress::default()).is_err());
     }
 }

@@ -60,6 +60,44 @@ impl PixelsFromRuntime {
     }
 }
 
+/// Why frames cannot come through shared memory: the viewers use the socket instead. Cloned with the
+/// event that carries it.
+#[derive(Debug, Clone, thiserror::Error)]
+pub enum SharedMemoryError {
+    /// iceoryx2 could not make its node (no `/dev/shm`, no permission).
+    #[error("cannot start iceoryx2: {0:?}")]
+    Node(iceoryx2::node::NodeCreationFailure),
+    /// A service name the runtime gave that iceoryx2 refuses.
+    #[error("bad service name {service}: {reason:?}")]
+    ServiceName {
+        /// The service.
+        service: String,
+        /// What iceoryx2 said.
+        reason: iceoryx2::service::service_name::ServiceNameError,
+    },
+    /// The runtime's service is not there (a runtime on another machine, or gone).
+    #[error("cannot open {service} for {output}: {reason:?}")]
+    Open {
+        /// The service.
+        service: String,
+        /// The output it carries.
+        output: String,
+        /// What iceoryx2 said.
+        reason: iceoryx2::service::builder::publish_subscribe::PublishSubscribeOpenError,
+    },
+    /// The subscriber port could not be made.
+    #[error("cannot subscribe to {service}: {reason:?}")]
+    Subscribe {
+        /// The service.
+        service: String,
+        /// What iceoryx2 said.
+        reason: iceoryx2::port::subscriber::SubscriberCreateError,
+    },
+    /// The reader's thread could not be started.
+    #[error("cannot start the shared-memory reader's thread: {0}")]
+    Thread(std::sync::Arc<std::io::Error>),
+}
+
 /// How often the reader looks for new frames.
 const POLL: Duration = Duration::from_millis(3);
 
@@ -67,25 +105,35 @@ const POLL: Duration = Duration::from_millis(3);
 /// [`ClientEvent::SharedMemory`], then forwards every frame as a [`ClientEvent::Sample`] until `stop` is set
 /// or the studio goes.
 pub fn read_frames(services: &BTreeMap<String, String>, stop: &AtomicBool, events: &EventSender) {
-    let opened = (|| -> Result<_, String> {
+    let opened = (|| -> Result<_, SharedMemoryError> {
         let node = NodeBuilder::new()
             .create::<ipc::Service>()
-            .map_err(|e| format!("cannot start iceoryx2: {e:?}"))?;
+            .map_err(SharedMemoryError::Node)?;
         let mut subscribers = Vec::new();
         for (output, service) in services {
-            let name: ServiceName = service
-                .as_str()
-                .try_into()
-                .map_err(|e| format!("bad service name {service}: {e:?}"))?;
+            let name: ServiceName =
+                service
+                    .as_str()
+                    .try_into()
+                    .map_err(|reason| SharedMemoryError::ServiceName {
+                        service: service.clone(),
+                        reason,
+                    })?;
             let port_factory = node
                 .service_builder(&name)
                 .publish_subscribe::<[u8]>()
                 .open()
-                .map_err(|e| format!("cannot open {service} for {output}: {e:?}"))?;
-            let subscriber = port_factory
-                .subscriber_builder()
-                .create()
-                .map_err(|e| format!("cannot subscribe to {service}: {e:?}"))?;
+                .map_err(|reason| SharedMemoryError::Open {
+                    service: service.clone(),
+                    output: output.clone(),
+                    reason,
+                })?;
+            let subscriber = port_factory.subscriber_builder().create().map_err(|reason| {
+                SharedMemoryError::Subscribe {
+                    service: service.clone(),
+                    reason,
+                }
+            })?;
             subscribers.push((port_factory, subscriber));
         }
         Ok((node, subscribers))

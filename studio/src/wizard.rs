@@ -32,15 +32,40 @@ pub fn build_errors(output: &str) -> Vec<BuildMessage> {
         .collect()
 }
 
+/// Why `kairos new` made nothing: it could not be run, or it refused the answers (what it said).
+#[derive(Debug, thiserror::Error)]
+pub enum KairosNewError {
+    /// The binary would not start.
+    #[error("cannot run {}: {source}", .binary.display())]
+    Start {
+        /// The `kairos` binary.
+        binary: PathBuf,
+        /// What the system said.
+        source: std::io::Error,
+    },
+    /// It refused: its error lines, as it printed them.
+    #[error("{0}")]
+    Refused(String),
+    /// Making the new pack (to check the component against) was refused.
+    #[error("the pack: {0}")]
+    Pack(Box<KairosNewError>),
+    /// Nothing to ask about yet.
+    #[error("give the component a name")]
+    NoName,
+    /// The check or the generation could not get its thread.
+    #[error("cannot start a thread for it: {0}")]
+    Thread(#[source] std::io::Error),
+}
+
 /// Where the dialog is.
 #[derive(Debug)]
 pub enum Stage {
     /// Taking answers.
     Editing,
     /// `kairos new --dry-run` checks the answers, on a thread of its own.
-    Checking(Receiver<Result<String, String>>),
+    Checking(Receiver<Result<String, KairosNewError>>),
     /// `kairos new` generates the pack and the component, on a thread of its own; then the pack is built.
-    Generating(Receiver<Result<PathBuf, String>>),
+    Generating(Receiver<Result<PathBuf, KairosNewError>>),
     /// Building the pack in the background.
     Building(Receiver<Result<PathBuf, (String, Vec<BuildMessage>)>>),
     /// The build failed: the compiler's errors.
@@ -67,7 +92,7 @@ pub struct NewComponentDialog {
     /// Comma-separated names.
     pub actions: String,
     /// What `kairos new` said about the answers, when it refused them, or that they are fine.
-    pub verdict: Option<Result<String, String>>,
+    pub verdict: Option<Result<String, KairosNewError>>,
     /// Where the dialog is.
     pub stage: Stage,
 }
@@ -117,7 +142,7 @@ struct CheckPlan {
 
 /// Runs `kairos new component --dry-run`; a pack that does not exist yet is made in a scratch folder
 /// first, so that the component is checked against a real one, and removed again after.
-fn check_answers(binary: &Path, plan: CheckPlan) -> Result<String, String> {
+fn check_answers(binary: &Path, plan: CheckPlan) -> Result<String, KairosNewError> {
     let CheckPlan { mut args, new_pack } = plan;
     let scratch = std::env::temp_dir().join(format!("kairos-studio-check-{}", std::process::id()));
     if let Some((name, lang)) = new_pack {
@@ -136,7 +161,7 @@ fn check_answers(binary: &Path, plan: CheckPlan) -> Result<String, String> {
             ],
         );
         if let Err(problem) = made {
-            return Err(format!("the pack: {problem}"));
+            return Err(KairosNewError::Pack(Box::new(problem)));
         }
         if let Some(value) = args
             .iter()
@@ -152,22 +177,25 @@ fn check_answers(binary: &Path, plan: CheckPlan) -> Result<String, String> {
     verdict
 }
 
-fn run(binary: &Path, args: &[String]) -> Result<String, String> {
+fn run(binary: &Path, args: &[String]) -> Result<String, KairosNewError> {
     let output = Command::new(binary)
         .args(args)
         .output()
-        .map_err(|e| format!("cannot run {}: {e}", binary.display()))?;
+        .map_err(|source| KairosNewError::Start {
+            binary: binary.to_owned(),
+            source,
+        })?;
     let stdout = String::from_utf8_lossy(&output.stdout).trim().to_owned();
     let stderr = String::from_utf8_lossy(&output.stderr);
     if output.status.success() {
         Ok(stdout)
     } else {
         let errors: Vec<&str> = stderr.lines().filter_map(|l| l.strip_prefix("error: ")).collect();
-        Err(if errors.is_empty() {
+        Err(KairosNewError::Refused(if errors.is_empty() {
             stderr.trim().to_owned()
         } else {
             errors.join("\n")
-        })
+        }))
     }
 }
 
@@ -225,7 +253,7 @@ impl NewComponentDialog {
     /// shows when it comes. A pack that does not exist yet is checked in a scratch copy.
     pub fn check(&mut self, binary: &Path, ctx: &egui::Context) {
         if self.name.trim().is_empty() {
-            self.verdict = Some(Err("give the component a name".to_owned()));
+            self.verdict = Some(Err(KairosNewError::NoName));
             return;
         }
         let (plan, binary, ctx) = (self.check_plan(), binary.to_owned(), ctx.clone());
@@ -241,7 +269,7 @@ impl NewComponentDialog {
     /// own; the pack is built once that is done.
     pub fn create(&mut self, binary: &Path, ctx: &egui::Context) {
         if self.name.trim().is_empty() {
-            self.verdict = Some(Err("give the component a name".to_owned()));
+            self.verdict = Some(Err(KairosNewError::NoName));
             return;
         }
         let check = self.check_plan();
@@ -271,7 +299,7 @@ impl NewComponentDialog {
         self.start("studio:generate", move || {
             let generated = check_answers(&binary, check).and_then(|_| {
                 if let Some(args) = new_pack {
-                    run(&binary, &args).map_err(|problem| format!("the pack: {problem}"))?;
+                    run(&binary, &args).map_err(|problem| KairosNewError::Pack(Box::new(problem)))?;
                 }
                 run(&binary, &component)?;
                 Ok(folder)
@@ -285,7 +313,7 @@ impl NewComponentDialog {
     /// Runs `work` on a thread named `name`; a thread that cannot be started is said as the verdict.
     fn start(&mut self, name: &str, work: impl FnOnce() + Send + 'static) {
         if let Err(error) = std::thread::Builder::new().name(name.to_owned()).spawn(work) {
-            self.verdict = Some(Err(format!("cannot start a thread for it: {error}")));
+            self.verdict = Some(Err(KairosNewError::Thread(error)));
         }
     }
 
@@ -433,7 +461,7 @@ impl NewComponentDialog {
                         ui.colored_label(egui::Color32::LIGHT_GREEN, fine);
                     }
                     Some(Err(problem)) => {
-                        ui.colored_label(egui::Color32::LIGHT_RED, problem);
+                        ui.colored_label(egui::Color32::LIGHT_RED, problem.to_string());
                     }
                     None => {}
                 }

@@ -76,14 +76,30 @@ fn serve_over_tls(dir: &Path) -> (Child, String) {
     (child, url)
 }
 
-/// The first event that says whether the session began: `Ok` with the runtime's name, or why it ended.
-fn outcome(client: &RuntimeClient) -> Result<String, String> {
+/// How a session began: the runtime's name, or why it ended at once.
+#[derive(Debug)]
+enum Outcome {
+    Connected(String),
+    Ended(String),
+}
+
+impl Outcome {
+    fn ended(self) -> String {
+        match self {
+            Outcome::Ended(why) => why,
+            Outcome::Connected(server) => panic!("connected to {server}"),
+        }
+    }
+}
+
+/// The first event that says whether the session began.
+fn outcome(client: &RuntimeClient) -> Outcome {
     let started = Instant::now();
     loop {
         for event in client.poll() {
             match event {
-                ClientEvent::Connected(welcome) => return Ok(welcome.server),
-                ClientEvent::Disconnected(why) => return Err(why),
+                ClientEvent::Connected(welcome) => return Outcome::Connected(welcome.server),
+                ClientEvent::Disconnected(why) => return Outcome::Ended(why),
                 _ => {}
             }
         }
@@ -111,13 +127,16 @@ fn the_studio_reaches_a_runtime_over_tls_with_the_certificate_it_is_given() {
         allow_clear_text_token: false,
     };
     let client = RuntimeClient::connect_with(&url, trusting.options(Some(token.clone())), || {});
-    let server = outcome(&client).unwrap_or_else(|why| panic!("over TLS: {why}"));
+    let server = match outcome(&client) {
+        Outcome::Connected(server) => server,
+        Outcome::Ended(why) => panic!("over TLS: {why}"),
+    };
     assert!(server.starts_with("kairos"), "{server}");
     drop(client);
 
     // No certificate named: refused with the studio's own fix.
     let client = RuntimeClient::connect_with(&url, Reach::default().options(Some(token.clone())), || {});
-    let why = outcome(&client).unwrap_err();
+    let why = outcome(&client).ended();
     assert!(
         why.contains("needs the certificate to trust") && why.contains("--certificate"),
         "{why}"
@@ -130,7 +149,7 @@ fn the_studio_reaches_a_runtime_over_tls_with_the_certificate_it_is_given() {
         allow_clear_text_token: false,
     };
     let client = RuntimeClient::connect_with(&url, other.options(Some(token)), || {});
-    let why = outcome(&client).unwrap_err();
+    let why = outcome(&client).ended();
     assert!(why.contains("certificate"), "{why}");
 
     let _ = runtime.kill();
@@ -143,7 +162,7 @@ fn the_studio_sends_no_token_in_clear_text_to_another_machine_unless_told_to() {
     // 192.0.2.1 is a documentation address (TEST-NET-1): off this machine, and nothing answers there.
     let url = "ws://192.0.2.1:7400";
     let client = RuntimeClient::connect_with(url, Reach::default().options(Some(token.clone())), || {});
-    let why = outcome(&client).unwrap_err();
+    let why = outcome(&client).ended();
     assert!(
         why.contains("clear text") && why.contains("wss://") && why.contains("--allow-clear-text-token"),
         "{why}"
@@ -156,7 +175,7 @@ fn the_studio_sends_no_token_in_clear_text_to_another_machine_unless_told_to() {
     let mut options = allowed.options(Some(token));
     options.wait = Duration::from_millis(300);
     let client = RuntimeClient::connect_with(url, options, || {});
-    let why = outcome(&client).unwrap_err();
+    let why = outcome(&client).ended();
     assert!(
         !why.contains("clear text") && why.contains("unreachable"),
         "{why}"

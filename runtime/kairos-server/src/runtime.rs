@@ -573,15 +573,13 @@ impl Runtime {
     ) -> Result<(Diagram, Vec<Diagnostic>), ProtocolError> {
         let parsed = kairos_diagram::parse(text).map_err(|diagnostics| invalid(text, diagnostics))?;
         let file = folder.map_or_else(|| Path::new("diagram.ron").to_owned(), |f| f.join("diagram.ron"));
-        let mut read = |path: &Path| -> Result<String, String> {
+        let mut read = |path: &Path| -> Result<String, kairos_diagram::subgraph::SubgraphReadError> {
             if folder.is_none() {
-                return Err(format!(
-                    "the diagram came without its folder, so this runtime cannot read {}; deploy it \
-                     from the machine that has the file (`kairos run --deploy`, the studio)",
-                    path.display()
+                return Err(kairos_diagram::subgraph::SubgraphReadError::WithoutFolder(
+                    path.to_owned(),
                 ));
             }
-            std::fs::read_to_string(path).map_err(|e| e.to_string())
+            Ok(std::fs::read_to_string(path)?)
         };
         let registry = self.registry();
         let mut sources = kairos_diagram::Sources {
