@@ -246,11 +246,13 @@ const UNSAFE_MODULES: [&str; 13] = [
     "runtime/kairos-shm/src/lib.rs",
 ];
 
-#[test]
-fn unsafe_code_is_allowed_only_in_the_modules_architecture_md_names() {
+/// Every Rust file of the workspace's own code: the SDK, packs, diagram format, runtime, studio, tests and
+/// benchmarks (build outputs left out).
+fn workspace_rust_files() -> Vec<(String, String)> {
     let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
-    let mut allowing = Vec::new();
+    let mut files = Vec::new();
     let mut folders = [
+        "benches",
         "component-sdk",
         "component-packs",
         "diagram-format",
@@ -269,23 +271,112 @@ fn unsafe_code_is_allowed_only_in_the_modules_architecture_md_names() {
                 }
                 continue;
             }
-            let text = std::fs::read_to_string(&path).unwrap_or_default();
-            // The `export_pack!` macro allows it on the entry point it generates, in the pack's crate.
-            let is_macro_definition = path.ends_with("component-sdk/kairos-sdk-core/src/abi/mod.rs");
-            if path.extension().is_some_and(|e| e == "rs")
-                && text
-                    .split_whitespace()
-                    .collect::<String>()
-                    .contains(&["allow(", "unsafe_code"].concat())
-                && !is_macro_definition
-            {
+            if path.extension().is_some_and(|e| e == "rs") {
                 let relative = path.strip_prefix(&root).unwrap().to_string_lossy().into_owned();
-                allowing.push(relative);
+                files.push((relative, std::fs::read_to_string(&path).unwrap_or_default()));
             }
+        }
+    }
+    files
+}
+
+#[test]
+fn unsafe_code_is_allowed_only_in_the_modules_architecture_md_names() {
+    let mut allowing = Vec::new();
+    for (path, text) in workspace_rust_files() {
+        // The `export_pack!` macro allows it on the entry point it generates, in the pack's crate.
+        let is_macro_definition = path.ends_with("component-sdk/kairos-sdk-core/src/abi/mod.rs");
+        if text
+            .split_whitespace()
+            .collect::<String>()
+            .contains(&["allow(", "unsafe_code"].concat())
+            && !is_macro_definition
+        {
+            allowing.push(path);
         }
     }
     allowing.sort();
     let mut expected = UNSAFE_MODULES.map(str::to_owned).to_vec();
     expected.sort();
     assert_eq!(allowing, expected);
+}
+
+/// The error type of each `Result<..>` written in `text`: its last generic argument at the top level.
+fn result_error_types(text: &str) -> Vec<String> {
+    let opening = ["Result", "<"].concat();
+    let mut found = Vec::new();
+    for (start, _) in text.match_indices(&opening) {
+        let preceded_by_name = text[..start]
+            .chars()
+            .next_back()
+            .is_some_and(|c| c.is_alphanumeric() || c == '_');
+        if preceded_by_name {
+            continue;
+        }
+        let mut depth = 0_usize;
+        let mut last_comma = None;
+        let inside = start + opening.len();
+        for (offset, c) in text[inside..].char_indices() {
+            match c {
+                '<' | '(' | '[' => depth += 1,
+                ')' | ']' => depth = depth.saturating_sub(1),
+                '>' if depth == 0 => {
+                    if let Some(comma) = last_comma {
+                        found.push(text[comma + 1..inside + offset].trim().to_owned());
+                    }
+                    break;
+                }
+                '>' => depth -= 1,
+                ',' if depth == 0 => last_comma = Some(inside + offset),
+                ';' | '{' if depth == 0 => break,
+                _ => {}
+            }
+        }
+    }
+    found
+}
+
+/// The only functions whose error is a `String`: their signature is another crate's, which they implement.
+const STRING_ERRORS_SET_ELSEWHERE: [(&str, &str); 2] = [
+    // eframe's `native_adapter_selector`.
+    ("studio/src/cloud3d.rs", ") -> Result<wgpu::Adapter"),
+    // egui's `DroppedFile::bytes`.
+    ("studio/tests/editor.rs", "fn bytes(&self)"),
+];
+
+#[test]
+fn no_error_is_a_bare_string() {
+    // A caller can only print a String: errors are types whose variants carry what went wrong, and text is
+    // made where it is shown. (`Result<_, String>` is written split here so that this file passes.)
+    let mut bare = Vec::new();
+    for (path, text) in workspace_rust_files() {
+        for (line_number, line) in text.lines().enumerate() {
+            let set_elsewhere = STRING_ERRORS_SET_ELSEWHERE
+                .iter()
+                .any(|(file, signature)| path == *file && line.contains(signature));
+            if line.trim_start().starts_with("//") || set_elsewhere {
+                continue;
+            }
+            if result_error_types(line).iter().any(|error| error == "String") {
+                bare.push(format!("{path}:{}: {}", line_number + 1, line.trim()));
+            }
+        }
+    }
+    assert!(
+        bare.is_empty(),
+        "errors as bare strings (give them an error type):\n{}",
+        bare.join("\n")
+    );
+}
+
+#[test]
+fn the_error_finder_sees_bare_strings_and_nothing_else() {
+    let bare = ["fn f() -> Result", "<u8, String> {"].concat();
+    assert_eq!(result_error_types(&bare), ["String"]);
+    let nested = ["Result", "<Result", "<Payload, String>, WireError>"].concat();
+    assert_eq!(result_error_types(&nested), ["WireError", "String"]);
+    let typed = ["Result", "<Vec<(String, u8)>, std::io::Error>"].concat();
+    assert_eq!(result_error_types(&typed), ["std::io::Error"]);
+    let array = ["Result", "<[u8; N], String>"].concat();
+    assert_eq!(result_error_types(&array), ["String"]);
 }

@@ -55,8 +55,142 @@ pub enum ChannelDecoder {
         /// The message type's name.
         schema: String,
         /// What is wrong with its definition.
-        why: String,
+        why: UnreadableChannel,
     },
+}
+
+/// Why a channel's messages cannot be decoded at all: said once for the channel, not per message.
+#[derive(Debug, Clone, thiserror::Error)]
+pub enum UnreadableChannel {
+    /// ROS 2 messages in another encoding than CDR.
+    #[error("ROS 2 messages encoded as '{0}' (only cdr is read)")]
+    Encoding(String),
+    /// An older bag without definitions, of a type Kairos has none of either.
+    #[error(
+        "the recording carries no definition of {0} (a bag recorded before ROS 2 Iron, of a type Kairos has \
+         no definition of)"
+    )]
+    NoDefinition(String),
+    /// The definition the file carries does not read.
+    #[error(transparent)]
+    Definition(#[from] crate::ros2::DefinitionError),
+}
+
+/// An image encoding Kairos has no pixel format for.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("image encoding '{0}' is not one Kairos images have")]
+pub struct EncodingError(pub String);
+
+/// Why base64 text does not decode.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum Base64Error {
+    /// A character outside the alphabet.
+    #[error("'{0}' is not a base64 character")]
+    NotBase64(char),
+    /// Base64 comes in groups of four.
+    #[error("base64 text whose length is not a multiple of 4")]
+    Length,
+    /// More than two `=` in a group.
+    #[error("base64 text with too much padding")]
+    Padding,
+}
+
+/// Why one recorded message is not a sample: the player counts it, warns once per output, and goes on.
+#[derive(Debug, thiserror::Error)]
+pub enum DecodeError {
+    /// The channel cannot be read at all.
+    #[error(transparent)]
+    Unreadable(#[from] UnreadableChannel),
+    /// A ROS 2 message that does not decode against its definition.
+    #[error(transparent)]
+    Cdr(#[from] crate::ros2::CdrError),
+    /// A ROS 2 message that is not the Kairos type its channel replays as.
+    #[error(transparent)]
+    Ros2(#[from] crate::ros2::MessageError),
+    /// A JSON schema's message that is not JSON.
+    #[error("not the JSON this schema describes: {0}")]
+    Json(#[source] serde_json::Error),
+    /// A field missing from a JSON message.
+    #[error("no field '{0}'")]
+    NoField(String),
+    /// A JSON field of another kind.
+    #[error("field '{name}' is not {what}")]
+    FieldNot {
+        /// The field.
+        name: String,
+        /// What it should be.
+        what: &'static str,
+    },
+    /// A list of numbers with something else in it.
+    #[error("field '{0}' holds a non-number")]
+    NonNumber(String),
+    /// A negative matrix dimension.
+    #[error("negative {0} count")]
+    NegativeCount(&'static str),
+    /// Rows × columns is not the number of values.
+    #[error("a {rows}x{cols} matrix with {values} values")]
+    MatrixShape {
+        /// Rows.
+        rows: usize,
+        /// Columns.
+        cols: usize,
+        /// Values given.
+        values: usize,
+    },
+    /// A CAN id beyond 32 bits.
+    #[error("CAN id out of range")]
+    CanIdRange,
+    /// A data byte beyond 255.
+    #[error("a data byte out of range")]
+    DataByteRange,
+    /// A remote request longer than a classic frame.
+    #[error("a remote request for more than 8 bytes")]
+    RemoteRequestTooLong,
+    /// More data than a CAN FD frame holds.
+    #[error("a CAN frame of {0} bytes")]
+    CanLength(usize),
+    /// A type recorded as JSON that this version does not read back.
+    #[error("no JSON decoding for {0}")]
+    NoJsonDecoding(DataType),
+    /// A Foxglove schema's message that does not decode.
+    #[error("not a foxglove.{schema}: {source}")]
+    Protobuf {
+        /// The schema.
+        schema: &'static str,
+        /// What the decoder said.
+        source: Box<dyn std::error::Error + Send + Sync>,
+    },
+    /// The image's geometry does not fit its pixels.
+    #[error(transparent)]
+    ImageSize(#[from] kairos_sdk::payload::ImageSizeError),
+    /// An encoding Kairos has no pixel format for.
+    #[error(transparent)]
+    Encoding(#[from] EncodingError),
+    /// Coordinates of another type than floats.
+    #[error("point field '{0}' is neither float32 nor float64")]
+    PointFieldType(String),
+    /// Points need coordinates.
+    #[error("a point cloud without x, y and z fields")]
+    NoCoordinates,
+    /// Points of no bytes.
+    #[error("a point cloud with a point stride of 0")]
+    ZeroStride,
+    /// A field's offset beyond the point.
+    #[error("a point field lies outside the point stride")]
+    FieldOutsideStride,
+    /// A custom payload's base64 that does not decode.
+    #[error(transparent)]
+    Base64(#[from] Base64Error),
+}
+
+/// A Foxglove message decoding error, with its schema's name.
+fn protobuf<E: std::error::Error + Send + Sync + 'static>(
+    schema: &'static str,
+) -> impl FnOnce(E) -> DecodeError {
+    move |source| DecodeError::Protobuf {
+        schema,
+        source: Box::new(source),
+    }
 }
 
 impl ChannelDecoder {
@@ -71,10 +205,7 @@ impl ChannelDecoder {
         if channel.message_encoding != crate::ros2::MESSAGE_ENCODING {
             return ChannelDecoder::Unreadable {
                 schema: schema.name.clone(),
-                why: format!(
-                    "ROS 2 messages encoded as '{}' (only cdr is read)",
-                    channel.message_encoding
-                ),
+                why: UnreadableChannel::Encoding(channel.message_encoding.clone()),
             };
         }
         // An older SQLite bag carries no definitions: the types Kairos writes are read with its own.
@@ -86,11 +217,7 @@ impl ChannelDecoder {
         if text.is_empty() && !schema.name.ends_with("/Empty") {
             return ChannelDecoder::Unreadable {
                 schema: schema.name.clone(),
-                why: format!(
-                    "the recording carries no definition of {} (a bag recorded before ROS 2 Iron, of a type \
-                     Kairos has no definition of)",
-                    schema.name
-                ),
+                why: UnreadableChannel::NoDefinition(schema.name.clone()),
             };
         }
         match crate::ros2::Definitions::parse(&schema.name, &text) {
@@ -101,7 +228,7 @@ impl ChannelDecoder {
             }
             Err(why) => ChannelDecoder::Unreadable {
                 schema: schema.name.clone(),
-                why,
+                why: why.into(),
             },
         }
     }
@@ -117,7 +244,7 @@ impl ChannelDecoder {
 
     /// Decodes one message; with it, the timestamp the message itself carries (a ROS header's stamp),
     /// when it has one.
-    pub fn decode(&self, data: &[u8]) -> Result<(Payload, Option<kairos_sdk::Timestamp>), String> {
+    pub fn decode(&self, data: &[u8]) -> Result<(Payload, Option<kairos_sdk::Timestamp>), DecodeError> {
         match self {
             ChannelDecoder::Named(schema) => decode(schema, data).map(|payload| (payload, None)),
             ChannelDecoder::Ros2(definitions, data_type) => {
@@ -125,13 +252,13 @@ impl ChannelDecoder {
                 let payload = crate::ros2::to_payload(definitions, &value, data_type)?;
                 Ok((payload, crate::ros2::header_stamp(definitions, &value)))
             }
-            ChannelDecoder::Unreadable { why, .. } => Err(why.clone()),
+            ChannelDecoder::Unreadable { why, .. } => Err(why.clone().into()),
         }
     }
 }
 
 /// Decodes one message of a channel with schema `schema` into the payload [`data_type_of`] promises.
-pub fn decode(schema: &str, data: &[u8]) -> Result<Payload, String> {
+pub fn decode(schema: &str, data: &[u8]) -> Result<Payload, DecodeError> {
     match data_type_of(schema) {
         DataType::Image => decode_image(data),
         DataType::PointCloud => decode_point_cloud(data),
@@ -156,67 +283,75 @@ pub fn decode(schema: &str, data: &[u8]) -> Result<Payload, String> {
     }
 }
 
-fn parse_json(data: &[u8]) -> Result<Json, String> {
-    serde_json::from_slice(data).map_err(|e| format!("not the JSON this schema describes: {e}"))
+fn parse_json(data: &[u8]) -> Result<Json, DecodeError> {
+    serde_json::from_slice(data).map_err(DecodeError::Json)
 }
 
-fn field<'a>(json: &'a Json, name: &str) -> Result<&'a Json, String> {
-    json.get(name).ok_or_else(|| format!("no field '{name}'"))
+fn field<'a>(json: &'a Json, name: &str) -> Result<&'a Json, DecodeError> {
+    json.get(name)
+        .ok_or_else(|| DecodeError::NoField(name.to_owned()))
 }
 
-fn number(json: &Json, name: &str) -> Result<f64, String> {
-    field(json, name)?
-        .as_f64()
-        .ok_or_else(|| format!("field '{name}' is not a number"))
+fn number(json: &Json, name: &str) -> Result<f64, DecodeError> {
+    field(json, name)?.as_f64().ok_or_else(|| DecodeError::FieldNot {
+        name: name.to_owned(),
+        what: "a number",
+    })
 }
 
-fn integer(json: &Json, name: &str) -> Result<i64, String> {
-    field(json, name)?
-        .as_i64()
-        .ok_or_else(|| format!("field '{name}' is not an integer"))
+fn integer(json: &Json, name: &str) -> Result<i64, DecodeError> {
+    field(json, name)?.as_i64().ok_or_else(|| DecodeError::FieldNot {
+        name: name.to_owned(),
+        what: "an integer",
+    })
 }
 
-fn boolean(json: &Json, name: &str) -> Result<bool, String> {
-    field(json, name)?
-        .as_bool()
-        .ok_or_else(|| format!("field '{name}' is not a boolean"))
+fn boolean(json: &Json, name: &str) -> Result<bool, DecodeError> {
+    field(json, name)?.as_bool().ok_or_else(|| DecodeError::FieldNot {
+        name: name.to_owned(),
+        what: "a boolean",
+    })
 }
 
-fn text_field<'a>(json: &'a Json, name: &str) -> Result<&'a str, String> {
-    field(json, name)?
-        .as_str()
-        .ok_or_else(|| format!("field '{name}' is not text"))
+fn text_field<'a>(json: &'a Json, name: &str) -> Result<&'a str, DecodeError> {
+    field(json, name)?.as_str().ok_or_else(|| DecodeError::FieldNot {
+        name: name.to_owned(),
+        what: "text",
+    })
 }
 
-fn numbers(json: &Json, name: &str) -> Result<Vec<f64>, String> {
+fn numbers(json: &Json, name: &str) -> Result<Vec<f64>, DecodeError> {
     field(json, name)?
         .as_array()
-        .ok_or_else(|| format!("field '{name}' is not a list"))?
+        .ok_or_else(|| DecodeError::FieldNot {
+            name: name.to_owned(),
+            what: "a list",
+        })?
         .iter()
-        .map(|v| {
-            v.as_f64()
-                .ok_or_else(|| format!("field '{name}' holds a non-number"))
-        })
+        .map(|v| v.as_f64().ok_or_else(|| DecodeError::NonNumber(name.to_owned())))
         .collect()
 }
 
-fn vector3(json: &Json, name: &str) -> Result<DVec3, String> {
+fn vector3(json: &Json, name: &str) -> Result<DVec3, DecodeError> {
     let v = field(json, name)?;
     Ok(DVec3::new(number(v, "x")?, number(v, "y")?, number(v, "z")?))
 }
 
-fn decode_json(data_type: &DataType, json: &Json) -> Result<Payload, String> {
+fn decode_json(data_type: &DataType, json: &Json) -> Result<Payload, DecodeError> {
     Ok(match data_type {
         DataType::F64 => Payload::F64(number(json, "value")?),
         DataType::I64 => Payload::I64(integer(json, "value")?),
         DataType::Bool => Payload::Bool(boolean(json, "value")?),
         DataType::Vector => Payload::Vector(Arc::from(numbers(json, "values")?)),
         DataType::Matrix => {
-            let rows = usize::try_from(integer(json, "rows")?).map_err(|_| "negative row count")?;
-            let cols = usize::try_from(integer(json, "cols")?).map_err(|_| "negative column count")?;
+            let rows =
+                usize::try_from(integer(json, "rows")?).map_err(|_| DecodeError::NegativeCount("row"))?;
+            let cols =
+                usize::try_from(integer(json, "cols")?).map_err(|_| DecodeError::NegativeCount("column"))?;
             let values = numbers(json, "values")?;
             if rows.checked_mul(cols) != Some(values.len()) {
-                return Err(format!("a {rows}x{cols} matrix with {} values", values.len()));
+                let values = values.len();
+                return Err(DecodeError::MatrixShape { rows, cols, values });
             }
             Payload::Matrix(Arc::new(Matrix { rows, cols, values }))
         }
@@ -239,15 +374,18 @@ fn decode_json(data_type: &DataType, json: &Json) -> Result<Payload, String> {
             })
         }
         DataType::CanFrame => {
-            let id = u32::try_from(integer(json, "id")?).map_err(|_| "CAN id out of range")?;
+            let id = u32::try_from(integer(json, "id")?).map_err(|_| DecodeError::CanIdRange)?;
             let data: Vec<u8> = field(json, "data")?
                 .as_array()
-                .ok_or("field 'data' is not a list")?
+                .ok_or_else(|| DecodeError::FieldNot {
+                    name: "data".to_owned(),
+                    what: "a list",
+                })?
                 .iter()
                 .map(|b| {
                     b.as_u64()
                         .and_then(|b| u8::try_from(b).ok())
-                        .ok_or("a data byte out of range")
+                        .ok_or(DecodeError::DataByteRange)
                 })
                 .collect::<Result<_, _>>()?;
             let extended = boolean(json, "extended")?;
@@ -264,20 +402,19 @@ fn decode_json(data_type: &DataType, json: &Json) -> Result<Payload, String> {
                 u8::try_from(length)
                     .ok()
                     .and_then(|length| CanFrame::remote_request(id, extended, length))
-                    .ok_or("a remote request for more than 8 bytes")?
+                    .ok_or(DecodeError::RemoteRequestTooLong)?
             } else {
-                CanFrame::new(id, extended, &data)
-                    .ok_or_else(|| format!("a CAN frame of {} bytes", data.len()))?
+                CanFrame::new(id, extended, &data).ok_or(DecodeError::CanLength(data.len()))?
             };
             frame.fd |= optional("fd");
             Payload::CanFrame(frame)
         }
-        other => return Err(format!("no JSON decoding for {other}")),
+        other => return Err(DecodeError::NoJsonDecoding(other.clone())),
     })
 }
 
-fn decode_image(data: &[u8]) -> Result<Payload, String> {
-    let message = RawImage::decode(data).map_err(|e| format!("not a foxglove.RawImage: {e}"))?;
+fn decode_image(data: &[u8]) -> Result<Payload, DecodeError> {
+    let message = RawImage::decode(data).map_err(protobuf("RawImage"))?;
     let format = pixel_format_of(&message.encoding)?;
     let image = Image::with_stride(
         message.width,
@@ -285,13 +422,12 @@ fn decode_image(data: &[u8]) -> Result<Payload, String> {
         format,
         message.step,
         Arc::<[u8]>::from(&message.data[..]),
-    )
-    .map_err(|e| e.to_string())?;
+    )?;
     Ok(Payload::Image(image))
 }
 
 /// The pixel format an image encoding names, as ROS and Foxglove name them (`rgb8`, `mono16`, `8UC3`).
-pub fn pixel_format_of(encoding: &str) -> Result<PixelFormat, String> {
+pub fn pixel_format_of(encoding: &str) -> Result<PixelFormat, EncodingError> {
     Ok(match encoding {
         "mono8" | "8UC1" => PixelFormat::Gray8,
         "mono16" | "16UC1" => PixelFormat::Gray16,
@@ -299,18 +435,18 @@ pub fn pixel_format_of(encoding: &str) -> Result<PixelFormat, String> {
         "rgba8" => PixelFormat::Rgba8,
         "bgr8" | "8UC3" => PixelFormat::Bgr8,
         "bgra8" => PixelFormat::Bgra8,
-        other => return Err(format!("image encoding '{other}' is not one Kairos images have")),
+        other => return Err(EncodingError(other.to_owned())),
     })
 }
 
 /// Reads one numeric field of a packed point as `f32`.
 type FieldReader = Box<dyn Fn(&[u8]) -> Option<f32>>;
 
-fn decode_point_cloud(data: &[u8]) -> Result<Payload, String> {
+fn decode_point_cloud(data: &[u8]) -> Result<Payload, DecodeError> {
     use packed_element_field::NumericType;
-    let message = FoxglovePointCloud::decode(data).map_err(|e| format!("not a foxglove.PointCloud: {e}"))?;
+    let message = FoxglovePointCloud::decode(data).map_err(protobuf("PointCloud"))?;
     let stride = message.point_stride as usize;
-    let reader = |name: &str| -> Result<Option<FieldReader>, String> {
+    let reader = |name: &str| -> Result<Option<FieldReader>, DecodeError> {
         let Some(field) = message.fields.iter().find(|f| f.name == name) else {
             return Ok(None);
         };
@@ -325,23 +461,23 @@ fn decode_point_cloud(data: &[u8]) -> Result<Payload, String> {
             Ok(NumericType::Float64) => Box::new(move |point: &[u8]| {
                 Some(f64::from_le_bytes(point.get(offset..offset + 8)?.try_into().ok()?) as f32)
             }),
-            _ => return Err(format!("point field '{name}' is neither float32 nor float64")),
+            _ => return Err(DecodeError::PointFieldType(name.to_owned())),
         };
         Ok(Some(read))
     };
     let (Some(x), Some(y), Some(z)) = (reader("x")?, reader("y")?, reader("z")?) else {
-        return Err("a point cloud without x, y and z fields".to_owned());
+        return Err(DecodeError::NoCoordinates);
     };
     let intensity_of = reader("intensity")?;
     if stride == 0 {
-        return Err("a point cloud with a point stride of 0".to_owned());
+        return Err(DecodeError::ZeroStride);
     }
     let count = message.data.len() / stride;
     let mut points = Vec::with_capacity(count);
     let mut intensity = intensity_of.as_ref().map(|_| Vec::with_capacity(count));
     for point in message.data.chunks_exact(stride) {
         let (Some(px), Some(py), Some(pz)) = (x(point), y(point), z(point)) else {
-            return Err("a point field lies outside the point stride".to_owned());
+            return Err(DecodeError::FieldOutsideStride);
         };
         points.push(Vec3::new(px, py, pz));
         if let (Some(read), Some(values)) = (&intensity_of, &mut intensity) {
@@ -351,8 +487,8 @@ fn decode_point_cloud(data: &[u8]) -> Result<Payload, String> {
     Ok(Payload::PointCloud(Arc::new(PointCloud { points, intensity })))
 }
 
-fn decode_fix(data: &[u8]) -> Result<Payload, String> {
-    let message = LocationFix::decode(data).map_err(|e| format!("not a foxglove.LocationFix: {e}"))?;
+fn decode_fix(data: &[u8]) -> Result<Payload, DecodeError> {
+    let message = LocationFix::decode(data).map_err(protobuf("LocationFix"))?;
     let covariance = |i: usize| {
         message
             .position_covariance
@@ -385,8 +521,8 @@ fn decode_fix(data: &[u8]) -> Result<Payload, String> {
     }))
 }
 
-fn decode_pose(data: &[u8]) -> Result<Payload, String> {
-    let message = PoseInFrame::decode(data).map_err(|e| format!("not a foxglove.PoseInFrame: {e}"))?;
+fn decode_pose(data: &[u8]) -> Result<Payload, DecodeError> {
+    let message = PoseInFrame::decode(data).map_err(protobuf("PoseInFrame"))?;
     let pose = message.pose.unwrap_or_default();
     let position = pose.position.unwrap_or_default();
     let orientation = pose.orientation.unwrap_or_default();
@@ -397,27 +533,27 @@ fn decode_pose(data: &[u8]) -> Result<Payload, String> {
 }
 
 /// Standard base64 with padding, as [`crate::encode`] writes it.
-fn unbase64(text: &str) -> Result<Vec<u8>, String> {
-    let value = |c: u8| -> Result<u32, String> {
+fn unbase64(text: &str) -> Result<Vec<u8>, Base64Error> {
+    let value = |c: u8| -> Result<u32, Base64Error> {
         Ok(match c {
             b'A'..=b'Z' => c - b'A',
             b'a'..=b'z' => c - b'a' + 26,
             b'0'..=b'9' => c - b'0' + 52,
             b'+' => 62,
             b'/' => 63,
-            _ => return Err(format!("'{}' is not a base64 character", char::from(c))),
+            _ => return Err(Base64Error::NotBase64(char::from(c))),
         }
         .into())
     };
     let bytes = text.as_bytes();
     if !bytes.len().is_multiple_of(4) {
-        return Err("base64 text whose length is not a multiple of 4".to_owned());
+        return Err(Base64Error::Length);
     }
     let mut out = Vec::with_capacity(bytes.len() / 4 * 3);
     for group in bytes.chunks_exact(4) {
         let padding = group.iter().rev().take_while(|&&c| c == b'=').count();
         if padding > 2 {
-            return Err("base64 text with too much padding".to_owned());
+            return Err(Base64Error::Padding);
         }
         let mut n = 0_u32;
         for (i, &c) in group.iter().enumerate() {
@@ -543,13 +679,16 @@ mod tests {
             DataType::Imu,
             "typed from its name all the same"
         );
-        let why = decoder.decode(&[0, 1, 0, 0]).unwrap_err();
+        let why = decoder.decode(&[0, 1, 0, 0]).unwrap_err().to_string();
         assert!(
             why.contains("sensor_msgs/Imu.header is a std_msgs/Header"),
             "{why}"
         );
         let json_encoded = ros_channel("std_msgs/msg/Float64", "float64 data\n", "json");
-        let why = ChannelDecoder::of(&json_encoded).decode(b"{}").unwrap_err();
+        let why = ChannelDecoder::of(&json_encoded)
+            .decode(b"{}")
+            .unwrap_err()
+            .to_string();
         assert!(why.contains("only cdr is read"), "{why}");
         let fine = ChannelDecoder::of(&ros_channel("std_msgs/msg/Float64", "float64 data\n", "cdr"));
         let mut message = vec![0, 1, 0, 0];
@@ -558,6 +697,7 @@ mod tests {
         assert!(
             fine.decode(&message[..7])
                 .unwrap_err()
+                .to_string()
                 .contains("std_msgs/Float64.data")
         );
     }

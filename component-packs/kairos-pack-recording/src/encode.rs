@@ -204,15 +204,33 @@ pub fn append_packed_points(cloud: &kairos_sdk::PointCloud, out: &mut Vec<u8>) {
     }
 }
 
+/// Why a sample could not be encoded for its channel: the recorder fails, naming its file.
+#[derive(Debug, thiserror::Error)]
+pub enum EncodeError {
+    /// A payload type this recorder has no encoding for (a newer runtime's).
+    #[error("this recorder has no encoding for {0} samples: update the recording pack")]
+    NoEncoding(kairos_sdk::DataType),
+    /// A Foxglove schema's message that could not be written.
+    #[error("{0}")]
+    Protobuf(Box<dyn std::error::Error + Send + Sync>),
+    /// A JSON message that could not be written.
+    #[error(transparent)]
+    Json(#[from] serde_json::Error),
+    /// A sample no ROS 2 message carries, or out of its range.
+    #[error(transparent)]
+    Ros2(#[from] crate::ros2::write::WriteError),
+}
+
 /// Encodes `payload` (of a sample stamped `timestamp`) in its schema's message encoding into `out`.
 pub fn encode(
     payload: &Payload,
     timestamp: Timestamp,
     frame_id: &str,
     out: &mut Vec<u8>,
-) -> Result<(), String> {
+) -> Result<(), EncodeError> {
     out.clear();
-    let protobuf = |message: &dyn Fn(&mut Vec<u8>) -> Result<(), String>, out: &mut Vec<u8>| message(out);
+    let protobuf =
+        |message: &dyn Fn(&mut Vec<u8>) -> Result<(), EncodeError>, out: &mut Vec<u8>| message(out);
     let json_value = match payload {
         Payload::Image(image) => {
             encode_raw_image(image, timestamp, frame_id, out);
@@ -240,7 +258,14 @@ pub fn encode(
                 fields,
                 data: foxglove::bytes::Bytes::from(data),
             };
-            return protobuf(&|buf| message.encode(buf).map_err(|e| e.to_string()), out);
+            return protobuf(
+                &|buf| {
+                    message
+                        .encode(buf)
+                        .map_err(|e| EncodeError::Protobuf(Box::new(e)))
+                },
+                out,
+            );
         }
         Payload::GnssFix(fix) => {
             let h = fix.horizontal_accuracy_m * fix.horizontal_accuracy_m;
@@ -269,7 +294,14 @@ pub fn encode(
                 color: None,
                 metadata,
             };
-            return protobuf(&|buf| message.encode(buf).map_err(|e| e.to_string()), out);
+            return protobuf(
+                &|buf| {
+                    message
+                        .encode(buf)
+                        .map_err(|e| EncodeError::Protobuf(Box::new(e)))
+                },
+                out,
+            );
         }
         Payload::Pose(pose) => {
             let message = PoseInFrame {
@@ -289,7 +321,14 @@ pub fn encode(
                     }),
                 }),
             };
-            return protobuf(&|buf| message.encode(buf).map_err(|e| e.to_string()), out);
+            return protobuf(
+                &|buf| {
+                    message
+                        .encode(buf)
+                        .map_err(|e| EncodeError::Protobuf(Box::new(e)))
+                },
+                out,
+            );
         }
         Payload::F64(v) => json!({"value": v}),
         Payload::I64(v) => json!({"value": v}),
@@ -314,13 +353,10 @@ pub fn encode(
             json!({"type_name": &custom.type_name[..], "base64": base64(&custom.data)})
         }
         other => {
-            return Err(format!(
-                "this recorder has no encoding for {} samples: update the recording pack",
-                other.data_type()
-            ));
+            return Err(EncodeError::NoEncoding(other.data_type()));
         }
     };
-    serde_json::to_writer(out, &json_value).map_err(|e| e.to_string())
+    Ok(serde_json::to_writer(out, &json_value)?)
 }
 
 #[cfg(test)]

@@ -147,7 +147,7 @@ pub fn inspect_with_progress(
     // A rosbag2 folder: its MCAP file.
     let file = crate::timeline::recording_file(path).map_err(|reason| InspectError::NotMcap {
         path: shown.clone(),
-        reason,
+        reason: reason.to_string(),
     })?;
     let path = file.as_path();
     let io_error = |error| InspectError::Io {

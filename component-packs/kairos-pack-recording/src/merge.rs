@@ -12,10 +12,61 @@ use mcap::records::{MessageHeader, Metadata};
 
 use crate::timeline::{RawMessage, RecordingIndex};
 
-/// Why a merge was refused.
-#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
-#[error("{0}")]
-pub struct MergeError(pub String);
+/// Why a merge was refused. (Causes are part of each message, not a `source`: `kairos` prints errors
+/// with their causes, and would say them twice.)
+#[derive(Debug, thiserror::Error)]
+pub enum MergeError {
+    /// One recording makes no merge.
+    #[error("give at least two recordings to merge")]
+    TooFew,
+    /// Two inputs under one host name would mix their channels.
+    #[error(
+        "{} and {} would both put their channels under '{host}/': name them, e.g. car={} roadside={}",
+        .first.display(), .second.display(), .first.display(), .second.display()
+    )]
+    SameHost {
+        /// The host name given twice.
+        host: String,
+        /// The first input with it.
+        first: PathBuf,
+        /// The second.
+        second: PathBuf,
+    },
+    /// Writing over an input would destroy it.
+    #[error("{} is an input: choose another output", .0.display())]
+    OutputIsInput(PathBuf),
+    /// An input that cannot be opened or read.
+    #[error("{0}")]
+    Recording(crate::timeline::RecordingError),
+    /// Clocks not locked to one master: refused unless allowed.
+    #[error(
+        "the recordings were not made on synchronised clocks, so their times do not line up: {}. Record with the hosts' clocks locked to one clock master (kairos serve --clock-master on one, --clock-slave-of on the others), or pass --allow-unsynchronised to merge anyway (the merged file says so)",
+        .0.join("; ")
+    )]
+    Unsynchronised(Vec<String>),
+    /// Damaged inputs: refused unless allowed.
+    #[error(
+        "damaged recordings: {}. Merged, they would lose what is past the damage: see `kairos inspect` on each, `kairos recover` one that was not closed, or pass --allow-damaged to merge what is intact (the merged file says what was lost)",
+        .0.join("; ")
+    )]
+    Damaged(Vec<String>),
+    /// The output could not be made.
+    #[error("cannot create {}: {error}", .path.display())]
+    Create {
+        /// The output.
+        path: PathBuf,
+        /// What the system said.
+        error: std::io::Error,
+    },
+    /// The output could not be written (a full disk).
+    #[error("cannot write {}: {error}", .path.display())]
+    Write {
+        /// The output.
+        path: PathBuf,
+        /// What the writer said.
+        error: mcap::McapError,
+    },
+}
 
 /// What a merge wrote.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -113,7 +164,10 @@ impl Source {
     /// The log time of the next message, reading the next block when the last one is used up.
     fn peek(&mut self) -> Result<Option<u64>, MergeError> {
         while self.pending.is_empty() && self.next_block < self.index.block_count() {
-            let block = self.index.read_block(self.next_block).map_err(MergeError)?;
+            let block = self
+                .index
+                .read_block(self.next_block)
+                .map_err(MergeError::Recording)?;
             self.next_block += 1;
             self.pending.extend(block);
         }
@@ -136,10 +190,7 @@ pub fn merge(inputs: &[MergeInput], output: &Path, options: MergeOptions) -> Res
             .map(|(s, i)| (format!("{} ({})", i.path.display(), i.host), &*s.index)),
     );
     if !unsynchronised.is_empty() && !options.allow_unsynchronised {
-        return Err(MergeError(format!(
-            "the recordings were not made on synchronised clocks, so their times do not line up: {}. Record with the hosts' clocks locked to one clock master (kairos serve --clock-master on one, --clock-slave-of on the others), or pass --allow-unsynchronised to merge anyway (the merged file says so)",
-            unsynchronised.join("; ")
-        )));
+        return Err(MergeError::Unsynchronised(unsynchronised));
     }
     let damaged: Vec<String> = sources
         .iter()
@@ -155,18 +206,17 @@ pub fn merge(inputs: &[MergeInput], output: &Path, options: MergeOptions) -> Res
         })
         .collect();
     if !damaged.is_empty() && !options.allow_damaged {
-        return Err(MergeError(format!(
-            "damaged recordings: {}. Merged, they would lose what is past the damage: see `kairos inspect` on each, `kairos recover` one that was not closed, or pass --allow-damaged to merge what is intact (the merged file says what was lost)",
-            damaged.join("; ")
-        )));
+        return Err(MergeError::Damaged(damaged));
     }
-    let file =
-        File::create(output).map_err(|e| MergeError(format!("cannot create {}: {e}", output.display())))?;
+    let file = File::create(output).map_err(|error| MergeError::Create {
+        path: output.to_owned(),
+        error,
+    })?;
     let writer = mcap::WriteOptions::new()
         .compression(Some(mcap::Compression::Zstd))
         .profile("kairos")
         .create(BufWriter::new(file))
-        .map_err(|e| write_error(output, &e))?;
+        .map_err(|e| write_error(output, e))?;
     let mut out = Output {
         path: output,
         writer,
@@ -211,8 +261,8 @@ pub fn merge(inputs: &[MergeInput], output: &Path, options: MergeOptions) -> Res
             name: "kairos.merge".to_owned(),
             metadata: about,
         })
-        .map_err(|e| write_error(output, &e))?;
-    out.writer.finish().map_err(|e| write_error(output, &e))?;
+        .map_err(|e| write_error(output, e))?;
+    out.writer.finish().map_err(|e| write_error(output, e))?;
     Ok(Merged {
         messages,
         channels: out.topics,
@@ -221,26 +271,26 @@ pub fn merge(inputs: &[MergeInput], output: &Path, options: MergeOptions) -> Res
     })
 }
 
-fn write_error(path: &Path, error: &mcap::McapError) -> MergeError {
-    MergeError(format!("cannot write {}: {error}", path.display()))
+fn write_error(path: &Path, error: mcap::McapError) -> MergeError {
+    MergeError::Write {
+        path: path.to_owned(),
+        error,
+    }
 }
 
 /// Refuses two inputs under one host name, and an output that is an input.
 fn check_names(inputs: &[MergeInput], output: &Path) -> Result<(), MergeError> {
     if inputs.len() < 2 {
-        return Err(MergeError("give at least two recordings to merge".to_owned()));
+        return Err(MergeError::TooFew);
     }
     let mut hosts: BTreeMap<&str, &Path> = BTreeMap::new();
     for input in inputs {
         if let Some(first) = hosts.insert(&input.host, &input.path) {
-            return Err(MergeError(format!(
-                "{} and {} would both put their channels under '{}/': name them, e.g. car={} roadside={}",
-                first.display(),
-                input.path.display(),
-                input.host,
-                first.display(),
-                input.path.display()
-            )));
+            return Err(MergeError::SameHost {
+                host: input.host.clone(),
+                first: first.to_owned(),
+                second: input.path.clone(),
+            });
         }
         if input
             .path
@@ -248,10 +298,7 @@ fn check_names(inputs: &[MergeInput], output: &Path) -> Result<(), MergeError> {
             .ok()
             .is_some_and(|p| output.canonicalize().ok() == Some(p))
         {
-            return Err(MergeError(format!(
-                "{} is an input: choose another output",
-                output.display()
-            )));
+            return Err(MergeError::OutputIsInput(output.to_owned()));
         }
     }
     Ok(())
@@ -264,7 +311,7 @@ fn open_sources(inputs: &[MergeInput]) -> Result<Vec<Source>, MergeError> {
         .map(|input| {
             Ok(Source {
                 host: input.host.clone(),
-                index: RecordingIndex::open(&input.path).map_err(MergeError)?,
+                index: RecordingIndex::open(&input.path).map_err(MergeError::Recording)?,
                 next_block: 0,
                 pending: VecDeque::new(),
             })
@@ -320,7 +367,7 @@ impl Output<'_> {
         };
         self.writer
             .write_to_known_channel(&header, &message.data)
-            .map_err(|e| write_error(self.path, &e))?;
+            .map_err(|e| write_error(self.path, e))?;
         Ok(true)
     }
 
@@ -334,7 +381,7 @@ impl Output<'_> {
                     let id = self
                         .writer
                         .add_schema(&schema.name, &schema.encoding, &schema.data)
-                        .map_err(|e| write_error(self.path, &e))?;
+                        .map_err(|e| write_error(self.path, e))?;
                     self.schemas.insert(key, id);
                     id
                 }
@@ -347,7 +394,7 @@ impl Output<'_> {
         let id = self
             .writer
             .add_channel(schema, &topic, &definition.message_encoding, &metadata)
-            .map_err(|e| write_error(self.path, &e))?;
+            .map_err(|e| write_error(self.path, e))?;
         self.topics.push(topic);
         Ok(id)
     }

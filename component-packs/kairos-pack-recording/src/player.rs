@@ -106,7 +106,8 @@ fn open_files(properties: &BTreeMap<String, Value>) -> Result<Vec<Arc<RecordingI
         }
         let file = crate::timeline::recording_file(Path::new(path))
             .map_err(|e| DescribeError::property(property, format!("{path}: {e}")))?;
-        let index = RecordingIndex::open(&file).map_err(|e| DescribeError::property(property, e))?;
+        let index =
+            RecordingIndex::open(&file).map_err(|e| DescribeError::property(property, e.to_string()))?;
         if index.channels().is_empty() {
             let why = index.damage().map_or_else(String::new, |d| format!(" ({d})"));
             return Err(DescribeError::property(

@@ -501,6 +501,7 @@ impl Recorder {
             .unwrap_or("");
         if file.rosbag2 {
             crate::ros2::write::encode(&sample.payload, sample.timestamp, frame_id, &mut self.scratch)
+                .map_err(crate::encode::EncodeError::from)
         } else {
             encode(&sample.payload, sample.timestamp, frame_id, &mut self.scratch)
         }

@@ -26,6 +26,22 @@ use serde::Serialize;
 /// Where and why reading stopped.
 pub type Damage = Option<String>;
 
+/// A record that refers to a definition the file has not given: the file is damaged there.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum CatalogError {
+    /// A channel of a schema never defined.
+    #[error("channel {channel} names unknown schema {schema}")]
+    UnknownSchema {
+        /// The channel's id.
+        channel: u16,
+        /// The schema id it names.
+        schema: u16,
+    },
+    /// A message on a channel never defined.
+    #[error("message on unknown channel {0}")]
+    UnknownChannel(u16),
+}
+
 /// The schemas and channels read so far; messages refer to them by id.
 #[derive(Default, Clone)]
 pub struct Catalog {
@@ -75,7 +91,7 @@ impl Catalog {
     }
 
     /// Handles one record from the file or from inside a chunk; returns a message to visit, if any.
-    fn absorb<'a>(&mut self, record: Record<'a>) -> Result<Option<Message<'a>>, String> {
+    fn absorb<'a>(&mut self, record: Record<'a>) -> Result<Option<Message<'a>>, CatalogError> {
         match record {
             Record::Schema { header, data } => {
                 let schema = Schema {
@@ -91,12 +107,12 @@ impl Catalog {
                 let schema = if channel.schema_id == 0 {
                     None
                 } else {
-                    Some(self.schemas.get(&channel.schema_id).cloned().ok_or_else(|| {
-                        format!(
-                            "channel {} names unknown schema {}",
-                            channel.id, channel.schema_id
-                        )
-                    })?)
+                    Some(self.schemas.get(&channel.schema_id).cloned().ok_or(
+                        CatalogError::UnknownSchema {
+                            channel: channel.id,
+                            schema: channel.schema_id,
+                        },
+                    )?)
                 };
                 let channel = Channel {
                     id: channel.id,
@@ -113,7 +129,7 @@ impl Catalog {
                     .channels
                     .get(&header.channel_id)
                     .cloned()
-                    .ok_or_else(|| format!("message on unknown channel {}", header.channel_id))?;
+                    .ok_or(CatalogError::UnknownChannel(header.channel_id))?;
                 Ok(Some(Message {
                     channel,
                     sequence: header.sequence,
@@ -288,12 +304,12 @@ pub fn walk<S: Source + ?Sized>(
             op::CHUNK | op::MESSAGE | op::SCHEMA | op::CHANNEL => {
                 read_record(source, offset, end, &mut record)?;
                 match read_block(&record, &mut walk.catalog) {
-                    Ok(messages) => on_block(&IntactBlock {
+                    BlockRead::Intact(messages) => on_block(&IntactBlock {
                         offset,
                         length: end - offset,
                         messages: &messages,
                     }),
-                    Err(reason) => {
+                    BlockRead::Damaged(reason) => {
                         let adopted = salvage_definitions(&record, &mut walk.catalog);
                         let reason = if adopted > 0 {
                             format!("{reason} (its {adopted} schema and channel definitions were kept)")
@@ -373,9 +389,15 @@ fn read_record<S: Source + ?Sized>(
     source.read_at(into, offset)
 }
 
+/// What reading one top-level record gave: all its messages, or where and why it is damaged.
+enum BlockRead {
+    Intact(Vec<Message<'static>>),
+    Damaged(String),
+}
+
 /// The messages of one top-level record (a chunk, or a record outside any chunk), all or nothing: on
 /// damage `catalog` is left as it was.
-fn read_block(record: &[u8], catalog: &mut Catalog) -> Result<Vec<Message<'static>>, String> {
+fn read_block(record: &[u8], catalog: &mut Catalog) -> BlockRead {
     let mut trial = catalog.clone();
     // Held by channel id: a message borrows its channel from the reader for the call only.
     let mut read = Vec::new();
@@ -395,7 +417,7 @@ fn read_block(record: &[u8], catalog: &mut Catalog) -> Result<Vec<Message<'stati
         |_| {},
     );
     if let Some(damage) = damage {
-        return Err(damage);
+        return BlockRead::Damaged(damage);
     }
     let messages = read
         .into_iter()
@@ -410,7 +432,7 @@ fn read_block(record: &[u8], catalog: &mut Catalog) -> Result<Vec<Message<'stati
         })
         .collect();
     *catalog = trial;
-    Ok(messages)
+    BlockRead::Intact(messages)
 }
 
 /// Reads a damaged record again without its CRC check, to keep the schema and channel definitions it

@@ -16,19 +16,91 @@ use std::time::SystemTime;
 
 use crate::safe_read::{Catalog, read_records, walk};
 
+/// Why a recording cannot be opened or read.
+#[derive(Debug, thiserror::Error)]
+pub enum RecordingError {
+    /// A folder that cannot be listed.
+    #[error("cannot list {}: {source}", .path.display())]
+    List {
+        /// The folder.
+        path: PathBuf,
+        /// What the system said.
+        source: std::io::Error,
+    },
+    /// A folder without a recording in it.
+    #[error("a folder with no MCAP or .db3 file")]
+    NoRecording,
+    /// A folder of a split recording: which file first is the user's to say.
+    #[error(
+        "a folder of {count} MCAP files (a split recording): give them as path, path2, ... in order, first {}",
+        .first.display()
+    )]
+    Split {
+        /// How many MCAP files.
+        count: usize,
+        /// The first by name.
+        first: PathBuf,
+    },
+    /// A `SQLite` bag that could not be converted.
+    #[error(transparent)]
+    Db3(#[from] crate::ros2::db3::Db3Error),
+    /// Missing, or not readable by this user.
+    #[error("cannot read {}: {source}", .path.display())]
+    Read {
+        /// The file.
+        path: PathBuf,
+        /// What the system said.
+        source: std::io::Error,
+    },
+    /// The file could not be opened.
+    #[error("cannot open {}: {source}", .path.display())]
+    Open {
+        /// The file.
+        path: PathBuf,
+        /// What the system said.
+        source: std::io::Error,
+    },
+    /// Not an MCAP file at all.
+    #[error("{} is not an MCAP recording (it does not start with the MCAP magic bytes)", .0.display())]
+    NotMcap(PathBuf),
+    /// A block that could not be read again.
+    #[error("cannot read {} at byte {offset}: {source}", .path.display())]
+    ReadAt {
+        /// The file.
+        path: PathBuf,
+        /// Where the block starts.
+        offset: u64,
+        /// What the system said.
+        source: std::io::Error,
+    },
+    /// The file was changed under the index: a block it found whole is now damaged.
+    #[error("{} changed since it was opened: the record at byte {offset} is damaged: {damage}", .path.display())]
+    Changed {
+        /// The file.
+        path: PathBuf,
+        /// Where the block starts.
+        offset: u64,
+        /// The damage, as the reader describes it.
+        damage: String,
+    },
+}
+
 /// The MCAP file a path names: `path` itself, or the one file of a rosbag2 folder (`metadata.yaml` beside
 /// its storage files), as `ros2 bag record` leaves it. A `SQLite` bag (`.db3`, or a folder of them) is
 /// converted once to MCAP ([`crate::ros2::db3`]) and that file named.
-pub fn recording_file(path: &Path) -> Result<PathBuf, String> {
+pub fn recording_file(path: &Path) -> Result<PathBuf, RecordingError> {
     let has_extension = |file: &Path, wanted: &str| file.extension().is_some_and(|e| e == wanted);
     if !path.is_dir() {
         if has_extension(path, "db3") {
-            return crate::ros2::db3::as_mcap(&[path.to_owned()]);
+            return Ok(crate::ros2::db3::as_mcap(&[path.to_owned()])?);
         }
         return Ok(path.to_owned());
     }
     let mut files: Vec<PathBuf> = std::fs::read_dir(path)
-        .map_err(|e| format!("cannot list {}: {e}", path.display()))?
+        .map_err(|source| RecordingError::List {
+            path: path.to_owned(),
+            source,
+        })?
         .map_while(Result::ok)
         .map(|entry| entry.path())
         .collect();
@@ -41,13 +113,12 @@ pub fn recording_file(path: &Path) -> Result<PathBuf, String> {
         .collect();
     match mcap.as_slice() {
         [one] => Ok((*one).clone()),
-        [] if !db3.is_empty() => crate::ros2::db3::as_mcap(&db3),
-        [] => Err("a folder with no MCAP or .db3 file".to_owned()),
-        several => Err(format!(
-            "a folder of {} MCAP files (a split recording): give them as path, path2, ... in order, first {}",
-            several.len(),
-            several[0].display()
-        )),
+        [] if !db3.is_empty() => Ok(crate::ros2::db3::as_mcap(&db3)?),
+        [] => Err(RecordingError::NoRecording),
+        several => Err(RecordingError::Split {
+            count: several.len(),
+            first: several[0].clone(),
+        }),
     }
 }
 
@@ -118,8 +189,11 @@ impl RecordingIndex {
     ///
     /// A damaged file opens: the index stops before the damage, which [`Self::damage`] describes. Only a
     /// file that cannot be read at all, or is not MCAP, is an error.
-    pub fn open(path: &Path) -> Result<Arc<RecordingIndex>, String> {
-        let metadata = std::fs::metadata(path).map_err(|e| format!("cannot read {}: {e}", path.display()))?;
+    pub fn open(path: &Path) -> Result<Arc<RecordingIndex>, RecordingError> {
+        let metadata = std::fs::metadata(path).map_err(|source| RecordingError::Read {
+            path: path.to_owned(),
+            source,
+        })?;
         let key = (path.to_owned(), metadata.len(), metadata.modified().ok());
         let mut cache = cache().lock().unwrap_or_else(std::sync::PoisonError::into_inner);
         if let Some(index) = cache.get(&key) {
@@ -133,14 +207,14 @@ impl RecordingIndex {
         Ok(index)
     }
 
-    fn scan(path: &Path) -> Result<RecordingIndex, String> {
-        let shown = path.display();
-        let file = File::open(path).map_err(|e| format!("cannot open {shown}: {e}"))?;
+    fn scan(path: &Path) -> Result<RecordingIndex, RecordingError> {
+        let file = File::open(path).map_err(|source| RecordingError::Open {
+            path: path.to_owned(),
+            source,
+        })?;
         let mut magic = [0_u8; 8];
         if file.read_exact_at(&mut magic, 0).is_err() || magic[..] != *mcap::MAGIC {
-            return Err(format!(
-                "{shown} is not an MCAP recording (it does not start with the MCAP magic bytes)"
-            ));
+            return Err(RecordingError::NotMcap(path.to_owned()));
         }
         let mut index = RecordingIndex {
             path: path.to_owned(),
@@ -204,7 +278,10 @@ impl RecordingIndex {
             },
             |_| {},
         )
-        .map_err(|e| format!("cannot read {shown}: {e}"))?;
+        .map_err(|source| RecordingError::Read {
+            path: path.to_owned(),
+            source,
+        })?;
         index.blocks = blocks;
         index.clock = clock;
         markers.sort_by_key(|(at, _)| *at);
@@ -280,18 +357,18 @@ impl RecordingIndex {
     }
 
     /// The messages of block `block`, by log time (ties in file order).
-    pub fn read_block(&self, block: usize) -> Result<Vec<RawMessage>, String> {
+    pub fn read_block(&self, block: usize) -> Result<Vec<RawMessage>, RecordingError> {
         let Some(entry) = self.blocks.get(block) else {
             return Ok(Vec::new());
         };
         let mut bytes = vec![0_u8; usize::try_from(entry.length).unwrap_or(0)];
-        self.file.read_exact_at(&mut bytes, entry.offset).map_err(|e| {
-            format!(
-                "cannot read {} at byte {}: {e}",
-                self.path.display(),
-                entry.offset
-            )
-        })?;
+        self.file
+            .read_exact_at(&mut bytes, entry.offset)
+            .map_err(|source| RecordingError::ReadAt {
+                path: self.path.clone(),
+                offset: entry.offset,
+                source,
+            })?;
         let mut messages = Vec::new();
         let damage = read_records(
             &bytes,
@@ -308,11 +385,11 @@ impl RecordingIndex {
             |_| {},
         );
         if let Some(damage) = damage {
-            return Err(format!(
-                "{} changed since it was opened: the record at byte {} is damaged: {damage}",
-                self.path.display(),
-                entry.offset
-            ));
+            return Err(RecordingError::Changed {
+                path: self.path.clone(),
+                offset: entry.offset,
+                damage,
+            });
         }
         messages.sort_by_key(|m| m.log_time);
         Ok(messages)

@@ -9,7 +9,7 @@
 use std::path::Path;
 use std::sync::Arc;
 
-use kairos_pack_recording::merge::{MergeInput, MergeOptions, merge};
+use kairos_pack_recording::merge::{MergeError, MergeInput, MergeOptions, merge};
 use kairos_pack_recording::recorder::Recorder;
 use kairos_pack_recording::timeline::RecordingIndex;
 use kairos_sdk::harness::Harness;
@@ -98,7 +98,11 @@ fn two_recordings_under_one_host_name_are_refused() {
             ..MergeOptions::default()
         },
     )
-    .unwrap_err()
-    .0;
+    .unwrap_err();
+    assert!(
+        matches!(&error, MergeError::SameHost { host, .. } if host == "car"),
+        "{error:?}"
+    );
+    let error = error.to_string();
     assert!(error.contains("both put their channels under 'car/'"), "{error}");
 }

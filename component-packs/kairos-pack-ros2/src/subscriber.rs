@@ -7,6 +7,7 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::mpsc::{Receiver, SyncSender, TrySendError, sync_channel};
 use std::time::Duration;
 
+use kairos_pack_recording::decode::DecodeError;
 use kairos_pack_recording::ros2::write::{definition_of, type_hash};
 use kairos_pack_recording::ros2::{Definitions, data_type_of, header_stamp, to_payload};
 use kairos_sdk::descriptor::{Descriptor, Property};
@@ -104,12 +105,15 @@ impl Subscriber {
         let (Some(definitions), Some(data_type)) = (&self.definitions, &self.data_type) else {
             return Err(ComponentError::Stopped);
         };
-        let decoded = definitions.decode(&arrived.payload).and_then(|value| {
-            Ok((
-                to_payload(definitions, &value, data_type)?,
-                header_stamp(definitions, &value),
-            ))
-        });
+        let decoded = definitions
+            .decode(&arrived.payload)
+            .map_err(DecodeError::from)
+            .and_then(|value| {
+                Ok((
+                    to_payload(definitions, &value, data_type)?,
+                    header_stamp(definitions, &value),
+                ))
+            });
         match decoded {
             Ok((payload, stamp)) => {
                 // The header's stamp, else the publisher's source time, else now.

@@ -107,10 +107,200 @@ fn normalized(type_name: &str) -> String {
     }
 }
 
+/// Why a `ros2msg` definition does not read.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum DefinitionError {
+    /// A line that is not a field, a constant or a separator.
+    #[error("the definition of {type_name}, line {line}: {problem} ('{text}')")]
+    Line {
+        /// The message type defined.
+        type_name: String,
+        /// The line, from 1.
+        line: usize,
+        /// Its text.
+        text: String,
+        /// What is wrong with it.
+        problem: FieldError,
+    },
+    /// The text does not define the message type it is for.
+    #[error("the definition does not define {0}")]
+    NoRoot(String),
+    /// A field of a message type the text does not include.
+    #[error("{owner}.{field} is a {type_name}, which the definition does not include")]
+    Undefined {
+        /// The type holding the field.
+        owner: String,
+        /// The field.
+        field: String,
+        /// Its type.
+        type_name: String,
+    },
+}
+
+/// Why one line of a definition is not a field.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum FieldError {
+    /// A lone word.
+    #[error("a field needs a type and a name")]
+    NoName,
+    /// `float64[9` and the like.
+    #[error("'{0}' has no closing ]")]
+    NoClosingBracket(String),
+    /// `float64[x]` and the like.
+    #[error("'{0}' is not an array length")]
+    BadLength(String),
+    /// UTF-16 strings are not read.
+    #[error("wstring fields are not read")]
+    WideString,
+}
+
+/// Why a CDR message does not decode against its definition; nested fields say their path.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum CdrError {
+    /// An encapsulation other than plain CDR, either byte order.
+    #[error("a CDR header {0:02x}{1:02x} that is not plain CDR (only XCDR version 1 is read)")]
+    Encapsulation(u8, u8),
+    /// Fewer than the header's four bytes.
+    #[error("a message shorter than its CDR header")]
+    NoHeader,
+    /// A definition that includes itself.
+    #[error("messages nested deeper than {MAX_DEPTH} (does {0} include itself?)")]
+    TooDeep(String),
+    /// A type the definition does not hold.
+    #[error("no definition of {0}")]
+    NoDefinition(String),
+    /// Where in the message the error lies.
+    #[error("{type_name}.{field}: {source}")]
+    InField {
+        /// The type holding the field.
+        type_name: String,
+        /// The field.
+        field: String,
+        /// What went wrong there.
+        source: Box<CdrError>,
+    },
+    /// A count larger than the bytes left can hold: refused before allocating.
+    #[error("{count} values in the {left} bytes left")]
+    TooManyValues {
+        /// The count read.
+        count: usize,
+        /// Bytes left.
+        left: usize,
+    },
+    /// The message ends inside a value.
+    #[error("{wanted} bytes wanted, {left} left")]
+    Short {
+        /// Bytes the value takes.
+        wanted: usize,
+        /// Bytes left.
+        left: usize,
+    },
+}
+
+/// Why a decoded message is not a payload of the Kairos type its channel replays as.
+#[derive(Debug, thiserror::Error)]
+pub enum MessageError {
+    /// A number expected.
+    #[error("no number at '{0}'")]
+    NoNumber(String),
+    /// A bool or an integer used as one expected.
+    #[error("no flag at '{0}'")]
+    NoFlag(String),
+    /// An integer beyond 32 bits.
+    #[error("'{path}' is {value}")]
+    OutOfRange {
+        /// The field.
+        path: String,
+        /// Its value.
+        value: i128,
+    },
+    /// An integer expected.
+    #[error("no integer at '{0}'")]
+    NoInteger(String),
+    /// A boolean expected.
+    #[error("no boolean at '{0}'")]
+    NoBoolean(String),
+    /// A list with something else than numbers.
+    #[error("'{0}' holds a value that is not a number")]
+    NotANumber(String),
+    /// A list of numbers expected.
+    #[error("no list of numbers at '{0}'")]
+    NoNumbers(String),
+    /// Text expected.
+    #[error("no text at '{0}'")]
+    NoText(String),
+    /// A byte array expected.
+    #[error("no bytes at '{0}'")]
+    NoBytes(String),
+    /// A matrix is two dimensions.
+    #[error("a matrix of {0} dimensions")]
+    MatrixDimensions(usize),
+    /// Rows × columns is not the number of values.
+    #[error("a {rows}×{cols} matrix of {values} values")]
+    MatrixShape {
+        /// Rows.
+        rows: usize,
+        /// Columns.
+        cols: usize,
+        /// Values given.
+        values: usize,
+    },
+    /// A `uint64` beyond `i64`.
+    #[error("{0} does not fit an i64")]
+    I64Range(u64),
+    /// A CAN length code beyond a byte.
+    #[error("a dlc over 255")]
+    DlcOver255,
+    /// A length no CAN frame has, or more than the data given.
+    #[error("a CAN frame of length {0}")]
+    CanLength(u8),
+    /// A compressed image in another format.
+    #[error("a compressed image in neither JPEG nor PNG (format '{0}')")]
+    NotJpegOrPng(String),
+    /// The compressed bytes do not decode.
+    #[error(transparent)]
+    Decompress(#[from] image::ImageError),
+    /// A damaged header can claim any size: refused past 7680 × 4320.
+    #[error("a compressed image claiming {width}×{height} pixels")]
+    TooLarge {
+        /// Width claimed.
+        width: u32,
+        /// Height claimed.
+        height: u32,
+    },
+    /// The image's geometry does not fit its pixels.
+    #[error(transparent)]
+    ImageSize(#[from] kairos_sdk::payload::ImageSizeError),
+    /// An encoding Kairos has no pixel format for.
+    #[error(transparent)]
+    Encoding(#[from] crate::decode::EncodingError),
+    /// Kairos images are little-endian.
+    #[error("a big-endian 16-bit image (Kairos images are little-endian)")]
+    BigEndianImage,
+    /// Kairos clouds are little-endian.
+    #[error("a big-endian point cloud")]
+    BigEndianCloud,
+    /// Points of no bytes.
+    #[error("a point cloud with a point step of 0")]
+    ZeroPointStep,
+    /// A cloud that says nothing of its points' layout.
+    #[error("no point fields")]
+    NoPointFields,
+    /// Coordinates of another type than floats.
+    #[error("point field '{0}' is neither float32 nor float64")]
+    PointFieldType(String),
+    /// Points need coordinates.
+    #[error("a point cloud without x, y and z fields")]
+    NoCoordinates,
+    /// A field's offset beyond the point.
+    #[error("a point field lies outside the point step")]
+    FieldOutsidePoint,
+}
+
 impl Definitions {
     /// Parses the definition `text` of message type `type_name` (`sensor_msgs/msg/Imu`): its own fields,
     /// then each type it uses after a line of `=` and `MSG: package/Type`.
-    pub fn parse(type_name: &str, text: &str) -> Result<Definitions, String> {
+    pub fn parse(type_name: &str, text: &str) -> Result<Definitions, DefinitionError> {
         let root = normalized(type_name);
         let mut types = HashMap::new();
         let mut current = root.clone();
@@ -132,12 +322,13 @@ impl Definitions {
             match parse_field(line, package) {
                 Ok(Some(field)) => fields.push(field),
                 Ok(None) => {}
-                Err(why) => {
-                    return Err(format!(
-                        "the definition of {type_name}, line {}: {why} ('{}')",
-                        number + 1,
-                        raw_line.trim()
-                    ));
+                Err(problem) => {
+                    return Err(DefinitionError::Line {
+                        type_name: type_name.to_owned(),
+                        line: number + 1,
+                        text: raw_line.trim().to_owned(),
+                        problem,
+                    });
                 }
             }
         }
@@ -149,19 +340,20 @@ impl Definitions {
     }
 
     /// Every message type a field names is defined.
-    fn check_resolved(&self) -> Result<(), String> {
+    fn check_resolved(&self) -> Result<(), DefinitionError> {
         if !self.types.contains_key(&self.root) {
-            return Err(format!("the definition does not define {}", self.root));
+            return Err(DefinitionError::NoRoot(self.root.clone()));
         }
         for (owner, fields) in &self.types {
             for field in fields {
                 if let Kind::Message(name) = &field.kind
                     && !self.types.contains_key(name)
                 {
-                    return Err(format!(
-                        "{owner}.{} is a {name}, which the definition does not include",
-                        field.name
-                    ));
+                    return Err(DefinitionError::Undefined {
+                        owner: owner.clone(),
+                        field: field.name.clone(),
+                        type_name: name.clone(),
+                    });
                 }
             }
         }
@@ -174,17 +366,12 @@ impl Definitions {
     }
 
     /// Decodes one CDR message of this type.
-    pub fn decode<'a>(&self, data: &'a [u8]) -> Result<RosValue<'a>, String> {
+    pub fn decode<'a>(&self, data: &'a [u8]) -> Result<RosValue<'a>, CdrError> {
         let little_endian = match data.get(..4) {
             Some([0, 1, _, _]) => true,
             Some([0, 0, _, _]) => false,
-            Some(header) => {
-                return Err(format!(
-                    "a CDR header {:02x}{:02x} that is not plain CDR (only XCDR version 1 is read)",
-                    header[0], header[1]
-                ));
-            }
-            None => return Err("a message shorter than its CDR header".to_owned()),
+            Some(header) => return Err(CdrError::Encapsulation(header[0], header[1])),
+            None => return Err(CdrError::NoHeader),
         };
         let mut reader = Cdr {
             data,
@@ -199,27 +386,29 @@ impl Definitions {
         type_name: &str,
         reader: &mut Cdr<'a>,
         depth: usize,
-    ) -> Result<RosValue<'a>, String> {
+    ) -> Result<RosValue<'a>, CdrError> {
         if depth > MAX_DEPTH {
-            return Err(format!(
-                "messages nested deeper than {MAX_DEPTH} (does {type_name} include itself?)"
-            ));
+            return Err(CdrError::TooDeep(type_name.to_owned()));
         }
         let fields = self
             .types
             .get(type_name)
-            .ok_or_else(|| format!("no definition of {type_name}"))?;
+            .ok_or_else(|| CdrError::NoDefinition(type_name.to_owned()))?;
         let mut values = Vec::with_capacity(fields.len());
         for field in fields {
             let value = self
                 .field(field, reader, depth)
-                .map_err(|why| format!("{type_name}.{}: {why}", field.name))?;
+                .map_err(|why| CdrError::InField {
+                    type_name: type_name.to_owned(),
+                    field: field.name.clone(),
+                    source: Box::new(why),
+                })?;
             values.push((field.name.clone(), value));
         }
         Ok(RosValue::Message(values))
     }
 
-    fn field<'a>(&self, field: &Field, reader: &mut Cdr<'a>, depth: usize) -> Result<RosValue<'a>, String> {
+    fn field<'a>(&self, field: &Field, reader: &mut Cdr<'a>, depth: usize) -> Result<RosValue<'a>, CdrError> {
         let count = match field.count {
             Count::One => return self.one(&field.kind, reader, depth),
             Count::Fixed(count) => count,
@@ -231,7 +420,10 @@ impl Definitions {
                 // Each element takes a byte at least: a count the message cannot hold is refused before
                 // anything is allocated for it.
                 if count > reader.remaining() {
-                    return Err(format!("{count} values in the {} bytes left", reader.remaining()));
+                    return Err(CdrError::TooManyValues {
+                        count,
+                        left: reader.remaining(),
+                    });
                 }
                 let mut values = Vec::with_capacity(count);
                 for _ in 0..count {
@@ -242,7 +434,7 @@ impl Definitions {
         }
     }
 
-    fn one<'a>(&self, kind: &Kind, reader: &mut Cdr<'a>, depth: usize) -> Result<RosValue<'a>, String> {
+    fn one<'a>(&self, kind: &Kind, reader: &mut Cdr<'a>, depth: usize) -> Result<RosValue<'a>, CdrError> {
         match kind {
             Kind::Primitive(primitive) => reader.primitive(*primitive),
             Kind::String => reader.string().map(RosValue::Text),
@@ -253,10 +445,10 @@ impl Definitions {
 
 /// One field's line (`float64[9] covariance`, `geometry_msgs/Vector3 linear`, `string<=8 name`,
 /// `int32[<=4] values 0`); `None` for a constant (`uint8 FIX=0`).
-fn parse_field(line: &str, package: &str) -> Result<Option<Field>, String> {
+fn parse_field(line: &str, package: &str) -> Result<Option<Field>, FieldError> {
     let mut words = line.split_whitespace();
     let (Some(type_word), Some(name)) = (words.next(), words.next()) else {
-        return Err("a field needs a type and a name".to_owned());
+        return Err(FieldError::NoName);
     };
     if name.contains('=') || words.next().is_some_and(|w| w.starts_with('=')) {
         return Ok(None);
@@ -265,14 +457,14 @@ fn parse_field(line: &str, package: &str) -> Result<Option<Field>, String> {
         Some((base, rest)) => {
             let inside = rest
                 .strip_suffix(']')
-                .ok_or_else(|| format!("'{type_word}' has no closing ]"))?;
+                .ok_or_else(|| FieldError::NoClosingBracket(type_word.to_owned()))?;
             let count = if inside.is_empty() || inside.starts_with("<=") {
                 Count::Sequence
             } else {
                 Count::Fixed(
                     inside
                         .parse()
-                        .map_err(|_| format!("'{inside}' is not an array length"))?,
+                        .map_err(|_| FieldError::BadLength(inside.to_owned()))?,
                 )
             };
             (base, count)
@@ -286,7 +478,7 @@ fn parse_field(line: &str, package: &str) -> Result<Option<Field>, String> {
     } else {
         match base {
             "string" => Kind::String,
-            "wstring" => return Err("wstring fields are not read".to_owned()),
+            "wstring" => return Err(FieldError::WideString),
             "time" => Kind::Message("builtin_interfaces/Time".to_owned()),
             "duration" => Kind::Message("builtin_interfaces/Duration".to_owned()),
             "Header" => Kind::Message("std_msgs/Header".to_owned()),
@@ -319,38 +511,45 @@ impl<'a> Cdr<'a> {
         self.at += (size - offset % size) % size;
     }
 
-    fn bytes(&mut self, count: usize) -> Result<&'a [u8], String> {
+    fn bytes(&mut self, count: usize) -> Result<&'a [u8], CdrError> {
         let end = self
             .at
             .checked_add(count)
             .filter(|end| *end <= self.data.len())
-            .ok_or_else(|| format!("{count} bytes wanted, {} left", self.remaining()))?;
+            .ok_or_else(|| CdrError::Short {
+                wanted: count,
+                left: self.remaining(),
+            })?;
         let bytes = &self.data[self.at..end];
         self.at = end;
         Ok(bytes)
     }
 
-    fn array<const N: usize>(&mut self) -> Result<[u8; N], String> {
+    fn array<const N: usize>(&mut self) -> Result<[u8; N], CdrError> {
         self.align(N);
-        let mut bytes: [u8; N] = self.bytes(N)?.try_into().map_err(|_| "short read".to_owned())?;
+        let left = self.remaining();
+        let mut bytes: [u8; N] = self
+            .bytes(N)?
+            .try_into()
+            .map_err(|_| CdrError::Short { wanted: N, left })?;
         if !self.little_endian {
             bytes.reverse();
         }
         Ok(bytes)
     }
 
-    fn u32(&mut self) -> Result<u32, String> {
+    fn u32(&mut self) -> Result<u32, CdrError> {
         self.array::<4>().map(u32::from_le_bytes)
     }
 
-    fn string(&mut self) -> Result<String, String> {
+    fn string(&mut self) -> Result<String, CdrError> {
         let length = self.u32()? as usize;
         let bytes = self.bytes(length)?;
         let text = bytes.strip_suffix(&[0]).unwrap_or(bytes);
         Ok(String::from_utf8_lossy(text).into_owned())
     }
 
-    fn primitive(&mut self, primitive: Primitive) -> Result<RosValue<'a>, String> {
+    fn primitive(&mut self, primitive: Primitive) -> Result<RosValue<'a>, CdrError> {
         Ok(match primitive {
             Primitive::Bool => RosValue::Bool(self.bytes(1)?[0] != 0),
             Primitive::I8 => RosValue::Int(i64::from(self.bytes(1)?[0].cast_signed())),
@@ -404,33 +603,39 @@ impl<'a> RosValue<'a> {
         }
     }
 
-    fn f64_at(&self, path: &str) -> Result<f64, String> {
+    fn f64_at(&self, path: &str) -> Result<f64, MessageError> {
         self.get(path)
             .and_then(RosValue::number)
-            .ok_or_else(|| format!("no number at '{path}'"))
+            .ok_or_else(|| MessageError::NoNumber(path.to_owned()))
     }
 
     /// A `bool` field, or an integer one used as a flag (`is_bigendian` is a `uint8` in Image).
-    fn flag_at(&self, path: &str) -> Result<bool, String> {
+    fn flag_at(&self, path: &str) -> Result<bool, MessageError> {
         match self.get(path) {
             Some(RosValue::Bool(flag)) => Ok(*flag),
             Some(other) => other
                 .number()
                 .map(|n| n != 0.0)
-                .ok_or_else(|| format!("no flag at '{path}'")),
-            None => Err(format!("no flag at '{path}'")),
+                .ok_or_else(|| MessageError::NoFlag(path.to_owned())),
+            None => Err(MessageError::NoFlag(path.to_owned())),
         }
     }
 
-    fn u32_at(&self, path: &str) -> Result<u32, String> {
+    fn u32_at(&self, path: &str) -> Result<u32, MessageError> {
+        let out_of_range = |value: i128| MessageError::OutOfRange {
+            path: path.to_owned(),
+            value,
+        };
         match self.get(path) {
-            Some(RosValue::UInt(value)) => u32::try_from(*value).map_err(|_| format!("'{path}' is {value}")),
-            Some(RosValue::Int(value)) => u32::try_from(*value).map_err(|_| format!("'{path}' is {value}")),
-            _ => Err(format!("no integer at '{path}'")),
+            Some(RosValue::UInt(value)) => {
+                u32::try_from(*value).map_err(|_| out_of_range(i128::from(*value)))
+            }
+            Some(RosValue::Int(value)) => u32::try_from(*value).map_err(|_| out_of_range(i128::from(*value))),
+            _ => Err(MessageError::NoInteger(path.to_owned())),
         }
     }
 
-    fn vector3_at(&self, path: &str) -> Result<DVec3, String> {
+    fn vector3_at(&self, path: &str) -> Result<DVec3, MessageError> {
         Ok(DVec3::new(
             self.f64_at(&format!("{path}.x"))?,
             self.f64_at(&format!("{path}.y"))?,
@@ -438,7 +643,7 @@ impl<'a> RosValue<'a> {
         ))
     }
 
-    fn quaternion_at(&self, path: &str) -> Result<DQuat, String> {
+    fn quaternion_at(&self, path: &str) -> Result<DQuat, MessageError> {
         Ok(DQuat::from_xyzw(
             self.f64_at(&format!("{path}.x"))?,
             self.f64_at(&format!("{path}.y"))?,
@@ -447,30 +652,30 @@ impl<'a> RosValue<'a> {
         ))
     }
 
-    fn numbers_at(&self, path: &str) -> Result<Vec<f64>, String> {
+    fn numbers_at(&self, path: &str) -> Result<Vec<f64>, MessageError> {
         match self.get(path) {
             Some(RosValue::List(values)) => values
                 .iter()
                 .map(|v| {
                     v.number()
-                        .ok_or_else(|| format!("'{path}' holds a value that is not a number"))
+                        .ok_or_else(|| MessageError::NotANumber(path.to_owned()))
                 })
                 .collect(),
-            _ => Err(format!("no list of numbers at '{path}'")),
+            _ => Err(MessageError::NoNumbers(path.to_owned())),
         }
     }
 
-    fn text_at(&self, path: &str) -> Result<&str, String> {
+    fn text_at(&self, path: &str) -> Result<&str, MessageError> {
         match self.get(path) {
             Some(RosValue::Text(text)) => Ok(text),
-            _ => Err(format!("no text at '{path}'")),
+            _ => Err(MessageError::NoText(path.to_owned())),
         }
     }
 
-    fn bytes_at(&self, path: &str) -> Result<&[u8], String> {
+    fn bytes_at(&self, path: &str) -> Result<&[u8], MessageError> {
         match self.get(path) {
             Some(RosValue::Bytes(bytes)) => Ok(bytes),
-            _ => Err(format!("no bytes at '{path}'")),
+            _ => Err(MessageError::NoBytes(path.to_owned())),
         }
     }
 
@@ -549,7 +754,7 @@ pub fn to_payload(
     definitions: &Definitions,
     value: &RosValue,
     data_type: &DataType,
-) -> Result<Payload, String> {
+) -> Result<Payload, MessageError> {
     let type_name = definitions.type_name();
     if type_name == "std_msgs/String" {
         return Ok(Payload::Text(Arc::from(value.text_at("data")?)));
@@ -565,10 +770,11 @@ pub fn to_payload(
                 _ => Vec::new(),
             };
             let [rows, cols] = sizes[..] else {
-                return Err(format!("a matrix of {} dimensions", sizes.len()));
+                return Err(MessageError::MatrixDimensions(sizes.len()));
             };
             if rows * cols != values.len() {
-                return Err(format!("a {rows}×{cols} matrix of {} values", values.len()));
+                let values = values.len();
+                return Err(MessageError::MatrixShape { rows, cols, values });
             }
             Payload::Matrix(Arc::new(Matrix { rows, cols, values }))
         } else {
@@ -590,13 +796,13 @@ pub fn to_payload(
         DataType::I64 => match value.get("data") {
             Some(RosValue::Int(number)) => Payload::I64(*number),
             Some(RosValue::UInt(number)) => {
-                Payload::I64(i64::try_from(*number).map_err(|_| format!("{number} does not fit an i64"))?)
+                Payload::I64(i64::try_from(*number).map_err(|_| MessageError::I64Range(*number))?)
             }
-            _ => return Err("no integer at 'data'".to_owned()),
+            _ => return Err(MessageError::NoInteger("data".to_owned())),
         },
         DataType::Bool => match value.get("data") {
             Some(RosValue::Bool(flag)) => Payload::Bool(*flag),
-            _ => return Err("no boolean at 'data'".to_owned()),
+            _ => return Err(MessageError::NoBoolean("data".to_owned())),
         },
         DataType::Imu => imu(value)?,
         DataType::CanFrame => can_frame(value)?,
@@ -637,10 +843,10 @@ pub fn to_payload(
     })
 }
 
-fn can_frame(value: &RosValue) -> Result<Payload, String> {
+fn can_frame(value: &RosValue) -> Result<Payload, MessageError> {
     let id = value.u32_at("id")?;
     let extended = value.flag_at("is_extended")?;
-    let length = u8::try_from(value.u32_at("dlc")?).map_err(|_| "a dlc over 255".to_owned())?;
+    let length = u8::try_from(value.u32_at("dlc")?).map_err(|_| MessageError::DlcOver255)?;
     let frame = if value.flag_at("is_rtr")? {
         CanFrame::remote_request(id, extended, length)
     } else {
@@ -650,10 +856,10 @@ fn can_frame(value: &RosValue) -> Result<Payload, String> {
     };
     frame
         .map(Payload::CanFrame)
-        .ok_or_else(|| format!("a CAN frame of length {length}"))
+        .ok_or(MessageError::CanLength(length))
 }
 
-fn imu(value: &RosValue) -> Result<Payload, String> {
+fn imu(value: &RosValue) -> Result<Payload, MessageError> {
     // A first orientation covariance of -1 says the sensor gives no orientation (sensor_msgs/Imu).
     let has_orientation = value
         .numbers_at("orientation_covariance")
@@ -669,7 +875,7 @@ fn imu(value: &RosValue) -> Result<Payload, String> {
     }))
 }
 
-fn fix(value: &RosValue) -> Result<Payload, String> {
+fn fix(value: &RosValue) -> Result<Payload, MessageError> {
     // sensor_msgs/NavSatStatus: -1 no fix, 0 fix, 1 satellite-based augmentation (SBAS), 2 ground-based
     // augmentation (RTK, as Kairos writes its RTK fixes).
     let status = match value.f64_at("status.status")? as i64 {
@@ -703,26 +909,19 @@ const LARGEST_IMAGE_BYTES: u64 = 7680 * 4320 * 4;
 
 /// A `sensor_msgs/CompressedImage`: JPEG or PNG, told by its bytes (the `format` field's words vary
 /// between drivers), decoded to grey, grey 16, RGB or RGBA as it was compressed.
-fn compressed_image(value: &RosValue) -> Result<Payload, String> {
+fn compressed_image(value: &RosValue) -> Result<Payload, MessageError> {
     use image::ImageDecoder as _;
     let data = value.bytes_at("data")?;
     let format = image::guess_format(data)
         .ok()
         .filter(|f| matches!(f, image::ImageFormat::Jpeg | image::ImageFormat::Png))
-        .ok_or_else(|| {
-            format!(
-                "a compressed image in neither JPEG nor PNG (format '{}')",
-                value.text_at("format").unwrap_or("")
-            )
-        })?;
-    let decoder = image::ImageReader::with_format(std::io::Cursor::new(data), format)
-        .into_decoder()
-        .map_err(|e| e.to_string())?;
+        .ok_or_else(|| MessageError::NotJpegOrPng(value.text_at("format").unwrap_or("").to_owned()))?;
+    let decoder = image::ImageReader::with_format(std::io::Cursor::new(data), format).into_decoder()?;
     if decoder.total_bytes() > LARGEST_IMAGE_BYTES {
         let (width, height) = decoder.dimensions();
-        return Err(format!("a compressed image claiming {width}×{height} pixels"));
+        return Err(MessageError::TooLarge { width, height });
     }
-    let picture = image::DynamicImage::from_decoder(decoder).map_err(|e| e.to_string())?;
+    let picture = image::DynamicImage::from_decoder(decoder)?;
     let (width, height) = (picture.width(), picture.height());
     let (format, bytes) = match picture {
         image::DynamicImage::ImageLuma8(grey) => (PixelFormat::Gray8, grey.into_raw()),
@@ -733,19 +932,17 @@ fn compressed_image(value: &RosValue) -> Result<Payload, String> {
         image::DynamicImage::ImageRgba8(rgba) => (PixelFormat::Rgba8, rgba.into_raw()),
         other => (PixelFormat::Rgb8, other.into_rgb8().into_raw()),
     };
-    Image::packed(width, height, format, bytes)
-        .map(Payload::Image)
-        .map_err(|e| e.to_string())
+    Ok(Payload::Image(Image::packed(width, height, format, bytes)?))
 }
 
-fn image(value: &RosValue) -> Result<Payload, String> {
+fn image(value: &RosValue) -> Result<Payload, MessageError> {
     if value.get("format").is_some() && value.get("encoding").is_none() {
         return compressed_image(value);
     }
     let encoding = value.text_at("encoding")?;
     let format = crate::decode::pixel_format_of(encoding)?;
     if value.flag_at("is_bigendian").unwrap_or(false) && encoding.contains("16") {
-        return Err("a big-endian 16-bit image (Kairos images are little-endian)".to_owned());
+        return Err(MessageError::BigEndianImage);
     }
     let image = Image::with_stride(
         value.u32_at("width")?,
@@ -753,8 +950,7 @@ fn image(value: &RosValue) -> Result<Payload, String> {
         format,
         value.u32_at("step")?,
         Arc::<[u8]>::from(value.bytes_at("data")?),
-    )
-    .map_err(|e| e.to_string())?;
+    )?;
     Ok(Payload::Image(image))
 }
 
@@ -762,24 +958,24 @@ fn image(value: &RosValue) -> Result<Payload, String> {
 const POINT_FLOAT32: u64 = 7;
 const POINT_FLOAT64: u64 = 8;
 
-fn point_cloud(value: &RosValue) -> Result<Payload, String> {
+fn point_cloud(value: &RosValue) -> Result<Payload, MessageError> {
     if value.flag_at("is_bigendian")? {
-        return Err("a big-endian point cloud".to_owned());
+        return Err(MessageError::BigEndianCloud);
     }
     let step = value.u32_at("point_step")? as usize;
     if step == 0 {
-        return Err("a point cloud with a point step of 0".to_owned());
+        return Err(MessageError::ZeroPointStep);
     }
     let Some(RosValue::List(fields)) = value.get("fields") else {
-        return Err("no point fields".to_owned());
+        return Err(MessageError::NoPointFields);
     };
-    let offset_of = |name: &str| -> Result<Option<(usize, u64)>, String> {
+    let offset_of = |name: &str| -> Result<Option<(usize, u64)>, MessageError> {
         let Some(field) = fields.iter().find(|f| f.text_at("name").is_ok_and(|n| n == name)) else {
             return Ok(None);
         };
         let datatype = field.f64_at("datatype")? as u64;
         if datatype != POINT_FLOAT32 && datatype != POINT_FLOAT64 {
-            return Err(format!("point field '{name}' is neither float32 nor float64"));
+            return Err(MessageError::PointFieldType(name.to_owned()));
         }
         Ok(Some((field.u32_at("offset")? as usize, datatype)))
     };
@@ -794,7 +990,7 @@ fn point_cloud(value: &RosValue) -> Result<Payload, String> {
         }
     };
     let (Some(x), Some(y), Some(z)) = (offset_of("x")?, offset_of("y")?, offset_of("z")?) else {
-        return Err("a point cloud without x, y and z fields".to_owned());
+        return Err(MessageError::NoCoordinates);
     };
     let intensity_field = offset_of("intensity")?;
     let data = value.bytes_at("data")?;
@@ -803,7 +999,7 @@ fn point_cloud(value: &RosValue) -> Result<Payload, String> {
     let mut intensity = intensity_field.map(|_| Vec::with_capacity(points.capacity()));
     for point in data.chunks_exact(step).take(count) {
         let (Some(px), Some(py), Some(pz)) = (read(point, x), read(point, y), read(point, z)) else {
-            return Err("a point field lies outside the point step".to_owned());
+            return Err(MessageError::FieldOutsidePoint);
         };
         points.push(Vec3::new(px, py, pz));
         if let (Some(field), Some(values)) = (intensity_field, &mut intensity) {
@@ -874,21 +1070,49 @@ mod tests {
 
     #[test]
     fn malformed_definitions_and_messages_are_errors_that_say_where() {
-        let missing = Definitions::parse("a/msg/B", "c/D field\n").unwrap_err();
+        let missing = Definitions::parse("a/msg/B", "c/D field\n")
+            .unwrap_err()
+            .to_string();
         assert!(missing.contains("a/B.field is a c/D"), "{missing}");
         let bad = Definitions::parse("a/msg/B", "float64[x] values\n").unwrap_err();
+        assert!(
+            matches!(
+                &bad,
+                DefinitionError::Line {
+                    line: 1,
+                    problem: FieldError::BadLength(_),
+                    ..
+                }
+            ),
+            "{bad:?}"
+        );
+        let bad = bad.to_string();
         assert!(bad.contains("line 1") && bad.contains("array length"), "{bad}");
         let looping = Definitions::parse(
             "a/msg/B",
             &format!("B inner\n{}\nMSG: a/B\nB inner\n", "=".repeat(3)),
         )
         .unwrap();
-        assert!(looping.decode(&cdr(&[])).unwrap_err().contains("include itself"));
+        assert!(
+            looping
+                .decode(&cdr(&[]))
+                .unwrap_err()
+                .to_string()
+                .contains("include itself")
+        );
         let definitions = Definitions::parse("a/msg/B", "float64[] values\nstring name\n").unwrap();
         let huge = cdr(&u32::MAX.to_le_bytes());
-        assert!(definitions.decode(&huge).unwrap_err().contains("a/B.values"));
+        let huge_error = definitions.decode(&huge).unwrap_err();
+        assert!(
+            matches!(&huge_error, CdrError::InField { field, .. } if field == "values"),
+            "{huge_error:?}"
+        );
+        assert!(huge_error.to_string().contains("a/B.values"));
         assert!(definitions.decode(&[0, 1]).is_err());
-        assert!(definitions.decode(&[0, 9, 0, 0]).unwrap_err().contains("XCDR"));
+        assert_eq!(
+            definitions.decode(&[0, 9, 0, 0]),
+            Err(CdrError::Encapsulation(0, 9))
+        );
     }
 
     #[test]

@@ -43,11 +43,36 @@ const SQLITE_OPEN_READONLY: c_int = 1;
 /// The library's file names, the versioned one first (the unversioned link comes with the -dev package).
 const NAMES: [&str; 2] = ["libsqlite3.so.0", "libsqlite3.so"];
 
-fn api() -> Result<&'static Api, String> {
+/// Why a `.db3` file cannot be read.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum SqliteError {
+    /// The system has no `libsqlite3`.
+    #[error("reading a .db3 bag needs SQLite (libsqlite3.so.0), which is not installed")]
+    NotInstalled,
+    /// `SQLite` takes NUL-terminated paths.
+    #[error("a path with a NUL byte")]
+    NulInPath,
+    /// The file is not a database `SQLite` opens.
+    #[error("not a SQLite database: {0}")]
+    NotADatabase(String),
+    /// `SQLite` takes NUL-terminated queries.
+    #[error("a query with a NUL byte")]
+    NulInQuery,
+    /// A query refused or failed part way, with `SQLite`'s message.
+    #[error("{sql}: {message}")]
+    Query {
+        /// The query.
+        sql: String,
+        /// What `SQLite` said.
+        message: String,
+    },
+}
+
+fn api() -> Result<&'static Api, SqliteError> {
     static API: OnceLock<Option<Api>> = OnceLock::new();
     API.get_or_init(|| NAMES.iter().find_map(|name| load(name)))
         .as_ref()
-        .ok_or_else(|| "reading a .db3 bag needs SQLite (libsqlite3.so.0), which is not installed".to_owned())
+        .ok_or(SqliteError::NotInstalled)
 }
 
 fn load(name: &str) -> Option<Api> {
@@ -123,10 +148,9 @@ impl Row<'_> {
 
 impl Database {
     /// Opens `path` read-only.
-    pub fn open(path: &Path) -> Result<Database, String> {
+    pub fn open(path: &Path) -> Result<Database, SqliteError> {
         let api = api()?;
-        let name = CString::new(path.as_os_str().as_encoded_bytes())
-            .map_err(|_| "a path with a NUL byte".to_owned())?;
+        let name = CString::new(path.as_os_str().as_encoded_bytes()).map_err(|_| SqliteError::NulInPath)?;
         let mut connection: Connection = std::ptr::null_mut();
         // SAFETY: `name` is a NUL-terminated string alive for the call; `SQLite` writes the connection
         // (even on failure, to be closed) into `connection`.
@@ -140,7 +164,7 @@ impl Database {
         };
         let database = Database { api, connection };
         if result != SQLITE_OK {
-            return Err(format!("not a SQLite database: {}", database.error()));
+            return Err(SqliteError::NotADatabase(database.error()));
         }
         Ok(database)
     }
@@ -155,13 +179,17 @@ impl Database {
             .into_owned()
     }
 
-    /// Runs `sql`, calling `each` with every row; an error from `each` stops the query.
+    /// Runs `sql`, calling `each` with every row until it says to break.
     pub fn query(
         &self,
         sql: &str,
-        mut each: impl FnMut(&Row<'_>) -> Result<(), String>,
-    ) -> Result<(), String> {
-        let text = CString::new(sql).map_err(|_| "a query with a NUL byte".to_owned())?;
+        mut each: impl FnMut(&Row<'_>) -> std::ops::ControlFlow<()>,
+    ) -> Result<(), SqliteError> {
+        let failed = |message: String| SqliteError::Query {
+            sql: sql.to_owned(),
+            message,
+        };
+        let text = CString::new(sql).map_err(|_| SqliteError::NulInQuery)?;
         let mut statement: Statement = std::ptr::null_mut();
         // SAFETY: the connection is open and `text` NUL-terminated (-1: read to the NUL).
         let prepared = unsafe {
@@ -174,7 +202,7 @@ impl Database {
             )
         };
         if prepared != SQLITE_OK {
-            return Err(format!("{sql}: {}", self.error()));
+            return Err(failed(self.error()));
         }
         let mut outcome = Ok(());
         loop {
@@ -186,14 +214,13 @@ impl Database {
                         statement,
                         _query: std::marker::PhantomData,
                     };
-                    if let Err(error) = each(&row) {
-                        outcome = Err(error);
+                    if each(&row).is_break() {
                         break;
                     }
                 }
                 SQLITE_DONE => break,
                 _ => {
-                    outcome = Err(format!("{sql}: {}", self.error()));
+                    outcome = Err(failed(self.error()));
                     break;
                 }
             }
