@@ -60,7 +60,7 @@ pub enum AskError {
     #[error("an error: {0}")]
     Refused(String),
     /// The question could not be sent.
-    #[error("{0}")]
+    #[error(transparent)]
     Query(zenoh::Error),
     /// No answer in time (the far end flapping as it comes back).
     #[error("no answer within {} ms", .0.as_millis())]
@@ -69,7 +69,7 @@ pub enum AskError {
 
 /// The link's session closed under a receiving end.
 #[derive(Debug, thiserror::Error)]
-#[error("{0}")]
+#[error(transparent)]
 pub struct Closed(zenoh::Error);
 
 /// No sequence number received yet.

@@ -88,7 +88,7 @@ fn push(bytes: &mut Vec<u8>, values: &[f64]) {
 pub enum WorldError {
     /// Another payload type on the input.
     #[error("expected a {TYPE_NAME} sample, got {0}")]
-    NotAWorld(String),
+    NotAWorld(DataType),
     /// Bytes without the magic.
     #[error("not a sim_world sample (it does not start with KSW1)")]
     NoMagic,
@@ -289,7 +289,7 @@ impl WorldView {
     pub fn from_payload(payload: &Payload) -> Result<WorldView, WorldError> {
         match payload {
             Payload::Custom(custom) if &*custom.type_name == TYPE_NAME => WorldView::decode(&custom.data),
-            other => Err(WorldError::NotAWorld(other.data_type().to_string())),
+            other => Err(WorldError::NotAWorld(other.data_type())),
         }
     }
 

@@ -370,12 +370,12 @@ pub struct ImageWriter {
     written: u64,
 }
 
-/// `image` as the `image` crate's buffer, 8 bits per channel, without row padding.
-/// Why an image sample cannot be written as a file.
+/// Why an image sample cannot be written as a file: its pixels are fewer than its size says.
 #[derive(Debug, thiserror::Error)]
 #[error("the image's pixels are shorter than its size")]
 struct PixelsShort;
 
+/// `image` as the `image` crate's buffer, 8 bits per channel, without row padding.
 fn to_dynamic(image: &Image) -> Result<image::DynamicImage, PixelsShort> {
     let bpp = image.format.bytes_per_pixel() as usize;
     let (w, h) = (image.width as usize, image.height as usize);
@@ -384,7 +384,6 @@ fn to_dynamic(image: &Image) -> Result<image::DynamicImage, PixelsShort> {
         let start = row * image.stride as usize;
         packed.extend_from_slice(image.pixels.get(start..start + w * bpp).unwrap_or_default());
     }
-
     Ok(match image.format {
         PixelFormat::Gray8 => image::GrayImage::from_raw(image.width, image.height, packed)
             .ok_or(PixelsShort)?

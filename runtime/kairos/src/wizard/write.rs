@@ -96,8 +96,9 @@ pub(super) fn write_rust(
 pub(super) fn check_python_mode(spec: &ComponentSpec, target: &Target) -> Result<(), Refusal> {
     if target.lang == Lang::Python && spec.mode == Mode::Reactive {
         return Err(refuse(
-            "a Python component runs threaded or periodic (a reactive one would run Python in its producer's thread)",
-            Some("use --mode threaded".to_owned()),
+            "a Python component runs threaded or periodic (a reactive one would run Python in its producer's \
+             thread): use --mode threaded",
+            None,
         ));
     }
     Ok(())
