@@ -669,6 +669,38 @@ fn telemetry_within(socket: &mut Socket, window: Duration) -> Vec<String> {
 }
 
 #[test]
+fn a_diagram_whose_components_all_finish_stops_and_says_so() {
+    let _machine = shared_machine();
+    let dir = tempfile::tempdir().unwrap();
+    let server = serve(dir.path(), &[]);
+    let mut socket = operator(&server);
+    // A simulation of half a second, in real time: its vehicle finishes, and so does every component.
+    deploy_and_start(
+        &mut socket,
+        r#"Diagram(format: 1,
+            components: [
+                Component(id: "vehicle", type: "sim.vehicle", properties: {"duration": 0.5}),
+            ],
+            connections: [])"#,
+    );
+    let started = Instant::now();
+    while state(&mut socket) == "running" {
+        assert!(
+            started.elapsed() < Duration::from_secs(20),
+            "still running after every component finished"
+        );
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    assert_eq!(state(&mut socket), "ready");
+    drop(server);
+    let log = std::fs::read_to_string(dir.path().join("serve.log")).unwrap();
+    assert!(
+        log.contains("every component has finished: the diagram stopped"),
+        "{log}"
+    );
+}
+
+#[test]
 fn telemetry_flows_while_the_diagram_runs_and_rests_once_it_is_stopped() {
     let _machine = shared_machine();
     let dir = tempfile::tempdir().unwrap();

@@ -88,6 +88,22 @@ fn control_error(e: &ControlError) -> ProtocolError {
     error(code, e.to_string())
 }
 
+/// A diagram whose every component has finished (a replay at its end, a simulation past its duration) is
+/// stopped, as `kairos run` stops, and said in the log: a client sees it ready to run again rather than
+/// running for ever. A diagram spread over hosts from here is left to its hosts, which may still run.
+fn stop_once_all_finished(deployment: &mut Deployment) {
+    if deployment.spread.is_some() {
+        return;
+    }
+    if let Some(engine) = deployment.engine.as_mut()
+        && engine.state() == EngineState::Running
+        && engine.all_finished()
+    {
+        engine.stop();
+        tracing::info!("every component has finished: the diagram stopped");
+    }
+}
+
 fn state_of(deployment: &Deployment) -> RuntimeState {
     match (&deployment.diagram, deployment.engine.as_ref().map(Engine::state)) {
         (None, _) => RuntimeState::Empty,
@@ -876,12 +892,15 @@ impl Runtime {
 
     /// The runtime's state.
     pub fn state(&self) -> RuntimeState {
-        state_of(&self.lock())
+        let mut deployment = self.lock();
+        stop_once_all_finished(&mut deployment);
+        state_of(&deployment)
     }
 
     /// Statistics now, with rates since the previous call.
     pub fn telemetry(&self) -> Option<Telemetry> {
         let mut deployment = self.lock();
+        stop_once_all_finished(&mut deployment);
         let state = state_of(&deployment);
         let snapshot = deployment.engine.as_ref()?.snapshot();
         let with_rates = match &deployment.previous {
