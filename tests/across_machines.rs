@@ -756,28 +756,27 @@ fn beyond_its_ride_out_a_link_loses_what_it_no_longer_keeps_and_counts_every_sam
     back.assert_every_missing_value_counted(50, &said);
 }
 
+/// A counter on host a, through host b (which writes what it gets) and back to a CSV on a, nothing
+/// skipping.
+const ROUND_TRIP_WRITTEN_ON_B: &str = r#"components: [
+        Component(id: "count", type: "core.counter", host: "a", properties: {"rate": 100.0}),
+        Component(id: "gain", type: "core.gain", host: "b", properties: {"gain": 1.0}),
+        Component(id: "csv_b", type: "core.csv_writer", host: "b", properties: {"path": "b.csv"}),
+        Component(id: "csv", type: "core.csv_writer", host: "a", properties: {"path": "back.csv"}),
+    ],
+    connections: [
+        Connection(from: "count.out", to: "gain.in", policy: NeverSkipping),
+        Connection(from: "gain.out", to: "csv_b.in1", policy: NeverSkipping),
+        Connection(from: "gain.out", to: "csv.in1", policy: NeverSkipping),
+    ]"#;
+
 #[test]
 fn thirty_seconds_without_a_network_leave_both_hosts_running_and_count_every_sample_lost() {
     let _machine = whole_machine();
     let Some(namespaces) = Namespaces::make() else {
         return;
     };
-    // A counter on host a, through host b (which writes what it gets) and back to a, nothing skipping.
-    let mut run = TwoHostRun::start(
-        &namespaces,
-        "",
-        r#"components: [
-            Component(id: "count", type: "core.counter", host: "a", properties: {"rate": 100.0}),
-            Component(id: "gain", type: "core.gain", host: "b", properties: {"gain": 1.0}),
-            Component(id: "csv_b", type: "core.csv_writer", host: "b", properties: {"path": "b.csv"}),
-            Component(id: "csv", type: "core.csv_writer", host: "a", properties: {"path": "back.csv"}),
-        ],
-        connections: [
-            Connection(from: "count.out", to: "gain.in", policy: NeverSkipping),
-            Connection(from: "gain.out", to: "csv_b.in1", policy: NeverSkipping),
-            Connection(from: "gain.out", to: "csv.in1", policy: NeverSkipping),
-        ]"#,
-    );
+    let mut run = TwoHostRun::start(&namespaces, "", ROUND_TRIP_WRITTEN_ON_B);
     let cut_at = now_ns();
     namespaces.set_link(false);
     let reported = wait_for_log(&run.log, "host 'b' is lost", Duration::from_secs(3));
@@ -821,22 +820,7 @@ fn a_host_killed_while_cut_off_and_restarted_gets_its_part_again_in_a_new_file_a
     let Some(namespaces) = Namespaces::make() else {
         return;
     };
-    // A counter on host a, through host b (which writes what it gets) and back to a, nothing skipping.
-    let mut run = TwoHostRun::start(
-        &namespaces,
-        "",
-        r#"components: [
-            Component(id: "count", type: "core.counter", host: "a", properties: {"rate": 100.0}),
-            Component(id: "gain", type: "core.gain", host: "b", properties: {"gain": 1.0}),
-            Component(id: "csv_b", type: "core.csv_writer", host: "b", properties: {"path": "b.csv"}),
-            Component(id: "csv", type: "core.csv_writer", host: "a", properties: {"path": "back.csv"}),
-        ],
-        connections: [
-            Connection(from: "count.out", to: "gain.in", policy: NeverSkipping),
-            Connection(from: "gain.out", to: "csv_b.in1", policy: NeverSkipping),
-            Connection(from: "gain.out", to: "csv.in1", policy: NeverSkipping),
-        ]"#,
-    );
+    let mut run = TwoHostRun::start(&namespaces, "", ROUND_TRIP_WRITTEN_ON_B);
     namespaces.set_link(false);
     let reported = wait_for_log(&run.log, "host 'b' is lost", Duration::from_secs(3));
     assert!(reported < Duration::from_secs(1), "reported after {reported:?}");
