@@ -337,9 +337,7 @@ fn result_error_types(text: &str) -> Vec<String> {
 }
 
 /// The only functions whose error is a `String`: their signature is another crate's, which they implement.
-const STRING_ERRORS_SET_ELSEWHERE: [(&str, &str); 2] = [
-    // eframe's `native_adapter_selector`.
-    ("studio/src/cloud3d.rs", ") -> Result<wgpu::Adapter"),
+const STRING_ERRORS_SET_ELSEWHERE: [(&str, &str); 1] = [
     // egui's `DroppedFile::bytes`.
     ("studio/tests/editor.rs", "fn bytes(&self)"),
 ];

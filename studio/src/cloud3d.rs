@@ -393,6 +393,31 @@ fn adapter_rank(info: &wgpu::AdapterInfo) -> u8 {
     }
 }
 
+/// No adapter wgpu found can present to the studio's window.
+#[derive(Debug, Clone, thiserror::Error)]
+#[error(
+    "no graphics adapter can draw in this window (found: {}); install Mesa's drivers \
+     (Debian: mesa-vulkan-drivers libgl1-mesa-dri)",
+    listed(.found)
+)]
+pub struct NoAdapterError {
+    /// Every adapter found, those that cannot present included.
+    pub found: Vec<wgpu::AdapterInfo>,
+}
+
+/// The adapters found, `name (backend)` each, or `none`.
+fn listed(found: &[wgpu::AdapterInfo]) -> String {
+    if found.is_empty() {
+        "none".to_owned()
+    } else {
+        found
+            .iter()
+            .map(|info| format!("{} ({:?})", info.name, info.backend))
+            .collect::<Vec<_>>()
+            .join(", ")
+    }
+}
+
 /// Picks the adapter the studio draws with among those wgpu found (see [`adapter_rank`]), keeping to those
 /// that can present to the window. `WGPU_BACKEND` still limits which are found.
 ///
@@ -401,26 +426,14 @@ fn adapter_rank(info: &wgpu::AdapterInfo) -> u8 {
 pub fn choose_adapter(
     adapters: &[wgpu::Adapter],
     surface: Option<&wgpu::Surface<'_>>,
-) -> Result<wgpu::Adapter, String> {
+) -> Result<wgpu::Adapter, NoAdapterError> {
     adapters
         .iter()
         .filter(|a| surface.is_none_or(|s| a.is_surface_supported(s)))
         .min_by_key(|a| adapter_rank(&a.get_info()))
         .cloned()
-        .ok_or_else(|| {
-            let found: Vec<String> = adapters
-                .iter()
-                .map(|a| format!("{} ({:?})", a.get_info().name, a.get_info().backend))
-                .collect();
-            format!(
-                "no graphics adapter can draw in this window (found: {}); install Mesa's drivers \
-                 (Debian: mesa-vulkan-drivers libgl1-mesa-dri)",
-                if found.is_empty() {
-                    "none".to_owned()
-                } else {
-                    found.join(", ")
-                }
-            )
+        .ok_or_else(|| NoAdapterError {
+            found: adapters.iter().map(wgpu::Adapter::get_info).collect(),
         })
 }
 

@@ -178,7 +178,12 @@ fn main() -> ExitCode {
     };
     options.wgpu_options.wgpu_setup =
         eframe::egui_wgpu::WgpuSetup::CreateNew(eframe::egui_wgpu::WgpuSetupCreateNew {
-            native_adapter_selector: Some(std::sync::Arc::new(kairos_studio::cloud3d::choose_adapter)),
+            // eframe takes the refusal as text, which it reports.
+            native_adapter_selector: Some(std::sync::Arc::new(
+                |adapters: &[eframe::wgpu::Adapter], surface: Option<&eframe::wgpu::Surface<'_>>| {
+                    kairos_studio::cloud3d::choose_adapter(adapters, surface).map_err(|e| e.to_string())
+                },
+            )),
             ..eframe::egui_wgpu::WgpuSetupCreateNew::without_display_handle()
         });
     let result = eframe::run_native(

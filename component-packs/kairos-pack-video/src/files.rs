@@ -460,17 +460,15 @@ impl Component for ImageWriter {
                 image::DynamicImage::ImageLuma16(_) => image::DynamicImage::ImageLuma8(dynamic.to_luma8()),
                 other => other,
             };
+            // The file's own error as the image crate's, which says it in the same words.
             std::fs::File::create(&path)
-                .map_err(|e| e.to_string())
+                .map_err(image::ImageError::IoError)
                 .and_then(|file| {
                     image::codecs::jpeg::JpegEncoder::new_with_quality(std::io::BufWriter::new(file), quality)
                         .encode_image(&dynamic)
-                        .map_err(|e| e.to_string())
                 })
         } else {
-            dynamic
-                .save_with_format(&path, image::ImageFormat::Png)
-                .map_err(|e| e.to_string())
+            dynamic.save_with_format(&path, image::ImageFormat::Png)
         };
         written.map_err(|e| ComponentError::failed(format_args!("cannot write {}: {e}", path.display())))?;
         self.written += 1;
