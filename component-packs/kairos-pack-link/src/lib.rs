@@ -14,9 +14,14 @@
 //! loses nothing; beyond it, what was no longer kept shows as a gap the receiver counts. A receiver that
 //! started afresh (its host restarted) received nothing yet: it gets what was put since the cut was
 //! noticed, never what its former self may have had (at most once: what died with that host was lost).
+//!
+//! Zenoh saying the receiver matches is not taken as proof that it receives: a reliable sender's
+//! heartbeat ([`heartbeat`]) asks the same question every second and treats a receiver that stopped
+//! answering as cut.
 
 use std::collections::VecDeque;
 
+mod heartbeat;
 pub mod network;
 
 use std::collections::BTreeMap;
@@ -203,6 +208,11 @@ pub struct LinkSender {
     held_since: Option<Instant>,
     /// Samples put again after cuts.
     put_again: u64,
+    /// A reliable link asks its matched receiver what it received, every heartbeat period.
+    reliable: bool,
+    heartbeat: heartbeat::Heartbeat,
+    /// The heartbeat's question out, with what had been sent when it went and when it went.
+    beating: Option<(network::Answer, u64, Instant)>,
 }
 
 /// The frames a reliable link put lately, the oldest first, within a time and a memory bound.
@@ -259,7 +269,8 @@ impl Component for LinkSender {
         self.seen_cuts = end.cuts.load(std::sync::atomic::Ordering::Acquire);
         self.end = Some(end);
         self.output = kairos_pack_net::encoding::source_name(ctx);
-        if ctx.bool_property("reliable")? {
+        self.reliable = ctx.bool_property("reliable")?;
+        if self.reliable {
             self.kept = Kept {
                 for_how_long: Duration::from_secs_f64(ctx.f64_property("ride_out_s")?.max(0.0)),
                 most_bytes: (ctx.f64_property("ride_out_mb")?.max(0.0) * 1024.0 * 1024.0) as usize,
@@ -284,6 +295,7 @@ impl Component for LinkSender {
             self.sent += 1;
         } else {
             self.put(&end, frame);
+            self.beat(ctx, &end);
         }
         if self.looked.ready(STATUS_PERIOD) {
             self.look(ctx, &end);
@@ -297,7 +309,8 @@ impl Component for LinkSender {
         Some(serde_json::json!({
             "kind": "link", "to": peer, "sent": self.sent, "sent_unmatched": self.unmatched,
             "failed": self.failed, "matched": self.matched, "put_again": self.put_again,
-            "kept": self.kept.frames.len(),
+            "kept": self.kept.frames.len(), "answering": self.heartbeat.answering(),
+            "silent_s": self.heartbeat.silent_for(Instant::now()).map(|silent| silent.as_secs_f64()),
         }))
     }
 
@@ -339,12 +352,30 @@ impl LinkSender {
         }
     }
 
-    /// Every status period: whether the receiver matches, said (and published) when it changes.
+    /// Every status period: whether the receiver matches, and answers, said (and published) when it
+    /// changes.
     fn look(&mut self, ctx: &Context, end: &network::SenderEnd) {
-        let matched = network::matched(end);
+        let zenoh_matched = network::matched(end);
+        let matched = zenoh_matched && self.heartbeat.answering();
         if matched != self.matched {
             if matched {
                 tracing::info!("link to {}: matched again", end.peer);
+            } else if zenoh_matched {
+                tracing::warn!(
+                    "link to {}: the receiver still matches but has not answered for {} s: the path is \
+                     dead whatever the network layer says; {}",
+                    end.peer,
+                    heartbeat::UNANSWERED_CUT,
+                    if self.kept.enabled() {
+                        format!(
+                            "treated as a cut: what is sent is kept for {:.1} s and sent again once it answers",
+                            self.kept.for_how_long.as_secs_f64()
+                        )
+                    } else {
+                        "what is sent meanwhile is counted lost by the receiver if it never arrives"
+                            .to_owned()
+                    }
+                );
             } else if !self.kept.enabled() {
                 tracing::warn!(
                     "link to {}: no receiver any more; samples are dropped until it returns",
@@ -359,7 +390,59 @@ impl LinkSender {
                 );
             }
             self.matched = matched;
+            end.answering
+                .store(self.heartbeat.answering(), std::sync::atomic::Ordering::Release);
             ctx.publish_status(self);
+        }
+    }
+
+    /// The heartbeat of a reliable link whose receiver matches (outside a cut's ride-out, which asks on
+    /// its own): takes the answer to the last question, asks the next when due, and says a receiver that
+    /// stopped answering (then treated as cut) or receiving.
+    fn beat(&mut self, ctx: &Context, end: &network::SenderEnd) {
+        if !self.reliable || self.cut || self.asking.is_some() {
+            return;
+        }
+        let now = Instant::now();
+        if let Some((answer, sent_then, asked)) = &self.beating {
+            match answer.try_recv() {
+                Err(std::sync::mpsc::TryRecvError::Empty) if asked.elapsed() < ASK_WAIT + ASK_SLACK => {}
+                Ok(Ok(newest)) => {
+                    let received = newest.map_or(0, |newest| newest + 1);
+                    self.heartbeat.answered(received, *sent_then, now);
+                    self.beating = None;
+                }
+                Ok(Err(_)) | Err(_) => {
+                    self.heartbeat.unanswered(*sent_then);
+                    self.beating = None;
+                    if !self.heartbeat.answering() && self.kept.enabled() && network::matched(end) {
+                        // Rode out like a cut Zenoh reported: from what was sent when it stopped answering.
+                        self.cut = true;
+                        self.noticed_from = self.heartbeat.unanswered_from();
+                        self.look(ctx, end);
+                    }
+                }
+            }
+        }
+        if self.beating.is_none() && self.heartbeat.due(now) && network::matched(end) {
+            self.heartbeat.asked(now);
+            self.beating = Some((end.ask_receiver_newest(ASK_WAIT), self.sent, now));
+        }
+        match self.heartbeat.silence_news(now) {
+            Some(heartbeat::Silence::Began(silent)) => {
+                tracing::warn!(
+                    "link to {}: the receiver answers but has received nothing for {:.0} s while samples \
+                     were on their way: its consumer is stalled, or the network path is",
+                    end.peer,
+                    silent.as_secs_f64()
+                );
+                ctx.publish_status(self);
+            }
+            Some(heartbeat::Silence::Ended) => {
+                tracing::info!("link to {}: the receiver receives again", end.peer);
+                ctx.publish_status(self);
+            }
+            None => {}
         }
     }
 
@@ -446,6 +529,7 @@ impl LinkSender {
         // What was held while asking was never put: only the rest is put again.
         self.put_again += again.saturating_sub(self.sent + 1 - self.held_from);
         if newest.is_ok() {
+            self.heartbeat.heard();
             tracing::info!(
                 "link to {}: matched again; {again} of the {missed} samples it had not received were sent{}",
                 end.peer,

@@ -9,7 +9,7 @@
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
 use std::time::Duration;
 
@@ -37,6 +37,9 @@ pub struct SenderEnd {
     /// Times the receiver stopped matching, counted as Zenoh says it (a reliable link only): a sender
     /// that sees it grow knows the far end may have missed what it put since.
     pub cuts: Arc<AtomicU64>,
+    /// Whether the receiver answers the sender's heartbeat (set by the sender): a receiver that matches
+    /// but stopped answering is no receiver to `links`.
+    pub answering: AtomicBool,
     session: zenoh::Session,
     key: String,
 }
@@ -385,6 +388,7 @@ pub fn prepare(diagram: &Diagram) -> anyhow::Result<()> {
                 publisher,
                 peer,
                 cuts,
+                answering: AtomicBool::new(true),
                 session: network.session.clone(),
                 key: key.clone(),
             });
@@ -468,8 +472,9 @@ pub fn matched(end: &SenderEnd) -> bool {
         .is_ok_and(|status| status.matching())
 }
 
-/// Every declared end, for `links` and the deployer's wait for matching. A receiver counts as matched
-/// here: only its sender can tell.
+/// Every declared end, for `links` and the deployer's wait for matching: a sender is matched when Zenoh
+/// says so and its receiver answers its heartbeat. A receiver counts as matched here: only its sender
+/// can tell.
 pub fn ends() -> Vec<LinkEnd> {
     let slot = network();
     let Some(network) = slot.as_ref() else {
@@ -480,7 +485,7 @@ pub fn ends() -> Vec<LinkEnd> {
         key: key.clone(),
         role: "sender".to_owned(),
         peer: end.peer.clone(),
-        matched: matched(end),
+        matched: matched(end) && end.answering.load(Ordering::Acquire),
     });
     let receivers = network.receivers.iter().map(|(key, (component, end))| LinkEnd {
         component: component.clone(),

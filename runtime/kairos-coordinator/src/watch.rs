@@ -45,6 +45,8 @@ pub struct Watch {
     left: BTreeSet<String>,
     /// The links whose sender on a host has no receiver matched: cut, though both hosts may answer.
     cut_links: BTreeSet<String>,
+    /// The links whose receiver answers its sender's heartbeat but has received nothing for a while.
+    silent_links: BTreeSet<String>,
     /// Each host's clock state at the last check, for those that follow one.
     clock_states: BTreeMap<String, ClockState>,
     /// Each lost host's last status, until it answers again.
@@ -53,6 +55,10 @@ pub struct Watch {
     /// link's counts run over every life of its ends.
     earlier: BTreeMap<(String, String), BTreeMap<&'static str, u64>>,
 }
+
+/// How long a link's receiver may receive nothing, while samples are on their way, before it is said
+/// (the sender's status says `silent_s` from a second on).
+const SILENT_SAID_S: f64 = 2.0;
 
 /// The counts of a link end's status that run over its host's restarts.
 const LINK_COUNTS: [&str; 5] = ["sent", "sent_unmatched", "failed", "received", "lost"];
@@ -93,6 +99,7 @@ impl Watch {
             deployments,
             left: BTreeSet::new(),
             cut_links: BTreeSet::new(),
+            silent_links: BTreeSet::new(),
             clock_states: BTreeMap::new(),
             last_seen: BTreeMap::new(),
             earlier: BTreeMap::new(),
@@ -314,22 +321,46 @@ impl Watch {
             let (Some(host), sender) = &link.sender else {
                 continue;
             };
-            let Some(matched) = self
+            let Some(status) = self
                 .statuses
                 .get(host)
-                .and_then(|status| component_status(status, sender)["matched"].as_bool())
+                .map(|status| component_status(status, sender))
             else {
+                continue;
+            };
+            let Some(matched) = status["matched"].as_bool() else {
                 continue;
             };
             let words = format!("{} -> {}", link.from, link.to);
             if !matched && self.cut_links.insert(link.key.clone()) {
-                tracing::error!(
-                    "link {words} is cut: no receiver on the far end; a link whose consumer never skips \
-                     keeps what it sends and sends it again when the far end returns (for up to its \
-                     ride_out_s), any other drops it (sent_unmatched on {sender})"
-                );
+                if status["answering"] == false {
+                    tracing::error!(
+                        "link {words} is cut: its receiver still matches but has stopped answering, so \
+                         nothing sent reaches it; what is sent is kept and sent again once it answers (for \
+                         up to its ride_out_s), beyond that it is counted lost"
+                    );
+                } else {
+                    tracing::error!(
+                        "link {words} is cut: no receiver on the far end; a link whose consumer never skips \
+                         keeps what it sends and sends it again when the far end returns (for up to its \
+                         ride_out_s), any other drops it (sent_unmatched on {sender})"
+                    );
+                }
             } else if matched && self.cut_links.remove(&link.key) {
                 tracing::info!("link {words} resumed");
+            }
+            match status["silent_s"].as_f64() {
+                Some(silent) if silent >= SILENT_SAID_S && self.silent_links.insert(link.key.clone()) => {
+                    tracing::error!(
+                        "link {words} delivers nothing: its receiver answers but has received nothing for \
+                         {silent:.0} s while samples were on their way (its consumer is stalled, or the \
+                         network path is)"
+                    );
+                }
+                None if self.silent_links.remove(&link.key) => {
+                    tracing::info!("link {words} delivers again");
+                }
+                _ => {}
             }
         }
     }
