@@ -207,6 +207,7 @@ fn links_between_hosts_carry_every_sample_with_its_timestamp_over_zenoh() {
         stderr.contains("linked gain.out on host 'b' -> csv_here.in1 on this machine"),
         "{stderr}"
     );
+    assert!(!stderr.contains("delivers nothing"), "{stderr}");
     let written_on_a: std::collections::BTreeMap<i64, f64> =
         csv_values(&dir_a.path().join("a.csv")).into_iter().collect();
     let received_here = csv_values(&here.path().join("here.csv"));

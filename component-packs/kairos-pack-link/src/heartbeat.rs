@@ -3,21 +3,23 @@
 //! once more, a link was seen to stay matched while nothing reached the far end, for minutes, and
 //! nobody was told. Only the far end can say what arrived.
 //!
-//! Two faults are told apart:
-//! - **unanswered**: [`UNANSWERED_CUT`] questions in a row get no answer. The path is dead whatever
-//!   Zenoh says; the sender treats the link as cut (its ride-out asks again and sends again what the
-//!   receiver missed once it answers).
+//! Two findings are told apart, and said; neither changes what the link sends:
+//! - **unanswered**: [`UNANSWERED_CUT`] questions in a row get no answer. Either the path is dead
+//!   whatever Zenoh says, or the receiver's host is held up delivering what came before the question (a
+//!   consumer that never skips, slower than its producer: the question waits behind the samples). From
+//!   here the two look the same, so the link is not treated as cut: holding samples back would take the
+//!   back-pressure off a slow consumer's producer and lose what it must not skip.
 //! - **silent**: the receiver answers, but has received nothing new over a whole period while samples
-//!   were on their way. Its consumer may be stalled (a link that never skips then holds its producer, as
-//!   it should) or the data path is broken; either way the user is told, and nothing is sent again (what
-//!   is queued would arrive twice).
+//!   were on their way.
+//!
+//! The coordinator, which sees both ends' statuses, says which (`kairos_coordinator::watch`).
 
 use std::time::{Duration, Instant};
 
 /// How often a matched receiver is asked what it received.
 pub const PERIOD: Duration = Duration::from_secs(1);
 
-/// Questions unanswered in a row after which a matched link counts as cut.
+/// Questions unanswered in a row after which the receiver counts as not answering.
 pub const UNANSWERED_CUT: u32 = 2;
 
 /// How long a receiver may receive nothing while samples are on their way before the user is told.
@@ -31,22 +33,26 @@ pub struct Heartbeat {
     /// The last answer: how many samples the receiver had received by then (its newest + 1), and how
     /// many had been sent when that question went.
     last: Option<(u64, u64)>,
-    /// Questions unanswered in a row, and how many samples had been sent when the first of them went.
+    /// Questions unanswered in a row.
     unanswered: u32,
-    unanswered_from: u64,
     /// Since when the receiver has received nothing while samples were on their way.
     silent_since: Option<Instant>,
-    /// Whether that silence has been said.
+    /// Whether that silence, and the receiver's not answering, have been said.
     silence_said: bool,
+    unanswered_said: bool,
 }
 
-/// News of the receiver's silence, to be said.
+/// News of the receiver, to be said.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub enum Silence {
+pub enum News {
     /// It has received nothing this long, past [`SILENT_SAID`].
-    Began(Duration),
+    Silent(Duration),
     /// It receives again.
-    Ended,
+    Receiving,
+    /// It stopped answering.
+    Unanswering,
+    /// It answers again.
+    Answering,
 }
 
 impl Heartbeat {
@@ -80,21 +86,9 @@ impl Heartbeat {
         self.last = Some((received, sent_then));
     }
 
-    /// A question that went when `sent_then` had been sent got no answer.
-    pub fn unanswered(&mut self, sent_then: u64) {
-        if self.unanswered == 0 {
-            self.unanswered_from = sent_then;
-        }
+    /// A question got no answer.
+    pub fn unanswered(&mut self) {
         self.unanswered += 1;
-    }
-
-    /// The receiver answered after a cut (the ride-out's question): the heartbeat starts afresh.
-    pub fn heard(&mut self) {
-        *self = Heartbeat {
-            asked: self.asked,
-            silence_said: self.silence_said,
-            ..Heartbeat::default()
-        };
     }
 
     /// Whether the receiver answers (fewer than [`UNANSWERED_CUT`] questions in a row went unanswered).
@@ -102,21 +96,24 @@ impl Heartbeat {
         self.unanswered < UNANSWERED_CUT
     }
 
-    /// How many samples had been sent when the receiver stopped answering.
-    pub fn unanswered_from(&self) -> u64 {
-        self.unanswered_from
-    }
-
-    /// News of the receiver's silence since it was last asked for, if any.
-    pub fn silence_news(&mut self, now: Instant) -> Option<Silence> {
+    /// News of the receiver since it was last asked for, if any.
+    pub fn news(&mut self, now: Instant) -> Option<News> {
+        if self.answering() == self.unanswered_said {
+            self.unanswered_said = !self.answering();
+            return Some(if self.unanswered_said {
+                News::Unanswering
+            } else {
+                News::Answering
+            });
+        }
         match self.silent_for(now) {
             Some(silent) if silent >= SILENT_SAID && !self.silence_said => {
                 self.silence_said = true;
-                Some(Silence::Began(silent))
+                Some(News::Silent(silent))
             }
             None if self.silence_said => {
                 self.silence_said = false;
-                Some(Silence::Ended)
+                Some(News::Receiving)
             }
             _ => None,
         }
@@ -160,15 +157,15 @@ mod tests {
         assert_eq!(beat.silent_for(at(start, 2)), Some(PERIOD));
         beat.answered(10, 70, at(start, 3));
         assert_eq!(beat.silent_for(at(start, 3)), Some(PERIOD * 2));
-        assert_eq!(beat.silence_news(at(start, 3)), Some(Silence::Began(PERIOD * 2)));
-        assert_eq!(beat.silence_news(at(start, 3)), None, "said once");
+        assert_eq!(beat.news(at(start, 3)), Some(News::Silent(PERIOD * 2)));
+        assert_eq!(beat.news(at(start, 3)), None, "said once");
         beat.answered(11, 100, at(start, 4));
         assert_eq!(beat.silent_for(at(start, 4)), None);
-        assert_eq!(beat.silence_news(at(start, 4)), Some(Silence::Ended));
+        assert_eq!(beat.news(at(start, 4)), Some(News::Receiving));
     }
 
     #[test]
-    fn a_receiver_that_stops_answering_counts_as_cut_from_the_second_question_and_answers_again() {
+    fn a_receiver_that_stops_answering_is_said_from_the_second_question_and_again_when_it_answers() {
         let start = Instant::now();
         let mut beat = Heartbeat::default();
         assert!(beat.due(start));
@@ -176,13 +173,15 @@ mod tests {
         assert!(!beat.due(start + PERIOD / 2));
         assert!(beat.due(start + PERIOD));
         beat.answered(5, 5, at(start, 1));
-        beat.unanswered(30);
+        beat.unanswered();
         assert!(beat.answering(), "one unanswered question may be a flap");
-        beat.unanswered(60);
+        assert_eq!(beat.news(at(start, 2)), None);
+        beat.unanswered();
         assert!(!beat.answering());
-        assert_eq!(beat.unanswered_from(), 30);
-        beat.heard();
-        assert!(beat.answering());
-        assert_eq!(beat.silent_for(at(start, 5)), None);
+        assert_eq!(beat.news(at(start, 3)), Some(News::Unanswering));
+        assert_eq!(beat.news(at(start, 3)), None, "said once");
+        beat.answered(9, 9, at(start, 4));
+        assert_eq!(beat.news(at(start, 4)), Some(News::Answering));
+        assert_eq!(beat.silent_for(at(start, 4)), None);
     }
 }

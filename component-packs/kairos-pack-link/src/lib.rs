@@ -16,8 +16,8 @@
 //! noticed, never what its former self may have had (at most once: what died with that host was lost).
 //!
 //! Zenoh saying the receiver matches is not taken as proof that it receives: a reliable sender's
-//! heartbeat ([`heartbeat`]) asks the same question every second and treats a receiver that stopped
-//! answering as cut.
+//! heartbeat ([`heartbeat`]) asks the same question every second and says a receiver that stops
+//! answering, or receiving.
 
 use std::collections::VecDeque;
 
@@ -352,30 +352,12 @@ impl LinkSender {
         }
     }
 
-    /// Every status period: whether the receiver matches, and answers, said (and published) when it
-    /// changes.
+    /// Every status period: whether the receiver matches, said (and published) when it changes.
     fn look(&mut self, ctx: &Context, end: &network::SenderEnd) {
-        let zenoh_matched = network::matched(end);
-        let matched = zenoh_matched && self.heartbeat.answering();
+        let matched = network::matched(end);
         if matched != self.matched {
             if matched {
                 tracing::info!("link to {}: matched again", end.peer);
-            } else if zenoh_matched {
-                tracing::warn!(
-                    "link to {}: the receiver still matches but has not answered for {} s: the path is \
-                     dead whatever the network layer says; {}",
-                    end.peer,
-                    heartbeat::UNANSWERED_CUT,
-                    if self.kept.enabled() {
-                        format!(
-                            "treated as a cut: what is sent is kept for {:.1} s and sent again once it answers",
-                            self.kept.for_how_long.as_secs_f64()
-                        )
-                    } else {
-                        "what is sent meanwhile is counted lost by the receiver if it never arrives"
-                            .to_owned()
-                    }
-                );
             } else if !self.kept.enabled() {
                 tracing::warn!(
                     "link to {}: no receiver any more; samples are dropped until it returns",
@@ -390,15 +372,12 @@ impl LinkSender {
                 );
             }
             self.matched = matched;
-            end.answering
-                .store(self.heartbeat.answering(), std::sync::atomic::Ordering::Release);
             ctx.publish_status(self);
         }
     }
 
     /// The heartbeat of a reliable link whose receiver matches (outside a cut's ride-out, which asks on
-    /// its own): takes the answer to the last question, asks the next when due, and says a receiver that
-    /// stopped answering (then treated as cut) or receiving.
+    /// its own): takes the answer to the last question, asks the next when due, and says what it learns.
     fn beat(&mut self, ctx: &Context, end: &network::SenderEnd) {
         if !self.reliable || self.cut || self.asking.is_some() {
             return;
@@ -413,14 +392,8 @@ impl LinkSender {
                     self.beating = None;
                 }
                 Ok(Err(_)) | Err(_) => {
-                    self.heartbeat.unanswered(*sent_then);
+                    self.heartbeat.unanswered();
                     self.beating = None;
-                    if !self.heartbeat.answering() && self.kept.enabled() && network::matched(end) {
-                        // Rode out like a cut Zenoh reported: from what was sent when it stopped answering.
-                        self.cut = true;
-                        self.noticed_from = self.heartbeat.unanswered_from();
-                        self.look(ctx, end);
-                    }
                 }
             }
         }
@@ -428,22 +401,26 @@ impl LinkSender {
             self.heartbeat.asked(now);
             self.beating = Some((end.ask_receiver_newest(ASK_WAIT), self.sent, now));
         }
-        match self.heartbeat.silence_news(now) {
-            Some(heartbeat::Silence::Began(silent)) => {
-                tracing::warn!(
-                    "link to {}: the receiver answers but has received nothing for {:.0} s while samples \
-                     were on their way: its consumer is stalled, or the network path is",
-                    end.peer,
-                    silent.as_secs_f64()
-                );
-                ctx.publish_status(self);
-            }
-            Some(heartbeat::Silence::Ended) => {
-                tracing::info!("link to {}: the receiver receives again", end.peer);
-                ctx.publish_status(self);
-            }
-            None => {}
+        let Some(news) = self.heartbeat.news(now) else {
+            return;
+        };
+        let peer = &end.peer;
+        match news {
+            heartbeat::News::Unanswering => tracing::warn!(
+                "link to {peer}: the receiver still matches but has not answered for {} s: either its consumer \
+                 is slower than this link (it never skips, so this producer waits for it) or the path is \
+                 dead whatever the network layer says",
+                heartbeat::UNANSWERED_CUT
+            ),
+            heartbeat::News::Answering => tracing::info!("link to {peer}: the receiver answers again"),
+            heartbeat::News::Silent(silent) => tracing::warn!(
+                "link to {peer}: the receiver answers but has received nothing for {:.0} s while samples \
+                 were on their way: its consumer is stalled, or the network path is",
+                silent.as_secs_f64()
+            ),
+            heartbeat::News::Receiving => tracing::info!("link to {peer}: the receiver receives again"),
         }
+        ctx.publish_status(self);
     }
 
     /// Rides out a cut, the newest sample already kept: once the receiver matches again after it stopped,
@@ -529,7 +506,6 @@ impl LinkSender {
         // What was held while asking was never put: only the rest is put again.
         self.put_again += again.saturating_sub(self.sent + 1 - self.held_from);
         if newest.is_ok() {
-            self.heartbeat.heard();
             tracing::info!(
                 "link to {}: matched again; {again} of the {missed} samples it had not received were sent{}",
                 end.peer,

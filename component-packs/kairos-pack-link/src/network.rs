@@ -9,7 +9,7 @@
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
 use std::time::Duration;
 
@@ -28,6 +28,9 @@ use super::SENDER;
 /// noticed within about a second (keep-alives go four times per lease).
 const LEASE_MS: u64 = 1000;
 
+/// How long a blocking put may wait for room in a link's queue before Zenoh closes the transport.
+const WAIT_BEFORE_CLOSE_MS: u64 = 1000;
+
 /// The sending end of a link: its publisher, blocking when the consumer never skips.
 pub struct SenderEnd {
     /// The publisher.
@@ -37,9 +40,6 @@ pub struct SenderEnd {
     /// Times the receiver stopped matching, counted as Zenoh says it (a reliable link only): a sender
     /// that sees it grow knows the far end may have missed what it put since.
     pub cuts: Arc<AtomicU64>,
-    /// Whether the receiver answers the sender's heartbeat (set by the sender): a receiver that matches
-    /// but stopped answering is no receiver to `links`.
-    pub answering: AtomicBool,
     session: zenoh::Session,
     key: String,
 }
@@ -298,6 +298,10 @@ fn open(spec: &LinkNetwork) -> anyhow::Result<zenoh::Session> {
             "{period_init_ms: 100, period_max_ms: 1000, period_increase_factor: 2}".to_owned(),
         ),
         ("transport/link/tx/lease", LEASE_MS.to_string()),
+        (
+            "transport/link/tx/queue/congestion_control/block/wait_before_close",
+            (WAIT_BEFORE_CLOSE_MS * 1000).to_string(),
+        ),
     ];
     for (key, value) in settings.into_iter().chain(tls_settings(spec)?) {
         config
@@ -388,7 +392,6 @@ pub fn prepare(diagram: &Diagram) -> anyhow::Result<()> {
                 publisher,
                 peer,
                 cuts,
-                answering: AtomicBool::new(true),
                 session: network.session.clone(),
                 key: key.clone(),
             });
@@ -472,9 +475,8 @@ pub fn matched(end: &SenderEnd) -> bool {
         .is_ok_and(|status| status.matching())
 }
 
-/// Every declared end, for `links` and the deployer's wait for matching: a sender is matched when Zenoh
-/// says so and its receiver answers its heartbeat. A receiver counts as matched here: only its sender
-/// can tell.
+/// Every declared end, for `links` and the deployer's wait for matching. A receiver counts as matched
+/// here: only its sender can tell.
 pub fn ends() -> Vec<LinkEnd> {
     let slot = network();
     let Some(network) = slot.as_ref() else {
@@ -485,7 +487,7 @@ pub fn ends() -> Vec<LinkEnd> {
         key: key.clone(),
         role: "sender".to_owned(),
         peer: end.peer.clone(),
-        matched: matched(end) && end.answering.load(Ordering::Acquire),
+        matched: matched(end),
     });
     let receivers = network.receivers.iter().map(|(key, (component, end))| LinkEnd {
         component: component.clone(),

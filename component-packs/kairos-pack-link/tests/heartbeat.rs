@@ -1,5 +1,5 @@
-//! A reliable link whose receiver still matches but goes dead: the sender's heartbeat tells it, and
-//! sends again what the receiver missed once it answers.
+//! A reliable link whose receiver still matches but goes silent, then dead: the sender's heartbeat
+//! says both in its status, Zenoh's matching never moving, and says when the receiver is back.
 //!
 //! The far end is a Zenoh peer of its own (another session, over TCP on loopback), playing a link
 //! receiver that can be made to stop receiving while it keeps matching: first still answering with a
@@ -159,7 +159,7 @@ fn send_for(
 }
 
 #[test]
-fn a_matched_receiver_that_goes_silent_then_dead_is_said_treated_as_cut_and_given_what_it_missed() {
+fn a_matched_receiver_that_goes_silent_then_dead_is_said_and_so_is_its_return() {
     let port = free_port();
     network::join(&LinkNetwork {
         listen: vec![format!("tcp/127.0.0.1:{port}")],
@@ -175,7 +175,7 @@ fn a_matched_receiver_that_goes_silent_then_dead_is_said_treated_as_cut_and_give
     })
     .unwrap();
     let far = far_end(port);
-    let mut link = sender(60.0);
+    let mut link = sender(5.0);
     let matched = |status: &serde_json::Value| status["matched"] == true;
     send_for(&mut link, Duration::from_secs(5), |_| {
         network::matched(&network::sender(KEY).unwrap())
@@ -200,45 +200,31 @@ fn a_matched_receiver_that_goes_silent_then_dead_is_said_treated_as_cut_and_give
 
     // Dead: no answer at all, while Zenoh still says it matches.
     far.mode.store(DEAD, Ordering::Release);
-    let cut = send_for(&mut link, Duration::from_secs(6), |status| {
-        status["matched"] == false
+    let said = send_for(&mut link, Duration::from_secs(6), |status| {
+        status["answering"] == false
     })
-    .expect("a receiver that stopped answering was never said cut");
-    assert!(cut < Duration::from_secs(3), "said cut after {cut:?}");
+    .expect("a receiver that stopped answering was never said");
+    assert!(said < Duration::from_secs(3), "said after {said:?}");
     assert!(
         network::matched(&network::sender(KEY).unwrap()),
         "Zenoh's matching must not have moved"
     );
-    assert_eq!(link.0.status().unwrap()["answering"], false);
-    let listed = network::ends();
-    assert!(
-        !listed[0].matched,
-        "`kairos status` lists it as not matched: {listed:?}"
-    );
-    send_for(&mut link, Duration::from_secs(1), |_| false);
-
-    // Back: the ride-out asks what it received and sends again everything after it.
-    far.mode.store(RECEIVING, Ordering::Release);
-    send_for(&mut link, Duration::from_secs(5), matched).expect("never matched again");
-    send_for(&mut link, Duration::from_millis(1500), |_| false);
     let status = link.0.status().unwrap();
-    assert!(status["put_again"].as_u64().unwrap() > 100, "{status}");
-    assert!(
-        status["silent_s"].is_null() && status["answering"] == true,
-        "{status}"
-    );
-    let sent = status["sent"].as_u64().unwrap();
+    assert!(matched(&status), "{status}");
+
+    // Back: answering and receiving again. What the far end dropped meanwhile is a gap a real receiver
+    // counts; the link itself was never cut, so nothing is sent twice.
+    far.mode.store(RECEIVING, Ordering::Release);
+    let back = send_for(&mut link, Duration::from_secs(5), |status| {
+        status["answering"] == true && status["silent_s"].is_null()
+    });
+    assert!(back.is_some(), "{}", link.0.status().unwrap());
+    let status = link.0.status().unwrap();
+    assert_eq!(status["put_again"], 0, "{status}");
     let received = far.received.lock().unwrap().clone();
-    let expected: Vec<u64> = (0..sent).collect();
-    let last = received.len().min(expected.len());
+    let gaps = received.windows(2).filter(|pair| pair[1] != pair[0] + 1).count();
     assert_eq!(
-        received[..last],
-        expected[..last],
-        "every sample, in order, none missing"
-    );
-    assert!(
-        sent - received.len() as u64 <= 2,
-        "{} of {sent} received",
-        received.len()
+        gaps, 1,
+        "one gap, where the far end dropped what came: {received:?}"
     );
 }

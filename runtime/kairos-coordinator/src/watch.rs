@@ -45,8 +45,9 @@ pub struct Watch {
     left: BTreeSet<String>,
     /// The links whose sender on a host has no receiver matched: cut, though both hosts may answer.
     cut_links: BTreeSet<String>,
-    /// The links whose receiver answers its sender's heartbeat but has received nothing for a while.
-    silent_links: BTreeSet<String>,
+    /// The links that matched but delivered nothing while samples were on their way, since when, and
+    /// whether it was said.
+    starving_links: BTreeMap<String, (std::time::Instant, bool)>,
     /// Each host's clock state at the last check, for those that follow one.
     clock_states: BTreeMap<String, ClockState>,
     /// Each lost host's last status, until it answers again.
@@ -56,9 +57,65 @@ pub struct Watch {
     earlier: BTreeMap<(String, String), BTreeMap<&'static str, u64>>,
 }
 
-/// How long a link's receiver may receive nothing, while samples are on their way, before it is said
-/// (the sender's status says `silent_s` from a second on).
-const SILENT_SAID_S: f64 = 2.0;
+/// How long a link's receiver may receive nothing, while samples are on their way, before it is said.
+const STARVING_AFTER: Duration = Duration::from_millis(1500);
+/// How long that must hold, over the statuses' publishing period, before it is said.
+const STARVING_HELD: Duration = Duration::from_secs(1);
+
+/// Says a link that matches but delivers nothing: its sender sent samples its receiver never got
+/// while its receiver received nothing for [`STARVING_AFTER`] (its consumer stalled, or a path Zenoh
+/// still sees as up that carries nothing, seen for minutes after a reconnection that flapped once
+/// more). Only the two ends' statuses together tell it: each end alone sees nothing wrong.
+fn report_starving(
+    starving_links: &mut BTreeMap<String, (std::time::Instant, bool)>,
+    statuses: &BTreeMap<String, serde_json::Value>,
+    link: &crate::plan::CrossLink,
+    sending_end: &serde_json::Value,
+    words: &str,
+) {
+    let (Some(receiving_host), receiver) = &link.receiver else {
+        return;
+    };
+    let Some(receiving_end) = statuses
+        .get(receiving_host)
+        .map(|status| component_status(status, receiver))
+        .filter(|end| !end.is_null())
+    else {
+        return;
+    };
+    let count = |end: &serde_json::Value, field: &str| end[field].as_u64().unwrap_or(0);
+    let sent = count(sending_end, "sent");
+    let arrived = count(receiving_end, "received") + count(receiving_end, "lost");
+    let quiet_for = receiving_end["last_sample_age_ms"]
+        .as_u64()
+        .map(Duration::from_millis);
+    let starving = sending_end["matched"] == true
+        && sent > arrived
+        && quiet_for.is_none_or(|quiet| quiet >= STARVING_AFTER);
+    let now = std::time::Instant::now();
+    if !starving {
+        if let Some((_, true)) = starving_links.remove(&link.key) {
+            tracing::info!("link {words} delivers again");
+        }
+        return;
+    }
+    let (since, said) = starving_links.entry(link.key.clone()).or_insert((now, false));
+    // Statuses are up to a publishing period old: it must hold over more than one.
+    if !*said && now.duration_since(*since) >= STARVING_HELD {
+        *said = true;
+        let quiet = quiet_for.map_or_else(
+            || "nothing yet".to_owned(),
+            |quiet| format!("nothing for {:.1} s", quiet.as_secs_f64()),
+        );
+        tracing::error!(
+            "link {words} delivers nothing: it matches, but its receiver has received {quiet} while \
+             {} more were sent; its consumer on host '{receiving_host}' is stalled, or the path between \
+             the hosts carries nothing though both ends still see each other; what never arrives is \
+             counted lost",
+            sent - arrived
+        );
+    }
+}
 
 /// The counts of a link end's status that run over its host's restarts.
 const LINK_COUNTS: [&str; 5] = ["sent", "sent_unmatched", "failed", "received", "lost"];
@@ -99,7 +156,7 @@ impl Watch {
             deployments,
             left: BTreeSet::new(),
             cut_links: BTreeSet::new(),
-            silent_links: BTreeSet::new(),
+            starving_links: BTreeMap::new(),
             clock_states: BTreeMap::new(),
             last_seen: BTreeMap::new(),
             earlier: BTreeMap::new(),
@@ -349,19 +406,7 @@ impl Watch {
             } else if matched && self.cut_links.remove(&link.key) {
                 tracing::info!("link {words} resumed");
             }
-            match status["silent_s"].as_f64() {
-                Some(silent) if silent >= SILENT_SAID_S && self.silent_links.insert(link.key.clone()) => {
-                    tracing::error!(
-                        "link {words} delivers nothing: its receiver answers but has received nothing for \
-                         {silent:.0} s while samples were on their way (its consumer is stalled, or the \
-                         network path is)"
-                    );
-                }
-                None if self.silent_links.remove(&link.key) => {
-                    tracing::info!("link {words} delivers again");
-                }
-                _ => {}
-            }
+            report_starving(&mut self.starving_links, &self.statuses, link, status, &words);
         }
     }
 
