@@ -11,6 +11,7 @@ mod common;
 mod serving;
 
 use common::text;
+use serde_json::json;
 use serving::{
     RoundTrip, Server, csv_values, deploy_in_background, final_losses, folders, free_tcp_port, interrupt,
     now_ns, samples_after_then_stop, serve, serve_in, shared_machine, wait_for_log, whole_machine,
@@ -1105,4 +1106,109 @@ fn a_camera_through_a_zenoh_partition_is_held_back_no_longer_than_the_lease_and_
     assert!(camera <= 60, "the camera was held back {camera} frames\n{said}");
     assert!(imu <= 500, "the IMU was held back {imu} ticks\n{said}");
     assert_eq!(final_losses(&said), [0, 0], "{said}");
+}
+
+/// A control connection to `url` made from inside network namespace `namespace`: this test's thread joins
+/// it for the connect alone, and the socket stays there.
+fn connect_inside(namespace: &str, url: &str) -> serving::Socket {
+    let (namespace, url) = (namespace.to_owned(), url.to_owned());
+    std::thread::Builder::new()
+        .name("connecting inside".to_owned())
+        .spawn(move || {
+            let place = std::fs::File::open(format!("/var/run/netns/{namespace}")).unwrap();
+            nix::sched::setns(place, nix::sched::CloneFlags::CLONE_NEWNET).unwrap();
+            let (socket, _) = tungstenite::connect(url.as_str()).unwrap();
+            if let tungstenite::stream::MaybeTlsStream::Plain(stream) = socket.get_ref() {
+                stream.set_read_timeout(Some(Duration::from_secs(10))).unwrap();
+            }
+            socket
+        })
+        .unwrap()
+        .join()
+        .unwrap()
+}
+
+/// A runtime coordinating a spread diagram for its client (the studio's Run over hosts) sends a host's
+/// token over plain `ws://` to another machine only when served with `--allow-clear-text-tokens`; without
+/// it, the deploy is refused naming the host, `wss://` and the flag.
+#[test]
+fn a_coordinating_runtime_sends_a_token_in_clear_text_to_another_machine_only_when_allowed() {
+    let _machine = whole_machine();
+    let Some(namespaces) = Namespaces::make() else {
+        return;
+    };
+    let [dir_a, dir_b, here] = folders();
+    let (address_a, address_b) = (namespaces.address(1), namespaces.address(2));
+    let b = serve_in(
+        Some(&namespaces.names[1]),
+        dir_b.path(),
+        &format!("{address_b}:7400"),
+        &[],
+        &[],
+    );
+    std::fs::write(here.path().join("b.token"), &b.token).unwrap();
+    let diagram = format!(
+        r#"Diagram(format: 1,
+            hosts: {{"b": Host(endpoint: "{}", token_file: "b.token", zenoh: "tcp/{address_b}:7447")}},
+            components: [
+                Component(id: "sine", type: "core.sine", host: "b", properties: {{"rate": 100.0}}),
+                Component(id: "csv", type: "core.csv_writer", properties: {{"path": "spread.csv"}}),
+            ],
+            connections: [Connection(from: "sine.out", to: "csv.in1")])"#,
+        b.url
+    );
+    let deploy =
+        json!({"id": 2, "type": "deploy", "diagram": diagram, "folder": here.path().display().to_string()});
+    for allowed in [false, true] {
+        let extra: &[&str] = if allowed {
+            &["--allow-clear-text-tokens"]
+        } else {
+            &[]
+        };
+        let coordinator = serve_in(
+            Some(&namespaces.names[0]),
+            dir_a.path(),
+            &format!("{address_a}:{}", if allowed { 7401 } else { 7400 }),
+            extra,
+            &[],
+        );
+        let mut socket = connect_inside(&namespaces.names[0], &coordinator.url);
+        let hello = serving::hello(&mut socket, &coordinator.token, "operator");
+        assert_eq!(hello["ok"], true, "{hello}");
+        let deployed = serving::call(&mut socket, &deploy);
+        if !allowed {
+            let said = deployed["error"]["message"]
+                .as_str()
+                .unwrap_or_default()
+                .to_owned();
+            assert_eq!(deployed["ok"], false, "{deployed}");
+            assert!(
+                said.contains("host 'b'")
+                    && said.contains("wss://")
+                    && said.contains("--allow-clear-text-tokens"),
+                "{said}"
+            );
+            continue;
+        }
+        assert_eq!(deployed["ok"], true, "{deployed}");
+        let started = serving::call(&mut socket, &json!({"id": 3, "type": "start"}));
+        assert_eq!(started["ok"], true, "{started}");
+        let deadline = std::time::Instant::now() + Duration::from_secs(20);
+        loop {
+            let status = serving::call(&mut socket, &json!({"id": 4, "type": "status"}));
+            let received = status["result"]["telemetry"]["cross_links"][0]["received"]
+                .as_u64()
+                .unwrap_or(0);
+            if received > 50 {
+                break;
+            }
+            assert!(
+                std::time::Instant::now() < deadline,
+                "nothing came from b: {status}"
+            );
+            std::thread::sleep(Duration::from_millis(200));
+        }
+        let stopped = serving::call(&mut socket, &json!({"id": 5, "type": "stop"}));
+        assert_eq!(stopped["ok"], true, "{stopped}");
+    }
 }
