@@ -69,6 +69,12 @@ struct OpenFile {
 const RETRY_EVENTS_AFTER: Duration = Duration::from_secs(1);
 
 /// The recorder component. See [`Recorder::info`].
+/// The default chunk size. The MCAP writer holds each chunk's index (about 300 B) until the file closes,
+/// for its summary: at a 640×480 camera's 27.6 MB/s, 1 MiB chunks closed 28 times a second and grew the
+/// recorder by 19 MB an hour; 16 MiB ones close about twice (once by size, once by `chunk_period_s`). The
+/// period still bounds what a crash loses to a second.
+const CHUNK_SIZE_KB: i64 = 16 * 1024;
+
 #[derive(Default)]
 #[allow(
     clippy::struct_excessive_bools,
@@ -209,7 +215,7 @@ impl Recorder {
                  /camera/image), which ROS 2 tools read",
             ))
             .property(
-                Property::i64("chunk_size_kb", 1024)
+                Property::i64("chunk_size_kb", CHUNK_SIZE_KB)
                     .unit("KiB")
                     .int_range(16, 1_048_576)
                     .doc("A chunk closes at this size..."),
