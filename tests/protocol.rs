@@ -49,6 +49,7 @@ fn sample_request(kind: RequestKind, id: u64) -> Value {
         RequestKind::FoxglovePublish => json!({"outputs": ["sine1.out"], "publish": true}),
         RequestKind::PlayerSeek => json!({"component": "gain1", "seconds": 1.0}),
         RequestKind::PlayerSpeed => json!({"component": "gain1", "factor": 2.0}),
+        RequestKind::Ros2Topics => json!({"router": "tcp/127.0.0.1:1"}),
         RequestKind::InstallPack => {
             json!({"name": "x", "version": "0.1.0", "platform": "none", "size": 0, "offset": 0, "data": ""})
         }
@@ -364,6 +365,71 @@ fn devices_lists_what_kairos_devices_lists_and_the_library_marks_the_properties_
     assert_eq!(kind_of("serial.reader", "device"), "serial");
     assert_eq!(kind_of("can.socketcan_reader", "interface"), "can");
     assert_eq!(kind_of("gnss.nmea", "path"), Value::Null);
+}
+
+/// The topics a ROS 2 graph advertises, as `rmw_zenoh`'s liveliness tokens say them (a node in Python
+/// declaring them as its design document gives), for the studio's topic picker; the library marks the
+/// properties naming one; a router out of reach is named, not taken for an empty graph.
+#[test]
+fn ros2_topics_lists_what_a_ros2_graph_advertises_and_names_a_router_out_of_reach() {
+    let _machine = shared_machine();
+    let dir = tempfile::tempdir().unwrap();
+    let server = serve(dir.path(), &[]);
+    let mut socket = operator(&server);
+    let endpoint = format!("tcp/127.0.0.1:{}", serving::free_tcp_port());
+    let mut node = Command::new("python3")
+        .arg(repo_root().join("tests/ros2/graph_node.py"))
+        .args([&endpoint, "30"])
+        .stdout(std::process::Stdio::piped())
+        .spawn()
+        .expect("python3");
+    let mut ready = String::new();
+    std::io::BufRead::read_line(
+        &mut std::io::BufReader::new(node.stdout.take().unwrap()),
+        &mut ready,
+    )
+    .unwrap();
+    assert_eq!(ready.trim(), "ready");
+    let reply = call(
+        &mut socket,
+        &json!({"id": 5, "type": "ros2_topics", "router": endpoint, "domain_id": 0}),
+    );
+    let other_domain = call(
+        &mut socket,
+        &json!({"id": 6, "type": "ros2_topics", "router": endpoint, "domain_id": 7}),
+    );
+    let _ = node.kill();
+    let _ = node.wait();
+    assert_eq!(reply["ok"], true, "{reply}");
+    assert_eq!(
+        reply["result"]["topics"],
+        json!([
+            {"name": "/lidar/points", "type": "sensor_msgs/msg/PointCloud2", "publishers": 1, "subscriptions": 0},
+            {"name": "/robot1/cmd_vel", "type": "geometry_msgs/msg/Twist", "publishers": 0, "subscriptions": 1},
+        ])
+    );
+    assert_eq!(other_domain["result"]["topics"], json!([]), "{other_domain}");
+
+    let absent = format!("tcp/127.0.0.1:{}", serving::free_tcp_port());
+    let refused = call(
+        &mut socket,
+        &json!({"id": 7, "type": "ros2_topics", "router": absent, "domain_id": 0}),
+    );
+    assert_eq!(refused["error"]["code"], "invalid_value", "{refused}");
+    let said = refused["error"]["message"].as_str().unwrap_or_default();
+    assert!(said.contains(&absent) && said.contains("rmw_zenohd"), "{said}");
+
+    let library = call(&mut socket, &json!({"id": 8, "type": "library"}));
+    for type_name in ["ros2.subscriber", "ros2.publisher"] {
+        let topic = library["result"]["components"][type_name]["properties"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|p| p["name"] == "topic")
+            .unwrap()
+            .clone();
+        assert_eq!(topic["device"], "ros2_topic", "{type_name}: {topic}");
+    }
 }
 
 #[test]

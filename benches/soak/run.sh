@@ -137,6 +137,8 @@ for column in 2 3; do
 done
 echo "links, as kairos deploy said them at the end:"
 grep -E "link .* sent [0-9]+, received" "$work/here/deploy.log" | sed 's/^.*link /  link /' || echo "  (none said)"
+echo "faults said by kairos deploy: $(grep -c ' is cut' "$work/here/deploy.log" || true) cuts, \
+$(grep -c 'delivers nothing' "$work/here/deploy.log" || true) links delivering nothing while matched"
 echo "the recording:"
 "$kairos" inspect "$work/b/soak.mcap" | head -20 && inspect_status=0 || inspect_status=$?
 echo "kairos inspect exited ${inspect_status}; everything is in $work"

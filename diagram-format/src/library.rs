@@ -106,6 +106,8 @@ pub enum DeviceKind {
     Can,
     /// A camera (`/dev/video0`).
     Camera,
+    /// A topic on a live ROS 2 graph (`/imu/data`), as the component's `router` and `domain_id` reach it.
+    Ros2Topic,
 }
 
 impl DeviceKind {
@@ -115,6 +117,7 @@ impl DeviceKind {
             DeviceKind::Serial => "serial",
             DeviceKind::Can => "can",
             DeviceKind::Camera => "camera",
+            DeviceKind::Ros2Topic => "ros2_topic",
         }
     }
 }

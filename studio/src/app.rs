@@ -475,6 +475,7 @@ impl StudioApp {
             } => self.session.field_refused(&component, &property, why),
             Command::SetReader { from, to, settings } => self.session.set_reader(&from, &to, settings),
             Command::RefreshDevices => self.session.refresh_devices(),
+            Command::RefreshRos2Topics { router, domain } => self.session.refresh_ros2_topics(router, domain),
             Command::SetClockSource(source) => {
                 self.session
                     .document

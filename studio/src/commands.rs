@@ -131,6 +131,13 @@ pub enum Command {
     },
     /// Ask the runtime for the devices of its machine again.
     RefreshDevices,
+    /// Ask the runtime for the topics of the ROS 2 graph reached through `router` in `domain`.
+    RefreshRos2Topics {
+        /// The Zenoh endpoint the component reaches ROS 2 through.
+        router: String,
+        /// Its ROS 2 domain.
+        domain: i64,
+    },
     /// Make the runtime clock follow a component (a GNSS receiver), or no component.
     SetClockSource(Option<String>),
     /// Run these components in an execution group, or each in a thread of its own (`None`).

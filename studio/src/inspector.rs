@@ -158,7 +158,7 @@ fn component_ui(
     );
     ui.separator();
     for property in &info.properties {
-        property_ui(ui, session, instance, property, commands);
+        property_ui(ui, session, instance, &info.properties, property, commands);
     }
     actions_ui(ui, &instance.id, info, commands);
     inside_ui(ui, session, &instance.id, commands);
@@ -363,6 +363,7 @@ fn property_ui(
     ui: &mut egui::Ui,
     session: &Session,
     instance: &ComponentInstance,
+    siblings: &[PropertyInfo],
     property: &PropertyInfo,
     commands: &mut Vec<Command>,
 ) {
@@ -391,10 +392,17 @@ fn property_ui(
             ui.label(RichText::new("live").small().weak())
                 .on_hover_text("changes apply at once while the diagram runs");
         }
-        if let Some(kind) = property.device {
-            device_picker(ui, session, kind, &mut edited, commands);
+        match property.device {
+            // On a line of its own: a topic's name and type are long.
+            Some(kairos_diagram::DeviceKind::Ros2Topic) | None => {}
+            Some(kind) => device_picker(ui, session, kind, &mut edited, commands),
         }
     });
+    if property.device == Some(kairos_diagram::DeviceKind::Ros2Topic) {
+        ui.horizontal(|ui| {
+            ros2_topic_picker(ui, session, instance, siblings, &mut edited, commands);
+        });
+    }
     if let Err(error) = property.kind.check(&edited) {
         ui.colored_label(Color32::LIGHT_RED, error.to_string());
     } else if let Some(note) = session.field_note(&instance.id, &property.name) {
@@ -460,6 +468,118 @@ fn device_picker(
         .clicked()
     {
         commands.push(Command::RefreshDevices);
+    }
+}
+
+/// The value of `instance`'s property `name`: as set, or its type's default.
+fn value_of(instance: &ComponentInstance, siblings: &[PropertyInfo], name: &str) -> Option<Value> {
+    instance.properties.get(name).cloned().or_else(|| {
+        siblings
+            .iter()
+            .find(|property| property.name == name)
+            .map(|property| property.default.clone())
+    })
+}
+
+/// The topics of the live ROS 2 graph the component reaches through its `router` in its `domain_id`,
+/// asked of the runtime (which reaches ROS 2 from the machine the component runs on) when the button is
+/// pressed: picking one sets the topic and, where the component has a `type` that can carry it, the type.
+fn ros2_topic_picker(
+    ui: &mut egui::Ui,
+    session: &Session,
+    instance: &ComponentInstance,
+    siblings: &[PropertyInfo],
+    edited: &mut Value,
+    commands: &mut Vec<Command>,
+) {
+    let router = match value_of(instance, siblings, "router") {
+        Some(Value::Text(router)) => router,
+        _ => String::new(),
+    };
+    let domain = match value_of(instance, siblings, "domain_id") {
+        Some(Value::I64(domain)) => domain,
+        _ => 0,
+    };
+    let refresh = |commands: &mut Vec<Command>| {
+        commands.push(Command::RefreshRos2Topics {
+            router: router.clone(),
+            domain,
+        });
+    };
+    let connected = session.runtime().is_some_and(|r| r.connected);
+    match session.ros2_topics(&router, domain) {
+        None => {
+            let asked = ui
+                .add_enabled(connected, egui::Button::new("topics…").small())
+                .on_hover_text(format!(
+                    "List the topics of the ROS 2 graph at {router}, domain {domain}"
+                ))
+                .on_disabled_hover_text("Connect to a runtime: it reaches the ROS 2 graph");
+            if asked.clicked() {
+                refresh(commands);
+            }
+        }
+        Some(crate::session::Ros2Listing::Refused(why)) => {
+            ui.colored_label(crate::log_panel::WARN_COLOR, "graph out of reach")
+                .on_hover_text(why);
+            if ui.small_button("retry").clicked() {
+                refresh(commands);
+            }
+        }
+        Some(crate::session::Ros2Listing::Topics(topics)) => {
+            let carried: Vec<String> = siblings
+                .iter()
+                .find(|property| property.name == "type")
+                .and_then(|property| match &property.kind {
+                    PropertyKind::Choice(options) => Some(options.clone()),
+                    _ => None,
+                })
+                .unwrap_or_default();
+            let has_type = siblings.iter().any(|property| property.name == "type");
+            let label = if topics.is_empty() {
+                "no topic on the graph".to_owned()
+            } else {
+                format!("{} on the graph", topics.len())
+            };
+            egui::ComboBox::from_id_salt(("ros2 topics", &instance.id))
+                .selected_text(label)
+                .show_ui(ui, |ui| {
+                    for topic in topics {
+                        let chosen = matches!(edited, Value::Text(text) if *text == topic.name);
+                        let text = format!(
+                            "{} — {} ({} pub, {} sub)",
+                            topic.name, topic.type_name, topic.publishers, topic.subscriptions
+                        );
+                        let readable = !has_type || carried.contains(&topic.type_name);
+                        let item = ui.add_enabled(readable, egui::Button::selectable(chosen, text));
+                        let item = item.on_disabled_hover_text(format!(
+                            "Kairos does not carry {} (docs/ros2.md lists the types it does)",
+                            topic.type_name
+                        ));
+                        if item.clicked() {
+                            *edited = Value::Text(topic.name.clone());
+                            if has_type {
+                                commands.push(Command::SetProperty {
+                                    component: instance.id.clone(),
+                                    property: "type".to_owned(),
+                                    value: Value::Text(topic.type_name.clone()),
+                                });
+                            }
+                        }
+                    }
+                })
+                .response
+                .on_hover_text(format!(
+                    "The topics of the ROS 2 graph at {router}, domain {domain}"
+                ));
+            if ui
+                .small_button("refresh")
+                .on_hover_text("List the topics again")
+                .clicked()
+            {
+                refresh(commands);
+            }
+        }
     }
 }
 

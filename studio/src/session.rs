@@ -138,6 +138,23 @@ impl NodeState {
     }
 }
 
+/// The topics of a ROS 2 graph as the runtime reached it through `router`, in `domain`.
+#[derive(Debug)]
+struct Ros2Graph {
+    router: String,
+    domain: i64,
+    listing: Ros2Listing,
+}
+
+/// What the runtime said of a ROS 2 graph.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Ros2Listing {
+    /// Its topics, by name.
+    Topics(Vec<kairos_protocol::Ros2Topic>),
+    /// Why it could not list them (the router out of reach), as it said it.
+    Refused(String),
+}
+
 /// What a request in flight was for.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum Pending {
@@ -151,6 +168,8 @@ enum Pending {
     Deploy,
     /// The devices of the runtime's machine.
     Devices,
+    /// The topics of a ROS 2 graph, as the runtime reaches it.
+    Ros2Topics,
     /// A start: refused while some hosts' clocks are not locked, it may be asked again anyway.
     Start,
     /// What the runtime publishes to Foxglove (asked, or changed).
@@ -275,6 +294,10 @@ pub struct Session {
     /// runtime); `devices_asked` while a request is out.
     devices: Option<Vec<kairos_protocol::DeviceInfo>>,
     devices_asked: bool,
+    /// The topics of the ROS 2 graph last asked for (its router and domain, and what the runtime said),
+    /// and the one being asked for.
+    ros2_graph: Option<Ros2Graph>,
+    ros2_asking: Option<(String, i64)>,
     states: BTreeMap<String, NodeState>,
     next_request: u64,
     pending: BTreeMap<u64, Pending>,
@@ -349,6 +372,8 @@ impl Session {
             hosts: Vec::new(),
             devices: None,
             devices_asked: false,
+            ros2_graph: None,
+            ros2_asking: None,
             states: BTreeMap::new(),
             next_request: FIRST_REQUEST_ID,
             pending: BTreeMap::new(),
@@ -398,6 +423,29 @@ impl Session {
         if !self.devices_asked {
             self.devices_asked = true;
             self.request_for(RequestBody::Devices, Pending::Devices);
+        }
+    }
+
+    /// The topics of the ROS 2 graph reached through `router` in `domain`, once the runtime has said.
+    pub fn ros2_topics(&self, router: &str, domain: i64) -> Option<&Ros2Listing> {
+        self.ros2_graph
+            .as_ref()
+            .filter(|graph| graph.router == router && graph.domain == domain)
+            .map(|graph| &graph.listing)
+    }
+
+    /// Asks the runtime for the topics of the ROS 2 graph reached through `router` in `domain` (again);
+    /// one request at a time.
+    pub fn refresh_ros2_topics(&mut self, router: String, domain: i64) {
+        if self.ros2_asking.is_none() {
+            self.ros2_asking = Some((router.clone(), domain));
+            self.request_for(
+                RequestBody::Ros2Topics {
+                    router,
+                    domain_id: domain,
+                },
+                Pending::Ros2Topics,
+            );
         }
     }
 
@@ -591,6 +639,8 @@ impl Session {
         // Another runtime, maybe another machine: its devices are asked for when a picker needs them.
         self.devices = None;
         self.devices_asked = false;
+        self.ros2_graph = None;
+        self.ros2_asking = None;
         self.request(RequestBody::SubscribeTelemetry {
             interval_ms: TELEMETRY_INTERVAL_MS,
         });
@@ -700,6 +750,16 @@ impl Session {
                 self.devices_asked = false;
                 self.devices = Some(Vec::new());
             }
+            Some(Pending::Ros2Topics) => {
+                // Said beside the picker, and in the log.
+                if let Some((router, domain)) = self.ros2_asking.take() {
+                    self.ros2_graph = Some(Ros2Graph {
+                        router,
+                        domain,
+                        listing: Ros2Listing::Refused(error.message.clone()),
+                    });
+                }
+            }
             Some(Pending::Start) if error.message.contains(CLOCKS_NOT_LOCKED) => {
                 self.unlocked_refusal = Some(error.message.clone());
             }
@@ -738,6 +798,15 @@ impl Session {
             (Some(Pending::Devices), ReplyBody::Devices(list)) => {
                 self.devices_asked = false;
                 self.devices = Some(list.devices);
+            }
+            (Some(Pending::Ros2Topics), ReplyBody::Ros2Topics(list)) => {
+                if let Some((router, domain)) = self.ros2_asking.take() {
+                    self.ros2_graph = Some(Ros2Graph {
+                        router,
+                        domain,
+                        listing: Ros2Listing::Topics(list.topics),
+                    });
+                }
             }
             (Some(Pending::Describe), ReplyBody::DescribeInstances(described)) => {
                 self.described.awaiting = false;

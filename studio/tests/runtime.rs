@@ -13,7 +13,7 @@ use std::time::{Duration, Instant};
 use common::{context_menu_entry, kairos_binary};
 use egui::{Pos2, Vec2};
 use egui_kittest::Harness;
-use egui_kittest::kittest::Queryable as _;
+use egui_kittest::kittest::{NodeT as _, Queryable as _};
 use kairos_studio::client::RuntimeClient;
 use kairos_studio::local::LocalRuntime;
 use kairos_studio::session::NodeState;
@@ -989,4 +989,81 @@ fn a_python_component_made_in_the_studio_is_loaded_without_a_build() {
     }
     assert!(pack.join("doubler.py").is_file() && pack.join("test_doubler.py").is_file());
     assert!(pack.join("kairos-pack.toml").is_file());
+}
+
+/// A ROS 2 component's topic is picked from the live graph, as the runtime reaches it: a node in Python
+/// declares the liveliness tokens `rmw_zenoh` declares; picking a topic sets the topic and its message
+/// type, and a topic of a type Kairos does not carry cannot be picked.
+#[test]
+fn a_ros2_subscriber_s_topic_is_picked_from_the_live_graph() {
+    let port = std::net::TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port();
+    let endpoint = format!("tcp/127.0.0.1:{port}");
+    let script = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../tests/ros2/graph_node.py");
+    let mut node = std::process::Command::new("python3")
+        .arg(script)
+        .args([&endpoint, "60"])
+        .stdout(std::process::Stdio::piped())
+        .spawn()
+        .expect("python3");
+    let mut ready = String::new();
+    std::io::BufRead::read_line(
+        &mut std::io::BufReader::new(node.stdout.take().unwrap()),
+        &mut ready,
+    )
+    .unwrap();
+    assert_eq!(ready.trim(), "ready");
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("ros.ron");
+    std::fs::write(
+        &path,
+        format!(
+            r#"Diagram(format: 1, components: [
+                Component(id: "lidar", type: "ros2.subscriber", properties: {{"router": "{endpoint}"}}),
+            ])"#
+        ),
+    )
+    .unwrap();
+    let mut harness = studio_on_local_runtime(Document::open(&path).unwrap(), Vec2::new(1400.0, 900.0));
+    run_until(&mut harness, "the library", |app| {
+        app.session.library.component("ros2.subscriber").is_some()
+    });
+    harness.state_mut().canvas.selected = ["lidar".to_owned()].into();
+    harness.run_steps(2);
+    harness.get_by_label("topics…").click();
+    wait_for_text(&mut harness, "The topics of the ROS 2 graph at");
+    let picker = harness.get_by_label_contains("The topics of the ROS 2 graph at");
+    assert_eq!(picker.value().as_deref(), Some("2 on the graph"));
+    picker.click();
+    harness.run_steps(2);
+    let twist = harness.get_by_label_contains("/robot1/cmd_vel — geometry_msgs/msg/Twist (0 pub, 1 sub)");
+    assert!(
+        twist.accesskit_node().is_disabled(),
+        "Kairos does not carry Twist"
+    );
+    harness
+        .get_by_label_contains("/lidar/points — sensor_msgs/msg/PointCloud2 (1 pub, 0 sub)")
+        .click();
+    harness.run_steps(3);
+    let _ = node.kill();
+    let _ = node.wait();
+    let lidar = harness
+        .state()
+        .session
+        .document
+        .diagram()
+        .component("lidar")
+        .unwrap()
+        .clone();
+    assert_eq!(
+        lidar.properties.get("topic"),
+        Some(&kairos_diagram::Value::Text("/lidar/points".into()))
+    );
+    assert_eq!(
+        lidar.properties.get("type"),
+        Some(&kairos_diagram::Value::Text("sensor_msgs/msg/PointCloud2".into()))
+    );
 }

@@ -9,6 +9,7 @@
 //! publisher's 16-byte `GID`), its payload the message in CDR; and each node, publisher and subscription
 //! declares a liveliness token under `@ros2_lv/<domain>/...`, which is how ROS 2's graph tools list them.
 
+pub mod graph;
 pub mod names;
 pub mod publisher;
 pub mod subscriber;

@@ -2,6 +2,7 @@
 //! publishes.
 
 use kairos_pack_recording::ros2::write::{encode, ros_type_of, type_hash};
+use kairos_sdk::DeviceKind;
 use kairos_sdk::descriptor::{Descriptor, Property};
 use kairos_sdk::{Component, ComponentError, ComponentInfo, ComponentResult, Context, TypeFilter};
 use zenoh::Wait as _;
@@ -21,10 +22,14 @@ pub fn descriptor() -> ComponentInfo {
     )
     .label("ROS 2 publisher")
     .input("in", TypeFilter::Any, "The samples to publish, each as the ROS message of its type")
-    .property(Property::text("topic", "").doc(
-        "The ROS 2 topic (/camera/image); empty: the input's source output as a ROS name (camera.image as \
-         /camera/image)",
-    ))
+    .property(
+        Property::text("topic", "")
+            .doc(
+                "The ROS 2 topic (/camera/image); empty: the input's source output as a ROS name (camera.image \
+                 as /camera/image)",
+            )
+            .device(DeviceKind::Ros2Topic),
+    )
     .property(
         Property::choice("reliability", &["reliable", "best_effort"], "reliable")
             .doc("The ROS 2 reliability it advertises; over TCP samples travel reliably either way, and a full queue drops"),

@@ -10,6 +10,7 @@ use std::time::Duration;
 use kairos_pack_recording::decode::DecodeError;
 use kairos_pack_recording::ros2::write::{definition_of, type_hash};
 use kairos_pack_recording::ros2::{Definitions, data_type_of, header_stamp, to_payload};
+use kairos_sdk::DeviceKind;
 use kairos_sdk::descriptor::{Descriptor, Property};
 use kairos_sdk::{
     Component, ComponentError, ComponentInfo, ComponentResult, Context, DataType, DescribeError, Timestamp,
@@ -34,7 +35,11 @@ fn base() -> Descriptor {
          ROS message maps to (docs/ros2.md), stamped with its header's time",
     )
     .label("ROS 2 subscriber")
-    .property(Property::text("topic", "/chatter").doc("The ROS 2 topic (/imu/data)"))
+    .property(
+        Property::text("topic", "/chatter")
+            .doc("The ROS 2 topic (/imu/data)")
+            .device(DeviceKind::Ros2Topic),
+    )
     .property(
         Property::choice("type", &names::TYPES, "std_msgs/msg/String")
             .doc("The topic's ROS message type (`ros2 topic info` says it)"),

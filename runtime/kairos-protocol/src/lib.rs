@@ -34,8 +34,9 @@ pub use messages::{
     Described, DeviceInfo, DeviceList, DiagramReply, Done, ErrorCode, FoxgloveState, GroupTelemetry,
     HostTelemetry, LatencyTelemetry, LinkEnd, LinkList, LinkNetwork, LinkTelemetry, LogLevel, LogRecord,
     PACK_CHUNK_BYTES, PYTHON_PACK_PLATFORM, PackInstall, Prepared, ProtocolError, Reply, ReplyBody, Request,
-    RequestBody, RequestKind, Role, RuntimeState, SampleTransport, SamplesSubscribed, ServerMessage, Started,
-    Status, Telemetry, TelemetrySubscribed, Welcome, decode_request, this_host, this_platform,
+    RequestBody, RequestKind, Role, Ros2Topic, Ros2TopicList, RuntimeState, SampleTransport,
+    SamplesSubscribed, ServerMessage, Started, Status, Telemetry, TelemetrySubscribed, Welcome,
+    decode_request, this_host, this_platform,
 };
 
 /// The protocol version this crate speaks. A client with another version is refused at `hello`, with

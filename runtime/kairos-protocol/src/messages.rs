@@ -162,6 +162,15 @@ requests! {
     GetDiagram = "get_diagram" => DiagramReply, Monitor;
     /// The serial ports, CAN interfaces and cameras of the runtime's machine.
     Devices = "devices" => DeviceList, Monitor;
+    /// The topics a ROS 2 graph advertises (the liveliness tokens `rmw_zenoh` declares), as the runtime's
+    /// machine reaches it: for a topic picker.
+    Ros2Topics = "ros2_topics" {
+        /// The Zenoh endpoint of `rmw_zenoh`'s router, or of a peer (`tcp/localhost:7447`).
+        router: String,
+        /// The ROS 2 domain (`ROS_DOMAIN_ID`).
+        #[serde(default)]
+        domain_id: i64,
+    } => Ros2TopicList, Monitor;
     /// Validates a diagram (RON text) and, if valid, makes it the runtime's diagram, stopping the old one.
     Deploy = "deploy" {
         /// The diagram file's text.
@@ -1099,6 +1108,27 @@ pub struct FoxgloveState {
     /// Foxglove clients connected now.
     #[serde(default)]
     pub clients: usize,
+}
+
+/// The result of `ros2_topics`: by name.
+#[derive(Debug, Clone, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Ros2TopicList {
+    /// Each topic with a publisher or a subscription on the graph.
+    pub topics: Vec<Ros2Topic>,
+}
+
+/// One ROS 2 topic on the graph.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Ros2Topic {
+    /// `/imu/data`.
+    pub name: String,
+    /// `sensor_msgs/msg/Imu`.
+    #[serde(rename = "type")]
+    pub type_name: String,
+    /// Its publishers.
+    pub publishers: u32,
+    /// Its subscriptions.
+    pub subscriptions: u32,
 }
 
 /// The result of `links`.

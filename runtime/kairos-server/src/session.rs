@@ -50,6 +50,9 @@ fn websocket_config() -> WebSocketConfig {
         .max_frame_size(Some(READ_LIMIT_BYTES))
 }
 
+/// How long the ROS 2 graph is asked for: its routers answer at once; the rest is a margin for a network.
+const ROS2_GRAPH_WAIT: Duration = Duration::from_millis(1500);
+
 /// The reply to a message over [`MAX_MESSAGE_BYTES`].
 fn too_large(size: Option<usize>) -> ProtocolError {
     let size = size.map_or_else(|| "a message".to_owned(), |s| format!("a message of {s} bytes"));
@@ -438,6 +441,23 @@ impl Session {
             RequestBody::Devices => ReplyBody::Devices(kairos_protocol::DeviceList {
                 devices: crate::devices::list(Path::new("/")),
             }),
+            RequestBody::Ros2Topics { router, domain_id } => {
+                let found = tokio::task::block_in_place(|| {
+                    kairos_pack_ros2::graph::topics(&router, domain_id, ROS2_GRAPH_WAIT)
+                })
+                .map_err(|e| ProtocolError::new(ErrorCode::InvalidValue, e.to_string()))?;
+                ReplyBody::Ros2Topics(kairos_protocol::Ros2TopicList {
+                    topics: found
+                        .into_iter()
+                        .map(|topic| kairos_protocol::Ros2Topic {
+                            name: topic.name,
+                            type_name: topic.type_name,
+                            publishers: topic.publishers,
+                            subscriptions: topic.subscriptions,
+                        })
+                        .collect(),
+                })
+            }
             RequestBody::DescribeInstances { diagram } => {
                 ReplyBody::DescribeInstances(tokio::task::block_in_place(|| {
                     self.shared.runtime.describe_instances(&diagram)

@@ -1,0 +1,50 @@
+"""A ROS 2 graph as rmw_zenoh advertises it, in Python with no ROS installed: one node with a publisher of
+/lidar/points (sensor_msgs/msg/PointCloud2) and a subscription to /robot1/cmd_vel
+(geometry_msgs/msg/Twist), each declared as the liveliness token rmw_zenoh's design document gives
+(`@ros2_lv/<domain>/<session>/<node id>/<entity id>/<kind>/<enclave>/<namespace>/<node>/<topic>/<type>/
+<type hash>/<qos>`, names with `/` as `%`), type hashes from rosbags. Listens on ENDPOINT; says "ready" once
+the tokens are declared, then holds them for SECONDS.
+
+Usage: python3 graph_node.py ENDPOINT SECONDS
+"""
+
+import json
+import sys
+import time
+
+import zenoh
+from rosbags.typesys import Stores, get_typestore
+
+STORE = get_typestore(Stores.ROS2_JAZZY)
+
+
+def dds(ros_type):
+    package, interface, name = ros_type.split("/")
+    return f"{package}::{interface}::dds_::{name}_"
+
+
+def main(endpoint, seconds):
+    config = zenoh.Config()
+    config.insert_json5("mode", '"peer"')
+    config.insert_json5("listen/endpoints", json.dumps([endpoint]))
+    config.insert_json5("scouting/multicast/enabled", "false")
+    session = zenoh.open(config)
+    zid = str(session.info.zid())
+    node = f"@ros2_lv/0/{zid}/0/0/NN/%/%/scanner"
+    entities = [
+        (1, "MP", "%lidar%points", "sensor_msgs/msg/PointCloud2", "::,5:,:,:,,"),
+        (2, "MS", "%robot1%cmd_vel", "geometry_msgs/msg/Twist", "::,10:,:,:,,"),
+    ]
+    tokens = [session.liveliness().declare_token(node)]
+    for entity, kind, topic, ros_type, qos in entities:
+        key = f"@ros2_lv/0/{zid}/0/{entity}/{kind}/%/%/scanner/{topic}/{dds(ros_type)}/{STORE.hash_rihs01(ros_type)}/{qos}"
+        tokens.append(session.liveliness().declare_token(key))
+    print("ready", flush=True)
+    time.sleep(seconds)
+    for token in tokens:
+        token.undeclare()
+    session.close()
+
+
+if __name__ == "__main__":
+    main(sys.argv[1], float(sys.argv[2]))
