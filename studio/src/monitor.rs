@@ -89,10 +89,16 @@ pub struct Monitor {
     lost_hosts: BTreeSet<String>,
     /// The links between hosts cut now (seen matched before).
     cut_links: BTreeSet<String>,
+    /// The links between hosts that match but deliver nothing: since when (the runtime clock, ns), and
+    /// whether it was said.
+    silent_links: BTreeMap<String, (i64, bool)>,
     cuts: BTreeMap<Problem, u64>,
     sort: SortBy,
     descending: bool,
 }
+
+/// How long a link between hosts must match yet deliver nothing before the studio says so.
+const SILENCE_HELD_NS: i64 = 1_000_000_000;
 
 /// The figures of each subgraph instance, from its inner components' (ids `instance/...`, nested ones
 /// counted in their outermost instance).
@@ -146,6 +152,7 @@ impl Default for Monitor {
             failures: BTreeMap::new(),
             lost_hosts: BTreeSet::new(),
             cut_links: BTreeSet::new(),
+            silent_links: BTreeMap::new(),
             cuts: BTreeMap::new(),
             sort: SortBy::Name,
             descending: false,
@@ -171,6 +178,7 @@ impl Monitor {
         self.failures.clear();
         self.lost_hosts.clear();
         self.cut_links.clear();
+        self.silent_links.clear();
         self.cuts.clear();
     }
 
@@ -321,8 +329,48 @@ impl Monitor {
                 self.notices.resolve(&problem);
                 said.push((LogLevel::Info, format!("link {name} ({between}) resumed")));
             }
+            self.follow_silence(telemetry.at_ns, link, &name, &between, &mut said);
         }
         said
+    }
+
+    /// Says a link between hosts that matches but delivers nothing, once it has held over more than one
+    /// telemetry message (its figures are a status period old), and its return.
+    fn follow_silence(
+        &mut self,
+        at_ns: i64,
+        link: &kairos_protocol::CrossLinkTelemetry,
+        name: &str,
+        between: &str,
+        said: &mut Vec<(LogLevel, String)>,
+    ) {
+        let problem = Problem::LinkSilent(name.to_owned());
+        if !link.delivers_nothing() {
+            if let Some((_, true)) = self.silent_links.remove(name) {
+                self.notices.resolve(&problem);
+                said.push((LogLevel::Info, format!("link {name} ({between}) delivers again")));
+            }
+            return;
+        }
+        let (since, was_said) = self.silent_links.entry(name.to_owned()).or_insert((at_ns, false));
+        if *was_said || at_ns - *since < SILENCE_HELD_NS {
+            return;
+        }
+        *was_said = true;
+        let quiet = link.last_sample_age_ms.map_or_else(
+            || "nothing yet".to_owned(),
+            |ms| format!("nothing for {:.1} s", ms as f64 / 1000.0),
+        );
+        let text = format!(
+            "link {name} ({between}) delivers nothing: it matches, but its far end has received {quiet} \
+             while {} more were sent; a consumer there is stalled, or the path between the hosts carries \
+             nothing though both ends see each other; what never arrives is counted lost",
+            link.sent - link.received - link.lost
+        );
+        let times = self.cuts.entry(problem.clone()).or_insert(0);
+        *times += 1;
+        self.notices.raise(problem, text.clone(), *times);
+        said.push((LogLevel::Error, text));
     }
 
     /// A link's figures, by its ends.
@@ -665,6 +713,45 @@ mod tests {
                 "host 'b' answers again",
                 "link count.out -> gain.in (here -> b) resumed"
             ]
+        );
+        assert_eq!(monitor.notices.shown().count(), 0);
+    }
+
+    #[test]
+    fn a_matched_link_that_delivers_nothing_is_said_once_it_holds_and_so_is_its_return() {
+        let mut monitor = Monitor::default();
+        let at = |seconds: f64, sent: u64, received: u64, age_ms: u64| {
+            let mut telemetry = telemetry(true, true);
+            telemetry.at_ns = (seconds * 1e9) as i64;
+            let link = &mut telemetry.cross_links[0];
+            (link.sent, link.received, link.last_sample_age_ms) = (sent, received, Some(age_ms));
+            telemetry
+        };
+        assert!(monitor.update(&at(0.0, 100, 100, 10)).is_empty());
+        // Nothing outstanding, or outstanding but fresh: nothing to say.
+        assert!(monitor.update(&at(1.0, 100, 100, 5000)).is_empty());
+        assert!(monitor.update(&at(2.0, 150, 120, 100)).is_empty());
+        // Outstanding and quiet: said once it held a second.
+        assert!(monitor.update(&at(3.0, 200, 120, 1600)).is_empty());
+        let said = monitor.update(&at(4.0, 300, 120, 2600));
+        assert_eq!(said.len(), 1, "{said:?}");
+        assert_eq!(said[0].0, LogLevel::Error);
+        assert!(
+            said[0].1.starts_with(
+                "link count.out -> gain.in (here -> b) delivers nothing: it matches, but its far end has \
+                 received nothing for 2.6 s while 180 more were sent"
+            ),
+            "{said:?}"
+        );
+        assert_eq!(monitor.notices.shown().count(), 1);
+        assert!(monitor.update(&at(5.0, 400, 120, 3600)).is_empty(), "said once");
+        let back = monitor.update(&at(6.0, 500, 480, 5));
+        assert_eq!(
+            back,
+            [(
+                LogLevel::Info,
+                "link count.out -> gain.in (here -> b) delivers again".to_owned()
+            )]
         );
         assert_eq!(monitor.notices.shown().count(), 0);
     }

@@ -22,6 +22,8 @@ pub enum Problem {
     HostLost(String),
     /// A connection between two hosts (`a.out -> b.in`) lost its far end.
     LinkCut(String),
+    /// A connection between two hosts matches but delivers nothing.
+    LinkSilent(String),
 }
 
 /// One problem's notice.
@@ -44,7 +46,9 @@ impl Notice {
     fn shown(&self, now: Instant) -> bool {
         !self.dismissed
             && match self.problem {
-                Problem::Failed(_) | Problem::HostLost(_) | Problem::LinkCut(_) => true,
+                Problem::Failed(_) | Problem::HostLost(_) | Problem::LinkCut(_) | Problem::LinkSilent(_) => {
+                    true
+                }
                 Problem::Losses(_) => now.duration_since(self.last) < SHOWN_AFTER_LAST,
             }
     }
@@ -53,10 +57,14 @@ impl Notice {
     pub fn line(&self) -> String {
         match self.problem {
             Problem::Losses(_) => format!("{} ({} lost so far)", self.text, self.count),
-            Problem::Failed(_) | Problem::HostLost(_) | Problem::LinkCut(_) if self.count > 1 => {
+            Problem::Failed(_) | Problem::HostLost(_) | Problem::LinkCut(_) | Problem::LinkSilent(_)
+                if self.count > 1 =>
+            {
                 format!("{} ({} times)", self.text, self.count)
             }
-            Problem::Failed(_) | Problem::HostLost(_) | Problem::LinkCut(_) => self.text.clone(),
+            Problem::Failed(_) | Problem::HostLost(_) | Problem::LinkCut(_) | Problem::LinkSilent(_) => {
+                self.text.clone()
+            }
         }
     }
 }

@@ -57,13 +57,11 @@ pub struct Watch {
     earlier: BTreeMap<(String, String), BTreeMap<&'static str, u64>>,
 }
 
-/// How long a link's receiver may receive nothing, while samples are on their way, before it is said.
-const STARVING_AFTER: Duration = Duration::from_millis(1500);
 /// How long that must hold, over the statuses' publishing period, before it is said.
 const STARVING_HELD: Duration = Duration::from_secs(1);
 
 /// Says a link that matches but delivers nothing: its sender sent samples its receiver never got
-/// while its receiver received nothing for [`STARVING_AFTER`] (its consumer stalled, or a path Zenoh
+/// while its receiver received nothing for [`kairos_protocol::LINK_QUIET_MS`] (its consumer stalled, or a path Zenoh
 /// still sees as up that carries nothing, seen for minutes after a reconnection that flapped once
 /// more). Only the two ends' statuses together tell it: each end alone sees nothing wrong.
 fn report_starving(
@@ -86,12 +84,10 @@ fn report_starving(
     let count = |end: &serde_json::Value, field: &str| end[field].as_u64().unwrap_or(0);
     let sent = count(sending_end, "sent");
     let arrived = count(receiving_end, "received") + count(receiving_end, "lost");
-    let quiet_for = receiving_end["last_sample_age_ms"]
-        .as_u64()
-        .map(Duration::from_millis);
-    let starving = sending_end["matched"] == true
-        && sent > arrived
-        && quiet_for.is_none_or(|quiet| quiet >= STARVING_AFTER);
+    let quiet_ms = receiving_end["last_sample_age_ms"].as_u64();
+    let quiet_for = quiet_ms.map(Duration::from_millis);
+    let starving =
+        kairos_protocol::link_delivers_nothing(sending_end["matched"] == true, sent, arrived, quiet_ms);
     let now = std::time::Instant::now();
     if !starving {
         if let Some((_, true)) = starving_links.remove(&link.key) {

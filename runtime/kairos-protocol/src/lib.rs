@@ -32,11 +32,11 @@ pub use kairos_shm as shared_pixels;
 pub use messages::{
     ClockState, ClockTelemetry, ComponentState, ComponentTelemetry, CrossLinkTelemetry, DeployResult,
     Described, DeviceInfo, DeviceList, DiagramReply, Done, ErrorCode, FoxgloveState, GroupTelemetry,
-    HostTelemetry, LatencyTelemetry, LinkEnd, LinkList, LinkNetwork, LinkTelemetry, LogLevel, LogRecord,
-    PACK_CHUNK_BYTES, PYTHON_PACK_PLATFORM, PackInstall, Prepared, ProtocolError, Reply, ReplyBody, Request,
-    RequestBody, RequestKind, Role, Ros2Topic, Ros2TopicList, RuntimeState, SampleTransport,
-    SamplesSubscribed, ServerMessage, Started, Status, Telemetry, TelemetrySubscribed, Welcome,
-    decode_request, this_host, this_platform,
+    HostTelemetry, LINK_QUIET_MS, LatencyTelemetry, LinkEnd, LinkList, LinkNetwork, LinkTelemetry, LogLevel,
+    LogRecord, PACK_CHUNK_BYTES, PYTHON_PACK_PLATFORM, PackInstall, Prepared, ProtocolError, Reply,
+    ReplyBody, Request, RequestBody, RequestKind, Role, Ros2Topic, Ros2TopicList, RuntimeState,
+    SampleTransport, SamplesSubscribed, ServerMessage, Started, Status, Telemetry, TelemetrySubscribed,
+    Welcome, decode_request, link_delivers_nothing, this_host, this_platform,
 };
 
 /// The protocol version this crate speaks. A client with another version is refused at `hello`, with

@@ -996,6 +996,32 @@ pub struct CrossLinkTelemetry {
     pub transit_max_ns: Option<i64>,
 }
 
+/// How long a link between hosts may have delivered nothing, while samples were sent that its receiver
+/// never got, before it is said to deliver nothing (by `kairos deploy` and the studio).
+pub const LINK_QUIET_MS: u64 = 1500;
+
+impl CrossLinkTelemetry {
+    /// Whether the link matches yet delivers nothing now (see [`link_delivers_nothing`]).
+    pub fn delivers_nothing(&self) -> bool {
+        link_delivers_nothing(
+            self.matched,
+            self.sent,
+            self.received + self.lost,
+            self.last_sample_age_ms,
+        )
+    }
+}
+
+/// Whether a link whose sender sees its receiver (`matched`) delivers nothing: of the `sent` samples,
+/// only `arrived` reached the receiver (received or counted lost), and it has received nothing for
+/// [`LINK_QUIET_MS`] (`quiet_ms`: its last sample's age; `None`, none yet). Its consumer is stalled, or
+/// the path between the hosts carries nothing though both ends still see each other (seen for minutes
+/// after a reconnection that flapped once more). Statuses are a publishing period old: said only when
+/// it holds over more than one.
+pub fn link_delivers_nothing(matched: bool, sent: u64, arrived: u64, quiet_ms: Option<u64>) -> bool {
+    matched && sent > arrived && quiet_ms.is_none_or(|quiet| quiet >= LINK_QUIET_MS)
+}
+
 /// Where a runtime's clock stands against its reference, on the wire as its snake-case name.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
