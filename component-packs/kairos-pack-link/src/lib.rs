@@ -470,7 +470,10 @@ impl LinkSender {
             self.asking = Some((end.ask_receiver_newest(ASK_WAIT), Instant::now()));
             return true;
         }
-        false
+        // Held while the receiver is gone: the path can come back before Zenoh says it matches, and a
+        // sample put then would reach the receiver ahead of those it missed, which it would count lost
+        // and, asked, say it had everything up to this one.
+        self.cut
     }
 
     /// Puts again every kept frame after the newest the receiver received (without its answer, those held
