@@ -386,19 +386,11 @@ impl Watch {
             };
             let words = format!("{} -> {}", link.from, link.to);
             if !matched && self.cut_links.insert(link.key.clone()) {
-                if status["answering"] == false {
-                    tracing::error!(
-                        "link {words} is cut: its receiver still matches but has stopped answering, so \
-                         nothing sent reaches it; what is sent is kept and sent again once it answers (for \
-                         up to its ride_out_s), beyond that it is counted lost"
-                    );
-                } else {
-                    tracing::error!(
-                        "link {words} is cut: no receiver on the far end; a link whose consumer never skips \
-                         keeps what it sends and sends it again when the far end returns (for up to its \
-                         ride_out_s), any other drops it (sent_unmatched on {sender})"
-                    );
-                }
+                tracing::error!(
+                    "link {words} is cut: no receiver on the far end; a link whose consumer never skips \
+                     keeps what it sends and sends it again when the far end returns (for up to its \
+                     ride_out_s), any other drops it (sent_unmatched on {sender})"
+                );
             } else if matched && self.cut_links.remove(&link.key) {
                 tracing::info!("link {words} resumed");
             }
