@@ -111,8 +111,8 @@ const RULES: &[(&str, &[&str])] = &[
             "kairos-pack-link",
         ],
     ),
-    // The protocol server: the engine, clocks, coordination of a diagram over hosts for its client, and
-    // the recording pack's encodings for Foxglove.
+    // The protocol server: the engine, clocks, coordination of a diagram over hosts for its client, the
+    // recording pack's encodings for Foxglove, and the ROS 2 pack's view of a live graph (`ros2_topics`).
     (
         "kairos-server",
         &[
@@ -125,6 +125,7 @@ const RULES: &[(&str, &[&str])] = &[
             "kairos-coordinator",
             "kairos-pack-link",
             "kairos-pack-recording",
+            "kairos-pack-ros2",
         ],
     ),
     // The binary links the roles and every built-in pack.

@@ -4,7 +4,7 @@
 //! nobody was told. Only the far end can say what arrived.
 //!
 //! Two findings are told apart, and said; neither changes what the link sends:
-//! - **unanswered**: [`UNANSWERED_CUT`] questions in a row get no answer. Either the path is dead
+//! - **unanswered**: [`UNANSWERED_SAID`] questions in a row get no answer. Either the path is dead
 //!   whatever Zenoh says, or the receiver's host is held up delivering what came before the question (a
 //!   consumer that never skips, slower than its producer: the question waits behind the samples). From
 //!   here the two look the same, so the link is not treated as cut: holding samples back would take the
@@ -20,7 +20,7 @@ use std::time::{Duration, Instant};
 pub const PERIOD: Duration = Duration::from_secs(1);
 
 /// Questions unanswered in a row after which the receiver counts as not answering.
-pub const UNANSWERED_CUT: u32 = 2;
+pub const UNANSWERED_SAID: u32 = 2;
 
 /// How long a receiver may receive nothing while samples are on their way before the user is told.
 pub const SILENT_SAID: Duration = Duration::from_secs(2);
@@ -91,9 +91,9 @@ impl Heartbeat {
         self.unanswered += 1;
     }
 
-    /// Whether the receiver answers (fewer than [`UNANSWERED_CUT`] questions in a row went unanswered).
+    /// Whether the receiver answers (fewer than [`UNANSWERED_SAID`] questions in a row went unanswered).
     pub fn answering(&self) -> bool {
-        self.unanswered < UNANSWERED_CUT
+        self.unanswered < UNANSWERED_SAID
     }
 
     /// News of the receiver since it was last asked for, if any.

@@ -410,7 +410,7 @@ impl LinkSender {
                 "link to {peer}: the receiver still matches but has not answered for {} s: either its consumer \
                  is slower than this link (it never skips, so this producer waits for it) or the path is \
                  dead whatever the network layer says",
-                heartbeat::UNANSWERED_CUT
+                heartbeat::UNANSWERED_SAID
             ),
             heartbeat::News::Answering => tracing::info!("link to {peer}: the receiver answers again"),
             heartbeat::News::Silent(silent) => tracing::warn!(

@@ -12,7 +12,6 @@
     reason = "a failure here is a failed test"
 )]
 
-use std::collections::BTreeMap;
 use std::net::TcpListener;
 use std::sync::atomic::{AtomicU8, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
@@ -21,8 +20,8 @@ use std::time::{Duration, Instant};
 use kairos_diagram::{ComponentInstance, Diagram};
 use kairos_pack_link::{LinkSender, network};
 use kairos_protocol::LinkNetwork;
-use kairos_sdk_core::host::{ContextParts, OutputBuffer, ReaderConfig};
-use kairos_sdk_core::{Component, Payload, ReaderPolicy, RealTimeClock, RunSignal, Sample, Value};
+use kairos_sdk::harness::Harness;
+use kairos_sdk::{Payload, Timestamp, Value};
 use zenoh::Wait as _;
 
 const KEY: &str = "test/heartbeat";
@@ -106,51 +105,31 @@ fn far_end(port: u16) -> FarEnd {
     }
 }
 
-/// The sender as the engine runs it: its input a buffer this test writes into.
-fn sender(ride_out_s: f64) -> (LinkSender, kairos_sdk_core::Context, OutputBuffer) {
-    let info = kairos_pack_link::sender_descriptor();
-    let mut properties: BTreeMap<String, Value> = info
-        .properties
-        .iter()
-        .map(|p| (p.name.clone(), p.default.clone()))
-        .collect();
-    properties.insert("key".into(), Value::Text(KEY.into()));
-    properties.insert("reliable".into(), Value::Bool(true));
-    properties.insert("peer".into(), Value::Text("host 'b'".into()));
-    properties.insert("ride_out_s".into(), Value::F64(ride_out_s));
-    let feed = OutputBuffer::new("counter.out", 64);
-    let reader = feed.attach(
-        ReaderConfig::new(ReaderPolicy::NeverSkipping, "counter.out -> link.in"),
-        Arc::new(RunSignal::new()),
-    );
-    let ctx = kairos_sdk_core::host::context(ContextParts {
-        id: "link_to_b".to_owned(),
-        inputs: vec![kairos_sdk_core::host::input_port("in", Some(reader))],
-        outputs: Vec::new(),
-        properties,
-        clock: RealTimeClock::shared(),
-        signal: Arc::new(RunSignal::new()),
-    });
-    let mut component = LinkSender::default();
-    let mut ctx = ctx;
-    component.birth(&mut ctx).unwrap();
-    (component, ctx, feed)
+/// The sender in the SDK's harness, as the engine runs it: one `core` call per sample pushed.
+fn sender(ride_out_s: f64) -> Harness {
+    let mut harness = Harness::new(kairos_pack_link::sender_descriptor(), LinkSender::default());
+    harness
+        .set_property("key", KEY)
+        .and_then(|h| h.set_property("reliable", true))
+        .and_then(|h| h.set_property("peer", "host 'b'"))
+        .and_then(|h| h.set_property("ride_out_s", ride_out_s))
+        .unwrap();
+    harness
 }
 
 /// Sends a sample every 5 ms for `how_long`, or until `until` says so on the sender's status.
 fn send_for(
-    link: &mut (LinkSender, kairos_sdk_core::Context, OutputBuffer),
+    link: &mut Harness,
     how_long: Duration,
     until: impl Fn(&serde_json::Value) -> bool,
 ) -> Option<Duration> {
-    let (sender, ctx, feed) = link;
-    let writer = Arc::new(RunSignal::new());
     let start = Instant::now();
+    let mut sequence = 0_i64;
     while start.elapsed() < how_long {
-        feed.write(Sample::new(Payload::F64(1.0), ctx.now()), &writer)
-            .unwrap();
-        sender.core(ctx).unwrap();
-        if until(&sender.status().unwrap()) {
+        sequence += 1;
+        link.push("in", Payload::F64(1.0), Timestamp(sequence * 5_000_000));
+        link.run().unwrap();
+        if until(&link.status().unwrap()) {
             return Some(start.elapsed());
         }
         std::thread::sleep(Duration::from_millis(5));
@@ -184,7 +163,7 @@ fn a_matched_receiver_that_goes_silent_then_dead_is_said_and_so_is_its_return() 
 
     // Healthy: answered, never silent.
     send_for(&mut link, Duration::from_millis(2500), |_| false);
-    let status = link.0.status().unwrap();
+    let status = link.status().unwrap();
     assert!(matched(&status) && status["answering"] == true, "{status}");
     assert!(status["silent_s"].is_null(), "{status}");
 
@@ -195,7 +174,7 @@ fn a_matched_receiver_that_goes_silent_then_dead_is_said_and_so_is_its_return() 
     });
     let said = said.expect("a receiver that answers but receives nothing was never said silent");
     assert!(said < Duration::from_millis(3500), "said silent after {said:?}");
-    let status = link.0.status().unwrap();
+    let status = link.status().unwrap();
     assert!(matched(&status), "a silent receiver is not a cut: {status}");
 
     // Dead: no answer at all, while Zenoh still says it matches.
@@ -209,7 +188,7 @@ fn a_matched_receiver_that_goes_silent_then_dead_is_said_and_so_is_its_return() 
         network::matched(&network::sender(KEY).unwrap()),
         "Zenoh's matching must not have moved"
     );
-    let status = link.0.status().unwrap();
+    let status = link.status().unwrap();
     assert!(matched(&status), "{status}");
 
     // Back: answering and receiving again. What the far end dropped meanwhile is a gap a real receiver
@@ -218,8 +197,8 @@ fn a_matched_receiver_that_goes_silent_then_dead_is_said_and_so_is_its_return() 
     let back = send_for(&mut link, Duration::from_secs(5), |status| {
         status["answering"] == true && status["silent_s"].is_null()
     });
-    assert!(back.is_some(), "{}", link.0.status().unwrap());
-    let status = link.0.status().unwrap();
+    assert!(back.is_some(), "{}", link.status().unwrap());
+    let status = link.status().unwrap();
     assert_eq!(status["put_again"], 0, "{status}");
     let received = far.received.lock().unwrap().clone();
     let gaps = received.windows(2).filter(|pair| pair[1] != pair[0] + 1).count();

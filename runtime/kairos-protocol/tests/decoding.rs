@@ -10,7 +10,7 @@ fn valid_requests() -> Vec<String> {
         .enumerate()
         .map(|(id, kind)| {
             format!(
-                r#"{{"id": {id}, "type": "{}", "protocol": 1, "client": "c", "token": "t", "diagram": "D", "component": "a", "property": "p", "value": 1.5, "action": "x", "interval_ms": 100, "outputs": ["a.b"], "max_rate_hz": 5, "seconds": 1, "factor": 2, "level": "warn", "name": "n", "version": "0.1.0", "platform": "linux-x86_64", "size": 1, "offset": 0, "data": "AA==", "publish": true, "ticket": 1}}"#,
+                r#"{{"id": {id}, "type": "{}", "protocol": 1, "client": "c", "token": "t", "diagram": "D", "component": "a", "property": "p", "value": 1.5, "action": "x", "interval_ms": 100, "outputs": ["a.b"], "max_rate_hz": 5, "seconds": 1, "factor": 2, "level": "warn", "name": "n", "version": "0.1.0", "platform": "linux-x86_64", "size": 1, "offset": 0, "data": "AA==", "publish": true, "ticket": 1, "router": "tcp/localhost:7447"}}"#,
                 kind.name()
             )
         })
