@@ -707,6 +707,16 @@ fn gnss_replay_prints_a_fix_a_second_at_the_receivers_timing() {
 /// Starts `kairos run` for `duration` on a diagram in `dir` whose `gnss.nmea` listens on a free UDP port
 /// of loopback and prints its fixes; returns the process and the port.
 fn gnss_on_udp(dir: &std::path::Path, duration: &str) -> (std::process::Child, u16) {
+    gnss_on_udp_printing(dir, duration, "fix", &[])
+}
+
+/// As [`gnss_on_udp`], printing the receiver's output `printed`, with `extra` arguments to `kairos run`.
+fn gnss_on_udp_printing(
+    dir: &std::path::Path,
+    duration: &str,
+    printed: &str,
+    extra: &[&str],
+) -> (std::process::Child, u16) {
     let port = std::net::UdpSocket::bind("127.0.0.1:0")
         .unwrap()
         .local_addr()
@@ -723,13 +733,14 @@ fn gnss_on_udp(dir: &std::path::Path, duration: &str) -> (std::process::Child, u
         Component(id: "gnss", type: "gnss.nmea", properties: {{"source": "udp", "address": "127.0.0.1:{port}"}}),
         Component(id: "print", type: "core.console"),
     ],
-    connections: [Connection(from: "gnss.fix", to: "print.in")],
+    connections: [Connection(from: "gnss.{printed}", to: "print.in")],
 )"#
         ),
     )
     .unwrap();
     let child = std::process::Command::new(env!("CARGO_BIN_EXE_kairos"))
         .args(["run", diagram.to_str().unwrap(), "--for", duration])
+        .args(extra)
         .current_dir(dir)
         .env("RUST_LOG", "info")
         .stdout(std::process::Stdio::piped())
@@ -787,6 +798,47 @@ fn a_gnss_receiver_on_udp_takes_sentences_from_another_process() {
     let fixes = stdout.lines().filter(|l| l.contains("lat 48.71")).count();
     // A fix a datagram; the first may come before the receiver's socket is open.
     assert!((1..=10).contains(&fixes), "{fixes} fixes: {stdout}{stderr}");
+}
+
+#[test]
+fn sentences_that_arrive_with_the_one_that_sets_the_clock_are_stamped_on_its_time() {
+    let dir = tempfile::tempdir().unwrap();
+    let (mut child, port) = gnss_on_udp_printing(dir.path(), "2s", "sentence", &["--clock-source", "gnss"]);
+    let sentences = std::fs::read_to_string(common::repo_root().join("examples/data/drive.nmea")).unwrap();
+    // RMC (its time steps the clock from the machine's to 2026-11-25 10:00 UTC while the runtime waits for
+    // its clock source's first time), GGA and GSV (no time of its own) in one datagram, from the start
+    // (the first may come before the receiver's socket is open), ten a second.
+    let sending = std::thread::spawn(move || {
+        let sender = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
+        for datagram in sentences.lines().collect::<Vec<_>>().chunks(3).take(30) {
+            sender
+                .send_to(datagram.join("\r\n").as_bytes(), ("127.0.0.1", port))
+                .unwrap();
+            std::thread::sleep(std::time::Duration::from_millis(100));
+        }
+    });
+    let stderr = once_running(&mut child);
+    sending.join().unwrap();
+    let output = child.wait_with_output().unwrap();
+    let (stdout, _) = text(&output);
+    let stderr = stderr.join().unwrap();
+    assert!(output.status.success(), "{stderr}");
+    let stamps: Vec<(f64, &str)> = stdout
+        .lines()
+        .filter_map(|l| {
+            let time = l.split("t=").nth(1)?.split_whitespace().next()?.parse().ok()?;
+            Some((time, l))
+        })
+        .collect();
+    assert!(stamps.iter().any(|(_, l)| l.contains("GSV")), "{stdout}{stderr}");
+    // Every sentence on the receiver's time, the GSV that came after the stepping RMC too, none going back.
+    for (time, line) in &stamps {
+        assert!(
+            (1_795_600_799.0..1_795_600_900.0).contains(time),
+            "{line}\n{stdout}"
+        );
+    }
+    assert!(stamps.windows(2).all(|w| w[1].0 >= w[0].0), "{stdout}");
 }
 
 #[test]

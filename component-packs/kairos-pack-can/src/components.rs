@@ -60,9 +60,20 @@ pub struct CandumpReader {
     error_frames: u64,
     malformed: u64,
     warnings: Throttle,
+    /// The properties `core` follows, read when they change rather than for every frame.
+    interface: String,
+    at_timing: bool,
+    looping: bool,
 }
 
 impl CandumpReader {
+    fn read_properties(&mut self, ctx: &Context) -> ComponentResult {
+        self.interface = ctx.text_property("interface")?;
+        self.at_timing = ctx.text_property("replay")? == "timing";
+        self.looping = ctx.bool_property("loop")?;
+        Ok(())
+    }
+
     fn open(&mut self) -> Result<(), ComponentError> {
         let file = File::open(&self.path)
             .map_err(|e| failed(format_args!("cannot open the log {}: {e}", self.path)))?;
@@ -73,7 +84,7 @@ impl CandumpReader {
     }
 
     /// The next frame of the log on the chosen interface, or `None` at its end.
-    fn next_frame(&mut self, interface: &str) -> Result<Option<(f64, kairos_sdk::CanFrame)>, ComponentError> {
+    fn next_frame(&mut self) -> Result<Option<(f64, kairos_sdk::CanFrame)>, ComponentError> {
         loop {
             let Some(lines) = &mut self.lines else {
                 return Ok(None);
@@ -90,7 +101,7 @@ impl CandumpReader {
                     interface: logged_on,
                     frame,
                 }) => {
-                    if interface.is_empty() || logged_on == interface {
+                    if self.interface.is_empty() || logged_on == self.interface {
                         return Ok(Some((time_s, frame)));
                     }
                 }
@@ -113,18 +124,18 @@ impl Component for CandumpReader {
         if self.path.is_empty() {
             return Err(failed("no log to replay: set the property path to a candump log"));
         }
+        self.read_properties(ctx)?;
         self.open()
     }
 
     fn core(&mut self, ctx: &mut Context) -> ComponentResult {
-        let interface = ctx.text_property("interface")?;
         let next = match self.pending.take() {
             Some(frame) => Some(frame),
-            None => match self.next_frame(&interface)? {
+            None => match self.next_frame()? {
                 Some(frame) => Some(frame),
-                None if ctx.bool_property("loop")? && self.frames > 0 => {
+                None if self.looping && self.frames > 0 => {
                     self.open()?;
-                    self.next_frame(&interface)?
+                    self.next_frame()?
                 }
                 None => None,
             },
@@ -134,7 +145,7 @@ impl Component for CandumpReader {
         };
         let now = ctx.now();
         let (first, at) = *self.anchor.get_or_insert((time_s, now));
-        let due = if ctx.text_property("replay")? == "timing" {
+        let due = if self.at_timing {
             #[allow(clippy::cast_possible_truncation, reason = "nanoseconds of a log")]
             let offset = ((time_s - first).max(0.0) * 1e9).round() as i64;
             let due = Timestamp(at.0 + offset);
@@ -147,7 +158,7 @@ impl Component for CandumpReader {
             now
         };
         self.frames += 1;
-        ctx.write_at("frame", Payload::CanFrame(frame), due)?;
+        ctx.write_at(FRAME, Payload::CanFrame(frame), due)?;
         Ok(())
     }
 
@@ -157,10 +168,13 @@ impl Component for CandumpReader {
         }))
     }
 
-    fn property_changed(&mut self, _name: &str, _value: &Value, _ctx: &mut Context) -> ComponentResult {
-        Ok(())
+    fn property_changed(&mut self, _name: &str, _value: &Value, ctx: &mut Context) -> ComponentResult {
+        self.read_properties(ctx)
     }
 }
+
+/// `can.candump_reader`'s one output.
+const FRAME: usize = 0;
 
 /// How often the log writer hands what it wrote to the system: a crash loses at most this much.
 const FLUSH_PERIOD: Duration = Duration::from_secs(1);
@@ -359,6 +373,8 @@ pub struct DbcDecoder {
     text_outputs: BTreeMap<((u32, bool), usize), usize>,
     unknown: u64,
     decoded: u64,
+    /// The longest text line so far: each line is built in one allocation of that size.
+    longest_line: usize,
 }
 
 impl Component for DbcDecoder {
@@ -395,7 +411,7 @@ impl Component for DbcDecoder {
             return Ok(());
         };
         self.decoded += 1;
-        let mut line = String::new();
+        let mut line = String::with_capacity(self.longest_line);
         for (index, signal) in signals.iter().enumerate() {
             if index == 0 {
                 line.push_str(signal.message);
@@ -413,23 +429,25 @@ impl Component for DbcDecoder {
                 }
             }
         }
-        let first = self
-            .first_output
-            .get(&(frame.id, frame.extended))
-            .copied()
-            .unwrap_or(0);
+        self.longest_line = self.longest_line.max(line.len());
         let key = (frame.id, frame.extended);
-        let outputs: Vec<(usize, f64)> = signals.iter().map(|s| (first + s.index, s.value)).collect();
-        let words: Vec<(usize, Arc<str>)> = signals
-            .iter()
-            .filter_map(|s| Some((*self.text_outputs.get(&(key, s.index))?, Arc::from(s.choice?))))
-            .collect();
-        ctx.write_processed(0, &sample, Payload::Text(Arc::from(line)))?;
-        for (output, value) in outputs {
-            ctx.write_processed(output, &sample, Payload::F64(value))?;
+        let first = self.first_output.get(&key).copied().unwrap_or(0);
+        // One frame's samples: its timestamp, and one clock read for their time of issue.
+        let issued = ctx.now();
+        ctx.write_issued(0, Payload::Text(Arc::from(line)), sample.timestamp, issued)?;
+        for signal in &signals {
+            ctx.write_issued(
+                first + signal.index,
+                Payload::F64(signal.value),
+                sample.timestamp,
+                issued,
+            )?;
         }
-        for (output, text) in words {
-            ctx.write_processed(output, &sample, Payload::Text(text))?;
+        for signal in &signals {
+            if let (Some(&output), Some(words)) = (self.text_outputs.get(&(key, signal.index)), signal.choice)
+            {
+                ctx.write_issued(output, Payload::Text(Arc::from(words)), sample.timestamp, issued)?;
+            }
         }
         Ok(())
     }

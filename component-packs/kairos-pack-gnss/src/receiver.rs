@@ -212,10 +212,16 @@ impl NmeaReceiver {
         Ok(Input::Live(source))
     }
 
-    /// Decodes one line received at `received` and writes what it says. A time the receiver vouches for
-    /// is first a reference for the runtime clock (when this component is its source): a reference that
-    /// steps the clock stamps the sentence's samples on the new time, so none goes back behind them.
-    fn handle(&mut self, ctx: &mut Context, line: &[u8], mut received: Timestamp) -> ComponentResult {
+    /// Decodes one line received at `received` (read off the runtime clock just before) and writes what
+    /// it says. A time the receiver vouches for is first a reference for the runtime clock (when this
+    /// component is its source): a reference that steps the clock stamps the sentence's samples on the
+    /// new time, so none goes back behind them. Returns that step, in nanoseconds (0 for none).
+    fn handle(
+        &mut self,
+        ctx: &mut Context,
+        line: &[u8],
+        mut received: Timestamp,
+    ) -> Result<i64, ComponentError> {
         let decoded = std::str::from_utf8(line)
             .map_err(|_| SentenceError::Malformed("not text".to_owned()))
             .and_then(|text| Ok((text, self.decoder.decode(text)?)));
@@ -229,18 +235,17 @@ impl NmeaReceiver {
                 let shown: String = String::from_utf8_lossy(line).chars().take(40).collect();
                 self.counts.last_problem = format!("{error} in {shown:?}");
                 self.warn_bad_input();
-                return Ok(());
+                return Ok(0);
             }
         };
         self.counts.sentences += 1;
         let text: Arc<str> = Arc::from(text);
         let mut step = 0;
         if let Some(utc) = reading.utc_s.filter(|_| reading.time_valid) {
-            let before = ctx.now();
             if ctx.clock_reference(received, Timestamp::from_secs_f64(utc)) {
                 // The first reference may step the clock (by more than a second; a slew moves it by far
                 // less): what this sentence says is stamped on the new time.
-                let moved = ctx.now().nanos_since(before);
+                let moved = ctx.now().nanos_since(received);
                 if moved.abs() > 1_000_000_000 {
                     step = moved;
                     received = Timestamp(received.0.saturating_add(step));
@@ -250,12 +255,13 @@ impl NmeaReceiver {
         } else if Self::awaits_its_first_reference(ctx) && self.held.len() < MOST_HELD {
             // Stamped now, the clock's first reference could step behind it.
             self.held.push((text, reading, received));
-            return Ok(());
+            return Ok(0);
         }
         for (text, reading, at) in std::mem::take(&mut self.held) {
             self.write_sentence(ctx, text, &reading, Timestamp(at.0.saturating_add(step)))?;
         }
-        self.write_sentence(ctx, text, &reading, received)
+        self.write_sentence(ctx, text, &reading, received)?;
+        Ok(step)
     }
 
     /// Writes what was held for a first reference that never came (the stream ended first), as received.
@@ -272,6 +278,7 @@ impl NmeaReceiver {
             .is_some_and(|clock| clock.source == ctx.id() && clock.references == 0)
     }
 
+    /// Writes what one sentence says, every sample stamped `at` and issued at one clock read.
     fn write_sentence(
         &self,
         ctx: &mut Context,
@@ -279,43 +286,38 @@ impl NmeaReceiver {
         reading: &Reading,
         at: Timestamp,
     ) -> ComponentResult {
-        ctx.write_at(SENTENCE, Payload::Text(text), at)?;
-        Self::write_reading(ctx, reading, at, self.accuracy_per_hdop)
-    }
-
-    fn write_reading(
-        ctx: &mut Context,
-        reading: &Reading,
-        received: Timestamp,
-        per_hdop: f64,
-    ) -> ComponentResult {
+        let issued = ctx.now();
+        let mut write = |output: usize, payload: Payload| ctx.write_issued(output, payload, at, issued);
+        write(SENTENCE, Payload::Text(text))?;
         if let Some(fix) = reading.fix {
-            let horizontal = fix.hdop.map_or(f64::NAN, |hdop| hdop * per_hdop);
-            let payload = Payload::GnssFix(GnssFix {
-                latitude_deg: fix.latitude_deg,
-                longitude_deg: fix.longitude_deg,
-                altitude_m: fix.altitude_ellipsoid_m().unwrap_or(f64::NAN),
-                horizontal_accuracy_m: horizontal,
-                vertical_accuracy_m: horizontal * VERTICAL_FACTOR,
-                status: fix.status,
-            });
-            ctx.write_at(FIX, payload, received)?;
+            let horizontal = fix.hdop.map_or(f64::NAN, |hdop| hdop * self.accuracy_per_hdop);
+            write(
+                FIX,
+                Payload::GnssFix(GnssFix {
+                    latitude_deg: fix.latitude_deg,
+                    longitude_deg: fix.longitude_deg,
+                    altitude_m: fix.altitude_ellipsoid_m().unwrap_or(f64::NAN),
+                    horizontal_accuracy_m: horizontal,
+                    vertical_accuracy_m: horizontal * VERTICAL_FACTOR,
+                    status: fix.status,
+                }),
+            )?;
             if let Some(satellites) = fix.satellites {
-                ctx.write_at(SATELLITES, Payload::I64(i64::from(satellites)), received)?;
+                write(SATELLITES, Payload::I64(i64::from(satellites)))?;
             }
             if let Some(hdop) = fix.hdop {
-                ctx.write_at(HDOP, Payload::F64(hdop), received)?;
+                write(HDOP, Payload::F64(hdop))?;
             }
         }
         if let Some(utc) = reading.utc_s {
-            ctx.write_at(UTC, Payload::F64(utc), received)?;
+            write(UTC, Payload::F64(utc))?;
         }
         if let Some(motion) = reading.motion {
             if let Some(speed) = motion.speed_mps {
-                ctx.write_at(SPEED, Payload::F64(speed), received)?;
+                write(SPEED, Payload::F64(speed))?;
             }
             if let Some(course) = motion.course_deg {
-                ctx.write_at(COURSE, Payload::F64(course), received)?;
+                write(COURSE, Payload::F64(course))?;
             }
         }
         Ok(())
@@ -403,9 +405,12 @@ impl Component for NmeaReceiver {
                 if changed {
                     ctx.publish_status(self);
                 }
-                let now = ctx.now();
+                // One clock read for what arrived together; a line that steps the clock moves the
+                // lines after it onto the new time, so none is stamped behind it.
+                let mut now = ctx.now();
                 for line in received.lines {
-                    self.handle(ctx, &line, now)?;
+                    let step = self.handle(ctx, &line, now)?;
+                    now = Timestamp(now.0.saturating_add(step));
                 }
             }
             Some(Input::File(replay)) => {
