@@ -80,78 +80,104 @@ fn through(
     })
 }
 
+/// Whether the operation `name` is measured: all of them, or those `KAIROS_BENCH_ONLY` names
+/// (comma-separated prefixes, `canny,resize_0.4`), for working on one kernel.
+fn wanted(name: &str) -> bool {
+    std::env::var("KAIROS_BENCH_ONLY").map_or(true, |only| {
+        only.split(',').any(|prefix| name.starts_with(prefix.trim()))
+    })
+}
+
 fn ours(rgb: &Image, grey: &Image) -> BTreeMap<&'static str, f64> {
-    let mut times = BTreeMap::new();
-    times.insert(
-        "rgb_to_gray",
-        through(
-            images::Convert::info(),
-            images::Convert,
-            &[("to", "gray".into())],
-            rgb,
+    type Measure<'a> = Box<dyn FnOnce() -> f64 + 'a>;
+    let mut operations: Vec<(&'static str, Measure<'_>)> = vec![
+        (
+            "rgb_to_gray",
+            Box::new(|| {
+                through(
+                    images::Convert::info(),
+                    images::Convert,
+                    &[("to", "gray".into())],
+                    rgb,
+                )
+            }),
         ),
-    );
-    times.insert(
-        "rgb_to_bgr",
-        through(
-            images::Convert::info(),
-            images::Convert,
-            &[("to", "bgr".into())],
-            rgb,
+        (
+            "rgb_to_bgr",
+            Box::new(|| {
+                through(
+                    images::Convert::info(),
+                    images::Convert,
+                    &[("to", "bgr".into())],
+                    rgb,
+                )
+            }),
         ),
-    );
-    times.insert(
-        "resize_half_bilinear",
-        through(
-            images::Resize::info(),
-            images::Resize::default(),
-            &[("scale", 0.5.into())],
-            rgb,
+        (
+            "resize_half_bilinear",
+            Box::new(|| {
+                through(
+                    images::Resize::info(),
+                    images::Resize::default(),
+                    &[("scale", 0.5.into())],
+                    rgb,
+                )
+            }),
         ),
-    );
+    ];
     for (name, scale, interpolation) in [
         ("resize_0.4_bilinear", 0.4, "bilinear"),
         ("resize_0.75_bilinear", 0.75, "bilinear"),
         ("resize_0.4_area", 0.4, "area"),
     ] {
-        times.insert(
+        operations.push((
             name,
-            through(
-                images::Resize::info(),
-                images::Resize::default(),
-                &[("scale", scale.into()), ("interpolation", interpolation.into())],
-                rgb,
-            ),
-        );
+            Box::new(move || {
+                through(
+                    images::Resize::info(),
+                    images::Resize::default(),
+                    &[("scale", scale.into()), ("interpolation", interpolation.into())],
+                    rgb,
+                )
+            }),
+        ));
     }
-    times.insert(
+    operations.push((
         "gaussian_blur_5x5",
-        through(images::GaussianBlur::info(), images::GaussianBlur, &[], rgb),
-    );
-    times.insert(
+        Box::new(|| through(images::GaussianBlur::info(), images::GaussianBlur, &[], rgb)),
+    ));
+    operations.push((
         "canny",
-        through(images::Canny::info(), images::Canny::default(), &[], grey),
-    );
+        Box::new(|| through(images::Canny::info(), images::Canny::default(), &[], grey)),
+    ));
     // libjpeg-turbo where the system has it (the encoder `auto` picks), and the pure-Rust one.
-    times.insert(
+    operations.push((
         "jpeg_encode_q90",
-        through(
-            codecs::JpegEncode::info(),
-            codecs::JpegEncode::default(),
-            &[("quality", 90_i64.into())],
-            rgb,
-        ),
-    );
-    times.insert(
+        Box::new(|| {
+            through(
+                codecs::JpegEncode::info(),
+                codecs::JpegEncode::default(),
+                &[("quality", 90_i64.into())],
+                rgb,
+            )
+        }),
+    ));
+    operations.push((
         "jpeg_encode_q90_rust",
-        through(
-            codecs::JpegEncode::info(),
-            codecs::JpegEncode::default(),
-            &[("quality", 90_i64.into()), ("encoder", "rust".into())],
-            rgb,
-        ),
-    );
-    times
+        Box::new(|| {
+            through(
+                codecs::JpegEncode::info(),
+                codecs::JpegEncode::default(),
+                &[("quality", 90_i64.into()), ("encoder", "rust".into())],
+                rgb,
+            )
+        }),
+    ));
+    operations
+        .into_iter()
+        .filter(|(name, _)| wanted(name))
+        .map(|(name, measure)| (name, measure()))
+        .collect()
 }
 
 /// The photographs `peers/opencv/photos.py` writes (scikit-image's sample data): 640×480 and 1920×1080.
@@ -272,7 +298,9 @@ fn perception_figures() {
 }
 
 fn main() {
-    perception_figures();
+    if std::env::var_os("KAIROS_BENCH_ONLY").is_none() {
+        perception_figures();
+    }
     let dir = tempfile::tempdir().expect("a temporary folder");
     println!("benchmark 20: vision operations, Kairos component vs OpenCV (one thread), median µs per image");
     // The OpenCV side reads its JPEG encoder's and the comparisons' images from raw files.

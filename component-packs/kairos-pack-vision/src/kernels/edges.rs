@@ -210,11 +210,6 @@ const TAN_22_5: i32 = 13_573;
 
 /// Non-maximum suppression of one row: marks local maxima above `low` as candidates, those above
 /// `high` as edges (pushed to start hysteresis).
-///
-/// The direction's two neighbours are chosen by selects, not branches: on a photograph the directions
-/// change from pixel to pixel, and a branch per direction would be mispredicted half the time. The
-/// arithmetic fits in i32: a 3×3 Sobel component is at most 1020, so |dy| << 15 and |dx| << 16 stay
-/// below 2^27.
 fn suppress_row(
     rows: &Rows<'_>,
     dx: &[i16],
@@ -225,45 +220,93 @@ fn suppress_row(
     stack: &mut Vec<usize>,
 ) {
     let width = dx.len().min(dy.len());
-    let (above, here, below) = (
-        &rows.above[..width + 2],
-        &rows.here[..width + 2],
-        &rows.below[..width + 2],
-    );
     let map = &mut map[..width + 2];
+    classify_row(
+        rows.above,
+        rows.here,
+        rows.below,
+        &dx[..width],
+        &dy[..width],
+        [low, high],
+        &mut map[1..=width],
+    );
+    // The strong ones start hysteresis; on a photograph most 16-pixel runs have none.
+    for (chunk, codes) in map[1..=width].chunks(16).enumerate() {
+        if codes.iter().fold(0, |any, &code| any | u8::from(code == EDGE)) != 0 {
+            for (x, &code) in codes.iter().enumerate() {
+                if code == EDGE {
+                    stack.push(map_offset + 1 + chunk * 16 + x);
+                }
+            }
+        }
+    }
+}
+
+/// `when_set` where `mask` is all ones, `otherwise` where it is zero.
+#[inline]
+fn pick(mask: i32, when_set: i32, otherwise: i32) -> i32 {
+    otherwise ^ ((when_set ^ otherwise) & mask)
+}
+
+/// The suppression's codes of one row (`NONE`, `CANDIDATE`, `EDGE`), without a branch: on a photograph
+/// the directions change from pixel to pixel and the magnitudes cross the low threshold as often, so
+/// branches would be mispredicted about half the time; as selects the loop vectorises. The arithmetic
+/// fits in i32: a 3×3 Sobel component is at most 1020, so |dy| << 15 and |dx| << 16 stay below 2^27.
+#[multiversion(targets("x86_64+avx2+fma", "x86_64+sse4.1"))]
+fn classify_row(
+    above: &[i32],
+    here: &[i32],
+    below: &[i32],
+    dx: &[i16],
+    dy: &[i16],
+    [low, high]: [i32; 2],
+    codes: &mut [u8],
+) {
+    let width = codes.len().min(dx.len()).min(dy.len());
+    let (above, here, below) = (&above[..width + 2], &here[..width + 2], &below[..width + 2]);
     for x in 0..width {
         let m = here[x + 1];
-        if m <= low {
-            continue;
-        }
         let (gx, gy) = (i32::from(dx[x]), i32::from(dy[x]));
         let (ax, ay) = (gx.abs(), gy.abs() << 15);
         let tan_22 = ax * TAN_22_5;
         let horizontal = ay < tan_22;
         let vertical = ay > tan_22 + (ax << 16);
+        // Every neighbour is loaded and the two wanted picked by masks, not by choosing addresses: a
+        // chosen address makes the compiler load lane by lane.
+        let (above_left, above_middle, above_right) = (above[x], above[x + 1], above[x + 2]);
+        let (left, right) = (here[x], here[x + 2]);
+        let (below_left, below_middle, below_right) = (below[x], below[x + 1], below[x + 2]);
         // Diagonal: the neighbours on the line the gradient's signs give.
-        let agree = (gx ^ gy) >= 0;
-        let (diagonal_above, diagonal_below) = if agree {
-            (above[x], below[x + 2])
-        } else {
-            (above[x + 2], below[x])
-        };
-        let (first, second, strict) = if horizontal {
-            (here[x], here[x + 2], 0)
-        } else if vertical {
-            (above[x + 1], below[x + 1], 0)
-        } else {
-            (diagonal_above, diagonal_below, 1)
-        };
-        if m > first && m >= second + strict {
-            if m > high {
-                map[x + 1] = EDGE;
-                stack.push(map_offset + x + 1);
-            } else {
-                map[x + 1] = CANDIDATE;
-            }
-        }
+        let agree = mask((gx ^ gy) >= 0);
+        let diagonal_above = pick(agree, above_left, above_right);
+        let diagonal_below = pick(agree, below_right, below_left);
+        let (horizontal_mask, vertical_mask) = (mask(horizontal), mask(vertical));
+        let first = pick(
+            horizontal_mask,
+            left,
+            pick(vertical_mask, above_middle, diagonal_above),
+        );
+        let second = pick(
+            horizontal_mask,
+            right,
+            pick(vertical_mask, below_middle, diagonal_below),
+        );
+        // Diagonally the second neighbour must be strictly smaller too.
+        let strict = 1 & !horizontal_mask & !vertical_mask;
+        let maximum = mask(m > low) & mask(m > first) & mask(m >= second + strict);
+        let code = pick(
+            maximum,
+            pick(mask(m > high), i32::from(EDGE), i32::from(CANDIDATE)),
+            i32::from(NONE),
+        );
+        codes[x] = code.to_le_bytes()[0];
     }
+}
+
+/// All ones where `condition` holds, zero where not.
+#[inline]
+fn mask(condition: bool) -> i32 {
+    -i32::from(condition)
 }
 
 #[multiversion(targets("x86_64+avx2+fma", "x86_64+sse4.1"))]
