@@ -117,6 +117,95 @@ fn a_rosbag2_recording_made_by_the_ros2_example_replays_through_the_lane_pipelin
     );
 }
 
+/// Transient-local topics both ways, against `zenoh-ext`'s advanced publisher and subscriber (what
+/// `rmw_zenoh`'s transient-local publishers and subscriptions are made of) in Python, and a publisher that
+/// appears late with messages it kept.
+#[test]
+fn transient_local_topics_give_late_subscriptions_the_last_messages_both_ways() {
+    let port = std::net::TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port();
+    let endpoint = format!("tcp/127.0.0.1:{port}");
+    let mut peer = std::process::Command::new("python3")
+        .arg(common::repo_root().join("tests/ros2/transient_peer.py"))
+        .args([&endpoint, "7"])
+        .stdout(std::process::Stdio::piped())
+        .spawn()
+        .expect("python3");
+    let mut lines = std::io::BufRead::lines(std::io::BufReader::new(peer.stdout.take().unwrap()));
+    assert_eq!(lines.next().unwrap().unwrap(), "ready");
+    let dir = tempfile::tempdir().unwrap();
+    let diagram = dir.path().join("transient.ron");
+    std::fs::write(
+        &diagram,
+        format!(
+            r#"Diagram(format: 1, components: [
+    Component(id: "count", type: "core.counter", properties: {{"rate": 10.0, "start": 1}}),
+    Component(id: "count_to_ros", type: "ros2.publisher", properties: {{"topic": "/kairos/count",
+        "durability": "transient_local", "depth": 5, "router": "{endpoint}"}}),
+    Component(id: "map_from_ros", type: "ros2.subscriber", properties: {{"topic": "/map",
+        "type": "std_msgs/msg/Float64", "durability": "transient_local", "depth": 3, "router": "{endpoint}"}}),
+    Component(id: "map", type: "core.console"),
+], connections: [
+    Connection(from: "count.out", to: "count_to_ros.in"),
+    Connection(from: "map_from_ros.out", to: "map.in"),
+])"#
+        ),
+    )
+    .unwrap();
+    let output = kairos(
+        dir.path(),
+        &["run", diagram.to_str().unwrap(), "--for", "5s", "--stats"],
+    );
+    let (stdout, stderr) = text(&output);
+    assert!(output.status.success(), "{stderr}");
+    let report: serde_json::Value = serde_json::from_str(&lines.next().unwrap().unwrap()).unwrap();
+    assert!(peer.wait().unwrap().success());
+
+    // Kairos' subscription of depth 3, started after the node published 1..8: 6, 7 and 8 (as 3.0, 3.5,
+    // 4.0), then 9..12 live, then the late publisher's last three of four, asked for with `_max=3`.
+    let values: Vec<f64> = stdout
+        .lines()
+        .filter(|l| l.starts_with("map:"))
+        .filter_map(|l| l.rsplit(' ').next()?.parse().ok())
+        .collect();
+    assert_eq!(
+        values,
+        [3.0, 3.5, 4.0, 4.5, 5.0, 5.5, 6.0, 50.0, 50.5, 51.0],
+        "{stdout}{stderr}"
+    );
+    assert!(stderr.contains("lost 0, received 10"), "{stderr}");
+    assert!(
+        report["late_query"]
+            .as_str()
+            .unwrap_or_default()
+            .contains("_max=3"),
+        "{report}"
+    );
+    // The node's transient-local subscription of depth 5, declared 1.5 s after Kairos began publishing:
+    // the five Kairos kept, at once, then the live ones, each once and in order.
+    assert_eq!(report["problems"], serde_json::json!([]), "{report}");
+    let count = report["count"].as_array().unwrap();
+    assert!(count.len() >= 10, "{report}");
+    let first = count[0]["sequence"].as_i64().unwrap();
+    assert!(first > 1, "{report}");
+    for (index, message) in count.iter().enumerate() {
+        assert_eq!(
+            message["sequence"].as_i64().unwrap(),
+            first + index as i64,
+            "{report}"
+        );
+        assert_eq!(message["data"], message["sequence"], "{report}");
+    }
+    let kept_over = count[4]["at"].as_f64().unwrap() - count[0]["at"].as_f64().unwrap();
+    assert!(
+        kept_over < 0.09,
+        "the kept five came over {kept_over} s: {report}"
+    );
+}
+
 #[test]
 fn the_live_ros2_example_talks_to_a_ros2_node_as_rmw_zenoh_makes_one() {
     let port = std::net::TcpListener::bind("127.0.0.1:0")
@@ -808,17 +897,19 @@ fn sentences_that_arrive_with_the_one_that_sets_the_clock_are_stamped_on_its_tim
     // RMC (its time steps the clock from the machine's to 2026-11-25 10:00 UTC while the runtime waits for
     // its clock source's first time), GGA and GSV (no time of its own) in one datagram, from the start
     // (the first may come before the receiver's socket is open), ten a second.
-    let sending = std::thread::spawn(move || {
-        let sender = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
-        for datagram in sentences.lines().collect::<Vec<_>>().chunks(3).take(30) {
-            sender
-                .send_to(datagram.join("\r\n").as_bytes(), ("127.0.0.1", port))
-                .unwrap();
-            std::thread::sleep(std::time::Duration::from_millis(100));
-        }
-    });
+    let sending = std::thread::Builder::new()
+        .name("nmea sender".to_owned())
+        .spawn(move || {
+            let sender = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
+            for datagram in sentences.lines().collect::<Vec<_>>().chunks(3).take(30) {
+                sender
+                    .send_to(datagram.join("\r\n").as_bytes(), ("127.0.0.1", port))
+                    .unwrap();
+                std::thread::sleep(std::time::Duration::from_millis(100));
+            }
+        });
     let stderr = once_running(&mut child);
-    sending.join().unwrap();
+    sending.unwrap().join().unwrap();
     let output = child.wait_with_output().unwrap();
     let (stdout, _) = text(&output);
     let stderr = stderr.join().unwrap();

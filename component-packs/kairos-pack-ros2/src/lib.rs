@@ -8,6 +8,9 @@
 //! 33-byte attachment (sequence number and source time as little-endian `i64`, then 16, then the
 //! publisher's 16-byte `GID`), its payload the message in CDR; and each node, publisher and subscription
 //! declares a liveliness token under `@ros2_lv/<domain>/...`, which is how ROS 2's graph tools list them.
+//! Humble's `rmw_zenoh` (0.1) differs only in carrying `TypeHashNotSupported` for the type hash (the
+//! `distro` property). Transient-local topics follow `zenoh-ext`'s advanced publisher and subscriber (Zenoh
+//! 1.3 and later), which `rmw_zenoh` uses for them: see `docs/ros2.md`.
 
 pub mod graph;
 pub mod names;

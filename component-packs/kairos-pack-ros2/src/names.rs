@@ -27,8 +27,14 @@ pub const TYPES: [&str; 13] = [
     "can_msgs/msg/Frame",
 ];
 
+/// The ROS 2 releases whose `rmw_zenoh` conventions differ: Humble's carries no type hashes.
+pub const DISTROS: [&str; 2] = ["jazzy", "humble"];
+
+/// What Humble's `rmw_zenoh` writes where later releases write a type hash.
+pub const NO_TYPE_HASH: &str = "TypeHashNotSupported";
+
 /// The properties both components have: where ROS 2 is and under which node.
-pub fn common_properties() -> [Property; 4] {
+pub fn common_properties() -> [Property; 7] {
     [
         Property::i64("domain_id", 0)
             .range(0.0, 232.0)
@@ -39,7 +45,42 @@ pub fn common_properties() -> [Property; 4] {
         ),
         Property::text("node", "kairos").doc("The ROS 2 node name the topic is listed under"),
         Property::text("namespace", "/").doc("The node's namespace"),
+        Property::choice("distro", &DISTROS, "jazzy").doc(
+            "The ROS 2 release the other nodes run: jazzy for Jazzy, Kilted and Rolling (topics keyed by \
+             their type hash), humble for Humble (rmw_zenoh 0.1: no type hashes)",
+        ),
+        Property::choice("durability", &["volatile", "transient_local"], "volatile").doc(
+            "volatile: messages from now on; transient_local: also the last `depth` messages published \
+             before (a map, a static transform), as rmw_zenoh keeps and asks for them",
+        ),
+        Property::i64("depth", 10).range(1.0, 10_000.0).doc(
+            "The history depth (keep last): how many messages a transient-local topic keeps or asks for",
+        ),
     ]
+}
+
+/// The type hash a key expression and a liveliness token carry for `ros_type` on `distro`.
+pub fn type_hash_on(distro: &str, ros_type: &str) -> Option<String> {
+    if distro == "humble" {
+        return Some(NO_TYPE_HASH.to_owned());
+    }
+    kairos_pack_recording::ros2::write::type_hash(ros_type)
+}
+
+/// The key expression on which a transient-local publisher answers for the messages it keeps, and under
+/// which it declares its liveliness, as `zenoh-ext`'s advanced publisher does (Zenoh 1.3 and later):
+/// `<topic key>/@adv/pub/<session>/uhlc/_`, `uhlc` saying that its messages are told apart by their
+/// timestamps (from the session's clock), by which a subscription that gets one twice keeps one.
+pub fn cache_key(topic_key: &str, session: &str) -> String {
+    format!("{topic_key}/@adv/pub/{session}/uhlc/_")
+}
+
+/// The most messages a history query asks for (`_max` in its parameters), if it says.
+pub fn most_asked(parameters: &str) -> Option<usize> {
+    parameters
+        .split(';')
+        .find_map(|pair| pair.strip_prefix("_max="))
+        .and_then(|value| value.parse().ok())
 }
 
 /// `sensor_msgs/msg/Imu` as DDS and `rmw_zenoh` name it: `sensor_msgs::msg::dds_::Imu_`.
@@ -65,15 +106,17 @@ pub fn topic_key(domain: i64, topic: &str, ros_type: &str, type_hash: &str) -> S
 }
 
 /// A `QoS` in words as liveliness tokens carry it: each field left empty when it is `rmw_zenoh`'s default
-/// (reliable, volatile, keep last, depth 42, no deadline, lifespan or liveliness lease).
-pub fn qos_words(reliable: bool, depth: i64) -> String {
+/// (reliable, volatile, keep last, depth 42, no deadline, lifespan or liveliness lease); otherwise the
+/// number of rmw's enumeration (best effort 2, transient local 1).
+pub fn qos_words(reliable: bool, transient_local: bool, depth: i64) -> String {
     let reliability = if reliable { "" } else { "2" };
+    let durability = if transient_local { "1" } else { "" };
     let depth = if depth == 42 {
         String::new()
     } else {
         depth.to_string()
     };
-    format!("{reliability}::,{depth}:,:,:,,")
+    format!("{reliability}:{durability}:,{depth}:,:,:,,")
 }
 
 /// Where a ROS 2 entity is declared: its domain, session, node and namespace.
@@ -309,9 +352,20 @@ mod tests {
             topic_key(2, "/robot1/chatter", "std_msgs/msg/String", "H"),
             "2/robot1/chatter/std_msgs::msg::dds_::String_/H"
         );
-        assert_eq!(qos_words(true, 10), "::,10:,:,:,,");
-        assert_eq!(qos_words(false, 10), "2::,10:,:,:,,");
-        assert_eq!(qos_words(true, 42), "::,:,:,:,,");
+        assert_eq!(qos_words(true, false, 10), "::,10:,:,:,,");
+        assert_eq!(qos_words(false, false, 10), "2::,10:,:,:,,");
+        assert_eq!(qos_words(true, false, 42), "::,:,:,:,,");
+        assert_eq!(qos_words(true, true, 1), ":1:,1:,:,:,,");
+        assert_eq!(
+            cache_key("0/map/nav_msgs::msg::dds_::OccupancyGrid_/H", "8b20"),
+            "0/map/nav_msgs::msg::dds_::OccupancyGrid_/H/@adv/pub/8b20/uhlc/_"
+        );
+        assert_eq!(most_asked("_max=5;_anyke"), Some(5));
+        assert_eq!(most_asked("_anyke"), None);
+        assert_eq!(
+            type_hash_on("humble", "std_msgs/msg/String").as_deref(),
+            Some(NO_TYPE_HASH)
+        );
         let node = NodeName {
             domain: 2,
             session: "8b20917502ee955ac4476e0266340d5c".to_owned(),
@@ -329,7 +383,7 @@ mod tests {
                 "/chatter",
                 "std_msgs/msg/String",
                 "RIHS01_x",
-                &qos_words(true, 7)
+                &qos_words(true, false, 7)
             ),
             "@ros2_lv/2/8b20917502ee955ac4476e0266340d5c/0/10/MP/%/%/talker/%chatter/std_msgs::msg::dds_::String_/RIHS01_x/::,7:,:,:,,"
         );

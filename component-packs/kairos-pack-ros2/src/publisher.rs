@@ -1,7 +1,10 @@
 //! `ros2.publisher`: each sample of its input published as a ROS 2 topic, as a ROS 2 node on `rmw_zenoh`
 //! publishes.
 
-use kairos_pack_recording::ros2::write::{encode, ros_type_of, type_hash};
+use std::collections::VecDeque;
+use std::sync::{Arc, Mutex, PoisonError};
+
+use kairos_pack_recording::ros2::write::{encode, ros_type_of};
 use kairos_sdk::DeviceKind;
 use kairos_sdk::descriptor::{Descriptor, Property};
 use kairos_sdk::{Component, ComponentError, ComponentInfo, ComponentResult, Context, TypeFilter};
@@ -9,6 +12,8 @@ use zenoh::Wait as _;
 use zenoh::liveliness::LivelinessToken;
 use zenoh::pubsub::Publisher as ZenohPublisher;
 use zenoh::qos::CongestionControl;
+use zenoh::query::Queryable;
+use zenoh::time::Timestamp;
 
 use crate::names::{self, Attachment, SharedNode};
 
@@ -34,11 +39,7 @@ pub fn descriptor() -> ComponentInfo {
         Property::choice("reliability", &["reliable", "best_effort"], "reliable")
             .doc("The ROS 2 reliability it advertises; over TCP samples travel reliably either way, and a full queue drops"),
     )
-    .property(
-        Property::i64("depth", 10)
-            .range(1.0, 10_000.0)
-            .doc("The history depth it advertises (keep last)"),
-    );
+    ;
     for property in names::common_properties() {
         descriptor = descriptor.property(property);
     }
@@ -51,12 +52,82 @@ struct Declared {
     ros_type: &'static str,
     gid: [u8; 16],
     _token: LivelinessToken,
+    /// For a transient-local topic: the last messages, and where late subscriptions ask for them.
+    kept: Option<Kept>,
+}
+
+/// A message as published: its payload, attachment and timestamp.
+type Published = (Vec<u8>, Vec<u8>, Timestamp);
+
+/// The messages a transient-local publisher keeps for subscriptions that come later, the oldest first.
+type Cache = Arc<Mutex<VecDeque<Published>>>;
+
+struct Kept {
+    cache: Cache,
+    depth: usize,
+    _queryable: Queryable<()>,
+    _token: LivelinessToken,
+}
+
+impl Kept {
+    /// Keeps a transient-local topic's last `depth` messages on `topic_key` and answers for them on
+    /// `cache_key`, as `zenoh-ext`'s advanced publisher does for `rmw_zenoh`: each reply the message as
+    /// published (its key, payload and attachment), the last `_max` of them when the query says.
+    fn declare(
+        session: &zenoh::Session,
+        topic_key: &str,
+        cache_key: &str,
+        depth: usize,
+    ) -> Result<Kept, ComponentError> {
+        let cache: Cache = Arc::default();
+        let answered = Arc::clone(&cache);
+        let reply_key = topic_key.to_owned();
+        let queryable = session
+            .declare_queryable(cache_key.to_owned())
+            .callback(move |query| {
+                let kept = answered.lock().unwrap_or_else(PoisonError::into_inner).clone();
+                let asked = names::most_asked(query.parameters().as_str()).unwrap_or(usize::MAX);
+                for (payload, attachment, timestamp) in kept.iter().skip(kept.len().saturating_sub(asked)) {
+                    if let Err(why) = query
+                        .reply(reply_key.clone(), payload.clone())
+                        .attachment(attachment.clone())
+                        .timestamp(*timestamp)
+                        .wait()
+                    {
+                        tracing::warn!("a late subscription to {reply_key} asked for its history: {why}");
+                        return;
+                    }
+                }
+            })
+            .wait()
+            .map_err(|e| ComponentError::failed(format_args!("cannot keep history on {cache_key}: {e}")))?;
+        // The token under which subscriptions that came first find this publisher and ask it.
+        let token = session
+            .liveliness()
+            .declare_token(cache_key.to_owned())
+            .wait()
+            .map_err(|e| ComponentError::failed(format_args!("cannot declare {cache_key}: {e}")))?;
+        Ok(Kept {
+            cache,
+            depth,
+            _queryable: queryable,
+            _token: token,
+        })
+    }
+
+    fn keep(&self, published: Published) {
+        let mut cache = self.cache.lock().unwrap_or_else(PoisonError::into_inner);
+        if cache.len() >= self.depth {
+            cache.pop_front();
+        }
+        cache.push_back(published);
+    }
 }
 
 /// `ros2.publisher`. See [`descriptor`].
 #[derive(Default)]
 pub struct Publisher {
-    node: Option<std::sync::Arc<SharedNode>>,
+    node: Option<Arc<SharedNode>>,
     topic: String,
     declared: Option<Declared>,
     key: String,
@@ -72,14 +143,17 @@ impl Publisher {
             return Err(ComponentError::Stopped);
         };
         let session = &node.session;
-        let hash = type_hash(ros_type).ok_or_else(|| {
+        let hash = names::type_hash_on(&ctx.text_property("distro")?, ros_type).ok_or_else(|| {
             ComponentError::failed(format_args!("no ROS 2 type hash is known for {ros_type}"))
         })?;
         let reliable = ctx.text_property("reliability")? == "reliable";
-        let qos = names::qos_words(reliable, ctx.i64_property("depth")?);
+        let transient_local = ctx.text_property("durability")? == "transient_local";
+        let depth = ctx.i64_property("depth")?;
+        let qos = names::qos_words(reliable, transient_local, depth);
+        let entity = node.entity_id();
         let token_key = node
             .name
-            .entity_token(node.entity_id(), "MP", &self.topic, ros_type, &hash, &qos);
+            .entity_token(entity, "MP", &self.topic, ros_type, &hash, &qos);
         let token = session
             .liveliness()
             .declare_token(token_key.clone())
@@ -93,12 +167,33 @@ impl Publisher {
             .congestion_control(CongestionControl::Drop)
             .wait()
             .map_err(|e| ComponentError::failed(format_args!("cannot publish on {}: {e}", self.key)))?;
-        tracing::info!("publishing {} as {ros_type} on {}", self.topic, self.key);
+        let kept = if transient_local {
+            let cache_key = names::cache_key(&self.key, &node.name.session);
+            Some(Kept::declare(
+                session,
+                &self.key,
+                &cache_key,
+                usize::try_from(depth).unwrap_or(1),
+            )?)
+        } else {
+            None
+        };
+        tracing::info!(
+            "publishing {} as {ros_type} on {}{}",
+            self.topic,
+            self.key,
+            if kept.is_some() {
+                ", keeping the last messages for late subscriptions"
+            } else {
+                ""
+            }
+        );
         self.declared = Some(Declared {
             publisher,
             ros_type,
             gid: names::gid_of(&token_key),
             _token: token,
+            kept,
         });
         Ok(())
     }
@@ -127,7 +222,7 @@ impl Component for Publisher {
         if self.declared.is_none() {
             self.declare(ctx, ros_type)?;
         }
-        let Some(declared) = &self.declared else {
+        let (Some(declared), Some(node)) = (&self.declared, &self.node) else {
             return Err(ComponentError::Stopped);
         };
         if declared.ros_type != ros_type {
@@ -156,10 +251,18 @@ impl Component for Publisher {
             source_time_ns: sample.time_of_issue.as_nanos(),
             gid: declared.gid,
         };
+        let attachment = attachment.to_bytes();
+        // Stamped on the session's clock, as zenoh-ext's publishers are: a subscription that receives a
+        // kept message twice (asked as it starts, and again when it sees this publisher) keeps one.
+        let timestamp = node.session.new_timestamp();
+        if let Some(kept) = &declared.kept {
+            kept.keep((self.scratch.clone(), attachment.clone(), timestamp));
+        }
         declared
             .publisher
             .put(self.scratch.clone())
-            .attachment(attachment.to_bytes())
+            .attachment(attachment)
+            .timestamp(timestamp)
             .wait()
             .map_err(|e| ComponentError::failed(format_args!("cannot publish on {}: {e}", self.key)))?;
         Ok(())
