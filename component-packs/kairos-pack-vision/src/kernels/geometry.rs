@@ -170,36 +170,89 @@ fn shrink_by_area(src: &View<'_>, (across, down): (&[Share], &[Share]), dst: &mu
     let mut current: Option<usize> = None;
     let write = |at: usize, sum: &[f32], dst: &mut [u8]| {
         if let Some(out) = dst.get_mut(at * row_bytes..(at + 1) * row_bytes) {
-            for (to, value) in out.iter_mut().zip(sum) {
-                *to = value.round_ties_even().clamp(0.0, 255.0) as u8;
-            }
+            rounded_bytes(sum, out);
         }
     };
+    // A source row that two destination rows share (the one their boundary crosses) comes twice in a
+    // row in `down`: it is summed across once.
+    let mut summed: Option<usize> = None;
     for vertical in down {
-        row.fill(0.0);
-        let line = src.row(vertical.source);
-        for share in across {
-            for c in 0..channels {
-                let value = f32::from(line[share.source * channels + c]);
-                row[share.destination * channels + c] += value * share.weight;
+        if summed != Some(vertical.source) {
+            row.fill(0.0);
+            let line = src.row(vertical.source);
+            match channels {
+                1 => area_row::<1>(line, across, &mut row),
+                3 => area_row::<3>(line, across, &mut row),
+                4 => area_row::<4>(line, across, &mut row),
+                _ => area_row_any(line, channels, across, &mut row),
             }
+            summed = Some(vertical.source);
         }
         if current == Some(vertical.destination) {
-            for (total, value) in sum.iter_mut().zip(&row) {
-                *total += vertical.weight * value;
-            }
+            add_weighted(&row, vertical.weight, &mut sum);
         } else {
             if let Some(done) = current {
                 write(done, &sum, dst);
             }
-            for (total, value) in sum.iter_mut().zip(&row) {
-                *total = vertical.weight * value;
-            }
+            set_weighted(&row, vertical.weight, &mut sum);
             current = Some(vertical.destination);
         }
     }
     if let Some(done) = current {
         write(done, &sum, dst);
+    }
+}
+
+/// `sum += weight × row`, value by value (a multiply, then an add: the rounding OpenCV's loop has).
+#[multiversion(targets("x86_64+avx2+fma", "x86_64+sse4.1"))]
+fn add_weighted(row: &[f32], weight: f32, sum: &mut [f32]) {
+    for (total, value) in sum.iter_mut().zip(row) {
+        *total += weight * value;
+    }
+}
+
+/// `sum = weight × row`.
+#[multiversion(targets("x86_64+avx2+fma", "x86_64+sse4.1"))]
+fn set_weighted(row: &[f32], weight: f32, sum: &mut [f32]) {
+    for (total, value) in sum.iter_mut().zip(row) {
+        *total = weight * value;
+    }
+}
+
+/// Sums of weights that add up to one, so within 0–255 (and a hair over): each rounded to the nearest
+/// byte, ties to even as OpenCV's `saturate_cast` rounds. Adding and taking away 2^23 rounds an `f32`
+/// below 2^22 to the nearest integer, ties to even, in the default rounding mode, without a call to
+/// `rintf` that a plain `x86_64` target makes of `round_ties_even`.
+#[multiversion(targets("x86_64+avx2+fma", "x86_64+sse4.1"))]
+fn rounded_bytes(sums: &[f32], out: &mut [u8]) {
+    const TWO_TO_23: f32 = 8_388_608.0;
+    for (to, value) in out.iter_mut().zip(sums) {
+        *to = ((value.clamp(0.0, 255.0) + TWO_TO_23) - TWO_TO_23) as u8;
+    }
+}
+
+/// One source row summed across into `row`, each destination pixel's shares of `C` channels.
+fn area_row<const C: usize>(line: &[u8], across: &[Share], row: &mut [f32]) {
+    for share in across {
+        let (Some(pixel), Some(sum)) = (
+            line.get(share.source * C..share.source * C + C),
+            row.get_mut(share.destination * C..share.destination * C + C),
+        ) else {
+            continue;
+        };
+        for c in 0..C {
+            sum[c] += f32::from(pixel[c]) * share.weight;
+        }
+    }
+}
+
+/// [`area_row`] for any number of channels.
+fn area_row_any(line: &[u8], channels: usize, across: &[Share], row: &mut [f32]) {
+    for share in across {
+        for c in 0..channels {
+            let value = f32::from(line[share.source * channels + c]);
+            row[share.destination * channels + c] += value * share.weight;
+        }
     }
 }
 
