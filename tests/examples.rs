@@ -117,11 +117,17 @@ fn a_rosbag2_recording_made_by_the_ros2_example_replays_through_the_lane_pipelin
     );
 }
 
-/// Transient-local topics both ways, against `zenoh-ext`'s advanced publisher and subscriber (what
-/// `rmw_zenoh`'s transient-local publishers and subscriptions are made of) in Python, and a publisher that
-/// appears late with messages it kept.
-#[test]
-fn transient_local_topics_give_late_subscriptions_the_last_messages_both_ways() {
+/// A ROS 2 node in Python (`tests/ros2/SCRIPT`: eclipse-zenoh and rosbags) listening on a free port of
+/// loopback for `seconds`, once it says it is ready: its endpoint, the process, and its standard output's
+/// lines to come.
+fn ros2_node_in_python(
+    script: &str,
+    seconds: &str,
+) -> (
+    String,
+    std::process::Child,
+    std::io::Lines<std::io::BufReader<std::process::ChildStdout>>,
+) {
     let port = std::net::TcpListener::bind("127.0.0.1:0")
         .unwrap()
         .local_addr()
@@ -129,13 +135,22 @@ fn transient_local_topics_give_late_subscriptions_the_last_messages_both_ways() 
         .port();
     let endpoint = format!("tcp/127.0.0.1:{port}");
     let mut peer = std::process::Command::new("python3")
-        .arg(common::repo_root().join("tests/ros2/transient_peer.py"))
-        .args([&endpoint, "7"])
+        .arg(common::repo_root().join("tests/ros2").join(script))
+        .args([&endpoint, seconds])
         .stdout(std::process::Stdio::piped())
         .spawn()
         .expect("python3");
     let mut lines = std::io::BufRead::lines(std::io::BufReader::new(peer.stdout.take().unwrap()));
     assert_eq!(lines.next().unwrap().unwrap(), "ready");
+    (endpoint, peer, lines)
+}
+
+/// Transient-local topics both ways, against `zenoh-ext`'s advanced publisher and subscriber (what
+/// `rmw_zenoh`'s transient-local publishers and subscriptions are made of) in Python, and a publisher that
+/// appears late with messages it kept.
+#[test]
+fn transient_local_topics_give_late_subscriptions_the_last_messages_both_ways() {
+    let (endpoint, mut peer, mut lines) = ros2_node_in_python("transient_peer.py", "7");
     let dir = tempfile::tempdir().unwrap();
     let diagram = dir.path().join("transient.ron");
     std::fs::write(
@@ -208,21 +223,7 @@ fn transient_local_topics_give_late_subscriptions_the_last_messages_both_ways() 
 
 #[test]
 fn the_live_ros2_example_talks_to_a_ros2_node_as_rmw_zenoh_makes_one() {
-    let port = std::net::TcpListener::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port();
-    let endpoint = format!("tcp/127.0.0.1:{port}");
-    // A ROS 2 node in Python (eclipse-zenoh and rosbags), listening where Kairos connects.
-    let mut peer = std::process::Command::new("python3")
-        .arg(common::repo_root().join("tests/ros2/live_peer.py"))
-        .args([&endpoint, "8"])
-        .stdout(std::process::Stdio::piped())
-        .spawn()
-        .expect("python3");
-    let mut lines = std::io::BufRead::lines(std::io::BufReader::new(peer.stdout.take().unwrap()));
-    assert_eq!(lines.next().unwrap().unwrap(), "ready");
+    let (endpoint, mut peer, mut lines) = ros2_node_in_python("live_peer.py", "8");
     let dir = tempfile::tempdir().unwrap();
     let routers: Vec<String> = ["camera_to_ros", "imu_to_ros", "speed_from_ros"]
         .iter()

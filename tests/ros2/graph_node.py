@@ -8,27 +8,14 @@ the tokens are declared, then holds them for SECONDS.
 Usage: python3 graph_node.py ENDPOINT SECONDS
 """
 
-import json
 import sys
 import time
 
-import zenoh
-from rosbags.typesys import Stores, get_typestore
-
-STORE = get_typestore(Stores.ROS2_JAZZY)
-
-
-def dds(ros_type):
-    package, interface, name = ros_type.split("/")
-    return f"{package}::{interface}::dds_::{name}_"
+from node import STORE, dds, listening_session
 
 
 def main(endpoint, seconds):
-    config = zenoh.Config()
-    config.insert_json5("mode", '"peer"')
-    config.insert_json5("listen/endpoints", json.dumps([endpoint]))
-    config.insert_json5("scouting/multicast/enabled", "false")
-    session = zenoh.open(config)
+    session = listening_session(endpoint)
     zid = str(session.info.zid())
     node = f"@ros2_lv/0/{zid}/0/0/NN/%/%/scanner"
     entities = [

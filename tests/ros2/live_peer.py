@@ -16,28 +16,16 @@ import sys
 import threading
 import time
 
-import zenoh
-from rosbags.typesys import Stores, get_typestore
-
-STORE = get_typestore(Stores.ROS2_JAZZY)
+from node import STORE, listening_session, topic_key
 IMU = "sensor_msgs/msg/Imu"
 FLOAT64 = "std_msgs/msg/Float64"
 
 
-def dds(ros_type):
-    package, _, name = ros_type.split("/")
-    return f"{package}::msg::dds_::{name}_"
-
-
 def main(endpoint, seconds):
-    config = zenoh.Config()
-    config.insert_json5("mode", '"peer"')
-    config.insert_json5("listen/endpoints", json.dumps([endpoint]))
-    config.insert_json5("scouting/multicast/enabled", "false")
-    session = zenoh.open(config)
+    session = listening_session(endpoint)
     seen = {"imu": [], "problems": [], "tokens": [], "published": 0}
     lock = threading.Lock()
-    expected_key = f"0/kairos/imu/{dds(IMU)}/{STORE.hash_rihs01(IMU)}"
+    expected_key = topic_key("/kairos/imu", IMU)
 
     def on_imu(sample):
         with lock:
@@ -62,7 +50,7 @@ def main(endpoint, seconds):
     print("ready", flush=True)
 
     # Kairos' subscription listed: then publish.
-    speed_key = f"0/speed/{dds(FLOAT64)}/{STORE.hash_rihs01(FLOAT64)}"
+    speed_key = topic_key("/speed", FLOAT64)
     deadline = time.monotonic() + seconds
     while time.monotonic() < deadline:
         tokens = [str(reply.ok.key_expr) for reply in session.liveliness().get("@ros2_lv/0/**") if reply.ok]

@@ -23,18 +23,10 @@ import sys
 import threading
 import time
 
-import zenoh
 import zenoh.ext
-from rosbags.typesys import Stores, get_typestore
-
-STORE = get_typestore(Stores.ROS2_JAZZY)
+from node import STORE, listening_session, topic_key
 FLOAT64 = "std_msgs/msg/Float64"
 INT64 = "std_msgs/msg/Int64"
-
-
-def key(topic, ros_type):
-    package, _, name = ros_type.split("/")
-    return f"0/{topic}/{package}::msg::dds_::{name}_/{STORE.hash_rihs01(ros_type)}"
 
 
 def attachment(number):
@@ -42,17 +34,13 @@ def attachment(number):
 
 
 def main(endpoint, seconds):
-    config = zenoh.Config()
-    config.insert_json5("mode", '"peer"')
-    config.insert_json5("listen/endpoints", json.dumps([endpoint]))
-    config.insert_json5("scouting/multicast/enabled", "false")
-    session = zenoh.open(config)
+    session = listening_session(endpoint)
     seen = {"count": [], "problems": []}
     lock = threading.Lock()
 
     publisher = zenoh.ext.declare_advanced_publisher(
         session,
-        key("map", FLOAT64),
+        topic_key("/map", FLOAT64),
         cache=zenoh.ext.CacheConfig(max_samples=10),
         sample_miss_detection=zenoh.ext.MissDetectionConfig(),
         publisher_detection=True,
@@ -81,7 +69,7 @@ def main(endpoint, seconds):
 
     # A publisher that appears late, with messages kept from before: reached only by asking it.
     late_gid = bytes(range(16, 32))
-    late_key = f"{key('map', FLOAT64)}/@adv/pub/{session.zid()}/uhlc/_"
+    late_key = f"{topic_key('/map', FLOAT64)}/@adv/pub/{session.zid()}/uhlc/_"
     kept = []
     for number, value in enumerate([49.5, 50.0, 50.5, 51.0], start=1):
         message = STORE.types[FLOAT64](data=value)
@@ -92,7 +80,7 @@ def main(endpoint, seconds):
         asked = dict(p.split("=", 1) for p in str(query.parameters).split(";") if "=" in p)
         seen["late_query"] = str(query.selector)
         for payload, extra in kept[-int(asked.get("_max", len(kept))):]:
-            query.reply(key("map", FLOAT64), payload, attachment=extra)
+            query.reply(topic_key("/map", FLOAT64), payload, attachment=extra)
 
     late_queryable = session.declare_queryable(late_key, on_query)
     late_token = session.liveliness().declare_token(late_key)
@@ -119,7 +107,7 @@ def main(endpoint, seconds):
     declared_at = time.monotonic()
     subscriber = zenoh.ext.declare_advanced_subscriber(
         session,
-        key("kairos/count", INT64),
+        topic_key("/kairos/count", INT64),
         on_count,
         history=zenoh.ext.HistoryConfig(detect_late_publishers=True, max_samples=5),
     )
