@@ -221,6 +221,89 @@ fn transient_local_topics_give_late_subscriptions_the_last_messages_both_ways() 
     );
 }
 
+/// Services both ways against a node in Python that carries them as `rmw_zenoh` does: Kairos calls its
+/// `std_srvs/srv/Trigger` server (keyed by the type hash ROS 2 gives Trigger) twice a second, and the node
+/// calls Kairos' `std_srvs/srv/SetBool` server on the key its liveliness token names.
+#[test]
+fn ros2_services_are_called_and_offered_as_rmw_zenoh_carries_them() {
+    let (endpoint, mut peer, mut lines) = ros2_node_in_python("service_peer.py", "6");
+    let dir = tempfile::tempdir().unwrap();
+    let diagram = dir.path().join("services.ron");
+    std::fs::write(
+        &diagram,
+        format!(
+            r#"Diagram(format: 1, components: [
+    Component(id: "tick", type: "core.counter", properties: {{"rate": 2.0, "start": 1}}),
+    Component(id: "reset", type: "ros2.service_client", properties: {{"service": "/reset",
+        "type": "std_srvs/srv/Trigger", "router": "{endpoint}"}}),
+    Component(id: "mark", type: "ros2.service_server", properties: {{"service": "/kairos/mark",
+        "type": "std_srvs/srv/SetBool", "message": "marked", "router": "{endpoint}"}}),
+    Component(id: "said", type: "core.console"),
+    Component(id: "marks", type: "core.console"),
+], connections: [
+    Connection(from: "tick.out", to: "reset.call"),
+    Connection(from: "reset.message", to: "said.in"),
+    Connection(from: "mark.called", to: "marks.in"),
+])"#
+        ),
+    )
+    .unwrap();
+    let output = kairos(
+        dir.path(),
+        &["run", diagram.to_str().unwrap(), "--for", "4s", "--stats"],
+    );
+    let (stdout, stderr) = text(&output);
+    assert!(output.status.success(), "{stderr}");
+    let report: serde_json::Value = serde_json::from_str(&lines.next().unwrap().unwrap()).unwrap();
+    assert!(peer.wait().unwrap().success());
+    assert_eq!(report["problems"], serde_json::json!([]), "{report}");
+
+    // Kairos' calls as the node's server saw them: numbered one by one from 1 (a call made before the
+    // server was reached, at the very start, is counted unanswered), each request Trigger's one byte after
+    // the CDR header; and each response as Kairos wrote it, in order.
+    let requests = report["requests"].as_array().unwrap();
+    assert!(requests.len() >= 4, "{report}");
+    let first = requests[0]["sequence"].as_u64().unwrap();
+    for (index, request) in requests.iter().enumerate() {
+        assert_eq!(request["sequence"], first + index as u64, "{report}");
+        assert_eq!(request["payload"], "0001000000", "{report}");
+    }
+    let said: Vec<&str> = stdout
+        .lines()
+        .filter(|l| l.starts_with("said:"))
+        .filter_map(|l| l.split("reset ").nth(1))
+        .collect();
+    let expected: Vec<String> = (first..first + requests.len() as u64)
+        .map(|n| n.to_string())
+        .collect();
+    assert_eq!(said, expected, "{stdout}");
+    assert!(stderr.contains(&format!("unanswered {}", first - 1)), "{stderr}");
+
+    // The node's calls of Kairos' server: answered with the sequence number and GID echoed, the message
+    // set, and each request written as a sample.
+    assert!(
+        report["mark_token"]
+            .as_str()
+            .unwrap_or_default()
+            .contains("/SS/%/%/kairos/%kairos%mark/std_srvs::srv::dds_::SetBool_/RIHS01_"),
+        "{report}"
+    );
+    assert_eq!(
+        report["marks"],
+        serde_json::json!([
+            {"sequence": 1, "gid_echoed": true, "success": true, "message": "marked"},
+            {"sequence": 2, "gid_echoed": true, "success": true, "message": "marked"},
+        ]),
+        "{report}"
+    );
+    let marks: Vec<&str> = stdout
+        .lines()
+        .filter(|l| l.starts_with("marks:"))
+        .filter_map(|l| l.rsplit(' ').next())
+        .collect();
+    assert_eq!(marks, ["true", "false"], "{stdout}");
+}
+
 #[test]
 fn the_live_ros2_example_talks_to_a_ros2_node_as_rmw_zenoh_makes_one() {
     let (endpoint, mut peer, mut lines) = ros2_node_in_python("live_peer.py", "8");

@@ -15,6 +15,9 @@
 pub mod graph;
 pub mod names;
 pub mod publisher;
+pub mod service_client;
+pub mod service_server;
+pub mod services;
 pub mod subscriber;
 
 use kairos_sdk::Registry;
@@ -24,5 +27,7 @@ pub fn register(registry: &mut Registry) {
     registry
         .pack("ros2", env!("CARGO_PKG_VERSION"), "built-in")
         .component::<publisher::Publisher>(publisher::descriptor())
-        .component_described::<subscriber::Subscriber>(subscriber::descriptor(), subscriber::describe);
+        .component_described::<subscriber::Subscriber>(subscriber::descriptor(), subscriber::describe)
+        .component::<service_client::ServiceClient>(service_client::descriptor())
+        .component::<service_server::ServiceServer>(service_server::descriptor());
 }

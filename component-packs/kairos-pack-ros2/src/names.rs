@@ -33,8 +33,8 @@ pub const DISTROS: [&str; 2] = ["jazzy", "humble"];
 /// What Humble's `rmw_zenoh` writes where later releases write a type hash.
 pub const NO_TYPE_HASH: &str = "TypeHashNotSupported";
 
-/// The properties both components have: where ROS 2 is and under which node.
-pub fn common_properties() -> [Property; 7] {
+/// The properties every ROS 2 component has: where ROS 2 is, under which node, and which release.
+pub fn node_properties() -> [Property; 5] {
     [
         Property::i64("domain_id", 0)
             .range(0.0, 232.0)
@@ -49,6 +49,12 @@ pub fn common_properties() -> [Property; 7] {
             "The ROS 2 release the other nodes run: jazzy for Jazzy, Kilted and Rolling (topics keyed by \
              their type hash), humble for Humble (rmw_zenoh 0.1: no type hashes)",
         ),
+    ]
+}
+
+/// The properties of a topic's publisher and subscriber besides their node's.
+pub fn topic_properties() -> [Property; 2] {
+    [
         Property::choice("durability", &["volatile", "transient_local"], "volatile").doc(
             "volatile: messages from now on; transient_local: also the last `depth` messages published \
              before (a map, a static transform), as rmw_zenoh keeps and asks for them",
@@ -83,12 +89,18 @@ pub fn most_asked(parameters: &str) -> Option<usize> {
         .and_then(|value| value.parse().ok())
 }
 
-/// `sensor_msgs/msg/Imu` as DDS and `rmw_zenoh` name it: `sensor_msgs::msg::dds_::Imu_`.
+/// `sensor_msgs/msg/Imu` as DDS and `rmw_zenoh` name it: `sensor_msgs::msg::dds_::Imu_`; a service
+/// (`std_srvs/srv/Trigger`) as `std_srvs::srv::dds_::Trigger_`.
 pub fn dds_type_name(ros_type: &str) -> String {
     let mut parts: Vec<&str> = ros_type.split('/').collect();
     let name = parts.pop().unwrap_or_default();
     let package = parts.first().copied().unwrap_or_default();
-    format!("{package}::msg::dds_::{name}_")
+    let interface = if parts.get(1) == Some(&"srv") {
+        "srv"
+    } else {
+        "msg"
+    };
+    format!("{package}::{interface}::dds_::{name}_")
 }
 
 /// A ROS 2 name's slashes as `%`, as liveliness tokens carry names (`/` alone is `%`).
@@ -140,7 +152,8 @@ impl NodeName {
         )
     }
 
-    /// A publisher's (`MP`) or subscription's (`MS`) liveliness token; `entity` numbers it in the session.
+    /// A publisher's (`MP`), subscription's (`MS`), service server's (`SS`) or client's (`SC`) liveliness
+    /// token; `entity` numbers it in the session.
     pub fn entity_token(
         &self,
         entity: u64,

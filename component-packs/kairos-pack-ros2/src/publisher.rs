@@ -40,7 +40,10 @@ pub fn descriptor() -> ComponentInfo {
             .doc("The ROS 2 reliability it advertises; over TCP samples travel reliably either way, and a full queue drops"),
     )
     ;
-    for property in names::common_properties() {
+    for property in names::node_properties()
+        .into_iter()
+        .chain(names::topic_properties())
+    {
         descriptor = descriptor.property(property);
     }
     descriptor.build()

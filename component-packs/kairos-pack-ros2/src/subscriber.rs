@@ -48,7 +48,10 @@ fn base() -> Descriptor {
         Property::choice("type", &names::TYPES, "std_msgs/msg/String")
             .doc("The topic's ROS message type (`ros2 topic info` says it)"),
     );
-    for property in names::common_properties() {
+    for property in names::node_properties()
+        .into_iter()
+        .chain(names::topic_properties())
+    {
         descriptor = descriptor.property(property);
     }
     descriptor

@@ -12,6 +12,58 @@ use kairos_sdk::{DataType, FixStatus, Payload, Timestamp};
 /// their definitions need.
 const FIELDS: &[(&str, &str)] = &[
     ("builtin_interfaces/Time", "int32 sec\nuint32 nanosec\n"),
+    // The services the ROS 2 pack calls and offers: a service's own description names its request,
+    // response and event messages (REP 2011), the event those and `service_msgs/ServiceEventInfo`. A
+    // message with no field has the one `rosidl` gives it, so its CDR is one byte.
+    (
+        "service_msgs/ServiceEventInfo",
+        "uint8 event_type\nbuiltin_interfaces/Time stamp\nuint8[16] client_gid\nint64 sequence_number\n",
+    ),
+    (
+        "std_srvs/srv/Trigger",
+        "std_srvs/srv/Trigger_Request request_message\nstd_srvs/srv/Trigger_Response response_message\n\
+         std_srvs/srv/Trigger_Event event_message\n",
+    ),
+    (
+        "std_srvs/srv/Trigger_Request",
+        "uint8 structure_needs_at_least_one_member\n",
+    ),
+    ("std_srvs/srv/Trigger_Response", "bool success\nstring message\n"),
+    (
+        "std_srvs/srv/Trigger_Event",
+        "service_msgs/ServiceEventInfo info\nstd_srvs/srv/Trigger_Request[<=1] request\n\
+         std_srvs/srv/Trigger_Response[<=1] response\n",
+    ),
+    (
+        "std_srvs/srv/SetBool",
+        "std_srvs/srv/SetBool_Request request_message\nstd_srvs/srv/SetBool_Response response_message\n\
+         std_srvs/srv/SetBool_Event event_message\n",
+    ),
+    ("std_srvs/srv/SetBool_Request", "bool data\n"),
+    ("std_srvs/srv/SetBool_Response", "bool success\nstring message\n"),
+    (
+        "std_srvs/srv/SetBool_Event",
+        "service_msgs/ServiceEventInfo info\nstd_srvs/srv/SetBool_Request[<=1] request\n\
+         std_srvs/srv/SetBool_Response[<=1] response\n",
+    ),
+    (
+        "std_srvs/srv/Empty",
+        "std_srvs/srv/Empty_Request request_message\nstd_srvs/srv/Empty_Response response_message\n\
+         std_srvs/srv/Empty_Event event_message\n",
+    ),
+    (
+        "std_srvs/srv/Empty_Request",
+        "uint8 structure_needs_at_least_one_member\n",
+    ),
+    (
+        "std_srvs/srv/Empty_Response",
+        "uint8 structure_needs_at_least_one_member\n",
+    ),
+    (
+        "std_srvs/srv/Empty_Event",
+        "service_msgs/ServiceEventInfo info\nstd_srvs/srv/Empty_Request[<=1] request\n\
+         std_srvs/srv/Empty_Response[<=1] response\n",
+    ),
     (
         "std_msgs/Header",
         "builtin_interfaces/Time stamp\nstring frame_id\n",
@@ -746,5 +798,18 @@ mod tests {
         assert_eq!(ros_topic("front/edges.out"), "/front/edges/out");
         assert_eq!(ros_topic("gnss-2.fix"), "/gnss_2/fix");
         assert_eq!(ros_topic("3d.cloud"), "/_3d/cloud");
+    }
+
+    #[test]
+    fn a_service_s_type_hash_is_the_one_ros_2_keys_it_by() {
+        // The key a ROS 2 Jazzy device's std_srvs/srv/Trigger service answers on, as quoted in another
+        // project's public test script that queries it through rmw_zenoh: the hash of the service's
+        // description with its request, response and event (found by code search; REP 2011).
+        assert_eq!(
+            type_hash("std_srvs/srv/Trigger").as_deref(),
+            Some("RIHS01_eeff2cd6fa5ad9d27cdf4dec64818317839b62f212a91e6b5304b634b2062c5f")
+        );
+        assert!(type_hash("std_srvs/srv/SetBool").is_some_and(|h| h.starts_with("RIHS01_")));
+        assert!(type_hash("std_srvs/srv/Empty").is_some_and(|h| h.starts_with("RIHS01_")));
     }
 }
