@@ -408,6 +408,13 @@ fn ros2_topics_lists_what_a_ros2_graph_advertises_and_names_a_router_out_of_reac
             {"name": "/robot1/cmd_vel", "type": "geometry_msgs/msg/Twist", "publishers": 0, "subscriptions": 1},
         ])
     );
+    assert_eq!(
+        reply["result"]["services"],
+        json!([
+            {"name": "/robot1/plan", "type": "nav_msgs/srv/GetPlan", "servers": 0, "clients": 1},
+            {"name": "/scanner/reset", "type": "std_srvs/srv/Trigger", "servers": 1, "clients": 0},
+        ])
+    );
     assert_eq!(other_domain["result"]["topics"], json!([]), "{other_domain}");
 
     let absent = format!("tcp/127.0.0.1:{}", serving::free_tcp_port());
@@ -429,6 +436,16 @@ fn ros2_topics_lists_what_a_ros2_graph_advertises_and_names_a_router_out_of_reac
             .unwrap()
             .clone();
         assert_eq!(topic["device"], "ros2_topic", "{type_name}: {topic}");
+    }
+    for type_name in ["ros2.service_client", "ros2.service_server"] {
+        let service = library["result"]["components"][type_name]["properties"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|p| p["name"] == "service")
+            .unwrap()
+            .clone();
+        assert_eq!(service["device"], "ros2_service", "{type_name}: {service}");
     }
 }
 

@@ -108,6 +108,8 @@ pub enum DeviceKind {
     Camera,
     /// A topic on a live ROS 2 graph (`/imu/data`), as the component's `router` and `domain_id` reach it.
     Ros2Topic,
+    /// A service on a live ROS 2 graph (`/reset`), reached as a topic is.
+    Ros2Service,
 }
 
 impl DeviceKind {
@@ -118,6 +120,7 @@ impl DeviceKind {
             DeviceKind::Can => "can",
             DeviceKind::Camera => "camera",
             DeviceKind::Ros2Topic => "ros2_topic",
+            DeviceKind::Ros2Service => "ros2_service",
         }
     }
 }

@@ -394,13 +394,16 @@ fn property_ui(
         }
         match property.device {
             // On a line of its own: a topic's name and type are long.
-            Some(kairos_diagram::DeviceKind::Ros2Topic) | None => {}
+            Some(kairos_diagram::DeviceKind::Ros2Topic | kairos_diagram::DeviceKind::Ros2Service) | None => {}
             Some(kind) => device_picker(ui, session, kind, &mut edited, commands),
         }
     });
-    if property.device == Some(kairos_diagram::DeviceKind::Ros2Topic) {
+    if let Some(kind @ (kairos_diagram::DeviceKind::Ros2Topic | kairos_diagram::DeviceKind::Ros2Service)) =
+        property.device
+    {
+        let services = kind == kairos_diagram::DeviceKind::Ros2Service;
         ui.horizontal(|ui| {
-            ros2_topic_picker(ui, session, instance, siblings, &mut edited, commands);
+            ros2_graph_picker(ui, session, instance, siblings, services, &mut edited, commands);
         });
     }
     if let Err(error) = property.kind.check(&edited) {
@@ -481,17 +484,27 @@ fn value_of(instance: &ComponentInstance, siblings: &[PropertyInfo], name: &str)
     })
 }
 
-/// The topics of the live ROS 2 graph the component reaches through its `router` in its `domain_id`,
-/// asked of the runtime (which reaches ROS 2 from the machine the component runs on) when the button is
-/// pressed: picking one sets the topic and, where the component has a `type` that can carry it, the type.
-fn ros2_topic_picker(
+/// One thing the picker offers: a topic's or a service's name, type, and what it has, in words.
+struct GraphEntry<'a> {
+    name: &'a str,
+    type_name: &'a str,
+    counts: String,
+}
+
+/// The topics (or, with `services`, the services) of the live ROS 2 graph the component reaches through
+/// its `router` in its `domain_id`, asked of the runtime (which reaches ROS 2 from the machine the
+/// component runs on) when the button is pressed: picking one sets the name and, where the component has
+/// a `type` that can carry it, the type.
+fn ros2_graph_picker(
     ui: &mut egui::Ui,
     session: &Session,
     instance: &ComponentInstance,
     siblings: &[PropertyInfo],
+    services: bool,
     edited: &mut Value,
     commands: &mut Vec<Command>,
 ) {
+    let what = if services { "services" } else { "topics" };
     let router = match value_of(instance, siblings, "router") {
         Some(Value::Text(router)) => router,
         _ => String::new(),
@@ -510,9 +523,9 @@ fn ros2_topic_picker(
     match session.ros2_topics(&router, domain) {
         None => {
             let asked = ui
-                .add_enabled(connected, egui::Button::new("topics…").small())
+                .add_enabled(connected, egui::Button::new(format!("{what}…")).small())
                 .on_hover_text(format!(
-                    "List the topics of the ROS 2 graph at {router}, domain {domain}"
+                    "List the {what} of the ROS 2 graph at {router}, domain {domain}"
                 ))
                 .on_disabled_hover_text("Connect to a runtime: it reaches the ROS 2 graph");
             if asked.clicked() {
@@ -526,7 +539,28 @@ fn ros2_topic_picker(
                 refresh(commands);
             }
         }
-        Some(crate::session::Ros2Listing::Topics(topics)) => {
+        Some(crate::session::Ros2Listing::Graph(graph)) => {
+            let entries: Vec<GraphEntry<'_>> = if services {
+                graph
+                    .services
+                    .iter()
+                    .map(|service| GraphEntry {
+                        name: &service.name,
+                        type_name: &service.type_name,
+                        counts: format!("{} server, {} client", service.servers, service.clients),
+                    })
+                    .collect()
+            } else {
+                graph
+                    .topics
+                    .iter()
+                    .map(|topic| GraphEntry {
+                        name: &topic.name,
+                        type_name: &topic.type_name,
+                        counts: format!("{} pub, {} sub", topic.publishers, topic.subscriptions),
+                    })
+                    .collect()
+            };
             let carried: Vec<String> = siblings
                 .iter()
                 .find(|property| property.name == "type")
@@ -536,33 +570,30 @@ fn ros2_topic_picker(
                 })
                 .unwrap_or_default();
             let has_type = siblings.iter().any(|property| property.name == "type");
-            let label = if topics.is_empty() {
-                "no topic on the graph".to_owned()
+            let label = if entries.is_empty() {
+                format!("no {} on the graph", if services { "service" } else { "topic" })
             } else {
-                format!("{} on the graph", topics.len())
+                format!("{} on the graph", entries.len())
             };
-            egui::ComboBox::from_id_salt(("ros2 topics", &instance.id))
+            egui::ComboBox::from_id_salt(("ros2 graph", &instance.id, services))
                 .selected_text(label)
                 .show_ui(ui, |ui| {
-                    for topic in topics {
-                        let chosen = matches!(edited, Value::Text(text) if *text == topic.name);
-                        let text = format!(
-                            "{} — {} ({} pub, {} sub)",
-                            topic.name, topic.type_name, topic.publishers, topic.subscriptions
-                        );
-                        let readable = !has_type || carried.contains(&topic.type_name);
+                    for entry in &entries {
+                        let chosen = matches!(edited, Value::Text(text) if text == entry.name);
+                        let text = format!("{} — {} ({})", entry.name, entry.type_name, entry.counts);
+                        let readable = !has_type || carried.iter().any(|t| t == entry.type_name);
                         let item = ui.add_enabled(readable, egui::Button::selectable(chosen, text));
                         let item = item.on_disabled_hover_text(format!(
                             "Kairos does not carry {} (docs/ros2.md lists the types it does)",
-                            topic.type_name
+                            entry.type_name
                         ));
                         if item.clicked() {
-                            *edited = Value::Text(topic.name.clone());
+                            *edited = Value::Text(entry.name.to_owned());
                             if has_type {
                                 commands.push(Command::SetProperty {
                                     component: instance.id.clone(),
                                     property: "type".to_owned(),
-                                    value: Value::Text(topic.type_name.clone()),
+                                    value: Value::Text(entry.type_name.to_owned()),
                                 });
                             }
                         }
@@ -570,11 +601,11 @@ fn ros2_topic_picker(
                 })
                 .response
                 .on_hover_text(format!(
-                    "The topics of the ROS 2 graph at {router}, domain {domain}"
+                    "The {what} of the ROS 2 graph at {router}, domain {domain}"
                 ));
             if ui
                 .small_button("refresh")
-                .on_hover_text("List the topics again")
+                .on_hover_text(format!("List the {what} again"))
                 .clicked()
             {
                 refresh(commands);

@@ -149,8 +149,8 @@ struct Ros2Graph {
 /// What the runtime said of a ROS 2 graph.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub enum Ros2Listing {
-    /// Its topics, by name.
-    Topics(Vec<kairos_protocol::Ros2Topic>),
+    /// Its topics and services, by name.
+    Graph(kairos_protocol::Ros2TopicList),
     /// Why it could not list them (the router out of reach), as it said it.
     Refused(String),
 }
@@ -804,7 +804,7 @@ impl Session {
                     self.ros2_graph = Some(Ros2Graph {
                         router,
                         domain,
-                        listing: Ros2Listing::Topics(list.topics),
+                        listing: Ros2Listing::Graph(list),
                     });
                 }
             }

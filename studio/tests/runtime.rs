@@ -995,7 +995,7 @@ fn a_python_component_made_in_the_studio_is_loaded_without_a_build() {
 /// declares the liveliness tokens `rmw_zenoh` declares; picking a topic sets the topic and its message
 /// type, and a topic of a type Kairos does not carry cannot be picked.
 #[test]
-fn a_ros2_subscriber_s_topic_is_picked_from_the_live_graph() {
+fn a_ros2_topic_and_a_ros2_service_are_picked_from_the_live_graph() {
     let port = std::net::TcpListener::bind("127.0.0.1:0")
         .unwrap()
         .local_addr()
@@ -1023,6 +1023,7 @@ fn a_ros2_subscriber_s_topic_is_picked_from_the_live_graph() {
         format!(
             r#"Diagram(format: 1, components: [
                 Component(id: "lidar", type: "ros2.subscriber", properties: {{"router": "{endpoint}"}}),
+                Component(id: "reset", type: "ros2.service_client", properties: {{"router": "{endpoint}"}}),
             ])"#
         ),
     )
@@ -1048,8 +1049,42 @@ fn a_ros2_subscriber_s_topic_is_picked_from_the_live_graph() {
         .get_by_label_contains("/lidar/points — sensor_msgs/msg/PointCloud2 (1 pub, 0 sub)")
         .click();
     harness.run_steps(3);
+
+    // A service client's service from the same graph, already listed: a service of a type Kairos does not
+    // call is shown but cannot be picked.
+    harness.state_mut().canvas.selected = ["reset".to_owned()].into();
+    harness.run_steps(2);
+    let picker = harness.get_by_label_contains("The services of the ROS 2 graph at");
+    assert_eq!(picker.value().as_deref(), Some("2 on the graph"));
+    picker.click();
+    harness.run_steps(2);
+    let plan = harness.get_by_label_contains("/robot1/plan — nav_msgs/srv/GetPlan (0 server, 1 client)");
+    assert!(
+        plan.accesskit_node().is_disabled(),
+        "Kairos does not call GetPlan"
+    );
+    harness
+        .get_by_label_contains("/scanner/reset — std_srvs/srv/Trigger (1 server, 0 client)")
+        .click();
+    harness.run_steps(3);
     let _ = node.kill();
     let _ = node.wait();
+    let reset = harness
+        .state()
+        .session
+        .document
+        .diagram()
+        .component("reset")
+        .unwrap()
+        .clone();
+    assert_eq!(
+        reset.properties.get("service"),
+        Some(&kairos_diagram::Value::Text("/scanner/reset".into()))
+    );
+    assert_eq!(
+        reset.properties.get("type"),
+        Some(&kairos_diagram::Value::Text("std_srvs/srv/Trigger".into()))
+    );
     let lidar = harness
         .state()
         .session

@@ -8,6 +8,10 @@ from rosbags.typesys import Stores, get_typestore
 
 STORE = get_typestore(Stores.ROS2_JAZZY)
 
+# The hash ROS 2 keys std_srvs/srv/Trigger by (REP 2011), as a ROS 2 Jazzy node declares it (rosbags hashes
+# messages only).
+TRIGGER_HASH = "RIHS01_eeff2cd6fa5ad9d27cdf4dec64818317839b62f212a91e6b5304b634b2062c5f"
+
 
 def listening_session(endpoint):
     """A peer listening on `endpoint`, no multicast scouting: Kairos connects to it as to a router."""

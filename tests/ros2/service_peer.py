@@ -19,11 +19,9 @@ import threading
 import time
 
 import zenoh
-from node import STORE, listening_session
+from node import STORE, TRIGGER_HASH, listening_session
 from rosbags.typesys import get_types_from_msg
 
-# The hash ROS 2 keys std_srvs/srv/Trigger by (REP 2011), as a ROS 2 Jazzy node declares it.
-TRIGGER_HASH = "RIHS01_eeff2cd6fa5ad9d27cdf4dec64818317839b62f212a91e6b5304b634b2062c5f"
 # Registered under message names (rosbags reads no .srv): the CDR is the same.
 for name, definition in [
     ("std_srvs/msg/Trigger_Request", "uint8 structure_needs_at_least_one_member"),

@@ -1,8 +1,9 @@
 //! The live ROS 2 graph as `rmw_zenoh` advertises it: every publisher and subscription declares a
 //! liveliness token `@ros2_lv/<domain>/<session>/<node id>/<entity id>/<kind>/<enclave>/<namespace>/<node>/
 //! <topic>/<type>/<type hash>/<qos>` (`MP` a publisher, `MS` a subscription; names with `/` as `%`), so
-//! asking for the tokens under `@ros2_lv/<domain>/**` lists the topics, as `ros2 topic list -t` does. The
-//! studio's topic picker asks this of its runtime, which reaches the ROS 2 machine the diagram will.
+//! asking for the tokens under `@ros2_lv/<domain>/**` lists the topics, as `ros2 topic list -t` does, and
+//! the services (`SS` a server, `SC` a client), as `ros2 service list -t` does. The studio's topic and
+//! service pickers ask this of its runtime, which reaches the ROS 2 machine the diagram will.
 
 use std::collections::BTreeMap;
 use std::time::Duration;
@@ -18,6 +19,24 @@ pub struct Topic {
     pub type_name: String,
     pub publishers: u32,
     pub subscriptions: u32,
+}
+
+/// One service on the graph: its name, its type, and how many servers and clients it has.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Service {
+    /// `/reset`.
+    pub name: String,
+    /// `std_srvs/srv/Trigger`.
+    pub type_name: String,
+    pub servers: u32,
+    pub clients: u32,
+}
+
+/// What a graph advertises.
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct Graph {
+    pub topics: Vec<Topic>,
+    pub services: Vec<Service>,
 }
 
 /// Why the graph could not be listed.
@@ -37,13 +56,13 @@ pub enum GraphError {
     Unreachable(String),
 }
 
-/// The topics of domain `domain` that `router` (a Zenoh endpoint: `rmw_zenoh`'s router, or a peer) lists
-/// within `wait`, by name.
+/// The topics and services of domain `domain` that `router` (a Zenoh endpoint: `rmw_zenoh`'s router, or a
+/// peer) lists within `wait`, by name.
 ///
 /// # Errors
 ///
 /// The router cannot be reached, or refuses the question.
-pub fn topics(router: &str, domain: i64, wait: Duration) -> Result<Vec<Topic>, GraphError> {
+pub fn graph(router: &str, domain: i64, wait: Duration) -> Result<Graph, GraphError> {
     let session = crate::names::open_session(router).map_err(GraphError::Session)?;
     // The session connects in the background: an empty graph and an absent router must not look alike.
     let deadline = std::time::Instant::now() + wait;
@@ -69,7 +88,10 @@ pub fn topics(router: &str, domain: i64, wait: Duration) -> Result<Vec<Topic>, G
         }
     }
     drop(session);
-    Ok(topics_of(&tokens))
+    Ok(Graph {
+        topics: topics_of(&tokens),
+        services: services_of(&tokens),
+    })
 }
 
 /// Whether `session` has reached a router or a peer.
@@ -78,10 +100,11 @@ fn connected(session: &zenoh::Session) -> bool {
     info.routers_zid().wait().next().is_some() || info.peers_zid().wait().next().is_some()
 }
 
-/// The topics the liveliness `tokens` advertise, by name then type; tokens of other kinds (nodes,
-/// services) and of other layouts are passed over.
-pub fn topics_of(tokens: &[String]) -> Vec<Topic> {
-    let mut found: BTreeMap<(String, String), Topic> = BTreeMap::new();
+/// The entities of kinds `kinds` (the first counted first, the second second) the liveliness `tokens`
+/// advertise, by name then type, with how many of each kind; tokens of other kinds and layouts are passed
+/// over.
+fn entities_of(tokens: &[String], kinds: [&str; 2]) -> BTreeMap<(String, String), [u32; 2]> {
+    let mut found: BTreeMap<(String, String), [u32; 2]> = BTreeMap::new();
     for token in tokens {
         let fields: Vec<&str> = token.split('/').collect();
         let [
@@ -90,11 +113,11 @@ pub fn topics_of(tokens: &[String]) -> Vec<Topic> {
             _session,
             _node_id,
             _entity_id,
-            kind @ ("MP" | "MS"),
+            kind,
             _enclave,
             _namespace,
             _node,
-            topic,
+            name,
             dds_type,
             _hash,
             _qos,
@@ -102,25 +125,41 @@ pub fn topics_of(tokens: &[String]) -> Vec<Topic> {
         else {
             continue;
         };
+        let Some(which) = kinds.iter().position(|k| k == kind) else {
+            continue;
+        };
         let Some(type_name) = ros_type_of(dds_type) else {
             continue;
         };
-        let name = topic.replace('%', "/");
-        let entry = found
-            .entry((name.clone(), type_name.clone()))
-            .or_insert_with(|| Topic {
-                name,
-                type_name,
-                publishers: 0,
-                subscriptions: 0,
-            });
-        if *kind == "MP" {
-            entry.publishers += 1;
-        } else {
-            entry.subscriptions += 1;
-        }
+        found.entry((name.replace('%', "/"), type_name)).or_default()[which] += 1;
     }
-    found.into_values().collect()
+    found
+}
+
+/// The topics the liveliness `tokens` advertise, by name then type.
+pub fn topics_of(tokens: &[String]) -> Vec<Topic> {
+    entities_of(tokens, ["MP", "MS"])
+        .into_iter()
+        .map(|((name, type_name), [publishers, subscriptions])| Topic {
+            name,
+            type_name,
+            publishers,
+            subscriptions,
+        })
+        .collect()
+}
+
+/// The services the liveliness `tokens` advertise, by name then type.
+pub fn services_of(tokens: &[String]) -> Vec<Service> {
+    entities_of(tokens, ["SS", "SC"])
+        .into_iter()
+        .map(|((name, type_name), [servers, clients])| Service {
+            name,
+            type_name,
+            servers,
+            clients,
+        })
+        .collect()
 }
 
 /// `sensor_msgs::msg::dds_::Imu_` as ROS 2 names it: `sensor_msgs/msg/Imu`.
@@ -164,6 +203,15 @@ mod tests {
                     subscriptions: 1,
                 },
             ]
+        );
+        assert_eq!(
+            services_of(&tokens),
+            [Service {
+                name: "/plan".into(),
+                type_name: "nav_msgs/srv/GetPlan".into(),
+                servers: 1,
+                clients: 0,
+            }]
         );
     }
 }

@@ -2,6 +2,7 @@
 //! in CDR as `rmw_zenoh` carries them: a 4-byte encapsulation header (little-endian CDR), then the
 //! fields. A message with no field has the one byte `rosidl` gives it.
 
+use kairos_sdk::DeviceKind;
 use kairos_sdk::descriptor::Property;
 
 /// The service types the components know.
@@ -151,7 +152,9 @@ fn body(bytes: &[u8]) -> Result<&[u8], ServiceError> {
 /// The properties a service client and server have besides their node's.
 pub fn service_properties() -> [Property; 2] {
     [
-        Property::text("service", "/trigger").doc("The ROS 2 service's name (/reset)"),
+        Property::text("service", "/trigger")
+            .doc("The ROS 2 service's name (/reset)")
+            .device(DeviceKind::Ros2Service),
         Property::choice("type", &TYPES, TYPES[0])
             .doc("The service's type: Trigger (no request), SetBool (a true or false) or Empty"),
     ]

@@ -34,7 +34,7 @@ pub use messages::{
     Described, DeviceInfo, DeviceList, DiagramReply, Done, ErrorCode, FoxgloveState, GroupTelemetry,
     HostTelemetry, LINK_QUIET_MS, LatencyTelemetry, LinkEnd, LinkList, LinkNetwork, LinkTelemetry, LogLevel,
     LogRecord, PACK_CHUNK_BYTES, PYTHON_PACK_PLATFORM, PackInstall, Prepared, ProtocolError, Reply,
-    ReplyBody, Request, RequestBody, RequestKind, Role, Ros2Topic, Ros2TopicList, RuntimeState,
+    ReplyBody, Request, RequestBody, RequestKind, Role, Ros2Service, Ros2Topic, Ros2TopicList, RuntimeState,
     SampleTransport, SamplesSubscribed, ServerMessage, Started, Status, Telemetry, TelemetrySubscribed,
     Welcome, decode_request, link_delivers_nothing, this_host, this_platform,
 };

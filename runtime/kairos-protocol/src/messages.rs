@@ -1141,6 +1141,23 @@ pub struct FoxgloveState {
 pub struct Ros2TopicList {
     /// Each topic with a publisher or a subscription on the graph.
     pub topics: Vec<Ros2Topic>,
+    /// Each service with a server or a client on the graph.
+    #[serde(default)]
+    pub services: Vec<Ros2Service>,
+}
+
+/// One ROS 2 service on the graph.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Ros2Service {
+    /// `/reset`.
+    pub name: String,
+    /// `std_srvs/srv/Trigger`.
+    #[serde(rename = "type")]
+    pub type_name: String,
+    /// Its servers.
+    pub servers: u32,
+    /// Its clients.
+    pub clients: u32,
 }
 
 /// One ROS 2 topic on the graph.

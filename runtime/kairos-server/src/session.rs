@@ -442,21 +442,7 @@ impl Session {
                 devices: crate::devices::list(Path::new("/")),
             }),
             RequestBody::Ros2Topics { router, domain_id } => {
-                let found = tokio::task::block_in_place(|| {
-                    kairos_pack_ros2::graph::topics(&router, domain_id, ROS2_GRAPH_WAIT)
-                })
-                .map_err(|e| ProtocolError::new(ErrorCode::InvalidValue, e.to_string()))?;
-                ReplyBody::Ros2Topics(kairos_protocol::Ros2TopicList {
-                    topics: found
-                        .into_iter()
-                        .map(|topic| kairos_protocol::Ros2Topic {
-                            name: topic.name,
-                            type_name: topic.type_name,
-                            publishers: topic.publishers,
-                            subscriptions: topic.subscriptions,
-                        })
-                        .collect(),
-                })
+                ReplyBody::Ros2Topics(tokio::task::block_in_place(|| ros2_graph(&router, domain_id))?)
             }
             RequestBody::DescribeInstances { diagram } => {
                 ReplyBody::DescribeInstances(tokio::task::block_in_place(|| {
@@ -996,4 +982,32 @@ fn same_but_for_time(earlier: &Telemetry, later: &Telemetry) -> bool {
         && *groups == later.groups
         && *hosts == later.hosts
         && *cross_links == later.cross_links
+}
+
+/// The topics and services of the ROS 2 graph `router` reaches in `domain_id`, as the protocol says them.
+fn ros2_graph(router: &str, domain_id: i64) -> Result<kairos_protocol::Ros2TopicList, ProtocolError> {
+    let found = kairos_pack_ros2::graph::graph(router, domain_id, ROS2_GRAPH_WAIT)
+        .map_err(|e| ProtocolError::new(ErrorCode::InvalidValue, e.to_string()))?;
+    Ok(kairos_protocol::Ros2TopicList {
+        topics: found
+            .topics
+            .into_iter()
+            .map(|topic| kairos_protocol::Ros2Topic {
+                name: topic.name,
+                type_name: topic.type_name,
+                publishers: topic.publishers,
+                subscriptions: topic.subscriptions,
+            })
+            .collect(),
+        services: found
+            .services
+            .into_iter()
+            .map(|service| kairos_protocol::Ros2Service {
+                name: service.name,
+                type_name: service.type_name,
+                servers: service.servers,
+                clients: service.clients,
+            })
+            .collect(),
+    })
 }
