@@ -251,6 +251,29 @@ impl SharedNode {
     pub fn entity_id(&self) -> u64 {
         self.next_entity.fetch_add(1, Ordering::Relaxed)
     }
+
+    /// Declares a new entity of this node in ROS 2's graph (`kind` `MP`, `MS`, `SS` or `SC`, named `name`,
+    /// of `ros_type` with `type_hash` and `qos`): its liveliness token, and the token's key, which its
+    /// GID is made from.
+    pub fn declare_entity(
+        &self,
+        kind: &str,
+        name: &str,
+        ros_type: &str,
+        type_hash: &str,
+        qos: &str,
+    ) -> Result<(LivelinessToken, String), ComponentError> {
+        let key = self
+            .name
+            .entity_token(self.entity_id(), kind, name, ros_type, type_hash, qos);
+        let token = self
+            .session
+            .liveliness()
+            .declare_token(key.clone())
+            .wait()
+            .map_err(|e| ComponentError::failed(format_args!("cannot declare {key}: {e}")))?;
+        Ok((token, key))
+    }
 }
 
 impl std::fmt::Debug for SharedNode {

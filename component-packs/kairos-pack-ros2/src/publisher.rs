@@ -153,15 +153,7 @@ impl Publisher {
         let transient_local = ctx.text_property("durability")? == "transient_local";
         let depth = ctx.i64_property("depth")?;
         let qos = names::qos_words(reliable, transient_local, depth);
-        let entity = node.entity_id();
-        let token_key = node
-            .name
-            .entity_token(entity, "MP", &self.topic, ros_type, &hash, &qos);
-        let token = session
-            .liveliness()
-            .declare_token(token_key.clone())
-            .wait()
-            .map_err(|e| ComponentError::failed(format_args!("cannot declare {token_key}: {e}")))?;
+        let (token, token_key) = node.declare_entity("MP", &self.topic, ros_type, &hash, &qos)?;
         self.key = names::topic_key(node.name.domain, &self.topic, ros_type, &hash);
         // As `rmw_zenoh` for keep-last history: a full queue drops. Over TCP every sample travels reliably;
         // best effort is what ROS 2's graph is told (Zenoh's reliability switch is not in its stable API).

@@ -7,8 +7,7 @@ use std::time::{Duration, Instant};
 
 use kairos_sdk::descriptor::{Descriptor, Property};
 use kairos_sdk::{
-    Component, ComponentError, ComponentInfo, ComponentResult, Context, DataType, Payload, Throttle,
-    TypeFilter,
+    Component, ComponentInfo, ComponentResult, Context, DataType, Payload, Throttle, TypeFilter,
 };
 use zenoh::Wait as _;
 use zenoh::liveliness::LivelinessToken;
@@ -145,35 +144,13 @@ impl ServiceClient {
 
 impl Component for ServiceClient {
     fn birth(&mut self, ctx: &mut Context) -> ComponentResult {
-        let name = ctx.text_property("service")?;
-        names::check_topic(&name).map_err(|_| {
-            ComponentError::failed(format_args!("service {name:?} is not a ROS 2 name (/reset)"))
-        })?;
-        let service = ServiceType::named(&ctx.text_property("type")?).map_err(ComponentError::failed)?;
-        let node = names::node(ctx)?;
-        let hash = names::type_hash_on(&ctx.text_property("distro")?, service.name())
-            .ok_or_else(|| ComponentError::failed(format_args!("no type hash for {}", service.name())))?;
-        let token_key = node.name.entity_token(
-            node.entity_id(),
-            "SC",
-            &name,
-            service.name(),
-            &hash,
-            &names::qos_words(true, false, 10),
-        );
-        let token = node
-            .session
-            .liveliness()
-            .declare_token(token_key.clone())
-            .wait()
-            .map_err(|e| ComponentError::failed(format_args!("cannot declare {token_key}: {e}")))?;
-        // Any type hash: servers of another ROS 2 release hash the same service differently.
-        self.key = names::topic_key(node.name.domain, &name, service.name(), "*");
-        self.gid = names::gid_of(&token_key);
-        self.service = Some(service);
-        self.token = Some(token);
-        self.node = Some(node);
-        tracing::info!("calling {name} ({}) on {}", service.name(), self.key);
+        let endpoint = services::Endpoint::declare(ctx, "SC")?;
+        tracing::info!("calling {} on {}", endpoint.service.name(), endpoint.key);
+        self.gid = names::gid_of(&endpoint.token_key);
+        self.key = endpoint.key;
+        self.service = Some(endpoint.service);
+        self.token = Some(endpoint.token);
+        self.node = Some(endpoint.node);
         Ok(())
     }
 

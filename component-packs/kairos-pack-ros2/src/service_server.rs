@@ -105,16 +105,9 @@ fn refuse(query: &Query, why: &str, refused: &AtomicU64) {
 
 impl Component for ServiceServer {
     fn birth(&mut self, ctx: &mut Context) -> ComponentResult {
-        let name = ctx.text_property("service")?;
-        names::check_topic(&name).map_err(|_| {
-            ComponentError::failed(format_args!("service {name:?} is not a ROS 2 name (/reset)"))
-        })?;
-        let service = ServiceType::named(&ctx.text_property("type")?).map_err(ComponentError::failed)?;
-        let node = names::node(ctx)?;
-        let hash = names::type_hash_on(&ctx.text_property("distro")?, service.name())
-            .ok_or_else(|| ComponentError::failed(format_args!("no type hash for {}", service.name())))?;
-        // Any type hash: clients of another ROS 2 release hash the same service differently.
-        self.key = names::topic_key(node.name.domain, &name, service.name(), "*");
+        let endpoint = services::Endpoint::declare(ctx, "SS")?;
+        let (service, node) = (endpoint.service, endpoint.node);
+        self.key = endpoint.key;
         let (sender, receiver): (SyncSender<Call>, _) = sync_channel(QUEUE);
         let refused = Arc::clone(&self.refused);
         let queryable = node
@@ -154,25 +147,11 @@ impl Component for ServiceServer {
             })
             .wait()
             .map_err(|e| ComponentError::failed(format_args!("cannot offer {}: {e}", self.key)))?;
-        let token_key = node.name.entity_token(
-            node.entity_id(),
-            "SS",
-            &name,
-            service.name(),
-            &hash,
-            &names::qos_words(true, false, 10),
-        );
-        let token = node
-            .session
-            .liveliness()
-            .declare_token(token_key.clone())
-            .wait()
-            .map_err(|e| ComponentError::failed(format_args!("cannot declare {token_key}: {e}")))?;
-        tracing::info!("offering {name} ({}) on {}", service.name(), self.key);
+        tracing::info!("offering {} on {}", service.name(), self.key);
         self.service = Some(service);
         self.queryable = Some(queryable);
         self.calls = Some(receiver);
-        self.token = Some(token);
+        self.token = Some(endpoint.token);
         self.node = Some(node);
         Ok(())
     }

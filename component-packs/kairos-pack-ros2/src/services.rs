@@ -2,8 +2,13 @@
 //! in CDR as `rmw_zenoh` carries them: a 4-byte encapsulation header (little-endian CDR), then the
 //! fields. A message with no field has the one byte `rosidl` gives it.
 
-use kairos_sdk::DeviceKind;
+use std::sync::Arc;
+
 use kairos_sdk::descriptor::Property;
+use kairos_sdk::{ComponentError, Context, DeviceKind};
+use zenoh::liveliness::LivelinessToken;
+
+use crate::names::{self, SharedNode};
 
 /// The service types the components know.
 pub const TYPES: [&str; 3] = [
@@ -146,6 +151,47 @@ fn body(bytes: &[u8]) -> Result<&[u8], ServiceError> {
             "{} bytes that do not begin as CDR does (an encapsulation header)",
             bytes.len()
         ))),
+    }
+}
+
+/// A service client or server as its properties set it up, declared in ROS 2's graph.
+#[derive(Debug)]
+pub struct Endpoint {
+    pub service: ServiceType,
+    pub node: Arc<SharedNode>,
+    /// The key expression it calls or answers on: any type hash, so that the other end may be of another
+    /// ROS 2 release, which hashes the same service differently.
+    pub key: String,
+    pub token: LivelinessToken,
+    /// The liveliness token's key, which its GID is made from.
+    pub token_key: String,
+}
+
+impl Endpoint {
+    /// The endpoint `ctx`'s properties name, declared as `kind` (`SC` a client, `SS` a server).
+    pub fn declare(ctx: &Context, kind: &str) -> Result<Endpoint, ComponentError> {
+        let name = ctx.text_property("service")?;
+        names::check_topic(&name).map_err(|_| {
+            ComponentError::failed(format_args!("service {name:?} is not a ROS 2 name (/reset)"))
+        })?;
+        let service = ServiceType::named(&ctx.text_property("type")?).map_err(ComponentError::failed)?;
+        let node = names::node(ctx)?;
+        let hash = names::type_hash_on(&ctx.text_property("distro")?, service.name())
+            .ok_or_else(|| ComponentError::failed(format_args!("no type hash for {}", service.name())))?;
+        let (token, token_key) = node.declare_entity(
+            kind,
+            &name,
+            service.name(),
+            &hash,
+            &names::qos_words(true, false, 10),
+        )?;
+        Ok(Endpoint {
+            service,
+            key: names::topic_key(node.name.domain, &name, service.name(), "*"),
+            node,
+            token,
+            token_key,
+        })
     }
 }
 

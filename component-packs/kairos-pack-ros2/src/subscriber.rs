@@ -267,20 +267,13 @@ impl Component for Subscriber {
         let node = names::node(ctx)?;
         let transient_local = ctx.text_property("durability")? == "transient_local";
         let depth = ctx.i64_property("depth")?;
-        let token_key = node.name.entity_token(
-            node.entity_id(),
+        let (token, _) = node.declare_entity(
             "MS",
             &topic,
             &ros_type,
             &hash,
             &names::qos_words(true, transient_local, depth),
-        );
-        let token = node
-            .session
-            .liveliness()
-            .declare_token(token_key.clone())
-            .wait()
-            .map_err(|e| ComponentError::failed(format_args!("cannot declare {token_key}: {e}")))?;
+        )?;
         // Any type hash: publishers of another ROS 2 release hash the same message differently.
         self.key = names::topic_key(node.name.domain, &topic, &ros_type, "*");
         let (sender, receiver): (SyncSender<Arrived>, _) = sync_channel(QUEUE);
