@@ -232,4 +232,27 @@ mod tests {
         assert!(ServiceType::SetBool.read_request(&[1, 2, 3, 4, 5]).is_err());
         assert!(ServiceType::named("std_srvs/srv/Nope").is_err());
     }
+
+    #[test]
+    fn any_bytes_read_as_an_answer_or_an_error_never_a_panic() {
+        let mut state = 0x9e37_79b9_7f4a_7c15_u64;
+        let mut next = || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            state
+        };
+        for _ in 0..20_000 {
+            let length = usize::try_from(next() % 24).unwrap_or(0);
+            let mut bytes: Vec<u8> = (0..length).map(|_| next().to_le_bytes()[0]).collect();
+            // Half of them with a valid header, so the fields are read too.
+            if next() % 2 == 0 && bytes.len() >= 4 {
+                bytes[..4].copy_from_slice(&HEADER);
+            }
+            for service in [ServiceType::Trigger, ServiceType::SetBool, ServiceType::Empty] {
+                let _ = service.read_request(&bytes);
+                let _ = service.read_response(&bytes);
+            }
+        }
+    }
 }
