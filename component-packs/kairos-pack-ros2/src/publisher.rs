@@ -9,6 +9,7 @@ use kairos_sdk::DeviceKind;
 use kairos_sdk::descriptor::{Descriptor, Property};
 use kairos_sdk::{Component, ComponentError, ComponentInfo, ComponentResult, Context, TypeFilter};
 use zenoh::Wait as _;
+use zenoh::bytes::ZBytes;
 use zenoh::liveliness::LivelinessToken;
 use zenoh::pubsub::Publisher as ZenohPublisher;
 use zenoh::qos::CongestionControl;
@@ -59,8 +60,9 @@ struct Declared {
     kept: Option<Kept>,
 }
 
-/// A message as published: its payload, attachment and timestamp.
-type Published = (Vec<u8>, Vec<u8>, Timestamp);
+/// A message as published: its payload, attachment and timestamp (the bytes shared, not copied, with the
+/// put and with every reply).
+type Published = (ZBytes, ZBytes, Timestamp);
 
 /// The messages a transient-local publisher keeps for subscriptions that come later, the oldest first.
 type Cache = Arc<Mutex<VecDeque<Published>>>;
@@ -246,16 +248,19 @@ impl Component for Publisher {
             source_time_ns: sample.time_of_issue.as_nanos(),
             gid: declared.gid,
         };
-        let attachment = attachment.to_bytes();
+        let (payload, attachment) = (
+            ZBytes::from(self.scratch.clone()),
+            ZBytes::from(attachment.to_bytes()),
+        );
         // Stamped on the session's clock, as zenoh-ext's publishers are: a subscription that receives a
         // kept message twice (asked as it starts, and again when it sees this publisher) keeps one.
         let timestamp = node.session.new_timestamp();
         if let Some(kept) = &declared.kept {
-            kept.keep((self.scratch.clone(), attachment.clone(), timestamp));
+            kept.keep((payload.clone(), attachment.clone(), timestamp));
         }
         declared
             .publisher
-            .put(self.scratch.clone())
+            .put(payload)
             .attachment(attachment)
             .timestamp(timestamp)
             .wait()
