@@ -804,7 +804,7 @@ mod tests {
     fn a_service_s_type_hash_is_the_one_ros_2_keys_it_by() {
         // The key a ROS 2 Jazzy device's std_srvs/srv/Trigger service answers on, as quoted in another
         // project's public test script that queries it through rmw_zenoh: the hash of the service's
-        // description with its request, response and event (found by code search; REP 2011).
+        // description with its request, response and event (REP 2011).
         assert_eq!(
             type_hash("std_srvs/srv/Trigger").as_deref(),
             Some("RIHS01_eeff2cd6fa5ad9d27cdf4dec64818317839b62f212a91e6b5304b634b2062c5f")
