@@ -442,8 +442,6 @@ impl Component for DbcDecoder {
                 sample.timestamp,
                 issued,
             )?;
-        }
-        for signal in &signals {
             if let (Some(&output), Some(words)) = (self.text_outputs.get(&(key, signal.index)), signal.choice)
             {
                 ctx.write_issued(output, Payload::Text(Arc::from(words)), sample.timestamp, issued)?;

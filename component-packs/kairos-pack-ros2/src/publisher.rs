@@ -252,11 +252,14 @@ impl Component for Publisher {
             ZBytes::from(self.scratch.clone()),
             ZBytes::from(attachment.to_bytes()),
         );
-        // Stamped on the session's clock, as zenoh-ext's publishers are: a subscription that receives a
-        // kept message twice (asked as it starts, and again when it sees this publisher) keeps one.
-        let timestamp = node.session.new_timestamp();
+        // A kept message is stamped on the session's clock, as zenoh-ext's publishers stamp theirs: a
+        // subscription that receives it twice (asked as it starts, and again when it sees this publisher)
+        // keeps one. A volatile topic's messages need no stamp.
+        let mut timestamp = None;
         if let Some(kept) = &declared.kept {
-            kept.keep((payload.clone(), attachment.clone(), timestamp));
+            let stamp = node.session.new_timestamp();
+            kept.keep((payload.clone(), attachment.clone(), stamp));
+            timestamp = Some(stamp);
         }
         declared
             .publisher

@@ -7,7 +7,8 @@ use std::time::{Duration, Instant};
 
 use kairos_sdk::descriptor::{Descriptor, Property};
 use kairos_sdk::{
-    Component, ComponentInfo, ComponentResult, Context, DataType, Payload, Throttle, TypeFilter,
+    Component, ComponentError, ComponentInfo, ComponentResult, Context, DataType, Payload, Throttle,
+    TypeFilter,
 };
 use zenoh::Wait as _;
 use zenoh::liveliness::LivelinessToken;
@@ -34,6 +35,8 @@ enum CallError {
     Zenoh(String),
     #[error("not started")]
     NotStarted,
+    #[error("stopped while waiting")]
+    Stopped,
 }
 
 impl CallError {
@@ -122,8 +125,12 @@ impl ServiceClient {
             .timeout(timeout)
             .wait()
             .map_err(|e| CallError::Zenoh(e.to_string()))?;
-        let deadline = Instant::now() + timeout;
-        while Instant::now() < deadline && !ctx.stop_requested() {
+        // Zenoh ends the query at `timeout`; the wait is cut in slices so a stop gets through.
+        let started = Instant::now();
+        loop {
+            if ctx.stop_requested() {
+                return Err(CallError::Stopped);
+            }
             match replies.recv_timeout(REPLY_WAIT) {
                 Ok(Some(reply)) => {
                     return match reply.result() {
@@ -134,11 +141,13 @@ impl ServiceClient {
                     };
                 }
                 Ok(None) => {}
-                // The query is over with no reply: no server was there.
+                // The query is over with no reply: no server answered in time, or none was there.
+                Err(_) if started.elapsed() >= timeout => {
+                    return Err(CallError::NoAnswer(timeout.as_secs_f64()));
+                }
                 Err(_) => return Err(CallError::NoServer),
             }
         }
-        Err(CallError::NoAnswer(timeout.as_secs_f64()))
     }
 }
 
@@ -169,6 +178,12 @@ impl Component for ServiceClient {
                 self.answered += 1;
                 ctx.write_processed("success", &sample, Payload::Bool(response.success))?;
                 ctx.write_processed("message", &sample, Payload::Text(Arc::from(response.message)))?;
+            }
+            // A call cut short by a stop is counted with the calls nobody answered.
+            Err(CallError::Stopped) => {
+                self.unanswered += 1;
+                ctx.publish_status(self);
+                return Err(ComponentError::Stopped);
             }
             Err(why) => {
                 if why.unanswered() {

@@ -2,13 +2,15 @@
 //! one: a complete queryable on the service's key expression; each call is written as a sample, then
 //! answered with the call's sequence number and the caller's GID echoed in the attachment.
 
-use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::mpsc::{Receiver, SyncSender, TrySendError, sync_channel};
+use std::sync::{Arc, Mutex, PoisonError};
 use std::time::Duration;
 
 use kairos_sdk::descriptor::{Descriptor, Property};
-use kairos_sdk::{Component, ComponentError, ComponentInfo, ComponentResult, Context, DataType, Payload};
+use kairos_sdk::{
+    Component, ComponentError, ComponentInfo, ComponentResult, Context, DataType, Payload, Throttle,
+};
 use zenoh::Wait as _;
 use zenoh::liveliness::LivelinessToken;
 use zenoh::query::{Query, Queryable};
@@ -63,7 +65,7 @@ pub struct ServiceServer {
     key: String,
     answered: u64,
     /// Calls refused before they were written: no attachment, a request that does not read, a full queue.
-    refused: Arc<AtomicU64>,
+    refused: Arc<Refusals>,
 }
 
 impl ServiceServer {
@@ -96,11 +98,28 @@ impl ServiceServer {
     }
 }
 
-/// Refuses `query` with `why`, counted.
-fn refuse(query: &Query, why: &str, refused: &AtomicU64) {
-    refused.fetch_add(1, Ordering::Relaxed);
-    tracing::warn!("a call of {} refused: {why}", query.key_expr());
-    let _ = query.reply_err(why.to_owned()).wait();
+/// Calls refused: how many, and when that was last logged (once a second at most, whatever a client sends).
+#[derive(Debug, Default)]
+struct Refusals {
+    count: AtomicU64,
+    warnings: Mutex<Throttle>,
+}
+
+impl Refusals {
+    /// Refuses `query` with `why`, counted; the caller receives `why`.
+    fn refuse(&self, query: &Query, why: &str) {
+        let count = self.count.fetch_add(1, Ordering::Relaxed) + 1;
+        self.warnings
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner)
+            .warn(|| {
+                format!(
+                    "a call of {} refused: {why} ({count} refused in all)",
+                    query.key_expr()
+                )
+            });
+        let _ = query.reply_err(why.to_owned()).wait();
+    }
 }
 
 impl Component for ServiceServer {
@@ -120,7 +139,7 @@ impl Component for ServiceServer {
                     .attachment()
                     .and_then(|bytes| Attachment::parse(&bytes.to_bytes()))
                 else {
-                    refuse(&query, "a call without rmw_zenoh's attachment", &refused);
+                    refused.refuse(&query, "a call without rmw_zenoh's attachment");
                     return;
                 };
                 let request = query
@@ -130,7 +149,7 @@ impl Component for ServiceServer {
                 let data = match service.read_request(&request) {
                     Ok(data) => data,
                     Err(why) => {
-                        refuse(&query, &why.to_string(), &refused);
+                        refused.refuse(&query, &why.to_string());
                         return;
                     }
                 };
@@ -142,7 +161,7 @@ impl Component for ServiceServer {
                 if let Err(TrySendError::Full(call) | TrySendError::Disconnected(call)) =
                     sender.try_send(call)
                 {
-                    refuse(&call.query, "too many calls waiting", &refused);
+                    refused.refuse(&call.query, "too many calls waiting");
                 }
             })
             .wait()
@@ -172,7 +191,7 @@ impl Component for ServiceServer {
             "kind": "ros2",
             "key": self.key,
             "answered": self.answered,
-            "refused": self.refused.load(Ordering::Relaxed),
+            "refused": self.refused.count.load(Ordering::Relaxed),
         }))
     }
 

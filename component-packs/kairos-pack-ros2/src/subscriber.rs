@@ -17,6 +17,7 @@ use kairos_sdk::{
     Value,
 };
 use zenoh::Wait as _;
+use zenoh::key_expr::KeyExpr;
 use zenoh::liveliness::LivelinessToken;
 use zenoh::pubsub::Subscriber as ZenohSubscriber;
 use zenoh::query::{ConsolidationMode, QueryTarget};
@@ -128,6 +129,7 @@ impl Subscriber {
     fn ask_history(
         &self,
         session: &zenoh::Session,
+        topic: &KeyExpr<'static>,
         depth: i64,
     ) -> Result<std::collections::VecDeque<Arrived>, ComponentError> {
         let query = history_query(&format!("{}/@adv/**", self.key), depth);
@@ -138,12 +140,10 @@ impl Subscriber {
             .timeout(HISTORY_WAIT)
             .wait()
             .map_err(|e| ComponentError::failed(format_args!("cannot ask for {query}: {e}")))?;
-        let topic = zenoh::key_expr::KeyExpr::try_from(self.key.as_str())
-            .map_err(|e| ComponentError::failed(format_args!("{}: {e}", self.key)))?;
         let mut kept = std::collections::VecDeque::new();
         while let Ok(reply) = replies.recv() {
             if let Ok(sample) = reply.result()
-                && sample.key_expr().intersects(&topic)
+                && sample.key_expr().intersects(topic)
             {
                 kept.push_back(Arrived::of(sample));
             }
@@ -156,12 +156,12 @@ impl Subscriber {
     fn watch_late_publishers(
         &self,
         session: &zenoh::Session,
+        topic: KeyExpr<'static>,
         depth: i64,
         messages: SyncSender<Arrived>,
     ) -> Result<ZenohSubscriber<()>, ComponentError> {
         let publishers = format!("{}/@adv/pub/**", self.key);
         let asking = session.clone();
-        let topic = self.key.clone();
         let dropped = Arc::clone(&self.dropped);
         session
             .liveliness()
@@ -178,9 +178,8 @@ impl Subscriber {
                     .consolidation(ConsolidationMode::None)
                     .callback(move |reply| {
                         let Ok(sample) = reply.result() else { return };
-                        let on_topic = zenoh::key_expr::KeyExpr::try_from(topic.as_str())
-                            .is_ok_and(|topic| sample.key_expr().intersects(&topic));
-                        if on_topic && let Err(TrySendError::Full(_)) = messages.try_send(Arrived::of(sample))
+                        if sample.key_expr().intersects(&topic)
+                            && let Err(TrySendError::Full(_)) = messages.try_send(Arrived::of(sample))
                         {
                             dropped.fetch_add(1, Ordering::Relaxed);
                         }
@@ -292,8 +291,10 @@ impl Component for Subscriber {
         if transient_local {
             // Subscribed first, so nothing published meanwhile is missed: then what the publishers kept,
             // written before what came live (a message in both is written once, by its number).
-            self.kept = self.ask_history(&node.session, depth)?;
-            self.late_publishers = Some(self.watch_late_publishers(&node.session, depth, sender)?);
+            let topic = KeyExpr::try_from(self.key.clone())
+                .map_err(|e| ComponentError::failed(format_args!("{}: {e}", self.key)))?;
+            self.kept = self.ask_history(&node.session, &topic, depth)?;
+            self.late_publishers = Some(self.watch_late_publishers(&node.session, topic, depth, sender)?);
         }
         tracing::info!(
             "receiving {topic} ({ros_type}) on {}{}",
