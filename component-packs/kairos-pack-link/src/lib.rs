@@ -188,8 +188,11 @@ pub struct LinkSender {
     sent: u64,
     unmatched: u64,
     failed: u64,
-    /// Whether a receiver matched at the last look (every status period).
+    /// Whether a receiver matched at the last look (every status period, and whenever Zenoh says the
+    /// match changed).
     matched: bool,
+    /// The end's count of match changes at the last look.
+    seen_matching_changes: u64,
     warned: Throttle,
     /// When the receiver's match was last looked at.
     looked: Throttle,
@@ -267,6 +270,7 @@ impl Component for LinkSender {
         let end = declared(network::sender(&key), &key)?;
         self.matched = network::matched(&end);
         self.seen_cuts = end.cuts.load(std::sync::atomic::Ordering::Acquire);
+        self.seen_matching_changes = end.matching_changes.load(std::sync::atomic::Ordering::Acquire);
         self.end = Some(end);
         self.output = kairos_pack_net::encoding::source_name(ctx);
         self.reliable = ctx.bool_property("reliable")?;
@@ -297,7 +301,9 @@ impl Component for LinkSender {
             self.put(&end, frame);
             self.beat(ctx, &end);
         }
-        if self.looked.ready(STATUS_PERIOD) {
+        let matching_changes = end.matching_changes.load(std::sync::atomic::Ordering::Acquire);
+        if matching_changes != self.seen_matching_changes || self.looked.ready(STATUS_PERIOD) {
+            self.seen_matching_changes = matching_changes;
             self.look(ctx, &end);
         }
         Ok(())

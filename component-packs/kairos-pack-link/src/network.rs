@@ -24,12 +24,17 @@ use zenoh::sample::Sample as ZenohSample;
 
 use super::SENDER;
 
-/// How long a silent link lives before Zenoh declares it dead: short, so a cut cable or a killed host is
-/// noticed within about a second (keep-alives go four times per lease).
-const LEASE_MS: u64 = 1000;
+/// How long a silent link lives before Zenoh declares it dead: short, so that a cut cable or a killed
+/// host is said within a second (0.5–0.7 s to notice, the last keep-alive having gone up to a quarter of
+/// a lease before the cut, then up to the coordinator's 250 ms look at the statuses). Keep-alives go four
+/// times per lease, every 175 ms: only a process starved of CPU for 0.7 s misses four in a row.
+const LEASE_MS: u64 = 700;
 
-/// How long a blocking put may wait for room in a link's queue before Zenoh closes the transport.
-const WAIT_BEFORE_CLOSE_MS: u64 = 1000;
+/// How long a blocking put may wait for room in a link's queue before Zenoh closes the transport: a
+/// lease, as a silent peer gets. A cut under a stream that fills the queue (a camera never skipping) is
+/// then said as soon as one that does not, rather than when the far end's closing reaches a sender
+/// whose writes are stuck.
+const WAIT_BEFORE_CLOSE_MS: u64 = LEASE_MS;
 
 /// The sending end of a link: its publisher, blocking when the consumer never skips.
 pub struct SenderEnd {
@@ -40,6 +45,9 @@ pub struct SenderEnd {
     /// Times the receiver stopped matching, counted as Zenoh says it (a reliable link only): a sender
     /// that sees it grow knows the far end may have missed what it put since.
     pub cuts: Arc<AtomicU64>,
+    /// Times the match changed either way, counted as Zenoh says it: the sender looks at once, rather
+    /// than at its next status period, so a cut is said as soon as Zenoh knows it.
+    pub matching_changes: Arc<AtomicU64>,
     session: zenoh::Session,
     key: String,
 }
@@ -374,24 +382,25 @@ pub fn prepare(diagram: &Diagram) -> anyhow::Result<()> {
                 .map_err(|e| anyhow::anyhow!("{e}"))
                 .with_context(context)?;
             let cuts = Arc::new(AtomicU64::new(0));
-            if reliable {
-                let counted = Arc::clone(&cuts);
-                publisher
-                    .matching_listener()
-                    .callback(move |status| {
-                        if !status.matching() {
-                            counted.fetch_add(1, Ordering::AcqRel);
-                        }
-                    })
-                    .background()
-                    .wait()
-                    .map_err(|e| anyhow::anyhow!("{e}"))
-                    .with_context(context)?;
-            }
+            let matching_changes = Arc::new(AtomicU64::new(0));
+            let (counted_cuts, counted_changes) = (Arc::clone(&cuts), Arc::clone(&matching_changes));
+            publisher
+                .matching_listener()
+                .callback(move |status| {
+                    if reliable && !status.matching() {
+                        counted_cuts.fetch_add(1, Ordering::AcqRel);
+                    }
+                    counted_changes.fetch_add(1, Ordering::AcqRel);
+                })
+                .background()
+                .wait()
+                .map_err(|e| anyhow::anyhow!("{e}"))
+                .with_context(context)?;
             let end = Arc::new(SenderEnd {
                 publisher,
                 peer,
                 cuts,
+                matching_changes,
                 session: network.session.clone(),
                 key: key.clone(),
             });
