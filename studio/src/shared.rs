@@ -100,6 +100,10 @@ pub enum SharedMemoryError {
 
 /// How often the reader looks for new frames.
 const POLL: Duration = Duration::from_millis(3);
+/// How often it looks once none has come for [`IDLE_AFTER`] (the diagram stopped or paused, a slow
+/// source): a look every 3 ms costs about a point of a core with nothing to read.
+const IDLE_POLL: Duration = Duration::from_millis(50);
+const IDLE_AFTER: Duration = Duration::from_secs(1);
 
 /// Opens the services (output → service name), reports whether it could as a
 /// [`ClientEvent::SharedMemory`], then forwards every frame as a [`ClientEvent::Sample`] until `stop` is set
@@ -151,9 +155,11 @@ pub fn read_frames(services: &BTreeMap<String, String>, stop: &AtomicBool, event
         }
     };
     let mut pixels = PixelsFromRuntime::default();
+    let mut last_frame = std::time::Instant::now();
     while !stop.load(Ordering::Relaxed) {
         for (_, subscriber) in &subscribers {
             while let Ok(Some(sample)) = subscriber.receive() {
+                last_frame = std::time::Instant::now();
                 // A frame that does not decode is skipped, as on the socket.
                 let Ok((mut header, payload)) = kairos_protocol::frame::decode(sample.payload()) else {
                     continue;
@@ -170,6 +176,10 @@ pub fn read_frames(services: &BTreeMap<String, String>, stop: &AtomicBool, event
                 }
             }
         }
-        std::thread::sleep(POLL);
+        std::thread::sleep(if last_frame.elapsed() < IDLE_AFTER {
+            POLL
+        } else {
+            IDLE_POLL
+        });
     }
 }
