@@ -958,15 +958,30 @@ fn the_clock_master_killed_leaves_its_slave_running_in_holdover_said_by_kairos_d
         &log,
     );
     wait_for_log(&log, "host 'b' started its part", Duration::from_secs(40));
-    std::thread::sleep(Duration::from_secs(1));
+    // Long enough for the deployer to learn how often b's clock hears from its master.
+    std::thread::sleep(Duration::from_secs(2));
     // The master dies (SIGKILL): b's clock goes into holdover, said by the deployer, and b runs on.
     let _ = master.child.kill();
     let _ = master.child.wait();
     let killed_rows = csv_values(&dir_b.path().join("b.csv")).len();
-    wait_for_log(
+    // Said first when the references stop (the slave asks every 250 ms), then when the clock leaves lock.
+    let stopped = wait_for_log(
         &log,
-        "host 'b': its clock left lock (holdover",
+        "host 'b': its clock has had no reference from",
         Duration::from_secs(10),
+    );
+    let left = stopped
+        + wait_for_log(
+            &log,
+            "host 'b': its clock left lock (holdover",
+            Duration::from_secs(10),
+        );
+    eprintln!(
+        "said {stopped:?} after the master died that it stopped answering, {left:?} that the clock left lock"
+    );
+    assert!(
+        stopped < Duration::from_millis(1500) && stopped + Duration::from_secs(1) < left,
+        "the master's silence was said after {stopped:?}, the clock leaving lock after {left:?}"
     );
     std::thread::sleep(Duration::from_secs(2));
     let (status, said) = interrupt(&mut deploying, &log);

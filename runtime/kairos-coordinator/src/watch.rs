@@ -7,7 +7,7 @@ use anyhow::{Context as _, bail};
 use kairos_diagram::{Diagram, Value};
 use kairos_protocol::{ClockState, LinkNetwork, RequestBody};
 
-use crate::clocks::clock_of;
+use crate::clocks::{ReferenceWatch, References, clock_of};
 use crate::host::{Host, Reach};
 use crate::plan::Plan;
 use crate::ship::ship_packs;
@@ -50,6 +50,8 @@ pub struct Watch {
     starving_links: BTreeMap<String, (std::time::Instant, bool)>,
     /// Each host's clock state at the last check, for those that follow one.
     clock_states: BTreeMap<String, ClockState>,
+    /// How each host's clock's references usually come, to say when they stop.
+    references: BTreeMap<String, ReferenceWatch>,
     /// Each lost host's last status, until it answers again.
     last_seen: BTreeMap<String, serde_json::Value>,
     /// What the link ends on hosts that restarted had counted before (by host and component): a
@@ -154,6 +156,7 @@ impl Watch {
             cut_links: BTreeSet::new(),
             starving_links: BTreeMap::new(),
             clock_states: BTreeMap::new(),
+            references: BTreeMap::new(),
             last_seen: BTreeMap::new(),
             earlier: BTreeMap::new(),
         }
@@ -410,6 +413,22 @@ impl Watch {
                 format!(", error bound {:.3} ms", b as f64 * 1e-6)
             });
             let locked = clock.state == ClockState::Locked;
+            let references = self.references.entry(name.clone()).or_default();
+            let now = std::time::Instant::now();
+            match references.look(now, clock.state, clock.references, clock.since_reference_s) {
+                References::Stopped { for_s } => tracing::warn!(
+                    "host '{name}': its clock has had no reference from {} for {for_s:.1} s; it runs on at \
+                     its own rate ({error}{bound}) and leaves lock if none comes within 3 s",
+                    clock.source
+                ),
+                References::Back => {
+                    tracing::info!(
+                        "host '{name}': its clock has references from {} again",
+                        clock.source
+                    );
+                }
+                References::AsUsual => {}
+            }
             match self.clock_states.insert(name.clone(), clock.state) {
                 Some(ClockState::Locked) if !locked => tracing::error!(
                     "host '{name}': its clock left lock ({}, {error}{bound}); what it stamps now drifts \
