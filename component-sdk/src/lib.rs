@@ -21,7 +21,8 @@
 pub use kairos_sdk_core::{descriptor, files, harness, payload, pixels, rng, sample, text};
 
 pub use kairos_sdk_core::component::{
-    Component, ComponentError, ComponentResult, Context, InputPort, OutputPort, PortKey, Synchronizer,
+    Component, ComponentError, ComponentResult, Context, InputPort, OutputPort, PortKey, StatusWriter,
+    Synchronizer,
 };
 pub use kairos_sdk_core::disciplined::{ClockState, ClockStatus};
 pub use kairos_sdk_core::export_pack;

@@ -271,6 +271,9 @@ impl Component for LinkSender {
         self.matched = network::matched(&end);
         self.seen_cuts = end.cuts.load(std::sync::atomic::Ordering::Acquire);
         self.seen_matching_changes = end.matching_changes.load(std::sync::atomic::Ordering::Acquire);
+        *end.status
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner) = ctx.status_writer();
         self.end = Some(end);
         self.output = kairos_pack_net::encoding::source_name(ctx);
         self.reliable = ctx.bool_property("reliable")?;
@@ -312,9 +315,13 @@ impl Component for LinkSender {
     /// Its counts and whether a receiver matched.
     fn status(&self) -> Option<serde_json::Value> {
         let peer = self.end.as_ref().map(|end| end.peer.as_str());
+        // As Zenoh says it now, which its listener also writes while `core` is stuck in a put.
+        let matched = self.end.as_ref().map_or(self.matched, |end| {
+            end.matching.load(std::sync::atomic::Ordering::Acquire)
+        });
         Some(serde_json::json!({
             "kind": "link", "to": peer, "sent": self.sent, "sent_unmatched": self.unmatched,
-            "failed": self.failed, "matched": self.matched, "put_again": self.put_again,
+            "failed": self.failed, "matched": matched, "put_again": self.put_again,
             "kept": self.kept.frames.len(), "answering": self.heartbeat.answering(),
             "silent_s": self.heartbeat.silent_for(Instant::now()).map(|silent| silent.as_secs_f64()),
         }))

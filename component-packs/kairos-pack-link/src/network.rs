@@ -9,7 +9,7 @@
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
 use std::time::Duration;
 
@@ -48,6 +48,12 @@ pub struct SenderEnd {
     /// Times the match changed either way, counted as Zenoh says it: the sender looks at once, rather
     /// than at its next status period, so a cut is said as soon as Zenoh knows it.
     pub matching_changes: Arc<AtomicU64>,
+    /// Whether a receiver matches, as Zenoh last said: what the sender's status reports.
+    pub matching: Arc<AtomicBool>,
+    /// The sender component's status, which the matching listener sets `matched` in as Zenoh says it:
+    /// the sender's own thread may be stuck in a put behind another link's full queue for as long again
+    /// as the lease, and a cut is to be said on every link of the session at once.
+    pub status: Arc<Mutex<Option<kairos_sdk::StatusWriter>>>,
     session: zenoh::Session,
     key: String,
 }
@@ -383,7 +389,14 @@ pub fn prepare(diagram: &Diagram) -> anyhow::Result<()> {
                 .with_context(context)?;
             let cuts = Arc::new(AtomicU64::new(0));
             let matching_changes = Arc::new(AtomicU64::new(0));
-            let (counted_cuts, counted_changes) = (Arc::clone(&cuts), Arc::clone(&matching_changes));
+            let status: Arc<Mutex<Option<kairos_sdk::StatusWriter>>> = Arc::default();
+            let matching = Arc::new(AtomicBool::new(false));
+            let (counted_cuts, counted_changes, now_matching, said) = (
+                Arc::clone(&cuts),
+                Arc::clone(&matching_changes),
+                Arc::clone(&matching),
+                Arc::clone(&status),
+            );
             publisher
                 .matching_listener()
                 .callback(move |status| {
@@ -391,6 +404,12 @@ pub fn prepare(diagram: &Diagram) -> anyhow::Result<()> {
                         counted_cuts.fetch_add(1, Ordering::AcqRel);
                     }
                     counted_changes.fetch_add(1, Ordering::AcqRel);
+                    now_matching.store(status.matching(), Ordering::Release);
+                    if let Some(writer) = said.lock().unwrap_or_else(PoisonError::into_inner).as_ref() {
+                        let mut fields = serde_json::Map::new();
+                        fields.insert("matched".to_owned(), status.matching().into());
+                        writer.merge(fields);
+                    }
                 })
                 .background()
                 .wait()
@@ -401,6 +420,8 @@ pub fn prepare(diagram: &Diagram) -> anyhow::Result<()> {
                 peer,
                 cuts,
                 matching_changes,
+                matching,
+                status,
                 session: network.session.clone(),
                 key: key.clone(),
             });

@@ -378,6 +378,27 @@ impl StatusCell {
     }
 }
 
+/// A component's published status, written from a thread of its own: for a component whose `core` can
+/// block (a put waiting for room in a network queue) while a callback learns what the user must hear of
+/// at once (the far end gone). Its fields are merged into the last status the component published.
+#[derive(Debug, Clone)]
+pub struct StatusWriter(StatusCell);
+
+impl StatusWriter {
+    /// Sets `fields` (a JSON object's) in the published status, keeping the others; a component that
+    /// published none yet gets `fields` as its status.
+    pub fn merge(&self, fields: serde_json::Map<String, serde_json::Value>) {
+        let mut slot = match self.0.0.lock() {
+            Ok(slot) => slot,
+            Err(poisoned) => poisoned.into_inner(),
+        };
+        match slot.as_mut() {
+            Some(serde_json::Value::Object(status)) => status.extend(fields),
+            _ => *slot = Some(serde_json::Value::Object(fields)),
+        }
+    }
+}
+
 impl Context {
     /// Builds a context (the runtime and the harness do this).
     pub(crate) fn new(parts: ContextParts) -> Self {
@@ -458,6 +479,13 @@ impl Context {
         if let Some(status) = component.status() {
             self.set_status(status);
         }
+    }
+
+    /// A handle to write this component's status from another thread (see [`StatusWriter`]); `None` for
+    /// a component loaded from a shared library, whose status crosses the pack ABI only from its own
+    /// calls.
+    pub fn status_writer(&self) -> Option<StatusWriter> {
+        self.remote.is_none().then(|| StatusWriter(self.status.clone()))
     }
 
     /// The cell the runtime reads the status from.
@@ -1041,5 +1069,28 @@ impl Synchronizer {
     /// Resolves input names to indices for [`Synchronizer::new`].
     pub fn inputs_of<K: PortKey>(ctx: &Context, keys: &[K]) -> Result<Vec<usize>, ComponentError> {
         keys.iter().map(|k| ctx.resolve_input(*k)).collect()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::{StatusCell, StatusWriter};
+
+    #[test]
+    fn a_status_writer_on_another_thread_sets_its_fields_and_keeps_the_component_s() {
+        let cell = StatusCell::default();
+        let writer = StatusWriter(cell.clone());
+        let fields = |value: serde_json::Value| value.as_object().cloned().unwrap();
+        // Before the component published anything, the fields are the status.
+        writer.merge(fields(serde_json::json!({"matched": true})));
+        assert_eq!(cell.get(), Some(serde_json::json!({"matched": true})));
+        cell.set(serde_json::json!({"sent": 7, "matched": true}));
+        std::thread::Builder::new()
+            .name("callback".to_owned())
+            .spawn(move || writer.merge(fields(serde_json::json!({"matched": false}))))
+            .unwrap()
+            .join()
+            .unwrap();
+        assert_eq!(cell.get(), Some(serde_json::json!({"sent": 7, "matched": false})));
     }
 }
