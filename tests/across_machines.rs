@@ -1142,7 +1142,9 @@ fn a_camera_through_a_zenoh_partition_is_held_back_no_longer_than_the_lease_and_
     let (camera, imu) = (missed("camera"), missed("imu"));
     eprintln!("ticks missed: camera {camera} of 33.3 ms, imu {imu} of 5 ms");
     assert!(camera <= 60, "the camera was held back {camera} frames\n{said}");
-    assert!(imu <= 500, "the IMU was held back {imu} ticks\n{said}");
+    // Frames travel at a lower priority, in a queue of their own: the IMU's puts never wait behind them
+    // (261 ticks held back when both shared one).
+    assert!(imu <= 50, "the IMU was held back {imu} ticks\n{said}");
     assert_eq!(final_losses(&said), [0, 0], "{said}");
 }
 

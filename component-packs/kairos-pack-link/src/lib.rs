@@ -94,6 +94,9 @@ pub fn sender_descriptor() -> ComponentInfo {
             .range(0.0, 65_536.0)
             .doc("The most memory what a reliable link keeps for a cut may take (the oldest goes first)"),
     )
+    .property(Property::bool("bulk", false).doc(
+        "Large samples (images, point clouds): sent at a lower priority than the other links between the two hosts, whose puts then never wait behind a full queue of frames",
+    ))
     .build()
 }
 

@@ -19,7 +19,7 @@ use kairos_protocol::{LinkEnd, LinkNetwork};
 use zenoh::Wait as _;
 use zenoh::handlers::{FifoChannel, FifoChannelHandler, RingChannel, RingChannelHandler};
 use zenoh::pubsub::{Publisher, Subscriber};
-use zenoh::qos::CongestionControl;
+use zenoh::qos::{CongestionControl, Priority};
 use zenoh::sample::Sample as ZenohSample;
 
 use super::SENDER;
@@ -370,6 +370,11 @@ pub fn prepare(diagram: &Diagram) -> anyhow::Result<()> {
             .get("reliable")
             .and_then(kairos_diagram::Value::as_bool)
             .unwrap_or(false);
+        let bulk = component
+            .properties
+            .get("bulk")
+            .and_then(kairos_diagram::Value::as_bool)
+            .unwrap_or(false);
         let key = text("key");
         let peer = text("peer");
         let context = || format!("link '{}' (key {key})", component.id);
@@ -384,6 +389,8 @@ pub fn prepare(diagram: &Diagram) -> anyhow::Result<()> {
                 } else {
                     CongestionControl::Drop
                 })
+                // Zenoh keeps a queue per priority: frames fill their own.
+                .priority(if bulk { Priority::DataLow } else { Priority::Data })
                 .wait()
                 .map_err(|e| anyhow::anyhow!("{e}"))
                 .with_context(context)?;

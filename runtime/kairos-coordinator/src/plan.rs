@@ -269,6 +269,10 @@ fn place_link(
     sender
         .properties
         .insert("ride_out_mb".to_owned(), Value::F64(ride_out_mb));
+    // Images and point clouds travel behind the light streams (an IMU, a pose): a full queue of frames
+    // then holds back neither their puts nor their delivery.
+    let bulk = matches!(data_type, "image" | "point_cloud");
+    sender.properties.insert("bulk".to_owned(), Value::Bool(bulk));
     producing.components.push(sender);
     producing.connections.push(Connection {
         policy: Some(if reliable {
