@@ -1078,9 +1078,10 @@ fn a_link_that_stays_matched_but_delivers_nothing_is_said_by_kairos_deploy_and_s
     let _ = bystander.wait();
     let (status, said_in_all) = run.stop();
     assert!(status.success(), "{said_in_all}");
-    // The receiver's 1.5 s of nothing, held over 1 s of statuses.
+    // A 100 Hz link's receiver calls 400 ms of quiet unusual and says it at once; the coordinator says it
+    // at its second look that sees it.
     assert!(
-        said < Duration::from_secs(6),
+        said < Duration::from_secs(1),
         "said after {said:?}\n{said_in_all}"
     );
     assert!(

@@ -97,9 +97,6 @@ pub struct Monitor {
     descending: bool,
 }
 
-/// How long a link between hosts must match yet deliver nothing before the studio says so.
-const SILENCE_HELD_NS: i64 = 1_000_000_000;
-
 /// The figures of each subgraph instance, from its inner components' (ids `instance/...`, nested ones
 /// counted in their outermost instance).
 pub fn rolled_up(components: &[ComponentTelemetry]) -> BTreeMap<String, ComponentTelemetry> {
@@ -334,8 +331,8 @@ impl Monitor {
         said
     }
 
-    /// Says a link between hosts that matches but delivers nothing, once it has held over more than one
-    /// telemetry message (its figures are a status period old), and its return.
+    /// Says a link between hosts that matches but delivers nothing, once it has held over two telemetry
+    /// messages (its ends' figures are read at different instants), and its return.
     fn follow_silence(
         &mut self,
         at_ns: i64,
@@ -353,7 +350,7 @@ impl Monitor {
             return;
         }
         let (since, was_said) = self.silent_links.entry(name.to_owned()).or_insert((at_ns, false));
-        if *was_said || at_ns - *since < SILENCE_HELD_NS {
+        if *was_said || at_ns <= *since {
             return;
         }
         *was_said = true;
@@ -643,6 +640,7 @@ mod tests {
                 lost: 0,
                 matched,
                 last_sample_age_ms: None,
+                quiet_after_ms: None,
                 transit_p50_ns: None,
                 transit_max_ns: None,
             }],
@@ -754,5 +752,16 @@ mod tests {
             )]
         );
         assert_eq!(monitor.notices.shown().count(), 0);
+        // A fast link's receiver learnt that 400 ms of quiet is unusual: said at the second message.
+        let fast = |seconds: f64, sent: u64, age_ms: u64| {
+            let mut telemetry = at(seconds, sent, 480, age_ms);
+            telemetry.cross_links[0].quiet_after_ms = Some(400);
+            telemetry
+        };
+        assert!(monitor.update(&fast(7.0, 520, 300)).is_empty());
+        assert!(monitor.update(&fast(7.25, 540, 450)).is_empty());
+        let said = monitor.update(&fast(7.5, 560, 700));
+        assert_eq!(said.len(), 1, "{said:?}");
+        assert!(said[0].1.contains("nothing for 0.7 s while 80 more"), "{said:?}");
     }
 }

@@ -538,12 +538,64 @@ impl LinkSender {
     }
 }
 
+/// The shortest quiet a receiver calls unusual, however fast its link: a status read, a scheduling
+/// hiccup and a burst's batching stay well under it.
+const QUIET_FLOOR: Duration = Duration::from_millis(400);
+
+/// How long a receiver remembers the longest wait between its arrivals.
+const RHYTHM_WINDOW: Duration = Duration::from_secs(5);
+
+/// How long a receiver usually waits between arrivals, and so when a quiet is unusual: twice the longest
+/// wait of the last window or two, at least [`QUIET_FLOOR`]. A wait beyond that is learnt only when the
+/// next one is too (the source slowed down): an outage that ends does not teach that outages are usual.
+#[derive(Debug, Default)]
+struct Rhythm {
+    /// The longest wait in this window and the one before.
+    longest: [Option<Duration>; 2],
+    window_from: Option<Instant>,
+    /// An unusual wait not learnt yet.
+    unusual: Option<Duration>,
+}
+
+impl Rhythm {
+    /// How long a quiet is before it is unusual; `None` until a wait was learnt.
+    fn quiet_after(&self) -> Option<Duration> {
+        let longest = self.longest.iter().flatten().max()?;
+        Some((*longest * 2).max(QUIET_FLOOR))
+    }
+
+    /// A sample came `wait` after the one before.
+    fn arrived(&mut self, wait: Duration, now: Instant) {
+        let window_from = *self.window_from.get_or_insert(now);
+        if now.duration_since(window_from) >= RHYTHM_WINDOW {
+            self.longest = [None, self.longest[0]];
+            self.window_from = Some(now);
+        }
+        if self.quiet_after().is_some_and(|after| wait > after) {
+            let Some(before) = self.unusual.replace(wait) else {
+                return;
+            };
+            self.learn(before);
+        }
+        self.unusual = None;
+        self.learn(wait);
+    }
+
+    fn learn(&mut self, wait: Duration) {
+        self.longest[0] = Some(self.longest[0].map_or(wait, |longest| longest.max(wait)));
+    }
+}
+
 /// `link.receiver`. See [`receiver_descriptor`].
 #[derive(Debug, Default)]
 pub struct LinkReceiver {
     end: Option<std::sync::Arc<network::ReceiverEnd>>,
     samples: SampleReceiver,
     last: Option<Instant>,
+    rhythm: Rhythm,
+    /// Whether the quiet now is unusual, as its status said: the status goes out the moment it becomes
+    /// so and the moment it ends, so the coordinator need not wait for the next status period.
+    quiet: bool,
 }
 
 impl LinkReceiver {
@@ -577,7 +629,10 @@ impl Component for LinkReceiver {
         };
         match end.incoming.recv_timeout(RECEIVE_WAIT) {
             Ok(Some(sample)) => {
-                self.last = Some(Instant::now());
+                let now = Instant::now();
+                if let Some(last) = self.last.replace(now) {
+                    self.rhythm.arrived(now.duration_since(last), now);
+                }
                 self.take(&sample, &end.peer, ctx)?;
                 // What has arrived meanwhile goes in the same call: one wake-up for a burst.
                 for _ in 1..BURST {
@@ -586,8 +641,20 @@ impl Component for LinkReceiver {
                     };
                     self.take(&sample, &end.peer, ctx)?;
                 }
+                if std::mem::take(&mut self.quiet) {
+                    ctx.publish_status(self);
+                }
             }
-            Ok(None) => {}
+            Ok(None) => {
+                let quiet_after = self.rhythm.quiet_after();
+                if !self.quiet
+                    && let (Some(last), Some(after)) = (self.last, quiet_after)
+                    && last.elapsed() >= after
+                {
+                    self.quiet = true;
+                    ctx.publish_status(self);
+                }
+            }
             Err(e) => {
                 return Err(ComponentError::failed(format_args!(
                     "the link from {} closed: {e}",
@@ -603,6 +670,7 @@ impl Component for LinkReceiver {
         let status = serde_json::json!({
             "kind": "link", "from": self.end.as_ref().map(|end| end.peer.as_str()),
             "last_sample_age_ms": self.last.map(|at| at.elapsed().as_millis()),
+            "quiet_after_ms": self.rhythm.quiet_after().map(|after| after.as_millis()),
         });
         Some(kairos_pack_net::encoding::status_with(
             status,
@@ -614,5 +682,37 @@ impl Component for LinkReceiver {
         Err(ComponentError::failed(format_args!(
             "{name} of a link is set by `kairos deploy`; deploy again to change it"
         )))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::{QUIET_FLOOR, Rhythm};
+    use std::time::{Duration, Instant};
+
+    /// Feeds `waits` (ms) one after the other from `start`; the instant after the last.
+    fn feed(rhythm: &mut Rhythm, start: Instant, waits: &[u64]) -> Instant {
+        waits.iter().fold(start, |now, wait| {
+            let now = now + Duration::from_millis(*wait);
+            rhythm.arrived(Duration::from_millis(*wait), now);
+            now
+        })
+    }
+
+    #[test]
+    fn a_quiet_is_unusual_after_twice_the_longest_recent_wait_and_an_outage_teaches_nothing() {
+        let mut rhythm = Rhythm::default();
+        assert_eq!(rhythm.quiet_after(), None, "nothing learnt yet");
+        let now = feed(&mut rhythm, Instant::now(), &[10; 100]);
+        assert_eq!(rhythm.quiet_after(), Some(QUIET_FLOOR), "a fast link: the floor");
+        // A 3 s cut that ends is not learnt; the link at 100 Hz again keeps its 400 ms.
+        let now = feed(&mut rhythm, now, &[3000, 10, 10]);
+        assert_eq!(rhythm.quiet_after(), Some(QUIET_FLOOR));
+        // The source slowed to 1 Hz: two long waits in a row are its new rhythm.
+        let now = feed(&mut rhythm, now, &[1000, 1000]);
+        assert_eq!(rhythm.quiet_after(), Some(Duration::from_secs(2)));
+        // Two windows later at 100 Hz, the slow waits are forgotten.
+        feed(&mut rhythm, now, &[10; 1100]);
+        assert_eq!(rhythm.quiet_after(), Some(QUIET_FLOOR));
     }
 }

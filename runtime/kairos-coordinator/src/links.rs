@@ -102,6 +102,7 @@ pub fn cross_links(
                 lost,
                 matched: sending_end["matched"].as_bool().unwrap_or(false),
                 last_sample_age_ms: receiving_end["last_sample_age_ms"].as_u64(),
+                quiet_after_ms: receiving_end["quiet_after_ms"].as_u64(),
                 transit_p50_ns: receiving_end["transit_p50_ns"].as_i64(),
                 transit_max_ns: receiving_end["transit_max_ns"].as_i64(),
             }

@@ -59,11 +59,13 @@ pub struct Watch {
     earlier: BTreeMap<(String, String), BTreeMap<&'static str, u64>>,
 }
 
-/// How long that must hold, over the statuses' publishing period, before it is said.
-const STARVING_HELD: Duration = Duration::from_secs(1);
+/// How long that must hold before it is said: over two looks. A receiver publishes its status the moment
+/// its quiet becomes unusual and the moment a sample ends it, so a quiet that ends as the sender's new
+/// sample arrives is gone by the next look.
+const STARVING_HELD: Duration = HEALTH_PERIOD;
 
 /// Says a link that matches but delivers nothing: its sender sent samples its receiver never got
-/// while its receiver received nothing for [`kairos_protocol::LINK_QUIET_MS`] (its consumer stalled, or a path Zenoh
+/// while its receiver received nothing for longer than is usual on it (its consumer stalled, or a path Zenoh
 /// still sees as up that carries nothing, seen for minutes after a reconnection that flapped once
 /// more). Only the two ends' statuses together tell it: each end alone sees nothing wrong.
 fn report_starving(
@@ -88,8 +90,13 @@ fn report_starving(
     let arrived = count(receiving_end, "received") + count(receiving_end, "lost");
     let quiet_ms = receiving_end["last_sample_age_ms"].as_u64();
     let quiet_for = quiet_ms.map(Duration::from_millis);
-    let starving =
-        kairos_protocol::link_delivers_nothing(sending_end["matched"] == true, sent, arrived, quiet_ms);
+    let starving = kairos_protocol::link_delivers_nothing(
+        sending_end["matched"] == true,
+        sent,
+        arrived,
+        quiet_ms,
+        receiving_end["quiet_after_ms"].as_u64(),
+    );
     let now = std::time::Instant::now();
     if !starving {
         if let Some((_, true)) = starving_links.remove(&link.key) {
@@ -98,7 +105,6 @@ fn report_starving(
         return;
     }
     let (since, said) = starving_links.entry(link.key.clone()).or_insert((now, false));
-    // Statuses are up to a publishing period old: it must hold over more than one.
     if !*said && now.duration_since(*since) >= STARVING_HELD {
         *said = true;
         let quiet = quiet_for.map_or_else(

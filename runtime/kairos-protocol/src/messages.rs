@@ -987,6 +987,10 @@ pub struct CrossLinkTelemetry {
     /// How long ago the last sample arrived, ms.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub last_sample_age_ms: Option<u64>,
+    /// From how long a quiet is unusual on this link, ms: twice the longest recent wait between its
+    /// arrivals, at least 400 ms, as its receiver learnt it; absent until it learnt one.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub quiet_after_ms: Option<u64>,
     /// Time in transit over the last 256 samples, median and most, ns: the receiving host's clock at
     /// arrival less the time of issue on the producer's host (their clocks synchronised).
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -997,7 +1001,8 @@ pub struct CrossLinkTelemetry {
 }
 
 /// How long a link between hosts may have delivered nothing, while samples were sent that its receiver
-/// never got, before it is said to deliver nothing (by `kairos deploy` and the studio).
+/// never got, before it is said to deliver nothing (by `kairos deploy` and the studio), until its
+/// receiver learnt how long it usually waits (`quiet_after_ms`).
 pub const LINK_QUIET_MS: u64 = 1500;
 
 impl CrossLinkTelemetry {
@@ -1008,18 +1013,27 @@ impl CrossLinkTelemetry {
             self.sent,
             self.received + self.lost,
             self.last_sample_age_ms,
+            self.quiet_after_ms,
         )
     }
 }
 
 /// Whether a link whose sender sees its receiver (`matched`) delivers nothing: of the `sent` samples,
 /// only `arrived` reached the receiver (received or counted lost), and it has received nothing for
-/// [`LINK_QUIET_MS`] (`quiet_ms`: its last sample's age; `None`, none yet). Its consumer is stalled, or
-/// the path between the hosts carries nothing though both ends still see each other (seen for minutes
-/// after a reconnection that flapped once more). Statuses are a publishing period old: said only when
-/// it holds over more than one.
-pub fn link_delivers_nothing(matched: bool, sent: u64, arrived: u64, quiet_ms: Option<u64>) -> bool {
-    matched && sent > arrived && quiet_ms.is_none_or(|quiet| quiet >= LINK_QUIET_MS)
+/// `quiet_after_ms` (what its receiver learnt is unusual for it), or [`LINK_QUIET_MS`] before it
+/// learnt (`quiet_ms`: its last sample's age; `None`, none yet). Its consumer is stalled, or the path
+/// between the hosts carries nothing though both ends still see each other (seen for minutes after a
+/// reconnection that flapped once more). The two ends' statuses are read at different instants (a
+/// receiver's quiet may end just after a sender's new sample): said only when it holds at two looks.
+pub fn link_delivers_nothing(
+    matched: bool,
+    sent: u64,
+    arrived: u64,
+    quiet_ms: Option<u64>,
+    quiet_after_ms: Option<u64>,
+) -> bool {
+    let quiet_after = quiet_after_ms.unwrap_or(LINK_QUIET_MS);
+    matched && sent > arrived && quiet_ms.is_none_or(|quiet| quiet >= quiet_after)
 }
 
 /// Where a runtime's clock stands against its reference, on the wire as its snake-case name.
