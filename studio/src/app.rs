@@ -7,7 +7,7 @@ use std::path::PathBuf;
 use kairos_diagram::{ComponentInstance, LibraryInfo, Value};
 use kairos_protocol::{LogLevel, RequestBody};
 
-use crate::canvas::{Canvas, auto_layout};
+use crate::canvas::{Canvas, auto_layout, lay_out_if_stacked};
 use crate::chooser::{self, Choice, FileChooser, Purpose};
 use crate::client::RuntimeClient;
 use crate::commands::{AfterDiscard, Command};
@@ -63,6 +63,10 @@ pub struct StudioApp {
     frame_trace: Option<(std::time::Instant, u64)>,
 }
 
+/// Said when a diagram opened with every component at one place was laid out.
+const STACKED_LAID_OUT: &str =
+    "the diagram gives its components no positions: they are laid out in columns (save to keep them)";
+
 impl StudioApp {
     /// A studio editing `document`, driving the runtime behind `client` (none: editing only, with
     /// `library` as the palette), named `runtime_label`; `local` is the runtime the studio started, kept
@@ -77,6 +81,9 @@ impl StudioApp {
         let (settings, settings_error) = Settings::load(crate::settings::default_folder());
         let mut session = Session::new(document, library, settings);
         session.restore_viewers();
+        if lay_out_if_stacked(&mut session.document) {
+            session.note(LogLevel::Info, STACKED_LAID_OUT.to_owned());
+        }
         if let Some(error) = settings_error {
             session.note(LogLevel::Warn, error);
         }
@@ -597,6 +604,9 @@ impl StudioApp {
     fn open(&mut self, path: &std::path::Path) -> bool {
         let opened = self.session.open(path);
         if opened {
+            if lay_out_if_stacked(&mut self.session.document) {
+                self.session.note(LogLevel::Info, STACKED_LAID_OUT.to_owned());
+            }
             self.session.document_replaced();
             self.canvas = Canvas::default();
             self.canvas.fit(&self.session.document, &self.session.library);

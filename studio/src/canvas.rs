@@ -1092,7 +1092,19 @@ pub fn zoom_in_fine_steps(ctx: &egui::Context) {
     }
 }
 
-/// Lays the diagram out in columns by depth (sources left, sinks right), one undoable edit.
+/// Lays out a diagram whose components all sit at one place (a file written by hand or by a script,
+/// with no `position`), as Tidy layout does; whether it did. One undoable edit, which a save keeps.
+pub fn lay_out_if_stacked(document: &mut Document) -> bool {
+    let components = &document.diagram().components;
+    let stacked = components.len() > 1 && components.iter().all(|c| c.position == components[0].position);
+    if stacked {
+        auto_layout(document);
+    }
+    stacked
+}
+
+/// Lays the diagram out in columns by depth (sources left, sinks right), one undoable edit; the columns
+/// leave room for a link's figures (a link between hosts says its hosts, losses, transit and age).
 pub fn auto_layout(document: &mut Document) {
     let diagram = document.diagram().clone();
     let mut depth: BTreeMap<String, usize> = diagram.components.iter().map(|c| (c.id.clone(), 0)).collect();
@@ -1118,10 +1130,48 @@ pub fn auto_layout(document: &mut Document) {
             let column = depth.get(&component.id).copied().unwrap_or(0);
             let row = rows.entry(column).or_insert(0);
             component.position = Position {
-                x: 40.0 + column as f32 * (NODE_WIDTH + 90.0),
+                x: 40.0 + column as f32 * (NODE_WIDTH + 170.0),
                 y: 40.0 + *row as f32 * 150.0,
             };
             *row += 1;
         }
     });
+}
+
+#[cfg(test)]
+mod tests {
+    use super::{Document, lay_out_if_stacked};
+    use kairos_diagram::{ComponentInstance, Connection, Diagram, PortRef, Position};
+
+    fn diagram(positions: &[(f32, f32)]) -> Diagram {
+        let mut diagram = Diagram::default();
+        for (index, (x, y)) in positions.iter().enumerate() {
+            let mut component = ComponentInstance::new(format!("c{index}"), "core.gain");
+            component.position = Position { x: *x, y: *y };
+            diagram.components.push(component);
+        }
+        diagram.connections.push(Connection::new(
+            PortRef::new("c0", "out"),
+            PortRef::new("c1", "in"),
+        ));
+        diagram
+    }
+
+    #[test]
+    fn a_diagram_with_no_positions_is_laid_out_in_columns_and_one_with_positions_is_left() {
+        let mut stacked = Document::unsaved(diagram(&[(0.0, 0.0); 3]));
+        assert!(lay_out_if_stacked(&mut stacked));
+        let components = &stacked.diagram().components;
+        assert!(
+            components[1].position.x > components[0].position.x,
+            "c1 after its source"
+        );
+        assert_ne!(components[0].position, components[2].position);
+        let mut placed = Document::unsaved(diagram(&[(0.0, 0.0), (300.0, 0.0), (0.0, 200.0)]));
+        assert!(!lay_out_if_stacked(&mut placed));
+        assert_eq!(
+            placed.diagram().components[1].position,
+            Position { x: 300.0, y: 0.0 }
+        );
+    }
 }

@@ -669,8 +669,12 @@ impl Runtime {
         deployment.start_late_ns = None;
         let identity = self.identity(deployment.installed);
         self.generation.fetch_add(1, Ordering::Release);
-        let plural = if components == 1 { "" } else { "s" };
-        tracing::info!("deployed a diagram of {components} component{plural}");
+        match components {
+            // A spread diagram's coordinator with every component on other hosts.
+            0 => tracing::info!("deployed: none of the diagram's components runs on this machine"),
+            1 => tracing::info!("deployed a diagram of 1 component"),
+            _ => tracing::info!("deployed a diagram of {components} components"),
+        }
         Ok(DeployResult {
             diagnostics: part.diagnostics,
             components,
