@@ -693,6 +693,12 @@ fn a_cut_of_the_links_alone_is_said_by_kairos_deploy_and_so_is_their_return() {
         !content.contains("is lost"),
         "no host was lost, only links: {content}"
     );
+    // A dead path is quiet before it is unmatched: it may be said to deliver nothing first, never to
+    // deliver again when the cut ends that.
+    assert!(
+        !content.contains("delivers again"),
+        "the cut, not a return, ended its quiet: {content}"
+    );
 }
 
 /// A counter on host a, through host b and back to a CSV file on a, every consumer never skipping, the

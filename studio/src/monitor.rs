@@ -8,7 +8,8 @@ use std::time::{Duration, Instant};
 
 use egui::{Color32, RichText, Sense, Stroke, Vec2};
 use kairos_protocol::{
-    ComponentState, ComponentTelemetry, GroupTelemetry, LinkTelemetry, LogLevel, Telemetry,
+    ClockState, ClockTelemetry, ComponentState, ComponentTelemetry, GroupTelemetry, LinkTelemetry, LogLevel,
+    ReferenceWatch, References, Telemetry,
 };
 
 use crate::notices::{Notices, Problem};
@@ -92,6 +93,11 @@ pub struct Monitor {
     /// The links between hosts that match but deliver nothing: since when (the runtime clock, ns), and
     /// whether it was said.
     silent_links: BTreeMap<String, (i64, bool)>,
+    /// Each host's clock that follows a source: its references watched, and its state at the last look.
+    clocks: BTreeMap<String, (ReferenceWatch, ClockState)>,
+    /// The first telemetry's time and when it came: later ones' times become instants from it, so the
+    /// clocks' references are timed on the runtime's clock.
+    clock_epoch: Option<(i64, Instant)>,
     cuts: BTreeMap<Problem, u64>,
     sort: SortBy,
     descending: bool,
@@ -150,6 +156,8 @@ impl Default for Monitor {
             lost_hosts: BTreeSet::new(),
             cut_links: BTreeSet::new(),
             silent_links: BTreeMap::new(),
+            clocks: BTreeMap::new(),
+            clock_epoch: None,
             cuts: BTreeMap::new(),
             sort: SortBy::Name,
             descending: false,
@@ -300,6 +308,9 @@ impl Monitor {
                 self.notices.resolve(&problem);
                 said.push((LogLevel::Info, format!("host '{}' answers again", host.name)));
             }
+            if let Some(clock) = &host.clock {
+                self.follow_clock(telemetry.at_ns, &host.name, clock, &mut said);
+            }
         }
         for link in &telemetry.cross_links {
             let name = format!("{} -> {}", link.from, link.to);
@@ -331,6 +342,73 @@ impl Monitor {
         said
     }
 
+    /// Raises a notice when a host's clock has had no reference for well over its usual wait (its master
+    /// or receiver silent, long before the clock leaves lock) and when it leaves lock; takes them back
+    /// when references come again and when it locks again. As `kairos deploy` says them.
+    fn follow_clock(
+        &mut self,
+        at_ns: i64,
+        host: &str,
+        clock: &ClockTelemetry,
+        said: &mut Vec<(LogLevel, String)>,
+    ) {
+        let (epoch_ns, epoch) = *self.clock_epoch.get_or_insert((at_ns, Instant::now()));
+        let now = epoch + Duration::from_nanos(u64::try_from(at_ns - epoch_ns).unwrap_or(0));
+        let error = format!("error {:+.3} ms", clock.error_ns as f64 * 1e-6);
+        let (watch, state) = self
+            .clocks
+            .entry(host.to_owned())
+            .or_insert_with(|| (ReferenceWatch::default(), clock.state));
+        let silent = Problem::ClockSilent(host.to_owned());
+        match watch.look(now, clock.state, clock.references, clock.since_reference_s) {
+            References::Stopped { for_s } => {
+                let text = format!(
+                    "host '{host}': its clock has had no reference from {} for {for_s:.1} s; it runs on at its \
+                     own rate ({error}) and leaves lock if none comes within 3 s",
+                    clock.source
+                );
+                let times = self.cuts.entry(silent.clone()).or_insert(0);
+                *times += 1;
+                self.notices.raise(silent.clone(), text.clone(), *times);
+                said.push((LogLevel::Warn, text));
+            }
+            References::Back => {
+                self.notices.resolve(&silent);
+                said.push((
+                    LogLevel::Info,
+                    format!(
+                        "host '{host}': its clock has references from {} again",
+                        clock.source
+                    ),
+                ));
+            }
+            References::AsUsual => {}
+        }
+        let was = std::mem::replace(state, clock.state);
+        let unlocked = Problem::ClockUnlocked(host.to_owned());
+        if was == ClockState::Locked && clock.state != ClockState::Locked {
+            // Out of lock, its state says it all.
+            self.notices.resolve(&silent);
+            let text = format!(
+                "host '{host}': its clock left lock ({}, {error}); what it stamps now drifts against the \
+                 other hosts",
+                clock.state
+            );
+            let times = self.cuts.entry(unlocked.clone()).or_insert(0);
+            *times += 1;
+            self.notices.raise(unlocked, text.clone(), *times);
+            said.push((LogLevel::Error, text));
+        } else if was != ClockState::Locked
+            && clock.state == ClockState::Locked
+            && self.notices.resolve(&unlocked)
+        {
+            said.push((
+                LogLevel::Info,
+                format!("host '{host}': its clock is locked again ({error})"),
+            ));
+        }
+    }
+
     /// Says a link between hosts that matches but delivers nothing, once it has held over two telemetry
     /// messages (its ends' figures are read at different instants), and its return.
     fn follow_silence(
@@ -345,7 +423,10 @@ impl Monitor {
         if !link.delivers_nothing() {
             if let Some((_, true)) = self.silent_links.remove(name) {
                 self.notices.resolve(&problem);
-                said.push((LogLevel::Info, format!("link {name} ({between}) delivers again")));
+                // A cut ends it too (a dead path is first quiet, then unmatched): the cut is said then.
+                if link.matched {
+                    said.push((LogLevel::Info, format!("link {name} ({between}) delivers again")));
+                }
             }
             return;
         }
@@ -611,7 +692,9 @@ fn sparkline(ui: &mut egui::Ui, values: &VecDeque<f32>, color: Color32) {
 
 #[cfg(test)]
 mod tests {
-    use kairos_protocol::{CrossLinkTelemetry, HostTelemetry, LogLevel, RuntimeState, Telemetry};
+    use kairos_protocol::{
+        ClockState, ClockTelemetry, CrossLinkTelemetry, HostTelemetry, LogLevel, RuntimeState, Telemetry,
+    };
 
     use super::Monitor;
 
@@ -763,5 +846,73 @@ mod tests {
         let said = monitor.update(&fast(7.5, 560, 700));
         assert_eq!(said.len(), 1, "{said:?}");
         assert!(said[0].1.contains("nothing for 0.7 s while 80 more"), "{said:?}");
+        // Then the lease ends and the link is cut: the cut is said, not that it delivers again.
+        let mut cut = fast(7.75, 560, 950);
+        cut.cross_links[0].matched = false;
+        let said = monitor.update(&cut);
+        assert!(
+            said.iter().all(|(_, text)| !text.contains("delivers again")),
+            "{said:?}"
+        );
+    }
+
+    #[test]
+    fn a_clock_master_that_stops_answering_is_said_before_the_clock_leaves_lock_and_both_end() {
+        let mut monitor = Monitor::default();
+        let at = |look: u32, state: ClockState, references: u64, since_s: f64| {
+            let mut telemetry = telemetry(true, true);
+            telemetry.at_ns = i64::from(look) * 250_000_000;
+            telemetry.hosts[0].clock = Some(ClockTelemetry {
+                source: "master 10.0.0.1:7401".to_owned(),
+                state,
+                error_ns: 20_000,
+                step_ns: 0,
+                references,
+                since_reference_s: Some(since_s),
+                error_bound_ns: Some(40_000),
+                rate_ppm: None,
+            });
+            telemetry
+        };
+        // A reference between each two telemetry messages, 250 ms apart.
+        for look in 0..12 {
+            assert!(
+                monitor
+                    .update(&at(look, ClockState::Locked, u64::from(look), 0.1))
+                    .is_empty()
+            );
+        }
+        // The master dies: said once its silence is over 1 s, while the clock is still locked.
+        let said: Vec<_> = (12..18)
+            .flat_map(|look| monitor.update(&at(look, ClockState::Locked, 11, f64::from(look - 11) * 0.25)))
+            .collect();
+        assert_eq!(said.len(), 1, "{said:?}");
+        assert_eq!(said[0].0, LogLevel::Warn);
+        assert!(
+            said[0]
+                .1
+                .starts_with("host 'b': its clock has had no reference from master"),
+            "{said:?}"
+        );
+        assert_eq!(monitor.notices.shown().count(), 1);
+        // Holdover: the state speaks, and the silence's notice gives way to it.
+        let said = monitor.update(&at(24, ClockState::Holdover, 11, 3.25));
+        assert_eq!(said.len(), 1, "{said:?}");
+        assert!(
+            said[0]
+                .1
+                .contains("its clock left lock (holdover, error +0.020 ms)"),
+            "{said:?}"
+        );
+        assert_eq!(monitor.notices.shown().count(), 1);
+        let said = monitor.update(&at(30, ClockState::Locked, 12, 0.1));
+        assert_eq!(
+            said,
+            [(
+                LogLevel::Info,
+                "host 'b': its clock is locked again (error +0.020 ms)".to_owned()
+            )]
+        );
+        assert_eq!(monitor.notices.shown().count(), 0);
     }
 }

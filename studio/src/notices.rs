@@ -24,6 +24,10 @@ pub enum Problem {
     LinkCut(String),
     /// A connection between two hosts matches but delivers nothing.
     LinkSilent(String),
+    /// A host's clock has had no reference for well over its usual wait (its name).
+    ClockSilent(String),
+    /// A host's clock left lock (its name).
+    ClockUnlocked(String),
 }
 
 /// One problem's notice.
@@ -46,10 +50,8 @@ impl Notice {
     fn shown(&self, now: Instant) -> bool {
         !self.dismissed
             && match self.problem {
-                Problem::Failed(_) | Problem::HostLost(_) | Problem::LinkCut(_) | Problem::LinkSilent(_) => {
-                    true
-                }
                 Problem::Losses(_) => now.duration_since(self.last) < SHOWN_AFTER_LAST,
+                _ => true,
             }
     }
 
@@ -57,14 +59,8 @@ impl Notice {
     pub fn line(&self) -> String {
         match self.problem {
             Problem::Losses(_) => format!("{} ({} lost so far)", self.text, self.count),
-            Problem::Failed(_) | Problem::HostLost(_) | Problem::LinkCut(_) | Problem::LinkSilent(_)
-                if self.count > 1 =>
-            {
-                format!("{} ({} times)", self.text, self.count)
-            }
-            Problem::Failed(_) | Problem::HostLost(_) | Problem::LinkCut(_) | Problem::LinkSilent(_) => {
-                self.text.clone()
-            }
+            _ if self.count > 1 => format!("{} ({} times)", self.text, self.count),
+            _ => self.text.clone(),
         }
     }
 }
@@ -99,9 +95,11 @@ impl Notices {
         true
     }
 
-    /// The problem is over (a failed component runs again): its notice goes.
-    pub fn resolve(&mut self, problem: &Problem) {
+    /// The problem is over (a failed component runs again): its notice goes; whether there was one.
+    pub fn resolve(&mut self, problem: &Problem) -> bool {
+        let before = self.list.len();
         self.list.retain(|n| &n.problem != problem);
+        self.list.len() != before
     }
 
     /// Forgets every notice (a new deployment).

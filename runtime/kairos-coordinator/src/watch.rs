@@ -5,9 +5,9 @@ use std::time::Duration;
 
 use anyhow::{Context as _, bail};
 use kairos_diagram::{Diagram, Value};
-use kairos_protocol::{ClockState, LinkNetwork, RequestBody};
+use kairos_protocol::{ClockState, LinkNetwork, ReferenceWatch, References, RequestBody};
 
-use crate::clocks::{ReferenceWatch, References, clock_of};
+use crate::clocks::clock_of;
 use crate::host::{Host, Reach};
 use crate::plan::Plan;
 use crate::ship::ship_packs;
@@ -90,8 +90,9 @@ fn report_starving(
     let arrived = count(receiving_end, "received") + count(receiving_end, "lost");
     let quiet_ms = receiving_end["last_sample_age_ms"].as_u64();
     let quiet_for = quiet_ms.map(Duration::from_millis);
+    let matched = sending_end["matched"] == true;
     let starving = kairos_protocol::link_delivers_nothing(
-        sending_end["matched"] == true,
+        matched,
         sent,
         arrived,
         quiet_ms,
@@ -99,7 +100,10 @@ fn report_starving(
     );
     let now = std::time::Instant::now();
     if !starving {
-        if let Some((_, true)) = starving_links.remove(&link.key) {
+        // A cut ends it too (a dead path is first quiet, then unmatched): the cut is what is said then.
+        if let Some((_, true)) = starving_links.remove(&link.key)
+            && matched
+        {
             tracing::info!("link {words} delivers again");
         }
         return;

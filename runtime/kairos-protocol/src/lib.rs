@@ -22,8 +22,11 @@
 
 use serde::{Deserialize, Serialize};
 
+mod clock_watch;
 pub mod frame;
 mod messages;
+
+pub use clock_watch::{ReferenceWatch, References};
 
 /// Pixel buffers in shared memory (the `kairos-shm` crate, which the runtime side shares without linking the
 /// protocol): frames name them instead of carrying the pixels.
