@@ -134,6 +134,7 @@ pub fn run(registry: &Registry, path: &Path, options: &RunOptions) -> anyhow::Re
     // Deploying: every host's part and this machine's are prepared before any host's is committed, and
     // all are started together; then the diagram run here is this machine's part alone.
     let mut watch = None;
+    let in_all = parsed.diagram.components.len();
     let mut engine = match options.deploy {
         Some(deploy) => {
             let folder = path.parent().unwrap_or_else(|| Path::new("."));
@@ -161,10 +162,18 @@ pub fn run(registry: &Registry, path: &Path, options: &RunOptions) -> anyhow::Re
         options.deploy.unwrap_or_default(),
         &note,
     )?;
+    let here = parsed.diagram.components.len();
+    let components = match &watch {
+        // A spread diagram: what runs here is this machine's part alone.
+        Some(watch) => format!(
+            "{in_all} components over {} hosts, {here} of them here",
+            watch.hosts.len()
+        ),
+        None => format!("{here} components"),
+    };
     tracing::info!(
-        "running {} ({} components){}",
+        "running {} ({components}){}",
         path.display(),
-        parsed.diagram.components.len(),
         options
             .duration
             .map_or_else(|| "; Ctrl-C stops".to_owned(), |d| format!(" for {d:?}"))
