@@ -1072,6 +1072,26 @@ fn a_link_that_stays_matched_but_delivers_nothing_is_said_by_kairos_deploy_and_s
         Duration::from_secs(20),
     );
     eprintln!("said after {said:?}");
+    // `kairos status` shows it on the receiving host too.
+    let shown = Command::new("ip")
+        .args([
+            "netns",
+            "exec",
+            &namespaces.names[0],
+            env!("CARGO_BIN_EXE_kairos"),
+            "status",
+            &run.servers.1.url,
+        ])
+        .arg("--token-file")
+        .arg(run.dir_b.path().join("token.txt"))
+        .arg("--allow-clear-text-tokens")
+        .output()
+        .unwrap();
+    let shown = String::from_utf8_lossy(&shown.stdout).into_owned();
+    assert!(
+        shown.contains("QUIET: ") && shown.contains("from count.out on host 'a': nothing for"),
+        "{shown}"
+    );
     std::thread::sleep(Duration::from_secs(1));
     assert!(namespaces.block_zenoh(false));
     wait_for_log(

@@ -600,7 +600,8 @@ impl Watch {
     }
 }
 /// The status component `id` published, as a host's `status` reply tells it (null when it has none).
-fn component_status<'s>(status: &'s serde_json::Value, id: &str) -> &'s serde_json::Value {
+/// Component `id`'s own status in a host's `status` reply (`null` when it has none).
+pub fn component_status<'s>(status: &'s serde_json::Value, id: &str) -> &'s serde_json::Value {
     status["telemetry"]["components"]
         .as_array()
         .and_then(|components| components.iter().find(|c| c["id"] == id))

@@ -23,6 +23,26 @@ fn start_words(late_ns: i64) -> String {
     }
 }
 
+/// A receiving link end quiet for longer than is usual on its link (what its receiver learnt, else
+/// [`kairos_protocol::LINK_QUIET_MS`]), in words: its sender stopped, or the path carries nothing.
+fn quiet_words(link: &kairos_protocol::LinkEnd, status: &serde_json::Value) -> Option<String> {
+    let receiver = kairos_coordinator::watch::component_status(status, &link.component);
+    let quiet_ms = receiver["last_sample_age_ms"].as_u64()?;
+    let usual_ms = receiver["quiet_after_ms"]
+        .as_u64()
+        .unwrap_or(kairos_protocol::LINK_QUIET_MS);
+    (quiet_ms >= usual_ms).then(|| {
+        format!(
+            "QUIET: {} from {}: nothing for {:.1} s (unusual after {:.1} s): its sender stopped, or the \
+             path between the hosts carries nothing",
+            link.component,
+            link.peer,
+            quiet_ms as f64 * 1e-3,
+            usual_ms as f64 * 1e-3
+        )
+    })
+}
+
 /// One host's line: `car (ws://10.0.0.2:7400): running, 4 components, clock locked ±4.2 µs, links 2 of 2
 /// matched, Foxglove on ws://127.0.0.1:8765 (every output, 1 client(s))`.
 fn line(name: &str, spec: &HostSpec, reach: &Reach) -> String {
@@ -31,7 +51,8 @@ fn line(name: &str, spec: &HostSpec, reach: &Reach) -> String {
         Err(error) => return format!("{name} ({}): NOT REACHED: {error:#}", spec.endpoint),
     };
     let mut text = format!("{name} ({}): ", spec.endpoint);
-    match host.call(RequestBody::Status) {
+    let answered = host.call(RequestBody::Status);
+    match &answered {
         Ok(status) => {
             let state = status["state"].as_str().unwrap_or("unknown");
             let _ = write!(text, "{state}");
@@ -45,7 +66,7 @@ fn line(name: &str, spec: &HostSpec, reach: &Reach) -> String {
                     let _ = write!(text, " ({failed} FAILED)");
                 }
             }
-            match kairos_coordinator::clocks::clock_of(&status) {
+            match kairos_coordinator::clocks::clock_of(status) {
                 Some(clock) if clock.state == kairos_protocol::ClockState::Master => {
                     text.push_str(", clock master");
                 }
@@ -87,6 +108,13 @@ fn line(name: &str, spec: &HostSpec, reach: &Reach) -> String {
         );
         for link in senders.iter().filter(|l| !l.matched) {
             let _ = write!(text, "\n    NOT MATCHED: {} -> {}", link.component, link.peer);
+        }
+        if let Ok(status) = &answered {
+            for link in links.links.iter().filter(|l| l.role != "sender") {
+                if let Some(quiet) = quiet_words(link, status) {
+                    let _ = write!(text, "\n    {quiet}");
+                }
+            }
         }
     }
     if let Ok(foxglove) = host
