@@ -940,21 +940,7 @@ fn the_clock_master_killed_leaves_its_slave_running_in_holdover_said_by_kairos_d
     // Deploying starts nothing on an unlocked clock: b's locks to the master across the namespaces first.
     let waiting = std::time::Instant::now();
     loop {
-        let shown = Command::new("ip")
-            .args([
-                "netns",
-                "exec",
-                &namespaces.names[0],
-                env!("CARGO_BIN_EXE_kairos"),
-                "status",
-                &b.url,
-            ])
-            .arg("--token-file")
-            .arg(dir_b.path().join("token.txt"))
-            .arg("--allow-clear-text-tokens")
-            .output()
-            .unwrap();
-        let line = String::from_utf8_lossy(&shown.stdout).into_owned();
+        let line = status_of(&namespaces.names[0], &b.url, &dir_b.path().join("token.txt"));
         if line.contains("clock locked") {
             break;
         }
@@ -1016,6 +1002,25 @@ fn the_clock_master_killed_leaves_its_slave_running_in_holdover_said_by_kairos_d
     drop(b);
 }
 
+/// What `kairos status` prints for the runtime at `url`, asked from inside network namespace `namespace`.
+fn status_of(namespace: &str, url: &str, token_file: &Path) -> String {
+    let shown = Command::new("ip")
+        .args([
+            "netns",
+            "exec",
+            namespace,
+            env!("CARGO_BIN_EXE_kairos"),
+            "status",
+            url,
+        ])
+        .arg("--token-file")
+        .arg(token_file)
+        .arg("--allow-clear-text-tokens")
+        .output()
+        .unwrap();
+    String::from_utf8_lossy(&shown.stdout).into_owned()
+}
+
 /// A Zenoh peer of its own on host a, subscribed to every key: it keeps a's link senders matched whatever
 /// happens between the hosts, as a stale match did for minutes after a reconnection that flapped once
 /// more. Runs until killed; says "ready" once connected.
@@ -1073,21 +1078,11 @@ fn a_link_that_stays_matched_but_delivers_nothing_is_said_by_kairos_deploy_and_s
     );
     eprintln!("said after {said:?}");
     // `kairos status` shows it on the receiving host too.
-    let shown = Command::new("ip")
-        .args([
-            "netns",
-            "exec",
-            &namespaces.names[0],
-            env!("CARGO_BIN_EXE_kairos"),
-            "status",
-            &run.servers.1.url,
-        ])
-        .arg("--token-file")
-        .arg(run.dir_b.path().join("token.txt"))
-        .arg("--allow-clear-text-tokens")
-        .output()
-        .unwrap();
-    let shown = String::from_utf8_lossy(&shown.stdout).into_owned();
+    let shown = status_of(
+        &namespaces.names[0],
+        &run.servers.1.url,
+        &run.dir_b.path().join("token.txt"),
+    );
     assert!(
         shown.contains("QUIET: ") && shown.contains("from count.out on host 'a': nothing for"),
         "{shown}"
