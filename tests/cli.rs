@@ -626,6 +626,24 @@ fn the_area_resize_is_opencv_s_at_any_scale() {
     }
 }
 
+/// Bilinear resizing, shrinking and enlarging, is OpenCV's `INTER_LINEAR` value for value (its 11-bit
+/// fixed point, computed in Kairos's own vector loops).
+#[test]
+fn the_bilinear_resize_is_opencv_s_at_any_scale() {
+    for (width, height) in [(128, 96), (240, 180), (100, 70), (517, 389), (3, 2)] {
+        let differs = differs_from_opencv(
+            &format!(
+                r#"type: "vision.resize", properties: {{"width": {width}, "height": {height}, "interpolation": "bilinear"}}"#
+            ),
+            &format!("cv2.resize(source, ({width}, {height}), interpolation=cv2.INTER_LINEAR)"),
+        );
+        assert_eq!(
+            differs, "0",
+            "{width}×{height}: the most a value differs from OpenCV's"
+        );
+    }
+}
+
 /// Runs `script` with the tests' Python; its standard output.
 fn python_output(script: &str) -> String {
     let done = Command::new("python3")

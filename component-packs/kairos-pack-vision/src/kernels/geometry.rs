@@ -1,5 +1,6 @@
-//! Geometry: resize, crop, flip and rotate. Resizing is `fast_image_resize`'s SIMD code; the rest moves
-//! whole rows or pixels.
+//! Geometry: resize, crop, flip and rotate. Bilinear resizing is OpenCV's fixed point ([`super::linear`]),
+//! shrinking by area OpenCV's `INTER_AREA` (below), nearest and enlarging by area `fast_image_resize`'s
+//! SIMD code; the rest moves whole rows or pixels.
 
 use fast_image_resize::images::{Image as ResizeTarget, ImageRef};
 use fast_image_resize::{FilterType, PixelType, ResizeAlg, ResizeOptions, Resizer};
@@ -7,6 +8,7 @@ use fast_image_resize::{FilterType, PixelType, ResizeAlg, ResizeOptions, Resizer
 use multiversion::multiversion;
 
 use super::View;
+use super::linear::{self, LinearRows, LinearTaps};
 
 /// How [`Resize`] samples the source.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -32,6 +34,9 @@ pub struct Resize {
     packed: Vec<u8>,
     /// The area shares across and down for the last sizes shrunk by area, kept while the sizes stay.
     area: Option<AreaShares>,
+    /// The bilinear taps for the last sizes resized bilinearly, and its row buffers.
+    linear: Option<LinearTaps>,
+    linear_rows: LinearRows,
 }
 
 /// The shares of an area shrink from one size to another, along each axis.
@@ -87,6 +92,16 @@ impl Resize {
             self.area = Some(shares);
             return Ok(());
         }
+        if interpolation == Interpolation::Bilinear {
+            let (from, to) = ((src.width, src.height), (width, height));
+            let taps = match self.linear.take() {
+                Some(taps) if taps.fit(from, to, src.channels) => taps,
+                _ => LinearTaps::new(from, to, src.channels),
+            };
+            linear::resize(src, &taps, &mut self.linear_rows, dst);
+            self.linear = Some(taps);
+            return Ok(());
+        }
         let source = if let Some(pixels) = src.pixels() {
             pixels
         } else {
@@ -104,8 +119,8 @@ impl Resize {
             .map_err(|e| ResizeError(e.to_string()))?;
         let algorithm = match interpolation {
             Interpolation::Nearest => ResizeAlg::Nearest,
-            Interpolation::Bilinear => ResizeAlg::Interpolation(FilterType::Bilinear),
-            Interpolation::Area => ResizeAlg::Convolution(FilterType::Box),
+            // Enlarging by area (bilinear returned above).
+            Interpolation::Area | Interpolation::Bilinear => ResizeAlg::Convolution(FilterType::Box),
         };
         self.resizer
             .resize(&from, &mut to, &ResizeOptions::new().resize_alg(algorithm))

@@ -3,7 +3,9 @@
 //! (`width × channels` bytes each) that the caller allocates, usually from the shared pixel pool.
 //!
 //! Hot loops are written so the compiler vectorises them (fixed-point integers, no bounds checks in the
-//! inner loop) and are compiled twice by `multiversion`: for AVX2 and for baseline x86-64.
+//! inner loop) and are compiled twice by `multiversion`: for AVX2 and for baseline x86-64. The one
+//! exception is bilinear resizing's gather across a row ([`linear`]), which no compiler vectorises: it is
+//! written with AVX2 intrinsics, next to the portable loop that gives the same values elsewhere.
 
 pub mod color;
 pub mod draw;
@@ -12,6 +14,7 @@ pub mod filter;
 pub mod geometry;
 pub mod hough;
 pub mod jpeg;
+pub mod linear;
 pub mod turbojpeg;
 pub mod undistort;
 pub mod yuv;
