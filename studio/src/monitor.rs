@@ -290,6 +290,11 @@ impl Monitor {
 
     /// Raises a notice when a host of a spread diagram stops answering or a connection between hosts loses
     /// its far end, and takes it back when they return; what to log of it.
+    ///
+    /// The coordinating runtime logs each host lost and back, each clock's silence and lock, and each cut
+    /// or silence of a link whose sender runs on another host, in its own words, and its log is the
+    /// studio's: those are shown as notices and not logged twice. A link whose sender runs on the
+    /// coordinating machine is said by its sender by peer alone, so the studio logs it by name.
     fn follow_hosts(&mut self, telemetry: &Telemetry) -> Vec<(LogLevel, String)> {
         let mut said = Vec::new();
         for host in &telemetry.hosts {
@@ -302,14 +307,12 @@ impl Monitor {
                 );
                 let times = self.cuts.entry(problem.clone()).or_insert(0);
                 *times += 1;
-                self.notices.raise(problem, text.clone(), *times);
-                said.push((LogLevel::Error, text));
+                self.notices.raise(problem, text, *times);
             } else if host.answering && self.lost_hosts.remove(&host.name) {
                 self.notices.resolve(&problem);
-                said.push((LogLevel::Info, format!("host '{}' answers again", host.name)));
             }
             if let Some(clock) = &host.clock {
-                self.follow_clock(telemetry.at_ns, &host.name, clock, &mut said);
+                self.follow_clock(telemetry.at_ns, &host.name, clock);
             }
         }
         for link in &telemetry.cross_links {
@@ -322,6 +325,7 @@ impl Monitor {
                 link.from_host.as_deref().unwrap_or("here"),
                 link.to_host.as_deref().unwrap_or("here")
             );
+            let mut about_link = Vec::new();
             if !link.matched && was_matched {
                 self.cut_links.insert(name.clone());
                 let text = format!(
@@ -332,26 +336,24 @@ impl Monitor {
                 let times = self.cuts.entry(problem.clone()).or_insert(0);
                 *times += 1;
                 self.notices.raise(problem, text.clone(), *times);
-                said.push((LogLevel::Error, text));
+                about_link.push((LogLevel::Error, text));
             } else if link.matched && self.cut_links.remove(&name) {
                 self.notices.resolve(&problem);
-                said.push((LogLevel::Info, format!("link {name} ({between}) resumed")));
+                about_link.push((LogLevel::Info, format!("link {name} ({between}) resumed")));
             }
-            self.follow_silence(telemetry.at_ns, link, &name, &between, &mut said);
+            self.follow_silence(telemetry.at_ns, link, &name, &between, &mut about_link);
+            if link.from_host.is_none() {
+                said.extend(about_link);
+            }
         }
         said
     }
 
     /// Raises a notice when a host's clock has had no reference for well over its usual wait (its master
     /// or receiver silent, long before the clock leaves lock) and when it leaves lock; takes them back
-    /// when references come again and when it locks again. As `kairos deploy` says them.
-    fn follow_clock(
-        &mut self,
-        at_ns: i64,
-        host: &str,
-        clock: &ClockTelemetry,
-        said: &mut Vec<(LogLevel, String)>,
-    ) {
+    /// when references come again and when it locks again. As `kairos deploy` says them (the
+    /// coordinator's log says them too).
+    fn follow_clock(&mut self, at_ns: i64, host: &str, clock: &ClockTelemetry) {
         let (epoch_ns, epoch) = *self.clock_epoch.get_or_insert((at_ns, Instant::now()));
         let now = epoch + Duration::from_nanos(u64::try_from(at_ns - epoch_ns).unwrap_or(0));
         let error = format!("error {:+.3} ms", clock.error_ns as f64 * 1e-6);
@@ -369,18 +371,10 @@ impl Monitor {
                 );
                 let times = self.cuts.entry(silent.clone()).or_insert(0);
                 *times += 1;
-                self.notices.raise(silent.clone(), text.clone(), *times);
-                said.push((LogLevel::Warn, text));
+                self.notices.raise(silent.clone(), text, *times);
             }
             References::Back => {
                 self.notices.resolve(&silent);
-                said.push((
-                    LogLevel::Info,
-                    format!(
-                        "host '{host}': its clock has references from {} again",
-                        clock.source
-                    ),
-                ));
             }
             References::AsUsual => {}
         }
@@ -396,16 +390,9 @@ impl Monitor {
             );
             let times = self.cuts.entry(unlocked.clone()).or_insert(0);
             *times += 1;
-            self.notices.raise(unlocked, text.clone(), *times);
-            said.push((LogLevel::Error, text));
-        } else if was != ClockState::Locked
-            && clock.state == ClockState::Locked
-            && self.notices.resolve(&unlocked)
-        {
-            said.push((
-                LogLevel::Info,
-                format!("host '{host}': its clock is locked again ({error})"),
-            ));
+            self.notices.raise(unlocked, text, *times);
+        } else if was != ClockState::Locked && clock.state == ClockState::Locked {
+            self.notices.resolve(&unlocked);
         }
     }
 
@@ -767,34 +754,59 @@ mod tests {
         assert_eq!(monitor.lost_inside.len(), 1);
     }
 
+    /// The texts of the notices shown.
+    fn shown(monitor: &Monitor) -> Vec<&str> {
+        monitor
+            .notices
+            .shown()
+            .map(|notice| notice.text.as_str())
+            .collect()
+    }
+
     #[test]
-    fn a_host_lost_and_a_link_cut_are_said_once_shown_until_they_return_and_their_return_said() {
+    fn a_host_lost_and_a_link_cut_are_shown_until_they_return_and_logged_once_by_whoever_says_them() {
         let mut monitor = Monitor::default();
         // Before the start, a link's sender has not said it matched: neither a cut nor a return.
         assert!(monitor.update(&telemetry(true, false)).is_empty());
         assert!(monitor.update(&telemetry(true, true)).is_empty());
+        // The host's loss is in the coordinator's log; the cut of a link sent from here, by name, in
+        // the studio's.
         let said = monitor.update(&telemetry(false, false));
-        let words: Vec<&str> = said.iter().map(|(_, text)| text.as_str()).collect();
+        assert_eq!(said.len(), 1, "{said:?}");
+        assert_eq!(said[0].0, LogLevel::Error);
         assert!(
-            said.iter().all(|(level, _)| *level == LogLevel::Error),
+            said[0]
+                .1
+                .starts_with("link count.out -> gain.in (here -> b) is cut"),
             "{said:?}"
         );
-        assert!(words[0].starts_with("host 'b' is lost"), "{words:?}");
+        let notices = shown(&monitor);
+        assert_eq!(notices.len(), 2, "{notices:?}");
         assert!(
-            words[1].starts_with("link count.out -> gain.in (here -> b) is cut"),
-            "{words:?}"
+            notices.iter().any(|text| text.starts_with("host 'b' is lost")),
+            "{notices:?}"
         );
-        assert_eq!(monitor.notices.shown().count(), 2);
         assert!(monitor.update(&telemetry(false, false)).is_empty(), "said once");
         let back = monitor.update(&telemetry(true, true));
-        let words: Vec<&str> = back.iter().map(|(_, text)| text.as_str()).collect();
         assert_eq!(
-            words,
-            [
-                "host 'b' answers again",
-                "link count.out -> gain.in (here -> b) resumed"
-            ]
+            back,
+            [(
+                LogLevel::Info,
+                "link count.out -> gain.in (here -> b) resumed".to_owned()
+            )]
         );
+        assert_eq!(monitor.notices.shown().count(), 0);
+        // A link sent from another host: the coordinator logs its cut; the studio shows it.
+        let from_b = |up: bool| {
+            let mut telemetry = telemetry(true, up);
+            let link = &mut telemetry.cross_links[0];
+            (link.from_host, link.to_host) = (Some("b".to_owned()), None);
+            telemetry
+        };
+        assert!(monitor.update(&from_b(true)).is_empty());
+        assert!(monitor.update(&from_b(false)).is_empty());
+        assert!(shown(&monitor)[0].starts_with("link count.out -> gain.in (b -> here) is cut"));
+        assert!(monitor.update(&from_b(true)).is_empty());
         assert_eq!(monitor.notices.shown().count(), 0);
     }
 
@@ -882,37 +894,37 @@ mod tests {
                     .is_empty()
             );
         }
-        // The master dies: said once its silence is over 1 s, while the clock is still locked.
-        let said: Vec<_> = (12..18)
-            .flat_map(|look| monitor.update(&at(look, ClockState::Locked, 11, f64::from(look - 11) * 0.25)))
-            .collect();
-        assert_eq!(said.len(), 1, "{said:?}");
-        assert_eq!(said[0].0, LogLevel::Warn);
+        // The master dies: shown once its silence is over 1 s, while the clock is still locked (the
+        // coordinator's log says it).
+        for look in 12..18 {
+            let silence = f64::from(look - 11) * 0.25;
+            assert!(
+                monitor
+                    .update(&at(look, ClockState::Locked, 11, silence))
+                    .is_empty()
+            );
+            if look == 12 {
+                assert_eq!(
+                    monitor.notices.shown().count(),
+                    0,
+                    "a quarter of a second is usual"
+                );
+            }
+        }
         assert!(
-            said[0]
-                .1
-                .starts_with("host 'b': its clock has had no reference from master"),
-            "{said:?}"
+            shown(&monitor)[0].starts_with("host 'b': its clock has had no reference from master"),
+            "{:?}",
+            shown(&monitor)
         );
-        assert_eq!(monitor.notices.shown().count(), 1);
         // Holdover: the state speaks, and the silence's notice gives way to it.
-        let said = monitor.update(&at(24, ClockState::Holdover, 11, 3.25));
-        assert_eq!(said.len(), 1, "{said:?}");
+        assert!(monitor.update(&at(24, ClockState::Holdover, 11, 3.25)).is_empty());
+        let notices = shown(&monitor);
+        assert_eq!(notices.len(), 1, "{notices:?}");
         assert!(
-            said[0]
-                .1
-                .contains("its clock left lock (holdover, error +0.020 ms)"),
-            "{said:?}"
+            notices[0].contains("its clock left lock (holdover, error +0.020 ms)"),
+            "{notices:?}"
         );
-        assert_eq!(monitor.notices.shown().count(), 1);
-        let said = monitor.update(&at(30, ClockState::Locked, 12, 0.1));
-        assert_eq!(
-            said,
-            [(
-                LogLevel::Info,
-                "host 'b': its clock is locked again (error +0.020 ms)".to_owned()
-            )]
-        );
+        assert!(monitor.update(&at(30, ClockState::Locked, 12, 0.1)).is_empty());
         assert_eq!(monitor.notices.shown().count(), 0);
     }
 }
