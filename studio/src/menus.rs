@@ -202,10 +202,10 @@ fn connection_state_ui(ui: &mut egui::Ui, session: &Session) {
         });
         ui.label(RichText::new(format!("clock: {} {}{within}", clock.source, clock.state)).color(color))
             .on_hover_text(format!(
-                "The runtime clock follows '{}': error {:+.3} ms at the last reference, set {:+.3} s from the \
+                "The runtime clock follows '{}': error {} at the last reference, set {:+.3} s from the \
                  machine's clock at start, {} references",
                 clock.source,
-                clock.error_ns as f64 * 1e-6,
+                kairos_protocol::error_ms(clock.error_ns),
                 clock.step_ns as f64 * 1e-9,
                 clock.references
             ));

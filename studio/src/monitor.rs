@@ -356,7 +356,7 @@ impl Monitor {
     fn follow_clock(&mut self, at_ns: i64, host: &str, clock: &ClockTelemetry) {
         let (epoch_ns, epoch) = *self.clock_epoch.get_or_insert((at_ns, Instant::now()));
         let now = epoch + Duration::from_nanos(u64::try_from(at_ns - epoch_ns).unwrap_or(0));
-        let error = format!("error {:+.3} ms", clock.error_ns as f64 * 1e-6);
+        let error = format!("error {}", kairos_protocol::error_ms(clock.error_ns));
         let (watch, state) = self
             .clocks
             .entry(host.to_owned())

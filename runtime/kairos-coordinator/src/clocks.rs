@@ -75,15 +75,15 @@ fn not_ready(host: &str, clock: &ClockTelemetry, bound_ns: i64) -> Option<String
             "host '{host}': clock acquiring (no exchange with its master yet)"
         )),
         ClockState::Locked => Some(format!(
-            "host '{host}': clock locked to its master (within 10 ms), but error {:+.3} ms, error bound \
+            "host '{host}': clock locked to its master (within 10 ms), but error {}, error bound \
              ±{:.3} ms is over the lock bound {:.3} ms",
-            ms(clock.error_ns),
+            kairos_protocol::error_ms(clock.error_ns),
             ms(worst_error_ns(clock).abs()),
             ms(bound_ns)
         )),
         state => Some(format!(
-            "host '{host}': clock {state}, error {:+.3} ms{}",
-            ms(clock.error_ns),
+            "host '{host}': clock {state}, error {}{}",
+            kairos_protocol::error_ms(clock.error_ns),
             clock
                 .error_bound_ns
                 .map_or_else(String::new, |b| format!(", error bound ±{:.3} ms", ms(b.abs())))

@@ -418,7 +418,7 @@ impl Watch {
             let Some(clock) = clock_of(status) else {
                 continue;
             };
-            let error = format!("error {:+.3} ms", clock.error_ns as f64 * 1e-6);
+            let error = format!("error {}", kairos_protocol::error_ms(clock.error_ns));
             let bound = clock.error_bound_ns.map_or_else(String::new, |b| {
                 format!(", error bound {:.3} ms", b as f64 * 1e-6)
             });

@@ -146,3 +146,28 @@ mod tests {
         assert_eq!(fresh.look(at(0.0), Locked, 1, Some(5.0)), References::AsUsual);
     }
 }
+
+/// A clock's error as people read it: signed milliseconds to the microsecond (`+0.012 ms`,
+/// `-1.500 ms`), and `0.000 ms` within half a microsecond either way, never `-0.000 ms`.
+pub fn error_ms(error_ns: i64) -> String {
+    let ms = (error_ns as f64 * 1e-6 * 1e3).round() / 1e3;
+    if ms == 0.0 {
+        "0.000 ms".to_owned()
+    } else {
+        format!("{ms:+.3} ms")
+    }
+}
+
+#[cfg(test)]
+mod error_words {
+    use super::error_ms;
+
+    #[test]
+    fn an_error_reads_in_signed_milliseconds_and_no_error_has_no_sign() {
+        assert_eq!(error_ms(12_000), "+0.012 ms");
+        assert_eq!(error_ms(-1_500_000), "-1.500 ms");
+        assert_eq!(error_ms(-400), "0.000 ms");
+        assert_eq!(error_ms(499), "0.000 ms");
+        assert_eq!(error_ms(-600), "-0.001 ms");
+    }
+}

@@ -26,7 +26,7 @@ mod clock_watch;
 pub mod frame;
 mod messages;
 
-pub use clock_watch::{ReferenceWatch, References};
+pub use clock_watch::{ReferenceWatch, References, error_ms};
 
 /// Pixel buffers in shared memory (the `kairos-shm` crate, which the runtime side shares without linking the
 /// protocol): frames name them instead of carrying the pixels.
