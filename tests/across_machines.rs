@@ -706,6 +706,21 @@ fn a_cut_of_the_links_alone_is_said_by_kairos_deploy_and_so_is_their_return() {
 /// open again) while it runs; `ride_out` is each host's `ride_out_s`, if given. The values back on a and
 /// what `kairos deploy` said; `None` where network namespaces cannot be made here.
 fn round_trip_through_a_zenoh_partition(ride_out: Option<f64>) -> Option<(Vec<f64>, String)> {
+    round_trip_through(ride_out, |run, namespaces| {
+        run.cut_zenoh(
+            namespaces,
+            &["count.out on host 'a' -> gain.in on host 'b'"],
+            Duration::from_secs(2),
+        )
+    })
+}
+
+/// The round trip of [`round_trip_through_a_zenoh_partition`] through `fault`, which says whether it
+/// could be made.
+fn round_trip_through(
+    ride_out: Option<f64>,
+    fault: impl FnOnce(&TwoHostRun, &Namespaces) -> bool,
+) -> Option<(Vec<f64>, String)> {
     let namespaces = Namespaces::make()?;
     let ride_out = ride_out.map_or_else(String::new, |s| format!(", ride_out_s: {s:?}"));
     let mut run = TwoHostRun::start(
@@ -722,11 +737,7 @@ fn round_trip_through_a_zenoh_partition(ride_out: Option<f64>) -> Option<(Vec<f6
         ]"#,
     );
     // Longer than Zenoh's lease (1 s): the sessions between the hosts close, and open again after.
-    let cut = run.cut_zenoh(
-        &namespaces,
-        &["count.out on host 'a' -> gain.in on host 'b'"],
-        Duration::from_secs(2),
-    );
+    let cut = fault(&run, &namespaces);
     if cut {
         // The match can flap once more just after the return, and the far end then sometimes answers
         // nothing for seconds while Zenoh says it matches (`kairos deploy` says the link delivers
@@ -765,6 +776,51 @@ fn a_link_that_never_skips_rides_out_a_zenoh_partition_of_three_seconds_with_not
         "{} values back in order; lost at the end, by link: {losses:?}",
         values.len()
     );
+}
+
+/// Wi-Fi that flaps: the Zenoh port blocked and opened again eight times in 10 s, for less than the
+/// links' lease and for more, the sessions closing and opening as it comes; every value comes back once,
+/// in order, and no host is said lost.
+#[test]
+fn a_link_that_never_skips_rides_out_a_flapping_network_with_nothing_lost() {
+    const FLAPS: [(f64, f64); 8] = [
+        (0.3, 0.2),
+        (1.6, 0.3),
+        (0.5, 0.1),
+        (2.0, 0.4),
+        (0.8, 0.2),
+        (1.2, 0.1),
+        (0.2, 0.6),
+        (1.4, 0.3),
+    ];
+    let _machine = whole_machine();
+    let Some((values, said)) = round_trip_through(None, |_, namespaces| {
+        for (blocked_s, open_s) in FLAPS {
+            if !namespaces.block_zenoh(true) {
+                return false;
+            }
+            std::thread::sleep(Duration::from_secs_f64(blocked_s));
+            assert!(namespaces.block_zenoh(false));
+            std::thread::sleep(Duration::from_secs_f64(open_s));
+        }
+        true
+    }) else {
+        return;
+    };
+    assert!(values.len() > 1000, "{} values came back\n{said}", values.len());
+    let first_wrong = values
+        .iter()
+        .enumerate()
+        .find(|(i, value)| (**value - *i as f64).abs() > 0.5);
+    assert!(
+        first_wrong.is_none(),
+        "values lost or repeated through the flapping: at row {first_wrong:?} of {}\n{said}",
+        values.len()
+    );
+    assert!(!said.contains("is lost"), "only the links were cut: {said}");
+    assert!(said.contains("is cut"), "the longer blocks cut the links: {said}");
+    assert_eq!(final_losses(&said).len(), 2, "{said}");
+    eprintln!("{} values back in order", values.len());
 }
 
 #[test]

@@ -208,7 +208,8 @@ pub struct LinkSender {
     /// what was kept from it on.
     noticed_from: u64,
     /// After a cut, the receiver asked what it received: samples are held (kept, not put) until it says,
-    /// from this sequence number on.
+    /// from `held_from` on, since `held_since` (`None` outside a hold; a receiver that flaps before it
+    /// answers is asked again within the same hold, up to the ride-out).
     asking: Option<(network::Answer, Instant)>,
     held_from: u64,
     held_since: Option<Instant>,
@@ -464,25 +465,33 @@ impl LinkSender {
                 Err(_) => Err(network::AskError::Unanswered(ASK_WAIT)),
                 Ok(answer) => answer,
             };
-            // Unanswered (the far end flapping as it comes back): asked again while the samples held
-            // meanwhile are still kept.
+            // Unanswered (the far end flapping as it comes back), while the samples held meanwhile are
+            // still kept: asked again, or, gone again before it answered, held on until it matches again.
             if answer.is_err()
                 && self
                     .held_since
                     .is_some_and(|at| at.elapsed() < self.kept.for_how_long)
-                && network::matched(end)
             {
-                self.asking = Some((end.ask_receiver_newest(ASK_WAIT), Instant::now()));
+                if network::matched(end) {
+                    self.asking = Some((end.ask_receiver_newest(ASK_WAIT), Instant::now()));
+                } else {
+                    self.asking = None;
+                    self.cut = true;
+                }
                 return true;
             }
             self.asking = None;
             self.put_again_after(end, &answer);
+            self.held_since = None;
             return true;
         }
         if self.cut && network::matched(end) {
             self.cut = false;
-            self.held_from = self.sent;
-            self.held_since = Some(Instant::now());
+            // Matched again within one hold (it flapped before answering): held from where it began.
+            if self.held_since.is_none() {
+                self.held_from = self.sent;
+                self.held_since = Some(Instant::now());
+            }
             self.asking = Some((end.ask_receiver_newest(ASK_WAIT), Instant::now()));
             return true;
         }
