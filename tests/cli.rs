@@ -612,16 +612,22 @@ fn grey_is_opencv_s_value_for_value() {
 /// Shrinking by area at scales that are not whole numbers is OpenCV's `INTER_AREA`.
 #[test]
 fn the_area_resize_is_opencv_s_at_any_scale() {
-    for (width, height) in [(128, 96), (240, 180), (100, 70)] {
+    assert_resizes_as_opencv("area", "INTER_AREA", &[(128, 96), (240, 180), (100, 70)]);
+}
+
+/// Asserts that `vision.resize` with `interpolation` gives OpenCV's `cv2.resize` with `flag` to each size,
+/// value for value.
+fn assert_resizes_as_opencv(interpolation: &str, flag: &str, sizes: &[(u32, u32)]) {
+    for (width, height) in sizes {
         let differs = differs_from_opencv(
             &format!(
-                r#"type: "vision.resize", properties: {{"width": {width}, "height": {height}, "interpolation": "area"}}"#
+                r#"type: "vision.resize", properties: {{"width": {width}, "height": {height}, "interpolation": "{interpolation}"}}"#
             ),
-            &format!("cv2.resize(source, ({width}, {height}), interpolation=cv2.INTER_AREA)"),
+            &format!("cv2.resize(source, ({width}, {height}), interpolation=cv2.{flag})"),
         );
         assert_eq!(
             differs, "0",
-            "{width}×{height}: the most a value differs from OpenCV's"
+            "{interpolation} to {width}×{height}: the most a value differs from OpenCV's"
         );
     }
 }
@@ -630,18 +636,11 @@ fn the_area_resize_is_opencv_s_at_any_scale() {
 /// fixed point, computed in Kairos's own vector loops).
 #[test]
 fn the_bilinear_resize_is_opencv_s_at_any_scale() {
-    for (width, height) in [(128, 96), (240, 180), (100, 70), (517, 389), (3, 2)] {
-        let differs = differs_from_opencv(
-            &format!(
-                r#"type: "vision.resize", properties: {{"width": {width}, "height": {height}, "interpolation": "bilinear"}}"#
-            ),
-            &format!("cv2.resize(source, ({width}, {height}), interpolation=cv2.INTER_LINEAR)"),
-        );
-        assert_eq!(
-            differs, "0",
-            "{width}×{height}: the most a value differs from OpenCV's"
-        );
-    }
+    assert_resizes_as_opencv(
+        "bilinear",
+        "INTER_LINEAR",
+        &[(128, 96), (240, 180), (100, 70), (517, 389), (3, 2)],
+    );
 }
 
 /// Runs `script` with the tests' Python; its standard output.
