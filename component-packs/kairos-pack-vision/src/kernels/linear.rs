@@ -320,7 +320,7 @@ mod tests {
                 assert_eq!(
                     &out[..to * channels],
                     &across_portable(&line, channels, &taps)[..],
-                    "{channels} channels, {from} → {to}"
+                    "{channels} channels, {from} to {to}"
                 );
             }
         }
