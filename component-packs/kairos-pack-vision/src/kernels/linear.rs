@@ -152,8 +152,17 @@ fn across(line: &[u8], channels: usize, taps: &LinearTaps, out: &mut [i16]) {
         // SAFETY: AVX2 was detected on this processor just above.
         done = unsafe { across_avx2(line, channels, taps, out) };
     }
-    let pairs = taps.across_offsets.iter().zip(&taps.across_weights).skip(done);
-    for (pixel, (&offset, &weight)) in pairs.enumerate().map(|(k, pair)| (k + done, pair)) {
+    across_portable(line, channels, taps, done, out);
+}
+
+/// [`across`] from pixel `from_pixel` on, without vector instructions: the tails and machines without AVX2.
+fn across_portable(line: &[u8], channels: usize, taps: &LinearTaps, from_pixel: usize, out: &mut [i16]) {
+    let pairs = taps
+        .across_offsets
+        .iter()
+        .zip(&taps.across_weights)
+        .skip(from_pixel);
+    for (pixel, (&offset, &weight)) in pairs.enumerate().map(|(k, pair)| (k + from_pixel, pair)) {
         let (left, right) = (
             i32::from(weight as u16 as i16),
             i32::from((weight >> 16) as u16 as i16),
@@ -292,23 +301,6 @@ unsafe fn across_avx2(line: &[u8], channels: usize, taps: &LinearTaps, out: &mut
 mod tests {
     use super::*;
 
-    /// The portable loop alone, to check the vector one against.
-    fn across_portable(line: &[u8], channels: usize, taps: &LinearTaps) -> Vec<i16> {
-        let mut out = vec![0; taps.across_offsets.len() * channels];
-        for (pixel, (&offset, &weight)) in taps.across_offsets.iter().zip(&taps.across_weights).enumerate() {
-            let (left, right) = (
-                i32::from(weight as u16 as i16),
-                i32::from((weight >> 16) as u16 as i16),
-            );
-            for c in 0..channels {
-                let first = i32::from(line[offset as usize + c]);
-                let second = i32::from(line.get(offset as usize + channels + c).copied().unwrap_or(0));
-                out[pixel * channels + c] = ((first * left + second * right) >> 4) as i16;
-            }
-        }
-        out
-    }
-
     #[test]
     fn the_vector_loop_gives_the_portable_loop_s_values() {
         for channels in [1, 2, 3, 4] {
@@ -317,9 +309,11 @@ mod tests {
                 let taps = LinearTaps::new((from, 1), (to, 1), channels);
                 let mut out = vec![0; to * channels + 8];
                 across(&line, channels, &taps, &mut out);
+                let mut portable = vec![0; to * channels + 8];
+                across_portable(&line, channels, &taps, 0, &mut portable);
                 assert_eq!(
                     &out[..to * channels],
-                    &across_portable(&line, channels, &taps)[..],
+                    &portable[..to * channels],
                     "{channels} channels, {from} to {to}"
                 );
             }
