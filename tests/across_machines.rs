@@ -1225,6 +1225,20 @@ fn a_camera_through_a_zenoh_partition_is_held_back_no_longer_than_the_lease_and_
     // (261 ticks held back when both shared one).
     assert!(imu <= 50, "the IMU was held back {imu} ticks\n{said}");
     assert_eq!(final_losses(&said), [0, 0], "{said}");
+    // The recording is whole: every sample the links received, none left between receiver and recorder
+    // at the stop.
+    let received: u64 = said
+        .lines()
+        .filter_map(|line| line.split(", received ").nth(1))
+        .filter_map(|rest| rest.split(',').next()?.trim().parse::<u64>().ok())
+        .sum();
+    let bytes = std::fs::read(run.dir_b.path().join("blip.mcap")).unwrap();
+    let recorded = mcap::MessageStream::new(&bytes)
+        .unwrap()
+        .filter(|message| message.as_ref().is_ok_and(|m| m.channel.topic != "kairos.log"))
+        .count();
+    assert!(received > 0, "{said}");
+    assert_eq!(recorded as u64, received, "recorded against received\n{said}");
 }
 
 /// A control connection to `url` made from inside network namespace `namespace`: this test's thread joins

@@ -569,6 +569,10 @@ pub struct ActionInfo {
 
 /// Everything known about a component type without running it.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[expect(
+    clippy::struct_excessive_bools,
+    reason = "each flag is a declaration of its own a descriptor makes, written by name in a pack's description"
+)]
 pub struct ComponentInfo {
     /// The type name used in diagrams, `pack.name` by convention (`core.sine`).
     pub type_name: String,
@@ -605,6 +609,11 @@ pub struct ComponentInfo {
     /// into it do not order an execution group, so a loop through it is allowed there.
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub holds_inputs: bool,
+    /// Whether it stops as soon as a stop is asked for, without first reading what its producers wrote
+    /// before they stopped: a link's sending end, whose receiving end on another host stops at the same
+    /// instant and would take nothing sent after it.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub stops_at_once: bool,
     /// Why a call of it may wait for long (on a device, a socket, its own timing), in words ("waits for
     /// each frame of the camera"): such a
     /// component cannot share an execution group's thread, except as the group's driver.
@@ -850,6 +859,7 @@ mod tests {
             time_source: false,
             simulated_time: false,
             holds_inputs: false,
+            stops_at_once: false,
             blocking: None,
         };
         assert_eq!(unlabelled.display_name(), "Sine");

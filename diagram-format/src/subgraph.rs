@@ -794,6 +794,7 @@ pub fn describe(
         time_source: false,
         simulated_time: false,
         holds_inputs: false,
+        stops_at_once: false,
         blocking: None,
     };
     for (name, targets) in &exposes.inputs {

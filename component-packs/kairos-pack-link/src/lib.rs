@@ -84,6 +84,8 @@ pub fn sender_descriptor() -> ComponentInfo {
     ))
     .label("Link to another host")
     .input_with_policy("in", TypeFilter::Any, ReaderPolicy::Fifo, "What to send")
+    // The receiving end stops at the same agreed instant: what it sent after would be lost.
+    .stops_at_once()
     .property(
         Property::f64("ride_out_s", 5.0)
             .range(0.0, 600.0)

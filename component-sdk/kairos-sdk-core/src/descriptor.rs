@@ -48,6 +48,7 @@ impl Descriptor {
                 time_source: false,
                 simulated_time: false,
                 holds_inputs: false,
+                stops_at_once: false,
                 blocking: None,
             },
         }
@@ -73,6 +74,14 @@ impl Descriptor {
     /// commands): links into it do not order an execution group, so a loop may close through it.
     pub fn holds_inputs(mut self) -> Self {
         self.info.holds_inputs = true;
+        self
+    }
+
+    /// Declares that the component stops as soon as a stop is asked for: the runtime otherwise lets it
+    /// read what its producers wrote before they stopped (for up to a second). For a component whose far
+    /// end stops at the same instant, such as a link to another host.
+    pub fn stops_at_once(mut self) -> Self {
+        self.info.stops_at_once = true;
         self
     }
 

@@ -52,6 +52,7 @@ fn component(type_name: &str, pack: &str, mode: ExecutionMode) -> ComponentInfo 
         time_source: false,
         simulated_time: false,
         holds_inputs: false,
+        stops_at_once: false,
         blocking: None,
     }
 }

@@ -22,6 +22,7 @@ use crate::group::{GroupRun, GroupShared, Member};
 use crate::scheduling;
 use crate::start_gate::{START_GATE_LIMIT, StartGate};
 use crate::stats::{ComponentState, ComponentStats, LinkStats, StatsSnapshot};
+use crate::stop_order::{AttachedLink, Drain, StopLayer, stop_layers};
 
 /// Why a diagram could not be built.
 #[derive(Debug, thiserror::Error)]
@@ -283,6 +284,11 @@ const ANSWER_SPIN: Duration = Duration::from_micros(300);
 /// How long `start` waits for the clock source's first reference before starting the rest anyway.
 const CLOCK_LOCK_WAIT: Duration = Duration::from_secs(10);
 
+/// How long a stop waits in all for consumers to read what their producers wrote before stopping: long
+/// enough for a recorder to take its last frames, short enough that a stuck consumer does not hold the
+/// stop a user asked for.
+pub const DRAIN_LIMIT: Duration = Duration::from_secs(1);
+
 /// The component's answer: waited for yielding the core for a while, then through `long_wait`, 2 s at
 /// most.
 fn wait_for_answer(
@@ -395,6 +401,8 @@ pub struct Engine {
     groups: Vec<GroupSlot>,
     buffers: Vec<OutputBuffer>,
     policies: BTreeMap<String, ReaderPolicy>,
+    /// Producers before consumers: see [`crate::stop_order`].
+    stop_layers: Vec<StopLayer>,
     state: EngineState,
     supervisor: Option<(SyncSender<()>, JoinHandle<()>)>,
 }
@@ -576,8 +584,13 @@ impl Wiring<'_> {
         &self,
         buffers: &BTreeMap<(String, String), OutputBuffer>,
         pending: &mut [Pending],
-    ) -> BTreeMap<String, ReaderPolicy> {
-        let mut policies = BTreeMap::new();
+    ) -> Vec<AttachedLink> {
+        let mut attached = Vec::new();
+        let buffer_index: BTreeMap<&(String, String), usize> = buffers
+            .keys()
+            .enumerate()
+            .map(|(index, key)| (key, index))
+            .collect();
         let mut readers: BTreeMap<(String, String), kairos_sdk_core::host::Reader> = BTreeMap::new();
         let pending_index: BTreeMap<String, usize> = pending
             .iter()
@@ -586,7 +599,9 @@ impl Wiring<'_> {
             .collect();
         for connection in &self.diagram.connections {
             let key = (connection.from.component.clone(), connection.from.port.clone());
-            let Some(buffer) = buffers.get(&key) else { continue };
+            let (Some(buffer), Some(&buffer_at)) = (buffers.get(&key), buffer_index.get(&key)) else {
+                continue;
+            };
             let Some(consumer) = pending_index
                 .get(connection.to.component.as_str())
                 .and_then(|&index| pending.get(index))
@@ -600,12 +615,20 @@ impl Wiring<'_> {
             // Named by the producer's buffer: an output known by another name (a link from another
             // host, known by the output it comes from) is called by that name, as in the whole diagram.
             let link = format!("{} -> {}", buffer.output(), connection.to);
-            policies.insert(link.clone(), policy);
+            let subsampling = connection.subsampling.unwrap_or(1);
+            attached.push(AttachedLink {
+                producer: connection.from.component.clone(),
+                consumer: connection.to.component.clone(),
+                buffer: buffer_at,
+                link: link.clone(),
+                policy,
+                subsampling,
+            });
             let reader = buffer.attach(
                 ReaderConfig {
                     policy,
                     capacity: connection.buffer_size,
-                    subsampling: connection.subsampling.unwrap_or(1),
+                    subsampling,
                     link,
                 },
                 Arc::clone(&consumer.signal),
@@ -628,7 +651,7 @@ impl Wiring<'_> {
                 })
                 .collect();
         }
-        policies
+        attached
     }
 }
 
@@ -738,7 +761,11 @@ impl Engine {
                 pending.push(component);
             }
         }
-        let policies = wiring.attach_inputs(&buffers, &mut pending);
+        let attached = wiring.attach_inputs(&buffers, &mut pending);
+        let policies = attached
+            .iter()
+            .map(|link| (link.link.clone(), link.policy))
+            .collect();
         let diagram_text: Arc<str> = Arc::from(diagram.to_ron());
         let mut slots = Vec::with_capacity(pending.len());
         let mut members: BTreeMap<String, Member> = BTreeMap::new();
@@ -750,6 +777,17 @@ impl Engine {
             slots.push(slot);
         }
         let groups = group_slots(diagram, group_shares, members);
+        let slot_ids: Vec<&str> = slots.iter().map(|slot| slot.id.as_str()).collect();
+        let group_of = |slot: usize| match &slots[slot].driver {
+            Driver::Grouped(shared) => groups.iter().position(|group| Arc::ptr_eq(&group.shared, shared)),
+            _ => None,
+        };
+        let mut stop_layers = stop_layers(&slot_ids, &group_of, &attached);
+        for layer in &mut stop_layers {
+            layer
+                .drains
+                .retain(|drain| !slots[drain.consumer].info.stops_at_once);
+        }
         Ok(Engine {
             clock,
             clock_source: diagram.clock_source.clone(),
@@ -757,6 +795,7 @@ impl Engine {
             groups,
             buffers: buffers.into_values().collect(),
             policies,
+            stop_layers,
             state: EngineState::Ready,
             supervisor: None,
         })
@@ -1009,38 +1048,51 @@ impl Engine {
         }
     }
 
-    /// Stops every component and joins every thread. Safe to call twice.
+    /// Stops the diagram layer by layer, producers first (see [`crate::stop_order`]): each consumer first
+    /// reads what its producers wrote before they stopped, for at most [`DRAIN_LIMIT`] in all; every
+    /// thread is joined. Safe to call twice.
     pub fn stop(&mut self) {
         if matches!(self.state, EngineState::Stopped | EngineState::Ready) {
             self.state = EngineState::Stopped;
             return;
         }
-        for slot in &self.slots {
-            slot.signal.request_stop();
-        }
-        for slot in &mut self.slots {
-            if let Driver::Threaded { handle, .. } = &mut slot.driver
-                && let Some(handle) = handle.take()
-                && handle.join().is_err()
-            {
-                slot.monitor
-                    .fail(&slot.id, "thread", "its thread ended abnormally");
+        // A paused diagram reads nothing: waiting for it to drain would only delay the stop.
+        let drain_until = (self.state == EngineState::Running).then(|| Instant::now() + DRAIN_LIMIT);
+        let layers = std::mem::take(&mut self.stop_layers);
+        for layer in &layers {
+            if let Some(deadline) = drain_until {
+                self.drain(layer, deadline);
             }
-        }
-        for group in &mut self.groups {
-            group.shared.wake();
-            if let Some(handle) = group.handle.take()
-                && handle.join().is_err()
-            {
-                for slot in self.slots.iter().filter(|s| group.member_ids.contains(&s.id)) {
-                    slot.monitor.fail(
-                        &slot.id,
-                        "thread",
-                        &format!("the thread of its group '{}' ended abnormally", group.shared.name),
-                    );
+            for &slot in &layer.slots {
+                self.slots[slot].signal.request_stop();
+            }
+            for &slot in &layer.slots {
+                let slot = &mut self.slots[slot];
+                if let Driver::Threaded { handle, .. } = &mut slot.driver
+                    && let Some(handle) = handle.take()
+                    && handle.join().is_err()
+                {
+                    slot.monitor
+                        .fail(&slot.id, "thread", "its thread ended abnormally");
+                }
+            }
+            for &group in &layer.groups {
+                let group = &mut self.groups[group];
+                group.shared.wake();
+                if let Some(handle) = group.handle.take()
+                    && handle.join().is_err()
+                {
+                    for slot in self.slots.iter().filter(|s| group.member_ids.contains(&s.id)) {
+                        slot.monitor.fail(
+                            &slot.id,
+                            "thread",
+                            &format!("the thread of its group '{}' ended abnormally", group.shared.name),
+                        );
+                    }
                 }
             }
         }
+        self.stop_layers = layers;
         for slot in &self.slots {
             if let Driver::Reactive(cell) = &slot.driver {
                 let mut guard = lock(&cell.inner);
@@ -1059,6 +1111,54 @@ impl Engine {
             let _ = handle.join();
         }
         self.state = EngineState::Stopped;
+    }
+
+    /// Waits until every link of `layer` that reads each sample has nothing left queued, or its consumer
+    /// ended, or `deadline` passed; what is still queued then is said, link by link.
+    fn drain(&self, layer: &StopLayer, deadline: Instant) {
+        let mut left: Vec<&Drain> = layer.drains.iter().collect();
+        loop {
+            left.retain(|drain| self.queued(drain).is_some_and(|queued| queued >= drain.below));
+            if left.is_empty() {
+                return;
+            }
+            if Instant::now() >= deadline {
+                break;
+            }
+            std::thread::sleep(Duration::from_millis(1));
+        }
+        for drain in left {
+            let queued = self.queued(drain).unwrap_or(0);
+            let consumer = &self.slots[drain.consumer].id;
+            tracing::warn!(
+                link = drain.link.as_str(),
+                "'{consumer}' stopped with {queued} samples unread on link '{}': it did not read them \
+                 within {} s of the stop (they stay counted as queued)",
+                drain.link,
+                DRAIN_LIMIT.as_secs_f64()
+            );
+        }
+    }
+
+    /// How many samples `drain`'s link holds for its consumer; `None` once the consumer ended on its own
+    /// (finished, failed, its thread gone): it will read nothing more.
+    fn queued(&self, drain: &Drain) -> Option<u64> {
+        let slot = &self.slots[drain.consumer];
+        let thread_ended =
+            matches!(&slot.driver, Driver::Threaded { handle: Some(handle), .. } if handle.is_finished());
+        if thread_ended
+            || matches!(
+                slot.monitor.state(),
+                ComponentState::Finished | ComponentState::Failed(_)
+            )
+        {
+            return None;
+        }
+        self.buffers[drain.buffer]
+            .link_counters()
+            .into_iter()
+            .find(|(link, _)| **link == *drain.link)
+            .map(|(_, counters)| counters.queued)
     }
 
     /// Whether every threaded component has finished or failed on its own (e.g. its stream ended), or the

@@ -10,6 +10,7 @@ pub mod python_host;
 pub mod scheduling;
 mod start_gate;
 pub mod stats;
+mod stop_order;
 
 pub use engine::{BuildError, ControlError, Engine, EngineState, LongWait};
 

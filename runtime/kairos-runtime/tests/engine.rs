@@ -138,6 +138,33 @@ impl Component for CountsInItsStatus {
     }
 }
 
+/// Takes 2 ms per sample and forwards it: slower than a 1 kHz source.
+#[derive(Default)]
+struct SlowCopy;
+
+impl Component for SlowCopy {
+    fn core(&mut self, ctx: &mut Context) -> ComponentResult {
+        let sample = ctx.read("in")?;
+        sleep(Duration::from_millis(2));
+        ctx.forward("out", &sample)
+    }
+}
+
+/// Periodic, with an input it never reads: a consumer that is stuck as far as its links can tell.
+#[derive(Default)]
+struct NeverReads;
+
+impl Component for NeverReads {
+    fn birth(&mut self, ctx: &mut Context) -> ComponentResult {
+        ctx.set_period(Duration::from_millis(10));
+        Ok(())
+    }
+
+    fn core(&mut self, _ctx: &mut Context) -> ComponentResult {
+        Ok(())
+    }
+}
+
 fn registry() -> Registry {
     let mut registry = Registry::new();
     kairos_pack_core::register(&mut registry);
@@ -183,6 +210,23 @@ fn registry() -> Registry {
         )
         .component::<CountsInItsStatus>(
             Descriptor::new("faulty.counts", "test", "Counts what it reads in its status")
+                .input("in", TypeFilter::Any, "")
+                .build(),
+        )
+        .component::<SlowCopy>(
+            Descriptor::new("faulty.slow_copy", "test", "Forwards, 2 ms a sample")
+                .input_with_policy(
+                    "in",
+                    TypeFilter::Any,
+                    kairos_diagram::ReaderPolicy::NeverSkipping,
+                    "",
+                )
+                .output("out", DataType::F64, "")
+                .build(),
+        )
+        .component::<NeverReads>(
+            Descriptor::new("faulty.never_reads", "test", "Never reads its input")
+                .mode(kairos_sdk_core::ExecutionMode::Periodic)
                 .input("in", TypeFilter::Any, "")
                 .build(),
         )
@@ -493,6 +537,81 @@ fn stop_joins_components_blocked_on_never_skipping_and_silent_inputs() {
         last.components.iter().all(|c| c.state == ComponentState::Stopped),
         "{last:?}"
     );
+}
+
+#[test]
+fn a_stop_lets_each_consumer_read_what_its_producers_wrote_first() {
+    // sine (1 kHz) -> slow copy (2 ms a sample, NeverSkipping) -> counter: the copy is always behind.
+    let mut behind = connect("sine.out", "copy.in");
+    behind.buffer_size = Some(64);
+    let d = diagram(
+        vec![
+            component("sine", "core.sine", &[("rate", Value::F64(1000.0))]),
+            component("copy", "faulty.slow_copy", &[]),
+            component("counts", "faulty.counts", &[]),
+        ],
+        vec![behind, connect("copy.out", "counts.in")],
+    );
+    let mut engine = Engine::build(&d, &registry(), RealTimeClock::shared()).unwrap();
+    engine.start().unwrap();
+    eventually("the copy falls behind", || {
+        let snapshot = engine.snapshot();
+        let link = snapshot
+            .links
+            .iter()
+            .find(|l| l.link == "sine.out -> copy.in")
+            .unwrap();
+        link.counters.queued >= 32
+    });
+    engine.stop();
+    let last = engine.snapshot();
+    for link in &last.links {
+        let counters = &link.counters;
+        assert_eq!(counters.queued, 0, "{}: {counters:?}", link.link);
+        assert_eq!(counters.read, counters.written, "{}: {counters:?}", link.link);
+    }
+    let copied = written(&last, "copy.out -> counts.in");
+    assert_eq!(written(&last, "sine.out -> copy.in"), copied);
+    assert_eq!(
+        status_of(&last, "counts").unwrap()["read"],
+        serde_json::json!(copied),
+        "the last consumer read every sample the source wrote"
+    );
+}
+
+#[test]
+fn a_consumer_that_reads_nothing_holds_a_stop_for_the_drain_limit_only() {
+    let d = diagram(
+        vec![
+            component("sine", "core.sine", &[("rate", Value::F64(1000.0))]),
+            component("stuck", "faulty.never_reads", &[]),
+        ],
+        vec![connect("sine.out", "stuck.in")],
+    );
+    let mut engine = Engine::build(&d, &registry(), RealTimeClock::shared()).unwrap();
+    engine.start().unwrap();
+    eventually("samples queue up", || {
+        engine.snapshot().links.iter().all(|l| l.counters.queued > 0)
+    });
+    let asked = Instant::now();
+    engine.stop();
+    let took = asked.elapsed();
+    assert!(
+        took >= kairos_runtime::engine::DRAIN_LIMIT,
+        "the stop gave up before the drain limit: {took:?}"
+    );
+    assert!(
+        took < kairos_runtime::engine::DRAIN_LIMIT * 3,
+        "the stop took {took:?}"
+    );
+    let last = engine.snapshot();
+    assert!(
+        last.links
+            .iter()
+            .all(|l| l.counters.queued > 0 && l.counters.balanced()),
+        "{last:?}"
+    );
+    assert_eq!(state_of(&last, "stuck"), ComponentState::Stopped);
 }
 
 /// Doubles its input without a thread of its own.
