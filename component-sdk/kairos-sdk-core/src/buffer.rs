@@ -1303,7 +1303,7 @@ impl Reader {
                 continue;
             }
             // The first call only arms the signal: the loop re-checks once more, then sleeps.
-            self.signal.park();
+            self.signal.park_for_input();
         }
     }
 

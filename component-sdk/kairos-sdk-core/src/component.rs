@@ -805,7 +805,7 @@ impl Context {
         if interruptible && self.signal.wants_attention() {
             return Err(ComponentError::Interrupted);
         }
-        self.signal.park();
+        self.signal.park_for_input();
         if self.signal.stop_requested() {
             return Err(ComponentError::Stopped);
         }

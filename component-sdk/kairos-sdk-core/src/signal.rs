@@ -29,6 +29,9 @@ pub struct RunSignal {
     quiet_break_armed: AtomicBool,
     /// A read slept a status period after work: the component's loop publishes its status.
     went_quiet: AtomicBool,
+    /// The thread sleeps in a read, for input (not for room in a reader's share, nor for a tick): a
+    /// stop's drain learns from it that a consumer has read all it can.
+    awaiting_input: AtomicBool,
     reactive: Option<Box<dyn Fn() + Send + Sync>>,
 }
 
@@ -60,6 +63,7 @@ impl RunSignal {
             control_pending: AtomicBool::new(false),
             quiet_break_armed: AtomicBool::new(false),
             went_quiet: AtomicBool::new(false),
+            awaiting_input: AtomicBool::new(false),
             reactive: None,
         }
     }
@@ -215,6 +219,24 @@ impl RunSignal {
             park();
         }
         self.sleeping.store(false, Ordering::Relaxed);
+    }
+
+    /// [`Self::park`] in a read waiting for input: while asleep, [`Self::awaits_input`] says so.
+    pub fn park_for_input(&self) {
+        let asleep = self.sleeping.load(Ordering::Relaxed);
+        if asleep {
+            // Only the component's own thread stores it; a stop's drain only looks.
+            self.awaiting_input.store(true, Ordering::Relaxed);
+        }
+        self.park();
+        if asleep {
+            self.awaiting_input.store(false, Ordering::Relaxed);
+        }
+    }
+
+    /// Whether the thread sleeps in a read waiting for input (as last seen: a hint, for a stop's drain).
+    pub fn awaits_input(&self) -> bool {
+        self.awaiting_input.load(Ordering::Relaxed)
     }
 
     /// Parks the calling thread until woken or `timeout` passes.

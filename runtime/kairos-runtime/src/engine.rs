@@ -784,9 +784,11 @@ impl Engine {
         };
         let mut stop_layers = stop_layers(&slot_ids, &group_of, &attached);
         for layer in &mut stop_layers {
-            layer
-                .drains
-                .retain(|drain| !slots[drain.consumer].info.stops_at_once);
+            // A reactive consumer reads in its producer's thread, joined before it: it will read no more.
+            layer.drains.retain(|drain| {
+                let consumer = &slots[drain.consumer];
+                !consumer.info.stops_at_once && !matches!(consumer.driver, Driver::Reactive(_))
+            });
         }
         Ok(Engine {
             clock,
@@ -1115,10 +1117,30 @@ impl Engine {
 
     /// Waits until every link of `layer` that reads each sample has nothing left queued, or its consumer
     /// ended, or `deadline` passed; what is still queued then is said, link by link.
+    ///
+    /// A consumer asleep waiting for input while samples stay queued for it waits for what its stopped
+    /// producers will never write (the partner of a synchronised read, another input first): once that
+    /// holds for a few polls in a row, it has read all it can.
     fn drain(&self, layer: &StopLayer, deadline: Instant) {
-        let mut left: Vec<&Drain> = layer.drains.iter().collect();
+        const IDLE_POLLS: u32 = 5;
+        // Each link with the count queued at the last poll and for how many polls in a row its consumer
+        // slept waiting for input with that count unchanged.
+        let mut left: Vec<(&Drain, u64, u32)> =
+            layer.drains.iter().map(|drain| (drain, u64::MAX, 0)).collect();
         loop {
-            left.retain(|drain| self.queued(drain).is_some_and(|queued| queued >= drain.below));
+            left.retain_mut(|(drain, last, idle_polls)| {
+                let Some(queued) = self.queued(drain).filter(|queued| *queued >= drain.below) else {
+                    return false;
+                };
+                let waiting = self.slots[drain.consumer].signal.awaits_input();
+                *idle_polls = if waiting && queued == *last {
+                    *idle_polls + 1
+                } else {
+                    0
+                };
+                *last = queued;
+                *idle_polls < IDLE_POLLS
+            });
             if left.is_empty() {
                 return;
             }
@@ -1127,7 +1149,7 @@ impl Engine {
             }
             std::thread::sleep(Duration::from_millis(1));
         }
-        for drain in left {
+        for (drain, ..) in left {
             let queued = self.queued(drain).unwrap_or(0);
             let consumer = &self.slots[drain.consumer].id;
             tracing::warn!(

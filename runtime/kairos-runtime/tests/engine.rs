@@ -165,6 +165,17 @@ impl Component for NeverReads {
     }
 }
 
+/// Reads `a` alone, though `b` is fed too: `b`'s samples wait for a read that never comes.
+#[derive(Default)]
+struct ReadsOnlyA;
+
+impl Component for ReadsOnlyA {
+    fn core(&mut self, ctx: &mut Context) -> ComponentResult {
+        ctx.read("a")?;
+        Ok(())
+    }
+}
+
 fn registry() -> Registry {
     let mut registry = Registry::new();
     kairos_pack_core::register(&mut registry);
@@ -228,6 +239,12 @@ fn registry() -> Registry {
             Descriptor::new("faulty.never_reads", "test", "Never reads its input")
                 .mode(kairos_sdk_core::ExecutionMode::Periodic)
                 .input("in", TypeFilter::Any, "")
+                .build(),
+        )
+        .component::<ReadsOnlyA>(
+            Descriptor::new("faulty.reads_only_a", "test", "Reads its input a, never b")
+                .input("a", TypeFilter::Any, "")
+                .input("b", TypeFilter::Any, "")
                 .build(),
         )
         .component::<PanicsOnThird>(
@@ -612,6 +629,44 @@ fn a_consumer_that_reads_nothing_holds_a_stop_for_the_drain_limit_only() {
         "{last:?}"
     );
     assert_eq!(state_of(&last, "stuck"), ComponentState::Stopped);
+}
+
+#[test]
+fn a_consumer_asleep_for_input_its_stopped_producers_will_never_write_does_not_hold_a_stop() {
+    // `b` fills while the consumer waits on `a`, whose producer stops first: nothing more will come.
+    let d = diagram(
+        vec![
+            component("slow", "core.sine", &[("rate", Value::F64(10.0))]),
+            component("fast", "core.sine", &[("rate", Value::F64(1000.0))]),
+            component("waits", "faulty.reads_only_a", &[]),
+        ],
+        vec![connect("slow.out", "waits.a"), connect("fast.out", "waits.b")],
+    );
+    let mut engine = Engine::build(&d, &registry(), RealTimeClock::shared()).unwrap();
+    engine.start().unwrap();
+    eventually("samples queue up on b", || {
+        let snapshot = engine.snapshot();
+        let link = snapshot
+            .links
+            .iter()
+            .find(|l| l.link == "fast.out -> waits.b")
+            .unwrap();
+        link.counters.queued > 0
+    });
+    let asked = Instant::now();
+    engine.stop();
+    let took = asked.elapsed();
+    assert!(
+        took < kairos_runtime::engine::DRAIN_LIMIT / 2,
+        "the stop waited {took:?} for a read that could not come"
+    );
+    let last = engine.snapshot();
+    let b = last
+        .links
+        .iter()
+        .find(|l| l.link == "fast.out -> waits.b")
+        .unwrap();
+    assert!(b.counters.queued > 0 && b.counters.balanced(), "{b:?}");
 }
 
 /// Doubles its input without a thread of its own.
