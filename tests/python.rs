@@ -985,8 +985,15 @@ fn sources_start_once_every_python_worker_is_ready_so_nothing_is_lost_at_start_o
         assert!(link.counters.written >= 100, "{}: {:?}", link.link, link.counters);
         assert_eq!(link.counters.overwritten, 0, "{}: {:?}", link.link, link.counters);
     }
+    // Started before the worker had imported (0.3 s), the NeverSkipping source would wait for its reader
+    // once its 8 slots filled and miss 20 ticks or more. Two spinners on both cores may still delay a
+    // 10 ms tick past its period now and then without any wait for the reader: a few are not a failure.
     let strict = snapshot.components.iter().find(|c| c.id == "strict").unwrap();
-    assert_eq!(strict.missed_ticks, 0, "the source never waited for its reader");
+    assert!(
+        strict.missed_ticks <= 5,
+        "the source waited for its reader: {} ticks missed",
+        strict.missed_ticks
+    );
 }
 
 #[test]
