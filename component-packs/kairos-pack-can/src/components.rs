@@ -227,7 +227,7 @@ impl Component for CandumpWriter {
     }
 
     fn core(&mut self, ctx: &mut Context) -> ComponentResult {
-        let sample = ctx.read("frame")?;
+        let sample = ctx.read(0)?; // `frame`
         let Payload::CanFrame(frame) = &sample.payload else {
             return Err(failed(format_args!(
                 "expected a CAN frame, got {}",
@@ -399,7 +399,7 @@ impl Component for DbcDecoder {
     }
 
     fn core(&mut self, ctx: &mut Context) -> ComponentResult {
-        let sample = ctx.read("frame")?;
+        let sample = ctx.read(0)?; // `frame`
         let Payload::CanFrame(frame) = &sample.payload else {
             return Err(failed(format_args!(
                 "expected a CAN frame, got {}",

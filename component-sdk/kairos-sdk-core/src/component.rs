@@ -952,10 +952,13 @@ impl Context {
                 port.name,
             )));
         }
-        let keep = port.offered % port.subsampling == 0;
-        port.offered += 1;
-        if !keep {
-            return Ok(());
+        // Most outputs keep every sample: no division on their path.
+        if port.subsampling > 1 {
+            let keep = port.offered % port.subsampling == 0;
+            port.offered += 1;
+            if !keep {
+                return Ok(());
+            }
         }
         let sample = Sample {
             payload,
