@@ -388,6 +388,33 @@ fn a_gnss_receiver_sets_the_runtime_clock_to_its_utc_whatever_the_sentence_order
 }
 
 #[test]
+fn a_clock_source_that_gives_its_time_and_ends_at_once_is_said_to_have_set_the_clock() {
+    // Replayed fast, the minute of sentences is over in milliseconds: the source has set the clock and
+    // ended before the start looks again.
+    let root = common::repo_root();
+    let output = kairos(
+        &root,
+        &[
+            "run",
+            "examples/gnss_replay.ron",
+            "--set",
+            "gnss.replay=fast",
+            "--for",
+            "1s",
+            "--clock-source",
+            "gnss",
+        ],
+    );
+    let (_, stderr) = text(&output);
+    assert!(output.status.success(), "{stderr}");
+    assert!(
+        stderr.contains("the clock follows 'gnss': set to its time"),
+        "{stderr}"
+    );
+    assert!(!stderr.contains("no time from the clock source"), "{stderr}");
+}
+
+#[test]
 fn a_clock_source_that_cannot_give_the_time_is_refused_with_the_ones_that_can() {
     let root = common::repo_root();
     let output = kairos(

@@ -967,25 +967,33 @@ impl Engine {
                 .find(|slot| slot.id == source)
                 .is_some_and(|slot| slot.monitor.state() == ComponentState::Running)
         };
-        while started.elapsed() < CLOCK_LOCK_WAIT && running() {
-            if let Some(status) = self.clock.status()
-                && status.references > 0
-            {
-                tracing::info!(
-                    "the clock follows '{source}': set to its time ({:+.3} s from the machine's) in {:.1} s",
-                    status.step_ns as f64 * 1e-9,
-                    started.elapsed().as_secs_f64()
-                );
-                return;
-            }
+        let referenced = || self.clock.status().filter(|status| status.references > 0);
+        let mut still_running = running();
+        while started.elapsed() < CLOCK_LOCK_WAIT && still_running && referenced().is_none() {
             std::thread::sleep(Duration::from_millis(10));
+            still_running = running();
         }
-        tracing::warn!(
-            "no time from the clock source '{source}' within {} s: the diagram starts on the machine's clock, \
-             which will only be slewed towards the source's time (at most 1 ms/s); start again once the \
-             source has a fix to set the clock at once",
-            CLOCK_LOCK_WAIT.as_secs()
-        );
+        // Looked at once more: a source that gives its time and ends within one look (a file replayed
+        // fast) has still set the clock.
+        if let Some(status) = referenced() {
+            tracing::info!(
+                "the clock follows '{source}': set to its time ({:+.3} s from the machine's) in {:.1} s",
+                status.step_ns as f64 * 1e-9,
+                started.elapsed().as_secs_f64()
+            );
+        } else if still_running {
+            tracing::warn!(
+                "no time from the clock source '{source}' within {} s: the diagram starts on the machine's \
+                 clock, which will only be slewed towards the source's time (at most 1 ms/s); start again \
+                 once the source has a fix to set the clock at once",
+                CLOCK_LOCK_WAIT.as_secs()
+            );
+        } else {
+            tracing::warn!(
+                "the clock source '{source}' stopped before it gave a time: the diagram runs on the machine's \
+                 clock (see the source's own messages for why it stopped)"
+            );
+        }
     }
 
     /// Warns about overflowing links at most once a second each, naming the link.
