@@ -313,6 +313,7 @@ fn signal_fault(line: &str) -> Option<(usize, String)> {
             s.spaces();
             let mark = s.at;
             if s.identifier() && !s.line[mark..s.at].starts_with(['M', 'm']) {
+                s.at = mark;
                 return false;
             }
             true
@@ -353,10 +354,11 @@ fn signal_fault(line: &str) -> Option<(usize, String)> {
         }),
     ];
     for (what, field) in fields {
-        let from = scan.at;
         if !field(&mut scan) {
-            // The column of the field's first character past the spaces before it.
-            let start = from + line[from..].len() - line[from..].trim_start().len();
+            // The column of the part of the field that is wrong (a part that fails reads nothing), past
+            // the spaces before it: the ')' missing after an offset, not the ',' before it.
+            scan.spaces();
+            let start = scan.at;
             let found: String = line[start..]
                 .chars()
                 .take_while(|c| !c.is_whitespace())
@@ -424,26 +426,34 @@ impl Scan<'_> {
 
     /// Digits, then nothing that would make the field something else.
     fn digits(&mut self) -> bool {
-        self.take(|c| c.is_ascii_digit()) && !self.rest().starts_with(|c: char| c.is_ascii_alphanumeric())
+        let start = self.at;
+        let read = self.take(|c| c.is_ascii_digit())
+            && !self.rest().starts_with(|c: char| c.is_ascii_alphanumeric());
+        self.back_unless(read, start)
     }
 
     fn number(&mut self) -> bool {
         let start = self.at;
         self.take(|c| c.is_ascii_digit() || matches!(c, '+' | '-' | '.' | 'e' | 'E'));
-        self.line[start..self.at].parse::<f64>().is_ok()
+        let read = self.line[start..self.at].parse::<f64>().is_ok();
+        self.back_unless(read, start)
     }
 
     fn quoted(&mut self) -> bool {
+        let start = self.at;
         if !self.word("\"") {
             return false;
         }
-        match self.rest().find('"') {
-            Some(end) => {
-                self.at += end + 1;
-                true
-            }
-            None => false,
+        let read = self.rest().find('"').map(|end| self.at += end + 1).is_some();
+        self.back_unless(read, start)
+    }
+
+    /// Back to `start` unless the part was `read`: a wrong part is shown from its first character.
+    fn back_unless(&mut self, read: bool, start: usize) -> bool {
+        if !read {
+            self.at = start;
         }
+        read
     }
 }
 
@@ -566,6 +576,15 @@ BO_ 2147484160 Diag: 8 ECU
         assert_eq!(
             error("(0.25,0) [0|16383.75]", "(0.25;0) [0|16383.75]"),
             "10:27: expected ',' and the offset, a number, then ')', found \";0)\""
+        );
+        // A part missing inside a field: placed where it should be.
+        assert_eq!(
+            error("(0.25,0) [0|16383.75]", "(0.25,0 [0|16383.75]"),
+            "10:30: expected ',' and the offset, a number, then ')', found \"[0|16383.75]\""
+        );
+        assert_eq!(
+            error("(0.25,0) [0|16383.75]", "(0.25,0x) [0|16383.75]"),
+            "10:29: expected ',' and the offset, a number, then ')', found \"x)\""
         );
         // Elsewhere, where the parser says.
         assert_eq!(
