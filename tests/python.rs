@@ -648,6 +648,47 @@ fn a_file_that_does_not_import_is_listed_with_its_line_and_the_rest_of_the_pack_
 }
 
 #[test]
+fn a_name_declared_twice_names_both_classes_leaves_out_that_name_only_and_test_files_are_not_loaded() {
+    require_numpy();
+    let dir = tempfile::tempdir().unwrap();
+    let twice = |class: &str| {
+        format!(
+            "from kairos_sdk import F64, Component, Descriptor\n\n\nclass {class}(Component):\n    \
+             descriptor = Descriptor(\"twice\").output(\"out\", F64)\n\n    def core(self, ctx):\n        pass\n"
+        )
+    };
+    let (alpha, beta) = (twice("Alpha"), twice("Beta"));
+    write_pack(
+        dir.path(),
+        "py_twice",
+        &[
+            ("good.py", CONSTANT),
+            ("first.py", &alpha),
+            ("second.py", &beta),
+            // pytest's files: imported, this one would be refused for its import.
+            ("test_good.py", "import pytest_only_module\n"),
+            ("conftest.py", "import pytest_only_module\n"),
+        ],
+    );
+    let (registry, scan) = registry_with(&[dir.path().to_owned()]);
+    assert!(registry.component("py_twice.constant").is_some());
+    assert!(registry.component("py_twice.twice").is_none());
+    let reasons: Vec<String> = scan
+        .refused
+        .iter()
+        .map(|r| format!("{}: {}", r.path.display(), r.reason))
+        .collect();
+    assert_eq!(reasons.len(), 2, "one per class, none for the tests: {reasons:?}");
+    for reason in &reasons {
+        assert!(
+            reason.contains("class Alpha in first.py:4; class Beta in second.py:4")
+                && reason.ends_with("(pack 'py_twice' loaded without 'py_twice.twice')"),
+            "{reason}"
+        );
+    }
+}
+
+#[test]
 fn a_missing_interpreter_or_virtual_environment_is_named() {
     let dir = tempfile::tempdir().unwrap();
     for (name, interpreter, expected) in [

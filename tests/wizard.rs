@@ -396,7 +396,16 @@ fn a_generated_python_pack_passes_its_tests_and_runs() {
         command.extend_from_slice(args);
         command.extend_from_slice(&["--pack", "py_made", "--lang", "python"]);
         let output = kairos(dir.path(), &command);
-        assert!(output.status.success(), "{args:?}: {}", text(&output).1);
+        let (stdout, stderr) = text(&output);
+        assert!(output.status.success(), "{args:?}: {stderr}");
+        // How to test it, and the environment first where the pack has none yet.
+        assert!(
+            stdout.contains(&format!(
+                "cd py_made && .venv/bin/python -m pytest test_{}.py",
+                args[0]
+            )) && stdout.contains("python3 -m venv .venv"),
+            "{stdout}"
+        );
     }
     let mismatch = kairos(
         dir.path(),
@@ -430,6 +439,39 @@ fn a_generated_python_pack_passes_its_tests_and_runs() {
     }
     // Every generated test pushes a sample of its first input's type: none passes by doing nothing.
     assert!(pytest_output.contains("11 passed"), "{pytest_output}");
+
+    // A component made once the environment is there: its own printed test line, as printed.
+    let extra = kairos(
+        dir.path(),
+        &[
+            "new",
+            "component",
+            "extra",
+            "--input",
+            "in:f64",
+            "--pack",
+            "py_made",
+            "--lang",
+            "python",
+        ],
+    );
+    let printed = text(&extra).0;
+    let steps: Vec<&str> = printed
+        .lines()
+        .filter_map(|line| line.strip_prefix("  cd "))
+        .collect();
+    assert_eq!(
+        steps,
+        [format!("py_made && .venv/bin/python -m pytest test_extra.py")],
+        "{printed}"
+    );
+    let output = Command::new("sh")
+        .args(["-c", &format!("cd {}", steps[0])])
+        .current_dir(dir.path())
+        .output()
+        .unwrap();
+    let (stdout, stderr) = text(&output);
+    assert!(stdout.contains("1 passed"), "{stdout}{stderr}");
 
     // And the pack runs in a diagram: a constant scaled by the example component, printed.
     let diagram = r#"Diagram(format: 1, components: [

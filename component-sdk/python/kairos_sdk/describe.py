@@ -33,7 +33,7 @@ def describe_file(pack, path):
         spec.loader.exec_module(module)
     except BaseException as error:  # noqa: BLE001 - any import failure is reported with its line
         message = "".join(traceback.format_exception_only(type(error), error)).strip().splitlines()[-1]
-        return [], [{"file": path, "line": _line_in(error, path), "message": message}]
+        return [], [{"file": path, "line": _line_in(error, path), "message": message, "left_out": "this file"}]
     components, errors = [], []
     for _, cls in sorted(vars(module).items()):
         if not (inspect.isclass(cls) and issubclass(cls, Component) and cls is not Component):
@@ -47,7 +47,8 @@ def describe_file(pack, path):
         if not isinstance(cls.descriptor, Descriptor):
             errors.append({"file": path, "line": line,
                            "message": f"class {cls.__name__} has no descriptor: give it "
-                                      "`descriptor = Descriptor(\"name\", ...)`"})
+                                      "`descriptor = Descriptor(\"name\", ...)`",
+                           "left_out": f"class {cls.__name__}"})
             continue
         info = cls.descriptor.to_json(pack)
         info["python"] = {"file": path, "class": cls.__name__, "line": line}
@@ -73,7 +74,8 @@ def _one_class_per_name(components, errors):
         for info in infos:
             errors.append({"file": info["python"]["file"], "line": info["python"]["line"],
                            "message": f"the component name '{name}' is declared by more than one class ({places}): "
-                                      "give each its own name in Descriptor(...)"})
+                                      "give each its own name in Descriptor(...)",
+                           "left_out": f"'{name}'"})
     return kept, errors
 
 

@@ -245,6 +245,15 @@ pub fn resolve_interpreter(folder: &Path, named: &str) -> Result<PathBuf, Interp
     Ok(path)
 }
 
+/// Whether a file of a pack's folder is one of its modules: a `.py` file other than pytest's (`test_*.py`,
+/// `*_test.py`, `conftest.py`, which the wizard writes beside the components). Tests are not imported into
+/// the runtime: they need pytest, and a test's own imports must not refuse a component.
+pub fn is_component_module(name: &std::ffi::OsStr) -> bool {
+    let name = name.to_string_lossy();
+    name.strip_suffix(".py")
+        .is_some_and(|stem| !(stem.starts_with("test_") || stem.ends_with("_test") || stem == "conftest"))
+}
+
 fn modules(folder: &Path, listed: Option<&[String]>) -> Result<Vec<PathBuf>, ModulesError> {
     let mut files = match listed {
         Some(listed) => {
@@ -262,7 +271,7 @@ fn modules(folder: &Path, listed: Option<&[String]>) -> Result<Vec<PathBuf>, Mod
             .map_err(ModulesError::Folder)?
             .filter_map(Result::ok)
             .map(|entry| entry.path())
-            .filter(|path| path.is_file() && path.extension().is_some_and(|e| e == "py"))
+            .filter(|path| path.is_file() && path.file_name().is_some_and(is_component_module))
             .collect(),
     };
     files.sort();

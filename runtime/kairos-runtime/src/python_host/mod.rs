@@ -59,6 +59,15 @@ struct FileError {
     file: PathBuf,
     line: Option<u32>,
     message: String,
+    /// What the pack is loaded without: the file, one class of it, or one component name.
+    #[serde(default = "FileError::whole_file")]
+    left_out: String,
+}
+
+impl FileError {
+    fn whole_file() -> String {
+        "this file".to_owned()
+    }
 }
 
 /// One component type of a Python pack: what its worker needs to start.
@@ -126,7 +135,10 @@ pub fn load_python_pack(
             .map_or_else(String::new, |line| format!("line {line}: "));
         refused.push(RefusedLibrary {
             path: error.file.clone(),
-            reason: format!("{line}{} (pack '{name}' loaded without this file)", error.message),
+            reason: format!(
+                "{line}{} (pack '{name}' loaded without {})",
+                error.message, error.left_out
+            ),
         });
     }
     tracing::debug!(

@@ -344,7 +344,7 @@ fn monitor(socket: &UnixStream, quit: &UnixStream, folder: &Path, watch: &Watch,
                 event
                     .name
                     .as_ref()
-                    .is_some_and(|name| name.to_string_lossy().ends_with(".py"))
+                    .is_some_and(|name| super::manifest::is_component_module(name))
             });
             if python_changed {
                 settle_until = Some(Instant::now() + RELOAD_SETTLE);

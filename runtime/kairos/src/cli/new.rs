@@ -107,6 +107,27 @@ fn print_pack_next_steps(
     }
 }
 
+/// How to test a component `kairos new component` made in `pack`.
+fn print_component_next_steps(pack: &std::path::Path, name: &str) {
+    match crate::wizard::pack_lang(pack) {
+        Some(crate::wizard::Lang::Python) => {
+            if !pack.join(".venv").is_dir() {
+                println!(
+                    "  cd {} && python3 -m venv .venv && .venv/bin/pip install '{}[test]'",
+                    pack.display(),
+                    crate::wizard::default_sdk_path().join("python").display()
+                );
+            }
+            println!(
+                "  cd {} && .venv/bin/python -m pytest test_{name}.py",
+                pack.display()
+            );
+        }
+        Some(crate::wizard::Lang::Cpp) => println!("  cd {} && make", pack.display()),
+        _ => println!("  cd {} && cargo test", pack.display()),
+    }
+}
+
 /// `kairos new`: prints what was made, or why nothing was.
 pub(super) fn new(what: NewCommand, registry: &Registry) -> ExitCode {
     let result = match what {
@@ -190,6 +211,7 @@ pub(super) fn new(what: NewCommand, registry: &Registry) -> ExitCode {
                     _ => pack.join("src").join(format!("{name}.rs")),
                 };
                 println!("made the component '{name}' in {}", file.display());
+                print_component_next_steps(&pack, &name);
             })
         }
     };
