@@ -503,7 +503,8 @@ pub fn component_context(
     let buffers: Vec<OutputBuffer> = info
         .outputs
         .iter()
-        .map(|o| OutputBuffer::new(format!("bench.{}", o.name), 4))
+        // As the engine sizes them when no connection asks for more.
+        .map(|o| OutputBuffer::new(format!("bench.{}", o.name), o.default_buffer_size))
         .collect();
     let outputs = info
         .outputs
