@@ -462,7 +462,7 @@ fn a_generated_python_pack_passes_its_tests_and_runs() {
         .collect();
     assert_eq!(
         steps,
-        [format!("py_made && .venv/bin/python -m pytest test_extra.py")],
+        ["py_made && .venv/bin/python -m pytest test_extra.py"],
         "{printed}"
     );
     let output = Command::new("sh")
