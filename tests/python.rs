@@ -689,6 +689,40 @@ fn a_name_declared_twice_names_both_classes_leaves_out_that_name_only_and_test_f
 }
 
 #[test]
+fn a_diagram_needing_a_refused_pack_is_told_why_it_was_refused_not_given_another_pack_s_name() {
+    let dir = tempfile::tempdir().unwrap();
+    let folder = write_pack(dir.path(), "vision_extra", &[("good.py", CONSTANT)]);
+    std::fs::write(
+        folder.join("kairos-pack.toml"),
+        "[pack]\nname = \"vision_extra\"\nversion = \"0.1.0\"\n\n[python]\ninterpreter = \"python3.99\"\n",
+    )
+    .unwrap();
+    std::fs::write(
+        dir.path().join("d.ron"),
+        r#"Diagram(format: 1,
+            packs: [Pack(name: "core", version: "^0.1"), Pack(name: "vision_extra", version: "^0.1")],
+            components: [Component(id: "c", type: "vision_extra.constant")])"#,
+    )
+    .unwrap();
+    for command in ["run", "validate"] {
+        let output = kairos(dir.path(), &[command, "d.ron", "--pack-path", "."]);
+        let (_, stderr) = text(&output);
+        assert!(!output.status.success(), "{stderr}");
+        assert!(
+            stderr.contains("pack 'vision_extra' is not in the component library")
+                && stderr.contains("help: it is on the pack path but was refused: pack 'vision_extra' (")
+                && stderr.contains("the Python interpreter 'python3.99' is not on the PATH"),
+            "{command}: {stderr}"
+        );
+        assert!(!stderr.contains("did you mean"), "{command}: {stderr}");
+        assert!(
+            stderr.contains("note: packs were looked for"),
+            "{command}: {stderr}"
+        );
+    }
+}
+
+#[test]
 fn a_missing_interpreter_or_virtual_environment_is_named() {
     let dir = tempfile::tempdir().unwrap();
     for (name, interpreter, expected) in [

@@ -88,6 +88,36 @@ pub fn list(registry: &Registry, scan: &PackScan, json: bool) -> anyhow::Result<
     Ok(())
 }
 
+/// Gives a missing pack that lies on the pack path but was refused the reason, in place of a guess at
+/// another pack's name: `pack 'py_vision' is not in the component library` is then followed by why.
+pub fn say_refused(diagnostics: &mut [Diagnostic], refused: &[kairos_runtime::RefusedLibrary]) {
+    for diagnostic in diagnostics
+        .iter_mut()
+        .filter(|d| matches!(d.code, DiagnosticCode::MissingPack))
+    {
+        let Some(name) = diagnostic
+            .message
+            .strip_prefix("pack '")
+            .and_then(|rest| rest.split('\'').next())
+        else {
+            continue;
+        };
+        let named = format!("pack '{name}'");
+        if let Some(library) = refused
+            .iter()
+            .find(|r| r.reason.contains(&named) || r.path.file_name().is_some_and(|f| f == name))
+        {
+            let path = library.path.display().to_string();
+            let place = if library.reason.contains(&path) {
+                "on the pack path".to_owned()
+            } else {
+                format!("at {path}")
+            };
+            diagnostic.suggestion = Some(format!("it is {place} but was refused: {}", library.reason));
+        }
+    }
+}
+
 /// After diagnostics about missing or mismatched packs, says where packs were looked for.
 pub fn explain_missing(diagnostics: &[Diagnostic], searched: &[PathBuf]) {
     let about_packs = diagnostics.iter().any(|d| {

@@ -24,6 +24,8 @@ pub struct RunOptions {
     pub clock_source: Option<String>,
     /// The pack path searched, for messages about missing packs.
     pub searched: Vec<std::path::PathBuf>,
+    /// What on it was refused, for the same.
+    pub refused: Vec<kairos_runtime::RefusedLibrary>,
     /// `kairos deploy`: the components with a `host` go to that host's `kairos serve`, the rest runs here.
     pub deploy: Option<DeployOptions>,
     /// Publish outputs live to Foxglove.
@@ -103,10 +105,12 @@ fn load_checked(
     let mut diagnostics = registry.validate(&parsed.diagram, Some(&parsed.source_map));
     flattened.origins.annotate(&mut diagnostics);
     if !diagnostics.is_empty() {
+        crate::packs::say_refused(&mut diagnostics, &options.refused);
         eprint!(
             "{}",
             kairos_diagram::render_all(&diagnostics, &path.display().to_string(), &source)
         );
+        crate::packs::explain_missing(&diagnostics, &options.searched);
     }
     Ok((!diagnostics.iter().any(kairos_diagram::Diagnostic::is_error)).then_some(parsed))
 }

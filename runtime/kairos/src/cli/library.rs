@@ -20,8 +20,8 @@ pub struct ValidateArgs {
 
 impl ValidateArgs {
     /// Exit 0 when every diagram is valid.
-    pub(super) fn execute(&self, registry: &Registry, searched: &[PathBuf]) -> ExitCode {
-        validate(registry, &self.diagrams, searched)
+    pub(super) fn execute(&self, registry: &Registry, scan: &PackScan) -> ExitCode {
+        validate(registry, &self.diagrams, scan)
     }
 }
 
@@ -83,7 +83,7 @@ impl DevicesArgs {
     }
 }
 
-fn validate(registry: &Registry, paths: &[PathBuf], searched: &[PathBuf]) -> ExitCode {
+fn validate(registry: &Registry, paths: &[PathBuf], scan: &PackScan) -> ExitCode {
     let mut all_valid = true;
     for path in paths {
         match kairos_diagram::load_flattened(path, registry.subgraphs()) {
@@ -95,12 +95,13 @@ fn validate(registry: &Registry, paths: &[PathBuf], searched: &[PathBuf]) -> Exi
                 let parsed = flattened.parsed;
                 let mut diagnostics = registry.validate(&parsed.diagram, Some(&parsed.source_map));
                 flattened.origins.annotate(&mut diagnostics);
+                crate::packs::say_refused(&mut diagnostics, &scan.refused);
                 let name = path.display().to_string();
                 if diagnostics.is_empty() {
                     println!("{name}: valid");
                 } else {
                     eprint!("{}", kairos_diagram::render_all(&diagnostics, &name, &source));
-                    crate::packs::explain_missing(&diagnostics, searched);
+                    crate::packs::explain_missing(&diagnostics, &scan.searched);
                     if diagnostics.iter().any(kairos_diagram::Diagnostic::is_error) {
                         all_valid = false;
                     } else {

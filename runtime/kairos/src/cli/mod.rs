@@ -154,12 +154,11 @@ pub fn execute(cli: Cli) -> anyhow::Result<ExitCode> {
     if !matches!(cli.command, Command::Packs(_)) {
         warn_about_packs(&registry, &scan);
     }
-    let searched = &scan.searched;
     match cli.command {
-        Command::Run(args) => run::run(&registry, args, searched),
-        Command::Deploy(args) => run::deploy(&registry, args, searched),
+        Command::Run(args) => run::run(&registry, args, &scan),
+        Command::Deploy(args) => run::deploy(&registry, args, &scan),
         Command::Serve(args) => args.execute(registry),
-        Command::Validate(args) => Ok(args.execute(&registry, searched)),
+        Command::Validate(args) => Ok(args.execute(&registry, &scan)),
         Command::Inspect(args) => args.execute(),
         Command::Recover(args) => args.execute(),
         Command::Merge(args) => args.execute(),

@@ -4,6 +4,7 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Duration;
 
+use kairos_runtime::PackScan;
 use kairos_sdk_core::Registry;
 
 use crate::duration::parse_duration;
@@ -97,29 +98,25 @@ pub struct DeployArgs {
 }
 
 /// `kairos run`.
-pub(super) fn run(registry: &Registry, args: RunArgs, searched: &[PathBuf]) -> anyhow::Result<ExitCode> {
-    run_with(registry, args, None, searched)
+pub(super) fn run(registry: &Registry, args: RunArgs, scan: &PackScan) -> anyhow::Result<ExitCode> {
+    run_with(registry, args, None, scan)
 }
 
 /// `kairos deploy`.
-pub(super) fn deploy(
-    registry: &Registry,
-    args: DeployArgs,
-    searched: &[PathBuf],
-) -> anyhow::Result<ExitCode> {
+pub(super) fn deploy(registry: &Registry, args: DeployArgs, scan: &PackScan) -> anyhow::Result<ExitCode> {
     let deploy = crate::run::DeployOptions {
         clear_text_tokens: args.allow_clear_text_tokens,
         lock_bound: args.lock_bound,
         start_unlocked: args.start_unlocked,
     };
-    run_with(registry, args.run, Some(deploy), searched)
+    run_with(registry, args.run, Some(deploy), scan)
 }
 
 fn run_with(
     registry: &Registry,
     args: RunArgs,
     deploy: Option<crate::run::DeployOptions>,
-    searched: &[PathBuf],
+    scan: &PackScan,
 ) -> anyhow::Result<ExitCode> {
     crate::run::run(
         registry,
@@ -129,7 +126,8 @@ fn run_with(
             stats: args.stats.then_some(args.stats_interval),
             overrides: args.overrides,
             clock_source: args.clock_source,
-            searched: searched.to_vec(),
+            searched: scan.searched.clone(),
+            refused: scan.refused.clone(),
             deploy,
             foxglove: args.foxglove.options(),
         },
