@@ -437,14 +437,16 @@ impl CanFrame {
 
 impl fmt::Debug for CanFrame {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        write!(
-            f,
-            "CanFrame(id {:#x}{}{}, {:02x?})",
-            self.id,
-            if self.extended { " ext" } else { "" },
-            if self.remote { " remote" } else { "" },
-            self.data()
-        )
+        let extended = if self.extended { " ext" } else { "" };
+        if self.remote {
+            // No data: what it asks for is the length.
+            return write!(
+                f,
+                "CanFrame(id {:#x}{extended} remote, asks {} bytes)",
+                self.id, self.len
+            );
+        }
+        write!(f, "CanFrame(id {:#x}{extended}, {:02x?})", self.id, self.data())
     }
 }
 
@@ -464,4 +466,20 @@ pub struct CustomPayload {
     pub type_name: Arc<str>,
     /// The encoded data.
     pub data: Arc<[u8]>,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::CanFrame;
+
+    #[test]
+    fn a_can_frame_shows_its_data_or_the_length_a_remote_request_asks_for() {
+        let data = CanFrame::new(0x123, false, &[1, 0xab]).unwrap();
+        assert_eq!(format!("{data:?}"), "CanFrame(id 0x123, [01, ab])");
+        let remote = CanFrame::remote_request(0x1234_5678, true, 4).unwrap();
+        assert_eq!(
+            format!("{remote:?}"),
+            "CanFrame(id 0x12345678 ext remote, asks 4 bytes)"
+        );
+    }
 }
