@@ -26,7 +26,7 @@ use super::SENDER;
 
 /// How long a silent link lives before Zenoh declares it dead: short, so that a cut cable or a killed
 /// host is said within a second (0.5–0.7 s to notice, the last keep-alive having gone up to a quarter of
-/// a lease before the cut, then up to the coordinator's 250 ms look at the statuses). Keep-alives go four
+/// a lease before the cut, then up to the coordinator's 200 ms look at the statuses). Keep-alives go four
 /// times per lease, every 175 ms: only a process starved of CPU for 0.7 s misses four in a row.
 const LEASE_MS: u64 = 700;
 

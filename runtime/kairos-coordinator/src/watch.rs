@@ -13,9 +13,10 @@ use crate::plan::Plan;
 use crate::ship::ship_packs;
 use crate::start::STOP_LEAD;
 
-/// How often the deploying machine asks each host whether it is still there, and how long an answer may
-/// take: a killed host or a cut link is reported within a second.
-const HEALTH_PERIOD: Duration = Duration::from_millis(250);
+/// How often the deploying machine asks each host whether it is still there: a killed host or a cut link
+/// is reported within a second (Zenoh's 0.7 s lease, then at most this until the next look, with room
+/// for the answers on a loaded machine).
+const HEALTH_PERIOD: Duration = Duration::from_millis(200);
 /// How often a lost host is tried again, and how long reaching it may take then.
 const RETRY_PERIOD: Duration = Duration::from_secs(1);
 
@@ -311,6 +312,12 @@ impl Watch {
             .filter(|l| l.from.ends_with(&words) || l.to.ends_with(&words))
             .map(|l| format!("{} -> {}", l.from, l.to))
             .collect()
+    }
+
+    /// How long until [`Watch::check`] next looks: callers wake then, rather than on a tick of their own
+    /// that would add to the time a fault takes to be said.
+    pub fn next_look_in(&self) -> Duration {
+        HEALTH_PERIOD.saturating_sub(self.last_check.elapsed())
     }
 
     /// Asks each host whether it is there (at most every [`HEALTH_PERIOD`]) and tries lost ones again.

@@ -14,8 +14,8 @@ use kairos_sdk_core::Registry;
 
 use kairos_coordinator::{self as deploy, Watch};
 
-/// How often the hosts are asked for their status (and whether they are there).
-const REFRESH_PERIOD: Duration = Duration::from_millis(250);
+/// The shortest sleep between two looks at the hosts (the watch says when the next look is due).
+const REFRESH_LEAST: Duration = Duration::from_millis(5);
 
 /// The clock bound a start checks, as `kairos deploy`'s default `--lock-bound`.
 pub const LOCK_BOUND: Duration = Duration::from_millis(1);
@@ -236,11 +236,14 @@ impl Spread {
     }
 }
 
-/// Asks the hosts for their status every [`REFRESH_PERIOD`] until the spread ends; a host that stops
-/// answering is reported, and its part deployed again when it answers.
+/// Asks the hosts for their status whenever the watch's next look is due, until the spread ends; a host
+/// that stops answering is reported, and its part deployed again when it answers.
 fn refresh(spread: &Weak<Spread>) {
     loop {
-        std::thread::sleep(REFRESH_PERIOD);
+        let Some(wait) = spread.upgrade().map(|spread| spread.watch().next_look_in()) else {
+            return;
+        };
+        std::thread::sleep(wait.max(REFRESH_LEAST));
         let Some(spread) = spread.upgrade() else { return };
         if spread.ended.load(Ordering::Acquire) {
             return;

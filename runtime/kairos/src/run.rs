@@ -188,7 +188,12 @@ pub fn run(registry: &Registry, path: &Path, options: &RunOptions) -> anyhow::Re
     let mut last_print = Instant::now();
     let first = last_stats.clone();
     loop {
-        let tick = Duration::from_millis(50);
+        // At the watch's next look when sooner: a cut is said within a second.
+        let tick = watch.as_ref().map_or(Duration::from_millis(50), |watch| {
+            watch
+                .next_look_in()
+                .clamp(Duration::from_millis(1), Duration::from_millis(50))
+        });
         let stop_requested = !matches!(stop_rx.recv_timeout(tick), Err(mpsc::RecvTimeoutError::Timeout));
         if stop_requested {
             tracing::info!("stopping (Ctrl-C)");
