@@ -150,7 +150,25 @@ pub struct Diagnostic {
     pub notes: Vec<Note>,
 }
 
+/// What a [`DiagnosticCode::MissingPack`] says after the pack's name.
+const NOT_IN_LIBRARY: &str = "' is not in the component library";
+
 impl Diagnostic {
+    /// That the diagram needs pack `name`, which the component library lacks.
+    pub fn missing_pack(name: &str) -> Self {
+        Diagnostic::error(
+            DiagnosticCode::MissingPack,
+            format!("pack '{name}{NOT_IN_LIBRARY}"),
+        )
+    }
+
+    /// The pack a [`Diagnostic::missing_pack`] is about, for whoever knows more of it (it was refused).
+    pub fn missing_pack_name(&self) -> Option<&str> {
+        matches!(self.code, DiagnosticCode::MissingPack)
+            .then(|| self.message.strip_prefix("pack '")?.strip_suffix(NOT_IN_LIBRARY))
+            .flatten()
+    }
+
     /// An error with no location yet.
     pub fn error(code: DiagnosticCode, message: impl Into<String>) -> Self {
         Diagnostic {

@@ -338,12 +338,9 @@ impl<'a> Validator<'a> {
             let Some(pack) = self.library.packs.get(&requirement.name) else {
                 let suggestion =
                     did_you_mean(&requirement.name, self.library.packs.keys().map(String::as_str));
-                let diagnostic = Diagnostic::error(
-                    DiagnosticCode::MissingPack,
-                    format!("pack '{}' is not in the component library", requirement.name),
-                )
-                .at(at.map(|l| l.name))
-                .with_suggestion(suggestion);
+                let diagnostic = Diagnostic::missing_pack(&requirement.name)
+                    .at(at.map(|l| l.name))
+                    .with_suggestion(suggestion);
                 self.found.push(diagnostic);
                 continue;
             };

@@ -91,21 +91,14 @@ pub fn list(registry: &Registry, scan: &PackScan, json: bool) -> anyhow::Result<
 /// Gives a missing pack that lies on the pack path but was refused the reason, in place of a guess at
 /// another pack's name: `pack 'py_vision' is not in the component library` is then followed by why.
 pub fn say_refused(diagnostics: &mut [Diagnostic], refused: &[kairos_runtime::RefusedLibrary]) {
-    for diagnostic in diagnostics
-        .iter_mut()
-        .filter(|d| matches!(d.code, DiagnosticCode::MissingPack))
-    {
-        let Some(name) = diagnostic
-            .message
-            .strip_prefix("pack '")
-            .and_then(|rest| rest.split('\'').next())
-        else {
+    for diagnostic in diagnostics.iter_mut() {
+        let Some(name) = diagnostic.missing_pack_name().map(str::to_owned) else {
             continue;
         };
         let named = format!("pack '{name}'");
         if let Some(library) = refused
             .iter()
-            .find(|r| r.reason.contains(&named) || r.path.file_name().is_some_and(|f| f == name))
+            .find(|r| r.reason.contains(&named) || r.path.file_name().is_some_and(|f| *f == *name))
         {
             let path = library.path.display().to_string();
             let place = if library.reason.contains(&path) {

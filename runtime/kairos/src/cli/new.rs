@@ -62,6 +62,17 @@ pub enum NewCommand {
     },
 }
 
+/// How to make a Python pack's environment. Its tests need numpy, pytest and the SDK's harness, which a
+/// system Python seldom has: a virtual environment in the pack's `.venv`, which the runtime then uses to
+/// run the pack too.
+fn print_venv_step(folder: &std::path::Path, sdk: &std::path::Path) {
+    println!(
+        "  cd {} && python3 -m venv .venv && .venv/bin/pip install '{}[test]'",
+        folder.display(),
+        sdk.join("python").display()
+    );
+}
+
 /// What to do with a pack `kairos new pack` made.
 fn print_pack_next_steps(
     lang: crate::wizard::Lang,
@@ -71,13 +82,7 @@ fn print_pack_next_steps(
     sdk: &std::path::Path,
 ) {
     if lang == crate::wizard::Lang::Python {
-        // The tests need numpy, pytest and the SDK's harness, which a system Python seldom has: a
-        // virtual environment in the pack's `.venv`, which the runtime then uses to run the pack too.
-        println!(
-            "  cd {} && python3 -m venv .venv && .venv/bin/pip install '{}[test]'",
-            folder.display(),
-            sdk.join("python").display()
-        );
+        print_venv_step(folder, sdk);
         println!("  cd {} && .venv/bin/python -m pytest", folder.display());
         println!(
             "  kairos --pack-path {} components {name}.     (the pack's .venv runs its components)",
@@ -112,11 +117,7 @@ fn print_component_next_steps(pack: &std::path::Path, name: &str) {
     match crate::wizard::pack_lang(pack) {
         Some(crate::wizard::Lang::Python) => {
             if !pack.join(".venv").is_dir() {
-                println!(
-                    "  cd {} && python3 -m venv .venv && .venv/bin/pip install '{}[test]'",
-                    pack.display(),
-                    crate::wizard::default_sdk_path().join("python").display()
-                );
+                print_venv_step(pack, &crate::wizard::default_sdk_path());
             }
             println!(
                 "  cd {} && .venv/bin/python -m pytest test_{name}.py",
